@@ -1,0 +1,96 @@
+"""Input checks at the public boundary: every message names the argument, what was given and
+what was expected (DESIGN.md, rule 3)."""
+
+from __future__ import annotations
+
+import numbers
+
+import numpy as np
+
+
+def as_float_array(name: str, value, *, ndim_min: int | None = None, ndim: int | None = None,
+                   shape_tail: tuple | None = None) -> np.ndarray:
+    """Convert ``value`` to a float64 array and check its dimensions.
+
+    ``shape_tail`` fixes the trailing axes (``None`` entries are free).
+    """
+    try:
+        arr = np.asarray(value, dtype=float)
+    except (TypeError, ValueError) as exc:
+        raise TypeError(f"{name}: expected an array of real numbers, got {type(value).__name__}") from exc
+    if ndim is not None and arr.ndim != ndim:
+        raise ValueError(f"{name}: expected an array with {ndim} dimension(s), got shape {arr.shape}")
+    if ndim_min is not None and arr.ndim < ndim_min:
+        raise ValueError(f"{name}: expected at least {ndim_min} dimension(s), got shape {arr.shape}")
+    if shape_tail is not None:
+        tail = arr.shape[arr.ndim - len(shape_tail):] if arr.ndim >= len(shape_tail) else None
+        if tail is None or any(t is not None and t != a for t, a in zip(shape_tail, tail)):
+            want = "(..., " + ", ".join("*" if t is None else str(t) for t in shape_tail) + ")"
+            raise ValueError(f"{name}: expected trailing shape {want}, got shape {arr.shape}")
+    return arr
+
+
+def finite(name: str, arr: np.ndarray, *, allow_nan: bool = False) -> np.ndarray:
+    bad = ~np.isfinite(arr)
+    if allow_nan:
+        bad &= ~np.isnan(arr)
+    if np.any(bad):
+        raise ValueError(f"{name}: expected finite values, got {int(bad.sum())} non-finite entr(y/ies)")
+    return arr
+
+
+def covariance(name: str, value, n: int | None = None, *, batch: bool = False,
+               tol: float = 1e-10) -> np.ndarray:
+    """Check a covariance matrix (or a batch of them when ``batch``): square, symmetric, PSD.
+
+    A scalar is accepted for ``n == 1`` (or ``n`` unknown) and becomes a 1x1 matrix.
+    """
+    arr = as_float_array(name, value)
+    if arr.ndim == 0:
+        arr = arr.reshape(1, 1)
+    if arr.ndim < 2 or (not batch and arr.ndim != 2):
+        raise ValueError(f"{name}: expected a square matrix{' batch' if batch else ''}, got shape {arr.shape}")
+    if arr.shape[-1] != arr.shape[-2]:
+        raise ValueError(f"{name}: expected a square matrix, got shape {arr.shape}")
+    if n is not None and arr.shape[-1] != n:
+        raise ValueError(f"{name}: expected shape ({n}, {n}), got {arr.shape}")
+    finite(name, arr)
+    scale = max(1.0, float(np.max(np.abs(arr)))) if arr.size else 1.0
+    asym = np.max(np.abs(arr - np.swapaxes(arr, -1, -2))) if arr.size else 0.0
+    if asym > tol * scale:
+        raise ValueError(f"{name}: expected a symmetric matrix, got asymmetry {asym:.3g}")
+    if arr.size:
+        w = np.linalg.eigvalsh(0.5 * (arr + np.swapaxes(arr, -1, -2)))
+        if np.min(w) < -tol * scale:
+            raise ValueError(f"{name}: expected a positive semi-definite matrix, "
+                             f"got smallest eigenvalue {np.min(w):.3g}")
+    return arr
+
+
+def positive(name: str, value, *, strict: bool = True, integer: bool = False):
+    """A positive (or non-negative) scalar."""
+    if integer:
+        if isinstance(value, bool) or not isinstance(value, numbers.Integral):
+            raise TypeError(f"{name}: expected an integer, got {value!r}")
+    elif isinstance(value, bool) or not isinstance(value, numbers.Real):
+        raise TypeError(f"{name}: expected a real number, got {value!r}")
+    if not np.isfinite(value) or (value <= 0 if strict else value < 0):
+        raise ValueError(f"{name}: expected a {'positive' if strict else 'non-negative'} "
+                         f"{'integer' if integer else 'number'}, got {value!r}")
+    return value
+
+
+def choice(name: str, value, options):
+    if value not in options:
+        raise ValueError(f"{name}: expected one of {sorted(options)!r}, got {value!r}")
+    return value
+
+
+def rng(value) -> np.random.Generator:
+    """A ``numpy.random.Generator`` from a Generator, a seed, or a SeedSequence."""
+    if isinstance(value, np.random.Generator):
+        return value
+    if value is None or isinstance(value, (numbers.Integral, np.random.SeedSequence)):
+        return np.random.default_rng(value)
+    raise TypeError(f"rng: expected a numpy.random.Generator, an integer seed or a SeedSequence, "
+                    f"got {type(value).__name__}")

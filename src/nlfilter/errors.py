@@ -1,0 +1,59 @@
+"""Exceptions specific to nlfilter.
+
+Input errors are plain ``ValueError``/``TypeError`` whose message names the argument; the
+classes here describe failures *during* a computation (a covariance that lost positive
+definiteness, a moment closure that blew up), and carry where it happened.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+
+class NLFilterError(Exception):
+    """Base class of nlfilter's run-time failures."""
+
+
+class DivergenceError(NLFilterError, FloatingPointError):
+    """A filter's mean or covariance became non-finite or lost positive definiteness.
+
+    Attributes
+    ----------
+    step : int
+        Time index (0-based) at which it happened.
+    paths : tuple of int
+        Flat indices of the affected Monte Carlo paths (batch axes raveled).
+    what : str
+        Which quantity failed (``"covariance"``, ``"mean"`` ...).
+    """
+
+    def __init__(self, message: str, *, step: int | None = None, paths=(), what: str = ""):
+        super().__init__(message)
+        self.step = step
+        self.paths = tuple(int(p) for p in paths)
+        self.what = what
+
+
+class ClosureDivergedError(NLFilterError, FloatingPointError):
+    """A moment system (closure) blew up or produced a negative variance.
+
+    Attributes
+    ----------
+    time : float
+        Time at which it was detected.
+    moment : tuple
+        Multi-index of the offending moment.
+    """
+
+    def __init__(self, message: str, *, time: float | None = None, moment=None):
+        super().__init__(message)
+        self.time = time
+        self.moment = moment
+
+
+class NotPolynomialError(NLFilterError, ValueError):
+    """A model term is not polynomial in the state but an exact polynomial method was asked for."""
+
+
+class SingularSystemError(NLFilterError, np.linalg.LinAlgError):
+    """A steady-state or moment system has no unique solution."""

@@ -1,0 +1,99 @@
+"""Experiments: one module per reproduced table or figure, registered under an id.
+
+An experiment is a function ``run(params: dict, *, quick: bool, runs: int | None, seed: int,
+progress: bool) -> Result``. Each module in this package registers its experiments with the
+``@experiment`` decorator; :func:`registry` imports every module of the package once, so a new
+module needs no edit anywhere else.
+
+Declared parameters (``params``) are the only names ``--param`` accepts; their defaults fix the
+types, and values given on the command line are converted to those types.
+"""
+
+from __future__ import annotations
+
+import importlib
+import pkgutil
+from dataclasses import dataclass
+from typing import Callable
+
+from ..results import Result
+
+
+@dataclass(frozen=True)
+class Experiment:
+    id: str
+    title: str
+    source: str
+    params: dict  # name -> default value (its type is the parameter's type)
+    func: Callable[..., Result]
+
+    def run(self, params: dict | None = None, *, quick: bool = False, runs: int | None = None,
+            seed: int = 0, progress: bool = False) -> Result:
+        """Run with defaults overridden by ``params`` (already typed, or strings to convert)."""
+        full = dict(self.params)
+        for name, value in (params or {}).items():
+            full[name] = self.convert(name, value)
+        if runs is not None and (isinstance(runs, bool) or not isinstance(runs, int) or runs < 1):
+            raise ValueError(f"runs: expected a positive integer, got {runs!r}")
+        return self.func(full, quick=quick, runs=runs, seed=seed, progress=progress)
+
+    def convert(self, name: str, value):
+        if name not in self.params:
+            raise ValueError(f"param {name!r}: unknown for experiment {self.id!r}; "
+                             f"expected one of {sorted(self.params)}")
+        default = self.params[name]
+        if not isinstance(value, str):
+            return value
+        try:
+            if isinstance(default, bool):
+                if value.lower() in ("1", "true", "yes", "on"):
+                    return True
+                if value.lower() in ("0", "false", "no", "off"):
+                    return False
+                raise ValueError
+            if isinstance(default, int):
+                return int(value)
+            if isinstance(default, float):
+                return float(value)
+            if isinstance(default, (list, tuple)):
+                kind = type(default[0]) if default else float
+                return [kind(v) for v in value.split(",") if v != ""]
+            if default is None:
+                return float(value)
+        except ValueError:
+            raise ValueError(f"param {name}={value!r}: expected a value of type "
+                             f"{type(default).__name__} (default {default!r})") from None
+        return value
+
+
+_REGISTRY: dict[str, Experiment] = {}
+_LOADED = False
+
+
+def experiment(id: str, *, title: str, source: str, params: dict | None = None):
+    """Register ``func`` as experiment ``id``."""
+
+    def deco(func):
+        if id in _REGISTRY:
+            raise ValueError(f"experiment id {id!r} registered twice")
+        _REGISTRY[id] = Experiment(id, title, source, dict(params or {}), func)
+        return func
+
+    return deco
+
+
+def registry() -> dict[str, Experiment]:
+    """All experiments, by id (imports every module of this package on first call)."""
+    global _LOADED
+    if not _LOADED:
+        for mod in pkgutil.iter_modules(__path__):
+            importlib.import_module(f"{__name__}.{mod.name}")
+        _LOADED = True
+    return dict(sorted(_REGISTRY.items()))
+
+
+def get(id: str) -> Experiment:
+    reg = registry()
+    if id not in reg:
+        raise ValueError(f"experiment {id!r}: unknown; expected one of {sorted(reg)}")
+    return reg[id]
