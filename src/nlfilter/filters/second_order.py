@@ -228,16 +228,17 @@ def _run_discrete(self, ys, m0, P0, on_divergence, t_of):
     T = ys.shape[-2]
     out = _Runner(batch, T, model.n, on_divergence, self.name)
     offset = 0 if self.start == "update" else 1
-    for k in range(T):
-        if k > 0 or offset:
-            state = self._predict(state, k + offset - 1)
-            state = _poison(state, bad_paths(state.mean, state.cov))
+    with np.errstate(over="ignore", invalid="ignore"):  # overflow on a failing path: caught by record
+        for k in range(T):
+            if k > 0 or offset:
+                state = self._predict(state, k + offset - 1)
+                state = _poison(state, bad_paths(state.mean, state.cov))
+                state = out.record(k, state, init)
+            y = ys[..., k, :]
+            if not np.all(np.isnan(y)):
+                state, bad = self._update(state, y, t_of(k + offset))
+                state = _poison(state, bad)
             state = out.record(k, state, init)
-        y = ys[..., k, :]
-        if not np.all(np.isnan(y)):
-            state, bad = self._update(state, y, t_of(k + offset))
-            state = _poison(state, bad)
-        state = out.record(k, state, init)
     return out.result()
 
 
@@ -434,9 +435,10 @@ class ContinuousSecondOrderFilter(_Family, ContinuousFilter):
         init = GaussianState(state.mean.copy(), state.cov.copy())
         T = dys.shape[-2]
         out = _Runner(batch, T, model.n, on_divergence, self.name)
-        for k in range(T):
-            state = self._step(state, dys[..., k, :], t0 + k * self.dt)
-            state = out.record(k, state, init)
+        with np.errstate(over="ignore", invalid="ignore"):  # a failing path is caught by record
+            for k in range(T):
+                state = self._step(state, dys[..., k, :], t0 + k * self.dt)
+                state = out.record(k, state, init)
         return out.result()
 
 
