@@ -8,7 +8,8 @@ import pytest
 from nlfilter import cli, problems as pb
 from nlfilter.experiments import get
 
-FILTERS = ("ekf", "ukf", "truncated", "truncated-jazwinski", "gaussian", "modified", "optimal")
+FILTERS = ("ekf", "ukf", "truncated", "truncated-jazwinski", "gaussian", "modified", "modified-gaussian",
+           "optimal")
 
 
 @pytest.fixture(scope="module")
