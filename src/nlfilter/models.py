@@ -234,6 +234,12 @@ class Model:
             raise ValueError(f"model: {by} needs {', '.join(missing)}, which the model does not give; "
                              "state the model in SymPy or pass these callables to from_functions")
 
+    def Gw(self, x, w, t=0.0) -> np.ndarray:
+        """``G(x) w`` for a batch of states ``(..., n)`` and noises ``(..., r)`` (matmul when G is constant)."""
+        if self.G_constant:
+            return w @ self.G(np.zeros(self.n), t).T
+        return np.einsum("...ia,...a->...i", self.G(x, t), w)
+
     def GQGT(self, x, t=0.0) -> np.ndarray:
         """G Q Gᵀ at a batch of states, shape (..., n, n)."""
         Gx = self.G(x, t)
