@@ -1,0 +1,256 @@
+"""The filter protocol, its state containers and the shared numerical steps.
+
+Every filter offers ``run(ys, m0, P0) -> Estimates`` over a whole batch of measurement sequences,
+and the step functions ``predict``/``update`` (discrete time) or ``step`` (continuous time, one
+measurement increment). A filter object holds only configuration and the model's numeric
+functions; the evolving state is a :class:`GaussianState` passed in and returned.
+
+Step convention (discrete time)
+-------------------------------
+``start="update"`` (default, as dynamax): ``ys[..., 0, :]`` measures the state whose prior is
+``(m0, P0)``; the filter updates first, then predicts. ``start="predict"`` (as filterpy):
+``(m0, P0)`` is the prior one step *before* the state that ``ys[..., 0, :]`` measures; the filter
+predicts first. ``simulate(..., start=...)`` takes the same option. In both conventions
+``Estimates.means[..., k, :]`` is the filtered mean of the state measured by ``ys[..., k, :]``.
+
+Missing data: a NaN component of ``y`` is missing; a fully missing ``y`` only predicts, a partly
+missing one updates with the observed components only (exactly: the missing rows of the
+innovation, gain and cross-covariance are zero).
+
+Divergence: after each step the mean and covariance are checked (finite; covariance symmetric
+with eigenvalues ≥ −tol·scale). ``on_divergence="raise"`` raises :class:`DivergenceError`
+naming the step and paths; ``"mark"`` records the paths in ``Estimates.diverged`` /
+``diverged_step``, fills their later estimates with NaN (flagged, never silent) and goes on with
+the others.
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import numpy as np
+
+from .. import _validate as V
+from ..errors import DivergenceError
+
+PSD_TOL = 1e-9
+
+
+class GaussianState(NamedTuple):
+    """Mean ``(..., n)`` and covariance ``(..., n, n)`` of a batch of Gaussian beliefs."""
+
+    mean: np.ndarray
+    cov: np.ndarray
+
+
+class Estimates(NamedTuple):
+    """Filter output over a batch: ``means (..., T, n)``, ``covs (..., T, n, n)``,
+    ``diverged (...,)`` bool, ``diverged_step (...,)`` int (−1 where not diverged)."""
+
+    means: np.ndarray
+    covs: np.ndarray
+    diverged: np.ndarray
+    diverged_step: np.ndarray
+
+    @property
+    def divergence_rate(self) -> float:
+        return float(np.mean(self.diverged)) if self.diverged.size else 0.0
+
+
+def symmetrize(P: np.ndarray) -> np.ndarray:
+    return 0.5 * (P + np.swapaxes(P, -1, -2))
+
+
+def bad_paths(mean: np.ndarray, cov: np.ndarray, tol: float = PSD_TOL) -> np.ndarray:
+    """Boolean ``(...)``: paths whose mean/cov is non-finite or whose cov is not PSD."""
+    ok = np.all(np.isfinite(mean), axis=-1) & np.all(np.isfinite(cov), axis=(-1, -2))
+    n = cov.shape[-1]
+    safe = np.where(ok[..., None, None], cov, np.eye(n))
+    if n == 1:
+        low = safe[..., 0, 0]
+    elif n == 2:  # closed-form smallest eigenvalue of a symmetric 2x2
+        a, b, c = safe[..., 0, 0], 0.5 * (safe[..., 0, 1] + safe[..., 1, 0]), safe[..., 1, 1]
+        low = 0.5 * (a + c) - np.sqrt(0.25 * (a - c) ** 2 + b * b)
+    else:
+        low = np.linalg.eigvalsh(symmetrize(safe))[..., 0]
+    scale = np.maximum(1.0, np.max(np.abs(safe), axis=(-1, -2)))
+    return ~ok | (low < -tol * scale)
+
+
+def gaussian_update(state: GaussianState, y: np.ndarray, y_pred: np.ndarray, S: np.ndarray,
+                    C: np.ndarray, H: np.ndarray | None = None, R: np.ndarray | None = None
+                    ) -> GaussianState:
+    """Condition a Gaussian belief on ``y`` given the predicted measurement moments.
+
+    ``y_pred`` (..., m) = E[h], ``S`` (..., m, m) = Cov[h] + R (innovation covariance),
+    ``C`` (..., n, m) = Cov[x, h]. With a linearization ``H`` (..., m, n) and ``R`` the covariance
+    is updated in Joseph form, ``(I − K H) P (I − K H)ᵀ + K R Kᵀ`` (symmetric PSD by
+    construction); otherwise ``P − K S Kᵀ``, symmetrized. NaN components of ``y`` are missing.
+    """
+    m, P = state
+    miss = np.isnan(y)
+    if miss.any():
+        e = np.where(miss, 0.0, y - y_pred)
+        C = np.where(miss[..., None, :], 0.0, C)
+        both = miss[..., :, None] | miss[..., None, :]
+        eye = np.eye(y.shape[-1], dtype=bool)
+        S = np.where(both, np.where(eye & miss[..., None, :], 1.0, 0.0), S)
+        if H is not None:
+            H = np.where(miss[..., :, None], 0.0, H)
+    else:
+        e = y - y_pred
+    if S.shape[-1] == 1:  # scalar measurement: no solve needed
+        K = C / S
+    else:
+        K = np.swapaxes(np.linalg.solve(S, np.swapaxes(C, -1, -2)), -1, -2)  # K = C S⁻¹ (S symmetric)
+    mean = m + np.einsum("...ij,...j->...i", K, e)
+    if H is not None:
+        IKH = np.eye(m.shape[-1]) - K @ H
+        cov = IKH @ P @ np.swapaxes(IKH, -1, -2) + K @ R @ np.swapaxes(K, -1, -2)
+        if miss.any():  # K's missing columns are zero, so R's missing rows never enter
+            pass
+    else:
+        cov = P - K @ S @ np.swapaxes(K, -1, -2)
+    return GaussianState(mean, symmetrize(cov))
+
+
+def _prepare(name_ys, ys, m0, P0, n, m):
+    ys = V.as_float_array(name_ys, ys, ndim_min=2, shape_tail=(None, m))
+    V.finite(name_ys, ys, allow_nan=True)
+    m0 = V.as_float_array("m0", m0, shape_tail=(n,)) if np.ndim(m0) else np.full(n, float(m0))
+    V.finite("m0", m0)
+    P0 = V.covariance("P0", P0, n, batch=True)
+    batch = ys.shape[:-2]
+    try:
+        mean = np.broadcast_to(m0, (*batch, n)).copy()
+        cov = np.broadcast_to(P0, (*batch, n, n)).copy()
+    except ValueError:
+        raise ValueError(f"m0/P0: shapes {m0.shape}, {P0.shape} do not broadcast to the batch "
+                         f"{batch} of {name_ys}") from None
+    return ys, GaussianState(mean, cov), batch
+
+
+class _Runner:
+    """Shared bookkeeping of ``run``: output arrays, divergence checks, marking."""
+
+    def __init__(self, batch, T, n, on_divergence, name):
+        self.on = V.choice("on_divergence", on_divergence, {"raise", "mark"})
+        self.means = np.empty((*batch, T, n))
+        self.covs = np.empty((*batch, T, n, n))
+        self.diverged = np.zeros(batch, dtype=bool)
+        self.step = np.full(batch, -1)
+        self.name = name
+
+    def record(self, k, state, reset: GaussianState) -> GaussianState:
+        bad = bad_paths(state.mean, state.cov) & ~self.diverged
+        if bad.any():
+            if self.on == "raise":
+                idx = np.flatnonzero(bad.ravel())
+                raise DivergenceError(
+                    f"{self.name}: covariance lost positive definiteness or a value became non-finite "
+                    f"at step {k} on {idx.size} path(s), first {idx[:5].tolist()}; pass "
+                    "on_divergence='mark' to record such paths and go on", step=k, paths=idx,
+                    what="covariance")
+            self.diverged |= bad
+            self.step[bad] = k
+        if self.diverged.any():  # diverged paths restart from a harmless state; outputs are NaN
+            d = self.diverged
+            state = GaussianState(np.where(d[..., None], reset.mean, state.mean),
+                                  np.where(d[..., None, None], reset.cov, state.cov))
+            self.means[..., k, :] = np.where(d[..., None], np.nan, state.mean)
+            self.covs[..., k, :, :] = np.where(d[..., None, None], np.nan, state.cov)
+        else:
+            self.means[..., k, :] = state.mean
+            self.covs[..., k, :, :] = state.cov
+        return state
+
+    def result(self) -> Estimates:
+        return Estimates(self.means, self.covs, self.diverged, self.step)
+
+
+class DiscreteFilter:
+    """Base of discrete-time filters: subclasses give ``predict(state, k)`` and
+    ``update(state, y, k)``; ``run`` loops over time for the whole batch at once."""
+
+    name = "filter"
+
+    def __init__(self, model, *, start: str = "update"):
+        if getattr(model, "kind", None) != "discrete":
+            raise TypeError(f"model: {type(self).__name__} expects a DiscreteModel, got {type(model).__name__}")
+        self.model = model
+        self.start = V.choice("start", start, {"update", "predict"})
+
+    def predict(self, state: GaussianState, k) -> GaussianState:  # pragma: no cover
+        raise NotImplementedError
+
+    def update(self, state: GaussianState, y, k) -> GaussianState:  # pragma: no cover
+        raise NotImplementedError
+
+    def run(self, ys, m0, P0, *, on_divergence: str = "raise") -> Estimates:
+        """Filter a batch ``ys (..., T, m)`` from the prior ``(m0, P0)``; see the module docstring
+        for the step convention. Returns :class:`Estimates`."""
+        model = self.model
+        ys, state, batch = _prepare("ys", ys, m0, P0, model.n, model.m)
+        init = GaussianState(state.mean.copy(), state.cov.copy())
+        T = ys.shape[-2]
+        out = _Runner(batch, T, model.n, on_divergence, self.name)
+        offset = 0 if self.start == "update" else 1
+        for k in range(T):
+            if k > 0 or offset:
+                state = self.predict(state, k + offset - 1)
+            y = ys[..., k, :]
+            if not np.all(np.isnan(y)):
+                state = self.update(state, y, k + offset)
+            state = out.record(k, state, init)
+        return out.result()
+
+
+class ContinuousFilter:
+    """Base of continuous-time filters on an :class:`SDEModel` observed through increments
+    ``dy`` on a grid of step ``dt``. Subclasses give ``step(state, dy, t)``: the belief at
+    ``t + dt`` after the increment over ``[t, t + dt]``. ``run`` returns estimates at
+    ``t_1 .. t_T`` (``t_k = t0 + k dt``), aligned with ``Simulation.xs``."""
+
+    name = "filter"
+
+    def __init__(self, model, dt: float, *, scheme: str = "rk4", substeps: int = 1):
+        if getattr(model, "kind", None) != "sde":
+            raise TypeError(f"model: {type(self).__name__} expects an SDEModel, got {type(model).__name__}")
+        self.model = model
+        self.dt = float(V.positive("dt", dt))
+        self.scheme = V.choice("scheme", scheme, {"rk4", "euler"})
+        self.substeps = V.positive("substeps", substeps, integer=True)
+
+    def step(self, state: GaussianState, dy, t) -> GaussianState:  # pragma: no cover
+        raise NotImplementedError
+
+    def run(self, dys, m0, P0, *, t0: float = 0.0, on_divergence: str = "raise") -> Estimates:
+        model = self.model
+        dys, state, batch = _prepare("dys", dys, m0, P0, model.n, model.m)
+        init = GaussianState(state.mean.copy(), state.cov.copy())
+        T = dys.shape[-2]
+        out = _Runner(batch, T, model.n, on_divergence, self.name)
+        for k in range(T):
+            state = self.step(state, dys[..., k, :], t0 + k * self.dt)
+            state = out.record(k, state, init)
+        return out.result()
+
+    def integrate(self, rhs, state: GaussianState, z, t) -> GaussianState:
+        """Integrate ``d(m, P)/dt = rhs(m, P, z, t)`` over one measurement step with the
+        measurement derivative ``z = dy/dt`` held constant (``scheme``: Euler or classical RK4)."""
+        h = self.dt / self.substeps
+        m, P = state
+        for j in range(self.substeps):
+            s = t + j * h
+            if self.scheme == "euler":
+                dm, dP = rhs(m, P, z, s)
+                m, P = m + h * dm, P + h * dP
+            else:
+                k1m, k1P = rhs(m, P, z, s)
+                k2m, k2P = rhs(m + 0.5 * h * k1m, P + 0.5 * h * k1P, z, s + 0.5 * h)
+                k3m, k3P = rhs(m + 0.5 * h * k2m, P + 0.5 * h * k2P, z, s + 0.5 * h)
+                k4m, k4P = rhs(m + h * k3m, P + h * k3P, z, s + h)
+                m = m + h / 6 * (k1m + 2 * k2m + 2 * k3m + k4m)
+                P = P + h / 6 * (k1P + 2 * k2P + 2 * k3P + k4P)
+            P = symmetrize(P)
+        return GaussianState(m, P)

@@ -1,0 +1,89 @@
+"""Linear Kalman filter (discrete) and Kalman–Bucy filter (continuous), with their Riccati
+steady states (seed 000 eqs. 1.33-1.36 for the discrete filter).
+
+A model is linear when ``f`` and ``h`` are affine in the state and ``G`` is constant
+(``model.is_linear``); the matrices ``F = f_x``, ``H = h_x`` and offsets ``f(0)``, ``h(0)`` are
+read from the model at each step (so time-varying linear models work).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import scipy.linalg as sla
+
+from .base import ContinuousFilter, DiscreteFilter, GaussianState, gaussian_update
+from .ekf import ContinuousEKF
+
+
+def _require_linear(model, who):
+    if not getattr(model, "is_linear", False):
+        raise ValueError(f"model: {who} needs a linear model (f, h affine in the state, G constant); "
+                         f"got {model!r}; use EKF, UKF or a second-order filter")
+
+
+class KalmanFilter(DiscreteFilter):
+    """Discrete Kalman filter on a linear :class:`DiscreteModel` (batched, Joseph-form update)."""
+
+    name = "kf"
+
+    def __init__(self, model, *, start: str = "update"):
+        super().__init__(model, start=start)
+        _require_linear(model, "KalmanFilter")
+        z = np.zeros(model.n)
+        self._const = model.time is None
+        if self._const:
+            self._mats = self._matrices(0)
+
+    def _matrices(self, k):
+        md = self.model
+        z = np.zeros(md.n)
+        G = md.G(z, k)
+        return md.f_x(z, k), md.f(z, k), md.h_x(z, k), md.h(z, k), G @ md.Q @ G.T
+
+    def predict(self, state, k):
+        F, b, _, _, GQG = self._mats if self._const else self._matrices(k)
+        m, P = state
+        return GaussianState(m @ F.T + b, F @ P @ F.T + GQG)
+
+    def update(self, state, y, k):
+        _, _, H, d, _ = self._mats if self._const else self._matrices(k)
+        m, P = state
+        R = self.model.R
+        C = P @ H.T
+        S = H @ C + R
+        return gaussian_update(state, y, m @ H.T + d, S, C, H=np.broadcast_to(H, (*m.shape[:-1], *H.shape)), R=R)
+
+
+def steady_state(model, k: int = 0):
+    """Steady-state predicted and filtered error covariances ``(P_pred, P_filt)`` of the
+    discrete Kalman filter, from ``scipy.linalg.solve_discrete_are`` (time-invariant model)."""
+    _require_linear(model, "steady_state")
+    z = np.zeros(model.n)
+    F, H, G = model.f_x(z, k), model.h_x(z, k), model.G(z, k)
+    P = sla.solve_discrete_are(F.T, H.T, G @ model.Q @ G.T, model.R)
+    S = H @ P @ H.T + model.R
+    K = P @ H.T @ np.linalg.inv(S)
+    Pf = P - K @ S @ K.T
+    return 0.5 * (P + P.T), 0.5 * (Pf + Pf.T)
+
+
+def steady_state_continuous(model, t: float = 0.0):
+    """Steady-state error covariance of the Kalman–Bucy filter (``solve_continuous_are``)."""
+    _require_linear(model, "steady_state_continuous")
+    z = np.zeros(model.n)
+    F, H, G = model.f_x(z, t), model.h_x(z, t), model.G(z, t)
+    P = sla.solve_continuous_are(F.T, H.T, G @ model.Q @ G.T, model.R)
+    return 0.5 * (P + P.T)
+
+
+class KalmanBucy(ContinuousEKF):
+    """Kalman–Bucy filter on a linear :class:`SDEModel` (the continuous EKF is exact there)."""
+
+    name = "kf"
+
+    def __init__(self, model, dt, *, scheme="rk4", substeps=1):
+        _require_linear(model, "KalmanBucy")
+        super().__init__(model, dt, scheme=scheme, substeps=substeps)
+
+
+__all__ = ["KalmanFilter", "KalmanBucy", "steady_state", "steady_state_continuous", "ContinuousFilter"]
