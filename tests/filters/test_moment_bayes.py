@@ -130,3 +130,87 @@ def test_invalid_moments_warn_and_fall_back():
         warnings.simplefilter("error")
         r2 = ZeroOrderMomentFilter(12, adaptive=True, n0=0.0, invalid_moments="ignore").run(z)
     assert np.isfinite(r2.estimates).all()
+
+
+# ------------------------------------------------------------------ first-order system
+
+import scipy.stats as st  # noqa: E402
+
+from nlfilter.filters.moment_bayes import BoundedGridFilter1D, FirstOrderMomentFilter  # noqa: E402
+from nlfilter.moments.densities import sum_moments  # noqa: E402
+
+
+def test_first_order_with_h0_is_the_zero_order_filter():
+    # h = 0: x_{k+1} = w_k i.i.d., so each step is the zero-order estimator with the moments of w
+    rng = np.random.default_rng(1)
+    m = power_density_moments(4, 6)
+    z = rng.uniform(-1.9, 1.9, (3, 25))
+    r = FirstOrderMomentFilter(0.0, 1.0, 4, w_moments=m).run(z)
+    xh = ZeroOrderMomentFilter(4, moments=m, eps=1e-9).estimate(z)[0]
+    np.testing.assert_allclose(r.estimates[..., 0], xh, atol=1e-12)
+
+
+def test_first_order_posterior_moments_against_quadrature():
+    # one predict + update by hand: predicted moments (eq. 3.13 on h x + w), polynomial on the
+    # reachable interval, posterior moments = ratios of integrals over [max(l, z-1), min(u, z+1)]
+    f = FirstOrderMomentFilter(0.6, 1.0, 4, w_moments=power_density_moments(4, 2))
+    m0 = np.array([0.1, 0.5, 0.05, 0.35])
+    mp, lp, up = f.predict(m0, np.array(-0.8), np.array(1.0), f.w_moments)
+    np.testing.assert_allclose(lp, -1.48)
+    np.testing.assert_allclose(up, 1.6)
+    # predicted moments by direct expansion of E[(0.6 x + w)^i]
+    mw = np.r_[1.0, f.w_moments]
+    mx = np.r_[1.0, m0]
+    from math import comb
+    want = [sum(comb(i, j) * 0.6 ** j * mx[j] * mw[i - j] for j in range(i + 1)) for i in range(1, 5)]
+    np.testing.assert_allclose(mp, want, atol=1e-13)
+    z = 0.9
+    post, lo, hi, fb = f.update(mp, lp, up, np.array(z))
+    d = LegendreDensity.from_moments(mp, lp, up)
+    den = integrate.quad(lambda x: float(d.pdf(x)), z - 1, 1.6)[0]
+    for i in range(1, 5):
+        num = integrate.quad(lambda x: x ** i * float(d.pdf(x)), z - 1, 1.6)[0]
+        assert float(post[i - 1]) == pytest.approx(num / den, rel=1e-9)
+    assert float(lo) == pytest.approx(z - 1) and float(hi) == pytest.approx(1.6) and not fb
+
+
+def test_grid_filter_exact_case_uniform_prior_uniform_likelihood():
+    # h = 0 and w ~ U(-1, 1): the posterior is uniform on [max(-1, z-1), min(1, z+1)]
+    g = BoundedGridFilter1D(0.0, st.uniform(-1, 2), 1.0, G=400)
+    z = np.array([[0.3, -1.5, 1.9, 0.0]])
+    want = 0.5 * (np.maximum(-1, z - 1) + np.minimum(1, z + 1))
+    np.testing.assert_allclose(g.run(z)[..., 0], want, atol=2.5e-3)  # cell width 0.005
+
+
+def test_first_order_adaptive_learns_input_moments():
+    # n0 = 0: the learned moments of w are the method-of-moments estimates through
+    # kappa_i(w) = (1 - h^i) kappa_i(x); with 4000 samples they sit near the truth
+    law = st.beta(0.5, 5, loc=-1, scale=2)
+    rng = np.random.default_rng(11)
+    R, T, h = 16, 4000, 0.5
+    w = law.rvs(size=(R, T + 200), random_state=rng)
+    x = np.zeros(R)
+    xs = np.empty((R, T + 200))
+    for k in range(T + 200):
+        xs[:, k] = x
+        x = h * x + w[:, k]
+    z = xs[:, 200:] + rng.uniform(-1, 1, (R, T))
+    r = FirstOrderMomentFilter(h, 1.0, 3, adaptive=True, n0=0.0, window=T).run(z)
+    learned = r.w_moments[:, -1]
+    true = np.array([law.moment(i) for i in (1, 2, 3)])
+    se = learned.std(axis=0, ddof=1) / np.sqrt(R)
+    assert np.all(np.abs(learned.mean(axis=0) - true) < 4 * se + 1e-3)
+
+
+def test_first_order_impossible_measurement():
+    f = FirstOrderMomentFilter(0.5, 1.0, 2, w_moments=uniform_moments(2))
+    with pytest.raises(ValueError, match="zs: measurement 3.5"):
+        f.run(np.array([0.0, 3.5]))
+    g = FirstOrderMomentFilter(0.5, 1.0, 2, w_moments=uniform_moments(2), outside="clip")
+    r = g.run(np.array([0.0, 3.5, 0.2]))
+    # step 1: reachable interval h [-1, 1] + [-1, 1] = [-1.5, 1.5]; z - 1 = 2.5 beyond it -> end point 1.5
+    assert np.isfinite(r.estimates).all() and r.estimates[1, 0] == pytest.approx(1.5)
+    with pytest.raises(ValueError, match="h"):
+        FirstOrderMomentFilter(1.0, 1.0, 2, w_moments=uniform_moments(2))
+    with pytest.raises(ValueError, match="w_moments"):
+        FirstOrderMomentFilter(0.5, 1.0, 2)
