@@ -30,4 +30,4 @@ def test_first_order_bad_params():
     with pytest.raises(ValueError, match="law"):
         get("moment-first-order").run({"laws": ["cauchy"]}, quick=True, runs=2)
     with pytest.raises(ValueError, match="skip"):
-        get("moment-first-order").run({"T": 100, "skip": 100}, quick=True, runs=2)
+        get("moment-first-order").run({"T": 100, "skip": 100}, quick=False, runs=2)
