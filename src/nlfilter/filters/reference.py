@@ -68,7 +68,7 @@ def _maybe_sparse(K, rel: float = 1e-13):
     kernel's support, not N²."""
     K = np.where(K >= rel * K.max(axis=1, keepdims=True), K, 0.0)
     nnz = np.count_nonzero(K)
-    return sparse.csr_array(K) if nnz < 0.25 * K.size else K
+    return sparse.csr_array(K) if nnz < 0.05 * K.size else K
 
 
 def _apply(p, K):
@@ -81,8 +81,9 @@ def _apply(p, K):
 
 def _moments(p, X):
     """Mean (..., n) and covariance (..., n, n) of probability vectors p (..., N) on points X (N, n)."""
+    n = X.shape[-1]
     mean = p @ X
-    second = np.einsum("...k,ki,kj->...ij", p, X, X)
+    second = (p @ (X[:, :, None] * X[:, None, :]).reshape(-1, n * n)).reshape(*p.shape[:-1], n, n)
     cov = second - mean[..., :, None] * mean[..., None, :]
     return mean, 0.5 * (cov + np.swapaxes(cov, -1, -2))
 
