@@ -82,8 +82,6 @@ def mm(A: np.ndarray, B: np.ndarray) -> np.ndarray:
 def bad_paths(mean: np.ndarray, cov: np.ndarray, tol: float = PSD_TOL) -> np.ndarray:
     """Boolean ``(...)``: paths whose mean/cov is non-finite or whose cov is not PSD."""
     n = cov.shape[-1]
-    if n == 1 and np.isfinite(mean).all() and np.isfinite(cov).all() and cov.min() >= 0.0:
-        return np.zeros(mean.shape[:-1], dtype=bool)  # the common case, in three reductions
     ok = np.all(np.isfinite(mean), axis=-1) & np.all(np.isfinite(cov), axis=(-1, -2))
     safe = np.where(ok[..., None, None], cov, np.eye(n))
     if n == 1:
@@ -95,6 +93,14 @@ def bad_paths(mean: np.ndarray, cov: np.ndarray, tol: float = PSD_TOL) -> np.nda
         low = np.linalg.eigvalsh(symmetrize(safe))[..., 0]
     scale = np.maximum(1.0, np.max(np.abs(safe), axis=(-1, -2)))
     return ~ok | (low < -tol * scale)
+
+
+def _all_ok(mean: np.ndarray, cov: np.ndarray) -> bool:
+    """Quick test that every path is finite with PSD covariance (exact for n = 1; for n > 1
+    it only screens, and :func:`bad_paths` decides)."""
+    if cov.shape[-1] != 1:
+        return not bad_paths(mean, cov).any()
+    return bool(cov.min() >= 0.0) and bool(np.isfinite(cov.sum() + mean.sum()))
 
 
 def gaussian_update(state: GaussianState, y: np.ndarray, y_pred: np.ndarray, S: np.ndarray,
@@ -119,6 +125,13 @@ def gaussian_update(state: GaussianState, y: np.ndarray, y_pred: np.ndarray, S: 
             H = np.where(miss[..., :, None], 0.0, H)
     else:
         e = y - y_pred
+    if S.shape[-1] == 1 and m.shape[-1] == 1:  # scalar state and measurement: elementwise
+        K = C / S
+        mean = m + K[..., 0] * e
+        if H is not None:  # Joseph form (1 − K H)² P + K² R
+            IKH = 1.0 - K * H
+            return GaussianState(mean, IKH * IKH * P + K * K * R)
+        return GaussianState(mean, P - K * K * S)
     if S.shape[-1] == 1:  # scalar measurement: no solve needed
         K = C / S
     else:
@@ -158,14 +171,15 @@ class _Runner:
         self.covs = np.empty((T, *batch, n, n))
         self.diverged = np.zeros(batch, dtype=bool)
         self.step = np.full(batch, -1)
+        self.any_diverged = False
         self.name = name
 
     def record(self, k, state, reset: GaussianState) -> GaussianState:
-        bad = bad_paths(state.mean, state.cov)
-        if not self.diverged.any() and not bad.any():  # the common case
+        if not self.any_diverged and _all_ok(state.mean, state.cov):  # the common case
             self.means[k] = state.mean
             self.covs[k] = state.cov
             return state
+        bad = bad_paths(state.mean, state.cov)
         bad &= ~self.diverged
         if bad.any():
             if self.on == "raise":
@@ -177,6 +191,7 @@ class _Runner:
                     what="covariance")
             self.diverged |= bad
             self.step[bad] = k
+            self.any_diverged = True
         # diverged paths restart from a harmless state; their outputs are NaN (flagged)
         d = self.diverged
         state = GaussianState(np.where(d[..., None], reset.mean, state.mean),

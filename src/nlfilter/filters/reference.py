@@ -62,6 +62,20 @@ def _measurement_loglik(law, resid, obs=None):
     raise ValueError("measurement_noise: partly missing measurements need a Gaussian or Independent law")
 
 
+def _check_time_step(flt, model, dt, who):
+    """SDE models need the measurement step ``dt`` (and use R⁻¹); discrete ones take none and
+    need a measurement law with a density."""
+    if model.kind == "sde":
+        if dt is None:
+            raise ValueError("dt: expected the measurement step for an SDEModel, got None")
+        flt.dt = float(V.positive("dt", dt))
+        flt._Rinv = np.linalg.inv(model.R)
+    elif dt is not None:
+        raise ValueError(f"dt: a DiscreteModel has no time step; expected None, got {dt!r}")
+    elif not model.measurement_noise.has_density:
+        raise ValueError(f"measurement_noise: the {who} needs a law with a density (logpdf)")
+
+
 def _maybe_sparse(K, rel: float = 1e-13):
     """Drop entries below ``rel`` times their row's largest (their mass is far below the grid's
     own error) and return CSR when that leaves the kernel sparse: ``p @ K`` then costs the
@@ -121,15 +135,7 @@ class GridFilter:
         mesh = np.meshgrid(*self.axes, indexing="ij")
         self.X = np.stack([g.ravel() for g in mesh], axis=-1)  # (N, n), first axis slowest
         self.start = V.choice("start", start, {"update", "predict"})
-        if model.kind == "sde":
-            if dt is None:
-                raise ValueError("dt: expected the measurement step for an SDEModel, got None")
-            self.dt = float(V.positive("dt", dt))
-            self._Rinv = np.linalg.inv(model.R)
-        elif dt is not None:
-            raise ValueError(f"dt: a DiscreteModel has no time step; expected None, got {dt!r}")
-        if not model.measurement_noise.has_density:
-            raise ValueError("measurement_noise: the grid filter needs a law with a density (logpdf)")
+        _check_time_step(self, model, dt, "grid filter")
         self._time_varying = model.time is not None
         self._kernel_cache = None
 
@@ -280,15 +286,7 @@ class ParticleFilter:
             raise ValueError(f"threshold: expected a number in [0, 1], got {threshold!r}")
         self.start = V.choice("start", start, {"update", "predict"})
         self.substeps = V.positive("substeps", substeps, integer=True)
-        if model.kind == "sde":
-            if dt is None:
-                raise ValueError("dt: expected the measurement step for an SDEModel, got None")
-            self.dt = float(V.positive("dt", dt))
-            self._Rinv = np.linalg.inv(model.R)
-        elif dt is not None:
-            raise ValueError(f"dt: a DiscreteModel has no time step; expected None, got {dt!r}")
-        elif not model.measurement_noise.has_density:
-            raise ValueError("measurement_noise: the particle filter needs a law with a density (logpdf)")
+        _check_time_step(self, model, dt, "particle filter")
 
     def _propagate(self, x, k, rng):
         md = self.model
