@@ -36,7 +36,6 @@ import scipy.linalg as sla
 from scipy import sparse
 
 from .. import _validate as V
-from ..errors import DivergenceError
 from ..noise import Gaussian, Independent
 from .base import Estimates, _Runner, GaussianState
 
@@ -257,7 +256,7 @@ class GridFilter:
             mean, cov = _moments(p, self.X)
             if dead.any():
                 mean = np.where(dead[..., None], np.nan, mean)
-            state = out.record(k, GaussianState(mean, cov), GaussianState(mean * 0, cov * 0 + np.eye(md.n)))
+            out.record(k, GaussianState(mean, cov), GaussianState(mean * 0, cov * 0 + np.eye(md.n)))
             if out.diverged.any():
                 p = np.where(out.diverged[..., None], init_p, p)
         return out.result()

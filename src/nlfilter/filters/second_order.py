@@ -63,8 +63,8 @@ import numpy as np
 
 from .. import _validate as V
 from ..errors import DivergenceError
-from .base import (ContinuousFilter, DiscreteFilter, GaussianState, _prepare, _Runner, bad_paths,
-                   gaussian_update, symmetrize)
+from .base import (ContinuousFilter, DiscreteFilter, GaussianState, bad_paths, gaussian_update, poison,
+                   symmetrize)
 
 FORMS = ("truncated", "truncated-jazwinski", "modified", "gaussian", "modified-gaussian", "first-order")
 
@@ -213,39 +213,6 @@ class _Family:
         return state
 
 
-def _poison(state, bad):
-    """NaN on the paths in ``bad`` so that the run's divergence check records them (never silent:
-    ``run`` raises or marks them)."""
-    if not np.any(bad):
-        return state
-    return GaussianState(np.where(bad[..., None], np.nan, state.mean),
-                         np.where(bad[..., None, None], np.nan, state.cov))
-
-
-def _run_discrete(self, ys, m0, P0, on_divergence, t_of):
-    """``DiscreteFilter.run`` with a divergence check after the prediction as well (a predicted
-    covariance that loses positive definiteness, 004 eq. 11, is recorded even if the update
-    would hide it)."""
-    model = self.model
-    ys, state, batch = _prepare("ys", ys, m0, P0, model.n, model.m)
-    init = GaussianState(state.mean.copy(), state.cov.copy())
-    T = ys.shape[-2]
-    out = _Runner(batch, T, model.n, on_divergence, self.name)
-    offset = 0 if self.start == "update" else 1
-    with np.errstate(over="ignore", invalid="ignore"):  # overflow on a failing path: caught by record
-        for k in range(T):
-            if k > 0 or offset:
-                state = self._predict(state, k + offset - 1)
-                state = _poison(state, bad_paths(state.mean, state.cov))
-                state = out.record(k, state, init)
-            y = ys[..., k, :]
-            if not np.all(np.isnan(y)):
-                state, bad = self._update(state, y, t_of(k + offset))
-                state = _poison(state, bad)
-            state = out.record(k, state, init)
-    return out.result()
-
-
 class SecondOrderFilter(_Family, DiscreteFilter):
     """Second-order filter for a :class:`~nlfilter.models.DiscreteModel` (batched).
 
@@ -299,9 +266,11 @@ class SecondOrderFilter(_Family, DiscreteFilter):
         new, bad = self._update(GaussianState(*state), np.asarray(y, dtype=float), k)
         return self._checked(new, bad, "updated (or innovation) covariance", k)
 
-    def run(self, ys, m0, P0, *, on_divergence: str = "raise"):
-        """Filter ``ys (..., T, m)`` from ``(m0, P0)``; returns :class:`~nlfilter.filters.base.Estimates`."""
-        return _run_discrete(self, ys, m0, P0, on_divergence, lambda k: k)
+    def _predict_unchecked(self, state, k):
+        return self._predict(GaussianState(*state), k), None
+
+    def _update_unchecked(self, state, y, k):
+        return self._update(GaussianState(*state), y, k)
 
 
 class ContinuousDiscreteSecondOrderFilter(_Family, DiscreteFilter):
@@ -365,8 +334,11 @@ class ContinuousDiscreteSecondOrderFilter(_Family, DiscreteFilter):
         new, bad = self._update(GaussianState(*state), np.asarray(y, dtype=float), k)
         return self._checked(new, bad, "updated (or innovation) covariance", k)
 
-    def run(self, ys, m0, P0, *, on_divergence: str = "raise"):
-        return _run_discrete(self, ys, m0, P0, on_divergence, lambda k: k)
+    def _predict_unchecked(self, state, k):
+        return self._predict(GaussianState(*state), k), None
+
+    def _update_unchecked(self, state, y, k):
+        return self._update(GaussianState(*state), y, k)
 
 
 class ContinuousSecondOrderFilter(_Family, ContinuousFilter):
@@ -443,7 +415,7 @@ class ContinuousSecondOrderFilter(_Family, ContinuousFilter):
         obs = ~np.isnan(dy)
         if self.innovation == "update":
             new, bad = self._update(state, dy / self.dt, t, R=self.model.R / self.dt)
-            new = _poison(new, bad)
+            new = poison(new, bad)
             return self.integrate(self._rhs_factory(np.zeros_like(obs)), new, None, t), bad
         dy0 = np.where(obs, dy, 0.0)
         m, X = state
@@ -461,18 +433,8 @@ class ContinuousSecondOrderFilter(_Family, ContinuousFilter):
             new, bad = self._step(GaussianState(*state), dy, t)
         return self._checked(new, bad, "covariance", t)
 
-    def run(self, dys, m0, P0, *, t0: float = 0.0, on_divergence: str = "raise"):
-        """Filter increments ``dys (..., T, m)``; estimates at ``t0 + dt .. t0 + T dt``."""
-        model = self.model
-        dys, state, batch = _prepare("dys", dys, m0, P0, model.n, model.m)
-        init = GaussianState(state.mean.copy(), state.cov.copy())
-        T = dys.shape[-2]
-        out = _Runner(batch, T, model.n, on_divergence, self.name)
-        with np.errstate(over="ignore", invalid="ignore"):  # a failing path is caught by record
-            for k in range(T):
-                state, bad = self._step(state, dys[..., k, :], t0 + k * self.dt)
-                state = out.record(k, _poison(state, bad), init)
-        return out.result()
+    def _step_unchecked(self, state, dy, t):
+        return self._step(GaussianState(*state), dy, t)
 
 
 __all__ = ["FORMS", "SecondOrderFilter", "ContinuousSecondOrderFilter",
