@@ -40,7 +40,8 @@ import sympy as sp
 
 from . import _validate as V
 from .errors import NotPolynomialError
-from .moments.tensor import PolySDE, poly_from_sympy, poly_clean, poly_mul, poly_add, monomials_upto
+from .moments.tensor import PolySDE, poly_from_sympy, monomials_upto
+from .moments.tensor import poly_clean as T_clean
 
 
 class Augmented(NamedTuple):
@@ -243,16 +244,20 @@ class BilinearModel:
             return self._base
         if self.time_varying:
             raise ValueError("poly_sde: time-varying models have no stationary moment system")
-        Fz = self.augmented(0)
-        n = self.n
-        xs = self.base_states
-        z = list(xs) + ([1] if self.augment else [])
-        zv = sp.Matrix(z)
-        f = (sp.Matrix(Fz.F) * zv)[:n, 0]
-        Gcols = [(sp.Matrix(g) * zv)[:n, 0] for g in Fz.G]
-        G = sp.Matrix.hstack(*Gcols) if Gcols else sp.zeros(n, 1)
-        r = G.shape[1]
-        return PolySDE.from_sympy(xs, f, G, np.eye(r), names=self.names)
+        aug = self.augmented(0)
+        n, N = self.n, self.N
+        zero = (0,) * n
+        unit = [tuple(int(i == j) for j in range(n)) for i in range(n)]
+        z = unit + ([zero] if self.augment else [])  # augmented coordinate k as a monomial of x
+
+        def row(M, i):
+            return T_clean({z[k]: float(M[i, k]) for k in range(N) if M[i, k] != 0})
+
+        drift = [row(aug.F, i) for i in range(n)]
+        diff = [[row(G, i) for G in aug.G] or [{}] for i in range(n)]
+        r = max(len(aug.G), 1)
+        self._base = PolySDE(drift, diff, np.eye(r), list(self.names))
+        return self._base
 
     _base = None
 

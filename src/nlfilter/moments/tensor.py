@@ -496,17 +496,25 @@ def gaussian_scale(monomials, sigma) -> np.ndarray:
 
 def _equilibrate(A, passes: int = 6):
     """Row and column scalings (powers of two) giving ``Dr A Dc`` entries of max-norm ~1."""
-    A = sps.csr_matrix(A)
     N = A.shape[0]
+    dense = N <= 3000
+    absA = np.abs(A.toarray()) if dense else abs(sps.csr_matrix(A))
     dr, dc = np.ones(N), np.ones(N)
-    absA = abs(A)
+
+    def p2(v):
+        return np.where(v > 0, 2.0 ** np.round(np.log2(np.where(v > 0, v, 1.0))), 1.0)
+
     for _ in range(passes):
-        M = sps.diags(dr) @ absA @ sps.diags(dc)
-        r = M.max(axis=1).toarray().ravel()
-        dr = dr / np.where(r > 0, 2.0 ** np.round(np.log2(np.where(r > 0, r, 1.0))), 1.0)
-        M = sps.diags(dr) @ absA @ sps.diags(dc)
-        c = M.max(axis=0).toarray().ravel()
-        dc = dc / np.where(c > 0, 2.0 ** np.round(np.log2(np.where(c > 0, c, 1.0))), 1.0)
+        if dense:
+            M = absA * dr[:, None] * dc[None, :]
+            dr = dr / p2(M.max(axis=1))
+            M = absA * dr[:, None] * dc[None, :]
+            dc = dc / p2(M.max(axis=0))
+        else:
+            M = sps.diags(dr) @ absA @ sps.diags(dc)
+            dr = dr / p2(M.max(axis=1).toarray().ravel())
+            M = sps.diags(dr) @ absA @ sps.diags(dc)
+            dc = dc / p2(M.max(axis=0).toarray().ravel())
     return dr, dc
 
 
