@@ -153,6 +153,8 @@ class BilinearModel:
         F[:n, :n] = _at(self.F, t)
         if self.c is not None:
             F[:n, n] = _at(self.c, t)[:, 0]
+        if self.augment and self.discrete:
+            F[n, n] = 1.0  # the constant state: 1[k+1] = 1[k] (in continuous time d1 = 0)
         Gs = []
         for g, g0 in self._noises(t):
             Gz = np.zeros((N, N))
