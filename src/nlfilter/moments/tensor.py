@@ -25,9 +25,12 @@ answer. :func:`steady_state` checks the rank, identifies the conserved functiona
 vectors ``ℓ`` of ``A``: ``d/dt ℓᵀμ = ℓᵀ b = 0``), fixes them from the initial moments, and raises
 :class:`~nlfilter.errors.SingularSystemError` when the steady state is not unique.
 
-This is the minimal Itô-rule-on-monomials machinery this issue needs; once the general moment
-engine (``nlfilter.moments.ito``) offers a generator and closed-set detection, :class:`PolySDE`
-can delegate to it (the interface is: ``generator(monomial) -> Poly``, ``noise(monomial) -> [Poly]``).
+Built on the moment engine (:mod:`nlfilter.moments.ito`): the generator ``L x^α``, the closed
+hull and the moment equations ``(A, c)`` are the engine's. This module adds what the tensor
+methods of seed 001 need beyond it: the *noise* coefficients of ``d x^α`` (the ``B_i`` of the
+bilinear lift, which the engine's ``σ = G Q Gᵀ`` form does not keep), closure under them, and a
+steady-state solve that scales the moments, finds conserved functionals, imposes them and checks
+uniqueness (candidates to move into ``nlfilter.moments.solve``).
 
 >>> sde = PolySDE.from_sympy(*_ou_example())     # dx = -x dt + dw, E dw² = 2 dt
 >>> ms = moment_system(sde, closed_set(sde, [(2,)]))
@@ -174,6 +177,11 @@ class PolySDE:
                         acc = poly_add(acc, poly_mul(self.diffusion[i][a], self.diffusion[j][b]), qab)
                 D[i][j] = poly_clean(acc)
         self._D = D
+        from ..polynomials import Polynomial
+        from .ito import PolynomialSDE
+        n = self.n
+        self.engine = PolynomialSDE(tuple(Polynomial(dict(p), n) for p in self.drift),
+                                    tuple(tuple(Polynomial(dict(D[i][j]), n) for j in range(n)) for i in range(n)))
         self._gen_cache: dict = {}
         self._noise_cache: dict = {}
         self.numeric = not any(isinstance(v, sp.Basic) for p in self.drift for v in p.values())
@@ -200,30 +208,11 @@ class PolySDE:
         return cls(drift, diff, Qv, list(names) if names is not None else [str(s) for s in states])
 
     def generator(self, e: Monomial) -> Poly:
-        """Drift part ``L x^e`` of ``d x^e`` (001 eq. 2.16)."""
+        """Drift part ``L x^e`` of ``d x^e`` (001 eq. 2.16), from the moment engine."""
         out = self._gen_cache.get(e)
-        if out is not None:
-            return out
-        acc: Poly = {}
-        n = self.n
-        for i in range(n):
-            if e[i] == 0:
-                continue
-            d1 = list(e)
-            d1[i] -= 1
-            acc = poly_add(acc, poly_mul(self.drift[i], {tuple(d1): 1}), e[i])
-            for j in range(n):
-                Dij = self._D[i][j]
-                if not Dij:
-                    continue
-                d2 = list(d1)
-                if d2[j] == 0:
-                    continue
-                c = e[i] * d2[j]
-                d2[j] -= 1
-                acc = poly_add(acc, poly_mul(Dij, {tuple(d2): 1}), 0.5 * c if self.numeric else sp.Rational(c, 2))
-        out = poly_clean(acc)
-        self._gen_cache[e] = out
+        if out is None:
+            out = poly_clean(dict(self.engine.generator(tuple(e)).terms))
+            self._gen_cache[e] = out
         return out
 
     def noise(self, e: Monomial) -> list:
@@ -255,7 +244,9 @@ def closed_set(sde: PolySDE, seeds: Sequence[Monomial], *, max_size: int = 20000
                with_noise: bool = False) -> list:
     """Smallest set of monomials containing ``seeds`` and closed under the generator (and, if
     ``with_noise``, under the noise coefficients too, as the bilinear lift ``x_[p]`` needs).
-    The constant monomial is left out. Raises :class:`MomentsNotClosedError` past ``max_size``."""
+    The constant monomial is left out. Raises :class:`MomentsNotClosedError` past ``max_size``.
+    (The engine's :func:`~nlfilter.moments.ito.closed_hull` without the noise option; here the
+    generator is the engine's, cached per monomial, so the system is assembled in one pass.)"""
     zero = (0,) * sde.n
     seen = set()
     stack = []
@@ -303,12 +294,13 @@ class MomentSystem:
 
 
 def moment_system(sde: PolySDE, monomials: Sequence[Monomial]) -> MomentSystem:
-    """Moment equations of a closed monomial set (see :func:`closed_set`)."""
+    """Moment equations ``d/dt μ = A μ + b`` of a closed monomial set (see :func:`closed_set`),
+    the rows being the engine's generator ``L x^α``."""
     mons = [tuple(m) for m in monomials if any(m)]
     idx = {m: k for k, m in enumerate(mons)}
     zero = (0,) * sde.n
     N = len(mons)
-    if sde.numeric:
+    if sde.numeric:  # as the engine's moment_equations, from the cached engine generator
         rows, cols, vals = [], [], []
         b = np.zeros(N)
         for k, m in enumerate(mons):
@@ -322,8 +314,8 @@ def moment_system(sde: PolySDE, monomials: Sequence[Monomial]) -> MomentSystem:
                 else:
                     raise MomentsNotClosedError(f"moment_system: monomial set not closed: "
                                                 f"L({monomial_str(m, sde.names)}) has {monomial_str(e, sde.names)}")
-        A = sps.csr_matrix((vals, (rows, cols)), shape=(N, N))
-        return MomentSystem(mons, A, b, sde.names)
+        return MomentSystem(mons, sps.csr_matrix((vals, (rows, cols)), shape=(N, N)), b, sde.names)
+    # symbolic coefficients (e.g. to compare with 001's appendices): the engine's generator, dense SymPy
     A = sp.zeros(N, N)
     b = sp.zeros(N, 1)
     for k, m in enumerate(mons):
