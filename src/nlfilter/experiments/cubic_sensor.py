@@ -192,15 +192,24 @@ def _monte_carlo(res, model, lift, tf, q, r, params, quick, runs, seedseq, progr
     ue = ui.run(dys, m0, P0, on_divergence="mark")
     ests["updated-innovations"] = (ue.means[..., 0], ue.means[..., 1])
     others = _other_filters(model, dt, q, quick)
-    for name, flt in tqdm(others, disable=not progress, desc=f"cubic q={q:g} r={r:g}"):
+    runs_ = []
+    for name, flt in others:
+        runs_.append((name, flt, 0.0))
+        if name != "optimal":  # Taylor filters started at the prior mean 0 never move (h'(0) = 0)
+            runs_.append((f"{name}@m0=σ", flt, np.sqrt(q / 2)))
+    for name, flt, m0x in tqdm(runs_, disable=not progress, desc=f"cubic q={q:g} r={r:g}"):
         try:
-            e = flt.run(dys, [0.0], [[q / 2]], on_divergence="mark")
+            e = flt.run(dys, [m0x], [[q / 2]], on_divergence="mark")
         except (DivergenceError, ValueError, FloatingPointError) as exc:  # pragma: no cover
             res.notes.append(f"{name}: failed ({exc})")
             continue
         ests[name] = (e.means[..., 0], None)
         if e.diverged.any():
             res.notes.append(f"{name} (q={q:g}, r={r:g}): {int(e.diverged.sum())}/{paths} paths diverged, excluded")
+    if "ekf" in ests:
+        res.notes.append("ekf and second-order filters started at the prior mean m0 = 0 stay there (h'(0) = 0 and "
+                         "the second-order correction 3Pm vanishes at m = 0): their MSE is the prior variance q/2; "
+                         "rows '@m0=σ' start them one prior standard deviation away")
     for name, (ex, ex3) in ests.items():
         v, se, n = _mc((ex - truth["x"]) ** 2, nb)
         res.add(name, "mse_x_mc", v, stderr=se, **row)
@@ -212,26 +221,29 @@ def _monte_carlo(res, model, lift, tf, q, r, params, quick, runs, seedseq, progr
 
 
 def _other_filters(model, dt, q, quick):
-    """EKF, second-order filters and the grid reference, when the package has them."""
+    """EKF, the second-order filters (seed 004 family), QLF/MQLF when the package has them, and
+    the grid reference (the optimal filter, up to its grid)."""
     out = []
     from ..filters.ekf import ContinuousEKF
     out.append(("ekf", ContinuousEKF(model, dt)))
     try:
-        from ..filters import second_order as so  # noqa: F401
-        for cls_name, label in (("ContinuousSecondOrder", "second-order"), ("TruncatedSecondOrder", "second-order"),
-                                ("GaussianSecondOrder", "gaussian-second-order")):
-            cls = getattr(so, cls_name, None)
+        from ..filters.second_order import ContinuousSecondOrderFilter
+        for form in ("truncated", "gaussian"):
+            out.append((f"second-order-{form}", ContinuousSecondOrderFilter(model, dt, form=form)))
+    except ImportError:  # pragma: no cover
+        pass
+    try:  # pragma: no cover - not in the package yet
+        from ..filters import quasilinear as ql
+        for cls_name, label in (("QuasilinearFilter", "qlf"), ("ModifiedQuasilinearFilter", "mqlf")):
+            cls = getattr(ql, cls_name, None)
             if cls is not None:
-                try:
-                    out.append((label, cls(model, dt)))
-                except TypeError:
-                    pass
+                out.append((label, cls(model, dt)))
     except ImportError:
         pass
     try:
         from ..filters.reference import GridFilter
         s = np.sqrt(q / 2)
-        out.append(("optimal", GridFilter(model, [(-6 * s, 6 * s)], size=81 if quick else 241, dt=dt)))
-    except ImportError:
+        out.append(("optimal", GridFilter(model, (-6 * s, 6 * s), size=81 if quick else 241, dt=dt)))
+    except ImportError:  # pragma: no cover
         pass
     return out
