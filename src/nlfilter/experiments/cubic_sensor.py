@@ -98,9 +98,9 @@ def simulate_cubic(q: float, r: float, dt: float, steps: int, paths: int, rng, s
 
 def _mc(err2: np.ndarray, burn: int):
     """Per-path time averages after ``burn`` steps -> (mean, standard error across paths, n ok)."""
-    per = np.nanmean(err2[:, burn:], axis=1)
-    ok = np.isfinite(per)
-    v = per[ok]
+    seg = err2[:, burn:]
+    ok = np.all(np.isfinite(seg), axis=1)  # diverged paths (NaN after divergence) are excluded
+    v = seg[ok].mean(axis=1)
     if v.size < 2:
         return float("nan"), None, int(ok.sum())
     return float(v.mean()), float(v.std(ddof=1) / np.sqrt(v.size)), int(ok.sum())
@@ -204,14 +204,19 @@ def _monte_carlo(res, model, lift, tf, q, r, params, quick, runs, seedseq, progr
             res.notes.append(f"{name}: failed ({exc})")
             continue
         ests[name] = (e.means[..., 0], None)
+        res.add(name, "diverged_fraction", float(np.mean(e.diverged)), **row)
         if e.diverged.any():
-            res.notes.append(f"{name} (q={q:g}, r={r:g}): {int(e.diverged.sum())}/{paths} paths diverged, excluded")
+            res.notes.append(f"{name} (q={q:g}, r={r:g}): {int(e.diverged.sum())}/{paths} paths diverged, "
+                             "excluded from its MSE")
     if "ekf" in ests:
         res.notes.append("ekf and second-order filters started at the prior mean m0 = 0 stay there (h'(0) = 0 and "
                          "the second-order correction 3Pm vanishes at m = 0): their MSE is the prior variance q/2; "
                          "rows '@m0=σ' start them one prior standard deviation away")
     for name, (ex, ex3) in ests.items():
         v, se, n = _mc((ex - truth["x"]) ** 2, nb)
+        if n < 2:
+            res.notes.append(f"{name} (q={q:g}, r={r:g}): fewer than 2 paths without divergence; no MSE")
+            continue
         res.add(name, "mse_x_mc", v, stderr=se, **row)
         if ex3 is not None:
             v3, se3, _ = _mc((ex3 - truth["x3"]) ** 2, nb)
