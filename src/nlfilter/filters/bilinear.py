@@ -299,19 +299,7 @@ class OptimalLinearFilter:
         m = self.model
         h = self.dt
         a0, a1, a2 = m.augmented(t), m.augmented(t + h / 2), m.augmented(t + h)
-        A0, A1, A2 = a0.F - K0 @ a0.H, a1.F - K1 @ a1.H, a2.F - K2 @ a2.H
-        N = A0.shape[0]
-        I = np.eye(N)
-        if self.scheme == "euler":
-            return I + h * A0, h * K0
-        # RK4 on the affine ODE: stages as affine maps (Φ_s, Γ_s) of (ẑ, z)
-        k1 = (A0, K0)
-        k2 = (A1 @ (I + h / 2 * k1[0]), A1 @ (h / 2 * k1[1]) + K1)
-        k3 = (A1 @ (I + h / 2 * k2[0]), A1 @ (h / 2 * k2[1]) + K1)
-        k4 = (A2 @ (I + h * k3[0]), A2 @ (h * k3[1]) + K2)
-        Phi = I + h / 6 * (k1[0] + 2 * k2[0] + 2 * k3[0] + k4[0])
-        Gam = h / 6 * (k1[1] + 2 * k2[1] + 2 * k3[1] + k4[1])
-        return Phi, Gam
+        return _affine_step(a0.F - K0 @ a0.H, a1.F - K1 @ a1.H, a2.F - K2 @ a2.H, K0, K1, K2, h, self.scheme)
 
     def run(self, dys, m0, P0, *, t0: float = 0.0, on_divergence: str = "raise",
             return_augmented: bool = False) -> Estimates:
@@ -345,6 +333,21 @@ class OptimalLinearFilter:
     def _conserves(self) -> bool:
         rep = wonham_condition(self.model)
         return rep.abscissa > -1e-9 * max(1.0, abs(rep.abscissa))
+
+
+def _affine_step(A0, A1, A2, K0, K1, K2, h, scheme):
+    """One RK4 (or Euler) step of the affine ODE ``dẑ/dt = A(t) ẑ + K(t) z`` with ``z`` constant,
+    as the map ``ẑ ↦ Φ ẑ + Γ z`` (stages as affine maps; ``A, K`` at t, t + h/2, t + h)."""
+    I = np.eye(A0.shape[0])
+    if scheme == "euler":
+        return I + h * A0, h * K0
+    k1 = (A0, K0)
+    k2 = (A1 @ (I + h / 2 * k1[0]), A1 @ (h / 2 * k1[1]) + K1)
+    k3 = (A1 @ (I + h / 2 * k2[0]), A1 @ (h / 2 * k2[1]) + K1)
+    k4 = (A2 @ (I + h * k3[0]), A2 @ (h * k3[1]) + K2)
+    Phi = I + h / 6 * (k1[0] + 2 * k2[0] + 2 * k3[0] + k4[0])
+    Gam = h / 6 * (k1[1] + 2 * k2[1] + 2 * k3[1] + k4[1])
+    return Phi, Gam
 
 
 # ====================================================================== discrete-time counterpart
@@ -778,7 +781,176 @@ class UpdatedInnovationsFilter(TensorFilter):
         return Estimates(res.means, np.broadcast_to(cov, res.covs.shape).copy(), res.diverged, res.diverged_step)
 
 
-__all__ = ["OptimalLinearFilter", "DiscreteOptimalLinearFilter", "LinearSteadyState", "WonhamReport",
+# ====================================================================== pseudo-observables
+class PseudoObservablesFilter:
+    """Optimal linear filter using tensored observables ``y, y^p, ...`` (001 §3.2, eq. 3.14):
+    ``x̂ = P[x | H^y ⊕ H^{y³} ⊕ ...]``.
+
+    The observation ``y`` (with ``y0`` known, 001: "y0 assumed to be equal to zero") joins the
+    state; the vector ``z`` of monomials of ``(x, y)`` closed under the Itô rule and its noise
+    coefficients is bilinear (001 eqs. 3.11-3.13), and each pseudo-observable ``y_i^p`` is
+    observed through its increment ``d(y_i^p) = H_o z dt + Σ_a M_o,a z dβ_a`` (001 eq. 3.16),
+    driven by the *same* noises as the state (``y`` is a state): the linear filter then has the
+    cross term ``C = Σ_a B_a X M_aᵀ``::
+
+        dẑ = A ẑ dt + K (dY − H ẑ dt),   K = (P Hᵀ + C) Σ_v⁺,   Σ_v = Σ_a M_a X M_aᵀ
+        dX/dt = A X + X Aᵀ + Σ_a B_a X B_aᵀ,   dP/dt = A P + P Aᵀ + Σ_a B_a X B_aᵀ − K Σ_v Kᵀ
+
+    At t = 0 the innovation intensity of ``y³`` is ``9 E[y0⁴] = 0``: Σ_v is singular and the
+    gain uses its pseudo-inverse (the Liptser-Shiryaev treatment of a singular observation, 001
+    §3.2). The moments of ``y`` grow without bound, so there is no steady state: gains are
+    time-varying (and, as the thesis observed, the y³ information fades).
+
+    Parameters
+    ----------
+    model : BilinearModel with additive measurement noise only (``R``; no ``M``)
+    powers : the powers of each measurement component used as observables (``(1, 3)``: y and y³)
+    dt : measurement step;  x_moment : callable ``base monomial -> E[x0^α]`` (initial law of x)
+    """
+
+    name = "pseudo-observables"
+
+    def __init__(self, model: BilinearModel, dt: float, *, powers=(1, 3), x_moment=None, scheme: str = "rk4"):
+        if model.M:
+            raise ValueError("model: pseudo-observables need additive measurement noise (R), not M")
+        if model.R is None:
+            raise ValueError("model: R (additive measurement noise) is required")
+        if model.time_varying:
+            raise ValueError("model: time-varying models are not supported here")
+        self.model, self.dt = model, float(V.positive("dt", dt))
+        self.scheme = V.choice("scheme", scheme, {"rk4", "euler"})
+        self.powers = tuple(int(p) for p in powers)
+        if 1 not in self.powers or any(p < 1 for p in self.powers):
+            raise ValueError(f"powers: expected positive integers including 1, got {powers!r}")
+        self.x_moment = x_moment
+        self._build()
+
+    def _build(self):
+        model = self.model
+        base = model.poly_sde()
+        nb, m = base.n, model.m
+        nv = nb + m
+        aug = model.augmented(0)
+        ext = lambda p: {tuple(list(e) + [0] * m): c for e, c in p.items()}  # noqa: E731
+        Lr = np.linalg.cholesky(model.R + 1e-300 * np.eye(m)) if np.all(np.linalg.eigvalsh(model.R) > 0) else None
+        if Lr is None:
+            raise ValueError("model.R: expected positive definite")
+        q = base.r
+        drift = [ext(p) for p in base.drift]
+        diff = [[ext(base.diffusion[i][a]) for a in range(q)] + [{} for _ in range(m)] for i in range(nb)]
+        cp = model.coord_polys()
+        for i in range(m):  # dy_i = (H z(x) + d)_i dt + (R^½ dv)_i
+            acc = {}
+            for k in range(model.N):
+                if aug.H[i, k] != 0:
+                    acc = T.poly_add(acc, ext(cp[k]), aug.H[i, k])
+            drift.append(T.poly_clean(acc))
+            diff.append([{} for _ in range(q)] + [({(0,) * nv: float(Lr[i, j])} if Lr[i, j] else {}) for j in range(m)])
+        names = list(base.names) + [f"y{i + 1}" for i in range(m)]
+        sde = T.PolySDE(drift, diff, np.eye(q + m), names)
+        obs, meta = [], []
+        for i in range(m):
+            for p in self.powers:
+                e = [0] * nv
+                e[nb + i] = p
+                obs.append(tuple(e))
+                meta.append((i, p))
+        self.obs_meta = meta
+        seeds = [tuple(int(j == v) for j in range(nv)) for v in range(nb)] + obs
+        mons = T.closed_set(sde, seeds, with_noise=True)
+        zero = (0,) * nv
+        coords = mons + [zero]
+        A, Bs = T.bilinear_lift(sde, coords)
+        idx = {c: k for k, c in enumerate(coords)}
+        N = len(coords)
+        H = np.zeros((len(obs), N))
+        Ms = np.zeros((q + m, len(obs), N))
+        for o, mon in enumerate(obs):
+            for e, c in sde.generator(mon).items():
+                H[o, idx[e]] += c
+            for a, pa in enumerate(sde.noise(mon)):
+                for e, c in pa.items():
+                    Ms[a, o, idx[e]] += c
+        self.sde, self.coords, self.index, self.obs = sde, coords, idx, obs
+        self.A, self.B, self.H, self.M = A, np.array(Bs), H, Ms
+        self.nb, self.m = nb, m
+
+    def initial_moments(self):
+        """``(ẑ0, X0)``: x0 from ``x_moment``, y0 = 0."""
+        if self.x_moment is None:
+            raise ValueError("x_moment: the initial law's moments of x are needed (callable monomial -> E)")
+        nb = self.nb
+
+        def E(e):
+            return 0.0 if any(e[nb:]) else float(self.x_moment(tuple(e[:nb])))
+        N = len(self.coords)
+        z0 = np.array([E(c) for c in self.coords])
+        X0 = np.array([[E(tuple(a + b for a, b in zip(self.coords[i], self.coords[j]))) for j in range(N)]
+                       for i in range(N)])
+        return z0, X0
+
+    def covariance_path(self, T_: int):
+        """``(X, P, K)`` on the half-step grid ``j dt/2``, j = 0..2T (RK4 with step dt/2)."""
+        z0, X = self.initial_moments()
+        P = X - np.outer(z0, z0)
+        A, Bs, H, Ms = self.A, self.B, self.H, self.M
+        h = self.dt / 2
+
+        def rhs(X, P):
+            Pi = np.einsum("aij,jk,alk->il", Bs, X, Bs)
+            C = np.einsum("aij,jk,alk->il", Bs, X, Ms)
+            Sv = np.einsum("aij,jk,alk->il", Ms, X, Ms)
+            K = (P @ H.T + C) @ _pinv_psd(Sv, tol=1e-10)
+            return A @ X + X @ A.T + Pi, A @ P + P @ A.T + Pi - K @ Sv @ K.T, K
+
+        Xs, Ps, Ks = [X], [P], []
+        for _ in range(2 * T_):
+            k1 = rhs(X, P)
+            Ks.append(k1[2])
+            k2 = rhs(X + h / 2 * k1[0], P + h / 2 * k1[1])
+            k3 = rhs(X + h / 2 * k2[0], P + h / 2 * k2[1])
+            k4 = rhs(X + h * k3[0], P + h * k3[1])
+            X = symmetrize(X + h / 6 * (k1[0] + 2 * k2[0] + 2 * k3[0] + k4[0]))
+            P = symmetrize(P + h / 6 * (k1[1] + 2 * k2[1] + 2 * k3[1] + k4[1]))
+            Xs.append(X)
+            Ps.append(P)
+        Ks.append(rhs(X, P)[2])
+        return np.array(Xs), np.array(Ps), np.array(Ks)
+
+    def error_variance(self, T_: int) -> np.ndarray:
+        """Off-line ``E[(x_i − x̂_i)²]`` at ``t_k = k dt``, k = 0..T, shape ``(T+1, n_base)``."""
+        _, Ps, _ = self.covariance_path(T_)
+        ix = [self.index[tuple(int(j == v) for j in range(self.nb + self.m))] for v in range(self.nb)]
+        return np.stack([Ps[::2, i, i] for i in ix], axis=-1)
+
+    def run(self, dys, *, on_divergence: str = "raise") -> Estimates:
+        """Filter increments ``dys (..., T, m)`` (y0 = 0): pseudo-observable increments are formed
+        from the running ``y``; returns estimates of the base variables."""
+        from .base import GaussianState
+        dys = V.as_float_array("dys", dys, ndim_min=2, shape_tail=(None, self.m))
+        V.finite("dys", dys)
+        batch, T_ = dys.shape[:-2], dys.shape[-2]
+        z0, _ = self.initial_moments()
+        _, Ps, Ks = self.covariance_path(T_)
+        y = np.concatenate([np.zeros((*batch, 1, self.m)), np.cumsum(dys, axis=-2)], axis=-2)
+        Y = np.stack([y[..., i] ** p for i, p in self.obs_meta], axis=-1)  # pseudo-observables y_i^p
+        dY = np.diff(Y, axis=-2)
+        zs = np.broadcast_to(z0, (*batch, len(z0))).copy()
+        ix = [self.index[tuple(int(j == v) for j in range(self.nb + self.m))] for v in range(self.nb)]
+        out = _Runner(batch, T_, self.nb, on_divergence, self.name)
+        h = self.dt
+        for k in range(T_):
+            K0, K1, K2 = Ks[2 * k], Ks[2 * k + 1], Ks[2 * k + 2]
+            Phi, Gam = _affine_step(self.A - K0 @ self.H, self.A - K1 @ self.H, self.A - K2 @ self.H,
+                                    K0, K1, K2, h, self.scheme)
+            zs = zs @ Phi.T + (dY[..., k, :] / h) @ Gam.T
+            Pk = Ps[2 * k + 2][np.ix_(ix, ix)]
+            st = GaussianState(zs[..., ix], np.broadcast_to(Pk, (*batch, self.nb, self.nb)))
+            out.record(k, st, st)
+        return out.result()
+
+
+__all__ = ["PseudoObservablesFilter", "OptimalLinearFilter", "DiscreteOptimalLinearFilter", "LinearSteadyState", "WonhamReport",
            "wonham_condition", "state_second_moments", "augmented_second_moment", "JointProcess",
            "joint_process", "odd_features", "fit_post_processor", "PostProcessorFit", "TensorFilter",
            "multistage", "UpdatedInnovationsFilter", "evaluate_poly"]
