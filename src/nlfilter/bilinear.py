@@ -105,11 +105,12 @@ class BilinearModel:
 
     def __init__(self, F, H, *, G=(), M=(), B=None, Q=None, R=None, c=None, d=None, time=None,
                  discrete: bool = False, names=None):
-        Fa = np.asarray(F, dtype=object) if not isinstance(F, sp.MatrixBase) else F
-        n = (F.shape[0] if isinstance(F, sp.MatrixBase) else np.shape(F)[0]) if np.ndim(Fa) else 0
-        if n == 0 or np.shape(F) != (n, n) and not isinstance(F, sp.MatrixBase):
-            raise ValueError(f"F: expected a square (n, n) matrix, got shape {np.shape(F)}")
-        Hs = H.shape if isinstance(H, sp.MatrixBase) else np.shape(H)
+        shape = lambda M: tuple(M.shape) if isinstance(M, sp.MatrixBase) else np.shape(M)  # noqa: E731
+        Fs = shape(F)
+        if len(Fs) != 2 or Fs[0] != Fs[1] or Fs[0] == 0:
+            raise ValueError(f"F: expected a square (n, n) matrix, got shape {Fs}")
+        n = Fs[0]
+        Hs = shape(H)
         if len(Hs) != 2 or Hs[1] != n:
             raise ValueError(f"H: expected shape (m, {n}), got {Hs}")
         m = Hs[0]

@@ -185,13 +185,9 @@ def _monte_carlo(res, model, lift, tf, q, r, params, quick, runs, seedseq, progr
     ests = {}
     lin = OptimalLinearFilter(lift, dt).run(dys, m0, P0)
     ests["linear"] = (lin.means[..., 0], lin.means[..., 2])
-    tfm = TensorFilter(lift, dt, targets=[0, 2], degree=3)
-    tfm._fits, tfm.joint = tf._fits, tf.joint
-    te = tfm.run(dys, m0, P0)
+    te = tf.with_dt(dt).run(dys, m0, P0)
     ests["tensor"] = (te.means[..., 0], te.means[..., 1])
-    ui = UpdatedInnovationsFilter(lift, dt, targets=[0, 2], degree=3)
-    ui._fits, ui.joint = tf._fits, tf.joint
-    ue = ui.run(dys, m0, P0, on_divergence="mark")
+    ue = UpdatedInnovationsFilter.from_tensor(tf, dt).run(dys, m0, P0, on_divergence="mark")
     ests["updated-innovations"] = (ue.means[..., 0], ue.means[..., 1])
     others = _other_filters(model, dt, q, quick)
     runs_ = []

@@ -689,6 +689,15 @@ class TensorFilter:
         self._fits = fits
         return fits
 
+    def with_dt(self, dt: float) -> "TensorFilter":
+        """The same filter (same off-line gains, computed once) for increments of step ``dt``."""
+        other = type(self).__new__(type(self))
+        other.__dict__.update(self.__dict__)
+        other.linear = OptimalLinearFilter(self.model, dt, gains="steady", X0=self.linear.X0, scheme=self.linear.scheme)
+        other.linear._steady = self.linear._steady
+        other.dt = float(dt)
+        return other
+
     def post_process(self, zhat: np.ndarray) -> np.ndarray:
         """Apply the post-processors to linear estimates ``(..., N)`` (augmented) -> ``(..., len(targets))``."""
         fits = self.fit()
@@ -738,6 +747,13 @@ class UpdatedInnovationsFilter(TensorFilter):
 
     name = "updated-innovations"
 
+    @classmethod
+    def from_tensor(cls, tf: TensorFilter, dt: float | None = None) -> "UpdatedInnovationsFilter":
+        """Reuse a fitted :class:`TensorFilter`'s off-line gains (and optionally a new step)."""
+        other = cls.__new__(cls)
+        other.__dict__.update((tf if dt is None else tf.with_dt(dt)).__dict__)
+        return other
+
     def run(self, dys, m0, P0, *, on_divergence: str = "raise") -> Estimates:
         from .base import GaussianState
         self.fit()
@@ -759,7 +775,8 @@ class UpdatedInnovationsFilter(TensorFilter):
             zp[..., tg] = self.post_process(z)
             return z @ F.T + (y - zp @ H.T) @ K.T
 
-        cov = np.full((nt, nt), np.nan)
+        eye = np.broadcast_to(np.eye(nt), (*batch, nt, nt))  # placeholder: the divergence screen checks means
+        reset = GaussianState(np.broadcast_to(z0[tg], (*batch, nt)), eye)
         for k in range(T_):
             y = dys[..., k, :] / h
             if self.linear.scheme == "euler":
@@ -770,14 +787,11 @@ class UpdatedInnovationsFilter(TensorFilter):
                 k3 = rhs(zs + h / 2 * k2, y)
                 k4 = rhs(zs + h * k3, y)
                 zs = zs + h / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
-            est = self.post_process(zs)
-            st = GaussianState(est, np.broadcast_to(cov, (*batch, nt, nt)))
-            reset = GaussianState(np.broadcast_to(z0[tg], (*batch, nt)), np.broadcast_to(np.eye(nt), (*batch, nt, nt)))
-            st2 = out.record(k, GaussianState(st.mean, np.broadcast_to(np.eye(nt), (*batch, nt, nt))), reset)
-            if out.diverged.any():
+            out.record(k, GaussianState(self.post_process(zs), eye), reset)
+            if out.diverged.any():  # diverged paths restart harmlessly; their outputs are NaN
                 zs = np.where(out.diverged[..., None], z0, zs)
-            _ = st2
         res = out.result()
+        cov = np.full((nt, nt), np.nan)  # no error covariance for this nonlinear recursion
         return Estimates(res.means, np.broadcast_to(cov, res.covs.shape).copy(), res.diverged, res.diverged_step)
 
 
