@@ -252,3 +252,18 @@ def test_pseudo_observables_singular_start_and_monte_carlo():
         e2 = (est.means[:, k, 0] - xs[:, k]) ** 2
         assert abs(e2.mean() - ev[k]) < 3 * e2.std(ddof=1) / np.sqrt(paths), (k, e2.mean(), ev[k])
     assert np.all(ev <= lin + 1e-12) and np.max(1 - ev / lin) > 0.01
+
+
+def test_time_varying_model_equals_kalman_bucy():
+    """Time-varying matrices (SymPy in the time symbol): F(t) = −(1 + ½ sin t)."""
+    t, x = sp.symbols("t x")
+    Ft = sp.Matrix([[-(1 + sp.sin(t) / 2)]])
+    model = BilinearModel(Ft, [[1.0]], B=[[1.0]], R=[[0.5]], time=t)
+    sde = SDEModel([x], [Ft[0, 0] * x], [x], Q=1.0, R=0.5, time=t)
+    dt = 0.01
+    dys = np.random.default_rng(3).normal(0, np.sqrt(0.5 * dt), size=(2, 300, 1))
+    ours = OptimalLinearFilter(model, dt, gains="time-varying").run(dys, [1.0], [[0.3]])
+    kb = KalmanBucy(sde, dt).run(dys, [1.0], [[0.3]])
+    assert np.max(np.abs(ours.means - kb.means)) < 1e-6 and np.max(np.abs(ours.covs - kb.covs)) < 1e-6
+    with pytest.raises(ValueError, match="steady"):
+        OptimalLinearFilter(model, dt, gains="steady")
