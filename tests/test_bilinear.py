@@ -149,7 +149,7 @@ def test_appendix_A_generated_entry_by_entry():
     """Appendix A (phase tracking, x_[3] of (x1, x2, x̂1, x̂2, 1)): 35x35 A and B1..B3, generated.
 
     Disagreements, each with its reason (checked below by an independent SymPy Itô derivation):
-    * 12 entries K²r / 3K²r (rows 8, 9, 20, 21, 28, 29, 31-34): the appendix used E dn² = r dt for
+    * 10 entries K²r / 3K²r (rows 8, 9, 20, 21, 28, 29, 31-34): the appendix used E dn² = r dt for
       the baseband noises, but eq. 4.14 (and the gain 4.18 derived from it) has 2r: generated 2K²r /
       6K²r. With intensity r every one of them agrees (asserted).
     * A(11,11) .. A(14,14) = −q − 2K in the appendix: d(x_i x̂_j) = x̂_j dx_i + x_i dx̂_j has
