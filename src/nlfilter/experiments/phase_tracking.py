@@ -3,7 +3,8 @@
 (a) Fig. 4.3: off-line reduction (percent) of the MSE of x₁ = sin θ by the cubic post-processor
     over the optimal linear filter, against ``P_θℓ = √(2rq)``; exact steady-state moments of
     (x, x̂) on the circle, conservation laws imposed. Also the peak (paper: ≈ 9.2 % near 0.129).
-(b) Fig. 4.4: the post-processor's α and β against ``P_θℓ``.
+(b) Fig. 4.4: the post-processor's α and β against ``P_θℓ``. (Also the quintic post-processor,
+    filter ``tensor5``, an extension.)
 (c) Table 4.1: simulation at ``P_θℓ = 0.129`` (RK4, step 1 % of the PLL time constant 1/K,
     runs of 500 time constants with the first 25 discarded, common noise): PLL, LQF, tensor
     filter, and the optimal filter (grid on the circle).
@@ -54,14 +55,17 @@ def run(params, *, quick, runs, seed, progress):
         res.add("tensor", "beta", fit.gains[1], P=P)
         res.add("linear", "mse_x1", fit.mse_linear, P=P)
         res.add("tensor", "mse_x1", fit.mse, P=P)
+        res.add("tensor5", "reduction_x1", post_processor(P, q=q, degree=5).reduction, P=P)
     peak, Pk = _peak(q)
     res.add("tensor", "peak_reduction_x1", peak, paper=PEAK[0])
     res.add("tensor", "peak_P", Pk, paper=PEAK[1])
     n = 12 if quick else int(params["sweep"])
     grid = np.geomspace(0.01, 2.0, n)
     fits = [post_processor(float(P), q=q) for P in tqdm(grid, disable=not progress, desc="Fig. 4.3 sweep")]
+    fits5 = [post_processor(float(P), q=q, degree=5) for P in grid]
     res.series["Fig. 4.3: MSE reduction of x1 = sin θ"] = {
-        "x": grid, "lines": {"cubic post-processor": [f.reduction for f in fits]},
+        "x": grid, "lines": {"cubic post-processor": [f.reduction for f in fits],
+                             "quintic post-processor": [f.reduction for f in fits5]},
         "xlabel": "P_θℓ = √(2rq)", "ylabel": "reduction (%)", "logx": True}
     res.series["Fig. 4.4: post-processor α, β"] = {
         "x": grid, "lines": {"α": [f.gains[0] for f in fits], "β": [f.gains[1] for f in fits]},
