@@ -26,6 +26,7 @@ the others.
 
 from __future__ import annotations
 
+import functools
 from typing import NamedTuple
 
 import numpy as np
@@ -58,13 +59,32 @@ class Estimates(NamedTuple):
 
 
 def symmetrize(P: np.ndarray) -> np.ndarray:
+    if P.shape[-1] == 1:
+        return P
     return 0.5 * (P + np.swapaxes(P, -1, -2))
+
+
+@functools.lru_cache(maxsize=None)
+def _eye(n: int) -> np.ndarray:
+    e = np.eye(n)
+    e.flags.writeable = False
+    return e
+
+
+def mm(A: np.ndarray, B: np.ndarray) -> np.ndarray:
+    """``A @ B`` for batches of small matrices; an outer product (a broadcast multiply, several
+    times faster than a batched matmul) when the inner dimension is 1."""
+    if A.shape[-1] == 1:
+        return A * B
+    return A @ B
 
 
 def bad_paths(mean: np.ndarray, cov: np.ndarray, tol: float = PSD_TOL) -> np.ndarray:
     """Boolean ``(...)``: paths whose mean/cov is non-finite or whose cov is not PSD."""
-    ok = np.all(np.isfinite(mean), axis=-1) & np.all(np.isfinite(cov), axis=(-1, -2))
     n = cov.shape[-1]
+    if n == 1 and np.isfinite(mean).all() and np.isfinite(cov).all() and cov.min() >= 0.0:
+        return np.zeros(mean.shape[:-1], dtype=bool)  # the common case, in three reductions
+    ok = np.all(np.isfinite(mean), axis=-1) & np.all(np.isfinite(cov), axis=(-1, -2))
     safe = np.where(ok[..., None, None], cov, np.eye(n))
     if n == 1:
         low = safe[..., 0, 0]
@@ -103,14 +123,13 @@ def gaussian_update(state: GaussianState, y: np.ndarray, y_pred: np.ndarray, S: 
         K = C / S
     else:
         K = np.swapaxes(np.linalg.solve(S, np.swapaxes(C, -1, -2)), -1, -2)  # K = C S⁻¹ (S symmetric)
-    mean = m + np.einsum("...ij,...j->...i", K, e)
-    if H is not None:
-        IKH = np.eye(m.shape[-1]) - K @ H
-        cov = IKH @ P @ np.swapaxes(IKH, -1, -2) + K @ R @ np.swapaxes(K, -1, -2)
-        if miss.any():  # K's missing columns are zero, so R's missing rows never enter
-            pass
+    mean = m + (K[..., 0] * e if e.shape[-1] == 1 else np.einsum("...ij,...j->...i", K, e))
+    Kt = np.swapaxes(K, -1, -2)
+    if H is not None:  # Joseph form; K's missing columns are zero, so R's missing rows never enter
+        IKH = _eye(m.shape[-1]) - mm(K, H)
+        cov = mm(mm(IKH, P), np.swapaxes(IKH, -1, -2)) + mm(mm(K, R), Kt)
     else:
-        cov = P - K @ S @ np.swapaxes(K, -1, -2)
+        cov = P - mm(mm(K, S), Kt)
     return GaussianState(mean, symmetrize(cov))
 
 
@@ -135,14 +154,19 @@ class _Runner:
 
     def __init__(self, batch, T, n, on_divergence, name):
         self.on = V.choice("on_divergence", on_divergence, {"raise", "mark"})
-        self.means = np.empty((*batch, T, n))
-        self.covs = np.empty((*batch, T, n, n))
+        self.means = np.empty((T, *batch, n))  # time-major while filling (contiguous writes)
+        self.covs = np.empty((T, *batch, n, n))
         self.diverged = np.zeros(batch, dtype=bool)
         self.step = np.full(batch, -1)
         self.name = name
 
     def record(self, k, state, reset: GaussianState) -> GaussianState:
-        bad = bad_paths(state.mean, state.cov) & ~self.diverged
+        bad = bad_paths(state.mean, state.cov)
+        if not self.diverged.any() and not bad.any():  # the common case
+            self.means[k] = state.mean
+            self.covs[k] = state.cov
+            return state
+        bad &= ~self.diverged
         if bad.any():
             if self.on == "raise":
                 idx = np.flatnonzero(bad.ravel())
@@ -153,19 +177,17 @@ class _Runner:
                     what="covariance")
             self.diverged |= bad
             self.step[bad] = k
-        if self.diverged.any():  # diverged paths restart from a harmless state; outputs are NaN
-            d = self.diverged
-            state = GaussianState(np.where(d[..., None], reset.mean, state.mean),
-                                  np.where(d[..., None, None], reset.cov, state.cov))
-            self.means[..., k, :] = np.where(d[..., None], np.nan, state.mean)
-            self.covs[..., k, :, :] = np.where(d[..., None, None], np.nan, state.cov)
-        else:
-            self.means[..., k, :] = state.mean
-            self.covs[..., k, :, :] = state.cov
+        # diverged paths restart from a harmless state; their outputs are NaN (flagged)
+        d = self.diverged
+        state = GaussianState(np.where(d[..., None], reset.mean, state.mean),
+                              np.where(d[..., None, None], reset.cov, state.cov))
+        self.means[k] = np.where(d[..., None], np.nan, state.mean)
+        self.covs[k] = np.where(d[..., None, None], np.nan, state.cov)
         return state
 
     def result(self) -> Estimates:
-        return Estimates(self.means, self.covs, self.diverged, self.step)
+        return Estimates(np.ascontiguousarray(np.moveaxis(self.means, 0, -2)),
+                         np.ascontiguousarray(np.moveaxis(self.covs, 0, -3)), self.diverged, self.step)
 
 
 class DiscreteFilter:
@@ -195,11 +217,12 @@ class DiscreteFilter:
         T = ys.shape[-2]
         out = _Runner(batch, T, model.n, on_divergence, self.name)
         offset = 0 if self.start == "update" else 1
+        absent = np.isnan(ys).all(axis=(*range(len(batch)), -1))  # (T,): steps with no measurement
         for k in range(T):
             if k > 0 or offset:
                 state = self.predict(state, k + offset - 1)
             y = ys[..., k, :]
-            if not np.all(np.isnan(y)):
+            if not absent[k]:
                 state = self.update(state, y, k + offset)
             state = out.record(k, state, init)
         return out.result()

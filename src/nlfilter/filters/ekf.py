@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .base import ContinuousFilter, DiscreteFilter, GaussianState, gaussian_update
+from .base import ContinuousFilter, DiscreteFilter, GaussianState, gaussian_update, mm
 
 
 class EKF(DiscreteFilter):
@@ -43,15 +43,15 @@ class EKF(DiscreteFilter):
         m, P = state
         md = self.model
         F = md.f_x(m, k)
-        cov = F @ P @ np.swapaxes(F, -1, -2) + md.GQGT(m, k)
+        cov = mm(mm(F, P), np.swapaxes(F, -1, -2)) + md.GQGT(m, k)
         return GaussianState(md.f(m, k), cov)
 
     def update(self, state, y, k):
         m, P = state
         md = self.model
         H = md.h_x(m, k)
-        C = P @ np.swapaxes(H, -1, -2)
-        S = H @ C + md.R
+        C = mm(P, np.swapaxes(H, -1, -2))
+        S = mm(H, C) + md.R
         return gaussian_update(state, y, md.h(m, k), S, C, H=H, R=md.R)
 
 

@@ -1,0 +1,119 @@
+"""Table 1 and Fig. 10 of seed 000 (zero-order problem).
+
+Table 1 cells and the OCR: the printed table was partly garbled; cells read as follows (see
+``PAPER_TABLE1`` in the experiment module): U / ^ / li / 1+ stand for 4, I for 1, O for 0.  The
+J = 4, N = 2 cell reads "0.151^8" with one digit lost: it is the only illegible cell, and it is
+checked only against the legible part of its digits.
+"""
+
+import numpy as np
+import pytest
+
+from nlfilter.experiments import get
+from nlfilter.experiments.zero_order import (ILLEGIBLE_TABLE1, PAPER_TABLE1, exact_mse, linear_gain,
+                                             paper_value, sample_power_density)
+from nlfilter.filters.moment_bayes import ZeroOrderMomentFilter, power_density_estimate
+from nlfilter.moments.densities import power_density_moments
+
+NAMES = ["optimal", "moment2", "moment4", "moment6", "linear"]
+
+
+def _value(J, name, nodes=100):
+    if name == "optimal":
+        return exact_mse(lambda z: power_density_estimate(z, J), J, nodes=nodes)[0]
+    if name == "linear":
+        g = linear_gain(J)
+        return exact_mse(lambda z: g * z, J, nodes=nodes)[0]
+    N = int(name[-1])
+    f = ZeroOrderMomentFilter(N, moments=power_density_moments(N, J), invalid_moments="ignore")
+    return exact_mse(lambda z: f.estimate(z)[0], J, switch=lambda z: f.estimate(z)[1], nodes=nodes)[0]
+
+
+# Cells where the estimator jumps to its fallback (eq. 3.16) inside (0, 2): the paper's numbers
+# there differ from the exact integral (see test_disputed_cell_by_monte_carlo).
+SWITCHING = {(6, "moment2"), (8, "moment2"), (10, "moment2"), (10, "moment4")}
+# J = 10, smooth integrands: the paper is off by 5e-7 (e_op) and 4e-6 (e_6).
+J10_SMOOTH = {(10, "optimal"): 1e-6, (10, "moment6"): 5e-6}
+
+
+@pytest.mark.parametrize("J", sorted(PAPER_TABLE1))
+def test_table1_cell_by_cell(J):
+    for name in NAMES:
+        ours = _value(J, name)
+        paper = paper_value(J, name)
+        if (J, name) in ILLEGIBLE_TABLE1:
+            # legible digits "0.151" and a final "8": our 0.151448 fits "0.151^8" with ^ = 44
+            assert f"{ours:.6f}".startswith("0.151") and f"{ours:.6f}".endswith("8")
+        elif (J, name) in SWITCHING:
+            # documented discrepancy, at most 0.0019 (1.4 %): independent check below
+            assert abs(ours - paper) < 2e-3, (J, name, ours, paper)
+        elif (J, name) in J10_SMOOTH:
+            assert abs(ours - paper) < J10_SMOOTH[(J, name)], (J, name, ours, paper)
+        else:
+            # equal to the printed six decimals
+            assert abs(ours - paper) <= 0.5e-6 + 1e-12, (J, name, ours, paper)
+
+
+def test_quadrature_converged():
+    for J, name in [(10, "optimal"), (8, "moment2"), (10, "moment4"), (10, "moment6")]:
+        assert _value(J, name, nodes=100) == pytest.approx(_value(J, name, nodes=200), abs=1e-12)
+
+
+def test_disputed_cell_by_monte_carlo():
+    # J = 8, N = 2: ours 0.203392, paper 0.201550.  A Monte Carlo with 4e6 samples (standard error
+    # ~1.5e-4) agrees with ours within 4 standard errors and puts the paper's value > 6 se away.
+    J, N = 8, 2
+    rng = np.random.default_rng(2024)
+    f = ZeroOrderMomentFilter(N, moments=power_density_moments(N, J))
+    s1 = s2 = 0.0
+    n = 0
+    for _ in range(4):
+        x = sample_power_density(rng, J, 1_000_000)
+        z = x + rng.uniform(-1, 1, x.shape)
+        e2 = (x - f.estimate(z)[0]) ** 2
+        s1, s2, n = s1 + e2.sum(), s2 + (e2 ** 2).sum(), n + e2.size
+    mc = s1 / n
+    se = np.sqrt((s2 / n - mc ** 2) / n)
+    ours = _value(J, "moment2")
+    assert abs(mc - ours) < 4 * se
+    assert abs(mc - paper_value(J, "moment2")) > 6 * se
+
+
+def test_J0_all_equal_optimal_eq_3_26():
+    vals = [_value(0, name) for name in NAMES]
+    np.testing.assert_allclose(vals, 1 / 6, atol=1e-12)
+
+
+def test_experiment_quick_rows_and_mc_check():
+    res = get("zero-order").run({"J": [4, 10], "N": [2, 6]}, quick=True, runs=40_000, seed=1)
+    for J in (4, 10):
+        for name in ("optimal", "moment2", "moment6", "linear"):
+            det = res.get(name, "mse", J=J)
+            mc = res.get(name, "mse_mc", J=J)
+            assert det.paper == paper_value(J, name)
+            assert abs(mc.value - det.value) < 4.5 * mc.stderr  # MC check of the quadrature
+        assert res.get("moment6", "mse_gap", J=J).value >= -1e-12
+    # any even J and any N <= 12 are accepted; odd J / N > 12 are not
+    r2 = get("zero-order").run({"J": [12], "N": [12]}, quick=True, runs=2000)
+    assert r2.get("moment12", "mse", J=12).value == pytest.approx(r2.get("optimal", "mse", J=12).value, abs=1e-9)
+    with pytest.raises(ValueError, match="J"):
+        get("zero-order").run({"J": [3]}, quick=True)
+    with pytest.raises(ValueError, match="N"):
+        get("zero-order").run({"N": [13]}, quick=True)
+
+
+def test_adaptive_quick_rows():
+    res = get("zero-order-adaptive").run({}, quick=True, runs=30, seed=3)
+    q = "mse_n600"
+    for J in (10, 0):
+        for name in ("moment2", "moment4", "moment6", "linear", "optimal"):
+            r = res.get(name, q, J=J)
+            assert r.stderr > 0 and np.isfinite(r.value)
+        # the optimal filter is never beaten on average by more than noise (paired gap >= -3 se)
+        for name in ("moment2", "moment4", "moment6", "linear"):
+            g = res.get(name, "gap_n600", J=J)
+            assert g.value > -3 * g.stderr - 1e-12
+    # J = 0: linear = optimal exactly (both z/2)
+    assert res.get("linear", q, J=0).value == pytest.approx(res.get("optimal", q, J=0).value, abs=1e-12)
+    assert any(n.startswith("claim J=10") for n in res.notes)
+    assert "Fig. 10 J=10" in res.series

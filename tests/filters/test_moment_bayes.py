@@ -1,0 +1,216 @@
+"""The method-of-moments Bayesian filter of seed 000: zero-order estimator and adaptive mode."""
+
+import doctest
+import warnings
+
+import numpy as np
+import pytest
+from scipy import integrate
+
+import nlfilter.filters.moment_bayes as MB
+from nlfilter.filters.moment_bayes import (MomentFilterWarning, ZeroOrderMomentFilter,
+                                           power_density_estimate, zero_order_estimate)
+from nlfilter.moments.densities import LegendreDensity, power_density_moments, uniform_moments
+
+
+def test_doctests():
+    assert doctest.testmod(MB).failed == 0
+
+
+@pytest.mark.parametrize("N", [1, 2, 4, 6, 12])
+def test_J0_every_estimator_is_z_over_2(N):
+    # 000 eqs. 3.25-3.26: with x ~ U(-1, 1) every moment estimator equals the optimal z/2
+    z = np.linspace(-1.999, 1.999, 41)
+    f = ZeroOrderMomentFilter(N, moments=uniform_moments(N))
+    xh, fb = f.estimate(z)
+    np.testing.assert_allclose(xh, z / 2, atol=1e-12)
+    np.testing.assert_allclose(power_density_estimate(z, 0), z / 2, atol=1e-12)
+    assert not fb.any()
+
+
+@pytest.mark.parametrize("J,N", [(2, 2), (4, 4), (4, 6), (6, 8)])
+def test_estimator_is_optimal_when_N_covers_J(J, N):
+    z = np.linspace(-1.99, 1.99, 37)
+    f = ZeroOrderMomentFilter(N, moments=power_density_moments(N, J))
+    np.testing.assert_allclose(f.estimate(z)[0], power_density_estimate(z, J), atol=1e-10)
+
+
+def test_estimate_against_quadrature_of_eq_3_5():
+    # eq. 3.5 with the polynomial prior, by adaptive quadrature
+    m = power_density_moments(4, 10)
+    d = LegendreDensity.from_moments(m)
+    for z in (0.05, 0.7, 1.6, -0.3):
+        l, u = max(-1, z - 1), min(1, z + 1)
+        num = integrate.quad(lambda x: x * float(d.pdf(x)), l, u)[0]
+        den = integrate.quad(lambda x: float(d.pdf(x)), l, u)[0]
+        xh, fb = zero_order_estimate(np.array(z), d)
+        if den >= 1e-6 and l < num / den < u:
+            assert float(xh) == pytest.approx(num / den, abs=1e-10) and not fb
+        else:
+            assert float(xh) == pytest.approx(0.5 * (l + u)) and fb
+
+
+def test_fallback_eq_3_16_when_denominator_small():
+    # N = 2, J = 10: the quadratic prior is negative near 0, so for z near 0.6 the interval
+    # integral is tiny/negative or the ratio leaves (l, u) -> midpoint (l + u)/2
+    f = ZeroOrderMomentFilter(2, moments=power_density_moments(2, 10))
+    z = np.linspace(0.4, 0.95, 12)
+    xh, fb = f.estimate(z)
+    assert fb.all()
+    np.testing.assert_allclose(xh, 0.5 * ((z - 1) + 1))
+    assert np.isfinite(xh).all()
+
+
+def test_impossible_measurement_raises_or_clips():
+    f = ZeroOrderMomentFilter(2, moments=uniform_moments(2))
+    with pytest.raises(ValueError, match="zs: measurement 2.5"):
+        f.run(np.array([[0.1, 2.5]]))
+    g = ZeroOrderMomentFilter(2, moments=uniform_moments(2), outside="clip")
+    r = g.run(np.array([[0.1, 2.5, -3.0]]))
+    np.testing.assert_allclose(r.estimates, [[0.05, 1.0, -1.0]])
+
+
+def test_bad_arguments():
+    with pytest.raises(ValueError, match="moments"):
+        ZeroOrderMomentFilter(2)
+    with pytest.raises(ValueError, match="moments: expected trailing shape"):
+        ZeroOrderMomentFilter(4, moments=[0.0, 0.3])
+    with pytest.raises(TypeError, match="N"):
+        ZeroOrderMomentFilter(2.5, moments=[0.0, 0.3])
+    with pytest.raises(ValueError, match="outside"):
+        ZeroOrderMomentFilter(2, moments=[0.0, 0.3], outside="nan")
+    with pytest.raises(ValueError, match="support"):
+        ZeroOrderMomentFilter(2, moments=[0.0, 0.3], support=(1, -1))
+
+
+def test_adaptive_moments_follow_eqs_2_27_3_14_3_15():
+    rng = np.random.default_rng(3)
+    T, W, n0 = 65, 20, 100.0
+    z = rng.uniform(-1, 1, T) + rng.uniform(-1, 1, T)
+    f = ZeroOrderMomentFilter(2, adaptive=True, n0=n0, window=W)
+    r = f.run(z[None])
+    assert r.moments.shape == (1, 3, 2)  # refreshes at k = 20, 40, 60
+    for j, k in enumerate((20, 40, 60)):
+        mz1, mz2 = np.mean(z[:k]), np.mean(z[:k] ** 2)
+        mx = np.array([mz1, mz2 - 1 / 3])  # eq. 3.14 with m_v1 = 0, m_v2 = 1/3
+        want = n0 / (k + n0) * np.array([0.0, 1 / 3]) + k / (k + n0) * mx  # eq. 3.15
+        np.testing.assert_allclose(r.moments[0, j], want, atol=1e-13)
+    # steps 1..19 use the initial guess (uniform => z/2), step 20 already the refreshed moments
+    np.testing.assert_allclose(r.estimates[0, :19], z[:19] / 2, atol=1e-12)
+    xh20 = f.estimate(z[19], r.moments[0, 0])[0]
+    assert r.estimates[0, 19] == pytest.approx(float(xh20))
+
+
+def test_adaptive_converges_to_known_moment_estimator():
+    # with a long record the learned moments approach the true ones: the adaptive N=2 estimator's
+    # MSE approaches the known-moment one (J = 4, whose N=2 MSE is 0.151448, Table 1)
+    rng = np.random.default_rng(7)
+    R, T = 200, 3000
+    x = np.where(rng.random((R, T)) < 0.5, -1, 1) * rng.random((R, T)) ** (1 / 5)
+    z = x + rng.uniform(-1, 1, (R, T))
+    r = ZeroOrderMomentFilter(2, adaptive=True).run(z)
+    known = ZeroOrderMomentFilter(2, moments=power_density_moments(2, 4)).run(z)
+    tail = slice(2000, None)
+    d = ((x - r.estimates) ** 2 - (x - known.estimates) ** 2)[:, tail].mean(axis=1)
+    se = d.std(ddof=1) / np.sqrt(R)
+    assert abs(d.mean()) < 4 * se + 1e-3
+
+
+def test_invalid_moments_warn_and_fall_back():
+    rng = np.random.default_rng(0)
+    z = rng.uniform(-1, 1, (5, 60)) + rng.uniform(-1, 1, (5, 60))
+    f = ZeroOrderMomentFilter(12, adaptive=True, n0=0.0, window=20)
+    with pytest.warns(MomentFilterWarning, match="N = 12"):
+        r = f.run(z)
+    assert np.isfinite(r.estimates).all()
+    assert r.invalid.any()
+    l, u = np.maximum(-1, z - 1), np.minimum(1, z + 1)
+    np.testing.assert_allclose(r.estimates[r.invalid], (0.5 * (l + u))[r.invalid])
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        r2 = ZeroOrderMomentFilter(12, adaptive=True, n0=0.0, invalid_moments="ignore").run(z)
+    assert np.isfinite(r2.estimates).all()
+
+
+# ------------------------------------------------------------------ first-order system
+
+import scipy.stats as st  # noqa: E402
+
+from nlfilter.filters.moment_bayes import BoundedGridFilter1D, FirstOrderMomentFilter  # noqa: E402
+from nlfilter.moments.densities import sum_moments  # noqa: E402
+
+
+def test_first_order_with_h0_is_the_zero_order_filter():
+    # h = 0: x_{k+1} = w_k i.i.d., so each step is the zero-order estimator with the moments of w
+    rng = np.random.default_rng(1)
+    m = power_density_moments(4, 6)
+    z = rng.uniform(-1.9, 1.9, (3, 25))
+    r = FirstOrderMomentFilter(0.0, 1.0, 4, w_moments=m).run(z)
+    xh = ZeroOrderMomentFilter(4, moments=m, eps=1e-9).estimate(z)[0]
+    np.testing.assert_allclose(r.estimates[..., 0], xh, atol=1e-12)
+
+
+def test_first_order_posterior_moments_against_quadrature():
+    # one predict + update by hand: predicted moments (eq. 3.13 on h x + w), polynomial on the
+    # reachable interval, posterior moments = ratios of integrals over [max(l, z-1), min(u, z+1)]
+    f = FirstOrderMomentFilter(0.6, 1.0, 4, w_moments=power_density_moments(4, 2))
+    m0 = np.array([0.1, 0.5, 0.05, 0.35])
+    mp, lp, up = f.predict(m0, np.array(-0.8), np.array(1.0), f.w_moments)
+    np.testing.assert_allclose(lp, -1.48)
+    np.testing.assert_allclose(up, 1.6)
+    # predicted moments by direct expansion of E[(0.6 x + w)^i]
+    mw = np.r_[1.0, f.w_moments]
+    mx = np.r_[1.0, m0]
+    from math import comb
+    want = [sum(comb(i, j) * 0.6 ** j * mx[j] * mw[i - j] for j in range(i + 1)) for i in range(1, 5)]
+    np.testing.assert_allclose(mp, want, atol=1e-13)
+    z = 0.9
+    post, lo, hi, fb = f.update(mp, lp, up, np.array(z))
+    d = LegendreDensity.from_moments(mp, lp, up)
+    den = integrate.quad(lambda x: float(d.pdf(x)), z - 1, 1.6)[0]
+    for i in range(1, 5):
+        num = integrate.quad(lambda x: x ** i * float(d.pdf(x)), z - 1, 1.6)[0]
+        assert float(post[i - 1]) == pytest.approx(num / den, rel=1e-9)
+    assert float(lo) == pytest.approx(z - 1) and float(hi) == pytest.approx(1.6) and not fb
+
+
+def test_grid_filter_exact_case_uniform_prior_uniform_likelihood():
+    # h = 0 and w ~ U(-1, 1): the posterior is uniform on [max(-1, z-1), min(1, z+1)]
+    g = BoundedGridFilter1D(0.0, st.uniform(-1, 2), 1.0, G=400)
+    z = np.array([[0.3, -1.5, 1.9, 0.0]])
+    want = 0.5 * (np.maximum(-1, z - 1) + np.minimum(1, z + 1))
+    np.testing.assert_allclose(g.run(z)[..., 0], want, atol=2.5e-3)  # cell width 0.005
+
+
+def test_first_order_adaptive_learns_input_moments():
+    # n0 = 0: the learned moments of w are the method-of-moments estimates through
+    # kappa_i(w) = (1 - h^i) kappa_i(x); with 4000 samples they sit near the truth
+    law = st.beta(0.5, 5, loc=-1, scale=2)
+    rng = np.random.default_rng(11)
+    R, T, h = 16, 4000, 0.5
+    w = law.rvs(size=(R, T + 200), random_state=rng)
+    x = np.zeros(R)
+    xs = np.empty((R, T + 200))
+    for k in range(T + 200):
+        xs[:, k] = x
+        x = h * x + w[:, k]
+    z = xs[:, 200:] + rng.uniform(-1, 1, (R, T))
+    r = FirstOrderMomentFilter(h, 1.0, 3, adaptive=True, n0=0.0, window=T).run(z)
+    learned = r.w_moments[:, -1]
+    true = np.array([law.moment(i) for i in (1, 2, 3)])
+    se = learned.std(axis=0, ddof=1) / np.sqrt(R)
+    assert np.all(np.abs(learned.mean(axis=0) - true) < 4 * se + 1e-3)
+
+
+def test_first_order_impossible_measurement():
+    f = FirstOrderMomentFilter(0.5, 1.0, 2, w_moments=uniform_moments(2))
+    with pytest.raises(ValueError, match="zs: measurement 3.5"):
+        f.run(np.array([0.0, 3.5]))
+    g = FirstOrderMomentFilter(0.5, 1.0, 2, w_moments=uniform_moments(2), outside="clip")
+    r = g.run(np.array([0.0, 3.5, 0.2]))
+    # step 1: reachable interval h [-1, 1] + [-1, 1] = [-1.5, 1.5]; z - 1 = 2.5 beyond it -> end point 1.5
+    assert np.isfinite(r.estimates).all() and r.estimates[1, 0] == pytest.approx(1.5)
+    with pytest.raises(ValueError, match="h"):
+        FirstOrderMomentFilter(1.0, 1.0, 2, w_moments=uniform_moments(2))
+    with pytest.raises(ValueError, match="w_moments"):
+        FirstOrderMomentFilter(0.5, 1.0, 2)
