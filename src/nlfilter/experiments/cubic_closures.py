@@ -95,6 +95,14 @@ def run(params, *, quick, runs, seed, progress):
             if name != "optimal":
                 d = ev.paired_difference(est, ests["optimal"], sim.xs, window=window)
                 res.add(name, "mse_x_gap", d.value, d.stderr, q=q, r=r)
+        lines = {}
+        for name, est in ests.items():
+            mse_t, _ = ev.mse_per_step(est, sim.xs)
+            k = max(1, int(round(0.5 / dt)))  # half-unit running mean, for legibility
+            norm = np.convolve(np.ones_like(mse_t), np.ones(k), mode="same")  # shorter windows at the ends
+            lines[name] = np.convolve(mse_t, np.ones(k), mode="same") / norm
+        res.series[f"q={q:g}, r={r:g}: MSE over t (running mean over 0.5)"] = {
+            "x": sim.t, "lines": lines, "xlabel": "t", "ylabel": "mean square error of x"}
         gc = res.get("gaussian-closure", "mse_x", q=q, r=r).value
         e4 = res.get("edgeworth4-closure", "mse_x", q=q, r=r).value
         res.notes.append(
