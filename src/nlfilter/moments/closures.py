@@ -169,7 +169,8 @@ class Closure:
     def __call__(self, indices: Sequence[tuple], values, wanted: Sequence[tuple]) -> np.ndarray:
         values = np.asarray(values)
         last = self.__dict__.get("_last")
-        if last is not None and last[0] is indices and last[1] is wanted:  # same lists as last call: skip re-keying
+        if (last is not None and last[0] is indices and last[1] is wanted  # same lists as last call: skip re-keying
+                and last[3] == (len(indices), len(wanted))):
             plan, out = last[2]
             if values.shape[-1] != plan.n_in:
                 raise ValueError(f"values: expected trailing axis {plan.n_in} (one per kept moment), "
@@ -185,7 +186,7 @@ class Closure:
             return np.zeros((*values.shape[:-1], 0), dtype=values.dtype)
         plan, out = self.plan(indices, wanted)
         if isinstance(ind_in, list) and isinstance(want_in, list):
-            self._last = (ind_in, want_in, (plan, out))  # lists are kept by identity (not re-checked)
+            self._last = (ind_in, want_in, (plan, out), (len(ind_in), len(want_in)))  # by identity and length
         return np.moveaxis(plan.run(values)[out], 0, -1)
 
     def jacobian(self, indices: Sequence[tuple], values, wanted: Sequence[tuple]) -> np.ndarray:
