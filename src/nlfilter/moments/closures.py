@@ -138,21 +138,29 @@ class _Plan:
             V[tg] = np.add.reduceat(V[a] * V[b] * cf[(slice(None), *extra)], starts, axis=0)
         return V
 
-    def jacobian(self, values: np.ndarray, out: np.ndarray) -> np.ndarray:
+    def jacobian(self, values: np.ndarray, out: np.ndarray, *, sparse: bool = False):
         """``∂V[out]/∂inputs (len(out), n_inputs)`` at one point ``values (n_inputs,)``: forward mode,
-        one sparse product per level (dV[t] = Σ c (V[b] dV[a] + V[a] dV[b]))."""
+        one sparse product per level (dV[t] = Σ c (V[b] dV[a] + V[a] dV[b])); CSR when ``sparse``."""
         import scipy.sparse as sps
 
         V = self.run(np.asarray(values, dtype=float))
-        dV = np.zeros((self.size, self.n_in))
-        dV[np.arange(self.n_in), np.arange(self.n_in)] = 1.0
+        row = np.full(self.size, -1)  # register -> row of the stacked derivative blocks
+        row[:self.n_in] = np.arange(self.n_in)
+        blocks = [sps.identity(self.n_in, format="csr"), sps.csr_matrix((2, self.n_in))]  # inputs, ONE/ZERO
+        row[self.ONE], row[self.ZERO] = self.n_in, self.n_in + 1
+        nrows = self.n_in + 2
+        dV = sps.vstack(blocks, format="csr")
         for tg, starts, cf, a, b in self.levels:
             rows = np.repeat(np.arange(len(tg)), np.diff(np.append(starts, len(cf))))
             D = sps.csr_matrix((np.concatenate([cf * V[b], cf * V[a]]),
-                                (np.concatenate([rows, rows]), np.concatenate([a, b]))),
-                               shape=(len(tg), self.size))
-            dV[tg] = D @ dV
-        return dV[out]
+                                (np.concatenate([rows, rows]), np.concatenate([row[a], row[b]]))),
+                               shape=(len(tg), nrows))
+            new = D @ dV
+            row[tg] = nrows + np.arange(len(tg))
+            nrows += len(tg)
+            dV = sps.vstack([dV, new], format="csr")
+        J = dV[row[out]]
+        return J if sparse else J.toarray()
 
 
 class Closure:
@@ -189,15 +197,16 @@ class Closure:
             self._last = (ind_in, want_in, (plan, out), (len(ind_in), len(want_in)))  # by identity and length
         return np.moveaxis(plan.run(values)[out], 0, -1)
 
-    def jacobian(self, indices: Sequence[tuple], values, wanted: Sequence[tuple]) -> np.ndarray:
-        """``∂(wanted raw moments)/∂(kept raw moments)`` at one point: ``(W, K)`` (exact, forward mode)."""
+    def jacobian(self, indices: Sequence[tuple], values, wanted: Sequence[tuple], *, sparse: bool = False):
+        """``∂(wanted raw moments)/∂(kept raw moments)`` at one point: ``(W, K)`` (exact, forward mode;
+        a CSR matrix when ``sparse``)."""
         indices = tuple(tuple(int(i) for i in g) for g in indices)
         wanted = tuple(tuple(int(i) for i in g) for g in wanted)
         values = np.asarray(values, dtype=float)
         if values.shape != (len(indices),):
             raise ValueError(f"values: expected shape ({len(indices)},), got {values.shape}")
         plan, out = self.plan(indices, wanted)
-        return plan.jacobian(values, out)
+        return plan.jacobian(values, out, sparse=sparse)
 
     def plan(self, indices: tuple, wanted: tuple):
         cache = self.__dict__.setdefault("_plans", {})

@@ -258,10 +258,8 @@ def steady_state(eqs: MomentEquations, *, closure: Closure | None = None, guess=
         nu = closure(eqs.indices, mu, eqs.missing)
         return M @ mu + Bd @ nu - rhs
 
-    Md = M.toarray()
-
-    def J(mu):  # A + B ∂ν/∂μ, the closure's Jacobian exact by forward mode
-        return Md + Bd @ closure.jacobian(eqs.indices, mu, eqs.missing)
+    def J(mu):  # A + B ∂ν/∂μ (sparse), the closure's Jacobian exact by forward mode
+        return (M + Bd @ closure.jacobian(eqs.indices, mu, eqs.missing, sparse=True)).tocsc()
 
     mu, res = _newton(F, J, x0.copy(), tol=tol, maxfev=maxfev)
     if not res < 1e-8 * max(1.0, np.max(np.abs(mu))):
@@ -272,18 +270,24 @@ def steady_state(eqs: MomentEquations, *, closure: Closure | None = None, guess=
 
 
 def _newton(F, J, x, *, tol, maxfev):
-    """Damped Newton with a reused LU factorisation (refactored when the contraction is slow)."""
-    from scipy.linalg import lu_factor, lu_solve
+    """Damped Newton with a reused sparse LU factorisation (refactored when the contraction is slow)."""
+
+    def factor(x):
+        try:
+            return spla.splu(J(x)).solve
+        except RuntimeError as exc:
+            raise SingularSystemError(f"closure: the Jacobian of the closed steady-state equations is singular "
+                                      f"({exc})") from exc
 
     f = F(x)
     nrm = np.linalg.norm(f)
-    lu, fresh, nfev = lu_factor(J(x)), True, 1
+    solve, fresh, nfev = factor(x), True, 1
     while nfev < maxfev:
         if not np.isfinite(nrm):
             return x, np.inf
         if nrm <= tol * max(1.0, np.linalg.norm(x)):
             break
-        step = lu_solve(lu, f)
+        step = solve(f)
         lam = 1.0
         while lam > 1e-6:
             xn = x - lam * step
@@ -296,12 +300,12 @@ def _newton(F, J, x, *, tol, maxfev):
         else:
             if fresh:
                 return x, np.max(np.abs(f))
-            lu, fresh = lu_factor(J(x)), True
+            solve, fresh = factor(x), True
             continue
         slow = nn > 0.5 * nrm
         x, f, nrm = xn, fn, nn
         if slow:
-            lu, fresh = lu_factor(J(x)), True
+            solve, fresh = factor(x), True
         else:
             fresh = False
     return x, np.max(np.abs(F(x)))
