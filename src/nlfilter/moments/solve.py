@@ -166,12 +166,17 @@ def propagate(eqs: MomentEquations, mu0, t_eval, *, closure: Closure | None = No
     except (FloatingPointError, OverflowError) as exc:
         raise ClosureDivergedError(f"moments: integration failed ({exc})", time=None) from exc
     if sol.status == 1:
-        te = next(float(e[0]) for e in sol.t_events if len(e))
-        ye = next(y[0] for y in sol.y_events if len(y))
-        _diagnose(eqs, ye - 1e-9 * np.abs(ye) * 0, te)
+        vp = variance_positions(eqs)
+        which = next(i for i, e in enumerate(sol.t_events) if len(e))
+        te, ye = float(sol.t_events[which][0]), sol.y_events[which][0]
+        if which < len(vp):  # a variance event: name E[x_i²]
+            i, p1, p2 = vp[which]
+            raise ClosureDivergedError(f"moments: the variance of x_{i + 1} reached zero (E[x^{eqs.indices[p2]}] = "
+                                       f"{ye[p2]:.6g}, mean {ye[p1]:.6g}) at t = {te:.6g}; the closure failed",
+                                       time=te, moment=eqs.indices[p2])
         k = int(np.argmax(np.abs(ye)))
-        raise ClosureDivergedError(f"moments: a variance reached zero or E[x^{eqs.indices[k]}] blew up "
-                                   f"at t = {te:.6g}", time=te, moment=eqs.indices[k])
+        raise ClosureDivergedError(f"moments: E[x^{eqs.indices[k]}] blew up (|value| > {BLOWUP:g}) at t = {te:.6g}",
+                                   time=te, moment=eqs.indices[k])
     if sol.status != 0:
         raise ClosureDivergedError(f"moments: integration failed at t = {sol.t[-1] if sol.t.size else t0:.6g}: "
                                    f"{sol.message}", time=float(sol.t[-1]) if sol.t.size else t0)
