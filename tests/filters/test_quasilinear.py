@@ -108,3 +108,21 @@ def test_bad_input(oh_shin):
         MQLF(oh_shin, 0.01, order=2)
     with pytest.raises(ValueError, match="dys"):
         f.run(np.zeros((2, 5, 2)), [4.0], [[0.05]])
+
+
+def test_gain_error_analysis_linear_kalman_bucy_equals_riccati():
+    """For a linear model with the Kalman-Bucy gain the joint-moment MSE is the Riccati P(t) (exact:
+    the joint system closes, every closure is exact)."""
+    from nlfilter.filters.quasilinear import gain_error_analysis
+    model = SDEModel([x], [-x], [2 * x], Q=1.0, R=0.5)
+    f = QLF(model, 0.01)
+    g = f.offline([0.3], [[0.8]], 200)
+    ea = gain_error_analysis(model, lambda t: f._coeff(g.dense(t)), [0.3], [[0.8]], g.t, order=2)
+    np.testing.assert_allclose(ea.mse[:, 0], g.P[:, 0, 0], rtol=1e-6, atol=1e-9)
+    # a deliberately detuned constant gain: MSE from the scalar Lyapunov ODE p' = 2(−1 − 2k)p + 1 + k²·0.5
+    k = 0.3
+    ea2 = gain_error_analysis(model, lambda t: (np.array([[-1 - 2 * k]]), np.zeros(1), np.array([[k]])),
+                              [0.0], [[0.8]], np.linspace(0, 2, 21), order=2)
+    a, b = -2 * (1 + 2 * k), 1 + 0.5 * k**2
+    t = np.linspace(0, 2, 21)
+    np.testing.assert_allclose(ea2.mse[:, 0], -b / a + (0.8 + b / a) * np.exp(a * t), rtol=1e-6)

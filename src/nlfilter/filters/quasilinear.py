@@ -54,7 +54,7 @@ from ..polynomials import Polynomial, monomials
 from .base import ContinuousFilter, Estimates, GaussianState, _prepare, _Runner, symmetrize
 
 __all__ = ["statistical_linearization", "QuasilinearFilter", "DiscreteQuasilinearFilter", "QLF", "MQLF",
-           "OfflineGains", "ErrorAnalysis"]
+           "OfflineGains", "ErrorAnalysis", "gain_error_analysis"]
 
 
 def statistical_linearization(mean, cov, Ef, Efx):
@@ -388,53 +388,69 @@ class QuasilinearFilter(ContinuousFilter):
         closed by ``closure`` (default Edgeworth of ``order`` 4 as in the paper). Polynomial models."""
         if not self.lin.polynomial:
             raise NotPolynomialError("model: the off-line accuracy analysis needs polynomial f, GQGᵀ and h")
-        closure = EdgeworthClosure(order) if closure is None else closure
         m0, P0 = self._prior(m0, P0)
         g = self.offline(m0, P0, steps, t0=t0)
-        md, n, mm = self.model, self.model.n, self.model.m
-        st = list(md.states)
-        xh = [sp.Symbol(f"xhat_{i}") for i in range(n)]
-        Fs = sp.Matrix(n, n, lambda i, j: sp.Symbol(f"F_{i}_{j}"))
-        us = sp.Matrix(n, 1, lambda i, j: sp.Symbol(f"u_{i}"))
-        Ks = sp.Matrix(n, mm, lambda i, j: sp.Symbol(f"Kg_{i}_{j}"))
-        Ss = sp.Matrix(n, n, lambda i, j: sp.Symbol(f"S_{min(i, j)}_{max(i, j)}"))
-        G = md.sym["G"]
-        sig = sp.expand(G * sp.Matrix(md.Q.tolist()) * G.T)
-        drift = list(md.sym["f"]) + list(Fs * sp.Matrix(xh) + us + Ks * md.sym["h"])
-        diff = sp.zeros(2 * n, 2 * n)
-        diff[:n, :n] = sig
-        diff[n:, n:] = Ss  # Kg R Kgᵀ: the filter's own noise, independent of β
-        joint = PolynomialSDE.from_sympy(st + xh, drift, diff)
-        idx = monomials(2 * n, order, min_degree=1)
-        eqs = moment_equations(joint, idx)
-        R = md.R
-        memo = {}
+        return gain_error_analysis(self.model, lambda t: self._coeff(g.dense(t)), m0, P0, g.t,
+                                   closure=closure, order=order)
 
-        def coeff_at(t):
-            if memo.get("t") != t:
-                F, u, Kg = self._coeff(g.dense(t))
-                memo.update(t=t, F=F, u=u, Kg=Kg, S=Kg @ R @ Kg.T)
-            return memo
 
-        values = {}
-        for i in range(n):
-            values[f"u_{i}"] = (lambda t, i=i: coeff_at(t)["u"][i])
-            for j in range(n):
-                values[f"F_{i}_{j}"] = (lambda t, i=i, j=j: coeff_at(t)["F"][i, j])
-                values[f"S_{min(i, j)}_{max(i, j)}"] = (lambda t, i=i, j=j: coeff_at(t)["S"][i, j])
-            for j in range(mm):
-                values[f"Kg_{i}_{j}"] = (lambda t, i=i, j=j: coeff_at(t)["Kg"][i, j])
-        mean0 = np.concatenate([m0, m0])
-        cov0 = np.zeros((2 * n, 2 * n))
-        cov0[:n, :n] = P0  # x̂(t0) = m0 exactly
-        mu0 = gaussian_moments(mean0, cov0, idx)
-        sol = propagate(eqs, mu0, g.t, closure=closure, values=values, rtol=1e-8, atol=1e-11)
-        mse = np.empty((g.t.size, n))
-        for i in range(n):
-            xi, hi = _unit(2 * n, i), _unit(2 * n, n + i)
-            mse[:, i] = (sol.moment(_unit(2 * n, i, 2)) - 2 * sol.moment(tuple(a + b for a, b in zip(xi, hi)))
-                         + sol.moment(_unit(2 * n, n + i, 2)))
-        return ErrorAnalysis(g.t, mse, sol)
+def gain_error_analysis(model, coefficients, m0, P0, t, *, xhat0=None, closure: Closure | None = None,
+                        order: int = 4) -> ErrorAnalysis:
+    """Off-line accuracy of ANY filter with precomputed gains of the form
+    ``dx̂ = [F(t) x̂ + u(t)] dt + Kg(t) dy`` on a polynomial :class:`SDEModel`: the moments of the
+    joint polynomial SDE (x, x̂) (``dx̂ = [F x̂ + u + Kg h(x)] dt + Kg dη``) up to ``order``, closed by
+    ``closure`` (default Edgeworth of that order), give ``E(x − x̂)²`` on the times ``t``.
+
+    ``coefficients(t) -> (F (n, n), u (n,), Kg (n, m))``; ``x̂(t[0]) = xhat0`` (default m0), ``x(t[0]) ~
+    N(m0, P0)``. For linear models and a Kalman-Bucy gain this is the Riccati solution (exact).
+    """
+    closure = EdgeworthClosure(order) if closure is None else closure
+    n, mm = model.n, model.m
+    m0 = np.asarray(m0, dtype=float).reshape(n)
+    P0 = V.covariance("P0", P0, n)
+    xh0 = m0 if xhat0 is None else np.asarray(xhat0, dtype=float).reshape(n)
+    st = list(model.states)
+    xh = [sp.Symbol(f"xhat_{i}") for i in range(n)]
+    Fs = sp.Matrix(n, n, lambda i, j: sp.Symbol(f"F_{i}_{j}"))
+    us = sp.Matrix(n, 1, lambda i, j: sp.Symbol(f"u_{i}"))
+    Ks = sp.Matrix(n, mm, lambda i, j: sp.Symbol(f"Kg_{i}_{j}"))
+    Ss = sp.Matrix(n, n, lambda i, j: sp.Symbol(f"S_{min(i, j)}_{max(i, j)}"))
+    G = model.sym["G"]
+    sig = sp.expand(G * sp.Matrix(model.Q.tolist()) * G.T)
+    drift = list(model.sym["f"]) + list(Fs * sp.Matrix(xh) + us + Ks * model.sym["h"])
+    diff = sp.zeros(2 * n, 2 * n)
+    diff[:n, :n] = sig
+    diff[n:, n:] = Ss  # Kg R Kgᵀ: the filter's own noise, independent of β
+    joint = PolynomialSDE.from_sympy(st + xh, drift, diff)
+    idx = monomials(2 * n, order, min_degree=1)
+    eqs = moment_equations(joint, idx)
+    R = model.R
+    memo = {}
+
+    def coeff_at(tt):
+        if memo.get("t") != tt:
+            F, u, Kg = coefficients(tt)
+            memo.update(t=tt, F=F, u=u, Kg=Kg, S=Kg @ R @ Kg.T)
+        return memo
+
+    values = {}
+    for i in range(n):
+        values[f"u_{i}"] = (lambda tt, i=i: coeff_at(tt)["u"][i])
+        for j in range(n):
+            values[f"F_{i}_{j}"] = (lambda tt, i=i, j=j: coeff_at(tt)["F"][i, j])
+            values[f"S_{min(i, j)}_{max(i, j)}"] = (lambda tt, i=i, j=j: coeff_at(tt)["S"][i, j])
+        for j in range(mm):
+            values[f"Kg_{i}_{j}"] = (lambda tt, i=i, j=j: coeff_at(tt)["Kg"][i, j])
+    cov0 = np.zeros((2 * n, 2 * n))
+    cov0[:n, :n] = P0  # x̂(t0) is known exactly
+    mu0 = gaussian_moments(np.concatenate([m0, xh0]), cov0, idx)
+    sol = propagate(eqs, mu0, np.asarray(t, dtype=float), closure=closure, values=values, rtol=1e-8, atol=1e-11)
+    mse = np.empty((sol.t.size, n))
+    for i in range(n):
+        xi, hi = _unit(2 * n, i), _unit(2 * n, n + i)
+        mse[:, i] = (sol.moment(_unit(2 * n, i, 2)) - 2 * sol.moment(tuple(a + b for a, b in zip(xi, hi)))
+                     + sol.moment(_unit(2 * n, n + i, 2)))
+    return ErrorAnalysis(sol.t, mse, sol)
 
 
 def QLF(model, dt, **kw) -> QuasilinearFilter:
