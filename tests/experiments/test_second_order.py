@@ -8,7 +8,8 @@ import pytest
 from nlfilter import cli, problems as pb
 from nlfilter.experiments import get
 
-FILTERS = ("ekf", "ukf", "truncated", "truncated-jazwinski", "gaussian", "modified", "optimal")
+FILTERS = ("ekf", "ukf", "truncated", "truncated-jazwinski", "gaussian", "modified", "modified-gaussian",
+           "optimal")
 
 
 @pytest.fixture(scope="module")
@@ -22,6 +23,10 @@ def test_rows_cover_every_filter_problem_and_quantity(quick):
             quantities = [f"mse_x{i + 1}" for i in range(n)] + ["nees", "psd_loss_rate"]
             if f != "optimal":
                 quantities += [f"gap_mse_x{i + 1}" for i in range(n)]
+            if f not in ("optimal", "truncated"):
+                quantities += [f"diff_truncated_x{i + 1}" for i in range(n)]
+            if problem == "falling-body":
+                quantities += [f"mse_x{i + 1}_late" for i in range(n)]
             for q in quantities:
                 row = quick.get(f, q, problem=problem)
                 assert row.paper is None  # seed 004 prints no numbers

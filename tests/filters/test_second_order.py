@@ -40,25 +40,15 @@ def test_discrete_linear_equals_kalman(form):
 
 @pytest.mark.parametrize("form", FORMS)
 def test_continuous_linear_equals_kalman_bucy(form):
-    """Euler: our Itô step is exactly the Euler step of the Kalman–Bucy filter (1e-12). RK4: the
-    covariance ODE is the same (1e-12); the means differ by the treatment of dy inside the step
-    (ours: Itô increment with the gain at the step start; KalmanBucy: dy/dt held constant in the RK4
-    stages), an O(dt) global difference: on one Brownian record it must shrink at least 2.5-fold
-    from dt = 0.01 to dt = 0.0025 (first order predicts 4-fold)."""
+    """On a linear model every form is the Kalman–Bucy filter: the same Itô step (dt terms by
+    Euler or RK4, ``K dy`` with the gain at the step start), so equal to 1e-12 for both schemes."""
     model = SDEModel.linear(-np.eye(2) + 0.1 * F_LIN, H_LIN, Q2, R2)
-    fine = np.random.default_rng(2).normal(size=(4, 200, 2)) * np.sqrt(0.0025)
-    gaps = {}
-    for dt, group in ((0.01, 4), (0.0025, 1)):
-        dys = fine.reshape(4, -1, group, 2).sum(axis=2)
-        for scheme in ("euler", "rk4"):
-            ref = KalmanBucy(model, dt, scheme=scheme).run(dys, [0.3, 0.1], X0)
-            est = ContinuousSecondOrderFilter(model, dt, form=form, scheme=scheme).run(dys, [0.3, 0.1], X0)
-            np.testing.assert_allclose(est.covs, ref.covs, rtol=0, atol=1e-12)  # same covariance ODE
-            if scheme == "euler":
-                np.testing.assert_allclose(est.means, ref.means, rtol=0, atol=1e-12)
-            else:
-                gaps[dt] = np.max(np.abs(est.means[:, -1] - ref.means[:, -1]))
-    assert gaps[0.0025] < gaps[0.01] / 2.5, gaps
+    dys = np.random.default_rng(2).normal(size=(4, 50, 2)) * np.sqrt(0.01)
+    for scheme in ("euler", "rk4"):
+        ref = KalmanBucy(model, 0.01, scheme=scheme).run(dys, [0.3, 0.1], X0)
+        est = ContinuousSecondOrderFilter(model, 0.01, form=form, scheme=scheme).run(dys, [0.3, 0.1], X0)
+        np.testing.assert_allclose(est.covs, ref.covs, rtol=0, atol=1e-12)
+        np.testing.assert_allclose(est.means, ref.means, rtol=0, atol=1e-12)
 
 
 def test_first_order_form_is_the_ekf():
@@ -295,3 +285,66 @@ def test_pre_correction_form_loses_psd_and_is_reported():
         bad.update(GaussianState(np.array([0.0]), np.array([[1.0]])), np.array([0.3]), 0)
     good = SecondOrderFilter(model).run(ys, m0, [[1.0]])
     assert not good.diverged.any() and np.all(good.covs > 0)
+
+
+def test_update_innovation_is_stable_and_has_the_same_limit():
+    """``innovation="update"`` (discrete update with W/dt, then propagation) and the explicit Itô
+    step converge to each other as dt → 0 (gap shrinks at least 2.5-fold per 4-fold refinement),
+    and with a large gain (K H dt ≈ 40 at the start) the explicit step blows up while the update
+    form stays finite, its recorded (propagated) variance between the Kalman–Bucy steady state
+    P∞ and P∞ + Q dt (the update brings it to about P∞, the propagation over dt adds at most Q dt)."""
+    x = sp.Symbol("x")
+    model = SDEModel([x], [-x + 0.2 * x**2], [x + 0.3 * x**2], G=[[0.5 + 0.2 * x]], Q=1.0, R=0.2)
+    fine = np.random.default_rng(9).normal(size=(3, 400, 1)) * np.sqrt(0.2 * 0.00125)
+    gaps = []
+    for g in (16, 4, 1):
+        dt = 0.00125 * g
+        dys = fine.reshape(3, -1, g, 1).sum(axis=2)
+        a = ContinuousSecondOrderFilter(model, dt, innovation="update").run(dys, [0.2], [[0.3]])
+        b = ContinuousSecondOrderFilter(model, dt, innovation="ito").run(dys, [0.2], [[0.3]])
+        gaps.append(np.max(np.abs(a.means[:, -1] - b.means[:, -1])))
+    assert gaps[1] < gaps[0] / 2.5 and gaps[2] < gaps[1] / 2.5, gaps
+    stiff = SDEModel.linear([[-1.0]], [[20.0]], [[1.0]], [[0.01]])
+    dys = np.random.default_rng(1).normal(size=(2, 50, 1)) * 0.01
+    with pytest.raises(DivergenceError):
+        ContinuousSecondOrderFilter(stiff, 0.05, scheme="euler").run(dys, [0.0], [[1.0]])
+    est = ContinuousSecondOrderFilter(stiff, 0.05, innovation="update").run(dys, [0.0], [[1.0]])
+    from nlfilter.filters.kalman import steady_state_continuous
+    P_inf = steady_state_continuous(stiff)[0, 0]
+    assert not est.diverged.any()
+    assert np.all((P_inf <= est.covs[:, -1, 0, 0]) & (est.covs[:, -1, 0, 0] <= P_inf + 1.0 * 0.05))
+
+
+def test_scalar_quadratic_ukf_equals_modified_gaussian():
+    """Independent check of the Gaussian terms: for a scalar model with quadratic f and h, the
+    unscented transform with α = 1, β = 2, κ = 0 (points m, m ± √X, W₀ᶜ = 2) computes E, Var and
+    Cov of a quadratic exactly under a Gaussian, so the UKF *is* the Gaussian second-order filter
+    with C = 0 (1e-12)."""
+    from nlfilter.filters.ukf import UKF
+    x = sp.Symbol("x")
+    model = DiscreteModel([x], [0.7 * x + 0.05 * x**2], [x + 0.3 * x**2], Q=0.5, R=0.2)
+    ys = np.random.default_rng(6).normal(size=(6, 20, 1))
+    a = UKF(model, alpha=1.0, beta=2.0, kappa=0.0).run(ys, [0.1], [[0.8]])
+    b = SecondOrderFilter(model, form="modified-gaussian").run(ys, [0.1], [[0.8]])
+    np.testing.assert_allclose(b.means, a.means, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(b.covs, a.covs, rtol=0, atol=1e-12)
+
+
+def test_forcing_tensor_is_the_third_cross_moment():
+    """The C tensor (004 eqs. 17, 32-33): for x ~ N(M, X0) and quadratic h, the Gaussian form's
+    M_ijk = (X h_xx⁽ᵏ⁾ X)_ij equals E[δ_i δ_j (h_k − E h_k)] (10⁶ samples, 5 s.e.); the
+    pre-correction form's −½ X_ij (X h_xx)_k is that moment minus its fourth-order part
+    ½E[δ_i δ_j δᵀh_xx⁽ᵏ⁾δ] (closed form)."""
+    from nlfilter.filters.second_order import _forcing
+    As = np.stack([A1, A2])
+    rng = np.random.default_rng(12)
+    d = rng.multivariate_normal(np.zeros(2), X0, size=1_000_000)
+    hk = 0.5 * np.einsum("si,kij,sj->sk", d, As, d) + d @ B.T  # h(M + δ) up to a constant
+    hk = hk - hk.mean(axis=0)
+    prods = np.einsum("si,sj,sk->sijk", d, d, hk)
+    mc, se = prods.mean(axis=0), prods.std(axis=0) / np.sqrt(len(d))
+    gauss = _forcing("gaussian", X0, As)
+    assert np.all(np.abs(gauss - mc) < 5 * se)
+    fourth = 0.5 * (np.einsum("ij,kab,ba->ijk", X0, As, X0) + 2 * np.einsum("ia,kab,bj->ijk", X0, As, X0))
+    np.testing.assert_allclose(_forcing("truncated-jazwinski", X0, As), gauss - fourth, atol=1e-12)
+    assert _forcing("truncated", X0, As) is None and _forcing("modified", X0, As) is None

@@ -82,8 +82,6 @@ def mm(A: np.ndarray, B: np.ndarray) -> np.ndarray:
 def bad_paths(mean: np.ndarray, cov: np.ndarray, tol: float = PSD_TOL) -> np.ndarray:
     """Boolean ``(...)``: paths whose mean/cov is non-finite or whose cov is not PSD."""
     n = cov.shape[-1]
-    if n == 1 and np.isfinite(mean).all() and np.isfinite(cov).all() and cov.min() >= 0.0:
-        return np.zeros(mean.shape[:-1], dtype=bool)  # the common case, in three reductions
     ok = np.all(np.isfinite(mean), axis=-1) & np.all(np.isfinite(cov), axis=(-1, -2))
     safe = np.where(ok[..., None, None], cov, np.eye(n))
     if n == 1:
@@ -95,6 +93,23 @@ def bad_paths(mean: np.ndarray, cov: np.ndarray, tol: float = PSD_TOL) -> np.nda
         low = np.linalg.eigvalsh(symmetrize(safe))[..., 0]
     scale = np.maximum(1.0, np.max(np.abs(safe), axis=(-1, -2)))
     return ~ok | (low < -tol * scale)
+
+
+def poison(state: GaussianState, bad) -> GaussianState:
+    """NaN on the paths in ``bad`` so that ``run``'s divergence check records them (never
+    silent: ``run`` raises or marks them)."""
+    if bad is None or not np.any(bad):
+        return state
+    return GaussianState(np.where(bad[..., None], np.nan, state.mean),
+                         np.where(bad[..., None, None], np.nan, state.cov))
+
+
+def _all_ok(mean: np.ndarray, cov: np.ndarray) -> bool:
+    """Quick test that every path is finite with PSD covariance (exact for n = 1; for n > 1
+    it only screens, and :func:`bad_paths` decides)."""
+    if cov.shape[-1] != 1:
+        return not bad_paths(mean, cov).any()
+    return bool(cov.min() >= 0.0) and bool(np.isfinite(cov.sum() + mean.sum()))
 
 
 def gaussian_update(state: GaussianState, y: np.ndarray, y_pred: np.ndarray, S: np.ndarray,
@@ -119,6 +134,13 @@ def gaussian_update(state: GaussianState, y: np.ndarray, y_pred: np.ndarray, S: 
             H = np.where(miss[..., :, None], 0.0, H)
     else:
         e = y - y_pred
+    if S.shape[-1] == 1 and m.shape[-1] == 1:  # scalar state and measurement: elementwise
+        K = C / S
+        mean = m + K[..., 0] * e
+        if H is not None:  # Joseph form (1 − K H)² P + K² R
+            IKH = 1.0 - K * H
+            return GaussianState(mean, IKH * IKH * P + K * K * R)
+        return GaussianState(mean, P - K * K * S)
     if S.shape[-1] == 1:  # scalar measurement: no solve needed
         K = C / S
     else:
@@ -158,14 +180,18 @@ class _Runner:
         self.covs = np.empty((T, *batch, n, n))
         self.diverged = np.zeros(batch, dtype=bool)
         self.step = np.full(batch, -1)
+        self.any_diverged = False
         self.name = name
 
-    def record(self, k, state, reset: GaussianState) -> GaussianState:
-        bad = bad_paths(state.mean, state.cov)
-        if not self.diverged.any() and not bad.any():  # the common case
-            self.means[k] = state.mean
-            self.covs[k] = state.cov
+    def record(self, k, state, reset: GaussianState, *, write: bool = True) -> GaussianState:
+        """Check step ``k``'s state (raise or mark), write it unless ``write`` is False, and
+        return it with diverged paths reset to ``reset``."""
+        if not self.any_diverged and _all_ok(state.mean, state.cov):  # the common case
+            if write:
+                self.means[k] = state.mean
+                self.covs[k] = state.cov
             return state
+        bad = bad_paths(state.mean, state.cov)
         bad &= ~self.diverged
         if bad.any():
             if self.on == "raise":
@@ -177,12 +203,14 @@ class _Runner:
                     what="covariance")
             self.diverged |= bad
             self.step[bad] = k
+            self.any_diverged = True
         # diverged paths restart from a harmless state; their outputs are NaN (flagged)
         d = self.diverged
         state = GaussianState(np.where(d[..., None], reset.mean, state.mean),
                               np.where(d[..., None, None], reset.cov, state.cov))
-        self.means[k] = np.where(d[..., None], np.nan, state.mean)
-        self.covs[k] = np.where(d[..., None, None], np.nan, state.cov)
+        if write:
+            self.means[k] = np.where(d[..., None], np.nan, state.mean)
+            self.covs[k] = np.where(d[..., None, None], np.nan, state.cov)
         return state
 
     def result(self) -> Estimates:
@@ -208,9 +236,18 @@ class DiscreteFilter:
     def update(self, state: GaussianState, y, k) -> GaussianState:  # pragma: no cover
         raise NotImplementedError
 
+    # run() calls these; a filter whose step functions raise on failure overrides them to
+    # return ``(state, bad paths)`` instead, so that a batch run can mark paths and go on.
+    def _predict_unchecked(self, state, k):
+        return self.predict(state, k), None
+
+    def _update_unchecked(self, state, y, k):
+        return self.update(state, y, k), None
+
     def run(self, ys, m0, P0, *, on_divergence: str = "raise") -> Estimates:
         """Filter a batch ``ys (..., T, m)`` from the prior ``(m0, P0)``; see the module docstring
-        for the step convention. Returns :class:`Estimates`."""
+        for the step convention. Divergence is checked after the prediction and after the update.
+        Returns :class:`Estimates`."""
         model = self.model
         ys, state, batch = _prepare("ys", ys, m0, P0, model.n, model.m)
         init = GaussianState(state.mean.copy(), state.cov.copy())
@@ -218,13 +255,14 @@ class DiscreteFilter:
         out = _Runner(batch, T, model.n, on_divergence, self.name)
         offset = 0 if self.start == "update" else 1
         absent = np.isnan(ys).all(axis=(*range(len(batch)), -1))  # (T,): steps with no measurement
-        for k in range(T):
-            if k > 0 or offset:
-                state = self.predict(state, k + offset - 1)
-            y = ys[..., k, :]
-            if not absent[k]:
-                state = self.update(state, y, k + offset)
-            state = out.record(k, state, init)
+        with np.errstate(over="ignore", invalid="ignore"):  # a failing path is caught by record
+            for k in range(T):
+                if k > 0 or offset:
+                    state = poison(*self._predict_unchecked(state, k + offset - 1))
+                    state = out.record(k, state, init, write=False)
+                if not absent[k]:
+                    state = poison(*self._update_unchecked(state, ys[..., k, :], k + offset))
+                state = out.record(k, state, init)
         return out.result()
 
 
@@ -247,15 +285,20 @@ class ContinuousFilter:
     def step(self, state: GaussianState, dy, t) -> GaussianState:  # pragma: no cover
         raise NotImplementedError
 
+    def _step_unchecked(self, state, dy, t):
+        return self.step(state, dy, t), None
+
     def run(self, dys, m0, P0, *, t0: float = 0.0, on_divergence: str = "raise") -> Estimates:
+        """Filter increments ``dys (..., T, m)``; estimates at ``t0 + dt .. t0 + T dt``."""
         model = self.model
         dys, state, batch = _prepare("dys", dys, m0, P0, model.n, model.m)
         init = GaussianState(state.mean.copy(), state.cov.copy())
         T = dys.shape[-2]
         out = _Runner(batch, T, model.n, on_divergence, self.name)
-        for k in range(T):
-            state = self.step(state, dys[..., k, :], t0 + k * self.dt)
-            state = out.record(k, state, init)
+        with np.errstate(over="ignore", invalid="ignore"):  # a failing path is caught by record
+            for k in range(T):
+                state = poison(*self._step_unchecked(state, dys[..., k, :], t0 + k * self.dt))
+                state = out.record(k, state, init)
         return out.result()
 
     def integrate(self, rhs, state: GaussianState, z, t) -> GaussianState:

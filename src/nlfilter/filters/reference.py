@@ -36,7 +36,6 @@ import scipy.linalg as sla
 from scipy import sparse
 
 from .. import _validate as V
-from ..errors import DivergenceError
 from ..noise import Gaussian, Independent
 from .base import Estimates, _Runner, GaussianState
 
@@ -62,13 +61,27 @@ def _measurement_loglik(law, resid, obs=None):
     raise ValueError("measurement_noise: partly missing measurements need a Gaussian or Independent law")
 
 
+def _check_time_step(flt, model, dt, who):
+    """SDE models need the measurement step ``dt`` (and use R⁻¹); discrete ones take none and
+    need a measurement law with a density."""
+    if model.kind == "sde":
+        if dt is None:
+            raise ValueError("dt: expected the measurement step for an SDEModel, got None")
+        flt.dt = float(V.positive("dt", dt))
+        flt._Rinv = np.linalg.inv(model.R)
+    elif dt is not None:
+        raise ValueError(f"dt: a DiscreteModel has no time step; expected None, got {dt!r}")
+    elif not model.measurement_noise.has_density:
+        raise ValueError(f"measurement_noise: the {who} needs a law with a density (logpdf)")
+
+
 def _maybe_sparse(K, rel: float = 1e-13):
     """Drop entries below ``rel`` times their row's largest (their mass is far below the grid's
     own error) and return CSR when that leaves the kernel sparse: ``p @ K`` then costs the
     kernel's support, not N²."""
     K = np.where(K >= rel * K.max(axis=1, keepdims=True), K, 0.0)
     nnz = np.count_nonzero(K)
-    return sparse.csr_array(K) if nnz < 0.25 * K.size else K
+    return sparse.csr_array(K) if nnz < 0.05 * K.size else K
 
 
 def _apply(p, K):
@@ -81,8 +94,9 @@ def _apply(p, K):
 
 def _moments(p, X):
     """Mean (..., n) and covariance (..., n, n) of probability vectors p (..., N) on points X (N, n)."""
+    n = X.shape[-1]
     mean = p @ X
-    second = np.einsum("...k,ki,kj->...ij", p, X, X)
+    second = (p @ (X[:, :, None] * X[:, None, :]).reshape(-1, n * n)).reshape(*p.shape[:-1], n, n)
     cov = second - mean[..., :, None] * mean[..., None, :]
     return mean, 0.5 * (cov + np.swapaxes(cov, -1, -2))
 
@@ -120,15 +134,7 @@ class GridFilter:
         mesh = np.meshgrid(*self.axes, indexing="ij")
         self.X = np.stack([g.ravel() for g in mesh], axis=-1)  # (N, n), first axis slowest
         self.start = V.choice("start", start, {"update", "predict"})
-        if model.kind == "sde":
-            if dt is None:
-                raise ValueError("dt: expected the measurement step for an SDEModel, got None")
-            self.dt = float(V.positive("dt", dt))
-            self._Rinv = np.linalg.inv(model.R)
-        elif dt is not None:
-            raise ValueError(f"dt: a DiscreteModel has no time step; expected None, got {dt!r}")
-        if not model.measurement_noise.has_density:
-            raise ValueError("measurement_noise: the grid filter needs a law with a density (logpdf)")
+        _check_time_step(self, model, dt, "grid filter")
         self._time_varying = model.time is not None
         self._kernel_cache = None
 
@@ -250,7 +256,7 @@ class GridFilter:
             mean, cov = _moments(p, self.X)
             if dead.any():
                 mean = np.where(dead[..., None], np.nan, mean)
-            state = out.record(k, GaussianState(mean, cov), GaussianState(mean * 0, cov * 0 + np.eye(md.n)))
+            out.record(k, GaussianState(mean, cov), GaussianState(mean * 0, cov * 0 + np.eye(md.n)))
             if out.diverged.any():
                 p = np.where(out.diverged[..., None], init_p, p)
         return out.result()
@@ -279,15 +285,7 @@ class ParticleFilter:
             raise ValueError(f"threshold: expected a number in [0, 1], got {threshold!r}")
         self.start = V.choice("start", start, {"update", "predict"})
         self.substeps = V.positive("substeps", substeps, integer=True)
-        if model.kind == "sde":
-            if dt is None:
-                raise ValueError("dt: expected the measurement step for an SDEModel, got None")
-            self.dt = float(V.positive("dt", dt))
-            self._Rinv = np.linalg.inv(model.R)
-        elif dt is not None:
-            raise ValueError(f"dt: a DiscreteModel has no time step; expected None, got {dt!r}")
-        elif not model.measurement_noise.has_density:
-            raise ValueError("measurement_noise: the particle filter needs a law with a density (logpdf)")
+        _check_time_step(self, model, dt, "particle filter")
 
     def _propagate(self, x, k, rng):
         md = self.model

@@ -22,6 +22,8 @@ form                     what it is
                          ½ tr(f_xx⁽ⁱ⁾ X f_xx⁽ʲ⁾ X) in the prediction, ½ tr(h_xx⁽ⁱ⁾ X h_xx⁽ʲ⁾ X) in
                          the innovation covariance, the Gaussian fourth-moment term of G(x) V Gᵀ(x),
                          and the forcing term Σ_k (X h_xx⁽ᵏ⁾ X)[·]_k (opposite sign to 004 eq. 33).
+``"modified-gaussian"``  the Gaussian filter with ``C = 0`` (no forcing term), Jazwinski's other
+                         modified form.
 ``"first-order"``        all second-order terms dropped: the extended Kalman filter (the baseline,
                          given here so that the continuous-discrete EKF exists too).
 =======================  =====================================================================
@@ -61,10 +63,10 @@ import numpy as np
 
 from .. import _validate as V
 from ..errors import DivergenceError
-from .base import (ContinuousFilter, DiscreteFilter, GaussianState, _prepare, _Runner, bad_paths,
-                   gaussian_update, symmetrize)
+from .base import (ContinuousFilter, DiscreteFilter, GaussianState, bad_paths, gaussian_update, poison,
+                   symmetrize)
 
-FORMS = ("truncated", "truncated-jazwinski", "modified", "gaussian", "first-order")
+FORMS = ("truncated", "truncated-jazwinski", "modified", "gaussian", "modified-gaussian", "first-order")
 
 # per form: quadratic term of the predicted covariance, of the innovation covariance, the forcing
 # (C tensor) kind, and whether the Gaussian fourth-moment term of E[G V Gᵀ] is kept
@@ -73,6 +75,7 @@ _SPEC = {
     "truncated-jazwinski": ("-quarter", "-quarter", "truncated", False),
     "modified": ("none", "-quarter", "none", False),
     "gaussian": ("gaussian", "gaussian", "gaussian", True),
+    "modified-gaussian": ("gaussian", "gaussian", "none", True),
     "first-order": ("none", "none", "none", False),
 }
 
@@ -170,12 +173,13 @@ class _Family:
         return noise_covariance(X, V, G, md.G_x(m, t), md.G_xx(m, t), gaussian=self._gauss4)
 
     # -- discrete update (004 eqs. 20-23 and the other forms) ------------------------------------
-    def _update(self, state, y, t):
+    def _update(self, state, y, t, R=None):
         md = self.model
+        R = md.R if R is None else R
         m, X = state
         H = md.h_x(m, t)
         C = X @ np.swapaxes(H, -1, -2)  # Cov[x, h] = X Hᵀ (third moments neglected / zero)
-        S = H @ C + md.R
+        S = H @ C + R
         y_pred = md.h(m, t)
         M = None
         if self._second:
@@ -188,9 +192,9 @@ class _Family:
             M = _forcing(self.form, X, h_xx)
         bad = _pd_mask(S)
         if bad.any():  # keep the algebra finite; these paths are reported as diverged
-            S = np.where(bad[..., None, None], np.eye(S.shape[-1]) * np.abs(S).max(initial=1.0) + md.R, S)
+            S = np.where(bad[..., None, None], np.eye(S.shape[-1]) * np.abs(S).max(initial=1.0) + R, S)
         joseph = self._innov == "none"  # S = H X Hᵀ + W exactly: Joseph form = (I − K H) X (004 eq. 21)
-        new = gaussian_update(state, y, y_pred, S, C, H=H if joseph else None, R=md.R if joseph else None)
+        new = gaussian_update(state, y, y_pred, S, C, H=H if joseph else None, R=R if joseph else None)
         if M is not None:  # X⁺ += Σ_k M_k [S⁻¹(y − ŷ)]_k (the discrete C tensor, see module docstring)
             miss = np.isnan(y)
             e = np.where(miss, 0.0, y - y_pred)
@@ -207,39 +211,6 @@ class _Family:
                                   f"definiteness or became non-finite on {idx.size} path(s), first "
                                   f"{idx[:5].tolist()}", step=None, paths=idx, what="covariance")
         return state
-
-
-def _poison(state, bad):
-    """NaN on the paths in ``bad`` so that the run's divergence check records them (never silent:
-    ``run`` raises or marks them)."""
-    if not np.any(bad):
-        return state
-    return GaussianState(np.where(bad[..., None], np.nan, state.mean),
-                         np.where(bad[..., None, None], np.nan, state.cov))
-
-
-def _run_discrete(self, ys, m0, P0, on_divergence, t_of):
-    """``DiscreteFilter.run`` with a divergence check after the prediction as well (a predicted
-    covariance that loses positive definiteness, 004 eq. 11, is recorded even if the update
-    would hide it)."""
-    model = self.model
-    ys, state, batch = _prepare("ys", ys, m0, P0, model.n, model.m)
-    init = GaussianState(state.mean.copy(), state.cov.copy())
-    T = ys.shape[-2]
-    out = _Runner(batch, T, model.n, on_divergence, self.name)
-    offset = 0 if self.start == "update" else 1
-    with np.errstate(over="ignore", invalid="ignore"):  # overflow on a failing path: caught by record
-        for k in range(T):
-            if k > 0 or offset:
-                state = self._predict(state, k + offset - 1)
-                state = _poison(state, bad_paths(state.mean, state.cov))
-                state = out.record(k, state, init)
-            y = ys[..., k, :]
-            if not np.all(np.isnan(y)):
-                state, bad = self._update(state, y, t_of(k + offset))
-                state = _poison(state, bad)
-            state = out.record(k, state, init)
-    return out.result()
 
 
 class SecondOrderFilter(_Family, DiscreteFilter):
@@ -295,9 +266,11 @@ class SecondOrderFilter(_Family, DiscreteFilter):
         new, bad = self._update(GaussianState(*state), np.asarray(y, dtype=float), k)
         return self._checked(new, bad, "updated (or innovation) covariance", k)
 
-    def run(self, ys, m0, P0, *, on_divergence: str = "raise"):
-        """Filter ``ys (..., T, m)`` from ``(m0, P0)``; returns :class:`~nlfilter.filters.base.Estimates`."""
-        return _run_discrete(self, ys, m0, P0, on_divergence, lambda k: k)
+    def _predict_unchecked(self, state, k):
+        return self._predict(GaussianState(*state), k), None
+
+    def _update_unchecked(self, state, y, k):
+        return self._update(GaussianState(*state), y, k)
 
 
 class ContinuousDiscreteSecondOrderFilter(_Family, DiscreteFilter):
@@ -313,6 +286,13 @@ class ContinuousDiscreteSecondOrderFilter(_Family, DiscreteFilter):
 
     integrated by ``scheme`` (``"rk4"`` default or ``"euler"``) with ``substeps`` steps per interval.
     ``start="update"`` (default): ``ys[..., 0, :]`` is taken at ``t0``; ``"predict"``: at ``t0 + dt``.
+
+    >>> from nlfilter.problems import falling_body
+    >>> p = falling_body()
+    >>> flt = ContinuousDiscreteSecondOrderFilter(p.model, p.dt, substeps=10, start="predict")
+    >>> est = flt.run(np.full((2, 3, 1), 2.0e5), p.m0, p.P0)   # 2 paths, 3 range measurements
+    >>> est.means.shape, bool(est.diverged.any())
+    ((2, 3, 3), False)
     """
 
     def __init__(self, model, dt: float, *, form: str = "truncated", scheme: str = "rk4",
@@ -354,8 +334,11 @@ class ContinuousDiscreteSecondOrderFilter(_Family, DiscreteFilter):
         new, bad = self._update(GaussianState(*state), np.asarray(y, dtype=float), k)
         return self._checked(new, bad, "updated (or innovation) covariance", k)
 
-    def run(self, ys, m0, P0, *, on_divergence: str = "raise"):
-        return _run_discrete(self, ys, m0, P0, on_divergence, lambda k: k)
+    def _predict_unchecked(self, state, k):
+        return self._predict(GaussianState(*state), k), None
+
+    def _update_unchecked(self, state, y, k):
+        return self._update(GaussianState(*state), y, k)
 
 
 class ContinuousSecondOrderFilter(_Family, ContinuousFilter):
@@ -366,14 +349,29 @@ class ContinuousSecondOrderFilter(_Family, ContinuousFilter):
         dX = [F X + X Fᵀ + G V Gᵀ + (X V G_x²) + ½(X V G_xx G) + ½(·)ᵀ − K W Kᵀ] dt
              [+ Σ_k M_k [W⁻¹(dy − ĥ dt)]_k   for "truncated-jazwinski" (004 eq. 33) and "gaussian"]
 
-    One step: the ``dt`` terms are integrated by ``scheme`` (Euler or RK4, ``substeps`` per step);
-    the ``dy`` terms are added as an Itô increment with the gain at the start of the step. With
-    ``scheme="euler"`` this is exactly the Euler–Maruyama step of the filter equations.
+    One step, ``innovation="ito"`` (default): the ``dt`` terms are integrated by ``scheme`` (Euler or
+    RK4, ``substeps`` per step); the ``dy`` terms are added as an Itô increment with the gain at the
+    start of the step. With ``scheme="euler"`` this is exactly the Euler–Maruyama step of the filter
+    equations. It is explicit: it goes unstable when ``‖K H‖ dt ≳ 2`` (large gains).
+    ``innovation="update"``: the increment is first absorbed by the discrete update of the same form
+    (004 eqs. 20-22 with ``y = dy/dt``, ``R = W/dt``, state at the step start: the left-point Itô
+    reading), then the moments are propagated over ``dt`` without measurement terms. Stable for any
+    gain; the same limit as ``dt → 0`` (the discrete gain is ``X Hᵀ (H X Hᵀ dt + W)⁻¹ dt``).
     ``"modified"`` is the same filter as ``"truncated"`` here (004 sec. 3).
+
+    >>> import sympy as sp; from nlfilter import SDEModel
+    >>> x = sp.Symbol("x")
+    >>> model = SDEModel([x], [-x], [x + 0.5 * x**2], G=[[0.5 + 0.2 * x]], Q=1.0, R=0.1)
+    >>> flt = ContinuousSecondOrderFilter(model, 0.01, scheme="euler")
+    >>> s = flt.step(GaussianState(np.array([0.0]), np.array([[1.0]])), np.array([0.0]), 0.0)
+    >>> round(float(s.mean[0]), 6), round(float(s.cov[0, 0]), 6)   # −K·½X h_xx dt; X(1 − 2dt) + (0.25 + 0.04 X − X²/0.1) dt
+    (-0.05, 0.8829)
     """
 
-    def __init__(self, model, dt, *, form: str = "truncated", scheme: str = "rk4", substeps: int = 1):
+    def __init__(self, model, dt, *, form: str = "truncated", scheme: str = "rk4", substeps: int = 1,
+                 innovation: str = "ito"):
         ContinuousFilter.__init__(self, model, dt, scheme=scheme, substeps=substeps)
+        self.innovation = V.choice("innovation", innovation, {"ito", "update"})
         self._configure(model, form, "ContinuousSecondOrderFilter")
         if form == "modified":
             self._innov = "none"  # 004 sec. 3: no −¼ term exists in continuous time
@@ -412,8 +410,13 @@ class ContinuousSecondOrderFilter(_Family, ContinuousFilter):
         return rhs
 
     def _step(self, state, dy, t):
+        """``(state at t + dt, bad paths)``."""
         dy = np.asarray(dy, dtype=float)
         obs = ~np.isnan(dy)
+        if self.innovation == "update":
+            new, bad = self._update(state, dy / self.dt, t, R=self.model.R / self.dt)
+            new = poison(new, bad)
+            return self.integrate(self._rhs_factory(np.zeros_like(obs)), new, None, t), bad
         dy0 = np.where(obs, dy, 0.0)
         m, X = state
         K, _, _, M = self._gain_parts(m, X, t, obs)  # Itô: gain at the start of the step
@@ -422,24 +425,16 @@ class ContinuousSecondOrderFilter(_Family, ContinuousFilter):
         cov = new.cov
         if M is not None:
             cov = symmetrize(cov + np.einsum("...ijk,...k->...ij", M, dy0))
-        return GaussianState(mean, cov)
+        return GaussianState(mean, cov), np.zeros(obs.shape[:-1], bool)
 
     def step(self, state, dy, t):
         """The belief at ``t + dt`` from the belief at ``t`` and the increment ``dy (..., m)``."""
-        return self._checked(self._step(GaussianState(*state), dy, t), False, "covariance", t)
+        with np.errstate(over="ignore", invalid="ignore"):
+            new, bad = self._step(GaussianState(*state), dy, t)
+        return self._checked(new, bad, "covariance", t)
 
-    def run(self, dys, m0, P0, *, t0: float = 0.0, on_divergence: str = "raise"):
-        """Filter increments ``dys (..., T, m)``; estimates at ``t0 + dt .. t0 + T dt``."""
-        model = self.model
-        dys, state, batch = _prepare("dys", dys, m0, P0, model.n, model.m)
-        init = GaussianState(state.mean.copy(), state.cov.copy())
-        T = dys.shape[-2]
-        out = _Runner(batch, T, model.n, on_divergence, self.name)
-        with np.errstate(over="ignore", invalid="ignore"):  # a failing path is caught by record
-            for k in range(T):
-                state = self._step(state, dys[..., k, :], t0 + k * self.dt)
-                state = out.record(k, state, init)
-        return out.result()
+    def _step_unchecked(self, state, dy, t):
+        return self._step(GaussianState(*state), dy, t)
 
 
 __all__ = ["FORMS", "SecondOrderFilter", "ContinuousSecondOrderFilter",
