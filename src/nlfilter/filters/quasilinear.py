@@ -19,8 +19,10 @@ Theorem 4.1 (003 eqs. 16-17), continuous time, measurement increments ``dy = h d
 Everything but ``x̂`` — the moments, a0, a1, b0, b1, P and the gain — depends on the prior only,
 so :meth:`QuasilinearFilter.offline` computes it once (one ``solve_ivp`` of the moment and
 Riccati equations, dense output); :meth:`run` then integrates one linear equation per step for
-the whole batch (RK4 with ``dy/dt`` held constant over the step: the gain does not depend on x̂,
-so this is consistent with the Itô equation). ``Estimates.covs`` holds ``P``, which is NOT the
+the whole batch: the ``dt`` terms by RK4 (or Euler) substeps, the innovation ``Kg(t_k) dy`` added
+as an Itô increment with the gain at the start of the step (the convention of
+:class:`~nlfilter.filters.ekf.ContinuousEKF`, so the QLF is the Kalman-Bucy filter on linear
+models). ``Estimates.covs`` holds ``P``, which is NOT the
 error covariance (003, below eq. 8); the true error comes from :meth:`error_analysis`.
 
 Off-line accuracy (003 Fig. 2): (x, x̂) is a polynomial SDE with time-varying coefficients::
@@ -356,23 +358,24 @@ class QuasilinearFilter(ContinuousFilter):
         out = _Runner(batch, T, model.n, on_divergence, self.name)
         x = state.mean
         init = GaussianState(state.mean.copy(), state.cov.copy())
-        ev = lambda i, x, z: (np.einsum("ij,...j->...i", F[i], x) + u[i]  # noqa: E731
-                              + np.einsum("ij,...j->...i", Kg[i], z))
+        ev = lambda i, x: np.einsum("ij,...j->...i", F[i], x) + u[i]  # noqa: E731  (the dt terms)
         for k in range(T):
             dy = dys[..., k, :]
-            z = np.where(np.isnan(dy), 0.0, dy) / self.dt
-            if np.isnan(dy).any():  # missing component: no correction from it
+            if np.isnan(dy).any():
                 raise ValueError("dys: missing measurements are not supported by the quasilinear filters")
-            for j in range(self.substeps):
+            i0 = 2 * k * self.substeps
+            Kdy = np.einsum("ij,...j->...i", Kg[i0], dy)  # Itô: the innovation with the gain at t_k
+            for j in range(self.substeps):  # the dt terms (F x̂ + u) by the scheme
                 i0 = 2 * (k * self.substeps + j)
-                k1 = ev(i0, x, z)
-                if self.scheme == "euler":  # Euler-Maruyama: the Itô step with the gain at t
+                k1 = ev(i0, x)
+                if self.scheme == "euler":
                     x = x + h * k1
                     continue
-                k2 = ev(i0 + 1, x + 0.5 * h * k1, z)
-                k3 = ev(i0 + 1, x + 0.5 * h * k2, z)
-                k4 = ev(i0 + 2, x + h * k3, z)
+                k2 = ev(i0 + 1, x + 0.5 * h * k1)
+                k3 = ev(i0 + 1, x + 0.5 * h * k2)
+                k4 = ev(i0 + 2, x + h * k3)
                 x = x + h / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
+            x = x + Kdy
             st = GaussianState(x, np.broadcast_to(g.P[k + 1], (*batch, model.n, model.n)).copy())
             st = out.record(k, st, init)
             x = st.mean
