@@ -1,5 +1,4 @@
 """Experiment ``cubic-sensor-closures`` (quick path)."""
-import numpy as np
 import pytest
 
 from nlfilter.experiments import get

@@ -1,5 +1,4 @@
 """Experiment ``oh-shin`` (quick path): rows, paper values, agreement of the two error methods."""
-import numpy as np
 import pytest
 
 from nlfilter.experiments import get

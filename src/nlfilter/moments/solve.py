@@ -30,7 +30,7 @@ from scipy.integrate import solve_ivp
 from .. import _validate as V
 from ..errors import ClosureDivergedError, SingularSystemError
 from .closures import Closure
-from .ito import MomentEquations, matvec
+from .ito import MomentEquations
 
 __all__ = ["propagate", "iterate", "steady_state", "MomentSolution", "variance_positions"]
 
