@@ -214,3 +214,74 @@ def test_first_order_impossible_measurement():
         FirstOrderMomentFilter(1.0, 1.0, 2, w_moments=uniform_moments(2))
     with pytest.raises(ValueError, match="w_moments"):
         FirstOrderMomentFilter(0.5, 1.0, 2)
+
+
+# ------------------------------------------------------------------ second-order system
+
+from nlfilter.filters.moment_bayes import SecondOrderMomentFilter, linear_map_moments  # noqa: E402
+from nlfilter.moments.densities import LegendreDensity2D  # noqa: E402
+
+
+def test_linear_map_moments_exact_on_discrete_laws():
+    # x and w with finitely many atoms: E[(A x + b w)^(i,j)] by enumeration
+    N = 4
+    A = np.array([[0.6, 0.1], [-0.2, -0.5]])
+    b = np.array([1.0, 0.7])
+    xa = np.array([[0.3, -1.0], [1.2, 0.4], [-0.7, 0.9]])
+    px = np.array([0.2, 0.5, 0.3])
+    wa = np.array([-0.5, 0.8])
+    pw = np.array([0.4, 0.6])
+    M = np.array([[np.sum(px * xa[:, 0] ** i * xa[:, 1] ** j) for j in range(N + 1)] for i in range(N + 1)])
+    mw = np.array([np.sum(pw * wa ** i) for i in range(1, N + 1)])
+    ys = xa[:, None, :] @ A.T + wa[None, :, None] * b
+    pp = px[:, None] * pw[None]
+    want = np.array([[np.sum(pp * ys[..., 0] ** i * ys[..., 1] ** j) for j in range(N + 1)] for i in range(N + 1)])
+    mask = np.add.outer(np.arange(N + 1), np.arange(N + 1)) <= N
+    np.testing.assert_allclose(linear_map_moments(M, A, b, mw)[mask], want[mask], atol=1e-13)
+
+
+def test_second_order_update_against_quadrature():
+    # posterior moments over box ∩ slab, against scipy dblquad with the slab as integration limits
+    N = 3
+    f = SecondOrderMomentFilter(np.diag([0.6, -0.5]), [1.0, 1.0], [1.0, 0.8], 1.0, N,
+                                w_moments=uniform_moments(N))
+    M, lo, hi = f.stationary(f.w_moments)
+    z = 0.7
+    post, nlo, nhi, fb = f.update(M, lo, hi, np.array(z))
+    d = LegendreDensity2D.from_moments(M, lo, hi)
+    g0 = lambda x0: max(lo[1], (z - 1 - x0) / 0.8)
+    g1 = lambda x0: min(hi[1], (z + 1 - x0) / 0.8)
+    x0a, x0b = max(lo[0], z - 1 - 0.8 * hi[1]), min(hi[0], z + 1 - 0.8 * lo[1])
+
+    def I(i, j):
+        fn = lambda x1, x0: x0 ** i * x1 ** j * float(d.pdf(np.array([x0, x1])))
+        return integrate.dblquad(fn, x0a, x0b, g0, g1, epsabs=1e-12, epsrel=1e-12)[0]
+
+    I00 = I(0, 0)
+    for i, j in [(1, 0), (0, 1), (1, 1), (2, 0), (0, 2), (2, 1)]:
+        assert post[i, j] == pytest.approx(I(i, j) / I00, rel=1e-8, abs=1e-10)
+    assert not fb
+    np.testing.assert_allclose(nlo, [x0a, lo[1]], atol=1e-12)
+
+
+def test_second_order_wide_slab_keeps_box_moments():
+    # a measurement whose slab covers the whole box changes nothing: posterior = prior moments
+    f = SecondOrderMomentFilter(np.diag([0.5, 0.2]), [0.2, 0.1], [1.0, 1.0], 1.0, 4,
+                                w_moments=uniform_moments(4), noise_halfwidth=5.0)
+    M, lo, hi = f.stationary(f.w_moments)
+    post, nlo, nhi, fb = f.update(M, lo, hi, np.array(0.0))
+    mask = np.add.outer(np.arange(5), np.arange(5)) <= 4
+    np.testing.assert_allclose(post[mask], LegendreDensity2D.from_moments(M, lo, hi).box_moments()[mask],
+                               atol=1e-12)
+    np.testing.assert_allclose(post[mask], M[mask], atol=1e-12)
+
+
+def test_second_order_bad_input():
+    with pytest.raises(ValueError, match="A: expected a stable"):
+        SecondOrderMomentFilter(np.eye(2), [1, 1], [1, 1], 1.0, 2, w_moments=uniform_moments(2))
+    f = SecondOrderMomentFilter(np.diag([0.5, 0.2]), [1, 1], [1, 1], 1.0, 2, w_moments=uniform_moments(2))
+    with pytest.raises(ValueError, match="zs: measurement 9.0"):
+        f.run(np.array([0.0, 9.0]))
+    g = SecondOrderMomentFilter(np.diag([0.5, 0.2]), [1, 1], [1, 1], 1.0, 2, w_moments=uniform_moments(2),
+                                outside="clip")
+    assert np.isfinite(g.run(np.array([0.0, 9.0, 0.1])).estimates).all()

@@ -62,12 +62,13 @@ from typing import NamedTuple
 import numpy as np
 
 from .. import _validate as V
-from ..moments.densities import (LegendreDensity, cumulants_to_moments, difference_moments,
+from ..moments.densities import (LegendreDensity, LegendreDensity2D, cumulants_to_moments, difference_moments,
                                  is_moment_sequence, moments_to_cumulants, sum_moments,
                                  uniform_moments)
 
 __all__ = ["ZeroOrderMomentFilter", "ZeroOrderRun", "zero_order_estimate", "power_density_estimate",
            "FirstOrderMomentFilter", "MomentRun", "BoundedGridFilter1D", "impulse_power_sums",
+           "SecondOrderMomentFilter", "linear_map_moments", "bootstrap_particle_means",
            "MomentFilterWarning"]
 
 
@@ -524,3 +525,302 @@ class BoundedGridFilter1D:
             p = p / s
             out[..., k, 0] = p @ self.x
         return out
+
+
+# ====================================================================== second-order system
+
+def _monomial_index(N):
+    """Exponent pairs (i, j) with i + j <= N, and a mask on the (N+1, N+1) array."""
+    mask = np.add.outer(np.arange(N + 1), np.arange(N + 1)) <= N
+    return mask
+
+
+def moment_map_tensor(A, b, N: int) -> np.ndarray:
+    """``C[i, j, p, q, r]``: ``E[y0^i y1^j] = sum C[i,j,p,q,r] E[x0^p x1^q] E[w^r]`` for ``y = A x + b w``.
+
+    Built once per filter (multinomial expansion of ``(A00 x0 + A01 x1 + b0 w)^i (A10 x0 + A11 x1 + b1 w)^j``).
+    """
+    A = np.asarray(A, dtype=float)
+    b = np.asarray(b, dtype=float)
+
+    def powers(a0, a1, bw):
+        out = [np.zeros((N + 1, N + 1, N + 1))]
+        out[0][0, 0, 0] = 1.0
+        for _ in range(N):
+            prev = out[-1]
+            nxt = np.zeros_like(prev)
+            nxt[1:, :, :] += a0 * prev[:-1, :, :]
+            nxt[:, 1:, :] += a1 * prev[:, :-1, :]
+            nxt[:, :, 1:] += bw * prev[:, :, :-1]
+            out.append(nxt)
+        return out
+
+    P0 = powers(A[0, 0], A[0, 1], b[0])
+    P1 = powers(A[1, 0], A[1, 1], b[1])
+    C = np.zeros((N + 1,) * 5)
+    for i in range(N + 1):
+        for j in range(N + 1 - i):
+            a, c = P0[i], P1[j]
+            for p, q, r in zip(*np.nonzero(a)):
+                sub = c[: N + 1 - p, : N + 1 - q, : N + 1 - r]
+                C[i, j, p:p + sub.shape[0], q:q + sub.shape[1], r:r + sub.shape[2]] += a[p, q, r] * sub
+    return C
+
+
+def linear_map_moments(M, A, b, mw, C=None) -> np.ndarray:
+    """Mixed moments of ``A x + b w`` (x independent of the scalar w), total order <= N.
+
+    ``M[..., i, j] = E[x0^i x1^j]`` (M[0,0] = 1), ``A`` (2, 2), ``b`` (2,), ``mw`` (..., N) moments of w.
+    Exact (eq. 3.13 in two dimensions).  ``C`` = :func:`moment_map_tensor` if precomputed.
+    """
+    M = np.asarray(M, dtype=float)
+    N = M.shape[-1] - 1
+    C = moment_map_tensor(A, b, N) if C is None else C
+    mw = np.concatenate([np.ones((*np.shape(mw)[:-1], 1)), np.asarray(mw, dtype=float)], axis=-1)
+    return np.einsum("ijpqr,...pq,...r->...ij", C, M, mw)
+
+
+class SecondOrderMomentFilter:
+    """Moment Bayesian filter for ``x_{k+1} = A x_k + b w_k``, ``z_k = c.x_k + v_k`` (000 eqs. 2.6-2.8).
+
+    000 writes the second-order system in modal form ``A = diag(h1, h2)``, ``b = c = (d1, d2)``
+    (eqs. 2.6-2.7 as the OCR reads them); any stable 2x2 ``A`` works here.  See the module
+    docstring for the derivation: mixed moments of total order <= N propagate exactly
+    (:func:`linear_map_moments`), the reachable set is bounded by a box (interval arithmetic),
+    the predicted density is the tensor Legendre polynomial of total degree N on the box, and the
+    posterior moments are exact integrals over the box cut by the measurement slab.
+
+    >>> import numpy as np
+    >>> f = SecondOrderMomentFilter(np.diag([0.6, -0.5]), [1.0, 1.0], [1.0, 1.0], 1.0, 2,
+    ...                             w_moments=uniform_moments(2))
+    >>> f.run(np.array([0.3, -0.2, 0.9])).estimates.shape
+    (3, 2)
+    """
+
+    n = 2
+
+    def __init__(self, A, b, c, w_bound: float, N: int, *, w_moments=None, adaptive: bool = False,
+                 initial_w_moments=None, n0: float = 100.0, window: int = 20, noise_halfwidth: float = 1.0,
+                 eps: float = 1e-9, outside: str = "raise"):
+        self.A = V.as_float_array("A", A, ndim=2)
+        if self.A.shape != (2, 2):
+            raise ValueError(f"A: expected shape (2, 2), got {self.A.shape}")
+        if not np.max(np.abs(np.linalg.eigvals(self.A))) < 1:
+            raise ValueError(f"A: expected a stable matrix (spectral radius < 1), got {self.A.tolist()}")
+        self.b = V.as_float_array("b", b, shape_tail=(2,))
+        self.cv = V.as_float_array("c", c, shape_tail=(2,))
+        if self.cv[1] == 0:
+            raise ValueError("c: expected c[1] != 0 (swap the states otherwise)")
+        self.wb = float(V.positive("w_bound", w_bound))
+        self.N = _check_N(N)
+        self.c = float(V.positive("noise_halfwidth", noise_halfwidth))
+        self.mv = uniform_moments(self.N, -self.c, self.c)
+        self.eps = float(V.positive("eps", eps, strict=False))
+        self.outside = V.choice("outside", outside, {"raise", "clip"})
+        self.adaptive = bool(adaptive)
+        if self.adaptive == (w_moments is not None):
+            raise ValueError("w_moments: expected the N known input moments, or None with adaptive=True")
+        chk = lambda name, m: V.finite(name, V.as_float_array(name, m, shape_tail=(self.N,)))
+        self.w_moments = None if w_moments is None else chk("w_moments", w_moments)
+        self.initial_w_moments = (uniform_moments(self.N, -self.wb, self.wb) if initial_w_moments is None
+                                  else chk("initial_w_moments", initial_w_moments))
+        self.n0 = float(V.positive("n0", n0, strict=False))
+        self.window = int(V.positive("window", window, integer=True))
+        # stationary bounding box and impulse response g_j = c^T A^j b
+        Ab = [self.b]
+        for _ in range(3000):
+            Ab.append(self.A @ Ab[-1])
+            if np.max(np.abs(Ab[-1])) < 1e-17:
+                break
+        Ab = np.array(Ab)
+        self.bound = self.wb * np.sum(np.abs(Ab), axis=0)
+        self.S = impulse_power_sums(Ab @ self.cv, self.N)
+        self._K = self.N + 2  # Gauss-Legendre nodes per direction: exact for the degree-2N integrands
+        self._gl = np.polynomial.legendre.leggauss(self._K)
+        self._mask = _monomial_index(self.N)
+        self._C = moment_map_tensor(self.A, self.b, self.N)
+
+    # -- building blocks --------------------------------------------------------------------
+    def stationary(self, mw, steps: int = 400):
+        """Stationary mixed moments and box, by iterating the exact prediction from x = 0."""
+        M = np.zeros((*np.shape(mw)[:-1], self.N + 1, self.N + 1))
+        M[..., 0, 0] = 1.0
+        for _ in range(steps):
+            M = linear_map_moments(M, self.A, self.b, mw, self._C)
+        return M, np.broadcast_to(-self.bound, (*M.shape[:-2], 2)), np.broadcast_to(self.bound, (*M.shape[:-2], 2))
+
+    def predict(self, M, lo, hi, mw):
+        Mp = linear_map_moments(M, self.A, self.b, mw, self._C)
+        Al = self.A * lo[..., None, :]
+        Ah = self.A * hi[..., None, :]
+        bw = np.abs(self.b) * self.wb
+        lp = np.maximum(np.sum(np.minimum(Al, Ah), axis=-1) - bw, -self.bound)
+        hp = np.minimum(np.sum(np.maximum(Al, Ah), axis=-1) + bw, self.bound)
+        return Mp, lp, hp
+
+    def _slab_nodes(self, lo, hi, s_lo, s_hi):
+        """Quadrature nodes/weights on {box} ∩ {s_lo <= c.x <= s_hi}: returns x (..., Q, 2), w (..., Q),
+        and the polygon's candidate vertices (..., V, 2) with a validity mask."""
+        c0, c1 = self.cv
+        corners = np.stack([c0 * lo[..., 0] + c1 * lo[..., 1], c0 * lo[..., 0] + c1 * hi[..., 1],
+                            c0 * hi[..., 0] + c1 * lo[..., 1], c0 * hi[..., 0] + c1 * hi[..., 1]], axis=-1)
+        a = np.maximum(s_lo, corners.min(axis=-1))
+        bnd = np.minimum(s_hi, corners.max(axis=-1))
+        bps = np.sort(np.concatenate([corners, a[..., None], bnd[..., None]], axis=-1), axis=-1)
+        bps = np.clip(bps, a[..., None], np.maximum(a, bnd)[..., None])  # (..., 6)
+        t, w = self._gl
+        sa, sb = bps[..., :-1, None], bps[..., 1:, None]  # (..., 5, 1)
+        s = 0.5 * (sa + sb) + 0.5 * (sb - sa) * t  # (..., 5, K)
+        ws = 0.5 * (sb - sa) * w
+
+        def x0_range(s):
+            e1 = s - c1 * lo[..., None, None, 1]
+            e2 = s - c1 * hi[..., None, None, 1]
+            if c0 != 0:
+                r1, r2 = e1 / c0, e2 / c0
+                l0 = np.maximum(lo[..., None, None, 0], np.minimum(r1, r2))
+                u0 = np.minimum(hi[..., None, None, 0], np.maximum(r1, r2))
+            else:
+                l0 = np.broadcast_to(lo[..., None, None, 0], s.shape)
+                u0 = np.broadcast_to(hi[..., None, None, 0], s.shape)
+            return l0, np.maximum(u0, l0)
+
+        l0, u0 = x0_range(s)  # (..., 5, K)
+        x0 = 0.5 * (l0 + u0)[..., None] + 0.5 * (u0 - l0)[..., None] * t  # (..., 5, K, K)
+        wx = 0.5 * (u0 - l0)[..., None] * w
+        x1 = (s[..., None] - c0 * x0) / c1
+        W = (ws[..., None] * wx) / abs(c1)
+        shp = W.shape[:-3] + (-1,)
+        X = np.stack([x0.reshape(shp), x1.reshape(shp)], axis=-1)
+        # polygon vertices: the x0-range ends at every breakpoint
+        vb = bps[..., None, :]
+        vl0, vu0 = x0_range(vb)
+        vl0, vu0 = vl0[..., 0, :], vu0[..., 0, :]
+        vx0 = np.concatenate([vl0, vu0], axis=-1)
+        vs = np.concatenate([bps, bps], axis=-1)
+        verts = np.stack([vx0, (vs - c0 * vx0) / c1], axis=-1)
+        return X, W.reshape(shp), verts, bnd >= a
+
+    def update(self, M, lo, hi, z):
+        z = np.asarray(z, dtype=float)
+        X, W, verts, ok = self._slab_nodes(lo, hi, z - self.c, z + self.c)
+        if np.any(~ok):
+            if self.outside == "raise":
+                i = tuple(int(j) for j in np.argwhere(~ok)[0])
+                raise ValueError(f"zs: measurement {float(z[i] if z.ndim else z)!r} (path {i}) is inconsistent "
+                                 f"with the reachable box and |v| <= {self.c}")
+            # clip: use the nearest reachable value of c.x as the measurement
+            c0, c1 = self.cv
+            corners = np.stack([c0 * lo[..., 0] + c1 * lo[..., 1], c0 * hi[..., 0] + c1 * hi[..., 1],
+                                c0 * lo[..., 0] + c1 * hi[..., 1], c0 * hi[..., 0] + c1 * lo[..., 1]], axis=-1)
+            zc = np.clip(z, corners.min(-1) - self.c, corners.max(-1) + self.c)
+            X, W, verts, ok = self._slab_nodes(lo, hi, zc - self.c, zc + self.c)
+        d = LegendreDensity2D.from_moments(M, lo, hi)
+        p = d.pdf(X) if X.ndim == 2 else _pdf_batched(d, X)
+        N = self.N
+        e = np.arange(N + 1)
+        P0 = X[..., 0, None] ** e  # (..., Q, N+1)
+        P1 = X[..., 1, None] ** e
+        I = np.einsum("...q,...qi,...qj->...ij", W * p, P0, P1)
+        U = np.einsum("...q,...qi,...qj->...ij", W, P0, P1)  # uniform on the polygon (fallback)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            post = I / I[..., :1, :1]
+            uni = U / U[..., :1, :1]
+        # new bounding box of the polygon box ∩ slab
+        nlo = np.min(verts, axis=-2)
+        nhi = np.max(verts, axis=-2)
+        mean = np.stack([post[..., 1, 0], post[..., 0, 1]], axis=-1)
+        fb = (~(I[..., 0, 0] >= self.eps) | ~np.all((mean >= nlo) & (mean <= nhi), axis=-1)
+              | ~np.all(np.isfinite(post[..., self._mask]), axis=-1))
+        area = U[..., 0, 0]
+        tiny = ~(area > 1e-14 * np.prod(self.bound))
+        post = np.where(fb[..., None, None], uni, post)
+        # a degenerate polygon (zero area): point mass at the centre of its vertices
+        cen = 0.5 * (nlo + nhi)
+        pt = cen[..., 0, None, None] ** e[:, None] * cen[..., 1, None, None] ** e[None, :]
+        post = np.where(tiny[..., None, None], pt, post)
+        post = np.where(self._mask, post, 0.0)
+        width = np.maximum(nhi - nlo, 1e-9 * (1 + self.bound))
+        nhi = nlo + width
+        return post, nlo, nhi, fb & ~tiny
+
+    def run(self, zs) -> MomentRun:
+        """Filter a batch of measurement sequences ``zs`` (..., T)."""
+        zs = V.as_float_array("zs", zs, ndim_min=1)
+        V.finite("zs", zs)
+        batch, T = zs.shape[:-1], zs.shape[-1]
+        mw = np.broadcast_to(self.w_moments if not self.adaptive else self.initial_w_moments, (*batch, self.N))
+        learner = _AdaptiveInput(self.N, self.S, self.mv, self.initial_w_moments, self.n0, self.window)
+        M, lo, hi = self.stationary(self.w_moments if not self.adaptive else self.initial_w_moments)
+        M = np.broadcast_to(M, (*batch, self.N + 1, self.N + 1))
+        lo = np.broadcast_to(lo, (*batch, 2))
+        hi = np.broadcast_to(hi, (*batch, 2))
+        est = np.empty((*batch, T, 2))
+        lower = np.empty((*batch, T, 2))
+        upper = np.empty((*batch, T, 2))
+        fbs = np.empty((*batch, T), bool)
+        hist = []
+        acc = np.zeros((*batch, self.N))
+        powers = np.arange(1, self.N + 1)
+        for k in range(T):
+            z = zs[..., k]
+            if self.adaptive:
+                acc = acc + z[..., None] ** powers
+                if (k + 1) % self.window == 0:
+                    mw = learner.moments(acc, k + 1)
+                    hist.append(mw)
+            if k > 0:
+                M, lo, hi = self.predict(M, lo, hi, mw)
+            M, lo, hi, fb = self.update(M, lo, hi, z)
+            est[..., k, 0], est[..., k, 1] = M[..., 1, 0], M[..., 0, 1]
+            lower[..., k, :], upper[..., k, :], fbs[..., k] = lo, hi, fb
+        H = np.stack(hist, axis=-2) if hist else np.zeros((*batch, 0, self.N))
+        return MomentRun(est, fbs, lower, upper, H)
+
+
+def _pdf_batched(d, X):
+    """``d.pdf`` at points X (..., Q, 2) for a batch of densities of shape (...)."""
+    t = d.alpha[..., None, :] * (X - d.center[..., None, :])
+    from ..moments.densities import legendre_values
+    P0 = legendre_values(t[..., 0], d.degree)
+    P1 = legendre_values(t[..., 1], d.degree)
+    val = np.prod(d.alpha, axis=-1)[..., None] * np.einsum("...ij,...qi,...qj->...q", d.coef, P0, P1)
+    return val
+
+
+# ====================================================================== particle optimum (2-D)
+
+def bootstrap_particle_means(rng, zs, A, b, c, w_sampler, x0_sampler, *, particles: int = 4000,
+                             noise_halfwidth: float = 1.0):
+    """Bootstrap particle filter for the bounded second-order system (the near-optimal reference).
+
+    Uniform likelihood ``1{|z - c.x| <= c_v}`` (000 eq. 3.3), systematic resampling every step.
+    ``w_sampler(rng, shape)`` draws inputs, ``x0_sampler(rng, shape)`` draws ``x_0`` (..., 2).
+    Returns posterior means (R, T, 2).
+    """
+    zs = np.asarray(zs, dtype=float)
+    R, T = zs.shape
+    P = int(particles)
+    x = x0_sampler(rng, (R, P))
+    A = np.asarray(A, float)
+    b = np.asarray(b, float)
+    c = np.asarray(c, float)
+    out = np.empty((R, T, 2))
+    ar = np.arange(P)
+    for k in range(T):
+        if k > 0:
+            x = x @ A.T + w_sampler(rng, (R, P))[..., None] * b
+        lik = (np.abs(zs[:, k, None] - x @ c) <= noise_halfwidth).astype(float)
+        s = lik.sum(axis=1)
+        if np.any(s == 0):  # every particle excluded: keep the nearest ones (rare, logged by caller)
+            dist = np.abs(zs[:, k, None] - x @ c)
+            lik = np.where(s[:, None] == 0, (dist <= dist.min(axis=1, keepdims=True) + 1e-9), lik)
+            s = lik.sum(axis=1)
+        wts = lik / s[:, None]
+        out[:, k] = np.einsum("rp,rpi->ri", wts, x)
+        cdf = np.cumsum(wts, axis=1)
+        cdf[:, -1] = 1.0
+        u = (rng.random((R, 1)) + ar) / P
+        idx = np.minimum(np.array([np.searchsorted(cdf[r], u[r]) for r in range(R)]), P - 1)
+        x = np.take_along_axis(x, idx[..., None], axis=1)
+    return out
