@@ -285,3 +285,35 @@ def test_second_order_bad_input():
     g = SecondOrderMomentFilter(np.diag([0.5, 0.2]), [1, 1], [1, 1], 1.0, 2, w_moments=uniform_moments(2),
                                 outside="clip")
     assert np.isfinite(g.run(np.array([0.0, 9.0, 0.1])).estimates).all()
+
+
+# ------------------------------------------------------------------ non-additive measurement
+
+from nlfilter.filters.moment_bayes import ScaledNoiseZeroOrderFilter  # noqa: E402
+
+
+def test_scaled_noise_filter_reduces_to_additive_and_matches_quadrature():
+    m = power_density_moments(4, 10)
+    z = np.linspace(-1.9, 1.9, 15)
+    f0 = ScaledNoiseZeroOrderFilter(4, 0.0, moments=m)
+    np.testing.assert_allclose(f0.estimate(z)[0], ZeroOrderMomentFilter(4, moments=m).estimate(z)[0], atol=1e-12)
+    # beta = 0.4 against adaptive quadrature of eqs. 1.9-1.11 with the exact prior x^10 (N = 10)
+    beta = 0.4
+    f = ScaledNoiseZeroOrderFilter(10, beta, moments=power_density_moments(10, 10), nodes=64)
+    for zz in (-1.2, 0.3, 1.5):
+        l, u = max(-1, (zz - 1) / (1 + beta)), min(1, (zz + 1) / (1 - beta))
+        num = integrate.quad(lambda x: x * 5.5 * x ** 10 / (1 + beta * x), l, u)[0]
+        den = integrate.quad(lambda x: 5.5 * x ** 10 / (1 + beta * x), l, u)[0]
+        assert float(f.estimate(np.array(zz))[0]) == pytest.approx(num / den, abs=1e-10)
+
+
+def test_scaled_noise_moment_recovery_exact():
+    # exact moments of z = x + (1 + beta x) v from those of x and v; recovery inverts them (n0 = 0)
+    beta, J, N = 0.5, 4, 4
+    mx = np.r_[1.0, power_density_moments(2 * N, J)]
+    mv = np.r_[1.0, uniform_moments(2 * N)]
+    from math import comb
+    mz = [sum(comb(i, j) * mv[j] * sum(comb(j, k) * beta ** k * mx[i - j + k] for k in range(j + 1))
+              for j in range(i + 1)) for i in range(1, N + 1)]
+    f = ScaledNoiseZeroOrderFilter(N, beta, adaptive=True, n0=0.0)
+    np.testing.assert_allclose(f.recover_moments(np.array(mz), 10), power_density_moments(N, J), atol=1e-12)

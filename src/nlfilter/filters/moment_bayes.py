@@ -69,6 +69,7 @@ from ..moments.densities import (LegendreDensity, LegendreDensity2D, cumulants_t
 __all__ = ["ZeroOrderMomentFilter", "ZeroOrderRun", "zero_order_estimate", "power_density_estimate",
            "FirstOrderMomentFilter", "MomentRun", "BoundedGridFilter1D", "impulse_power_sums",
            "SecondOrderMomentFilter", "linear_map_moments", "bootstrap_particle_means",
+           "ScaledNoiseZeroOrderFilter",
            "MomentFilterWarning"]
 
 
@@ -824,3 +825,105 @@ def bootstrap_particle_means(rng, zs, A, b, c, w_sampler, x0_sampler, *, particl
         idx = np.minimum(np.array([np.searchsorted(cdf[r], u[r]) for r in range(R)]), P - 1)
         x = np.take_along_axis(x, idx[..., None], axis=1)
     return out
+
+
+# ====================================================================== non-additive zero-order
+
+class ScaledNoiseZeroOrderFilter:
+    """Method-of-moments estimator for the non-additive measurement ``z = x + (1 + beta x) v``
+    (000 eq. 1.2 form ``z = h(x, v)``; a state-dependent noise scale), ``v ~ U(-c, c)``, ``|beta| < 1/|x|max``.
+
+    For fixed x, ``v = (z - x)/(1 + beta x)`` (eq. 1.10) and the likelihood is
+    ``f_v(v) / (1 + beta x) = 1/(2c (1 + beta x))`` (eq. 1.11) on
+    ``(l, u) = (max(x_min, (z - c)/(1 + beta c)), min(x_max, (z + c)/(1 - beta c)))``, so eq. 3.5 becomes
+    ``x_hat = int x f(x)/(1 + beta x) / int f(x)/(1 + beta x)`` over (l, u), f the polynomial prior
+    (Gauss–Legendre with ``nodes`` points: the integrand is smooth on (l, u)).  Fallback: eq. 3.16.
+
+    Adaptive moments: ``E[z^i] = sum_j C(i,j) E[x^{i-j} (1 + beta x)^j] m_v^(j)`` is triangular in
+    the moments of x (the analogue of eq. 3.13) and is solved sequentially (analogue of eq. 3.14).
+    """
+
+    def __init__(self, N: int, beta: float, *, support=(-1.0, 1.0), noise_halfwidth: float = 1.0,
+                 moments=None, adaptive: bool = False, initial_moments=None, n0: float = 100.0,
+                 window: int = 20, eps: float = 1e-6, nodes: int = 48):
+        self.base = ZeroOrderMomentFilter(N, support=support, noise_halfwidth=noise_halfwidth, moments=moments,
+                                          adaptive=adaptive, initial_moments=initial_moments, n0=n0,
+                                          window=window, eps=eps, outside="clip", invalid_moments="ignore")
+        self.beta = float(beta)
+        b = self.base
+        if not np.all(1 + self.beta * np.array([b.x_min, b.x_max]) > 0):
+            raise ValueError(f"beta: expected 1 + beta x > 0 on the support {support}, got beta = {beta!r}")
+        self.N = b.N
+        self._t, self._w = np.polynomial.legendre.leggauss(int(V.positive("nodes", nodes, integer=True)))
+        # triangular map: m_z = T @ (1, m_x) built from the expansion of (x + (1 + beta x) v)^i
+        N = self.N
+        mv = np.r_[1.0, b.mv]
+        T = np.zeros((N + 1, N + 1))
+        T[0, 0] = 1.0
+        for i in range(1, N + 1):
+            for j in range(i + 1):
+                # x^{i-j} (1 + beta x)^j = sum_k C(j,k) beta^k x^{i-j+k}
+                for k in range(j + 1):
+                    T[i, i - j + k] += math.comb(i, j) * mv[j] * math.comb(j, k) * self.beta ** k
+        self._T = T
+
+    def interval(self, z):
+        b, c = self.base, self.base.c
+        l = np.maximum(b.x_min, (z - c) / (1 + self.beta * c))
+        u = np.minimum(b.x_max, (z + c) / (1 - self.beta * c))
+        return l, np.maximum(u, l)
+
+    def estimate(self, z, moments=None):
+        z = np.asarray(z, dtype=float)
+        d = self.base.density(moments)
+        l, u = self.interval(z)
+        x = 0.5 * (l + u)[..., None] + 0.5 * (u - l)[..., None] * self._t
+        wq = 0.5 * (u - l)[..., None] * self._w
+        f = d.pdf(x) if d.coef.ndim == 1 else _pdf1(d, x)
+        g = wq * f / (1 + self.beta * x)
+        de, nu = g.sum(-1), (g * x).sum(-1)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            xh = nu / de
+        fb = ~(de >= self.base.eps) | ~((xh > l) & (xh < u))
+        return np.where(fb, 0.5 * (l + u), xh), fb
+
+    def recover_moments(self, mz_hat, n_s):
+        rhs = np.concatenate([np.ones((*mz_hat.shape[:-1], 1)), mz_hat], axis=-1)
+        mx = np.linalg.solve(self._T, rhs[..., None])[..., 0][..., 1:]
+        w0 = self.base.n0 / (n_s + self.base.n0)
+        return w0 * self.base.initial_moments + (1 - w0) * mx
+
+    def run(self, zs) -> ZeroOrderRun:
+        zs = V.as_float_array("zs", zs, ndim_min=1)
+        V.finite("zs", zs)
+        b = self.base
+        batch, T = zs.shape[:-1], zs.shape[-1]
+        if not b.adaptive:
+            xh, fb = self.estimate(zs)
+            return ZeroOrderRun(xh, fb, np.zeros((*batch, 0, self.N)), np.zeros(zs.shape, bool))
+        est = np.empty(zs.shape)
+        fbs = np.empty(zs.shape, bool)
+        m = np.broadcast_to(b.initial_moments, (*batch, self.N))
+        acc = np.zeros((*batch, self.N))
+        powers = np.arange(1, self.N + 1)
+        refresh = list(range(b.window - 1, T, b.window))
+        bounds = sorted(set([0] + refresh + [T]))
+        prev, hist = 0, []
+        for a, e in zip(bounds[:-1], bounds[1:]):
+            if a in refresh:
+                acc = acc + np.sum(zs[..., prev:a + 1, None] ** powers, axis=-2)
+                prev = a + 1
+                m = self.recover_moments(acc / prev, prev)
+                hist.append(m)
+            est[..., a:e], fbs[..., a:e] = self.estimate(zs[..., a:e], m[..., None, :])
+        H = np.stack(hist, axis=-2) if hist else np.zeros((*batch, 0, self.N))
+        return ZeroOrderRun(est, fbs, H, np.zeros(zs.shape, bool))
+
+
+def _pdf1(d, x):
+    """Batched 1-D density values: d has batch shape (..., 1) or (...), x (..., Q)."""
+    t = d.alpha[..., None] * (x - d.center[..., None])
+    from ..moments.densities import legendre_values
+    P = legendre_values(t, d.degree)
+    coef = d.coef
+    return d.alpha[..., None] * np.einsum("...i,...qi->...q", coef, P)
