@@ -142,7 +142,7 @@ def test_correlated_optimal_reference():
 def test_correlated_optimal_beats_filters_by_monte_carlo():
     # the reference is the conditional mean: no estimator beats it (paired, 3 se)
     rng = np.random.default_rng(4)
-    x, v = correlated_pair(rng, 10, 0.6, 100_000)
+    x, v = correlated_pair(rng, 10, 0.6, 30_000)
     z = x + v
     e_opt = (x - correlated_optimal(z, 10, 0.6)) ** 2
     for est in (power_density_estimate(z, 10), linear_gain(10) * z):
