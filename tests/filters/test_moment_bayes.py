@@ -317,3 +317,44 @@ def test_scaled_noise_moment_recovery_exact():
               for j in range(i + 1)) for i in range(1, N + 1)]
     f = ScaledNoiseZeroOrderFilter(N, beta, adaptive=True, n0=0.0)
     np.testing.assert_allclose(f.recover_moments(np.array(mz), 10), power_density_moments(N, J), atol=1e-12)
+
+
+def test_polygon_clip_and_quadrature_exact():
+    from nlfilter.filters.moment_bayes import _clip_halfplane, _polygon_quadrature
+    P = np.array([[[-1.0, -1.0], [1.0, -1.0], [1.0, 1.0], [-1.0, 1.0]]])
+    Q = _clip_halfplane(P, np.array([1.0, 1.0]) / np.sqrt(2), np.array([0.0]))  # x + y <= 0: a triangle
+    t, w = np.polynomial.legendre.leggauss(4)
+    X, W = _polygon_quadrature(Q, 0.5 * (t + 1), 0.5 * w)
+    assert W.sum() == pytest.approx(2.0, abs=1e-13)
+    # int over the triangle x + y <= 0 of x^2 = 2/3 (half of the square's 4/3 by symmetry) and of x^3 y^2
+    assert np.sum(W * X[..., 0] ** 2) == pytest.approx(2 / 3, abs=1e-13)
+    want = integrate.dblquad(lambda y, x: x ** 3 * y ** 2, -1, 1, lambda x: -1.0, lambda x: -x)[0]
+    assert np.sum(W * X[..., 0] ** 3 * X[..., 1] ** 2) == pytest.approx(want, abs=1e-12)
+
+
+def test_polygon_update_equals_box_update_on_a_box():
+    f = SecondOrderMomentFilter(np.diag([0.6, -0.5]), [1.0, 1.0], [1.0, 0.8], 1.0, 3, w_moments=uniform_moments(3))
+    M, lo, hi = f.stationary(f.w_moments)
+    box = np.array([[lo[0], lo[1]], [hi[0], lo[1]], [hi[0], hi[1]], [lo[0], hi[1]]])
+    for z in (0.7, -2.1, 3.0):
+        pb, lb, hb, _ = f.update(M, lo, hi, np.array(z))
+        pp, Q, lp, hp, _ = f.update_polygon(M, box, np.array(z))
+        np.testing.assert_allclose(pp, pb, atol=1e-11)
+        np.testing.assert_allclose(lp, lb, atol=1e-12)
+        np.testing.assert_allclose(hp, hb, atol=1e-12)
+
+
+def test_polygon_bound_contains_the_true_state():
+    rng = np.random.default_rng(8)
+    A, b = np.diag([0.6, -0.5]), np.array([1.0, 1.0])
+    R, T = 6, 80
+    x = np.zeros((R, 2))
+    xs = np.empty((R, T, 2))
+    for k in range(T + 100):
+        if k >= 100:
+            xs[:, k - 100] = x
+        x = x @ A.T + rng.uniform(-1.5, 1.5, (R, 1)) * b
+    zs = xs @ b + rng.uniform(-1, 1, (R, T))
+    r = SecondOrderMomentFilter(A, b, b, 1.5, 2, w_moments=uniform_moments(2, -1.5, 1.5)).run(zs)
+    assert np.all(r.lower <= xs + 1e-9) and np.all(xs <= r.upper + 1e-9)
+    assert np.all((r.estimates >= r.lower) & (r.estimates <= r.upper))

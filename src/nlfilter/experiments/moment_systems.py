@@ -165,8 +165,8 @@ def kalman_second_order(zs, A, b, c, law, noise_halfwidth=1.0):
 @experiment("moment-second-order", title="Second-order system: moment filter vs Kalman vs particle optimum",
             source="seed 000, eqs. 2.6-2.8 (Chapter V, outlined in the abstract)",
             params={"h1": 0.6, "h2": -0.5, "d1": 1.0, "d2": 1.0, "w_bound": 1.5, "N": [2, 4, 6],
-                    "laws": list(LAWS), "T": 600, "skip": 100, "n0": 100.0, "window": 20,
-                    "particles": 4000})
+                    "laws": list(LAWS), "T": 400, "skip": 100, "n0": 100.0, "window": 20,
+                    "particles": 4000, "bounding": "polygon", "directions": 16})
 def run_second_order(params, *, quick, runs, seed, progress):
     from ..filters.moment_bayes import SecondOrderMomentFilter, bootstrap_particle_means
     A = np.diag([float(params["h1"]), float(params["h2"])])
@@ -179,7 +179,8 @@ def run_second_order(params, *, quick, runs, seed, progress):
     if not 0 <= skip < T:
         raise ValueError(f"skip: expected 0 <= skip < T = {T}, got {skip}")
     P = int(params["particles"]) if not quick else min(int(params["particles"]), 1000)
-    R = runs or (8 if quick else 100)
+    R = runs or (8 if quick else 80)
+    bkw = dict(bounding=params["bounding"], directions=int(params["directions"]))
     res = Result("moment-second-order", "Second-order system x+ = A x + b w, z = c.x + v",
                  "seed 000, eqs. 2.6-2.8", params)
     laws = list(params["laws"])
@@ -199,16 +200,17 @@ def run_second_order(params, *, quick, runs, seed, progress):
                "kalman": kalman_second_order(zs, A, b, c, law)}
         fb = {}
         for N in tqdm(Ns, disable=not progress, desc=law_name):
-            r = SecondOrderMomentFilter(A, b, c, wb, N, w_moments=raw_moments(law, N)).run(zs)
+            r = SecondOrderMomentFilter(A, b, c, wb, N, w_moments=raw_moments(law, N), **bkw).run(zs)
             est[f"moment{N}"], fb[f"moment{N}"] = r.estimates, r.fallback.mean()
             r = SecondOrderMomentFilter(A, b, c, wb, N, adaptive=True, n0=params["n0"],
-                                        window=params["window"]).run(zs)
+                                        window=params["window"], **bkw).run(zs)
             est[f"adaptive{N}"], fb[f"adaptive{N}"] = r.estimates, r.fallback.mean()
         errs = {k: np.sqrt(np.sum((v - xs) ** 2, axis=-1)) for k, v in est.items()}  # |x - x_hat|
         per_path = _mse_rows(res, errs, skip, law_name)
         _claims(res, per_path, law_name, Ns, "second-order")
         res.notes.append(f"second-order law={law_name}: uniform fallback used in "
                          + ", ".join(f"{k} {100 * v:.2f}%" for k, v in fb.items()) + " of steps")
-    res.notes.append("mse = E|x - x_hat|^2 summed over both states; 'optimal' = bootstrap particle filter "
+    res.notes.append(f"reachable-set bound: {params['bounding']} ({params['directions']} template directions + "
+                     "the measurement's) ; mse = E|x - x_hat|^2 summed over both states; 'optimal' = bootstrap particle filter "
                      f"({P} particles): near-optimal, its own Monte Carlo error is part of its row's noise.")
     return res

@@ -602,7 +602,8 @@ class SecondOrderMomentFilter:
 
     def __init__(self, A, b, c, w_bound: float, N: int, *, w_moments=None, adaptive: bool = False,
                  initial_w_moments=None, n0: float = 100.0, window: int = 20, noise_halfwidth: float = 1.0,
-                 eps: float = 1e-9, outside: str = "raise"):
+                 eps: float = 1e-9, outside: str = "raise", bounding: str = "polygon", directions: int = 16):
+        self.bounding = V.choice("bounding", bounding, {"box", "polygon"})
         self.A = V.as_float_array("A", A, ndim=2)
         if self.A.shape != (2, 2):
             raise ValueError(f"A: expected shape (2, 2), got {self.A.shape}")
@@ -640,6 +641,15 @@ class SecondOrderMomentFilter:
         self._gl = np.polynomial.legendre.leggauss(self._K)
         self._mask = _monomial_index(self.N)
         self._C = moment_map_tensor(self.A, self.b, self.N)
+        # template directions for the polygon bound: evenly spaced, plus the measurement's +-c
+        m = int(V.positive("directions", directions, integer=True))
+        ang = 2 * np.pi * np.arange(m) / m
+        cn = self.cv / np.linalg.norm(self.cv)
+        self.D = np.concatenate([np.stack([np.cos(ang), np.sin(ang)], axis=-1), cn[None], -cn[None]])
+        self.beta_stat = self.wb * np.sum(np.abs(Ab @ self.D.T), axis=0)  # support of the stationary set
+        self._DAb = np.abs(self.D @ self.b) * self.wb
+        tt, ww = np.polynomial.legendre.leggauss(self.N + 2)
+        self._tri = (0.5 * (tt + 1), 0.5 * ww)
 
     # -- building blocks --------------------------------------------------------------------
     def stationary(self, mw, steps: int = 400):
@@ -745,6 +755,71 @@ class SecondOrderMomentFilter:
         nhi = nlo + width
         return post, nlo, nhi, fb & ~tiny
 
+    # -- polygon (template) bound ------------------------------------------------------------
+    def _polygon(self, beta):
+        """Vertices of {x : D x <= beta} (clipping the stationary box), (..., P, 2), CCW."""
+        B = self.bound
+        box = np.array([[-B[0], -B[1]], [B[0], -B[1]], [B[0], B[1]], [-B[0], B[1]]])
+        P = np.broadcast_to(box, (*beta.shape[:-1], 4, 2))
+        for j in range(self.D.shape[0]):
+            P = _clip_halfplane(P, self.D[j], beta[..., j])
+            if P.shape[-2] > 8:
+                P = _trim_polygon(P)
+        return _trim_polygon(P)
+
+    def predict_polygon(self, M, verts, mw):
+        """Exact moments of A x + b w; template bound: support of A P (+) b [-w_b, w_b] on D."""
+        Mp = linear_map_moments(M, self.A, self.b, mw, self._C)
+        AV = verts @ self.A.T
+        beta = np.max(np.einsum("jk,...pk->...pj", self.D, AV), axis=-2) + self._DAb
+        beta = np.minimum(beta, self.beta_stat)
+        P = self._polygon(beta)
+        return Mp, P
+
+    def update_polygon(self, M, verts, z):
+        z = np.asarray(z, dtype=float)
+        cn = self.cv / np.linalg.norm(self.cv)
+        scale = 1.0 / np.linalg.norm(self.cv)
+        lo_b = np.min(verts, axis=-2)
+        hi_b = np.max(verts, axis=-2)
+        Q = _clip_halfplane(verts, cn, (z + self.c) * scale)
+        Q = _trim_polygon(_clip_halfplane(Q, -cn, -(z - self.c) * scale))
+        X, W = _polygon_quadrature(Q, *self._tri)
+        area = W.sum(-1)
+        tiny = ~(area > 1e-12 * np.prod(self.bound))
+        if np.any(tiny):
+            # measurement (nearly) inconsistent with the reachable polygon
+            proj = np.einsum("k,...pk->...p", self.cv, verts)
+            gap = np.maximum(proj.min(-1) - (z + self.c), (z - self.c) - proj.max(-1))
+            bad = gap > 1e-9 * (1 + np.max(self.bound))
+            if np.any(bad) and self.outside == "raise":
+                i = tuple(int(j) for j in np.argwhere(bad)[0])
+                raise ValueError(f"zs: measurement {float(z[i] if z.ndim else z)!r} (path {i}) is inconsistent "
+                                 f"with the reachable polygon and |v| <= {self.c}")
+        d = LegendreDensity2D.from_moments(M, lo_b, np.maximum(hi_b, lo_b + 1e-12))
+        p = _pdf_batched(d, X) if X.ndim > 2 else d.pdf(X)
+        e = np.arange(self.N + 1)
+        P0 = X[..., 0, None] ** e
+        P1 = X[..., 1, None] ** e
+        I = np.einsum("...q,...qi,...qj->...ij", W * p, P0, P1)
+        U = np.einsum("...q,...qi,...qj->...ij", W, P0, P1)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            post = I / I[..., :1, :1]
+            uni = U / U[..., :1, :1]
+        nlo, nhi = np.min(Q, axis=-2), np.max(Q, axis=-2)
+        mean = np.stack([post[..., 1, 0], post[..., 0, 1]], axis=-1)
+        fb = (~(I[..., 0, 0] >= self.eps) | ~np.all((mean >= nlo) & (mean <= nhi), axis=-1)
+              | ~np.all(np.isfinite(post[..., self._mask]), axis=-1))
+        post = np.where(fb[..., None, None], uni, post)
+        # degenerate / inconsistent (clip mode): point mass at the polygon point nearest the slab
+        proj = np.einsum("k,...pk->...p", self.cv, verts)
+        near = np.take_along_axis(verts, np.argmin(np.abs(proj - z[..., None]), axis=-1)[..., None, None], axis=-2)[..., 0, :]
+        pt = near[..., 0, None, None] ** e[:, None] * near[..., 1, None, None] ** e[None, :]
+        post = np.where(tiny[..., None, None], pt, post)
+        Q = np.where(tiny[..., None, None], near[..., None, :], Q)
+        post = np.where(self._mask, post, 0.0)
+        return post, Q, np.min(Q, axis=-2), np.max(Q, axis=-2), fb & ~tiny
+
     def run(self, zs) -> MomentRun:
         """Filter a batch of measurement sequences ``zs`` (..., T)."""
         zs = V.as_float_array("zs", zs, ndim_min=1)
@@ -756,6 +831,7 @@ class SecondOrderMomentFilter:
         M = np.broadcast_to(M, (*batch, self.N + 1, self.N + 1))
         lo = np.broadcast_to(lo, (*batch, 2))
         hi = np.broadcast_to(hi, (*batch, 2))
+        verts = self._polygon(np.broadcast_to(self.beta_stat, (*batch, self.D.shape[0])))
         est = np.empty((*batch, T, 2))
         lower = np.empty((*batch, T, 2))
         upper = np.empty((*batch, T, 2))
@@ -770,13 +846,80 @@ class SecondOrderMomentFilter:
                 if (k + 1) % self.window == 0:
                     mw = learner.moments(acc, k + 1)
                     hist.append(mw)
-            if k > 0:
-                M, lo, hi = self.predict(M, lo, hi, mw)
-            M, lo, hi, fb = self.update(M, lo, hi, z)
+            if self.bounding == "box":
+                if k > 0:
+                    M, lo, hi = self.predict(M, lo, hi, mw)
+                M, lo, hi, fb = self.update(M, lo, hi, z)
+            else:
+                if k > 0:
+                    M, verts = self.predict_polygon(M, verts, mw)
+                M, verts, lo, hi, fb = self.update_polygon(M, verts, z)
             est[..., k, 0], est[..., k, 1] = M[..., 1, 0], M[..., 0, 1]
             lower[..., k, :], upper[..., k, :], fbs[..., k] = lo, hi, fb
         H = np.stack(hist, axis=-2) if hist else np.zeros((*batch, 0, self.N))
         return MomentRun(est, fbs, lower, upper, H)
+
+
+def _clip_halfplane(P, d, beta):
+    """Sutherland–Hodgman: the convex polygon P (..., V, 2) cut by {x : d.x <= beta}; (..., V+1, 2).
+
+    Output keeps a fixed capacity: kept vertices first (in order), padded with copies of the last
+    one (zero-length edges, harmless for the quadrature and the support function).  An empty
+    result collapses to the vertex of P nearest the half-plane.
+    """
+    beta = np.asarray(beta, dtype=float)
+    s = np.einsum("k,...pk->...p", d, P) - beta[..., None]
+    Pn = np.roll(P, -1, axis=-2)
+    sn = np.roll(s, -1, axis=-1)
+    inside = s <= 0
+    cross = (s <= 0) != (sn <= 0)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t = np.where(cross, s / (s - sn), 0.0)
+    X = P + t[..., None] * (Pn - P)
+    cand = np.stack([P, X], axis=-2).reshape(*P.shape[:-2], 2 * P.shape[-2], 2)
+    keep = np.stack([inside, cross], axis=-1).reshape(*s.shape[:-1], 2 * s.shape[-1])
+    cap = P.shape[-2] + 1
+    order = np.argsort(~keep, axis=-1, kind="stable")[..., :cap]
+    out = np.take_along_axis(cand, order[..., None], axis=-2)
+    n = keep.sum(-1)
+    last = np.take_along_axis(out, np.clip(n - 1, 0, cap - 1)[..., None, None], axis=-2)
+    idx = np.arange(cap)
+    out = np.where((idx < n[..., None])[..., None], out, last)
+    empty = n == 0
+    if np.any(empty):
+        nearest = np.take_along_axis(P, np.argmin(s, axis=-1)[..., None, None], axis=-2)
+        out = np.where(empty[..., None, None], nearest, out)
+    return out
+
+
+def _trim_polygon(P, tol=1e-13):
+    """Drop repeated consecutive vertices (padding) and cut the capacity to the largest count."""
+    d = np.linalg.norm(P - np.roll(P, 1, axis=-2), axis=-1)
+    scale = 1.0 + np.max(np.abs(P), axis=(-2, -1))
+    keep = d > tol * scale[..., None]
+    keep[..., 0] |= ~keep.any(-1)
+    n = keep.sum(-1)
+    cap = max(int(n.max()), 3)
+    order = np.argsort(~keep, axis=-1, kind="stable")[..., :cap]
+    out = np.take_along_axis(P, order[..., None], axis=-2)
+    last = np.take_along_axis(out, np.clip(n - 1, 0, cap - 1)[..., None, None], axis=-2)
+    return np.where((np.arange(cap) < n[..., None])[..., None], out, last)
+
+
+def _polygon_quadrature(P, t, w):
+    """Nodes (..., Q, 2) and weights (..., Q) on the convex polygon P (fan of triangles from P[0];
+    collapsed Gauss–Legendre on each: exact for polynomials of degree <= 2 len(t) - 2)."""
+    v0 = P[..., :1, :]
+    a = P[..., 1:-1, :] - v0
+    b = P[..., 2:, :] - v0
+    area2 = a[..., 0] * b[..., 1] - a[..., 1] * b[..., 0]  # signed, (..., V-2)
+    S, Tt = np.meshgrid(t, t, indexing="ij")
+    Ws = np.outer(w, w) * S  # Jacobian s (collapsed square)
+    S, Tt, Ws = S.ravel(), Tt.ravel(), Ws.ravel()
+    X = v0[..., None, :] + S[:, None] * ((1 - Tt)[:, None] * a[..., None, :] + Tt[:, None] * b[..., None, :])
+    W = np.abs(area2)[..., None] * Ws
+    shp = X.shape[:-3] + (-1,)
+    return X.reshape(*shp, 2), W.reshape(shp)
 
 
 def _pdf_batched(d, X):
