@@ -358,3 +358,18 @@ def test_polygon_bound_contains_the_true_state():
     r = SecondOrderMomentFilter(A, b, b, 1.5, 2, w_moments=uniform_moments(2, -1.5, 1.5)).run(zs)
     assert np.all(r.lower <= xs + 1e-9) and np.all(xs <= r.upper + 1e-9)
     assert np.all((r.estimates >= r.lower) & (r.estimates <= r.upper))
+
+
+def test_to_estimates_protocol_and_posterior_variance():
+    rng = np.random.default_rng(2)
+    z = rng.uniform(-1.5, 1.5, (3, 20))
+    r = FirstOrderMomentFilter(0.5, 1.0, 4, w_moments=uniform_moments(4)).run(z)
+    e = r.to_estimates()
+    assert e.means.shape == (3, 20, 1) and e.covs.shape == (3, 20, 1, 1) and not e.diverged.any()
+    # a law on an interval of width w has variance in [0, w^2/4] (Popoviciu)
+    w = (r.upper - r.lower)[..., 0]
+    assert np.all(e.covs[..., 0, 0] >= 0) and np.all(e.covs[..., 0, 0] <= w ** 2 / 4 + 1e-12)
+    r2 = SecondOrderMomentFilter(np.diag([0.6, -0.5]), [1, 1], [1, 1], 1.0, 2,
+                                 w_moments=uniform_moments(2)).run(z[:, :8])
+    C = r2.to_estimates().covs
+    assert np.allclose(C, np.swapaxes(C, -1, -2)) and np.all(np.linalg.eigvalsh(C) > -1e-12)

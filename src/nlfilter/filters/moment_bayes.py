@@ -44,13 +44,22 @@ The filter carries the posterior of ``x_k`` as its moments ``m_1..m_N`` and its 
 Second-order problem (000 eqs. 2.6-2.8) — :class:`SecondOrderMomentFilter`
 --------------------------------------------------------------------------
 ``x_{k+1} = A x_k + b w_k`` (2-vector), ``z_k = c.x_k + v_k``.  The same four steps in 2-D:
-mixed moments ``E[x0^i x1^j]`` (total order <= N) propagate exactly through the linear map by a
-multinomial expansion; the reachable set is bounded by a box (interval arithmetic on ``A`` and
-``b``, Schweppe's idea with a box as the bounding set), the predicted density is the tensor
-Legendre polynomial of total degree N on it, and the measurement slab ``|z - c.x| <= c_v``
-is integrated exactly (Gauss-Legendre along ``c.x`` between the kinks of the box/slab
-intersection, polynomial in the other direction).  Adaptation uses
-``kappa_i(w) = kappa_i(y) / sum_j (c^T A^j b)^i`` with ``y = c.x``.
+
+1. mixed moments ``E[x0^i x1^j]`` (total order <= N) propagate exactly through the linear map by
+   a multinomial expansion (:func:`moment_map_tensor`, eq. 3.13 in two dimensions);
+2. the reachable set (Schweppe) is bounded by a convex *template polygon*
+   ``{x : d_j.x <= beta_j}`` over fixed directions ``d_j`` (evenly spaced, plus ``+-c``): its
+   prediction is the exact support function of ``A P (+) b [-w_b, w_b]`` on those directions,
+   ``beta_j' = max_{v in P} d_j.(A v) + w_b |d_j.b|`` (``bounding="box"`` keeps only the axes);
+3. the predicted density is the tensor Legendre polynomial of total degree N on the polygon's
+   bounding box, restricted to the polygon;
+4. the update integrates it exactly over the polygon cut by the slab ``|z - c.x| <= c_v``
+   (fan of triangles, collapsed Gauss–Legendre rules exact for degree 2N) — posterior moments,
+   mean, fallback to the uniform law on the cut polygon as in 1-D;
+5. adaptation uses ``kappa_i(w) = kappa_i(y) / sum_j (c^T A^j b)^i`` with ``y = c.x``.
+
+All filters here return a :class:`MomentRun`; ``MomentRun.to_estimates()`` gives the common
+:class:`~nlfilter.filters.base.Estimates` (posterior means and covariances) of the filter protocol.
 """
 
 from __future__ import annotations
@@ -301,6 +310,14 @@ class MomentRun(NamedTuple):
     lower: np.ndarray
     upper: np.ndarray
     w_moments: np.ndarray
+    covs: np.ndarray | None = None
+
+    def to_estimates(self):
+        """The filter protocol's :class:`~nlfilter.filters.base.Estimates` (no divergence possible:
+        every step is finite by construction, fallbacks are flagged in ``fallback``)."""
+        from .base import Estimates
+        batch = self.estimates.shape[:-2]
+        return Estimates(self.estimates, self.covs, np.zeros(batch, bool), np.full(batch, -1))
 
 
 def impulse_power_sums(g, N: int) -> np.ndarray:
@@ -454,6 +471,7 @@ class FirstOrderMomentFilter:
         lower = np.empty((*batch, T, 1))
         upper = np.empty((*batch, T, 1))
         fbs = np.empty((*batch, T), bool)
+        covs = np.empty((*batch, T, 1, 1))
         hist = []
         acc = np.zeros((*batch, self.N))
         powers = np.arange(1, self.N + 1)
@@ -471,8 +489,9 @@ class FirstOrderMomentFilter:
                 m, l, u = self.predict(m, l, u, mw)
             m, l, u, fb = self.update(m, l, u, z)
             est[..., k, 0], lower[..., k, 0], upper[..., k, 0], fbs[..., k] = m[..., 0], l, u, fb
+            covs[..., k, 0, 0] = np.maximum(m[..., 1] - m[..., 0] ** 2, 0.0) if self.N >= 2 else np.nan
         H = np.stack(hist, axis=-2) if hist else np.zeros((*batch, 0, self.N))
-        return MomentRun(est, fbs, lower, upper, H)
+        return MomentRun(est, fbs, lower, upper, H, covs)
 
 
 # ====================================================================== grid optimum (1-D)
@@ -836,6 +855,7 @@ class SecondOrderMomentFilter:
         lower = np.empty((*batch, T, 2))
         upper = np.empty((*batch, T, 2))
         fbs = np.empty((*batch, T), bool)
+        covs = np.full((*batch, T, 2, 2), np.nan)
         hist = []
         acc = np.zeros((*batch, self.N))
         powers = np.arange(1, self.N + 1)
@@ -856,8 +876,13 @@ class SecondOrderMomentFilter:
                 M, verts, lo, hi, fb = self.update_polygon(M, verts, z)
             est[..., k, 0], est[..., k, 1] = M[..., 1, 0], M[..., 0, 1]
             lower[..., k, :], upper[..., k, :], fbs[..., k] = lo, hi, fb
+            if self.N >= 2:
+                c01 = M[..., 1, 1] - M[..., 1, 0] * M[..., 0, 1]
+                covs[..., k, 0, 0] = M[..., 2, 0] - M[..., 1, 0] ** 2
+                covs[..., k, 1, 1] = M[..., 0, 2] - M[..., 0, 1] ** 2
+                covs[..., k, 0, 1] = covs[..., k, 1, 0] = c01
         H = np.stack(hist, axis=-2) if hist else np.zeros((*batch, 0, self.N))
-        return MomentRun(est, fbs, lower, upper, H)
+        return MomentRun(est, fbs, lower, upper, H, covs)
 
 
 def _clip_halfplane(P, d, beta):
