@@ -412,7 +412,7 @@ class FirstOrderMomentFilter:
         self.n0 = float(V.positive("n0", n0, strict=False))
         self.window = int(V.positive("window", window, integer=True))
         self.bound = self.wb / (1.0 - abs(self.h))  # stationary reachable set |x| <= w_b/(1-|h|)
-        self.S = impulse_power_sums(self.h ** np.arange(0, 2000), self.N)  # 1/(1-h^i)
+        self.S = 1.0 / (1.0 - self.h ** np.arange(1, self.N + 1))  # sum_j h^{ij} = 1/(1 - h^i)
 
     # -- building blocks (all batched) ------------------------------------------------------
     def stationary_moments(self, mw):
@@ -649,7 +649,7 @@ class SecondOrderMomentFilter:
         self.window = int(V.positive("window", window, integer=True))
         # stationary bounding box and impulse response g_j = c^T A^j b
         Ab = [self.b]
-        for _ in range(3000):
+        for _ in range(50000):
             Ab.append(self.A @ Ab[-1])
             if np.max(np.abs(Ab[-1])) < 1e-17:
                 break
@@ -671,8 +671,12 @@ class SecondOrderMomentFilter:
         self._tri = (0.5 * (tt + 1), 0.5 * ww)
 
     # -- building blocks --------------------------------------------------------------------
-    def stationary(self, mw, steps: int = 400):
-        """Stationary mixed moments and box, by iterating the exact prediction from x = 0."""
+    def stationary(self, mw, steps: int | None = None):
+        """Stationary mixed moments and box, by iterating the exact prediction from x = 0
+        (``steps`` default: until the spectral radius^steps < 1e-15)."""
+        if steps is None:
+            rho = float(np.max(np.abs(np.linalg.eigvals(self.A))))
+            steps = 1 if rho == 0 else int(min(50000, np.ceil(np.log(1e-15) / np.log(rho)) + 1))
         M = np.zeros((*np.shape(mw)[:-1], self.N + 1, self.N + 1))
         M[..., 0, 0] = 1.0
         for _ in range(steps):
