@@ -47,16 +47,19 @@ def main(argv=None):
         t0 = time.perf_counter()
         steady_state(eql)
         solve_closed.append(time.perf_counter() - t0)
-    # with the cubic drift: order-6 system closed by the Edgeworth-6 closure, Newton with exact Jacobian
+    # with the cubic drift: order-6 system closed by the Edgeworth-6 closure, Newton with the exact sparse
+    # Jacobian; the first call compiles the closure's plan (kept in the closure object), later calls reuse it
+    clo = EdgeworthClosure(6)
     for _ in range(a.repeat):
         t0 = time.perf_counter()
-        mu = steady_state(eq, closure=EdgeworthClosure(6))
+        mu = steady_state(eq, closure=clo)
         solve_closure.append(time.perf_counter() - t0)
     res = {"benchmark": "moments", "python": platform.python_version(), "numpy": np.__version__,
            "n_states": 6, "order": 6, "n_moments": len(eq.indices), "n_missing": len(eq.missing),
            "generate_seconds_min": min(gen), "generate_seconds_all": gen,
            "steady_state_closed_seconds_min": min(solve_closed),
-           "steady_state_edgeworth6_seconds_min": min(solve_closure),
+           "steady_state_edgeworth6_first_call_seconds": solve_closure[0],
+           "steady_state_edgeworth6_seconds_min": min(solve_closure[1:] or solve_closure),
            "steady_state_E_x1^2": float(mu[eq.index[(2, 0, 0, 0, 0, 0)]]),
            "targets_seconds": {"generate": 1.0, "steady_state": 1.0}}
     with open(a.out, "w") as fh:

@@ -31,3 +31,14 @@ def test_first_order_bad_params():
         get("moment-first-order").run({"laws": ["cauchy"]}, quick=True, runs=2)
     with pytest.raises(ValueError, match="skip"):
         get("moment-first-order").run({"T": 100, "skip": 100}, quick=False, runs=2)
+
+
+def test_second_order_quick_runs_and_optimum_not_beaten():
+    res = get("moment-second-order").run({"laws": ["bimodal"], "N": [4], "T": 60, "skip": 10,
+                                          "particles": 1000}, quick=True, runs=6, seed=2)
+    for name in ("optimal", "kalman", "moment4", "adaptive4"):
+        r = res.get(name, "mse", law="bimodal")
+        assert np.isfinite(r.value) and r.stderr > 0
+    for name in ("kalman", "moment4", "adaptive4"):
+        g = res.get(name, "gap_to_optimal", law="bimodal")
+        assert g.value > -3 * g.stderr

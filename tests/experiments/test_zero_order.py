@@ -117,3 +117,54 @@ def test_adaptive_quick_rows():
     assert res.get("linear", q, J=0).value == pytest.approx(res.get("optimal", q, J=0).value, abs=1e-12)
     assert any(n.startswith("claim J=10") for n in res.notes)
     assert "Fig. 10 J=10" in res.series
+
+
+# ------------------------------------------------------------------ robustness (Chapter III)
+
+from nlfilter.experiments.zero_order import copula_corr, correlated_optimal, correlated_pair  # noqa: E402
+
+
+def test_correlated_optimal_reference():
+    z = np.linspace(-1.95, 1.95, 27)
+    # r = 0: the copula is independent, the reference is eq. 3.20
+    np.testing.assert_allclose(correlated_optimal(z, 10, 0.0), power_density_estimate(z, 10), atol=1e-6)
+    # quadrature converged (node clustering at the ends of (l, u))
+    for r in (0.3, 0.9):
+        np.testing.assert_allclose(correlated_optimal(z, 10, r, nodes=160), correlated_optimal(z, 10, r, nodes=400),
+                                   atol=2e-5)
+    # marginals of the coupled pair are the model's: E[x^2] = 11/13, v uniform (E v^2 = 1/3)
+    x, v = correlated_pair(np.random.default_rng(0), 10, 0.6, 200_000)
+    assert np.mean(x ** 2) == pytest.approx(11 / 13, abs=4 * np.std(x ** 2) / np.sqrt(x.size))
+    assert np.mean(v ** 2) == pytest.approx(1 / 3, abs=4 * np.std(v ** 2) / np.sqrt(v.size))
+    assert 0.45 < copula_corr(10, 0.6) < 0.56
+
+
+def test_correlated_optimal_beats_filters_by_monte_carlo():
+    # the reference is the conditional mean: no estimator beats it (paired, 3 se)
+    rng = np.random.default_rng(4)
+    x, v = correlated_pair(rng, 10, 0.6, 30_000)
+    z = x + v
+    e_opt = (x - correlated_optimal(z, 10, 0.6)) ** 2
+    for est in (power_density_estimate(z, 10), linear_gain(10) * z):
+        d = (x - est) ** 2 - e_opt
+        assert d.mean() > -3 * d.std() / np.sqrt(d.size)
+
+
+def test_robustness_quick():
+    res = get("zero-order-robustness").run({"r": [0.0, 0.6], "beta": [0.0, 0.5], "N": [2, 4]},
+                                           quick=True, runs=16, seed=9)
+    for case, key, vals in (("correlated", "r", (0.0, 0.6)), ("scaled-noise", "beta", (0.0, 0.5))):
+        for val in vals:
+            for name in ("linear", "moment2", "moment4"):
+                g = res.get(name, "gap_n400", case=case, **{key: val})
+                assert g.value > -3 * g.stderr - 1e-12
+    # beta = 0: the non-additive filter is the additive one
+    for N in (2, 4):
+        a = res.get(f"moment{N}", "mse_n400", case="scaled-noise", beta=0.0).value
+        b = res.get(f"moment{N}-additive", "mse_n400", case="scaled-noise", beta=0.0).value
+        assert a == pytest.approx(b, abs=1e-9)
+    # beta = 0.5: modelling the state-dependent noise helps (paired over the same data)
+    assert (res.get("moment4", "mse_n400", case="scaled-noise", beta=0.5).value
+            < res.get("moment4-additive", "mse_n400", case="scaled-noise", beta=0.5).value)
+    with pytest.raises(ValueError, match="r: expected"):
+        get("zero-order-robustness").run({"r": [1.0]}, quick=True, runs=2)

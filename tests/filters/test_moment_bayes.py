@@ -214,3 +214,162 @@ def test_first_order_impossible_measurement():
         FirstOrderMomentFilter(1.0, 1.0, 2, w_moments=uniform_moments(2))
     with pytest.raises(ValueError, match="w_moments"):
         FirstOrderMomentFilter(0.5, 1.0, 2)
+
+
+# ------------------------------------------------------------------ second-order system
+
+from nlfilter.filters.moment_bayes import SecondOrderMomentFilter, linear_map_moments  # noqa: E402
+from nlfilter.moments.densities import LegendreDensity2D  # noqa: E402
+
+
+def test_linear_map_moments_exact_on_discrete_laws():
+    # x and w with finitely many atoms: E[(A x + b w)^(i,j)] by enumeration
+    N = 4
+    A = np.array([[0.6, 0.1], [-0.2, -0.5]])
+    b = np.array([1.0, 0.7])
+    xa = np.array([[0.3, -1.0], [1.2, 0.4], [-0.7, 0.9]])
+    px = np.array([0.2, 0.5, 0.3])
+    wa = np.array([-0.5, 0.8])
+    pw = np.array([0.4, 0.6])
+    M = np.array([[np.sum(px * xa[:, 0] ** i * xa[:, 1] ** j) for j in range(N + 1)] for i in range(N + 1)])
+    mw = np.array([np.sum(pw * wa ** i) for i in range(1, N + 1)])
+    ys = xa[:, None, :] @ A.T + wa[None, :, None] * b
+    pp = px[:, None] * pw[None]
+    want = np.array([[np.sum(pp * ys[..., 0] ** i * ys[..., 1] ** j) for j in range(N + 1)] for i in range(N + 1)])
+    mask = np.add.outer(np.arange(N + 1), np.arange(N + 1)) <= N
+    np.testing.assert_allclose(linear_map_moments(M, A, b, mw)[mask], want[mask], atol=1e-13)
+
+
+def test_second_order_update_against_quadrature():
+    # posterior moments over box ∩ slab, against scipy dblquad with the slab as integration limits
+    N = 3
+    f = SecondOrderMomentFilter(np.diag([0.6, -0.5]), [1.0, 1.0], [1.0, 0.8], 1.0, N,
+                                w_moments=uniform_moments(N))
+    M, lo, hi = f.stationary(f.w_moments)
+    z = 0.7
+    post, nlo, nhi, fb = f.update(M, lo, hi, np.array(z))
+    d = LegendreDensity2D.from_moments(M, lo, hi)
+    g0 = lambda x0: max(lo[1], (z - 1 - x0) / 0.8)
+    g1 = lambda x0: min(hi[1], (z + 1 - x0) / 0.8)
+    x0a, x0b = max(lo[0], z - 1 - 0.8 * hi[1]), min(hi[0], z + 1 - 0.8 * lo[1])
+
+    def I(i, j):
+        fn = lambda x1, x0: x0 ** i * x1 ** j * float(d.pdf(np.array([x0, x1])))
+        return integrate.dblquad(fn, x0a, x0b, g0, g1, epsabs=1e-11, epsrel=1e-10)[0]
+
+    I00 = I(0, 0)
+    for i, j in [(1, 0), (0, 1), (1, 1), (2, 1)]:
+        assert post[i, j] == pytest.approx(I(i, j) / I00, rel=1e-8, abs=1e-10)
+    assert not fb
+    np.testing.assert_allclose(nlo, [x0a, lo[1]], atol=1e-12)
+
+
+def test_second_order_wide_slab_keeps_box_moments():
+    # a measurement whose slab covers the whole box changes nothing: posterior = prior moments
+    f = SecondOrderMomentFilter(np.diag([0.5, 0.2]), [0.2, 0.1], [1.0, 1.0], 1.0, 4,
+                                w_moments=uniform_moments(4), noise_halfwidth=5.0)
+    M, lo, hi = f.stationary(f.w_moments)
+    post, nlo, nhi, fb = f.update(M, lo, hi, np.array(0.0))
+    mask = np.add.outer(np.arange(5), np.arange(5)) <= 4
+    np.testing.assert_allclose(post[mask], LegendreDensity2D.from_moments(M, lo, hi).box_moments()[mask],
+                               atol=1e-12)
+    np.testing.assert_allclose(post[mask], M[mask], atol=1e-12)
+
+
+def test_second_order_bad_input():
+    with pytest.raises(ValueError, match="A: expected a stable"):
+        SecondOrderMomentFilter(np.eye(2), [1, 1], [1, 1], 1.0, 2, w_moments=uniform_moments(2))
+    f = SecondOrderMomentFilter(np.diag([0.5, 0.2]), [1, 1], [1, 1], 1.0, 2, w_moments=uniform_moments(2))
+    with pytest.raises(ValueError, match="zs: measurement 9.0"):
+        f.run(np.array([0.0, 9.0]))
+    g = SecondOrderMomentFilter(np.diag([0.5, 0.2]), [1, 1], [1, 1], 1.0, 2, w_moments=uniform_moments(2),
+                                outside="clip")
+    assert np.isfinite(g.run(np.array([0.0, 9.0, 0.1])).estimates).all()
+
+
+# ------------------------------------------------------------------ non-additive measurement
+
+from nlfilter.filters.moment_bayes import ScaledNoiseZeroOrderFilter  # noqa: E402
+
+
+def test_scaled_noise_filter_reduces_to_additive_and_matches_quadrature():
+    m = power_density_moments(4, 10)
+    z = np.linspace(-1.9, 1.9, 15)
+    f0 = ScaledNoiseZeroOrderFilter(4, 0.0, moments=m)
+    np.testing.assert_allclose(f0.estimate(z)[0], ZeroOrderMomentFilter(4, moments=m).estimate(z)[0], atol=1e-12)
+    # beta = 0.4 against adaptive quadrature of eqs. 1.9-1.11 with the exact prior x^10 (N = 10)
+    beta = 0.4
+    f = ScaledNoiseZeroOrderFilter(10, beta, moments=power_density_moments(10, 10), nodes=64)
+    for zz in (-1.2, 0.3, 1.5):
+        l, u = max(-1, (zz - 1) / (1 + beta)), min(1, (zz + 1) / (1 - beta))
+        num = integrate.quad(lambda x: x * 5.5 * x ** 10 / (1 + beta * x), l, u)[0]
+        den = integrate.quad(lambda x: 5.5 * x ** 10 / (1 + beta * x), l, u)[0]
+        assert float(f.estimate(np.array(zz))[0]) == pytest.approx(num / den, abs=1e-10)
+
+
+def test_scaled_noise_moment_recovery_exact():
+    # exact moments of z = x + (1 + beta x) v from those of x and v; recovery inverts them (n0 = 0)
+    beta, J, N = 0.5, 4, 4
+    mx = np.r_[1.0, power_density_moments(2 * N, J)]
+    mv = np.r_[1.0, uniform_moments(2 * N)]
+    from math import comb
+    mz = [sum(comb(i, j) * mv[j] * sum(comb(j, k) * beta ** k * mx[i - j + k] for k in range(j + 1))
+              for j in range(i + 1)) for i in range(1, N + 1)]
+    f = ScaledNoiseZeroOrderFilter(N, beta, adaptive=True, n0=0.0)
+    np.testing.assert_allclose(f.recover_moments(np.array(mz), 10), power_density_moments(N, J), atol=1e-12)
+
+
+def test_polygon_clip_and_quadrature_exact():
+    from nlfilter.filters.moment_bayes import _clip_halfplane, _polygon_quadrature
+    P = np.array([[[-1.0, -1.0], [1.0, -1.0], [1.0, 1.0], [-1.0, 1.0]]])
+    Q = _clip_halfplane(P, np.array([1.0, 1.0]) / np.sqrt(2), np.array([0.0]))  # x + y <= 0: a triangle
+    t, w = np.polynomial.legendre.leggauss(4)
+    X, W = _polygon_quadrature(Q, 0.5 * (t + 1), 0.5 * w)
+    assert W.sum() == pytest.approx(2.0, abs=1e-13)
+    # int over the triangle x + y <= 0 of x^2 = 2/3 (half of the square's 4/3 by symmetry) and of x^3 y^2
+    assert np.sum(W * X[..., 0] ** 2) == pytest.approx(2 / 3, abs=1e-13)
+    want = integrate.dblquad(lambda y, x: x ** 3 * y ** 2, -1, 1, lambda x: -1.0, lambda x: -x)[0]
+    assert np.sum(W * X[..., 0] ** 3 * X[..., 1] ** 2) == pytest.approx(want, abs=1e-12)
+
+
+def test_polygon_update_equals_box_update_on_a_box():
+    f = SecondOrderMomentFilter(np.diag([0.6, -0.5]), [1.0, 1.0], [1.0, 0.8], 1.0, 3, w_moments=uniform_moments(3))
+    M, lo, hi = f.stationary(f.w_moments)
+    box = np.array([[lo[0], lo[1]], [hi[0], lo[1]], [hi[0], hi[1]], [lo[0], hi[1]]])
+    for z in (0.7, -2.1, 3.0):
+        pb, lb, hb, _ = f.update(M, lo, hi, np.array(z))
+        pp, Q, lp, hp, _ = f.update_polygon(M, box, np.array(z))
+        np.testing.assert_allclose(pp, pb, atol=1e-11)
+        np.testing.assert_allclose(lp, lb, atol=1e-12)
+        np.testing.assert_allclose(hp, hb, atol=1e-12)
+
+
+def test_polygon_bound_contains_the_true_state():
+    rng = np.random.default_rng(8)
+    A, b = np.diag([0.6, -0.5]), np.array([1.0, 1.0])
+    R, T = 6, 80
+    x = np.zeros((R, 2))
+    xs = np.empty((R, T, 2))
+    for k in range(T + 100):
+        if k >= 100:
+            xs[:, k - 100] = x
+        x = x @ A.T + rng.uniform(-1.5, 1.5, (R, 1)) * b
+    zs = xs @ b + rng.uniform(-1, 1, (R, T))
+    r = SecondOrderMomentFilter(A, b, b, 1.5, 2, w_moments=uniform_moments(2, -1.5, 1.5)).run(zs)
+    assert np.all(r.lower <= xs + 1e-9) and np.all(xs <= r.upper + 1e-9)
+    assert np.all((r.estimates >= r.lower) & (r.estimates <= r.upper))
+
+
+def test_to_estimates_protocol_and_posterior_variance():
+    rng = np.random.default_rng(2)
+    z = rng.uniform(-1.5, 1.5, (3, 20))
+    r = FirstOrderMomentFilter(0.5, 1.0, 4, w_moments=uniform_moments(4)).run(z)
+    e = r.to_estimates()
+    assert e.means.shape == (3, 20, 1) and e.covs.shape == (3, 20, 1, 1) and not e.diverged.any()
+    # a law on an interval of width w has variance in [0, w^2/4] (Popoviciu)
+    w = (r.upper - r.lower)[..., 0]
+    assert np.all(e.covs[..., 0, 0] >= 0) and np.all(e.covs[..., 0, 0] <= w ** 2 / 4 + 1e-12)
+    r2 = SecondOrderMomentFilter(np.diag([0.6, -0.5]), [1, 1], [1, 1], 1.0, 2,
+                                 w_moments=uniform_moments(2)).run(z[:, :8])
+    C = r2.to_estimates().covs
+    assert np.allclose(C, np.swapaxes(C, -1, -2)) and np.all(np.linalg.eigvalsh(C) > -1e-12)

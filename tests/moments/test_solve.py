@@ -126,3 +126,23 @@ def test_discrete_iterate_and_steady_state():
     sol = iterate(eq, np.array([[1.0, 1.0, 1.0, 1.0], [2.0, 4.0, 8.0, 16.0]]), 200)
     assert sol.values.shape == (2, 201, 4)
     np.testing.assert_allclose(sol.values[:, -1], np.broadcast_to(mu, (2, 4)), rtol=1e-8, atol=1e-12)
+
+
+def test_negative_variance_raises_naming_time_and_moment():
+    """A (deliberately wrong) closure claiming E x⁴ = 10 for dx = −x³ dt + dβ drives
+    dE[x²]/dt = −2·10 + 1 < 0 until the variance crosses zero: the solver must stop there."""
+    from nlfilter.moments.closures import Closure
+
+    class Bad(Closure):
+        order = 2
+        name = "bad"
+
+        def __call__(self, indices, values, wanted):
+            return np.broadcast_to(np.array([0.0, 10.0]), (*np.shape(values)[:-1], 2))
+
+    eq = moment_equations(PolynomialSDE.from_sympy([x], [-x**3], [[1.0]]), [(1,), (2,)])
+    with pytest.raises(ClosureDivergedError) as info:
+        propagate(eq, [0.0, 1.0], [0.0, 1.0], closure=Bad())
+    assert info.value.moment == (2,)
+    assert info.value.time == pytest.approx(1 / 19, rel=1e-3)  # μ2(t) = 1 − 19 t
+    assert "variance of x_1" in str(info.value)

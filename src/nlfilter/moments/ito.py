@@ -44,8 +44,6 @@ Example: Ornstein-Uhlenbeck ``dx = -x dt + dβ`` (Q = 2): d E[x²]/dt = -2 E[x²
 
 from __future__ import annotations
 
-import math
-import numbers
 from dataclasses import dataclass, field
 from typing import Callable, Mapping, Sequence
 
@@ -53,7 +51,6 @@ import numpy as np
 import scipy.sparse as sps
 import sympy as sp
 
-from ..errors import NotPolynomialError
 from ..polynomials import Polynomial, add_exp, as_polynomial, monomials
 
 __all__ = ["PolynomialSDE", "PolynomialMap", "MomentEquations", "moment_equations",

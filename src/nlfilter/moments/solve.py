@@ -7,8 +7,8 @@
 * :func:`iterate` — ``μ[k+1] = A μ[k] + B ν[k] + c`` (discrete time).
 * :func:`steady_state` — the stationary moments by a *direct* sparse solve of ``A μ + c = 0``
   (continuous) or ``(A − I) μ + c = 0`` (discrete) with the constant moment ``E[1] = 1``; with a
-  closure, Newton-Powell (``scipy.optimize.root``) on ``A μ + B ν(μ) + c = 0`` with the exact
-  Jacobian ``A + B ∂ν/∂μ`` (complex step through the closure). Never by integrating to t = ∞.
+  closure, damped Newton on ``A μ + B ν(μ) + c = 0`` with the exact
+  Jacobian ``A + B ∂ν/∂μ`` (forward-mode derivative of the compiled closure). Never by integrating to t = ∞.
 
 >>> import sympy as sp
 >>> from nlfilter.moments import PolynomialSDE, moment_equations, monomials
@@ -26,12 +26,11 @@ import numpy as np
 import scipy.sparse as sps
 import scipy.sparse.linalg as spla
 from scipy.integrate import solve_ivp
-from scipy.optimize import root
 
 from .. import _validate as V
 from ..errors import ClosureDivergedError, SingularSystemError
-from .closures import Closure, central_to_raw
-from .ito import MomentEquations, matvec
+from .closures import Closure
+from .ito import MomentEquations
 
 __all__ = ["propagate", "iterate", "steady_state", "MomentSolution", "variance_positions"]
 
@@ -167,12 +166,17 @@ def propagate(eqs: MomentEquations, mu0, t_eval, *, closure: Closure | None = No
     except (FloatingPointError, OverflowError) as exc:
         raise ClosureDivergedError(f"moments: integration failed ({exc})", time=None) from exc
     if sol.status == 1:
-        te = next(float(e[0]) for e in sol.t_events if len(e))
-        ye = next(y[0] for y in sol.y_events if len(y))
-        _diagnose(eqs, ye - 1e-9 * np.abs(ye) * 0, te)
+        vp = variance_positions(eqs)
+        which = next(i for i, e in enumerate(sol.t_events) if len(e))
+        te, ye = float(sol.t_events[which][0]), sol.y_events[which][0]
+        if which < len(vp):  # a variance event: name E[x_i²]
+            i, p1, p2 = vp[which]
+            raise ClosureDivergedError(f"moments: the variance of x_{i + 1} reached zero (E[x^{eqs.indices[p2]}] = "
+                                       f"{ye[p2]:.6g}, mean {ye[p1]:.6g}) at t = {te:.6g}; the closure failed",
+                                       time=te, moment=eqs.indices[p2])
         k = int(np.argmax(np.abs(ye)))
-        raise ClosureDivergedError(f"moments: a variance reached zero or E[x^{eqs.indices[k]}] blew up "
-                                   f"at t = {te:.6g}", time=te, moment=eqs.indices[k])
+        raise ClosureDivergedError(f"moments: E[x^{eqs.indices[k]}] blew up (|value| > {BLOWUP:g}) at t = {te:.6g}",
+                                   time=te, moment=eqs.indices[k])
     if sol.status != 0:
         raise ClosureDivergedError(f"moments: integration failed at t = {sol.t[-1] if sol.t.size else t0:.6g}: "
                                    f"{sol.message}", time=float(sol.t[-1]) if sol.t.size else t0)
@@ -212,8 +216,8 @@ def steady_state(eqs: MomentEquations, *, closure: Closure | None = None, guess=
 
     Closed system: a direct sparse LU solve of ``A μ = −c`` (continuous) or ``(A − I) μ = −c``
     (discrete); the row of the constant monomial, if kept, becomes ``E[1] = 1``. A singular system
-    raises :class:`~nlfilter.errors.SingularSystemError` with its rank. With a closure: Powell's
-    hybrid method from ``guess`` (default: the moments of N(0, I)) with the exact Jacobian.
+    raises :class:`~nlfilter.errors.SingularSystemError` with its rank. With a closure: damped
+    Newton from ``guess`` (default: the moments of N(0, I)) with the exact Jacobian.
     """
     _check_closure(eqs, closure)
     A, B, c = eqs.at(t, values)
@@ -254,22 +258,59 @@ def steady_state(eqs: MomentEquations, *, closure: Closure | None = None, guess=
         n = len(zero)
         guess = gaussian_moments(np.zeros(n), np.eye(n), eqs.indices)
     x0 = V.as_float_array("guess", guess, shape_tail=(K,))
-    h = 1e-30
-    eye = np.eye(K)
 
     def F(mu):
         nu = closure(eqs.indices, mu, eqs.missing)
         return M @ mu + Bd @ nu - rhs
 
-    def J(mu):
-        pert = mu[None, :] + 1j * h * eye  # complex step: exact derivative of a polynomial closure
-        dnu = closure(eqs.indices, pert, eqs.missing).imag / h  # (K, M): row k = ∂ν/∂μ_k
-        return (M.toarray() + Bd @ dnu.T)
+    def J(mu):  # A + B ∂ν/∂μ (sparse), the closure's Jacobian exact by forward mode
+        return (M + Bd @ closure.jacobian(eqs.indices, mu, eqs.missing, sparse=True)).tocsc()
 
-    sol = root(F, x0, jac=J, method="hybr", tol=tol, options={"maxfev": maxfev})
-    res = np.max(np.abs(F(sol.x))) if np.all(np.isfinite(sol.x)) else np.inf
-    if not sol.success and not res < 1e-8 * max(1.0, np.max(np.abs(sol.x))):
+    mu, res = _newton(F, J, x0.copy(), tol=tol, maxfev=maxfev)
+    if not res < 1e-8 * max(1.0, np.max(np.abs(mu))):
         raise ClosureDivergedError(f"closure: the closed steady-state equations have no solution near the "
-                                   f"guess ({sol.message.strip()}; residual {res:.3g})", time=np.inf)
-    _diagnose(eqs, sol.x, np.inf)
-    return sol.x
+                                   f"guess (Newton stopped with residual {res:.3g})", time=np.inf)
+    _diagnose(eqs, mu, np.inf)
+    return mu
+
+
+def _newton(F, J, x, *, tol, maxfev):
+    """Damped Newton with a reused sparse LU factorisation (refactored when the contraction is slow)."""
+
+    def factor(x):
+        try:
+            return spla.splu(J(x)).solve
+        except RuntimeError as exc:
+            raise SingularSystemError(f"closure: the Jacobian of the closed steady-state equations is singular "
+                                      f"({exc})") from exc
+
+    f = F(x)
+    nrm = np.linalg.norm(f)
+    solve, fresh, nfev = factor(x), True, 1
+    while nfev < maxfev:
+        if not np.isfinite(nrm):
+            return x, np.inf
+        if nrm <= tol * max(1.0, np.linalg.norm(x)):
+            break
+        step = solve(f)
+        lam = 1.0
+        while lam > 1e-6:
+            xn = x - lam * step
+            fn = F(xn)
+            nfev += 1
+            nn = np.linalg.norm(fn)
+            if np.isfinite(nn) and nn < (1 - 1e-4 * lam) * nrm:
+                break
+            lam *= 0.5
+        else:
+            if fresh:
+                return x, np.max(np.abs(f))
+            solve, fresh = factor(x), True
+            continue
+        slow = nn > 0.5 * nrm
+        x, f, nrm = xn, fn, nn
+        if slow:
+            solve, fresh = factor(x), True
+        else:
+            fresh = False
+    return x, np.max(np.abs(F(x)))
