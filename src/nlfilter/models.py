@@ -96,6 +96,15 @@ def _matrix(name, value, rows=None, cols=None) -> sp.Matrix:
     return M
 
 
+def _vector(name, value, n=None) -> sp.Matrix:
+    """A column of expressions from a list, a row or a column (``n`` entries when given)."""
+    M = _matrix(name, value)
+    if 1 not in M.shape or (n is not None and M.shape[0] * M.shape[1] != n):
+        want = f"{n} expressions" if n is not None else "a list of expressions"
+        raise ValueError(f"{name}: expected {want} (a vector), got shape {M.shape}")
+    return M.reshape(M.shape[0] * M.shape[1], 1)
+
+
 class Model:
     """Common part of :class:`DiscreteModel` and :class:`SDEModel` (see the module docstring)."""
 
@@ -122,14 +131,11 @@ class Model:
         for p in params:
             if not isinstance(p, sp.Symbol):
                 raise TypeError(f"params: expected SymPy symbols as keys, got {p!r}")
-        subs = {p: sp.nsimplify(v) if isinstance(v, (int,)) else v for p, v in params.items()}
 
-        fM = _matrix("f", f).reshape(n, 1) if _matrix("f", f).shape in ((1, n), (n, 1)) else _matrix("f", f, n, 1)
-        hM = _matrix("h", h)
-        if hM.shape[1] != 1:
-            hM = hM.reshape(hM.shape[0] * hM.shape[1], 1) if 1 in hM.shape else _matrix("h", h, None, 1)
+        fM = _vector("f", f, n)
+        hM = _vector("h", h)
         GM = sp.eye(n) if G is None else _matrix("G", G, n, None)
-        fM, hM, GM = (M.subs(subs) for M in (fM, hM, GM))
+        fM, hM, GM = (M.subs(params) for M in (fM, hM, GM))
         allowed = set(states) | ({time} if time is not None else set())
         for nm, M in (("f", fM), ("h", hM), ("G", GM)):
             extra = M.free_symbols - allowed
@@ -172,8 +178,8 @@ class Model:
         self.G_constant = all(e.free_symbols.isdisjoint(states) for e in GM)
         self._GQG0 = (self.G(np.zeros(n)) @ self.Q @ self.G(np.zeros(n)).T
                       if all(not e.free_symbols for e in GM) else None)  # fixed G Q Gᵀ, computed once
-        self.is_linear = (self.G_constant and all(sp.Poly(e, *states).total_degree() <= 1 if e.is_polynomial(*states)
-                                                  else False for e in list(fM) + list(hM)))
+        self.is_linear = self.G_constant and all(  # f and h affine in the state
+            e.is_polynomial(*states) and sp.Poly(e, *states).total_degree() <= 1 for e in list(fM) + list(hM))
 
     # -- construction from plain callables -----------------------------------------------------
     @classmethod
