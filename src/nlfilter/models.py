@@ -76,6 +76,8 @@ class _Batched:
         if self._const:
             return np.broadcast_to(self._value, (*batch, *self.shape))
         vals = self._fn(*(x[..., i] for i in range(self._n)), t)
+        if len(vals) == 1 and np.shape(vals[0]) == batch:  # one entry: a reshape, no copy
+            return np.asarray(vals[0], dtype=float).reshape(*batch, *self.shape)
         out = np.empty((*batch, len(vals)))
         for j, v in enumerate(vals):
             out[..., j] = v
@@ -168,6 +170,8 @@ class Model:
         self.given = set(_DERIVS)
         # structure flags, read by filters that can exploit them
         self.G_constant = all(e.free_symbols.isdisjoint(states) for e in GM)
+        self._GQG0 = (self.G(np.zeros(n)) @ self.Q @ self.G(np.zeros(n)).T
+                      if all(not e.free_symbols for e in GM) else None)  # fixed G Q Gᵀ, computed once
         self.is_linear = (self.G_constant and all(sp.Poly(e, *states).total_degree() <= 1 if e.is_polynomial(*states)
                                                   else False for e in list(fM) + list(hM)))
 
@@ -201,7 +205,9 @@ class Model:
             zero2 = np.zeros((n, n, n, n))
             G_xx = G_xx or (lambda x, t=0.0: np.broadcast_to(zero2, (*np.shape(x)[:-1], n, n, n, n)))  # noqa: E731
             self.G_constant = True
+            self._GQG0 = self.Q
         else:
+            self._GQG0 = None
             self.G_constant = False
         fns = {"f": f, "h": h, "G": G, "f_x": f_x, "f_xx": f_xx, "h_x": h_x, "h_xx": h_xx, "G_x": G_x, "G_xx": G_xx}
         for key, fn in fns.items():
@@ -234,8 +240,16 @@ class Model:
             raise ValueError(f"model: {by} needs {', '.join(missing)}, which the model does not give; "
                              "state the model in SymPy or pass these callables to from_functions")
 
+    def Gw(self, x, w, t=0.0) -> np.ndarray:
+        """``G(x) w`` for a batch of states ``(..., n)`` and noises ``(..., r)`` (matmul when G is constant)."""
+        if self.G_constant:
+            return w @ self.G(np.zeros(self.n), t).T
+        return np.einsum("...ia,...a->...i", self.G(x, t), w)
+
     def GQGT(self, x, t=0.0) -> np.ndarray:
         """G Q Gᵀ at a batch of states, shape (..., n, n)."""
+        if self._GQG0 is not None:
+            return np.broadcast_to(self._GQG0, (*np.shape(x)[:-1], self.n, self.n))
         Gx = self.G(x, t)
         return np.einsum("...ia,ab,...jb->...ij", Gx, self.Q, Gx)
 

@@ -47,6 +47,7 @@ class Gaussian(NoiseLaw):
         self._singular = bool(np.min(w) <= 1e-14 * max(1.0, np.max(w)))
         if not self._singular:
             self._chol = np.linalg.cholesky(self.cov)
+            self._chol_inv = np.linalg.inv(self._chol)
             self._logdet = 2.0 * np.sum(np.log(np.diag(self._chol)))
 
     def sample(self, rng, shape=()):
@@ -58,7 +59,7 @@ class Gaussian(NoiseLaw):
         if self._singular:
             raise ValueError("cov: singular Gaussian has no density")
         d = np.asarray(z) - self.mean
-        sol = np.linalg.solve(self._chol, d[..., None])[..., 0] if self.dim > 1 else d / self._chol[0, 0]
+        sol = d @ self._chol_inv.T if self.dim > 1 else d / self._chol[0, 0]  # L⁻¹ d
         return -0.5 * np.sum(sol**2, axis=-1) - 0.5 * self._logdet - 0.5 * self.dim * np.log(2 * np.pi)
 
     def __repr__(self):

@@ -9,6 +9,7 @@ side and writes one PNG.
 from __future__ import annotations
 
 import math
+import textwrap
 
 import numpy as np
 
@@ -25,7 +26,7 @@ def plot_result(result, path, *, dpi: int = 120) -> None:
         raise ValueError(f"result of {result.experiment!r}: has no series to plot")
     ncol = min(3, len(panels))
     nrow = math.ceil(len(panels) / ncol)
-    fig = Figure(figsize=(5.2 * ncol, 3.8 * nrow), layout="constrained")
+    fig = Figure(figsize=(max(7.0, 5.2 * ncol), 3.8 * nrow + 0.4), layout="constrained")
     for i, (name, panel) in enumerate(panels.items()):
         ax = fig.add_subplot(nrow, ncol, i + 1)
         x = np.asarray(panel["x"])
@@ -43,5 +44,5 @@ def plot_result(result, path, *, dpi: int = 120) -> None:
         ax.set_ylabel(panel.get("ylabel", ""))
         ax.grid(alpha=0.3)
         ax.legend(fontsize=8)
-    fig.suptitle(f"{result.experiment}: {result.title}", fontsize=11)
+    fig.suptitle(textwrap.fill(f"{result.experiment}: {result.title}", 110), fontsize=10)
     fig.savefig(path, dpi=dpi)

@@ -26,6 +26,7 @@ the others.
 
 from __future__ import annotations
 
+import functools
 from typing import NamedTuple
 
 import numpy as np
@@ -58,13 +59,30 @@ class Estimates(NamedTuple):
 
 
 def symmetrize(P: np.ndarray) -> np.ndarray:
+    if P.shape[-1] == 1:
+        return P
     return 0.5 * (P + np.swapaxes(P, -1, -2))
+
+
+@functools.lru_cache(maxsize=None)
+def _eye(n: int) -> np.ndarray:
+    e = np.eye(n)
+    e.flags.writeable = False
+    return e
+
+
+def mm(A: np.ndarray, B: np.ndarray) -> np.ndarray:
+    """``A @ B`` for batches of small matrices; an outer product (a broadcast multiply, several
+    times faster than a batched matmul) when the inner dimension is 1."""
+    if A.shape[-1] == 1:
+        return A * B
+    return A @ B
 
 
 def bad_paths(mean: np.ndarray, cov: np.ndarray, tol: float = PSD_TOL) -> np.ndarray:
     """Boolean ``(...)``: paths whose mean/cov is non-finite or whose cov is not PSD."""
-    ok = np.all(np.isfinite(mean), axis=-1) & np.all(np.isfinite(cov), axis=(-1, -2))
     n = cov.shape[-1]
+    ok = np.all(np.isfinite(mean), axis=-1) & np.all(np.isfinite(cov), axis=(-1, -2))
     safe = np.where(ok[..., None, None], cov, np.eye(n))
     if n == 1:
         low = safe[..., 0, 0]
@@ -75,6 +93,23 @@ def bad_paths(mean: np.ndarray, cov: np.ndarray, tol: float = PSD_TOL) -> np.nda
         low = np.linalg.eigvalsh(symmetrize(safe))[..., 0]
     scale = np.maximum(1.0, np.max(np.abs(safe), axis=(-1, -2)))
     return ~ok | (low < -tol * scale)
+
+
+def poison(state: GaussianState, bad) -> GaussianState:
+    """NaN on the paths in ``bad`` so that ``run``'s divergence check records them (never
+    silent: ``run`` raises or marks them)."""
+    if bad is None or not np.any(bad):
+        return state
+    return GaussianState(np.where(bad[..., None], np.nan, state.mean),
+                         np.where(bad[..., None, None], np.nan, state.cov))
+
+
+def _all_ok(mean: np.ndarray, cov: np.ndarray) -> bool:
+    """Quick test that every path is finite with PSD covariance (exact for n = 1; for n > 1
+    it only screens, and :func:`bad_paths` decides)."""
+    if cov.shape[-1] != 1:
+        return not bad_paths(mean, cov).any()
+    return bool(cov.min() >= 0.0) and bool(np.isfinite(cov.sum() + mean.sum()))
 
 
 def gaussian_update(state: GaussianState, y: np.ndarray, y_pred: np.ndarray, S: np.ndarray,
@@ -99,18 +134,24 @@ def gaussian_update(state: GaussianState, y: np.ndarray, y_pred: np.ndarray, S: 
             H = np.where(miss[..., :, None], 0.0, H)
     else:
         e = y - y_pred
+    if S.shape[-1] == 1 and m.shape[-1] == 1:  # scalar state and measurement: elementwise
+        K = C / S
+        mean = m + K[..., 0] * e
+        if H is not None:  # Joseph form (1 − K H)² P + K² R
+            IKH = 1.0 - K * H
+            return GaussianState(mean, IKH * IKH * P + K * K * R)
+        return GaussianState(mean, P - K * K * S)
     if S.shape[-1] == 1:  # scalar measurement: no solve needed
         K = C / S
     else:
         K = np.swapaxes(np.linalg.solve(S, np.swapaxes(C, -1, -2)), -1, -2)  # K = C S⁻¹ (S symmetric)
-    mean = m + np.einsum("...ij,...j->...i", K, e)
-    if H is not None:
-        IKH = np.eye(m.shape[-1]) - K @ H
-        cov = IKH @ P @ np.swapaxes(IKH, -1, -2) + K @ R @ np.swapaxes(K, -1, -2)
-        if miss.any():  # K's missing columns are zero, so R's missing rows never enter
-            pass
+    mean = m + (K[..., 0] * e if e.shape[-1] == 1 else np.einsum("...ij,...j->...i", K, e))
+    Kt = np.swapaxes(K, -1, -2)
+    if H is not None:  # Joseph form; K's missing columns are zero, so R's missing rows never enter
+        IKH = _eye(m.shape[-1]) - mm(K, H)
+        cov = mm(mm(IKH, P), np.swapaxes(IKH, -1, -2)) + mm(mm(K, R), Kt)
     else:
-        cov = P - K @ S @ np.swapaxes(K, -1, -2)
+        cov = P - mm(mm(K, S), Kt)
     return GaussianState(mean, symmetrize(cov))
 
 
@@ -135,14 +176,23 @@ class _Runner:
 
     def __init__(self, batch, T, n, on_divergence, name):
         self.on = V.choice("on_divergence", on_divergence, {"raise", "mark"})
-        self.means = np.empty((*batch, T, n))
-        self.covs = np.empty((*batch, T, n, n))
+        self.means = np.empty((T, *batch, n))  # time-major while filling (contiguous writes)
+        self.covs = np.empty((T, *batch, n, n))
         self.diverged = np.zeros(batch, dtype=bool)
         self.step = np.full(batch, -1)
+        self.any_diverged = False
         self.name = name
 
-    def record(self, k, state, reset: GaussianState) -> GaussianState:
-        bad = bad_paths(state.mean, state.cov) & ~self.diverged
+    def record(self, k, state, reset: GaussianState, *, write: bool = True) -> GaussianState:
+        """Check step ``k``'s state (raise or mark), write it unless ``write`` is False, and
+        return it with diverged paths reset to ``reset``."""
+        if not self.any_diverged and _all_ok(state.mean, state.cov):  # the common case
+            if write:
+                self.means[k] = state.mean
+                self.covs[k] = state.cov
+            return state
+        bad = bad_paths(state.mean, state.cov)
+        bad &= ~self.diverged
         if bad.any():
             if self.on == "raise":
                 idx = np.flatnonzero(bad.ravel())
@@ -153,19 +203,19 @@ class _Runner:
                     what="covariance")
             self.diverged |= bad
             self.step[bad] = k
-        if self.diverged.any():  # diverged paths restart from a harmless state; outputs are NaN
-            d = self.diverged
-            state = GaussianState(np.where(d[..., None], reset.mean, state.mean),
-                                  np.where(d[..., None, None], reset.cov, state.cov))
-            self.means[..., k, :] = np.where(d[..., None], np.nan, state.mean)
-            self.covs[..., k, :, :] = np.where(d[..., None, None], np.nan, state.cov)
-        else:
-            self.means[..., k, :] = state.mean
-            self.covs[..., k, :, :] = state.cov
+            self.any_diverged = True
+        # diverged paths restart from a harmless state; their outputs are NaN (flagged)
+        d = self.diverged
+        state = GaussianState(np.where(d[..., None], reset.mean, state.mean),
+                              np.where(d[..., None, None], reset.cov, state.cov))
+        if write:
+            self.means[k] = np.where(d[..., None], np.nan, state.mean)
+            self.covs[k] = np.where(d[..., None, None], np.nan, state.cov)
         return state
 
     def result(self) -> Estimates:
-        return Estimates(self.means, self.covs, self.diverged, self.step)
+        return Estimates(np.ascontiguousarray(np.moveaxis(self.means, 0, -2)),
+                         np.ascontiguousarray(np.moveaxis(self.covs, 0, -3)), self.diverged, self.step)
 
 
 class DiscreteFilter:
@@ -186,22 +236,33 @@ class DiscreteFilter:
     def update(self, state: GaussianState, y, k) -> GaussianState:  # pragma: no cover
         raise NotImplementedError
 
+    # run() calls these; a filter whose step functions raise on failure overrides them to
+    # return ``(state, bad paths)`` instead, so that a batch run can mark paths and go on.
+    def _predict_unchecked(self, state, k):
+        return self.predict(state, k), None
+
+    def _update_unchecked(self, state, y, k):
+        return self.update(state, y, k), None
+
     def run(self, ys, m0, P0, *, on_divergence: str = "raise") -> Estimates:
         """Filter a batch ``ys (..., T, m)`` from the prior ``(m0, P0)``; see the module docstring
-        for the step convention. Returns :class:`Estimates`."""
+        for the step convention. Divergence is checked after the prediction and after the update.
+        Returns :class:`Estimates`."""
         model = self.model
         ys, state, batch = _prepare("ys", ys, m0, P0, model.n, model.m)
         init = GaussianState(state.mean.copy(), state.cov.copy())
         T = ys.shape[-2]
         out = _Runner(batch, T, model.n, on_divergence, self.name)
         offset = 0 if self.start == "update" else 1
-        for k in range(T):
-            if k > 0 or offset:
-                state = self.predict(state, k + offset - 1)
-            y = ys[..., k, :]
-            if not np.all(np.isnan(y)):
-                state = self.update(state, y, k + offset)
-            state = out.record(k, state, init)
+        absent = np.isnan(ys).all(axis=(*range(len(batch)), -1))  # (T,): steps with no measurement
+        with np.errstate(over="ignore", invalid="ignore"):  # a failing path is caught by record
+            for k in range(T):
+                if k > 0 or offset:
+                    state = poison(*self._predict_unchecked(state, k + offset - 1))
+                    state = out.record(k, state, init, write=False)
+                if not absent[k]:
+                    state = poison(*self._update_unchecked(state, ys[..., k, :], k + offset))
+                state = out.record(k, state, init)
         return out.result()
 
 
@@ -224,15 +285,20 @@ class ContinuousFilter:
     def step(self, state: GaussianState, dy, t) -> GaussianState:  # pragma: no cover
         raise NotImplementedError
 
+    def _step_unchecked(self, state, dy, t):
+        return self.step(state, dy, t), None
+
     def run(self, dys, m0, P0, *, t0: float = 0.0, on_divergence: str = "raise") -> Estimates:
+        """Filter increments ``dys (..., T, m)``; estimates at ``t0 + dt .. t0 + T dt``."""
         model = self.model
         dys, state, batch = _prepare("dys", dys, m0, P0, model.n, model.m)
         init = GaussianState(state.mean.copy(), state.cov.copy())
         T = dys.shape[-2]
         out = _Runner(batch, T, model.n, on_divergence, self.name)
-        for k in range(T):
-            state = self.step(state, dys[..., k, :], t0 + k * self.dt)
-            state = out.record(k, state, init)
+        with np.errstate(over="ignore", invalid="ignore"):  # a failing path is caught by record
+            for k in range(T):
+                state = poison(*self._step_unchecked(state, dys[..., k, :], t0 + k * self.dt))
+                state = out.record(k, state, init)
         return out.result()
 
     def integrate(self, rhs, state: GaussianState, z, t) -> GaussianState:

@@ -12,14 +12,15 @@ terms)::
     dm = f dt + K (dy − h dt),  K = P Hᵀ R⁻¹
     dP/dt = F P + P Fᵀ + G Q Gᵀ − P Hᵀ R⁻¹ H P
 
-integrated between increments by Euler or RK4 with ``dy/dt`` held constant over the step.
+one step per increment: the ``dt`` terms integrated by Euler or RK4, then ``K dy`` added with the
+gain at the start of the step (the Itô reading; with Euler this is Euler–Maruyama).
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from .base import ContinuousFilter, DiscreteFilter, GaussianState, gaussian_update
+from .base import ContinuousFilter, DiscreteFilter, GaussianState, gaussian_update, mm
 
 
 class EKF(DiscreteFilter):
@@ -43,15 +44,15 @@ class EKF(DiscreteFilter):
         m, P = state
         md = self.model
         F = md.f_x(m, k)
-        cov = F @ P @ np.swapaxes(F, -1, -2) + md.GQGT(m, k)
+        cov = mm(mm(F, P), np.swapaxes(F, -1, -2)) + md.GQGT(m, k)
         return GaussianState(md.f(m, k), cov)
 
     def update(self, state, y, k):
         m, P = state
         md = self.model
         H = md.h_x(m, k)
-        C = P @ np.swapaxes(H, -1, -2)
-        S = H @ C + md.R
+        C = mm(P, np.swapaxes(H, -1, -2))
+        S = mm(H, C) + md.R
         return gaussian_update(state, y, md.h(m, k), S, C, H=H, R=md.R)
 
 
@@ -74,18 +75,25 @@ class ContinuousEKF(ContinuousFilter):
         self._Rinv = np.linalg.inv(model.R)
 
     def step(self, state, dy, t):
+        """Itô step: the ``dt`` terms integrated by ``scheme``, the innovation ``K dy`` added with
+        the gain at the start of the step. (Holding ``dy/dt`` constant inside RK4 stages would
+        converge to the Stratonovich reading whenever the gain depends on the state.)"""
         md, Rinv = self.model, self._Rinv
         obs = ~np.isnan(dy)
-        z = np.where(obs, dy, 0.0) / self.dt
+        dy0 = np.where(obs, dy, 0.0)
+
+        def gain(m, P, s):
+            H = md.h_x(m, s) * obs[..., :, None]  # missing components do not update
+            PHt = mm(P, np.swapaxes(H, -1, -2))
+            return mm(PHt, Rinv), PHt
 
         def rhs(m, P, z, s):
-            F = md.f_x(m, s)
-            H = md.h_x(m, s) * obs[..., :, None]  # missing components do not update
-            PHt = P @ np.swapaxes(H, -1, -2)
-            K = PHt @ Rinv
-            dm = md.f(m, s) + np.einsum("...ij,...j->...i", K, z - md.h(m, s) * obs)
-            FP = F @ P
-            dP = FP + np.swapaxes(FP, -1, -2) + md.GQGT(m, s) - K @ np.swapaxes(PHt, -1, -2)
+            K, PHt = gain(m, P, s)
+            dm = md.f(m, s) - np.einsum("...ij,...j->...i", K, md.h(m, s) * obs)
+            FP = mm(md.f_x(m, s), P)
+            dP = FP + np.swapaxes(FP, -1, -2) + md.GQGT(m, s) - mm(K, np.swapaxes(PHt, -1, -2))
             return dm, dP
 
-        return self.integrate(rhs, state, z, t)
+        K0, _ = gain(state.mean, state.cov, t)
+        new = self.integrate(rhs, state, None, t)
+        return GaussianState(new.mean + np.einsum("...ij,...j->...i", K0, dy0), new.cov)

@@ -29,7 +29,6 @@ class KalmanFilter(DiscreteFilter):
     def __init__(self, model, *, start: str = "update"):
         super().__init__(model, start=start)
         _require_linear(model, "KalmanFilter")
-        z = np.zeros(model.n)
         self._const = model.time is None
         if self._const:
             self._mats = self._matrices(0)

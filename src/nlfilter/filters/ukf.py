@@ -15,26 +15,29 @@ from __future__ import annotations
 import numpy as np
 
 from .. import _validate as V
-from ..errors import DivergenceError
-from .base import DiscreteFilter, GaussianState, gaussian_update
+from .base import DiscreteFilter, GaussianState, gaussian_update, poison, symmetrize
 
 
 def sigma_points(m, P, alpha, beta, kappa):
-    """Sigma points ``(..., 2n+1, n)`` and weights ``(Wm, Wc)`` of shape ``(2n+1,)``."""
+    """Sigma points ``(..., 2n+1, n)``, weights ``(Wm, Wc)`` of shape ``(2n+1,)``, and the paths
+    ``(...)`` whose covariance has no Cholesky factor (their points are drawn from the identity
+    and must be discarded: the UKF poisons them so that ``run`` raises or marks them)."""
     n = m.shape[-1]
     lam = alpha**2 * (n + kappa) - n
+    bad = np.zeros(m.shape[:-1], dtype=bool)
     try:
         L = np.linalg.cholesky((n + lam) * P)
     except np.linalg.LinAlgError:
-        raise DivergenceError("UKF: covariance is not positive definite; cannot draw sigma points",
-                              what="covariance") from None
+        bad = ~np.all(np.linalg.eigvalsh(symmetrize(P)) > 0, axis=-1) | ~np.isfinite(P).all(axis=(-1, -2))
+        safe = np.where(bad[..., None, None], np.eye(n), np.nan_to_num(P))
+        L = np.linalg.cholesky((n + lam) * safe)
     Lt = np.swapaxes(L, -1, -2)  # rows = columns of L
     X = np.concatenate([m[..., None, :], m[..., None, :] + Lt, m[..., None, :] - Lt], axis=-2)
     Wm = np.full(2 * n + 1, 0.5 / (n + lam))
     Wc = Wm.copy()
     Wm[0] = lam / (n + lam)
     Wc[0] = lam / (n + lam) + 1 - alpha**2 + beta
-    return X, Wm, Wc
+    return X, Wm, Wc, bad
 
 
 class UKF(DiscreteFilter):
@@ -56,7 +59,7 @@ class UKF(DiscreteFilter):
 
     def predict(self, state, k):
         md = self.model
-        X, Wm, Wc = self._points(state)
+        X, Wm, Wc, bad = self._points(state)
         FX = md.f(X, k)
         m = np.einsum("i,...ij->...j", Wm, FX)
         D = FX - m[..., None, :]
@@ -65,15 +68,15 @@ class UKF(DiscreteFilter):
             P = P + md.GQGT(state.mean, k)
         else:
             P = P + np.einsum("i,...iab->...ab", Wm, md.GQGT(X, k))
-        return GaussianState(m, P)
+        return poison(GaussianState(m, P), bad)
 
     def update(self, state, y, k):
         md = self.model
-        X, Wm, Wc = self._points(state)
+        X, Wm, Wc, bad = self._points(state)
         HX = md.h(X, k)
         yp = np.einsum("i,...ij->...j", Wm, HX)
         Dy = HX - yp[..., None, :]
         Dx = X - state.mean[..., None, :]
         S = np.einsum("i,...ia,...ib->...ab", Wc, Dy, Dy) + md.R
         C = np.einsum("i,...ia,...ib->...ab", Wc, Dx, Dy)
-        return gaussian_update(state, y, yp, S, C)
+        return poison(gaussian_update(state, y, yp, S, C), bad)

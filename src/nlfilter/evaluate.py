@@ -1,0 +1,116 @@
+"""Monte Carlo evaluation: MSE per step and over a window with standard errors, NEES, paired
+differences between filters run on common random numbers.
+
+Standard errors treat the paths as independent replicates: a window average is first taken
+within each path, then the mean and standard error are taken across paths (so the serial
+correlation of the errors within a path is accounted for). Diverged paths (``Estimates.diverged``)
+are left out and counted.
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import numpy as np
+
+from . import _validate as V
+
+
+class Summary(NamedTuple):
+    """A Monte Carlo mean with its standard error, over ``paths`` paths (``diverged`` left out)."""
+
+    value: float
+    stderr: float
+    paths: int
+    diverged: int
+
+
+def _means_and_mask(est, xs):
+    means = est.means if hasattr(est, "means") else np.asarray(est, dtype=float)
+    xs = np.asarray(xs, dtype=float)
+    if means.shape != xs.shape:
+        raise ValueError(f"estimates: expected the shape of xs {xs.shape}, got {means.shape}")
+    div = getattr(est, "diverged", None)
+    ok = np.ones(means.shape[:-2], dtype=bool) if div is None else ~np.asarray(div)
+    return means, xs, ok
+
+
+def _window(T, window):
+    if window is None:
+        return slice(None)
+    if isinstance(window, slice):
+        return window
+    if isinstance(window, float) and 0.0 <= window < 1.0:  # fraction of the run to discard
+        return slice(int(round(window * T)), None)
+    raise TypeError(f"window: expected None, a slice, or the fraction in [0, 1) of the run to skip, got {window!r}")
+
+
+def _summary(per_path: np.ndarray, ok: np.ndarray) -> Summary:
+    vals = per_path[ok]
+    npaths = vals.size
+    if npaths == 0:
+        return Summary(float("nan"), float("nan"), 0, int((~ok).sum()))
+    se = float(np.std(vals, ddof=1) / np.sqrt(npaths)) if npaths > 1 else float("nan")
+    return Summary(float(np.mean(vals)), se, npaths, int((~ok).sum()))
+
+
+def squared_errors(est, xs, component=None) -> np.ndarray:
+    """Squared errors ``(paths, T)`` of one component (or ``(paths, T, n)`` when ``None``)."""
+    means, xs, _ = _means_and_mask(est, xs)
+    e2 = (means - xs) ** 2
+    return e2 if component is None else e2[..., component]
+
+
+def mse(est, xs, *, component: int = 0, window=None) -> Summary:
+    """Window-averaged MSE of ``component`` over paths, with its standard error.
+
+    ``window``: ``None`` (whole run), a ``slice`` of steps, or a fraction in ``[0, 1)`` of the
+    run to discard (``0.5`` = second half).
+
+    >>> xs = np.zeros((4, 10, 1)); m = np.ones((4, 10, 1)) * np.arange(4)[:, None, None]
+    >>> mse(m, xs).value
+    3.5
+    """
+    means, xs, ok = _means_and_mask(est, xs)
+    e2 = (means[..., component] - xs[..., component]) ** 2
+    w = _window(e2.shape[-1], window)
+    per_path = np.mean(e2[..., w], axis=-1) if e2.shape[-1] else e2
+    return _summary(np.reshape(per_path, -1), np.reshape(ok, -1))
+
+
+def mse_per_step(est, xs, *, component: int = 0):
+    """MSE at each step ``(T,)`` and its standard error ``(T,)`` (diverged paths left out)."""
+    means, xs, ok = _means_and_mask(est, xs)
+    e2 = ((means[..., component] - xs[..., component]) ** 2).reshape(-1, means.shape[-2])
+    e2 = e2[np.reshape(ok, -1)]
+    if e2.shape[0] < 2:
+        raise ValueError(f"estimates: need at least 2 non-diverged paths, got {e2.shape[0]}")
+    return e2.mean(axis=0), e2.std(axis=0, ddof=1) / np.sqrt(e2.shape[0])
+
+
+def nees(est, xs, *, window=None) -> Summary:
+    """Average normalized estimation error squared ``eᵀ P⁻¹ e`` (≈ n for a consistent filter)."""
+    means, xs, ok = _means_and_mask(est, xs)
+    covs = est.covs
+    e = xs - means
+    safe = np.where(ok[..., None, None, None], covs, np.eye(covs.shape[-1]))
+    sol = np.linalg.solve(safe, np.where(ok[..., None, None], e, 0.0)[..., None])[..., 0]
+    q = np.einsum("...i,...i->...", e, sol)
+    w = _window(q.shape[-1], window)
+    return _summary(np.reshape(np.mean(q[..., w], axis=-1), -1), np.reshape(ok, -1))
+
+
+def paired_difference(est_a, est_b, xs, *, component: int = 0, window=None) -> Summary:
+    """MSE(a) − MSE(b) on the same paths (common random numbers), with its standard error."""
+    ma, xs_, ok_a = _means_and_mask(est_a, xs)
+    mb, _, ok_b = _means_and_mask(est_b, xs)
+    d = (ma[..., component] - xs_[..., component]) ** 2 - (mb[..., component] - xs_[..., component]) ** 2
+    w = _window(d.shape[-1], window)
+    return _summary(np.reshape(np.mean(d[..., w], axis=-1), -1), np.reshape(ok_a & ok_b, -1))
+
+
+def stream(seed: int, k: int) -> np.random.Generator:
+    """The ``k``-th independent generator of ``seed`` (``SeedSequence(seed).spawn``): one per
+    experiment case, so cases do not depend on each other's sizes."""
+    V.positive("k", k + 1, integer=True)
+    return np.random.default_rng(np.random.SeedSequence(seed).spawn(k + 1)[k])

@@ -1,0 +1,970 @@
+"""Filters for bilinear systems (seed 001, Vallot 1981): the optimal linear filter, nonlinear
+post-processors of its estimate (the "tensor filter"), multi-stage post-processing, the
+updated-innovations filter and the pseudo-observables filter.
+
+Optimal linear filter (001 eqs. 2.31-2.47), in the augmented coordinates ``z = (x, 1)`` of
+:meth:`~nlfilter.bilinear.BilinearModel.augmented`::
+
+    dẑ = F ẑ dt + K (dy − H ẑ dt),      K = P Hᵀ Σ_v⁻¹                         (2.31, 2.32)
+    Σ_v = Σ_j M_j X M_jᵀ                                                        (2.47)
+    dX/dt = F X + X Fᵀ + Σ_i G_i X G_iᵀ                                         (2.37)
+    dP/dt = F P + P Fᵀ + Σ_i G_i X G_iᵀ − K Σ_v Kᵀ                              (2.43)
+
+Its gains do not depend on the data: they are computed once, off-line (time-varying along the
+measurement grid, or the steady state of the algebraic equations (2.54) solved directly).
+
+Post-processor (001 §3.3): ``x̂ = Σ_k α_k φ_k(ẑ)`` with ``φ_k`` odd monomials of the linear
+estimate (``α x̂ + β x̂³`` is eqs. 3.29-3.35); the gains solve the normal equations
+``E[φ φᵀ] α = E[x φ]`` whose moments are the steady-state moments of the joint process
+``(x, ẑ)`` — exact, from the tensor moment system (:mod:`nlfilter.moments.tensor`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Callable, NamedTuple, Sequence
+
+import numpy as np
+import scipy.linalg as sla
+import scipy.sparse as sps
+
+from .. import _validate as V
+from ..bilinear import BilinearModel
+from ..errors import SingularSystemError
+from ..moments import tensor as T
+from .base import Estimates, _Runner, symmetrize
+
+
+# =========================================================================== second moments
+def _kron_operator(F, Gs):
+    """Matrix of ``X ↦ F X + X Fᵀ + Σ G_i X G_iᵀ`` on ``vec X`` (column-major)."""
+    N = F.shape[0]
+    I = np.eye(N)
+    A = np.kron(I, F) + np.kron(F, I)
+    for G in Gs:
+        A += np.kron(G, G)
+    return A
+
+
+class WonhamReport(NamedTuple):
+    """Existence of a finite steady state of the optimal linear filter (001 §2.3).
+
+    ``rho``: spectral radius of ``Y ↦ ∫₀^∞ e^{Ft} Σ_i G_i Y G_iᵀ e^{Fᵀt} dt`` on the non-constant
+    block (the operator form of the Wonham-type condition 2.52; NaN when ``F`` is not Hurwitz);
+    ``abscissa``: largest real part of the second-moment operator's eigenvalues (the scalar case
+    is ``2a + b²`` of 001 §2.3); ``detectable``: (F, H) detectable; ``finite``: a finite
+    steady-state ``X∞`` and ``P∞`` exist; ``message``: a sentence saying why not."""
+
+    rho: float
+    abscissa: float
+    detectable: bool
+    finite: bool
+    message: str
+
+
+def wonham_condition(model: BilinearModel, t: float = 0.0) -> WonhamReport:
+    """Evaluate the Wonham-type condition (001 eq. 2.52) for a constant bilinear model.
+
+    (2.52) as printed bounds a matrix norm of one integral, which is not scale-invariant; we use the
+    operator form of Wonham (1968): the state-multiplicative noise operator composed with the
+    Lyapunov solution operator must have spectral radius < 1, equivalently the second moments
+    ``X`` converge (001 §2.3 gives the scalar case ``2a + b² < 0``). Radius exactly 1 with a
+    semisimple zero mode is a conservation law (the circle): ``X∞`` is then finite but depends on
+    ``X(0)``. Detectability of ``(F, H)`` is checked on the modes the filter must estimate.
+
+    >>> from nlfilter.bilinear import BilinearModel
+    >>> rep = wonham_condition(BilinearModel([[-1.0]], [[1.0]], G=[[[1.0]]], B=[[1.0]], R=[[1.0]]))
+    >>> round(rep.rho, 6), rep.abscissa, rep.finite                 # b²/(−2a) = 1/2;  2a + b² = −1
+    (0.5, -1.0, True)
+    """
+    aug = model.augmented(t)
+    n = model.n
+    F, Gs, H = aug.F[:n, :n], aug.G[:, :n, :n], aug.H[:, :n]
+    I = np.eye(n)
+    L0 = np.kron(I, F) + np.kron(F, I)
+    Pi = sum((np.kron(G, G) for G in Gs), np.zeros((n * n, n * n)))
+    ev = np.linalg.eigvals(L0 + Pi)
+    absc = float(np.max(ev.real))
+    if np.max(np.linalg.eigvals(F).real) < 0:
+        rho = float(np.max(np.abs(np.linalg.eigvals(np.linalg.solve(-L0, Pi))))) if Gs.size else 0.0
+    else:
+        rho = float("nan")
+    # detectability: every unstable mode of F is seen by H (PBH test)
+    w, Vr = np.linalg.eig(F)
+    detectable = all(np.linalg.norm(H @ Vr[:, k]) > 1e-10 * max(1.0, np.linalg.norm(H)) or w[k].real < 0
+                     for k in range(n))
+    scale = max(1.0, float(np.max(np.abs(ev))))
+    if absc > 1e-9 * scale:
+        msg = (f"the state's second moments grow without bound (largest eigenvalue {absc:.4g} of "
+               f"F⊕F + ΣG⊗G; Wonham radius {rho:.4g} ≥ 1): too much state-multiplicative noise")
+        finite = False
+    elif not detectable:
+        msg = "(F, H) is not detectable: the error covariance of an unstable, unobserved mode grows"
+        finite = False
+    else:
+        msg = "finite steady state" + (" (conserved second moments: X∞ depends on X(0))" if absc > -1e-9 * scale else "")
+        finite = True
+    return WonhamReport(rho, absc, detectable, finite, msg)
+
+
+def state_second_moments(model: BilinearModel, X0=None, t: float = 0.0) -> np.ndarray:
+    """Steady-state ``X∞ = E[z zᵀ]`` of the augmented state (001 eq. 2.37 at rest), by a direct
+    solve with the conserved quantities fixed by ``X0`` (augmented ``(N, N)``, or the original
+    ``(n, n)`` second moment when the model is augmented only by the constant, which is then 1).
+    Raises :class:`SingularSystemError` when there is no finite or unique steady state."""
+    aug = model.augmented(t)
+    N, ci = model.N, model.constant_index
+    A = _kron_operator(aug.F, aug.G)
+    pairs = [(i, j) for j in range(N) for i in range(N)]  # column-major vec
+    ms = T.MomentSystem(pairs, sps.csr_matrix(A), np.zeros(N * N), [f"z{i}" for i in range(N)])
+    ms.labels = lambda: [f"z{i}z{j}" for i, j in pairs]  # type: ignore[method-assign]
+    if X0 is not None:
+        X0 = np.asarray(X0, dtype=float)
+        if X0.shape == (model.n, model.n) and ci is not None:
+            raise ValueError("X0: the model is augmented with the constant state; give the (N, N) second "
+                             "moment of z = (x, 1), e.g. from m0, P0 via augmented_second_moment()")
+        if X0.shape != (N, N):
+            raise ValueError(f"X0: expected shape ({N}, {N}), got {X0.shape}")
+
+    def initial(pair):
+        i, j = pair
+        if X0 is not None:
+            return X0[i, j]
+        if ci is not None and i == ci and j == ci:
+            return 1.0
+        raise _NeedX0()
+
+    try:
+        mu = T.steady_state(ms, initial=initial)
+    except _NeedX0:
+        raise SingularSystemError("state_second_moments: the dynamics conserve second moments other than "
+                                  "the constant (e.g. |x|² on a sphere); pass X0 (or m0, P0) to fix them") from None
+    except SingularSystemError as exc:
+        rep = wonham_condition(model, t)
+        raise SingularSystemError(f"state_second_moments: no finite steady state: {rep.message} ({exc})") from None
+    X = mu.reshape(N, N, order="F")
+    return symmetrize(X)
+
+
+class _NeedX0(Exception):
+    pass
+
+
+def augmented_second_moment(model: BilinearModel, m0, P0) -> tuple:
+    """``(ẑ0, X0, P0_aug)`` of the augmented state from the mean ``m0`` and covariance ``P0`` of x0."""
+    n, N = model.n, model.N
+    m0 = V.as_float_array("m0", m0, ndim=1, shape_tail=(n,))
+    P0 = V.covariance("P0", P0, n)
+    z0 = np.append(m0, 1.0) if N > n else m0.copy()
+    X0 = np.zeros((N, N))
+    X0[:n, :n] = P0 + np.outer(m0, m0)
+    if N > n:
+        X0[:n, n] = X0[n, :n] = m0
+        X0[n, n] = 1.0
+    Pa = np.zeros((N, N))
+    Pa[:n, :n] = P0
+    return z0, X0, Pa
+
+
+class LinearSteadyState(NamedTuple):
+    """Steady state of the optimal linear filter, augmented coordinates: ``X`` = E[z zᵀ],
+    ``P`` error covariance, ``K`` gain, ``Sigma_v`` innovation intensity, ``Pi`` = Σ G_i X G_iᵀ."""
+
+    X: np.ndarray
+    P: np.ndarray
+    K: np.ndarray
+    Sigma_v: np.ndarray
+    Pi: np.ndarray
+
+
+def _pinv_psd(S, tol=1e-12):
+    """Inverse of a PSD matrix, or its pseudo-inverse when singular (001 §3.2: a singular
+    innovation covariance, handled as in Liptser-Shiryaev by projecting on its range)."""
+    w, U = np.linalg.eigh(symmetrize(S))
+    big = w > tol * max(1.0, float(np.max(np.abs(w)))) if w.size else w
+    inv = np.where(big, 1.0 / np.where(big, w, 1.0), 0.0)
+    return (U * inv) @ U.T
+
+
+# =========================================================================== the linear filter
+class OptimalLinearFilter:
+    """The linear minimum-variance filter of a continuous-time bilinear system (001 eqs. 2.31-2.47).
+
+    Parameters
+    ----------
+    model : BilinearModel (continuous time)
+    dt : float — step of the measurement increments ``dy``
+    gains : ``"steady"`` (the algebraic steady state (2.54) solved directly, from t = 0) or
+        ``"time-varying"`` (eqs. 2.37, 2.43 integrated from ``(m0, P0)``)
+    scheme : ``"rk4"`` (default) or ``"euler"`` — integration of the mean with ``dy/dt`` held
+        constant over a step (RK4 is the thesis' choice, 001 §4.3)
+    X0 : optional (N, N) initial second moment of z, needed by ``"steady"`` when the dynamics
+        conserve second moments (the circle); otherwise taken from ``(m0, P0)``
+
+    ``run(dys, m0, P0)`` returns :class:`~nlfilter.filters.base.Estimates` in the coordinates of
+    x (the constant coordinate dropped). ``m0``/``P0`` must be common to all paths (the gains are
+    computed once for the whole batch).
+
+    >>> from nlfilter.bilinear import BilinearModel
+    >>> model = BilinearModel([[-1.0]], [[1.0]], B=[[1.0]], R=[[1.0]])    # Ornstein-Uhlenbeck
+    >>> ss = OptimalLinearFilter(model, 0.01).steady_state()
+    >>> round(float(ss.P[0, 0]), 6)                                      # Kalman-Bucy: √2 − 1
+    0.414214
+    """
+
+    name = "linear"
+
+    def __init__(self, model: BilinearModel, dt: float, *, gains: str = "steady", scheme: str = "rk4",
+                 X0=None):
+        if not isinstance(model, BilinearModel):
+            raise TypeError(f"model: expected a BilinearModel, got {type(model).__name__}")
+        if model.discrete:
+            raise ValueError("model: discrete-time model; use DiscreteOptimalLinearFilter")
+        self.model = model
+        self.dt = float(V.positive("dt", dt))
+        self.gains = V.choice("gains", gains, {"steady", "time-varying"})
+        self.scheme = V.choice("scheme", scheme, {"rk4", "euler"})
+        if gains == "steady" and model.time_varying:
+            raise ValueError("gains: 'steady' needs a time-invariant model; use gains='time-varying'")
+        self.X0 = X0
+        self._steady = None
+
+    # -- off-line quantities ----------------------------------------------------------------------
+    def steady_state(self, X0=None) -> LinearSteadyState:
+        """Solve the algebraic equations (001 eq. 2.54) directly: ``X∞`` from the linear
+        second-moment equation (with conservation laws fixed by ``X0``), then ``P∞`` from the
+        algebraic Riccati equation with ``Π∞ = Σ G_i X∞ G_iᵀ``. Raises
+        :class:`SingularSystemError` with the Wonham-type diagnosis when there is no finite one."""
+        X0 = self.X0 if X0 is None else X0
+        if self._steady is not None and X0 is None:
+            return self._steady
+        model = self.model
+        rep = wonham_condition(model)
+        if not rep.finite:
+            raise SingularSystemError(f"OptimalLinearFilter.steady_state: no finite steady state: {rep.message}")
+        aug = model.augmented(0)
+        X = state_second_moments(model, X0)
+        Pi = symmetrize(np.einsum("aij,jk,alk->il", aug.G, X, aug.G))
+        Sv = symmetrize(np.einsum("aij,jk,alk->il", aug.M, X, aug.M))
+        n, N = model.n, model.N
+        try:
+            Pn = sla.solve_continuous_are(aug.F[:n, :n].T, aug.H[:, :n].T, Pi[:n, :n], Sv)
+        except (np.linalg.LinAlgError, ValueError) as exc:
+            raise SingularSystemError(f"OptimalLinearFilter.steady_state: the algebraic Riccati equation "
+                                      f"(001 eq. 2.54) has no stabilizing solution ({exc})") from None
+        P = np.zeros((N, N))
+        P[:n, :n] = symmetrize(Pn)
+        K = P @ aug.H.T @ _pinv_psd(Sv)
+        out = LinearSteadyState(X, P, K, Sv, Pi)
+        if X0 is None:
+            self._steady = out
+        return out
+
+    def covariance_path(self, T: int, m0, P0, *, t0: float = 0.0):
+        """Time-varying ``X``, ``P`` and gains on the half-step grid ``t0 + j dt/2``, ``j = 0..2T``
+        (RK4 of eqs. 2.37 and 2.43 with step ``dt/2``). Returns ``(X, P, K)`` of shapes
+        ``(2T+1, N, N)``, ``(2T+1, N, N)``, ``(2T+1, N, m)``."""
+        model = self.model
+        _, X, P = augmented_second_moment(model, m0, P0)
+        h = self.dt / 2
+
+        def rhs(X, P, t):
+            a = model.augmented(t)
+            Pi = np.einsum("aij,jk,alk->il", a.G, X, a.G)
+            Sv = np.einsum("aij,jk,alk->il", a.M, X, a.M)
+            K = P @ a.H.T @ _pinv_psd(Sv)
+            dX = a.F @ X + X @ a.F.T + Pi                       # 001 eq. 2.37
+            dP = a.F @ P + P @ a.F.T + Pi - K @ Sv @ K.T        # 001 eq. 2.43
+            return dX, dP, K
+
+        Xs, Ps, Ks = [X], [P], []
+        for j in range(2 * T):
+            t = t0 + j * h
+            k1 = rhs(X, P, t)
+            Ks.append(k1[2])
+            k2 = rhs(X + h / 2 * k1[0], P + h / 2 * k1[1], t + h / 2)
+            k3 = rhs(X + h / 2 * k2[0], P + h / 2 * k2[1], t + h / 2)
+            k4 = rhs(X + h * k3[0], P + h * k3[1], t + h)
+            X = symmetrize(X + h / 6 * (k1[0] + 2 * k2[0] + 2 * k3[0] + k4[0]))
+            P = symmetrize(P + h / 6 * (k1[1] + 2 * k2[1] + 2 * k3[1] + k4[1]))
+            Xs.append(X)
+            Ps.append(P)
+        Ks.append(rhs(X, P, t0 + 2 * T * h)[2])
+        return np.array(Xs), np.array(Ps), np.array(Ks)
+
+    # -- on-line ------------------------------------------------------------------------------------
+    def _step_maps(self, K0, K1, K2, t):
+        """Affine map ``ẑ ↦ Φ ẑ + Γ z`` of one RK4/Euler step of ``dẑ/dt = F ẑ + K (z − H ẑ)``
+        with gains ``K0, K1, K2`` at ``t, t + dt/2, t + dt`` (``z = dy/dt`` held constant)."""
+        m = self.model
+        h = self.dt
+        a0, a1, a2 = m.augmented(t), m.augmented(t + h / 2), m.augmented(t + h)
+        return _affine_step(a0.F - K0 @ a0.H, a1.F - K1 @ a1.H, a2.F - K2 @ a2.H, K0, K1, K2, h, self.scheme)
+
+    def run(self, dys, m0, P0, *, t0: float = 0.0, on_divergence: str = "raise",
+            return_augmented: bool = False) -> Estimates:
+        """Filter a batch of increments ``dys (..., T, m)``; estimates at ``t0 + k dt``, k = 1..T."""
+        model = self.model
+        dys = V.as_float_array("dys", dys, ndim_min=2, shape_tail=(None, model.m))
+        V.finite("dys", dys)
+        z0, X0, Pa = augmented_second_moment(model, m0, P0)
+        batch, T_ = dys.shape[:-2], dys.shape[-2]
+        N = model.N
+        zs = np.broadcast_to(z0, (*batch, N)).copy()
+        nout = N if return_augmented else model.n
+        out = _Runner(batch, T_, nout, on_divergence, self.name)
+        if self.gains == "steady":
+            ss = self.steady_state(self.X0 if self.X0 is not None else (X0 if self._conserves() else None))
+            Phi, Gam = self._step_maps(ss.K, ss.K, ss.K, t0)
+            Pout = ss.P[:nout, :nout]
+        else:
+            _, Ps, Ks = self.covariance_path(T_, m0, P0, t0=t0)
+        from .base import GaussianState
+        for k in range(T_):
+            if self.gains != "steady":
+                Phi, Gam = self._step_maps(Ks[2 * k], Ks[2 * k + 1], Ks[2 * k + 2], t0 + k * self.dt)
+                Pout = Ps[2 * k + 2][:nout, :nout]
+            zs = zs @ Phi.T + (dys[..., k, :] / self.dt) @ Gam.T
+            st = GaussianState(zs[..., :nout], np.broadcast_to(Pout, (*batch, nout, nout)))
+            st = out.record(k, st, GaussianState(np.broadcast_to(z0[:nout], (*batch, nout)),
+                                                 np.broadcast_to(Pa[:nout, :nout], (*batch, nout, nout))))
+        return out.result()
+
+    def _conserves(self) -> bool:
+        rep = wonham_condition(self.model)
+        return rep.abscissa > -1e-9 * max(1.0, abs(rep.abscissa))
+
+
+def _affine_step(A0, A1, A2, K0, K1, K2, h, scheme):
+    """One RK4 (or Euler) step of the affine ODE ``dẑ/dt = A(t) ẑ + K(t) z`` with ``z`` constant,
+    as the map ``ẑ ↦ Φ ẑ + Γ z`` (stages as affine maps; ``A, K`` at t, t + h/2, t + h)."""
+    I = np.eye(A0.shape[0])
+    if scheme == "euler":
+        return I + h * A0, h * K0
+    k1 = (A0, K0)
+    k2 = (A1 @ (I + h / 2 * k1[0]), A1 @ (h / 2 * k1[1]) + K1)
+    k3 = (A1 @ (I + h / 2 * k2[0]), A1 @ (h / 2 * k2[1]) + K1)
+    k4 = (A2 @ (I + h * k3[0]), A2 @ (h * k3[1]) + K2)
+    Phi = I + h / 6 * (k1[0] + 2 * k2[0] + 2 * k3[0] + k4[0])
+    Gam = h / 6 * (k1[1] + 2 * k2[1] + 2 * k3[1] + k4[1])
+    return Phi, Gam
+
+
+# ====================================================================== discrete-time counterpart
+class DiscreteOptimalLinearFilter:
+    """Linear minimum-variance filter of a discrete-time bilinear system (the thesis' first
+    suggestion for future work, 001 ch. 6), derived by the same orthogonal projection::
+
+        X[k+1] = F X Fᵀ + Σ G_i X G_iᵀ                       (state second moment)
+        predict: ẑ⁻ = F ẑ,   P⁻ = F P Fᵀ + Σ G_i X[k] G_iᵀ
+        update:  S = H P⁻ Hᵀ + Σ M_j X[k+1] M_jᵀ,  K = P⁻ Hᵀ S⁻¹,
+                 ẑ = ẑ⁻ + K (y − H ẑ⁻),  P = P⁻ − K S Kᵀ
+
+    (the multiplicative terms enter through the *unconditional* second moment ``X``, because
+    ``E[G x wᵀ Gᵀ ...]`` factors by the independence of ``w`` from the past).
+    Step convention as :class:`~nlfilter.filters.base.DiscreteFilter` with ``start="update"``:
+    ``ys[..., 0, :]`` measures ``x0 ~ (m0, P0)``.
+
+    >>> from nlfilter.bilinear import BilinearModel
+    >>> model = BilinearModel([[0.9]], [[1.0]], B=[[1.0]], R=[[1.0]], discrete=True)
+    >>> est = DiscreteOptimalLinearFilter(model).run(np.zeros((1, 3, 1)), [0.0], [[1.0]])
+    >>> round(float(est.covs[0, 0, 0, 0]), 6)        # Kalman: 1·1/(1+1)
+    0.5
+    """
+
+    name = "linear"
+
+    def __init__(self, model: BilinearModel):
+        if not isinstance(model, BilinearModel) or not model.discrete:
+            raise TypeError("model: expected a discrete-time BilinearModel (discrete=True)")
+        self.model = model
+
+    def run(self, ys, m0, P0, *, on_divergence: str = "raise") -> Estimates:
+        from .base import GaussianState
+        model = self.model
+        ys = V.as_float_array("ys", ys, ndim_min=2, shape_tail=(None, model.m))
+        V.finite("ys", ys)
+        z, X, P = augmented_second_moment(model, m0, P0)
+        batch, T_ = ys.shape[:-2], ys.shape[-2]
+        n = model.n
+        zs = np.broadcast_to(z, (*batch, model.N)).copy()
+        out = _Runner(batch, T_, n, on_divergence, self.name)
+        for k in range(T_):
+            a = model.augmented(k)
+            if k > 0:
+                ap = model.augmented(k - 1)
+                Pi = np.einsum("aij,jk,alk->il", ap.G, X, ap.G)
+                zs = zs @ ap.F.T
+                P = symmetrize(ap.F @ P @ ap.F.T + Pi)
+                X = symmetrize(ap.F @ X @ ap.F.T + Pi)
+            S = a.H @ P @ a.H.T + np.einsum("aij,jk,alk->il", a.M, X, a.M)
+            K = P @ a.H.T @ _pinv_psd(S)
+            zs = zs + (ys[..., k, :] - zs @ a.H.T) @ K.T
+            P = symmetrize(P - K @ S @ K.T)
+            st = GaussianState(zs[..., :n], np.broadcast_to(P[:n, :n], (*batch, n, n)))
+            out.record(k, st, st)
+        return out.result()
+
+
+# ====================================================================== joint moments (x, ẑ)
+@dataclass
+class JointProcess:
+    """The joint SDE of the base variables and the linear filter's random estimates, as a
+    :class:`~nlfilter.moments.tensor.PolySDE` (001 eqs. 3.30, 4.26-4.27, 5.7).
+
+    ``estimate_vars``: augmented coordinate index of each estimate variable; ``fixed``: the
+    coordinates whose estimate is deterministic in steady state (zero gain row, e.g. the cubic
+    sensor's x̂² = E[x²]) with their values; ``coord_poly(k)`` / ``estimate_poly(k)``: coordinate k
+    of z and of ẑ as polynomials in the joint variables.
+    """
+
+    sde: T.PolySDE
+    nb: int
+    estimate_vars: list
+    fixed: dict
+    coords: list
+    K: np.ndarray
+
+    def coord_poly(self, k: int) -> dict:
+        nv = self.sde.n
+        return {tuple(list(e) + [0] * (nv - self.nb)): c for e, c in self.coords[k].items()}
+
+    def estimate_poly(self, k: int) -> dict:
+        nv = self.sde.n
+        if k in self.estimate_vars:
+            e = [0] * nv
+            e[self.nb + self.estimate_vars.index(k)] = 1
+            return {tuple(e): 1.0}
+        return {(0,) * nv: float(self.fixed[k])}
+
+    def initial(self, base_initial: Callable, z0) -> Callable:
+        """Moments of the joint variables at t = 0, the estimates starting at ``z0`` (deterministic)."""
+        zr = np.array([z0[k] for k in self.estimate_vars])
+
+        def f(mon):
+            b = base_initial(tuple(mon[:self.nb]))
+            return b * float(np.prod(zr ** np.array(mon[self.nb:])))
+        return f
+
+
+def joint_process(model: BilinearModel, K: np.ndarray, *, tol: float = 1e-12) -> JointProcess:
+    """Joint SDE of ``(base variables, random linear estimates)`` for a constant gain ``K``
+    (augmented ``(N, m)``). Estimate coordinates with a zero gain row whose drift involves only
+    such coordinates and the constant are deterministic: in steady state they equal their mean
+    and are substituted as constants (this is why 001 eq. 5.7 carries x̂ and x̂³ but not x̂²)."""
+    aug = model.augmented(0)
+    F, H, Ms = aug.F, aug.H, aug.M
+    N, ci = model.N, model.constant_index
+    base = model.poly_sde()
+    nb = base.n
+    cp = model.coord_polys()
+    # deterministic estimate coordinates
+    kscale = max(1e-300, float(np.max(np.abs(K)))) if K.size else 1.0
+    D = {k for k in range(N) if k != ci and np.all(np.abs(K[k]) <= tol * kscale)}
+    changed = True
+    while changed:
+        changed = False
+        for k in sorted(D):
+            others = [j for j in range(N) if abs(F[k, j]) > 0 and j not in D and j != ci]
+            if others:
+                D.discard(k)
+                changed = True
+    Dl = sorted(D)
+    fixed = {}
+    if Dl:
+        FD = F[np.ix_(Dl, Dl)]
+        rhs = -F[Dl, ci] if ci is not None else np.zeros(len(Dl))
+        try:
+            vals = np.linalg.solve(FD, rhs)
+        except np.linalg.LinAlgError:
+            raise SingularSystemError("joint_process: deterministic estimate coordinates without a rest point") from None
+        if np.max(np.linalg.eigvals(FD).real, initial=-1.0) >= 0:
+            raise SingularSystemError("joint_process: deterministic estimate coordinates do not settle")
+        fixed = dict(zip(Dl, vals))
+    if ci is not None:
+        fixed[ci] = 1.0
+    est = [k for k in range(N) if k not in fixed]
+    nr = len(est)
+    nv = nb + nr
+    ext = lambda p: {tuple(list(e) + [0] * nr): c for e, c in p.items()}  # noqa: E731
+
+    def zhat(k):
+        if k in fixed:
+            return {(0,) * nv: float(fixed[k])}
+        e = [0] * nv
+        e[nb + est.index(k)] = 1
+        return {tuple(e): 1.0}
+
+    zx = [ext(p) for p in cp]
+    drift = [ext(p) for p in base.drift]
+    q_proc = base.r
+    r_meas = Ms.shape[0]
+    diff = [[ext(base.diffusion[i][a]) for a in range(q_proc)] + [{} for _ in range(r_meas)] for i in range(nb)]
+    innov = [dict() for _ in range(model.m)]  # H (z(x) − ẑ)
+    for i in range(model.m):
+        acc = {}
+        for k in range(N):
+            if H[i, k] != 0:
+                acc = T.poly_add(acc, zx[k], H[i, k])
+                acc = T.poly_add(acc, zhat(k), -H[i, k])
+        innov[i] = T.poly_clean(acc, 1e-15)
+    meas_noise = []  # for each measurement noise l: the m-vector M_l z(x)
+    for l in range(r_meas):
+        rows = []
+        for i in range(model.m):
+            acc = {}
+            for k in range(N):
+                if Ms[l, i, k] != 0:
+                    acc = T.poly_add(acc, zx[k], Ms[l, i, k])
+            rows.append(acc)
+        meas_noise.append(rows)
+    for j in est:
+        acc = {}
+        for k in range(N):
+            if F[j, k] != 0:
+                acc = T.poly_add(acc, zhat(k), F[j, k])
+        for i in range(model.m):
+            if K[j, i] != 0:
+                acc = T.poly_add(acc, innov[i], K[j, i])
+        drift.append(T.poly_clean(acc, 1e-15))
+        row = [{} for _ in range(q_proc)]
+        for l in range(r_meas):
+            acc = {}
+            for i in range(model.m):
+                if K[j, i] != 0 and meas_noise[l][i]:
+                    acc = T.poly_add(acc, meas_noise[l][i], K[j, i])
+            row.append(T.poly_clean(acc, 1e-15))
+        diff.append(row)
+    names = list(base.names) + [f"hat({model.names[k]})" for k in est]
+    sde = T.PolySDE(drift, diff, np.eye(q_proc + r_meas), names)
+    return JointProcess(sde, nb, est, fixed, cp, K)
+
+
+# ====================================================================== post-processing
+def odd_features(vars_: Sequence[int], degree: int, nv: int, *, cross: bool = False) -> list:
+    """Odd monomials of degree 1, 3, ..., ``degree`` in the joint variables ``vars_``: powers of
+    each variable alone (001 eq. 3.29, 5.11), or every odd-degree product if ``cross``."""
+    out = []
+    if cross:
+        for e in T.monomials_upto(len(vars_), degree):
+            if sum(e) % 2 == 1:
+                full = [0] * nv
+                for v, a in zip(vars_, e):
+                    full[v] = a
+                out.append({tuple(full): 1.0})
+        return out
+    for v in vars_:
+        for p in range(1, degree + 1, 2):
+            full = [0] * nv
+            full[v] = p
+            out.append({tuple(full): 1.0})
+    return out
+
+
+@dataclass
+class PostProcessorFit:
+    """Least-squares post-processor ``ψ = Σ_k α_k φ_k`` of a target (001 eqs. 3.32-3.35):
+    ``gains`` α, ``features`` φ (polys in the joint variables), ``mse`` its MSE, ``mse_linear``
+    the linear estimate's MSE, ``moments`` the steady-state moments used."""
+
+    gains: np.ndarray
+    features: list
+    mse: float
+    mse_linear: float
+    target: dict
+    moments: dict = field(repr=False)
+
+    @property
+    def reduction(self) -> float:
+        """Relative MSE reduction over the linear estimate, in percent (001 Fig. 4.3)."""
+        return 100.0 * (1.0 - self.mse / self.mse_linear)
+
+    def output_poly(self) -> dict:
+        acc = {}
+        for a, f in zip(self.gains, self.features):
+            acc = T.poly_add(acc, f, float(a))
+        return acc
+
+
+def _products(polys_a, polys_b):
+    return [[T.poly_mul(a, b) for b in polys_b] for a in polys_a]
+
+
+def fit_post_processor(jp: JointProcess, target: dict, features: list, linear: dict, *,
+                       initial: Callable | None = None, moments: dict | None = None) -> PostProcessorFit:
+    """Gains of the post-processor minimizing ``E[(target − Σ α_k φ_k)²]`` from the exact
+    steady-state joint moments (001 eqs. 3.33-3.35 generalised to a least-squares solve):
+    ``E[φ φᵀ] α = E[target φ]``. ``linear`` is the linear estimate of the target (for the
+    reference MSE). ``initial``: moments at t = 0 of the joint variables, needed when the dynamics
+    conserve moments (see :func:`~nlfilter.moments.tensor.steady_state`)."""
+    Phi_p = _products(features, features)
+    g_p = [T.poly_mul(target, f) for f in features]
+    extra = [T.poly_mul(target, target), T.poly_mul(target, linear), T.poly_mul(linear, linear)]
+    wanted = set()
+    for p in [q for row in Phi_p for q in row] + g_p + extra:
+        wanted.update(p)
+    mom = dict(moments or {})
+    missing = [m for m in wanted if m not in mom]
+    if missing:
+        mom.update(T.moments(jp.sde, missing, initial=initial))
+    E = lambda p: T.expectation(p, mom)  # noqa: E731
+    Phi = np.array([[E(p) for p in row] for row in Phi_p])
+    g = np.array([E(p) for p in g_p])
+    dn = np.sqrt(np.maximum(np.diag(Phi), 1e-300))  # normalise the features to unit RMS
+    Phin = symmetrize(Phi / np.outer(dn, dn))
+    w = np.linalg.eigvalsh(Phin)
+    if w[0] <= 1e-12 * w[-1]:
+        raise SingularSystemError(f"fit_post_processor: the features are linearly dependent "
+                                  f"(normalised E[φφᵀ] condition {w[-1] / max(w[0], 1e-300):.3g})")
+    alpha = np.linalg.solve(Phin, g / dn) / dn
+    mse = E(extra[0]) - float(g @ alpha)
+    mse_lin = E(extra[0]) - 2 * E(extra[1]) + E(extra[2])
+    return PostProcessorFit(alpha, list(features), mse, mse_lin, target, mom)
+
+
+def evaluate_poly(p: dict, values: np.ndarray) -> np.ndarray:
+    """``p`` at a batch of joint-variable values ``(..., nv)`` (only the variables it uses)."""
+    out = np.zeros(values.shape[:-1])
+    for e, c in p.items():
+        term = np.full(values.shape[:-1], float(c))
+        for v, a in enumerate(e):
+            if a:
+                term = term * values[..., v] ** a
+        out = out + term
+    return out
+
+
+class TensorFilter:
+    """Optimal linear filter followed by memoryless polynomial post-processors (001 Fig. 3.3,
+    §3.3; "tensor filter", 001 §4.3 and ch. 5). All gains are computed off-line from the steady
+    state.
+
+    Parameters
+    ----------
+    model : BilinearModel;  dt : measurement step
+    targets : augmented coordinates to estimate (default: all of x)
+    degree : odd degree of the post-processor (3 = ``α x̂ + β x̂³``; 5, 7 ... also)
+    inputs : "own" (each target from powers of its own linear estimate, as 001 eqs. 4.20, 5.11-5.12)
+        or "cross" (odd monomials of all random estimates, with cross terms)
+    initial : callable ``base monomial -> E[.]`` at t = 0 (needed on conservative state spaces)
+    """
+
+    name = "tensor"
+
+    def __init__(self, model: BilinearModel, dt: float, *, targets=None, degree: int = 3, inputs: str = "own",
+                 initial: Callable | None = None, X0=None, scheme: str = "rk4"):
+        if degree < 1 or degree % 2 == 0:
+            raise ValueError(f"degree: expected an odd positive integer, got {degree!r}")
+        self.linear = OptimalLinearFilter(model, dt, gains="steady", X0=X0, scheme=scheme)
+        self.model, self.dt, self.degree = model, dt, degree
+        self.inputs = V.choice("inputs", inputs, {"own", "cross"})
+        self.targets = list(range(model.n)) if targets is None else list(targets)
+        self.initial = initial
+        self._fits = None
+
+    def fit(self) -> list:
+        """Off-line: steady gains, the joint process, and one post-processor per target."""
+        if self._fits is not None:
+            return self._fits
+        ss = self.linear.steady_state()
+        jp = joint_process(self.model, ss.K)
+        self.joint = jp
+        z0 = np.zeros(self.model.N)
+        if self.model.constant_index is not None:
+            z0[self.model.constant_index] = 1.0
+        init = None if self.initial is None else jp.initial(self.initial, z0)
+        nv = jp.sde.n
+        fits, mom = [], {}
+        for k in self.targets:
+            if k not in jp.estimate_vars:
+                raise ValueError(f"targets: coordinate {k} has a deterministic linear estimate; nothing to post-process")
+            v = jp.nb + jp.estimate_vars.index(k)
+            if self.inputs == "own":
+                feats = odd_features([v], self.degree, nv)
+            else:
+                feats = odd_features(list(range(jp.nb, nv)), self.degree, nv, cross=True)
+            fit = fit_post_processor(jp, jp.coord_poly(k), feats, jp.estimate_poly(k), initial=init, moments=mom)
+            mom = fit.moments
+            fits.append(fit)
+        self._fits = fits
+        return fits
+
+    def with_dt(self, dt: float) -> "TensorFilter":
+        """The same filter (same off-line gains, computed once) for increments of step ``dt``."""
+        other = type(self).__new__(type(self))
+        other.__dict__.update(self.__dict__)
+        other.linear = OptimalLinearFilter(self.model, dt, gains="steady", X0=self.linear.X0, scheme=self.linear.scheme)
+        other.linear._steady = self.linear._steady
+        other.dt = float(dt)
+        return other
+
+    def post_process(self, zhat: np.ndarray) -> np.ndarray:
+        """Apply the post-processors to linear estimates ``(..., N)`` (augmented) -> ``(..., len(targets))``."""
+        fits = self.fit()
+        jp = self.joint
+        vals = np.zeros((*zhat.shape[:-1], jp.sde.n))
+        for i, k in enumerate(jp.estimate_vars):
+            vals[..., jp.nb + i] = zhat[..., k]
+        return np.stack([evaluate_poly(f.output_poly(), vals) for f in fits], axis=-1)
+
+    def run(self, dys, m0, P0, *, on_divergence: str = "raise") -> Estimates:
+        """Linear estimates (augmented) then post-processing; ``means`` are the targets'
+        estimates ``(..., T, len(targets))``; ``covs`` hold the off-line post-processor MSEs
+        on the diagonal (cross terms not computed: NaN)."""
+        self.fit()
+        est = self.linear.run(dys, m0, P0, on_divergence=on_divergence, return_augmented=True)
+        means = self.post_process(est.means)
+        nt = len(self.targets)
+        cov = np.full((nt, nt), np.nan)
+        np.fill_diagonal(cov, [f.mse for f in self._fits])
+        covs = np.broadcast_to(cov, (*means.shape, nt)).copy()
+        return Estimates(means, covs, est.diverged, est.diverged_step)
+
+
+def multistage(jp: JointProcess, first: PostProcessorFit, degree: int = 3, *, initial=None) -> PostProcessorFit:
+    """A second stage of post-processing (001 Fig. 3.2): odd powers of the first stage's output
+    ``x̃ = ψ(ẑ)`` (polynomials of ``ẑ`` of degree ``deg ψ · degree``), gains again by least squares
+    from exact moments. Its MSE is never above the first stage's (``x̃`` itself is a feature)."""
+    out = first.output_poly()
+    nv = jp.sde.n
+    feats = [T.poly_clean(T.poly_pow(out, p, nv), 0.0) for p in range(1, degree + 1, 2)]
+    fit = fit_post_processor(jp, first.target, feats, out, initial=initial, moments=first.moments)
+    fit.mse_linear = first.mse_linear
+    return fit
+
+
+# ====================================================================== updated innovations
+class UpdatedInnovationsFilter(TensorFilter):
+    """The linear filter's recursion driven by innovations formed with the post-processed
+    estimate (001 Fig. 3.4; "not evaluated in this research": evaluated here by Monte Carlo)::
+
+        dẑ = F ẑ dt + K (dy − H ẑ' dt),   ẑ' = ẑ with its post-processed coordinates replaced
+
+    Gains ``K`` and post-processor gains are those of :class:`TensorFilter` (off-line). The
+    recursion is nonlinear, so its error has no closed moment system: it is evaluated by
+    simulation. Integration: explicit RK4 (or Euler) with ``dy/dt`` held constant over a step.
+    """
+
+    name = "updated-innovations"
+
+    @classmethod
+    def from_tensor(cls, tf: TensorFilter, dt: float | None = None) -> "UpdatedInnovationsFilter":
+        """Reuse a fitted :class:`TensorFilter`'s off-line gains (and optionally a new step)."""
+        other = cls.__new__(cls)
+        other.__dict__.update((tf if dt is None else tf.with_dt(dt)).__dict__)
+        return other
+
+    def run(self, dys, m0, P0, *, on_divergence: str = "raise") -> Estimates:
+        from .base import GaussianState
+        self.fit()
+        model = self.model
+        dys = V.as_float_array("dys", dys, ndim_min=2, shape_tail=(None, model.m))
+        z0, _, Pa = augmented_second_moment(model, m0, P0)
+        ss = self.linear.steady_state()
+        aug = model.augmented(0)
+        F, H, K = aug.F, aug.H, ss.K
+        batch, T_ = dys.shape[:-2], dys.shape[-2]
+        zs = np.broadcast_to(z0, (*batch, model.N)).copy()
+        nt = len(self.targets)
+        out = _Runner(batch, T_, nt, on_divergence, self.name)
+        h = self.dt
+        tg = self.targets
+
+        def rhs(z, y):
+            zp = z.copy()
+            zp[..., tg] = self.post_process(z)
+            return z @ F.T + (y - zp @ H.T) @ K.T
+
+        eye = np.broadcast_to(np.eye(nt), (*batch, nt, nt))  # placeholder: the divergence screen checks means
+        reset = GaussianState(np.broadcast_to(z0[tg], (*batch, nt)), eye)
+        for k in range(T_):
+            y = dys[..., k, :] / h
+            if self.linear.scheme == "euler":
+                zs = zs + h * rhs(zs, y)
+            else:
+                k1 = rhs(zs, y)
+                k2 = rhs(zs + h / 2 * k1, y)
+                k3 = rhs(zs + h / 2 * k2, y)
+                k4 = rhs(zs + h * k3, y)
+                zs = zs + h / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
+            out.record(k, GaussianState(self.post_process(zs), eye), reset)
+            if out.diverged.any():  # diverged paths restart harmlessly; their outputs are NaN
+                zs = np.where(out.diverged[..., None], z0, zs)
+        res = out.result()
+        cov = np.full((nt, nt), np.nan)  # no error covariance for this nonlinear recursion
+        return Estimates(res.means, np.broadcast_to(cov, res.covs.shape).copy(), res.diverged, res.diverged_step)
+
+
+# ====================================================================== pseudo-observables
+class PseudoObservablesFilter:
+    """Optimal linear filter using tensored observables ``y, y^p, ...`` (001 §3.2, eq. 3.14):
+    ``x̂ = P[x | H^y ⊕ H^{y³} ⊕ ...]``.
+
+    The observation ``y`` (with ``y0`` known, 001: "y0 assumed to be equal to zero") joins the
+    state; the vector ``z`` of monomials of ``(x, y)`` closed under the Itô rule and its noise
+    coefficients is bilinear (001 eqs. 3.11-3.13), and each pseudo-observable ``y_i^p`` is
+    observed through its increment ``d(y_i^p) = H_o z dt + Σ_a M_o,a z dβ_a`` (001 eq. 3.16),
+    driven by the *same* noises as the state (``y`` is a state): the linear filter then has the
+    cross term ``C = Σ_a B_a X M_aᵀ``::
+
+        dẑ = A ẑ dt + K (dY − H ẑ dt),   K = (P Hᵀ + C) Σ_v⁺,   Σ_v = Σ_a M_a X M_aᵀ
+        dX/dt = A X + X Aᵀ + Σ_a B_a X B_aᵀ,   dP/dt = A P + P Aᵀ + Σ_a B_a X B_aᵀ − K Σ_v Kᵀ
+
+    At t = 0 the innovation intensity of ``y³`` is ``9 E[y0⁴] = 0``: Σ_v is singular and the
+    gain uses its pseudo-inverse (the Liptser-Shiryaev treatment of a singular observation, 001
+    §3.2). The moments of ``y`` grow without bound, so there is no steady state: gains are
+    time-varying (and, as the thesis observed, the y³ information fades).
+
+    Parameters
+    ----------
+    model : BilinearModel with additive measurement noise only (``R``; no ``M``)
+    powers : the powers of each measurement component used as observables (``(1, 3)``: y and y³)
+    dt : measurement step;  x_moment : callable ``base monomial -> E[x0^α]`` (initial law of x)
+    """
+
+    name = "pseudo-observables"
+
+    def __init__(self, model: BilinearModel, dt: float, *, powers=(1, 3), x_moment=None, scheme: str = "rk4"):
+        if model.M:
+            raise ValueError("model: pseudo-observables need additive measurement noise (R), not M")
+        if model.R is None:
+            raise ValueError("model: R (additive measurement noise) is required")
+        if model.time_varying:
+            raise ValueError("model: time-varying models are not supported here")
+        self.model, self.dt = model, float(V.positive("dt", dt))
+        self.scheme = V.choice("scheme", scheme, {"rk4", "euler"})
+        self.powers = tuple(int(p) for p in powers)
+        if 1 not in self.powers or any(p < 1 for p in self.powers):
+            raise ValueError(f"powers: expected positive integers including 1, got {powers!r}")
+        self.x_moment = x_moment
+        self._build()
+
+    def _build(self):
+        model = self.model
+        base = model.poly_sde()
+        nb, m = base.n, model.m
+        nv = nb + m
+        aug = model.augmented(0)
+        ext = lambda p: {tuple(list(e) + [0] * m): c for e, c in p.items()}  # noqa: E731
+        Lr = np.linalg.cholesky(model.R + 1e-300 * np.eye(m)) if np.all(np.linalg.eigvalsh(model.R) > 0) else None
+        if Lr is None:
+            raise ValueError("model.R: expected positive definite")
+        q = base.r
+        drift = [ext(p) for p in base.drift]
+        diff = [[ext(base.diffusion[i][a]) for a in range(q)] + [{} for _ in range(m)] for i in range(nb)]
+        cp = model.coord_polys()
+        for i in range(m):  # dy_i = (H z(x) + d)_i dt + (R^½ dv)_i
+            acc = {}
+            for k in range(model.N):
+                if aug.H[i, k] != 0:
+                    acc = T.poly_add(acc, ext(cp[k]), aug.H[i, k])
+            drift.append(T.poly_clean(acc))
+            diff.append([{} for _ in range(q)] + [({(0,) * nv: float(Lr[i, j])} if Lr[i, j] else {}) for j in range(m)])
+        names = list(base.names) + [f"y{i + 1}" for i in range(m)]
+        sde = T.PolySDE(drift, diff, np.eye(q + m), names)
+        obs, meta = [], []
+        for i in range(m):
+            for p in self.powers:
+                e = [0] * nv
+                e[nb + i] = p
+                obs.append(tuple(e))
+                meta.append((i, p))
+        self.obs_meta = meta
+        seeds = [tuple(int(j == v) for j in range(nv)) for v in range(nb)] + obs
+        mons = T.closed_set(sde, seeds, with_noise=True)
+        zero = (0,) * nv
+        coords = mons + [zero]
+        A, Bs = T.bilinear_lift(sde, coords)
+        idx = {c: k for k, c in enumerate(coords)}
+        N = len(coords)
+        H = np.zeros((len(obs), N))
+        Ms = np.zeros((q + m, len(obs), N))
+        for o, mon in enumerate(obs):
+            for e, c in sde.generator(mon).items():
+                H[o, idx[e]] += c
+            for a, pa in enumerate(sde.noise(mon)):
+                for e, c in pa.items():
+                    Ms[a, o, idx[e]] += c
+        self.sde, self.coords, self.index, self.obs = sde, coords, idx, obs
+        self.A, self.B, self.H, self.M = A, np.array(Bs), H, Ms
+        self.nb, self.m = nb, m
+
+    def initial_moments(self):
+        """``(ẑ0, X0)``: x0 from ``x_moment``, y0 = 0."""
+        if self.x_moment is None:
+            raise ValueError("x_moment: the initial law's moments of x are needed (callable monomial -> E)")
+        nb = self.nb
+
+        def E(e):
+            return 0.0 if any(e[nb:]) else float(self.x_moment(tuple(e[:nb])))
+        N = len(self.coords)
+        z0 = np.array([E(c) for c in self.coords])
+        X0 = np.array([[E(tuple(a + b for a, b in zip(self.coords[i], self.coords[j]))) for j in range(N)]
+                       for i in range(N)])
+        return z0, X0
+
+    def covariance_path(self, T_: int):
+        """``(X, P, K)`` on the half-step grid ``j dt/2``, j = 0..2T (RK4 with step dt/2)."""
+        z0, X = self.initial_moments()
+        P = X - np.outer(z0, z0)
+        A, Bs, H, Ms = self.A, self.B, self.H, self.M
+        h = self.dt / 2
+
+        def rhs(X, P):
+            Pi = np.einsum("aij,jk,alk->il", Bs, X, Bs)
+            C = np.einsum("aij,jk,alk->il", Bs, X, Ms)
+            Sv = np.einsum("aij,jk,alk->il", Ms, X, Ms)
+            K = (P @ H.T + C) @ _pinv_psd(Sv, tol=1e-10)
+            return A @ X + X @ A.T + Pi, A @ P + P @ A.T + Pi - K @ Sv @ K.T, K
+
+        Xs, Ps, Ks = [X], [P], []
+        for _ in range(2 * T_):
+            k1 = rhs(X, P)
+            Ks.append(k1[2])
+            k2 = rhs(X + h / 2 * k1[0], P + h / 2 * k1[1])
+            k3 = rhs(X + h / 2 * k2[0], P + h / 2 * k2[1])
+            k4 = rhs(X + h * k3[0], P + h * k3[1])
+            X = symmetrize(X + h / 6 * (k1[0] + 2 * k2[0] + 2 * k3[0] + k4[0]))
+            P = symmetrize(P + h / 6 * (k1[1] + 2 * k2[1] + 2 * k3[1] + k4[1]))
+            Xs.append(X)
+            Ps.append(P)
+        Ks.append(rhs(X, P)[2])
+        return np.array(Xs), np.array(Ps), np.array(Ks)
+
+    def error_variance(self, T_: int) -> np.ndarray:
+        """Off-line ``E[(x_i − x̂_i)²]`` at ``t_k = k dt``, k = 0..T, shape ``(T+1, n_base)``."""
+        _, Ps, _ = self.covariance_path(T_)
+        ix = [self.index[tuple(int(j == v) for j in range(self.nb + self.m))] for v in range(self.nb)]
+        return np.stack([Ps[::2, i, i] for i in ix], axis=-1)
+
+    def run(self, dys, *, on_divergence: str = "raise") -> Estimates:
+        """Filter increments ``dys (..., T, m)`` (y0 = 0): pseudo-observable increments are formed
+        from the running ``y``; returns estimates of the base variables."""
+        from .base import GaussianState
+        dys = V.as_float_array("dys", dys, ndim_min=2, shape_tail=(None, self.m))
+        V.finite("dys", dys)
+        batch, T_ = dys.shape[:-2], dys.shape[-2]
+        z0, _ = self.initial_moments()
+        _, Ps, Ks = self.covariance_path(T_)
+        y = np.concatenate([np.zeros((*batch, 1, self.m)), np.cumsum(dys, axis=-2)], axis=-2)
+        Y = np.stack([y[..., i] ** p for i, p in self.obs_meta], axis=-1)  # pseudo-observables y_i^p
+        dY = np.diff(Y, axis=-2)
+        zs = np.broadcast_to(z0, (*batch, len(z0))).copy()
+        ix = [self.index[tuple(int(j == v) for j in range(self.nb + self.m))] for v in range(self.nb)]
+        out = _Runner(batch, T_, self.nb, on_divergence, self.name)
+        h = self.dt
+        for k in range(T_):
+            K0, K1, K2 = Ks[2 * k], Ks[2 * k + 1], Ks[2 * k + 2]
+            Phi, Gam = _affine_step(self.A - K0 @ self.H, self.A - K1 @ self.H, self.A - K2 @ self.H,
+                                    K0, K1, K2, h, self.scheme)
+            zs = zs @ Phi.T + (dY[..., k, :] / h) @ Gam.T
+            Pk = Ps[2 * k + 2][np.ix_(ix, ix)]
+            st = GaussianState(zs[..., ix], np.broadcast_to(Pk, (*batch, self.nb, self.nb)))
+            out.record(k, st, st)
+        return out.result()
+
+
+__all__ = ["PseudoObservablesFilter", "OptimalLinearFilter", "DiscreteOptimalLinearFilter", "LinearSteadyState", "WonhamReport",
+           "wonham_condition", "state_second_moments", "augmented_second_moment", "JointProcess",
+           "joint_process", "odd_features", "fit_post_processor", "PostProcessorFit", "TensorFilter",
+           "multistage", "UpdatedInnovationsFilter", "evaluate_poly"]

@@ -1,0 +1,539 @@
+"""Statistical linearization, the quasilinear filter (QLF) and the modified quasilinear filter
+(MQLF) of seed 003 (Oh & Shin), in continuous and discrete time, with the off-line accuracy
+analysis from the joint moments of (x, x̂).
+
+Statistical linearization (003 eqs. 3-5) of ``f`` about the *prior* law of ``x(t)``::
+
+    f(x) ≈ a0 + a1 (x − m),   a0 = E f,   a1 = E[f (x − m)ᵀ] K⁻¹        (same for h: b0, b1)
+
+The expectations come from the moment engine: polynomial models use the exact moment equations
+of ``x`` (003 eq. 11) closed by a closure — the Gaussian closure gives the QLF, a higher closure
+(default: 4th-order Edgeworth / Hermite quasi-moments, 003 eqs. 12-15, 28-33) the MQLF;
+non-polynomial models use Gauss-Hermite expectations under the Gaussian closure (QLF only).
+
+Theorem 4.1 (003 eqs. 16-17), continuous time, measurement increments ``dy = h dt + dη``::
+
+    dx̂ = [a1 x̂ + a0 − a1 m] dt + P b1ᵀ R⁻¹ (dy − [b1 x̂ + b0 − b1 m] dt)
+    dP/dt = a1 P + P a1ᵀ − P b1ᵀ R⁻¹ b1 P + E[G Q Gᵀ]
+
+Everything but ``x̂`` — the moments, a0, a1, b0, b1, P and the gain — depends on the prior only,
+so :meth:`QuasilinearFilter.offline` computes it once (one ``solve_ivp`` of the moment and
+Riccati equations, dense output); :meth:`run` then integrates one linear equation per step for
+the whole batch: the ``dt`` terms by RK4 (or Euler) substeps, the innovation ``Kg(t_k) dy`` added
+as an Itô increment with the gain at the start of the step (the convention of
+:class:`~nlfilter.filters.ekf.ContinuousEKF`, so the QLF is the Kalman-Bucy filter on linear
+models). ``Estimates.covs`` holds ``P``, which is NOT the
+error covariance (003, below eq. 8); the true error comes from :meth:`error_analysis`.
+
+Off-line accuracy (003 Fig. 2): (x, x̂) is a polynomial SDE with time-varying coefficients::
+
+    dx = f(x) dt + G dβ,   dx̂ = [F(t) x̂ + u(t) + Kg(t) h(x)] dt + Kg(t) dη,
+    F = a1 − Kg b1,  u = a0 − a1 m − Kg (b0 − b1 m),  Kg = P b1ᵀ R⁻¹
+
+whose moments the engine propagates (closed by a closure, by default Edgeworth of order 4 as in
+the paper); the MSE is ``E x² − 2 E x x̂ + E x̂²``.
+
+Discrete time (:class:`DiscreteQuasilinearFilter`): the Kalman filter of the statistically
+linearized model, with the prior moments of ``x[k]`` from the discrete moment equations.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import sympy as sp
+from scipy.integrate import solve_ivp
+
+from .. import _validate as V
+from ..errors import ClosureDivergedError, NotPolynomialError
+from ..moments.closures import Closure, EdgeworthClosure, GaussianClosure, gaussian_moments
+from ..moments.expect import PolynomialExpectations, statistical_linearization_polys
+from ..moments.ito import (PolynomialMap, PolynomialSDE, discrete_moment_equations, moment_equations)
+from ..moments.quadrature import expect_gaussian, gaussian_rule
+from ..moments.solve import propagate
+from ..polynomials import Polynomial, monomials
+from .base import ContinuousFilter, Estimates, GaussianState, _prepare, _Runner, symmetrize
+
+__all__ = ["statistical_linearization", "QuasilinearFilter", "DiscreteQuasilinearFilter", "QLF", "MQLF",
+           "OfflineGains", "ErrorAnalysis", "gain_error_analysis"]
+
+
+def statistical_linearization(mean, cov, Ef, Efx):
+    """``(a0, a1)`` of 003 eqs. 4-5 from ``E f (..., k)`` and ``E[f xᵀ] (..., k, n)`` under a law
+    with mean ``(..., n)`` and covariance ``(..., n, n)``: ``a1 = (E[f xᵀ] − E f mᵀ) K⁻¹``.
+
+    >>> m, K = np.array([1.0]), np.array([[0.5]])
+    >>> a0, a1 = statistical_linearization(m, K, np.array([-(1 + 3 * 0.5)]), np.array([[-(3 * 0.25 + 6 * 0.5 + 1)]]))
+    >>> a0.tolist(), a1.round(12).tolist()     # −x³ under N(1, 0.5): a1 = −3 E x² = −4.5
+    ([-2.5], [[-4.5]])
+    """
+    mean, cov = np.asarray(mean), np.asarray(cov)
+    C = Efx - Ef[..., :, None] * mean[..., None, :]  # E[f (x − m)ᵀ]
+    a1 = np.swapaxes(np.linalg.solve(cov, np.swapaxes(C, -1, -2)), -1, -2)  # C K⁻¹ (K symmetric)
+    return Ef, a1
+
+
+def _unit(n, i, k=1):
+    e = [0] * n
+    e[i] = k
+    return tuple(e)
+
+
+class _Linearizer:
+    """The prior law of x as a moment vector, its evolution, and the linearization coefficients.
+
+    Polynomial model: raw moments up to ``order`` (exact equations + closure). Otherwise (Gaussian
+    closure only): ``[m, vec K]`` with Gauss-Hermite expectations."""
+
+    def __init__(self, model, closure: Closure, order: int | None, kind: str, points: int = 9):
+        self.model, self.closure, self.kind = model, closure, kind
+        n, m = model.n, model.m
+        self.n, self.m = n, m
+        N = closure.order if order is None else order
+        if isinstance(N, bool) or not isinstance(N, int) or N < closure.order:
+            raise ValueError(f"order: expected an integer ≥ the closure's order {closure.order}, got {order!r}")
+        if getattr(model, "sym", None) is None:
+            raise TypeError("model: quasilinear filters need a model stated in SymPy")
+        if model.time is not None and (model.sym["f"].has(model.time) or model.sym["h"].has(model.time)
+                                       or model.sym["G"].has(model.time)):
+            raise ValueError("model: time-varying models are not supported by the quasilinear filters yet")
+        st = model.states
+        try:
+            f = [Polynomial.from_sympy(e, st, name=f"f[{i}]") for i, e in enumerate(model.sym["f"])]
+            h = [Polynomial.from_sympy(e, st, name=f"h[{i}]") for i, e in enumerate(model.sym["h"])]
+            G = model.sym["G"]
+            S = sp.expand(G * sp.Matrix(model.Q.tolist()) * G.T)
+            sig = [Polynomial.from_sympy(S[i, j], st, name=f"GQGᵀ[{i},{j}]") for i in range(n) for j in range(n)]
+            self.polynomial = True
+        except NotPolynomialError as exc:
+            if not isinstance(closure, GaussianClosure):
+                raise NotPolynomialError(f"closure: the {closure.name} closure needs exact polynomial moments, "
+                                         f"but {exc}") from None
+            self.polynomial = False
+            self.order = 2
+            self.nodes = gaussian_rule(n, "auto", points)
+            return
+        self.order = N
+        self.indices = monomials(n, N, min_degree=1)
+        if kind == "continuous":
+            self.eqs = moment_equations(PolynomialSDE(tuple(f), tuple(tuple(sig[i * n:(i + 1) * n]) for i in range(n)),
+                                                      states=tuple(st)), self.indices)
+        else:
+            Gp = [[Polynomial.from_sympy(G[i, a], st) for a in range(G.shape[1])] for i in range(n)]
+            from ..moments.ito import gaussian_noise_moments
+            self.eqs = discrete_moment_equations(
+                PolynomialMap(tuple(f), tuple(map(tuple, Gp)), gaussian_noise_moments(model.Q), states=tuple(st)),
+                self.indices)
+        polys = statistical_linearization_polys(f, n) + statistical_linearization_polys(h, n) + sig
+        self.pe = PolynomialExpectations(self.indices, polys, closure)
+        self.pe_next = PolynomialExpectations(self.indices, [], closure)
+        self._miss = (PolynomialExpectations(self.indices, [Polynomial({g: 1.0}, n) for g in self.eqs.missing],
+                                             closure) if self.eqs.missing else None)
+        self.pos1 = [self.eqs.index[_unit(n, i)] for i in range(n)]
+
+    @property
+    def size(self):
+        return len(self.indices) if self.polynomial else self.n + self.n * self.n
+
+    def init(self, m0, P0):
+        if self.polynomial:
+            return gaussian_moments(m0, P0, self.indices)
+        return np.concatenate([m0, P0.ravel()])
+
+    def mean_cov(self, mu):
+        n = self.n
+        if not self.polynomial:
+            return mu[..., :n], mu[..., n:].reshape(*mu.shape[:-1], n, n)
+        idx = self.eqs.index
+        m = mu[..., self.pos1]
+        K = np.empty((*mu.shape[:-1], n, n))
+        for i in range(n):
+            for j in range(n):
+                K[..., i, j] = mu[..., idx[tuple(a + b for a, b in zip(_unit(n, i), _unit(n, j)))]] - m[..., i] * m[..., j]
+        return m, K
+
+    def coeffs(self, mu, t=0.0):
+        """(m, K, a0, a1, b0, b1, σ̄) for moment vectors ``mu (..., size)``."""
+        n, m_ = self.n, self.m
+        mean, K = self.mean_cov(mu)
+        if self.polynomial:
+            E = self.pe(mu)
+            o = 0
+            Ef = E[..., o:o + n]
+            o += n
+            Efx = E[..., o:o + n * n].reshape(*E.shape[:-1], n, n)
+            o += n * n
+            Eh = E[..., o:o + m_]
+            o += m_
+            Ehx = E[..., o:o + m_ * n].reshape(*E.shape[:-1], m_, n)
+            o += m_ * n
+            sig = E[..., o:o + n * n].reshape(*E.shape[:-1], n, n)
+        else:
+            md = self.model
+
+            def fx(x):
+                f, h = md.f(x, t), md.h(x, t)
+                return np.concatenate([f, (f[..., :, None] * x[..., None, :]).reshape(*x.shape[:-1], -1), h,
+                                       (h[..., :, None] * x[..., None, :]).reshape(*x.shape[:-1], -1),
+                                       md.GQGT(x, t).reshape(*x.shape[:-1], -1)], axis=-1)
+            E = expect_gaussian(fx, mean, K, nodes=self.nodes)
+            o = 0
+            Ef = E[..., :n]
+            o = n
+            Efx = E[..., o:o + n * n].reshape(*E.shape[:-1], n, n)
+            o += n * n
+            Eh = E[..., o:o + m_]
+            o += m_
+            Ehx = E[..., o:o + m_ * n].reshape(*E.shape[:-1], m_, n)
+            o += m_ * n
+            sig = E[..., o:o + n * n].reshape(*E.shape[:-1], n, n)
+        a0, a1 = statistical_linearization(mean, K, Ef, Efx)  # 003 eq. 4
+        b0, b1 = statistical_linearization(mean, K, Eh, Ehx)  # 003 eq. 5
+        return mean, K, a0, a1, b0, b1, sig
+
+    def deriv(self, mu, t, c=None):
+        """d(moment vector)/dt (continuous)."""
+        if self.polynomial:
+            nu = self._miss(mu) if self._miss is not None else None
+            return self.eqs.rhs(mu, nu, t)
+        mean, K, a0, a1, b0, b1, sig = c if c is not None else self.coeffs(mu, t)
+        dK = a1 @ K + K @ np.swapaxes(a1, -1, -2) + sig  # Gaussian closure: exact for stat.-lin. f
+        return np.concatenate([a0, dK.reshape(*dK.shape[:-2], -1)], axis=-1)
+
+    def step(self, mu, k):
+        """Prior moments of x[k+1] from those of x[k] (discrete)."""
+        if self.polynomial:
+            nu = self._miss(mu) if self._miss is not None else None
+            return self.eqs.rhs(mu, nu, k)
+        md, n = self.model, self.n
+        mean, K = self.mean_cov(mu)
+
+        def g(x):
+            f = md.f(x, k)
+            return np.concatenate([f, (f[..., :, None] * f[..., None, :]).reshape(*x.shape[:-1], -1),
+                                   md.GQGT(x, k).reshape(*x.shape[:-1], -1)], axis=-1)
+        E = expect_gaussian(g, mean, K, nodes=self.nodes)
+        m1 = E[..., :n]
+        K1 = E[..., n:n + n * n].reshape(n, n) - np.outer(m1, m1) + E[..., n + n * n:].reshape(n, n)
+        return np.concatenate([m1, symmetrize(K1).ravel()])
+
+
+@dataclass
+class OfflineGains:
+    """Everything the QLF/MQLF computes before the data: on the grid ``t (T+1,)``: prior moments
+    ``moments (T+1, size)``, ``m (T+1, n)``, ``K`` (prior covariance), ``a0, a1, b0, b1``, ``P``,
+    ``gain = P b1ᵀ R⁻¹``; ``dense(t)`` evaluates ``(μ, P)`` at any t in range."""
+
+    t: np.ndarray
+    moments: np.ndarray
+    m: np.ndarray
+    K: np.ndarray
+    a0: np.ndarray
+    a1: np.ndarray
+    b0: np.ndarray
+    b1: np.ndarray
+    P: np.ndarray
+    gain: np.ndarray
+    dense: object
+
+
+@dataclass
+class ErrorAnalysis:
+    """Off-line accuracy: ``t (T+1,)``, ``mse (T+1, n)`` = E(x − x̂)², the joint moments."""
+
+    t: np.ndarray
+    mse: np.ndarray
+    solution: object
+
+
+class QuasilinearFilter(ContinuousFilter):
+    """QLF / MQLF for an :class:`~nlfilter.models.SDEModel` (003 Theorem 4.1, eqs. 16-17).
+
+    Parameters
+    ----------
+    model : SDEModel (SymPy). Polynomial f, GQGᵀ, h: any closure; otherwise Gaussian closure only.
+    dt : measurement step of the increments ``dy``
+    closure : a :class:`~nlfilter.moments.closures.Closure`; default Gaussian (QLF)
+    order : order N of the prior moment set (default: the closure's order)
+    substeps, scheme : steps per measurement step and scheme (``"rk4"`` or ``"euler"``) of the
+        on-line equation
+    rtol, atol : tolerances of the off-line ``solve_ivp``
+
+    The gains depend on the prior ``(m0, P0)``, which must be the same for every path; they are
+    computed at the first ``run`` (or by :meth:`offline`) and cached.
+
+    >>> import sympy as sp; from nlfilter import SDEModel
+    >>> x = sp.Symbol("x")
+    >>> model = SDEModel([x], [-x], [x], Q=1.0, R=1.0)          # linear: QLF = Kalman-Bucy
+    >>> g = QuasilinearFilter(model, 0.01).offline([0.0], [[1.0]], 1000)
+    >>> round(float(g.P[-1, 0, 0]), 4)                        # Riccati: P' = −2P − P² + 1 → √2 − 1
+    0.4142
+    """
+
+    name = "qlf"
+
+    def __init__(self, model, dt, *, closure: Closure | None = None, order: int | None = None,
+                 substeps: int = 4, scheme: str = "rk4", rtol: float = 1e-9, atol: float = 1e-12):
+        ContinuousFilter.__init__(self, model, dt, scheme=scheme, substeps=substeps)
+        closure = GaussianClosure() if closure is None else closure
+        if not isinstance(closure, Closure):
+            raise TypeError(f"closure: expected a Closure instance, got {type(closure).__name__}")
+        self.closure = closure
+        self.lin = _Linearizer(model, closure, order, "continuous")
+        self._Rinv = np.linalg.inv(model.R)
+        self.rtol, self.atol = float(rtol), float(atol)
+        self._cache = {}
+
+    # -- off-line ------------------------------------------------------------------------------
+    def _prior(self, m0, P0):
+        n = self.model.n
+        m0 = V.as_float_array("m0", m0).reshape(-1) if np.ndim(m0) else np.full(n, float(m0))
+        if m0.shape != (n,):
+            raise ValueError(f"m0: the off-line gains need one prior mean of shape ({n},) for all paths, "
+                             f"got shape {np.shape(m0)}")
+        P0 = V.covariance("P0", P0, n)
+        return m0, P0
+
+    def offline(self, m0, P0, steps: int, *, t0: float = 0.0) -> OfflineGains:
+        """Solve the prior-moment and Riccati equations (003 eqs. 11, 17) on ``t0 .. t0 + steps·dt``."""
+        m0, P0 = self._prior(m0, P0)
+        V.positive("steps", steps, integer=True)
+        key = (m0.tobytes(), P0.tobytes(), int(steps), float(t0))
+        if key in self._cache:
+            return self._cache[key]
+        lin, n, Rinv = self.lin, self.model.n, self._Rinv
+        S = lin.size
+
+        def rhs(t, y):
+            mu, P = y[:S], y[S:].reshape(n, n)
+            c = lin.coeffs(mu, t)
+            _, _, a0, a1, b0, b1, sig = c
+            dP = a1 @ P + P @ a1.T - P @ b1.T @ Rinv @ b1 @ P + sig  # 003 eq. 17
+            return np.concatenate([lin.deriv(mu, t, c), dP.ravel()])
+
+        y0 = np.concatenate([lin.init(m0, P0), P0.ravel()])
+        t = t0 + self.dt * np.arange(steps + 1)
+        sol = solve_ivp(rhs, (t[0], t[-1]), y0, method="LSODA", t_eval=t, dense_output=True,
+                        rtol=self.rtol, atol=self.atol)
+        if sol.status != 0 or not np.all(np.isfinite(sol.y)):
+            raise ClosureDivergedError(f"{self.name}: the off-line moment/Riccati equations failed at "
+                                       f"t = {sol.t[-1]:.6g}: {sol.message}", time=float(sol.t[-1]))
+        Y = sol.y.T
+        mu, P = Y[:, :S], Y[:, S:].reshape(-1, n, n)
+        mean, K, a0, a1, b0, b1, _ = lin.coeffs(mu)
+        bad = np.flatnonzero(np.linalg.eigvalsh(K)[:, 0] <= 0)
+        if bad.size:
+            raise ClosureDivergedError(f"{self.name}: the prior variance turned non-positive at t = {t[bad[0]]:.6g}",
+                                       time=float(t[bad[0]]), moment=(2,) if n == 1 else None)
+        gain = P @ np.swapaxes(b1, -1, -2) @ Rinv
+        out = OfflineGains(t, mu, mean, K, a0, a1, b0, b1, symmetrize(P), gain, sol.sol)
+        self._cache = {key: out}
+        return out
+
+    def _coeff(self, y):
+        """On-line coefficients F, u, Kg at dense states ``y (..., S + n²)``."""
+        lin, n, Rinv = self.lin, self.model.n, self._Rinv
+        S = lin.size
+        mu, P = y[..., :S], y[..., S:].reshape(*y.shape[:-1], n, n)
+        mean, K, a0, a1, b0, b1, _ = lin.coeffs(mu)
+        Kg = P @ np.swapaxes(b1, -1, -2) @ Rinv
+        F = a1 - Kg @ b1
+        u = a0 - np.einsum("...ij,...j->...i", a1, mean) - np.einsum("...ij,...j->...i", Kg,
+                                                                    b0 - np.einsum("...ij,...j->...i", b1, mean))
+        return F, u, Kg
+
+    # -- on-line -------------------------------------------------------------------------------
+    def run(self, dys, m0, P0, *, t0: float = 0.0, on_divergence: str = "raise") -> Estimates:
+        """Filter a batch of increments ``dys (..., T, m)`` (003 eq. 16); ``covs`` holds P(t)."""
+        model = self.model
+        m0v, P0v = self._prior(m0, P0)
+        dys, state, batch = _prepare("dys", dys, m0v, P0v, model.n, model.m)
+        T = dys.shape[-2]
+        g = self.offline(m0v, P0v, T, t0=t0)
+        h = self.dt / self.substeps
+        # coefficients at every RK4 stage time t_k + j h/2
+        ts = t0 + 0.5 * h * np.arange(2 * self.substeps * T + 1)
+        F, u, Kg = self._coeff(g.dense(ts).T)
+        out = _Runner(batch, T, model.n, on_divergence, self.name)
+        x = state.mean
+        init = GaussianState(state.mean.copy(), state.cov.copy())
+        ev = lambda i, x: np.einsum("ij,...j->...i", F[i], x) + u[i]  # noqa: E731  (the dt terms)
+        for k in range(T):
+            dy = dys[..., k, :]
+            if np.isnan(dy).any():
+                raise ValueError("dys: missing measurements are not supported by the quasilinear filters")
+            i0 = 2 * k * self.substeps
+            Kdy = np.einsum("ij,...j->...i", Kg[i0], dy)  # Itô: the innovation with the gain at t_k
+            for j in range(self.substeps):  # the dt terms (F x̂ + u) by the scheme
+                i0 = 2 * (k * self.substeps + j)
+                k1 = ev(i0, x)
+                if self.scheme == "euler":
+                    x = x + h * k1
+                    continue
+                k2 = ev(i0 + 1, x + 0.5 * h * k1)
+                k3 = ev(i0 + 1, x + 0.5 * h * k2)
+                k4 = ev(i0 + 2, x + h * k3)
+                x = x + h / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
+            x = x + Kdy
+            st = GaussianState(x, np.broadcast_to(g.P[k + 1], (*batch, model.n, model.n)).copy())
+            st = out.record(k, st, init)
+            x = st.mean
+        return out.result()
+
+    def step(self, state, dy, t):
+        raise NotImplementedError("QuasilinearFilter: use run(); the gains are tabulated off-line for a run")
+
+    # -- accuracy ------------------------------------------------------------------------------
+    def error_analysis(self, m0, P0, steps: int, *, closure: Closure | None = None, order: int = 4,
+                       t0: float = 0.0) -> ErrorAnalysis:
+        """True MSE E(x − x̂)² on the grid, from the moments of the joint process (x, x̂) (003 Fig. 2),
+        closed by ``closure`` (default Edgeworth of ``order`` 4 as in the paper). Polynomial models."""
+        if not self.lin.polynomial:
+            raise NotPolynomialError("model: the off-line accuracy analysis needs polynomial f, GQGᵀ and h")
+        m0, P0 = self._prior(m0, P0)
+        g = self.offline(m0, P0, steps, t0=t0)
+        return gain_error_analysis(self.model, lambda t: self._coeff(g.dense(t)), m0, P0, g.t,
+                                   closure=closure, order=order)
+
+
+def gain_error_analysis(model, coefficients, m0, P0, t, *, xhat0=None, closure: Closure | None = None,
+                        order: int = 4) -> ErrorAnalysis:
+    """Off-line accuracy of ANY filter with precomputed gains of the form
+    ``dx̂ = [F(t) x̂ + u(t)] dt + Kg(t) dy`` on a polynomial :class:`SDEModel`: the moments of the
+    joint polynomial SDE (x, x̂) (``dx̂ = [F x̂ + u + Kg h(x)] dt + Kg dη``) up to ``order``, closed by
+    ``closure`` (default Edgeworth of that order), give ``E(x − x̂)²`` on the times ``t``.
+
+    ``coefficients(t) -> (F (n, n), u (n,), Kg (n, m))``; ``x̂(t[0]) = xhat0`` (default m0), ``x(t[0]) ~
+    N(m0, P0)``. For linear models and a Kalman-Bucy gain this is the Riccati solution (exact).
+    """
+    closure = EdgeworthClosure(order) if closure is None else closure
+    n, mm = model.n, model.m
+    m0 = np.asarray(m0, dtype=float).reshape(n)
+    P0 = V.covariance("P0", P0, n)
+    xh0 = m0 if xhat0 is None else np.asarray(xhat0, dtype=float).reshape(n)
+    st = list(model.states)
+    xh = [sp.Symbol(f"xhat_{i}") for i in range(n)]
+    Fs = sp.Matrix(n, n, lambda i, j: sp.Symbol(f"F_{i}_{j}"))
+    us = sp.Matrix(n, 1, lambda i, j: sp.Symbol(f"u_{i}"))
+    Ks = sp.Matrix(n, mm, lambda i, j: sp.Symbol(f"Kg_{i}_{j}"))
+    Ss = sp.Matrix(n, n, lambda i, j: sp.Symbol(f"S_{min(i, j)}_{max(i, j)}"))
+    G = model.sym["G"]
+    sig = sp.expand(G * sp.Matrix(model.Q.tolist()) * G.T)
+    drift = list(model.sym["f"]) + list(Fs * sp.Matrix(xh) + us + Ks * model.sym["h"])
+    diff = sp.zeros(2 * n, 2 * n)
+    diff[:n, :n] = sig
+    diff[n:, n:] = Ss  # Kg R Kgᵀ: the filter's own noise, independent of β
+    joint = PolynomialSDE.from_sympy(st + xh, drift, diff)
+    idx = monomials(2 * n, order, min_degree=1)
+    eqs = moment_equations(joint, idx)
+    R = model.R
+    memo = {}
+
+    def coeff_at(tt):
+        if memo.get("t") != tt:
+            F, u, Kg = coefficients(tt)
+            memo.update(t=tt, F=F, u=u, Kg=Kg, S=Kg @ R @ Kg.T)
+        return memo
+
+    values = {}
+    for i in range(n):
+        values[f"u_{i}"] = (lambda tt, i=i: coeff_at(tt)["u"][i])
+        for j in range(n):
+            values[f"F_{i}_{j}"] = (lambda tt, i=i, j=j: coeff_at(tt)["F"][i, j])
+            values[f"S_{min(i, j)}_{max(i, j)}"] = (lambda tt, i=i, j=j: coeff_at(tt)["S"][i, j])
+        for j in range(mm):
+            values[f"Kg_{i}_{j}"] = (lambda tt, i=i, j=j: coeff_at(tt)["Kg"][i, j])
+    cov0 = np.zeros((2 * n, 2 * n))
+    cov0[:n, :n] = P0  # x̂(t0) is known exactly
+    mu0 = gaussian_moments(np.concatenate([m0, xh0]), cov0, idx)
+    sol = propagate(eqs, mu0, np.asarray(t, dtype=float), closure=closure, values=values, rtol=1e-8, atol=1e-11)
+    mse = np.empty((sol.t.size, n))
+    for i in range(n):
+        xi, hi = _unit(2 * n, i), _unit(2 * n, n + i)
+        mse[:, i] = (sol.moment(_unit(2 * n, i, 2)) - 2 * sol.moment(tuple(a + b for a, b in zip(xi, hi)))
+                     + sol.moment(_unit(2 * n, n + i, 2)))
+    return ErrorAnalysis(sol.t, mse, sol)
+
+
+def QLF(model, dt, **kw) -> QuasilinearFilter:
+    """The quasilinear filter: statistical linearization under the Gaussian closure (003 eqs. 3-8)."""
+    f = QuasilinearFilter(model, dt, closure=GaussianClosure(), **kw)
+    f.name = "qlf"
+    return f
+
+
+def MQLF(model, dt, *, closure: Closure | None = None, **kw) -> QuasilinearFilter:
+    """The modified quasilinear filter (003 Theorem 4.1): coefficients from the method of moments
+    closed by ``closure`` (default: Edgeworth / Hermite quasi-moments of order 4, 003 eqs. 27-33)."""
+    f = QuasilinearFilter(model, dt, closure=EdgeworthClosure(4) if closure is None else closure, **kw)
+    f.name = "mqlf"
+    return f
+
+
+class DiscreteQuasilinearFilter:
+    """Discrete-time QLF/MQLF for a :class:`~nlfilter.models.DiscreteModel`: the Kalman filter of
+    the statistically linearized model ``x[k+1] ≈ a1 x + a0 − a1 m + G w``,
+    ``y ≈ b1 x + b0 − b1 m + v`` with coefficients from the prior moments of ``x[k]`` (discrete
+    moment equations + closure). Gains off-line; step convention ``start="update"`` (``ys[k]``
+    measures ``x[k]``, ``x[0] ~ (m0, P0)``).
+
+    >>> import sympy as sp; from nlfilter import DiscreteModel
+    >>> x = sp.Symbol("x")
+    >>> est = DiscreteQuasilinearFilter(DiscreteModel([x], [0.5 * x], [x], Q=1.0, R=1.0)).run(
+    ...     np.array([[[1.0], [0.0]]]), [0.0], [[1.0]])
+    >>> est.means[0, :, 0].round(6).tolist()       # Kalman filter: 0.5, then 0.25 / 2.125
+    [0.5, 0.117647]
+    """
+
+    name = "qlf"
+
+    def __init__(self, model, *, closure: Closure | None = None, order: int | None = None):
+        if getattr(model, "kind", None) != "discrete":
+            raise TypeError(f"model: DiscreteQuasilinearFilter expects a DiscreteModel, got {type(model).__name__}")
+        self.model = model
+        self.closure = GaussianClosure() if closure is None else closure
+        self.lin = _Linearizer(model, self.closure, order, "discrete")
+
+    def offline(self, m0, P0, steps: int):
+        """Gains ``K (T, n, m)``, coefficients and P on k = 0..T−1 (update then predict)."""
+        md, n = self.model, self.model.n
+        mu = self.lin.init(m0, P0)
+        P = P0.copy()
+        rows = []
+        for k in range(steps):
+            mean, Kc, a0, a1, b0, b1, sig = self.lin.coeffs(mu, k)
+            S = b1 @ P @ b1.T + md.R
+            Kg = P @ b1.T @ np.linalg.inv(S)
+            IKH = np.eye(n) - Kg @ b1
+            Pu = symmetrize(IKH @ P @ IKH.T + Kg @ md.R @ Kg.T)  # Joseph form
+            rows.append((mean, a0, a1, b0, b1, Kg, Pu))
+            P = symmetrize(a1 @ Pu @ a1.T + sig)
+            mu = self.lin.step(mu, k)
+            if not np.all(np.isfinite(mu)):
+                raise ClosureDivergedError(f"{self.name}: prior moments blew up at k = {k + 1}", time=k + 1)
+        return rows
+
+    def run(self, ys, m0, P0, *, on_divergence: str = "raise") -> Estimates:
+        md = self.model
+        m0v = V.as_float_array("m0", m0).reshape(-1)
+        P0v = V.covariance("P0", P0, md.n)
+        ys, state, batch = _prepare("ys", ys, m0v, P0v, md.n, md.m)
+        T = ys.shape[-2]
+        rows = self.offline(m0v, P0v, T)
+        out = _Runner(batch, T, md.n, on_divergence, self.name)
+        init = GaussianState(state.mean.copy(), state.cov.copy())
+        x = state.mean
+        ein = lambda A, v: np.einsum("ij,...j->...i", A, v)  # noqa: E731
+        for k in range(T):
+            mean, a0, a1, b0, b1, Kg, Pu = rows[k]
+            if k > 0:
+                pm, pa0, pa1 = rows[k - 1][0], rows[k - 1][1], rows[k - 1][2]
+                x = ein(pa1, x) + pa0 - pa1 @ pm
+            y = ys[..., k, :]
+            if np.isnan(y).any():
+                raise ValueError("ys: missing measurements are not supported by the quasilinear filters")
+            x = x + ein(Kg, y - ein(b1, x) - b0 + b1 @ mean)
+            st = out.record(k, GaussianState(x, np.broadcast_to(Pu, (*batch, md.n, md.n)).copy()), init)
+            x = st.mean
+        return out.result()

@@ -1,0 +1,559 @@
+"""The Itô generator on monomials: linear moment equations, closed-set detection.
+
+Continuous time (seed 003 eq. 11, seed 001 eqs. 2.36, 3.8-3.9). For the Itô SDE
+``dx = f(x, t) dt + G dβ``, ``E dβ dβᵀ = Q dt`` with polynomial ``f`` and ``σ = G Q Gᵀ``, every
+monomial ``x^γ`` obeys::
+
+    d E[x^γ]/dt = E[ Σ_s f_s ∂_s x^γ + ½ Σ_{s,h} σ_sh ∂_s ∂_h x^γ ]          (003 eq. 11)
+
+The right side is again a polynomial, so for a chosen set of monomials ``μ = (E[x^γ])_{γ∈S}``::
+
+    dμ/dt = A(t) μ + B(t) ν + c(t)
+
+where ``ν`` are the moments of the monomials the generator reaches outside ``S`` (``missing``)
+and ``c`` collects the constant monomial (``E[1] = 1``) unless ``(0,…,0)`` is in ``S``.
+``ν`` is empty exactly when ``S`` is *closed* (bilinear systems with S = all monomials of one
+degree, a linear SDE with S = all monomials up to a degree …); then the moments are exact.
+Otherwise a closure (:mod:`nlfilter.moments.closures`) gives ``ν`` from ``μ``.
+
+Discrete time: ``x[k+1] = f(x[k]) + G(x[k]) w[k]`` with ``w`` independent of ``x`` and known
+moments gives ``μ[k+1] = A μ[k] + B ν[k] + c`` from ``E[x_{k+1}^γ] = E[(f + G w)^γ]``
+(:func:`discrete_moment_equations`).
+
+Front doors
+-----------
+* :class:`PolynomialSDE` — drift and diffusion ``σ = GQGᵀ`` as :class:`~nlfilter.polynomials.Polynomial`
+  objects (``from_model(SDEModel)``, ``from_sympy(states, f, sigma)`` or direct dicts), for any
+  augmented state (e.g. (state, linear estimate) of seed 001);
+* :func:`moment_equations` — sparse ``(A, B, c)`` and the list of missing monomials;
+* :func:`closed_hull` / :func:`is_closed` — the smallest closed set containing given monomials;
+* :class:`PolynomialMap` and :func:`discrete_moment_equations` — the discrete counterpart.
+
+Coefficients may depend on time or on other symbols (e.g. tabulated gains): the matrices are then
+stored as ``Σ_j g_j(t, symbols) (A_j, B_j, c_j)`` and evaluated with :meth:`MomentEquations.at`.
+
+Example: Ornstein-Uhlenbeck ``dx = -x dt + dβ`` (Q = 2): d E[x²]/dt = -2 E[x²] + 2.
+
+>>> import sympy as sp
+>>> x = sp.Symbol("x")
+>>> sde = PolynomialSDE.from_sympy([x], f=[-x], sigma=[[2]])
+>>> eq = moment_equations(sde, [(1,), (2,)])
+>>> eq.A.toarray().tolist(), eq.c.tolist(), eq.closed
+([[-1.0, 0.0], [0.0, -2.0]], [0.0, 2.0], True)
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Callable, Mapping, Sequence
+
+import numpy as np
+import scipy.sparse as sps
+import sympy as sp
+
+from ..polynomials import Polynomial, add_exp, as_polynomial, monomials
+
+__all__ = ["PolynomialSDE", "PolynomialMap", "MomentEquations", "moment_equations",
+           "discrete_moment_equations", "closed_hull", "is_closed", "generator", "gaussian_noise_moments",
+           "monomials", "degree_order"]
+
+
+def degree_order(e: tuple):
+    """Sort key: total degree, then x_1 before x_2 (the order of :func:`~nlfilter.polynomials.monomials`)."""
+    return (sum(e), tuple(-i for i in e))
+
+
+# ---------------------------------------------------------------------------------------------
+# coefficient groups: a coefficient c = Σ_j w_j g_j with numbers w_j and symbolic factors g_j
+# ---------------------------------------------------------------------------------------------
+class _Groups:
+    def __init__(self):
+        self.exprs: list = [sp.Integer(1)]
+        self.ids: dict = {sp.Integer(1): 0}
+
+    def split(self, c) -> list[tuple[int, float]]:
+        if isinstance(c, float):
+            return [(0, c)]
+        out = []
+        for term in sp.Add.make_args(sp.expand(c)):
+            w, rest = term.as_coeff_Mul()
+            if rest not in self.ids:
+                self.ids[rest] = len(self.exprs)
+                self.exprs.append(rest)
+            out.append((self.ids[rest], float(w)))
+        return out
+
+
+def _split_poly(p: Polynomial, groups: _Groups):
+    return [(e, groups.split(c)) for e, c in p.terms.items()]
+
+
+@dataclass(frozen=True)
+class PolynomialSDE:
+    """Itô SDE ``dx = f dt + G dβ`` in polynomial form: ``drift`` (n polynomials f_s) and
+    ``diffusion`` (n x n symmetric polynomials σ = G Q Gᵀ).
+
+    ``symbols``: the coefficient symbols (time first when given); ``states``: SymPy symbols of the
+    state if known (for messages and conversions). Use :meth:`from_model` for an
+    :class:`~nlfilter.models.SDEModel`, :meth:`from_sympy` for expressions, or build it from
+    :class:`Polynomial` objects / dicts for an augmented state.
+    """
+
+    drift: tuple
+    diffusion: tuple
+    time: object = None
+    states: tuple | None = None
+    symbols: tuple = field(default=())
+
+    def __post_init__(self):
+        n = len(self.drift)
+        if n == 0:
+            raise ValueError("drift: expected n >= 1 polynomials, got none")
+        drift = tuple(as_polynomial(p, n, name=f"drift[{i}]") for i, p in enumerate(self.drift))
+        if len(self.diffusion) != n or any(len(row) != n for row in self.diffusion):
+            raise ValueError(f"diffusion: expected an {n} x {n} matrix of polynomials (σ = G Q Gᵀ), "
+                             f"got {len(self.diffusion)} row(s)")
+        diff = tuple(tuple(as_polynomial(p, n, name=f"diffusion[{i}][{j}]") for j, p in enumerate(row))
+                     for i, row in enumerate(self.diffusion))
+        for i in range(n):
+            for j in range(i):
+                if diff[i][j] != diff[j][i]:
+                    raise ValueError(f"diffusion: expected a symmetric matrix, entries [{i}][{j}] and "
+                                     f"[{j}][{i}] differ")
+        object.__setattr__(self, "drift", drift)
+        object.__setattr__(self, "diffusion", diff)
+        syms = set()
+        for p in drift + tuple(q for row in diff for q in row):
+            syms |= p.symbols
+        order = ([self.time] if self.time is not None else []) + sorted(syms - {self.time}, key=str)
+        object.__setattr__(self, "symbols", tuple(order))
+
+    @property
+    def n(self) -> int:
+        return len(self.drift)
+
+    @classmethod
+    def from_sympy(cls, states, f, sigma, *, time=None) -> "PolynomialSDE":
+        """From SymPy: ``f`` (n expressions), ``sigma`` (n x n, σ = G Q Gᵀ)."""
+        states = list(states)
+        fM = sp.Matrix(f)
+        sM = sp.Matrix(sigma)
+        drift = [Polynomial.from_sympy(e, states, name=f"f[{i}]") for i, e in enumerate(fM)]
+        n = len(states)
+        if sM.shape != (n, n):
+            raise ValueError(f"sigma: expected shape ({n}, {n}), got {sM.shape}")
+        diff = [[Polynomial.from_sympy(sM[i, j], states, name=f"GQGᵀ[{i},{j}]") for j in range(n)]
+                for i in range(n)]
+        return cls(tuple(drift), tuple(map(tuple, diff)), time=time, states=tuple(states))
+
+    @classmethod
+    def from_model(cls, model) -> "PolynomialSDE":
+        """From an :class:`~nlfilter.models.SDEModel` given in SymPy (``model.sym``); raises
+        :class:`~nlfilter.errors.NotPolynomialError` naming a non-polynomial term."""
+        if getattr(model, "sym", None) is None:
+            raise TypeError("model: the moment engine needs a model stated in SymPy (model.sym), "
+                            "not one built from callables")
+        G = model.sym["G"]
+        sigma = sp.expand(G * sp.Matrix(model.Q.tolist()) * G.T)
+        return cls.from_sympy(model.states, model.sym["f"], sigma, time=model.time)
+
+    def generator(self, gamma: tuple) -> Polynomial:
+        """The polynomial ``L x^γ`` (003 eq. 11)."""
+        n = self.n
+        out = Polynomial({}, n)
+        mono = Polynomial({tuple(gamma): 1.0}, n)
+        for s in range(n):
+            if gamma[s]:
+                out = out + self.drift[s] * mono.diff(s)
+        for s in range(n):
+            for h in range(n):
+                d2 = mono.diff(s).diff(h)
+                if d2.terms:
+                    out = out + 0.5 * self.diffusion[s][h] * d2
+        return out
+
+
+def generator(sde: PolynomialSDE, gamma) -> Polynomial:
+    """``L x^γ`` as a :class:`Polynomial` (003 eq. 11)."""
+    return sde.generator(tuple(gamma))
+
+
+@dataclass(frozen=True)
+class PolynomialMap:
+    """Discrete polynomial dynamics ``x[k+1] = f(x[k]) + G(x[k]) w[k]``: ``f`` (n polynomials),
+    ``G`` (n x r polynomials), ``noise_moment(β) -> E[w^β]`` (a callable on r-multi-indices)."""
+
+    f: tuple
+    G: tuple
+    noise_moment: Callable
+    time: object = None
+    states: tuple | None = None
+
+    def __post_init__(self):
+        n = len(self.f)
+        f = tuple(as_polynomial(p, n, name=f"f[{i}]") for i, p in enumerate(self.f))
+        if len(self.G) != n:
+            raise ValueError(f"G: expected {n} rows, got {len(self.G)}")
+        r = len(self.G[0])
+        G = tuple(tuple(as_polynomial(p, n, name=f"G[{i}][{a}]") for a, p in enumerate(row)) for i, row in
+                  enumerate(self.G))
+        if any(len(row) != r for row in G):
+            raise ValueError("G: rows of different lengths")
+        if not callable(self.noise_moment):
+            raise TypeError(f"noise_moment: expected a callable β -> E[w^β], got {type(self.noise_moment).__name__}")
+        object.__setattr__(self, "f", f)
+        object.__setattr__(self, "G", G)
+
+    @property
+    def n(self) -> int:
+        return len(self.f)
+
+    @property
+    def r(self) -> int:
+        return len(self.G[0])
+
+    @classmethod
+    def from_model(cls, model, noise_moment: Callable | None = None) -> "PolynomialMap":
+        """From a :class:`~nlfilter.models.DiscreteModel` in SymPy; the noise moments default to
+        those of a zero-mean Gaussian with covariance ``model.Q``."""
+        if getattr(model, "sym", None) is None:
+            raise TypeError("model: the moment engine needs a model stated in SymPy (model.sym)")
+        st = model.states
+        f = [Polynomial.from_sympy(e, st, name=f"f[{i}]") for i, e in enumerate(model.sym["f"])]
+        GM = model.sym["G"]
+        G = [[Polynomial.from_sympy(GM[i, a], st, name=f"G[{i},{a}]") for a in range(GM.shape[1])]
+             for i in range(GM.shape[0])]
+        nm = noise_moment or gaussian_noise_moments(model.Q)
+        return cls(tuple(f), tuple(map(tuple, G)), nm, time=model.time, states=tuple(st))
+
+
+def gaussian_noise_moments(cov, mean=None) -> Callable:
+    """``β -> E[w^β]`` for ``w ~ N(mean, cov)`` (Isserlis recursion, memoized).
+
+    >>> m = gaussian_noise_moments([[2.0]])
+    >>> [m((k,)) for k in range(5)]
+    [1.0, 0.0, 2.0, 0.0, 12.0]
+    """
+    cov = np.atleast_2d(np.asarray(cov, dtype=float))
+    r = cov.shape[0]
+    mu = np.zeros(r) if mean is None else np.asarray(mean, dtype=float)
+    memo: dict = {(0,) * r: 1.0}
+
+    def mom(beta):
+        beta = tuple(beta)
+        if beta in memo:
+            return memo[beta]
+        i = next(k for k, b in enumerate(beta) if b)
+        rest = list(beta)
+        rest[i] -= 1
+        rest = tuple(rest)
+        val = mu[i] * mom(rest)
+        for j in range(r):
+            if rest[j]:
+                low = list(rest)
+                low[j] -= 1
+                val += cov[i, j] * rest[j] * mom(tuple(low))
+        memo[beta] = float(val)
+        return memo[beta]
+
+    return mom
+
+
+def matvec(M, v) -> np.ndarray:
+    """``M @ v`` over the last axis of a batch ``v (..., K)`` (M sparse or dense)."""
+    v = np.asarray(v)
+    flat = v.reshape(-1, v.shape[-1])
+    return np.asarray((M @ flat.T).T).reshape(*v.shape[:-1], M.shape[0])
+
+
+class MomentEquations:
+    """Linear moment equations ``dμ/dt = A μ + B ν + c`` (continuous) or ``μ⁺ = A μ + B ν + c``
+    (discrete) over the kept monomials ``indices`` with the ``missing`` monomials ``ν``.
+
+    Attributes: ``indices`` (list of γ), ``missing`` (list of γ), ``index`` / ``missing_index``
+    (γ -> position), ``kind`` ("continuous"/"discrete"), ``symbols`` (coefficient symbols),
+    ``closed`` (no missing moments). ``A``, ``B`` (scipy.sparse CSR), ``c`` (ndarray) when the
+    coefficients are constant; otherwise :meth:`at`.
+    """
+
+    def __init__(self, indices, missing, groups, exprs, symbols, kind):
+        self.indices = list(indices)
+        self.missing = list(missing)
+        self.index = {g: i for i, g in enumerate(self.indices)}
+        self.missing_index = {g: i for i, g in enumerate(self.missing)}
+        self.kind = kind
+        self.symbols = tuple(symbols)
+        self._groups = groups  # list of (A_j, B_j, c_j)
+        self._exprs = exprs
+        self._fns = [None if e == 1 else sp.lambdify(self.symbols, e, modules="numpy") for e in exprs]
+
+    @property
+    def closed(self) -> bool:
+        return not self.missing
+
+    @property
+    def constant(self) -> bool:
+        return len(self._groups) == 1
+
+    def _const(self, k):
+        if not self.constant:
+            raise ValueError(f"moment equations: coefficients depend on {[str(s) for s in self.symbols]}; "
+                             "use .at(t, values) to evaluate A, B, c")
+        return self._groups[0][k]
+
+    @property
+    def A(self):
+        return self._const(0)
+
+    @property
+    def B(self):
+        return self._const(1)
+
+    @property
+    def c(self):
+        return self._const(2)
+
+    def at(self, t=None, values: Mapping | None = None):
+        """``(A, B, c)`` at time ``t`` with the other coefficient symbols set by ``values``
+        ({symbol or name: number or callable of t})."""
+        if self.constant:
+            return self._groups[0]
+        vals = self._values(t, values)
+        A, B, c = (g.copy() for g in self._groups[0])
+        for fn, (Aj, Bj, cj) in zip(self._fns[1:], self._groups[1:]):
+            w = float(fn(*vals))
+            A = A + w * Aj
+            B = B + w * Bj
+            c = c + w * cj
+        return A, B, c
+
+    def _values(self, t, values):
+        values = dict(values or {})
+        byname = {str(k): v for k, v in values.items()}
+        out = []
+        for i, s in enumerate(self.symbols):
+            if str(s) in byname:
+                v = byname[str(s)]
+            elif i == 0 and t is not None and self._has_time:
+                v = t
+            else:
+                raise ValueError(f"values: coefficient symbol {s} needs a value (given {sorted(byname)})")
+            out.append(v(t) if callable(v) else v)
+        return out
+
+    _has_time = False
+
+    def rhs(self, mu, nu=None, t=None, values=None):
+        """``A μ + B ν + c`` for a batch ``mu (..., K)``, ``nu (..., M)``."""
+        A, B, c = self.at(t, values)
+        out = matvec(A, mu) + c
+        if self.missing:
+            if nu is None:
+                raise ValueError(f"nu: the system is not closed; expected the {len(self.missing)} missing "
+                                 "moments (use a closure)")
+            out = out + matvec(B, nu)
+        return out
+
+    def __repr__(self):
+        return (f"MomentEquations({self.kind}, {len(self.indices)} moments, {len(self.missing)} missing, "
+                f"{len(self._groups)} coefficient group(s))")
+
+
+def _assemble(indices, rows_terms, groups: _Groups, symbols, kind, time):
+    """rows_terms: per kept index, dict {(exponent, group id): weight}."""
+    index = {g: i for i, g in enumerate(indices)}
+    n = len(indices[0])
+    zero = (0,) * n
+    missing = set()
+    for terms in rows_terms:
+        for (e, _), _w in terms.items():
+            if e not in index and e != zero:
+                missing.add(e)
+    missing = sorted(missing, key=degree_order)
+    mindex = {g: i for i, g in enumerate(missing)}
+    ng = len(groups.exprs)
+    data = [([], [], [], [], [], [], np.zeros(len(indices))) for _ in range(ng)]
+    for r, terms in enumerate(rows_terms):
+        for (e, gid), w in terms.items():
+            if w == 0.0:
+                continue
+            ar, ac, ad, br, bc, bd, c = data[gid]
+            if e in index:
+                ar.append(r), ac.append(index[e]), ad.append(w)
+            elif e == zero:
+                c[r] += w
+            else:
+                br.append(r), bc.append(mindex[e]), bd.append(w)
+    K, M = len(indices), len(missing)
+    mats = []
+    for ar, ac, ad, br, bc, bd, c in data:
+        A = sps.csr_matrix((ad, (ar, ac)), shape=(K, K))
+        B = sps.csr_matrix((bd, (br, bc)), shape=(K, M))
+        mats.append((A, B, c))
+    eq = MomentEquations(indices, missing, mats, groups.exprs, symbols, kind)
+    eq._has_time = time is not None and len(symbols) > 0 and symbols[0] == time
+    return eq
+
+
+def _check_indices(indices, n):
+    idx = []
+    seen = set()
+    for g in indices:
+        g = tuple(int(i) for i in g)
+        if len(g) != n or min(g) < 0:
+            raise ValueError(f"indices: {g} is not a multi-index of length {n} with non-negative entries")
+        if g in seen:
+            raise ValueError(f"indices: {g} appears twice")
+        seen.add(g)
+        idx.append(g)
+    if not idx:
+        raise ValueError("indices: expected at least one monomial, got none")
+    return idx
+
+
+def moment_equations(sde, indices: Sequence[tuple]) -> MomentEquations:
+    """The moment equations ``dμ/dt = A μ + B ν + c`` for the monomials ``indices``
+    (003 eq. 11; 001 eqs. 3.8-3.9).
+
+    Parameters
+    ----------
+    sde : :class:`PolynomialSDE` or :class:`~nlfilter.models.SDEModel` (stated in SymPy)
+    indices : sequence of multi-indices γ (tuples of length n); e.g. ``monomials(n, N, min_degree=1)``
+
+    Returns
+    -------
+    :class:`MomentEquations` with sparse ``A (K, K)``, ``B (K, M)``, ``c (K,)`` and ``missing``.
+    """
+    if not isinstance(sde, PolynomialSDE):
+        if getattr(sde, "kind", None) == "sde":
+            sde = PolynomialSDE.from_model(sde)
+        else:
+            raise TypeError(f"sde: expected a PolynomialSDE or an SDEModel, got {type(sde).__name__}")
+    n = sde.n
+    indices = _check_indices(indices, n)
+    groups = _Groups()
+    drift = [_split_poly(p, groups) for p in sde.drift]
+    diff = [[_split_poly(p, groups) for p in row] for row in sde.diffusion]
+    rows = []
+    for g in indices:
+        terms: dict = {}
+        for s in range(n):
+            gs = g[s]
+            if not gs:
+                continue
+            base = list(g)
+            base[s] -= 1
+            for e, parts in drift[s]:  # 003 eq. 11, first sum: γ_s f_s x^(γ - e_s)
+                ee = add_exp(e, base)
+                for gid, w in parts:
+                    terms[(ee, gid)] = terms.get((ee, gid), 0.0) + gs * w
+        for s in range(n):
+            for h in range(s, n):
+                if s == h:
+                    k = g[s] * (g[s] - 1) * 0.5  # 003 eq. 11, second sum: ½ γ_s(γ_s-1) σ_ss
+                    if not k:
+                        continue
+                    base = list(g)
+                    base[s] -= 2
+                else:
+                    k = g[s] * g[h]  # third sum: γ_s γ_h σ_sh (s < h, σ symmetric)
+                    if not k:
+                        continue
+                    base = list(g)
+                    base[s] -= 1
+                    base[h] -= 1
+                for e, parts in diff[s][h]:
+                    ee = add_exp(e, base)
+                    for gid, w in parts:
+                        terms[(ee, gid)] = terms.get((ee, gid), 0.0) + k * w
+        rows.append(terms)
+    symbols = _symbols_for(sde.time, groups)
+    return _assemble(indices, rows, groups, symbols, "continuous", sde.time)
+
+
+def _symbols_for(time, groups: _Groups):
+    syms = set()
+    for e in groups.exprs:
+        syms |= sp.sympify(e).free_symbols
+    rest = sorted(syms - {time}, key=str)
+    return tuple(([time] if time is not None and time in syms else []) + rest) if syms else ()
+
+
+def discrete_moment_equations(pmap: PolynomialMap, indices: Sequence[tuple]) -> MomentEquations:
+    """``μ[k+1] = A μ[k] + B ν[k] + c`` from ``E[x_{k+1}^γ] = E[(f(x) + G(x) w)^γ]`` with the
+    noise moments of ``pmap`` (w independent of x). Accepts a :class:`PolynomialMap` or a
+    :class:`~nlfilter.models.DiscreteModel` (Gaussian noise)."""
+    if not isinstance(pmap, PolynomialMap):
+        if getattr(pmap, "kind", None) == "discrete":
+            pmap = PolynomialMap.from_model(pmap)
+        else:
+            raise TypeError(f"pmap: expected a PolynomialMap or a DiscreteModel, got {type(pmap).__name__}")
+    n, r = pmap.n, pmap.r
+    indices = _check_indices(indices, n)
+    N = n + r
+    lift = lambda p: Polynomial({e + (0,) * r: c for e, c in p.terms.items()}, N)  # noqa: E731
+    comps = []
+    for i in range(n):
+        p = lift(pmap.f[i])
+        for a in range(r):
+            p = p + lift(pmap.G[i][a]) * Polynomial.variable(n + a, N)
+        comps.append(p)
+    powers = [{0: Polynomial.constant(1.0, N)} for _ in range(n)]
+
+    def power(i, k):
+        if k not in powers[i]:
+            powers[i][k] = power(i, k - 1) * comps[i]
+        return powers[i][k]
+
+    groups = _Groups()
+    rows = []
+    for g in indices:
+        prod = Polynomial.constant(1.0, N)
+        for i in range(n):
+            if g[i]:
+                prod = prod * power(i, g[i])
+        terms: dict = {}
+        for e, c in prod.terms.items():
+            wm = pmap.noise_moment(e[n:]) if any(e[n:]) else 1.0
+            if wm == 0:
+                continue
+            for gid, w in groups.split(c):
+                key = (e[:n], gid)
+                terms[key] = terms.get(key, 0.0) + w * wm
+        rows.append(terms)
+    symbols = _symbols_for(pmap.time, groups)
+    return _assemble(indices, rows, groups, symbols, "discrete", pmap.time)
+
+
+def closed_hull(sde, start: Sequence[tuple], *, max_size: int = 20000) -> list[tuple]:
+    """The smallest set of monomials containing ``start`` and closed under the generator
+    (the constant monomial is not added: it enters through ``c``). Raises ``ValueError`` when the
+    set grows past ``max_size`` (the hierarchy does not close, e.g. a cubic drift).
+
+    >>> import sympy as sp
+    >>> x, y = sp.symbols("x y")
+    >>> sde = PolynomialSDE.from_sympy([x, y], f=[-x, x - y], sigma=[[1, 0], [0, 0]])
+    >>> closed_hull(sde, [(1, 1)])
+    [(2, 0), (1, 1)]
+    """
+    if not isinstance(sde, PolynomialSDE):
+        sde = PolynomialSDE.from_model(sde)
+    n = sde.n
+    todo = list(_check_indices(start, n))
+    seen = set(todo)
+    zero = (0,) * n
+    while todo:
+        g = todo.pop()
+        for e in sde.generator(g).terms:
+            if e != zero and e not in seen:
+                seen.add(e)
+                todo.append(e)
+                if len(seen) > max_size:
+                    raise ValueError(f"start: the moment hierarchy from {list(start)[:3]} does not close "
+                                     f"within max_size={max_size} monomials (reached degree {sum(e)})")
+    return sorted(seen, key=degree_order)
+
+
+def is_closed(sde, indices: Sequence[tuple]) -> bool:
+    """True when the generator maps span{x^γ : γ ∈ indices} ∪ {1} into itself."""
+    return moment_equations(sde, indices).closed

@@ -1,0 +1,115 @@
+"""Sample paths of a model: true states and measurements for many trajectories at once.
+
+Every filter in a comparison is run on the same :class:`Simulation`, so they all see identical
+noise (common random numbers). The noises of all paths are drawn from one seeded
+``numpy.random.Generator`` in a fixed order (initial states, then process noise, then
+measurement noise), so a run is reproducible from its seed.
+
+* Discrete models: ``xs[..., k, :]`` is the state measured by ``ys[..., k, :]``; the step
+  convention (``start``) is that of :mod:`nlfilter.filters.base`.
+* SDE models (Euler–Maruyama, strong order 1/2, weak order 1, with ``substeps`` steps per
+  measurement step ``dt``): ``ys[..., k, :]`` is the increment ``dy`` over ``[t_k, t_{k+1}]``
+  and ``xs[..., k, :]`` the state at ``t_{k+1}``, which is what a continuous filter estimates
+  after that increment.
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import numpy as np
+
+from . import _validate as V
+from .noise import Gaussian, NoiseLaw
+
+
+class Simulation(NamedTuple):
+    """``xs (paths, T, n)``, ``ys (paths, T, m)`` (increments ``dy`` for SDEs), ``x0 (paths, n)``,
+    ``t (T,)`` the times (step indices for discrete models) of ``xs``."""
+
+    xs: np.ndarray
+    ys: np.ndarray
+    x0: np.ndarray
+    t: np.ndarray
+
+
+def initial_states(n, paths, rng, *, m0=None, P0=None, x0=None, initial: NoiseLaw | None = None):
+    """``(paths, n)`` initial states: given ``x0``, drawn from the law ``initial``, or N(m0, P0)."""
+    if x0 is not None:
+        x0 = V.as_float_array("x0", x0, shape_tail=(n,))
+        return np.broadcast_to(x0, (paths, n)).copy()
+    if initial is not None:
+        if not isinstance(initial, NoiseLaw) or initial.dim != n:
+            raise TypeError(f"initial: expected a noise law of dimension {n}, got {initial!r}")
+        return initial.sample(rng, (paths,))
+    if m0 is None or P0 is None:
+        raise ValueError("m0/P0: expected the prior mean and covariance (or x0, or initial), got None")
+    m0 = V.as_float_array("m0", m0, shape_tail=(n,)) if np.ndim(m0) else np.full(n, float(m0))
+    return m0 + Gaussian(V.covariance("P0", P0, n)).sample(rng, (paths,))
+
+
+def simulate(model, steps: int, *, paths: int = 1, rng=None, m0=None, P0=None, x0=None,
+             initial: NoiseLaw | None = None, start: str = "update", dt: float | None = None,
+             substeps: int = 10, t0: float = 0.0) -> Simulation:
+    """Simulate ``paths`` trajectories of ``steps`` measurement steps.
+
+    Parameters
+    ----------
+    model : DiscreteModel or SDEModel
+    steps : number of measurements T
+    paths : number of independent trajectories (the leading axis of every output)
+    rng : ``numpy.random.Generator`` or seed
+    m0, P0 / x0 / initial : the initial state: drawn from N(m0, P0), fixed ``x0``, or drawn from
+        the noise law ``initial`` (a non-Gaussian prior)
+    start : discrete models only, ``"update"`` or ``"predict"`` (see :mod:`nlfilter.filters.base`)
+    dt, substeps, t0 : SDE models only: measurement step, Euler–Maruyama steps per measurement
+        step, initial time
+
+    >>> import sympy as sp; from nlfilter import SDEModel
+    >>> x = sp.Symbol("x")
+    >>> sim = simulate(SDEModel([x], [-x], [x], Q=1.0, R=1.0), 5, paths=3, rng=0, m0=0.0, P0=1.0, dt=0.1)
+    >>> sim.xs.shape, sim.ys.shape, sim.t.round(2).tolist()
+    ((3, 5, 1), (3, 5, 1), [0.1, 0.2, 0.3, 0.4, 0.5])
+    """
+    V.positive("steps", steps, integer=True)
+    V.positive("paths", paths, integer=True)
+    rng = V.rng(rng)
+    n, m = model.n, model.m
+    x = initial_states(n, paths, rng, m0=m0, P0=P0, x0=x0, initial=initial)
+    x_init = x.copy()
+    xs = np.empty((paths, steps, n))
+    ys = np.empty((paths, steps, m))
+    if model.kind == "discrete":
+        if dt is not None:
+            raise ValueError(f"dt: a DiscreteModel has no time step; expected None, got {dt!r}")
+        offset = 1 if V.choice("start", start, {"update", "predict"}) == "predict" else 0
+        w = model.process_noise.sample(rng, (paths, steps))
+        v = model.measurement_noise.sample(rng, (paths, steps))
+        for k in range(steps):
+            if k > 0 or offset:
+                j = k + offset - 1
+                x = model.f(x, j) + model.Gw(x, w[:, k], j)
+            xs[:, k] = x
+            ys[:, k] = model.h(x, k + offset) + v[:, k]
+        return Simulation(xs, ys, x_init, np.arange(steps) + offset)
+    if model.kind != "sde":
+        raise TypeError(f"model: expected a DiscreteModel or SDEModel, got {type(model).__name__}")
+    if dt is None:
+        raise ValueError("dt: expected the measurement step of the SDE, got None")
+    dt = float(V.positive("dt", dt))
+    V.positive("substeps", substeps, integer=True)
+    h = dt / substeps
+    sq_h = np.sqrt(h)
+    LQ = model.process_noise._sqrt
+    LR = model.measurement_noise._sqrt
+    for k in range(steps):
+        tk = t0 + k * dt
+        ydt = np.zeros((paths, m))
+        dB = rng.standard_normal((substeps, paths, model.r)) @ LQ.T * sq_h
+        for j in range(substeps):
+            s = tk + j * h
+            ydt += model.h(x, s) * h  # ∫ h dt, left point
+            x = x + model.f(x, s) * h + model.Gw(x, dB[j], s)
+        xs[:, k] = x
+        ys[:, k] = ydt + rng.standard_normal((paths, m)) @ LR.T * np.sqrt(dt)
+    return Simulation(xs, ys, x_init, t0 + dt * np.arange(1, steps + 1))

@@ -1,0 +1,35 @@
+"""phase-tracking experiment (seed 001 Figs. 4.3-4.4, Table 4.1): quick path."""
+
+import numpy as np
+import pytest
+
+from nlfilter.experiments import get
+
+
+@pytest.fixture(scope="module")
+def quick():
+    return get("phase-tracking").run({"P": [0.3]}, quick=True, runs=4, seed=3)
+
+
+def test_fig_4_3_peak(quick):
+    """Off-line (deterministic): 9.2 % at P = 0.129 to the printed digit; the exact maximum of the
+    curve is 9.18 % at P ≈ 0.118 (the thesis reports the maximum 'at' 0.129, its sampled grid)."""
+    assert abs(quick.get("tensor", "reduction_x1", P=0.129).value - 9.2) < 0.05
+    assert abs(quick.get("tensor", "peak_reduction_x1").value - 9.2) < 0.05
+    assert 0.10 < quick.get("tensor", "peak_P").value < 0.14
+    assert quick.get("tensor", "reduction_x1", P=0.3).paper is None  # --param P adds rows
+
+
+def test_table_4_1_within_monte_carlo_error(quick):
+    """Short runs (quick): each Table 4.1 cell within 3 standard errors (across runs) of the paper."""
+    for f in ("pll", "lqf", "tensor"):
+        for qty in ("mse_theta", "one_minus_cos"):
+            row = quick.get(f, qty, P=0.129)
+            assert abs(row.value - row.paper) < 3 * row.stderr, row
+    assert quick.get("optimal", "mse_x1", P=0.129).value < quick.get("lqf", "mse_x1", P=0.129).value
+
+
+def test_series_for_figures(quick):
+    assert {"Fig. 4.3: MSE reduction of x1 = sin θ", "Fig. 4.4: post-processor α, β"} <= set(quick.series)
+    red = np.asarray(quick.series["Fig. 4.3: MSE reduction of x1 = sin θ"]["lines"]["cubic post-processor"])
+    assert np.all(red > -1e-9) and red.max() < 9.3

@@ -1,0 +1,44 @@
+import json
+import subprocess
+import sys
+
+from nlfilter import cli
+
+
+def test_list_names_every_experiment(capsys):
+    assert cli.main(["list"]) == 0
+    lines = capsys.readouterr().out.strip().splitlines()
+    assert any(line.startswith("linear-gaussian\t") for line in lines)
+    assert all(len(line.split("\t")) == 3 for line in lines)
+
+
+def test_reproduce_quick_writes_schema(tmp_path, capsys):
+    out = tmp_path / "out.json"
+    png = tmp_path / "fig.png"
+    assert cli.main(["reproduce", "linear-gaussian", "--quick", "--no-progress", "--json", str(out),
+                     "--plot", str(png), "--param", "r=0.4"]) == 0
+    data = json.loads(out.read_text())
+    assert set(data) == {"experiment", "title", "source", "params", "rows"}
+    assert data["params"]["r"] == 0.4
+    rows = {(r["filter"], r["quantity"]): r for r in data["rows"]}
+    for f in ("kf", "ekf", "ukf", "grid", "particle", "riccati"):
+        assert (f, "mse") in rows
+        assert set(rows[(f, "mse")]) == {"filter", "quantity", "params", "paper", "value", "stderr"}
+    ric = rows[("riccati", "mse")]["value"]
+    kf = rows[("kf", "mse")]
+    assert abs(kf["value"] - ric) < 4 * kf["stderr"]  # KF is optimal: its MSE is the Riccati value
+    assert png.stat().st_size > 10_000
+    assert "riccati" in capsys.readouterr().out
+
+
+def _run(*args):
+    return subprocess.run([sys.executable, "-m", "nlfilter.cli", *args], capture_output=True, text=True)
+
+
+def test_errors_are_one_line_exit_2():
+    for args in (["reproduce", "no-such"], ["reproduce", "linear-gaussian", "--param", "zz=1"],
+                 ["reproduce", "linear-gaussian", "--param", "r=abc"],
+                 ["reproduce", "linear-gaussian", "--param", "noequals"], ["frobnicate"]):
+        p = _run(*args)
+        assert p.returncode == 2, args
+        assert len(p.stderr.strip().splitlines()) == 1 and "Traceback" not in p.stderr, p.stderr

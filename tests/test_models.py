@@ -1,0 +1,100 @@
+import numpy as np
+import pytest
+import scipy.stats as st
+import sympy as sp
+
+from nlfilter import DiscreteModel, Gaussian, Independent, SDEModel
+
+
+def _fd_jac(fn, x, eps=1e-6):
+    """Central finite differences of fn (..., *S) w.r.t. the last axis of x: (..., *S, n)."""
+    cols = []
+    for j in range(x.shape[-1]):
+        e = np.zeros(x.shape[-1])
+        e[j] = eps
+        cols.append((fn(x + e) - fn(x - e)) / (2 * eps))
+    return np.stack(cols, axis=-1)
+
+
+@pytest.mark.parametrize("first,second", [("f", "f_x"), ("f_x", "f_xx"), ("h", "h_x"), ("h_x", "h_xx"),
+                                          ("G", "G_x"), ("G_x", "G_xx")])
+def test_derivatives_equal_finite_differences(nonlinear3, first, second):
+    rng = np.random.default_rng(0)
+    x = rng.normal(size=(7, 3))
+    num = _fd_jac(lambda z: getattr(nonlinear3, first)(z, 0), x)
+    exact = getattr(nonlinear3, second)(x, 0)
+    assert exact.shape == num.shape
+    np.testing.assert_allclose(exact, num, atol=1e-7, rtol=1e-6)
+
+
+def test_batch_shapes_and_constant_broadcast(nonlinear3):
+    x = np.zeros((4, 5, 3))
+    assert nonlinear3.f(x).shape == (4, 5, 3)
+    assert nonlinear3.f_xx(x).shape == (4, 5, 3, 3, 3)
+    assert nonlinear3.G_xx(x).shape == (4, 5, 3, 2, 3, 3)
+    assert nonlinear3.h_xx(x).shape == (4, 5, 2, 3, 3)
+    assert not nonlinear3.is_linear and not nonlinear3.G_constant
+
+
+def test_params_and_time():
+    x, a, k = sp.symbols("x a k")
+    m = DiscreteModel([x], [a * x + k], [x], Q=1.0, R=1.0, params={a: 0.5}, time=k)
+    assert m.f(np.array([[2.0]]), 3).tolist() == [[4.0]]
+
+
+def test_linear_flag():
+    assert DiscreteModel.linear([[1.0]], [[2.0]], [[1.0]], [[1.0]]).is_linear
+
+
+@pytest.mark.parametrize("kw,match", [
+    ({"Q": [[1.0, 0.0]]}, "Q: expected a square matrix"),
+    ({"Q": [[1.0, 0.5], [0.4, 1.0]]}, "Q: expected a symmetric"),
+    ({"Q": [[1.0, 2.0], [2.0, 1.0]]}, "Q: expected a positive semi-definite"),
+    ({"R": [[-1.0]]}, "R: expected a positive semi-definite"),
+    ({"Q": np.eye(3)}, r"Q: expected shape \(2, 2\)"),
+])
+def test_bad_covariances(kw, match):
+    x, y = sp.symbols("x y")
+    args = dict(Q=np.eye(2), R=[[1.0]])
+    args.update(kw)
+    with pytest.raises(ValueError, match=match):
+        DiscreteModel([x, y], [x, y], [x], **args)
+
+
+def test_unknown_symbol_is_named():
+    x, b = sp.symbols("x b")
+    with pytest.raises(ValueError, match=r"f: uses symbol\(s\) \['b'\]"):
+        DiscreteModel([x], [b * x], [x], Q=1.0, R=1.0)
+
+
+def test_bad_states_type():
+    with pytest.raises(TypeError, match="states"):
+        DiscreteModel(["x"], [1], [1], Q=1.0, R=1.0)
+
+
+def test_from_functions_missing_derivative_named():
+    from nlfilter.filters.ekf import EKF
+    m = DiscreteModel.from_functions(1, 1, lambda x, t=0: x, lambda x, t=0: x**3, Q=[[1.0]], R=[[1.0]])
+    with pytest.raises(ValueError, match="EKF needs f_x, h_x"):
+        EKF(m)
+
+
+def test_noise_law_covariance_must_match_Q():
+    x = sp.Symbol("x")
+    with pytest.raises(ValueError, match="process_noise: its covariance"):
+        DiscreteModel([x], [x], [x], Q=1.0, R=1.0, process_noise=Independent(st.uniform(-1, 2)))
+    m = DiscreteModel([x], [x], [x], R=1.0, process_noise=Independent(st.uniform(-1, 2)))
+    assert m.Q[0, 0] == pytest.approx(1 / 3)
+
+
+def test_nonzero_mean_law_rejected():
+    x = sp.Symbol("x")
+    with pytest.raises(ValueError, match="zero-mean"):
+        DiscreteModel([x], [x], [x], R=1.0, process_noise=Independent(st.uniform(0, 1)))
+
+
+def test_sde_rejects_non_gaussian_law():
+    x = sp.Symbol("x")
+    with pytest.raises(ValueError, match="Brownian"):
+        SDEModel([x], [-x], [x], R=1.0, process_noise=Independent(st.uniform(-1, 2)))
+    assert isinstance(SDEModel([x], [-x], [x], Q=1.0, R=1.0).process_noise, Gaussian)
