@@ -106,8 +106,8 @@ def _claims(res, per_path, law_name, Ns, prefix):
 def run_first_order(params, *, quick, runs, seed, progress):
     h, wb = float(params["h"]), float(params["w_bound"])
     Ns = [int(N) for N in params["N"]]
-    T = int(params["T"]) if not quick else min(int(params["T"]), 200)
-    skip = int(params["skip"]) if not quick else min(int(params["skip"]), 50)
+    T = int(params["T"]) if not quick else min(int(params["T"]), 120)
+    skip = int(params["skip"]) if not quick else min(int(params["skip"]), 30)
     if not 0 <= skip < T:
         raise ValueError(f"skip: expected 0 <= skip < T = {T}, got {skip}")
     G = int(params["grid"]) if not quick else min(int(params["grid"]), 200)

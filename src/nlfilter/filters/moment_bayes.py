@@ -1045,8 +1045,18 @@ class ScaledNoiseZeroOrderFilter:
         u = np.minimum(b.x_max, (z + c) / (1 - self.beta * c))
         return l, np.maximum(u, l)
 
-    def estimate(self, z, moments=None):
+    def estimate(self, z, moments=None, *, chunk: int = 4096):
+        """``(x_hat, fallback)``; known moments are processed in chunks of ``chunk`` measurements
+        (memory: chunk x nodes x (N+1) floats)."""
         z = np.asarray(z, dtype=float)
+        if moments is None and z.size > chunk:
+            flat = z.reshape(-1)
+            parts = [self._estimate(flat[i:i + chunk]) for i in range(0, flat.size, chunk)]
+            return (np.concatenate([p[0] for p in parts]).reshape(z.shape),
+                    np.concatenate([p[1] for p in parts]).reshape(z.shape))
+        return self._estimate(z, moments)
+
+    def _estimate(self, z, moments=None):
         d = self.base.density(moments)
         l, u = self.interval(z)
         x = 0.5 * (l + u)[..., None] + 0.5 * (u - l)[..., None] * self._t
