@@ -98,3 +98,14 @@ def test_sde_rejects_non_gaussian_law():
     with pytest.raises(ValueError, match="Brownian"):
         SDEModel([x], [-x], [x], R=1.0, process_noise=Independent(st.uniform(-1, 2)))
     assert isinstance(SDEModel([x], [-x], [x], Q=1.0, R=1.0).process_noise, Gaussian)
+
+
+def test_generated_code_equals_sympy_on_powers_in_denominators():
+    """Small integer powers are printed as products: their precedence must survive division."""
+    x, y = sp.symbols("x y")
+    exprs = [-2 * x / (x**2 + 1) ** 2, sp.sin(x) * y**3 / (y + 2) ** 4, (x + y) ** 3 - 1 / (x * y) ** 2,
+             sp.sqrt(x) * y**-3, sp.exp(-(x**2)) * (1 + y) ** 2]
+    m = DiscreteModel([x, y], [0 * x, 0 * y], exprs, Q=np.eye(2), R=np.eye(len(exprs)))
+    pts = np.array([[0.7, 1.3], [1.9, 0.4]])
+    want = np.array([[float(e.subs({x: a, y: b})) for e in exprs] for a, b in pts])
+    np.testing.assert_allclose(m.h(pts), want, rtol=1e-13)

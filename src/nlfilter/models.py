@@ -43,11 +43,38 @@ from typing import Callable
 
 import numpy as np
 import sympy as sp
+from sympy.printing.numpy import NumPyPrinter
+from sympy.printing.precedence import precedence
 
 from . import _validate as V
 from .noise import NoiseLaw, as_law
 
 _DERIVS = ("f", "f_x", "f_xx", "h", "h_x", "h_xx", "G", "G_x", "G_xx")
+
+
+class _Printer(NumPyPrinter):
+    """NumPy code with small integer powers written as products (``x*x*x`` is several times
+    faster than ``x**3`` on arrays)."""
+
+    def _print_Pow(self, expr, rational=False):
+        if expr.exp.is_Integer and 2 <= int(expr.exp) <= 4:
+            base = self.parenthesize(expr.base, precedence(expr))
+            return "(" + "*".join([base] * int(expr.exp)) + ")"  # parenthesized: a product, not a power
+        return super()._print_Pow(expr, rational=rational)
+
+
+class _Broadcast:
+    """A constant array viewed over a batch shape, the last view kept (filters ask for the same
+    batch at every step, and ``np.broadcast_to`` costs microseconds)."""
+
+    def __init__(self, value: np.ndarray):
+        self.value = value
+        self._batch, self._view = None, None
+
+    def __call__(self, batch: tuple) -> np.ndarray:
+        if batch != self._batch:
+            self._batch, self._view = batch, np.broadcast_to(self.value, (*batch, *self.value.shape))
+        return self._view
 
 
 class _Batched:
@@ -65,16 +92,18 @@ class _Batched:
                           for e in flat)
         args = list(states) + ([time] if time is not None else [sp.Symbol("_t_unused")])
         if self._const:
-            self._value = np.array([float(e) for e in flat], dtype=float).reshape(self.shape)
+            self._value = _Broadcast(np.array([float(e) for e in flat], dtype=float).reshape(self.shape))
         else:
-            self._fn = sp.lambdify(args, flat, modules="numpy", cse=True)
+            self._fn = sp.lambdify(args, flat, modules="numpy", cse=True,
+                                   printer=_Printer({"fully_qualified_modules": False, "inline": True,
+                                                     "allow_unknown_functions": True}))
         self._n = len(states)
 
     def __call__(self, x, t=0.0):
         x = np.asarray(x, dtype=float)
         batch = x.shape[:-1]
         if self._const:
-            return np.broadcast_to(self._value, (*batch, *self.shape))
+            return self._value(batch)
         vals = self._fn(*(x[..., i] for i in range(self._n)), t)
         if len(vals) == 1 and np.shape(vals[0]) == batch:  # one entry: a reshape, no copy
             return np.asarray(vals[0], dtype=float).reshape(*batch, *self.shape)
@@ -176,7 +205,7 @@ class Model:
         self.given = set(_DERIVS)
         # structure flags, read by filters that can exploit them
         self.G_constant = all(e.free_symbols.isdisjoint(states) for e in GM)
-        self._GQG0 = (self.G(np.zeros(n)) @ self.Q @ self.G(np.zeros(n)).T
+        self._GQG0 = (_Broadcast(self.G(np.zeros(n)) @ self.Q @ self.G(np.zeros(n)).T)
                       if all(not e.free_symbols for e in GM) else None)  # fixed G Q Gᵀ, computed once
         self.is_linear = self.G_constant and all(  # f and h affine in the state
             e.is_polynomial(*states) and sp.Poly(e, *states).total_degree() <= 1 for e in list(fM) + list(hM))
@@ -211,7 +240,7 @@ class Model:
             zero2 = np.zeros((n, n, n, n))
             G_xx = G_xx or (lambda x, t=0.0: np.broadcast_to(zero2, (*np.shape(x)[:-1], n, n, n, n)))  # noqa: E731
             self.G_constant = True
-            self._GQG0 = self.Q
+            self._GQG0 = _Broadcast(self.Q)
         else:
             self._GQG0 = None
             self.G_constant = False
@@ -255,7 +284,7 @@ class Model:
     def GQGT(self, x, t=0.0) -> np.ndarray:
         """G Q Gᵀ at a batch of states, shape (..., n, n)."""
         if self._GQG0 is not None:
-            return np.broadcast_to(self._GQG0, (*np.shape(x)[:-1], self.n, self.n))
+            return self._GQG0(np.shape(x)[:-1])
         Gx = self.G(x, t)
         return np.einsum("...ia,ab,...jb->...ij", Gx, self.Q, Gx)
 
