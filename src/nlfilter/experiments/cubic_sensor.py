@@ -297,7 +297,7 @@ def _qlf_notes(res, off, q, r, row, mse_linear):
     gc = _get(res, "gaussian-closure", "excess_mse_x_mc", row)
     if gc is not None:
         res.notes.append(f"gaussian-closure (q={q:g}, r={r:g}): on-line conditional moments (Bayes update of the "
-                         f"assumed Gaussian) are {gc.value:.3g} ± {gc.stderr:.2g} above the optimal filter (paired); "
+                         f"assumed Gaussian); paired excess MSE over the optimal filter {gc.value:.3g} ± {gc.stderr:.2g}; "
                          "unlike the EKF it moves from m0 = 0 (its update uses the whole likelihood, not h'(m)).")
 
 
