@@ -8,6 +8,7 @@ each). Writes JSON (default benchmarks/bench_moments.json).
 from __future__ import annotations
 
 import argparse
+import pathlib
 import json
 import platform
 import time
@@ -28,7 +29,7 @@ def model6():
 
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__)
-    ap.add_argument("--out", default="benchmarks/bench_moments.json")
+    ap.add_argument("--out", default=str(pathlib.Path(__file__).parent / "results" / "bench_moments.json"))
     ap.add_argument("--repeat", type=int, default=3)
     a = ap.parse_args(argv)
     sde = model6()

@@ -1,6 +1,6 @@
 """Speed of the second-order filters (seed 004): paths × steps per second, batched over paths.
 
-    PYTHONPATH=src python benchmarks/bench_second_order.py [--paths 10000] [--out bench_second_order.json]
+    PYTHONPATH=src python benchmarks/bench_second_order.py [--paths 10000] [--out FILE]
 
 Cases: the falling body (n = 3, continuous dynamics with RK4 substeps, discrete range measurements)
 for every form, the scalar quadratic problem (discrete) and the state-noise SDE (continuous). The
@@ -10,6 +10,7 @@ cost of a step is O(n³ + n²·m) per path (batched einsum); no timing is assert
 from __future__ import annotations
 
 import argparse
+import pathlib
 import json
 import platform
 import time
@@ -38,7 +39,7 @@ def main(argv=None):
     ap.add_argument("--paths", type=int, default=10_000)
     ap.add_argument("--steps", type=int, default=20, help="measurement steps per run")
     ap.add_argument("--substeps", type=int, default=20, help="RK4 substeps per falling-body interval")
-    ap.add_argument("--out", default="bench_second_order.json")
+    ap.add_argument("--out", default=str(pathlib.Path(__file__).parent / "results" / "bench_second_order.json"))
     args = ap.parse_args(argv)
     rng = np.random.default_rng(0)
     rows = []
