@@ -213,7 +213,25 @@ class _Family:
         return state
 
 
-class SecondOrderFilter(_Family, DiscreteFilter):
+class _DiscreteFamily(_Family, DiscreteFilter):
+    """Discrete-time step functions shared by the discrete and continuous-discrete filters:
+    ``predict``/``update`` raise on a failed path; ``run`` uses the unchecked forms and marks."""
+
+    def predict(self, state, k):
+        return self._checked(self._predict(GaussianState(*state), k), False, "predicted covariance", k)
+
+    def update(self, state, y, k):
+        new, bad = self._update(GaussianState(*state), np.asarray(y, dtype=float), k)
+        return self._checked(new, bad, "updated (or innovation) covariance", k)
+
+    def _predict_unchecked(self, state, k):
+        return self._predict(GaussianState(*state), k), None
+
+    def _update_unchecked(self, state, y, k):
+        return self._update(GaussianState(*state), y, k)
+
+
+class SecondOrderFilter(_DiscreteFamily):
     """Second-order filter for a :class:`~nlfilter.models.DiscreteModel` (batched).
 
     ``x[k+1] = f(x[k]) + G(x[k]) v[k]``, ``y[k] = h(x[k]) + w[k]`` (004 eqs. 1-2).
@@ -258,22 +276,9 @@ class SecondOrderFilter(_Family, DiscreteFilter):
                 cov = cov + gaussian_quartic(X, f_xx)
         return GaussianState(mean, symmetrize(cov))
 
-    def predict(self, state, k):
-        state = GaussianState(*state)
-        return self._checked(self._predict(state, k), False, "predicted covariance", k)
-
-    def update(self, state, y, k):
-        new, bad = self._update(GaussianState(*state), np.asarray(y, dtype=float), k)
-        return self._checked(new, bad, "updated (or innovation) covariance", k)
-
-    def _predict_unchecked(self, state, k):
-        return self._predict(GaussianState(*state), k), None
-
-    def _update_unchecked(self, state, y, k):
-        return self._update(GaussianState(*state), y, k)
 
 
-class ContinuousDiscreteSecondOrderFilter(_Family, DiscreteFilter):
+class ContinuousDiscreteSecondOrderFilter(_DiscreteFamily):
     """Continuous dynamics, discrete measurements: the moment ODEs of 004 eqs. 35-36 without their
     measurement terms between measurements, the discrete update of 004 eqs. 20-22 at them.
 
@@ -325,20 +330,6 @@ class ContinuousDiscreteSecondOrderFilter(_Family, DiscreteFilter):
     def _update(self, state, y, k):
         return _Family._update(self, state, y, self.t0 + k * self.dt)
 
-    def predict(self, state, k):
-        """Propagate from ``t0 + k dt`` to ``t0 + (k+1) dt``."""
-        return self._checked(self._predict(state, k), False, "predicted covariance", k)
-
-    def update(self, state, y, k):
-        """Condition on ``y`` taken at ``t0 + k dt``."""
-        new, bad = self._update(GaussianState(*state), np.asarray(y, dtype=float), k)
-        return self._checked(new, bad, "updated (or innovation) covariance", k)
-
-    def _predict_unchecked(self, state, k):
-        return self._predict(GaussianState(*state), k), None
-
-    def _update_unchecked(self, state, y, k):
-        return self._update(GaussianState(*state), y, k)
 
 
 class ContinuousSecondOrderFilter(_Family, ContinuousFilter):
