@@ -159,16 +159,6 @@ class _Linearizer:
         mean, K = self.mean_cov(mu)
         if self.polynomial:
             E = self.pe(mu)
-            o = 0
-            Ef = E[..., o:o + n]
-            o += n
-            Efx = E[..., o:o + n * n].reshape(*E.shape[:-1], n, n)
-            o += n * n
-            Eh = E[..., o:o + m_]
-            o += m_
-            Ehx = E[..., o:o + m_ * n].reshape(*E.shape[:-1], m_, n)
-            o += m_ * n
-            sig = E[..., o:o + n * n].reshape(*E.shape[:-1], n, n)
         else:
             md = self.model
 
@@ -178,16 +168,11 @@ class _Linearizer:
                                        (h[..., :, None] * x[..., None, :]).reshape(*x.shape[:-1], -1),
                                        md.GQGT(x, t).reshape(*x.shape[:-1], -1)], axis=-1)
             E = expect_gaussian(fx, mean, K, nodes=self.nodes)
-            o = 0
-            Ef = E[..., :n]
-            o = n
-            Efx = E[..., o:o + n * n].reshape(*E.shape[:-1], n, n)
-            o += n * n
-            Eh = E[..., o:o + m_]
-            o += m_
-            Ehx = E[..., o:o + m_ * n].reshape(*E.shape[:-1], m_, n)
-            o += m_ * n
-            sig = E[..., o:o + n * n].reshape(*E.shape[:-1], n, n)
+        # E = [E f (n), E f xᵀ (n·n), E h (m), E h xᵀ (m·n), E G Q Gᵀ (n·n)] in that order
+        b = E.shape[:-1]
+        cuts = np.cumsum([n, n * n, m_, m_ * n])
+        Ef, Efx, Eh, Ehx, sig = np.split(E, cuts, axis=-1)
+        Efx, Ehx, sig = Efx.reshape(*b, n, n), Ehx.reshape(*b, m_, n), sig.reshape(*b, n, n)
         a0, a1 = statistical_linearization(mean, K, Ef, Efx)  # 003 eq. 4
         b0, b1 = statistical_linearization(mean, K, Eh, Ehx)  # 003 eq. 5
         return mean, K, a0, a1, b0, b1, sig
