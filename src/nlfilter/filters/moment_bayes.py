@@ -353,6 +353,28 @@ def _check_N(N):
     return int(N)
 
 
+def _configure_input(flt, w_bound, N, w_moments, adaptive, initial_w_moments, n0, window,
+                     noise_halfwidth, eps, outside):
+    """Checks and stores the options shared by the first- and second-order filters: input bound,
+    order N, known or adaptive input moments (000 eqs. 2.27-2.29), measurement half-width."""
+    flt.wb = float(V.positive("w_bound", w_bound))
+    flt.N = _check_N(N)
+    flt.c = float(V.positive("noise_halfwidth", noise_halfwidth))
+    flt.mv = uniform_moments(flt.N, -flt.c, flt.c)
+    flt.eps = float(V.positive("eps", eps, strict=False))
+    flt.outside = V.choice("outside", outside, {"raise", "clip"})
+    flt.adaptive = bool(adaptive)
+    if flt.adaptive == (w_moments is not None):
+        raise ValueError("w_moments: expected the N known input moments, or None with adaptive=True; "
+                         f"got w_moments={'None' if w_moments is None else 'an array'}, adaptive={adaptive}")
+    chk = lambda name, m: V.finite(name, V.as_float_array(name, m, shape_tail=(flt.N,)))  # noqa: E731
+    flt.w_moments = None if w_moments is None else chk("w_moments", w_moments)
+    flt.initial_w_moments = (uniform_moments(flt.N, -flt.wb, flt.wb) if initial_w_moments is None
+                             else chk("initial_w_moments", initial_w_moments))
+    flt.n0 = float(V.positive("n0", n0, strict=False))
+    flt.window = int(V.positive("window", window, integer=True))
+
+
 class FirstOrderMomentFilter:
     """Moment Bayesian filter for ``x_{k+1} = h x_k + w_k``, ``z_k = x_k + v_k`` (000 eqs. 2.4-2.5).
 
@@ -395,22 +417,8 @@ class FirstOrderMomentFilter:
         if isinstance(h, bool) or not isinstance(h, (int, float, np.floating)) or not abs(h) < 1:
             raise ValueError(f"h: expected a real number with |h| < 1 (000 eq. 2.4), got {h!r}")
         self.h = float(h)
-        self.wb = float(V.positive("w_bound", w_bound))
-        self.N = _check_N(N)
-        self.c = float(V.positive("noise_halfwidth", noise_halfwidth))
-        self.mv = uniform_moments(self.N, -self.c, self.c)
-        self.eps = float(V.positive("eps", eps, strict=False))
-        self.outside = V.choice("outside", outside, {"raise", "clip"})
-        self.adaptive = bool(adaptive)
-        if self.adaptive == (w_moments is not None):
-            raise ValueError("w_moments: expected the N known input moments, or None with adaptive=True; "
-                             f"got w_moments={'None' if w_moments is None else 'an array'}, adaptive={adaptive}")
-        chk = lambda name, m: V.finite(name, V.as_float_array(name, m, shape_tail=(self.N,)))
-        self.w_moments = None if w_moments is None else chk("w_moments", w_moments)
-        self.initial_w_moments = (uniform_moments(self.N, -self.wb, self.wb) if initial_w_moments is None
-                                  else chk("initial_w_moments", initial_w_moments))
-        self.n0 = float(V.positive("n0", n0, strict=False))
-        self.window = int(V.positive("window", window, integer=True))
+        _configure_input(self, w_bound, N, w_moments, adaptive, initial_w_moments, n0, window,
+                         noise_halfwidth, eps, outside)
         self.bound = self.wb / (1.0 - abs(self.h))  # stationary reachable set |x| <= w_b/(1-|h|)
         self.S = 1.0 / (1.0 - self.h ** np.arange(1, self.N + 1))  # sum_j h^{ij} = 1/(1 - h^i)
 
@@ -632,21 +640,8 @@ class SecondOrderMomentFilter:
         self.cv = V.as_float_array("c", c, shape_tail=(2,))
         if self.cv[1] == 0:
             raise ValueError("c: expected c[1] != 0 (swap the states otherwise)")
-        self.wb = float(V.positive("w_bound", w_bound))
-        self.N = _check_N(N)
-        self.c = float(V.positive("noise_halfwidth", noise_halfwidth))
-        self.mv = uniform_moments(self.N, -self.c, self.c)
-        self.eps = float(V.positive("eps", eps, strict=False))
-        self.outside = V.choice("outside", outside, {"raise", "clip"})
-        self.adaptive = bool(adaptive)
-        if self.adaptive == (w_moments is not None):
-            raise ValueError("w_moments: expected the N known input moments, or None with adaptive=True")
-        chk = lambda name, m: V.finite(name, V.as_float_array(name, m, shape_tail=(self.N,)))
-        self.w_moments = None if w_moments is None else chk("w_moments", w_moments)
-        self.initial_w_moments = (uniform_moments(self.N, -self.wb, self.wb) if initial_w_moments is None
-                                  else chk("initial_w_moments", initial_w_moments))
-        self.n0 = float(V.positive("n0", n0, strict=False))
-        self.window = int(V.positive("window", window, integer=True))
+        _configure_input(self, w_bound, N, w_moments, adaptive, initial_w_moments, n0, window,
+                         noise_halfwidth, eps, outside)
         # stationary bounding box and impulse response g_j = c^T A^j b
         Ab = [self.b]
         for _ in range(50000):
