@@ -27,6 +27,7 @@ the others.
 from __future__ import annotations
 
 import functools
+import math
 from typing import NamedTuple
 
 import numpy as np
@@ -109,7 +110,11 @@ def _all_ok(mean: np.ndarray, cov: np.ndarray) -> bool:
     it only screens, and :func:`bad_paths` decides)."""
     if cov.shape[-1] != 1:
         return not bad_paths(mean, cov).any()
-    return bool(cov.min() >= 0.0) and bool(np.isfinite(cov.sum() + mean.sum()))
+    # ufunc reductions and Python floats: this runs twice a step, and method calls cost here
+    return bool(_min(cov, axis=None) >= 0.0) and math.isfinite(_sum(cov, axis=None) + _sum(mean, axis=None))
+
+
+_min, _sum = np.minimum.reduce, np.add.reduce
 
 
 def gaussian_update(state: GaussianState, y: np.ndarray, y_pred: np.ndarray, S: np.ndarray,
@@ -123,8 +128,9 @@ def gaussian_update(state: GaussianState, y: np.ndarray, y_pred: np.ndarray, S: 
     construction); otherwise ``P − K S Kᵀ``, symmetrized. NaN components of ``y`` are missing.
     """
     m, P = state
-    miss = np.isnan(y)
-    if miss.any():
+    # a NaN anywhere makes the sum NaN: one reduction screens the common complete case
+    miss = np.isnan(y) if math.isnan(_sum(y, axis=None)) else None
+    if miss is not None and miss.any():
         e = np.where(miss, 0.0, y - y_pred)
         C = np.where(miss[..., None, :], 0.0, C)
         both = miss[..., :, None] | miss[..., None, :]
