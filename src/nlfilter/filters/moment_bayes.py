@@ -375,6 +375,17 @@ def _configure_input(flt, w_bound, N, w_moments, adaptive, initial_w_moments, n0
     flt.window = int(V.positive("window", window, integer=True))
 
 
+def _start_run(flt, zs):
+    """Checked ``zs (..., T)``, the batch shape, T, the input moments to start from (known, or
+    the initial guess of the adaptive estimator) over the batch, and the adaptive learner."""
+    zs = V.as_float_array("zs", zs, ndim_min=1)
+    V.finite("zs", zs)
+    batch, T = zs.shape[:-1], zs.shape[-1]
+    mw = np.broadcast_to(flt.w_moments if not flt.adaptive else flt.initial_w_moments, (*batch, flt.N))
+    learner = _AdaptiveInput(flt.N, flt.S, flt.mv, flt.initial_w_moments, flt.n0, flt.window)
+    return zs, batch, T, mw, learner
+
+
 class FirstOrderMomentFilter:
     """Moment Bayesian filter for ``x_{k+1} = h x_k + w_k``, ``z_k = x_k + v_k`` (000 eqs. 2.4-2.5).
 
@@ -470,11 +481,7 @@ class FirstOrderMomentFilter:
 
     def run(self, zs) -> MomentRun:
         """Filter a batch of measurement sequences ``zs`` (..., T)."""
-        zs = V.as_float_array("zs", zs, ndim_min=1)
-        V.finite("zs", zs)
-        batch, T = zs.shape[:-1], zs.shape[-1]
-        mw = np.broadcast_to(self.w_moments if not self.adaptive else self.initial_w_moments, (*batch, self.N))
-        learner = _AdaptiveInput(self.N, self.S, self.mv, self.initial_w_moments, self.n0, self.window)
+        zs, batch, T, mw, learner = _start_run(self, zs)
         est = np.empty((*batch, T, 1))
         lower = np.empty((*batch, T, 1))
         upper = np.empty((*batch, T, 1))
@@ -840,11 +847,7 @@ class SecondOrderMomentFilter:
 
     def run(self, zs) -> MomentRun:
         """Filter a batch of measurement sequences ``zs`` (..., T)."""
-        zs = V.as_float_array("zs", zs, ndim_min=1)
-        V.finite("zs", zs)
-        batch, T = zs.shape[:-1], zs.shape[-1]
-        mw = np.broadcast_to(self.w_moments if not self.adaptive else self.initial_w_moments, (*batch, self.N))
-        learner = _AdaptiveInput(self.N, self.S, self.mv, self.initial_w_moments, self.n0, self.window)
+        zs, batch, T, mw, learner = _start_run(self, zs)
         M, lo, hi = self.stationary(self.w_moments if not self.adaptive else self.initial_w_moments)
         M = np.broadcast_to(M, (*batch, self.N + 1, self.N + 1))
         lo = np.broadcast_to(lo, (*batch, 2))
