@@ -137,7 +137,6 @@ def test_invalid_moments_warn_and_fall_back():
 import scipy.stats as st  # noqa: E402
 
 from nlfilter.filters.moment_bayes import BoundedGridFilter1D, FirstOrderMomentFilter  # noqa: E402
-from nlfilter.moments.densities import sum_moments  # noqa: E402
 
 
 def test_first_order_with_h0_is_the_zero_order_filter():

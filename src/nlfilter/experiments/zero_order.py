@@ -143,7 +143,7 @@ def run_table1(params, *, quick, runs, seed, progress):
             res.add(name, "mse", v, paper=p, J=J)
             if p is not None and abs(v - p) > 0.5e-6 + 1e-9:
                 mismatched.append(f"J={J} {name}: ours {v:.6f} vs paper {p:.6f}"
-                                  + (f" (estimator switches to eq. 3.16 at z = "
+                                  + (" (estimator switches to eq. 3.16 at z = "
                                      + ", ".join(f"{b:.4f}" for b in bps[1:-1]) + ")" if len(bps) > 2 else ""))
         for name in ests:
             if name != "optimal":
