@@ -53,6 +53,29 @@ def test_generator_matches_sympy_ito_formula_2d():
     assert A[r, eq.index[(2, 0)]] == pytest.approx(np.cos(0.3))
 
 
+def test_at_with_symbols_equals_numbers_substituted():
+    """Symbolic coefficients: ``at(values)`` (the groups summed on their union pattern) equals the
+    equations built with the numbers substituted, for a discrete map with products of symbols."""
+    from nlfilter.polynomials import Polynomial
+    a, b, k = sp.symbols("a b k")
+    f = [a * x - b * x**3 + k * y, b * y + a * k * x * y + 1]
+    G = [[1, 0], [a, k * x]]
+    vals = {a: 0.7, b: -0.2, k: 1.3}
+
+    def eqs(sub):
+        P = lambda e: Polynomial.from_sympy(sp.sympify(e).subs(sub), [x, y])  # noqa: E731
+        pm = PolynomialMap(tuple(map(P, f)), tuple(tuple(map(P, row)) for row in G),
+                           gaussian_noise_moments([[0.5, 0.1], [0.1, 0.3]]))
+        return discrete_moment_equations(pm, monomials(2, 3, min_degree=1))
+
+    sym, num = eqs({}), eqs(vals)
+    assert not sym.constant and num.constant and sym.missing == num.missing
+    A, B, c = sym.at(values={str(s): v for s, v in vals.items()})
+    np.testing.assert_allclose(A.toarray(), num.A.toarray(), rtol=1e-12, atol=1e-12)
+    np.testing.assert_allclose(B.toarray(), num.B.toarray(), rtol=1e-12, atol=1e-12)
+    np.testing.assert_allclose(c, num.c, rtol=1e-12, atol=1e-12)
+
+
 def test_ou_all_orders_exact():
     """dx = −a x dt + s dβ: the moments up to order 6 close and equal the Gaussian moments of
     m(t) = m0 e^{−at}, P(t) = P0 e^{−2at} + s²(1 − e^{−2at})/(2a)."""

@@ -285,7 +285,11 @@ class MomentEquations:
         self.symbols = tuple(symbols)
         self._groups = groups  # list of (A_j, B_j, c_j)
         self._exprs = exprs
-        self._fns = [None if e == 1 else sp.lambdify(self.symbols, e, modules="numpy") for e in exprs]
+        if len(groups) > 1:  # A(w) = Σ_j w_j A_j on the union pattern: data = W w, one lambdified call for w
+            self._weights = sp.lambdify(self.symbols, list(exprs[1:]), modules="numpy")
+            self._A = _union([g[0] for g in groups])
+            self._B = _union([g[1] for g in groups])
+            self._C = np.stack([g[2] for g in groups], axis=-1)
 
     @property
     def closed(self) -> bool:
@@ -319,13 +323,8 @@ class MomentEquations:
         if self.constant:
             return self._groups[0]
         vals = self._values(t, values)
-        A, B, c = (g.copy() for g in self._groups[0])
-        for fn, (Aj, Bj, cj) in zip(self._fns[1:], self._groups[1:]):
-            w = float(fn(*vals))
-            A = A + w * Aj
-            B = B + w * Bj
-            c = c + w * cj
-        return A, B, c
+        w = np.array([1.0, *self._weights(*vals)], dtype=float)
+        return _union_at(self._A, w), _union_at(self._B, w), self._C @ w
 
     def _values(self, t, values):
         values = dict(values or {})
@@ -357,6 +356,24 @@ class MomentEquations:
     def __repr__(self):
         return (f"MomentEquations({self.kind}, {len(self.indices)} moments, {len(self.missing)} missing, "
                 f"{len(self._groups)} coefficient group(s))")
+
+
+def _union(mats):
+    """CSR structure of the union of the patterns of ``mats`` and the sparse map ``W`` (nnz, groups)
+    from group weights to its data: ``Σ_j w_j mats[j]`` has data ``W @ w``."""
+    shape = mats[0].shape
+    coo = [sps.coo_matrix(M) for M in mats]
+    lin = np.concatenate([c.row.astype(np.int64) * shape[1] + c.col for c in coo])
+    gid = np.concatenate([np.full(c.nnz, j) for j, c in enumerate(coo)])
+    uniq, pos = np.unique(lin, return_inverse=True)
+    W = sps.csr_matrix((np.concatenate([c.data for c in coo]), (pos, gid)), shape=(uniq.size, len(mats)))
+    rows, cols = np.divmod(uniq, shape[1])
+    return np.searchsorted(rows, np.arange(shape[0] + 1)), cols, W, shape
+
+
+def _union_at(U, w):
+    indptr, cols, W, shape = U
+    return sps.csr_matrix((W @ w, cols, indptr), shape=shape)
 
 
 def _assemble(indices, rows_terms, groups: _Groups, symbols, kind, time):
