@@ -45,12 +45,11 @@ from itertools import combinations_with_replacement
 from typing import Callable, Sequence
 
 import numpy as np
-import scipy.linalg as sla
 import scipy.sparse as sps
-import scipy.sparse.linalg as spla
 import sympy as sp
 
-from ..errors import NLFilterError, NotPolynomialError, SingularSystemError
+from ..errors import NLFilterError, NotPolynomialError
+from .solve import gaussian_scale, linear_steady_state
 
 Monomial = tuple
 Poly = dict
@@ -368,146 +367,12 @@ def conserved_functionals(ms: MomentSystem, *, tol: float = 1e-9):
     return U[:, rank:].T, Vt[rank:], rank
 
 
-def _describe(vec, labels, k=6):
-    order = np.argsort(-np.abs(vec))[:k]
-    v = vec / vec[order[0]]
-    return " + ".join(f"{v[i]:.3g}·E[{labels[i]}]" for i in order if abs(v[i]) > 1e-8)
-
-
 def steady_state(ms: MomentSystem, *, initial: Callable | dict | None = None, tol: float = 1e-9,
                  check_stable: bool = True, scale: np.ndarray | None = None) -> np.ndarray:
-    """Steady state ``μ∞`` of ``d/dt μ = A μ + b`` by a direct solve.
-
-    The moments are first rescaled, ``μ = S ν`` with ``S`` = ``scale`` (typical magnitudes, e.g.
-    Gaussian moments, see :func:`moments`) or an equilibration, so that the similar matrix
-    ``S⁻¹ A S`` has entries of comparable size: moments of high degree differ by many orders of
-    magnitude. Its eigenvalues decide: any with non-negative real part other than exact zeros ->
-    no finite steady state; ``k`` zero eigenvalues -> ``k`` conserved functionals. Nonsingular:
-    LU with row equilibration and iterative refinement in extended precision, then a residual
-    check. Singular: the conserved functionals ``ℓ_i`` (left null space) must satisfy
-    ``ℓ_iᵀ b = 0`` (else moments drift linearly) and their values are taken from ``initial``
-    (dict or callable ``monomial -> E[monomial] at t=0``); the solution is unique iff
-    ``[A; ℓᵀ]`` has full column rank.
-
-    Raises :class:`SingularSystemError` when there is no steady state or it is not unique.
-    """
-    A0 = sps.csr_matrix(ms.A)
-    b0 = np.asarray(ms.b, dtype=float)
-    N = A0.shape[0]
-    labels = ms.labels()
-    if N == 0:
-        return np.zeros(0)
-    if scale is None:
-        _, s = _equilibrate(A0)
-    else:
-        s = np.asarray(scale, dtype=float)
-    As = sps.csr_matrix(sps.diags(1.0 / s) @ A0 @ sps.diags(s))  # similar to A
-    bs = b0 / s
-    rmax = abs(As).max(axis=1).toarray().ravel()
-    dr = 1.0 / np.where(rmax > 0, rmax, 1.0)
-    Ar = sps.csr_matrix(sps.diags(dr) @ As)
-    br = dr * bs
-    dense = N <= 3000
-    k0 = 0
-    if dense:
-        Ad = As.toarray()
-        ev = np.linalg.eigvals(Ad)
-        escale = max(float(np.max(np.abs(ev))), 1e-300)
-        zero = np.abs(ev) <= 1e-8 * escale
-        k0 = int(zero.sum())
-        if check_stable and np.any(ev.real[~zero] > -tol * escale):
-            raise SingularSystemError(
-                f"steady_state: the moments grow without bound (eigenvalue {ev.real[~zero].max():.3g} "
-                "of the moment matrix has non-negative real part): no finite steady state")
-        Ard = Ar.toarray()
-    if k0 == 0:
-        try:
-            if dense:
-                lu = sla.lu_factor(Ard)
-                solve = lambda r: sla.lu_solve(lu, r)  # noqa: E731
-            else:
-                slu = spla.splu(sps.csc_matrix(Ar))
-                solve = slu.solve
-        except (RuntimeError, np.linalg.LinAlgError, ValueError):
-            raise SingularSystemError("steady_state: the moment matrix is singular") from None
-        nu = solve(-br)
-        Al, bl = (Ard if dense else Ar.toarray()).astype(np.longdouble), br.astype(np.longdouble)
-        for _ in range(2):  # iterative refinement, residual in extended precision
-            r = -bl - Al @ nu.astype(np.longdouble)
-            nu = nu + solve(np.asarray(r, dtype=float))
-        res = float(np.linalg.norm(np.asarray(-bl - Al @ nu.astype(np.longdouble), float))) / max(np.linalg.norm(br), 1e-300)
-        if not np.all(np.isfinite(nu)) or res > 1e-8:
-            raise SingularSystemError(f"steady_state: direct solve inaccurate (relative residual {res:.2g})")
-        return s * nu
-    U, sv, Vt = np.linalg.svd(Ard)
-    Lr = U[:, N - k0:].T  # left null space of Dr S⁻¹ A S
-    W = Lr * dr            # conserved functionals of ν = S⁻¹ μ
-    rank = N - k0
-    drift = Lr @ br
-    if np.max(np.abs(drift), initial=0.0) > 1e-8 * max(1.0, np.max(np.abs(br))):
-        i = int(np.argmax(np.abs(drift)))
-        raise SingularSystemError(
-            f"steady_state: no steady state; the combination {_describe(W[i] / s, labels)} grows "
-            f"linearly in time (rate {drift[i]:.3g})")
-    if initial is None:
-        desc = "; ".join(_describe(w / s, labels) for w in W[:4])
-        raise SingularSystemError(
-            f"steady_state: the moment system is singular (rank {rank} of {N}): the dynamics "
-            f"conserve {k0} combination(s) of moments, e.g. {desc}; the steady state depends "
-            "on their initial values: pass initial=<callable or dict monomial -> E[monomial] at t=0> "
-            "(or impose the invariants of the state space)")
-    get = initial if callable(initial) else (lambda m: initial[m])
-    support = np.max(np.abs(W), axis=0) > 1e-12 * np.max(np.abs(W))  # moments the laws involve
-    nu0 = np.array([float(get(m)) if s_ else 0.0 for m, s_ in zip(ms.monomials, support)]) / s
-    M = np.vstack([Ard, Lr * dr])
-    rhs = np.concatenate([-br, W @ nu0])
-    sol, _, rk, svm = np.linalg.lstsq(M, rhs, rcond=None)
-    if rk < N or svm[-1] <= 1e-12 * svm[0]:
-        raise SingularSystemError(
-            f"steady_state: not unique even with the {k0} conservation law(s) imposed "
-            f"(rank {rk} of {N}): the zero eigenvalue of the moment matrix is not semisimple")
-    res = np.linalg.norm(M @ sol - rhs) / max(np.linalg.norm(rhs), 1e-300)
-    if res > 1e-8:
-        raise SingularSystemError(f"steady_state: inconsistent conservation laws (residual {res:.2g})")
-    return s * sol
-
-
-def gaussian_scale(monomials, sigma) -> np.ndarray:
-    """Typical magnitudes of monomial moments: ``Π_v √((2α_v − 1)!!) σ_v^{α_v}`` (the root of
-    ``E[m²]`` for independent centred Gaussians of standard deviations ``σ``)."""
-    sig = np.asarray(sigma, dtype=float)
-    out = np.empty(len(monomials))
-    for k, m in enumerate(monomials):
-        v = 1.0
-        for a, sv in zip(m, sig):
-            if a:
-                v *= np.sqrt(float(np.prod(np.arange(2 * a - 1, 0, -2, dtype=float)))) * sv ** a
-        out[k] = v
-    return out
-
-
-def _equilibrate(A, passes: int = 6):
-    """Row and column scalings (powers of two) giving ``Dr A Dc`` entries of max-norm ~1."""
-    N = A.shape[0]
-    dense = N <= 3000
-    absA = np.abs(A.toarray()) if dense else abs(sps.csr_matrix(A))
-    dr, dc = np.ones(N), np.ones(N)
-
-    def p2(v):
-        return np.where(v > 0, 2.0 ** np.round(np.log2(np.where(v > 0, v, 1.0))), 1.0)
-
-    for _ in range(passes):
-        if dense:
-            M = absA * dr[:, None] * dc[None, :]
-            dr = dr / p2(M.max(axis=1))
-            M = absA * dr[:, None] * dc[None, :]
-            dc = dc / p2(M.max(axis=0))
-        else:
-            M = sps.diags(dr) @ absA @ sps.diags(dc)
-            dr = dr / p2(M.max(axis=1).toarray().ravel())
-            M = sps.diags(dr) @ absA @ sps.diags(dc)
-            dc = dc / p2(M.max(axis=0).toarray().ravel())
-    return dr, dc
+    """Steady state ``μ∞`` of ``d/dt μ = A μ + b``: the engine's
+    :func:`~nlfilter.moments.solve.linear_steady_state` (rescaled, conservation-aware)."""
+    return linear_steady_state(ms.A, ms.b, indices=ms.monomials, labels=ms.labels(), initial=initial,
+                               scale=scale, tol=tol, check_stable=check_stable)
 
 
 def moments(sde: PolySDE, wanted: Sequence[Monomial], *, initial=None, max_size: int = 20000,
