@@ -12,7 +12,9 @@
 * :func:`linear_steady_state` — the exact steady state of a closed linear system, rescaled, with
   the conservation laws of the dynamics (left null vectors of ``A``) fixed from initial moments
   (seed 001's tensor systems on the circle); :func:`steady_state` uses it when given ``initial``
-  or ``scale``.
+  or ``scale``;
+* :func:`stationary_moments` — ``E[x^γ]`` at rest for given monomials of an SDE whose moment
+  hierarchy closes (the closed hull, its equations, then :func:`linear_steady_state`).
 
 >>> import sympy as sp
 >>> from nlfilter.moments import PolynomialSDE, moment_equations, monomials
@@ -35,11 +37,12 @@ from scipy.sparse.csgraph import connected_components
 
 from .. import _validate as V
 from ..errors import ClosureDivergedError, SingularSystemError
+from ..polynomials import monomial_name
 from .closures import Closure
-from .ito import MomentEquations
+from .ito import MomentEquations, closed_hull, moment_equations
 
-__all__ = ["propagate", "iterate", "steady_state", "linear_steady_state", "gaussian_scale", "MomentSolution",
-           "variance_positions"]
+__all__ = ["propagate", "iterate", "steady_state", "linear_steady_state", "stationary_moments", "gaussian_scale",
+           "MomentSolution", "variance_positions"]
 
 BLOWUP = 1e12
 
@@ -510,3 +513,34 @@ def linear_steady_state(A, c, *, indices, initial=None, scale=None, labels=None,
     if res > 1e-8:
         raise SingularSystemError(f"steady_state: inconsistent conservation laws (residual {res:.2g})")
     return s * sol
+
+
+def stationary_moments(sde, wanted, *, initial=None, max_size: int = 20000, rescale: bool = True) -> dict:
+    """Steady-state ``E[x^γ]`` for each monomial γ in ``wanted`` (and every monomial of the closed
+    hull it needs), as a dict ``{γ: value}`` (the constant monomial maps to 1).
+
+    ``initial``: moments at t = 0 (callable or dict), needed when the dynamics conserve moments
+    (see :func:`linear_steady_state`). ``rescale``: for degrees above 4 the moments are scaled by
+    the Gaussian magnitudes (:func:`gaussian_scale`) of the stationary second moments, computed
+    first. Raises :class:`~nlfilter.errors.MomentsNotClosedError` when the hierarchy does not close
+    within ``max_size`` monomials, :class:`~nlfilter.errors.SingularSystemError` when there is no
+    unique steady state.
+    """
+    n = sde.n
+    zero = (0,) * n
+    start = list(dict.fromkeys(tuple(int(a) for a in m) for m in wanted if any(m)))
+    out = {zero: 1.0}
+    if not start:
+        return out
+    eqs = moment_equations(sde, closed_hull(sde, start, max_size=max_size))
+    scale = None
+    if rescale and max(sum(m) for m in eqs.indices) > 4:  # typical magnitudes from the second moments first
+        sq = [_unit(n, v, 2) for v in range(n)]
+        m2 = stationary_moments(sde, sq, initial=initial, max_size=max_size, rescale=False)
+        sigma = np.sqrt(np.maximum([m2[e] for e in sq], 1e-300))
+        sigma = np.where(sigma > 1e-150, sigma, 1.0)
+        scale = gaussian_scale(eqs.indices, sigma)
+    labels = [monomial_name(m, sde.names) for m in eqs.indices]
+    mu = linear_steady_state(eqs.A, eqs.c, indices=eqs.indices, labels=labels, initial=initial, scale=scale)
+    out.update((m, float(v)) for m, v in zip(eqs.indices, mu))
+    return out
