@@ -40,7 +40,7 @@ import sympy as sp
 
 from . import _validate as V
 from .errors import NotPolynomialError
-from .moments.ito import PolynomialSDE
+from .moments.ito import PolynomialSDE, bilinear_lift
 from .polynomials import Polynomial, monomial_name, monomials
 
 
@@ -310,22 +310,10 @@ class BilinearModel:
         G = model.sym["G"] * sp.Matrix(Lq.tolist())  # standard noises
         sde = PolynomialSDE.from_sympy(xs, model.sym["f"], G=G, Q=np.eye(G.shape[1]))
         zero = (0,) * nb
-        F = np.zeros((N, N))
-        c = np.zeros(N)
-        Gs = np.zeros((sde.r, N, N))
-        Bc = np.zeros((N, sde.r))
-        for k, e in enumerate(coords):
-            for mon, v in sde.generator(e).terms.items():
-                if mon == zero:
-                    c[k] += v
-                else:
-                    F[k, idx[mon]] += v
-            for a, p in enumerate(sde.noise_terms(e)):
-                for mon, v in p.terms.items():
-                    if mon == zero:
-                        Bc[k, a] += v
-                    else:
-                        Gs[a, k, idx[mon]] += v
+        A, Bs = bilinear_lift(sde, coords + [zero])  # z = (coords, 1): split off the constant column
+        F, c = A[:N, :N], A[:N, N]
+        Gs = np.array([B[:N, :N] for B in Bs])
+        Bc = np.array([B[:N, N] for B in Bs]).T
         m = model.m
         H = np.zeros((m, N))
         d = np.zeros(m)

@@ -855,15 +855,8 @@ class PseudoObservablesFilter:
         coords = mons + [(0,) * nv]
         A, Bs = bilinear_lift(sde, coords)
         idx = {c: k for k, c in enumerate(coords)}
-        N = len(coords)
-        H = np.zeros((len(obs), N))
-        Ms = np.zeros((q + m, len(obs), N))
-        for o, mon in enumerate(obs):
-            for e, c in sde.generator(mon).terms.items():
-                H[o, idx[e]] += c
-            for a, pa in enumerate(sde.noise_terms(mon)):
-                for e, c in pa.terms.items():
-                    Ms[a, o, idx[e]] += c
+        rows = [idx[o] for o in obs]  # the pseudo-observables are coordinates: their rows of the lift
+        H, Ms = A[rows], np.array([B[rows] for B in Bs])
         self.sde, self.coords, self.index, self.obs = sde, coords, idx, obs
         self.A, self.B, self.H, self.M = A, np.array(Bs), H, Ms
         self.nb, self.m = nb, m

@@ -29,7 +29,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-import scipy.linalg as sla
 import scipy.sparse as sps
 import scipy.sparse.linalg as spla
 from scipy.integrate import solve_ivp
@@ -464,13 +463,8 @@ def linear_steady_state(A, c, *, indices, initial=None, scale=None, labels=None,
                 "of the moment matrix has non-negative real part): no finite steady state")
         Ard = Ar.toarray()
     if k0 == 0:
-        try:
-            if dense:
-                lu = sla.lu_factor(Ard)
-                solve = lambda r: sla.lu_solve(lu, r)  # noqa: E731
-            else:
-                slu = spla.splu(sps.csc_matrix(Ar))
-                solve = slu.solve
+        try:  # sparse LU: the moment matrices are sparse, and small dense LAPACK calls pay for threads
+            solve = spla.splu(sps.csc_matrix(Ar)).solve
         except (RuntimeError, np.linalg.LinAlgError, ValueError):
             raise SingularSystemError("steady_state: the moment matrix is singular") from None
         nu = solve(-br)
