@@ -289,7 +289,9 @@ def test_steady_state_circle_requires_and_uses_conservation_laws():
     from nlfilter.filters.phase import circle_moment
     mu = dict(zip(eq.indices, linear_steady_state(eq.A, eq.c, indices=eq.indices, initial=circle_moment)))
     assert mu[(2, 0)] == pytest.approx(0.5) and mu[(4, 0)] == pytest.approx(3 / 8) and mu[(2, 2)] == pytest.approx(1 / 8)
-    # the engine's steady_state takes the same route when given the initial moments
+    # the engine's steady_state names the conserved combinations, and takes the same route given initial moments
+    with pytest.raises(SingularSystemError, match=r"conserve 2 combination\(s\)"):
+        steady_state(eq)
     assert np.array_equal(steady_state(eq, initial=circle_moment), np.array(list(mu.values())))
     # a least-squares solve of the singular system alone is finite but wrong: the trap the check avoids
     lsq = np.linalg.lstsq(eq.A.toarray(), -eq.c, rcond=None)[0]

@@ -165,6 +165,8 @@ class PolynomialSDE:
             object.__setattr__(self, "names", tuple(names))
         elif len(self.names) != n:
             raise ValueError(f"names: expected {n} names, got {len(self.names)}")
+        polys = drift + tuple(q for row in diff for q in row) + tuple(q for row in (self.noise or ()) for q in row)
+        object.__setattr__(self, "_exact", any(p.exact for p in polys))
 
     @property
     def n(self) -> int:
@@ -223,6 +225,8 @@ class PolynomialSDE:
         drift = [Polynomial.from_sympy(e, states, name=f"f[{i}]", exact=exact) for i, e in enumerate(fM)]
         if (sigma is None) == (G is None):
             raise ValueError("sigma, G: expected exactly one of sigma (σ = G Q Gᵀ) and G (noise columns)")
+        if sigma is not None and Q is not None:
+            raise ValueError("Q: the noise covariance goes with G (noise columns), not with sigma = G Q Gᵀ")
         if G is not None:
             GM = sp.Matrix(G)
             if GM.shape[0] != n:
@@ -260,7 +264,7 @@ class PolynomialSDE:
         if key in self._cache:
             return self._cache[key]
         n = self.n
-        exact = self.drift[0].exact
+        exact = self._exact
         out = Polynomial({}, n, exact=exact)
         mono = Polynomial({gamma: 1}, n, exact=exact)
         half = sp.Rational(1, 2) if exact else 0.5
@@ -286,7 +290,7 @@ class PolynomialSDE:
             raise ValueError("sde: the noise columns G are not known (built from σ = G Q Gᵀ); build it with "
                              "PolynomialSDE.from_noise or from_sympy(..., G=...)")
         n = self.n
-        mono = Polynomial({gamma: 1}, n, exact=self.drift[0].exact)
+        mono = Polynomial({gamma: 1}, n, exact=self._exact)
         out = []
         for a in range(self.r):
             acc = Polynomial({}, n, exact=mono.exact)
@@ -705,7 +709,9 @@ def bilinear_lift(sde: PolynomialSDE, indices: Sequence[tuple]):
     >>> A.tolist(), B.tolist()
     ([[-1.0, 0.0, 0.0], [0.0, -2.0, 2.0], [0.0, 0.0, 0.0]], [[0.0, 0.0, 1.0], [2.0, 0.0, 0.0], [0.0, 0.0, 0.0]])
     """
-    mons = [tuple(m) for m in indices]
+    if not isinstance(sde, PolynomialSDE):
+        raise TypeError(f"sde: expected a PolynomialSDE with its noise columns, got {type(sde).__name__}")
+    mons = _check_indices(indices, sde.n)
     idx = {m: k for k, m in enumerate(mons)}
     N = len(mons)
     sym = not sde.is_numeric

@@ -260,9 +260,19 @@ def steady_state(eqs: MomentEquations, *, closure: Closure | None = None, guess=
         try:
             lu = spla.splu(M.tocsc())
         except RuntimeError as exc:
-            raise SingularSystemError(f"eqs: the steady-state system is singular ({_rank_message(M)}); the "
-                                      "stationary moments are not unique (no stationary law, or a "
-                                      "conserved quantity: pass initial=<moments at t = 0>)") from exc
+            why = ("the stationary moments are not unique (no stationary law, or a conserved quantity: "
+                   "pass initial=<moments at t = 0>)")
+            if eqs.kind == "continuous" and zero not in eqs.index:  # name the conserved or drifting combination
+                names = [f"x{i + 1}" for i in range(len(zero))]
+                try:
+                    mu = linear_steady_state(A, c, indices=eqs.indices,
+                                             labels=[monomial_name(g, names) for g in eqs.indices])
+                except SingularSystemError as diag:
+                    why = str(diag)
+                else:
+                    _diagnose(eqs, mu, np.inf)
+                    return mu
+            raise SingularSystemError(f"eqs: the steady-state system is singular ({_rank_message(M)}); {why}") from exc
         mu = lu.solve(rhs)
         if not np.all(np.isfinite(mu)) or np.linalg.norm(M @ mu - rhs) > 1e-8 * max(1.0, np.linalg.norm(rhs)):
             raise SingularSystemError(f"eqs: the steady-state system is singular or ill-conditioned "
