@@ -7,9 +7,11 @@ import pytest
 import sympy as sp
 
 from nlfilter.bilinear import BilinearModel, phase_model
-from nlfilter.errors import NotPolynomialError, SingularSystemError
+from nlfilter.errors import MomentsNotClosedError, NotPolynomialError, SingularSystemError
 from nlfilter.models import SDEModel
-from nlfilter.moments import tensor as T
+from nlfilter.moments.ito import PolynomialSDE, bilinear_lift, closed_hull, moment_equations
+from nlfilter.moments.solve import linear_steady_state, stationary_moments, steady_state
+from nlfilter.polynomials import monomials
 
 # ---------------------------------------------------------------------------------------------
 # seed 001, Appendices A and B, every "nonzero element" as OCR'd (verbatim, one entry "row,col=value")
@@ -98,7 +100,7 @@ def _sde_A(intensity_n):
     x1, x2, u1, u2 = sp.symbols("x1 x2 u1 u2")
     f = [-q / 2 * x1, -q / 2 * x2, (-q / 2 - K) * u1 + K * x1, (-q / 2 - K) * u2 + K * x2]
     G = [[x2, 0, 0], [-x1, 0, 0], [0, K, 0], [0, 0, K]]
-    return T.PolySDE.from_sympy([x1, x2, u1, u2], f, G, sp.diag(q, intensity_n, intensity_n), numeric=False)
+    return PolynomialSDE.from_sympy([x1, x2, u1, u2], f, G=G, Q=sp.diag(q, intensity_n, intensity_n), exact=True)
 
 
 ORDER_A = [(1, 0, 0, 0), (0, 1, 0, 0), (0, 0, 1, 0), (0, 0, 0, 1), (2, 0, 0, 0), (0, 2, 0, 0), (1, 1, 0, 0),
@@ -116,7 +118,7 @@ def _sde_B():
     """Joint (x, x̂, x̂³) of the cubic sensor's linear filter (001 eqs. 5.1-5.6, B.5-B.6)."""
     x, u, v = sp.symbols("x u v")
     f = [-x, -u + K1 * (x ** 3 - v), 3 * q * u - 3 * v + K2 * (x ** 3 - v)]
-    return T.PolySDE.from_sympy([x, u, v], f, [[1, 0], [0, K1], [0, K2]], sp.diag(q, r), numeric=False)
+    return PolynomialSDE.from_sympy([x, u, v], f, G=[[1, 0], [0, K1], [0, K2]], Q=sp.diag(q, r), exact=True)
 
 
 def _diff(gen, app):
@@ -157,7 +159,7 @@ def test_appendix_A_generated_entry_by_entry():
     * B1(2,1) = 1 in the OCR: eq. 4.12 gives dx2 = −x1 dθ, so −1 (a lost minus sign).
     """
     sde = _sde_A(2 * r)
-    A, Bs = T.bilinear_lift(sde, ORDER_A)
+    A, Bs = bilinear_lift(sde, ORDER_A)
     app = _appendix()
     diffs = {name: _diff(gen, app[("A", name)]) for name, gen in zip(("A", "B_1", "B_2", "B_3"), [A, *Bs])}
     factor2 = {(8, 35), (9, 35), (20, 1), (21, 1), (28, 2), (29, 2), (31, 3), (32, 4), (33, 3), (34, 4)}
@@ -168,7 +170,7 @@ def test_appendix_A_generated_entry_by_entry():
         g, a = diffs["A"][(i, j)]
         assert sp.simplify(g - 2 * a) == 0
     # with the appendix's intensity r the factor-2 entries agree
-    A_r, _ = T.bilinear_lift(_sde_A(r), ORDER_A)
+    A_r, _ = bilinear_lift(_sde_A(r), ORDER_A)
     assert set(_diff(A_r, app[("A", "A")])) == diag
     # independent derivation of every disagreeing entry
     x1, x2, u1, u2 = sp.symbols("x1 x2 u1 u2")
@@ -191,7 +193,7 @@ def test_appendix_B_generated_entry_by_entry():
       an omission: B2(21,6) = K2, the same pattern for k = 6, is printed).
     """
     sde = _sde_B()
-    A, Bs = T.bilinear_lift(sde, ORDER_B)
+    A, Bs = bilinear_lift(sde, ORDER_B)
     app = _appendix()
     dA = _diff(A, app[("B", "A")])
     dB1 = _diff(Bs[0], app[("B", "B_1")])
@@ -213,9 +215,9 @@ def test_appendix_B_set_is_the_closed_set():
     """The 39 non-constant monomials of Appendix B are exactly the weighted-degree ≤ 9 set
     (weights 1, 3, 3), closed under the Itô generator and the noise coefficients."""
     sde = _sde_B()
-    closed = T.closed_set(sde, [(9, 0, 0), (6, 1, 0), (6, 0, 1), (0, 0, 3), (3, 2, 0), (0, 3, 0)], with_noise=True)
+    closed = closed_hull(sde, [(9, 0, 0), (6, 1, 0), (6, 0, 1), (0, 0, 3), (3, 2, 0), (0, 3, 0)], with_noise=True)
     assert set(closed) == set(ORDER_B) - {(0, 0, 0)}
-    assert set(T.monomials_upto(3, 9, weights=[1, 3, 3])) == set(closed)
+    assert set(monomials(3, 9, min_degree=1, weights=[1, 3, 3])) == set(closed)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -270,37 +272,41 @@ def test_moments_of_geometric_brownian_motion_exact():
     """001 eq. 3.9: dx = a x dt + b x dw, d/dt E x^p = (a + b²(p−1)/2) p E x^p (closed form)."""
     x = sp.Symbol("x")
     a, b = -1.3, 0.6
-    sde = T.PolySDE.from_sympy([x], [a * x], [[b * x]], 1.0)
-    ms = T.moment_system(sde, T.closed_set(sde, [(4,)]))
-    assert ms.monomials == [(4,)]
-    assert ms.A.toarray()[0, 0] == pytest.approx((a + b * b * 1.5) * 4)
+    sde = PolynomialSDE.from_sympy([x], [a * x], G=[[b * x]], Q=1.0)
+    eq = moment_equations(sde, closed_hull(sde, [(4,)]))
+    assert eq.indices == [(4,)]
+    assert eq.A.toarray()[0, 0] == pytest.approx((a + b * b * 1.5) * 4)
 
 
 def test_steady_state_circle_requires_and_uses_conservation_laws():
     """On the circle the moment matrix is singular; without initial moments the solver refuses,
     with them it returns the uniform law's moments (E x1² = 1/2, E x1⁴ = 3/8, E x1²x2² = 1/8)."""
     x1, x2 = sp.symbols("x1 x2")
-    sde = T.PolySDE.from_sympy([x1, x2], [-x1 / 2, -x2 / 2], [[x2], [-x1]], 1.0)
-    ms = T.moment_system(sde, T.closed_set(sde, [(4, 0), (2, 2), (2, 0)]))
+    sde = PolynomialSDE.from_sympy([x1, x2], [-x1 / 2, -x2 / 2], G=[[x2], [-x1]], Q=1.0)
+    eq = moment_equations(sde, closed_hull(sde, [(4, 0), (2, 2), (2, 0)]))
     with pytest.raises(SingularSystemError, match="conserve"):
-        T.steady_state(ms)
+        linear_steady_state(eq.A, eq.c, indices=eq.indices)
     from nlfilter.filters.phase import circle_moment
-    mu = dict(zip(ms.monomials, T.steady_state(ms, initial=circle_moment)))
+    mu = dict(zip(eq.indices, linear_steady_state(eq.A, eq.c, indices=eq.indices, initial=circle_moment)))
     assert mu[(2, 0)] == pytest.approx(0.5) and mu[(4, 0)] == pytest.approx(3 / 8) and mu[(2, 2)] == pytest.approx(1 / 8)
+    # the engine's steady_state names the conserved combinations, and takes the same route given initial moments
+    with pytest.raises(SingularSystemError, match=r"conserve 2 combination\(s\)"):
+        steady_state(eq)
+    assert np.array_equal(steady_state(eq, initial=circle_moment), np.array(list(mu.values())))
     # a least-squares solve of the singular system alone is finite but wrong: the trap the check avoids
-    lsq = np.linalg.lstsq(ms.A.toarray(), -ms.b, rcond=None)[0]
-    assert abs(dict(zip(ms.monomials, lsq))[(2, 0)] - 0.5) > 0.1
+    lsq = np.linalg.lstsq(eq.A.toarray(), -eq.c, rcond=None)[0]
+    assert abs(dict(zip(eq.indices, lsq))[(2, 0)] - 0.5) > 0.1
 
 
 def test_steady_state_unstable_moments_raise():
     x = sp.Symbol("x")
-    sde = T.PolySDE.from_sympy([x], [-x], [[1.5 * x]], 1.0)  # 2a + b² = 0.25 > 0: E x² grows
+    sde = PolynomialSDE.from_sympy([x], [-x], G=[[1.5 * x]], Q=1.0)  # 2a + b² = 0.25 > 0: E x² grows
     with pytest.raises(SingularSystemError, match="without bound"):
-        T.moments(sde, [(2,)])
+        stationary_moments(sde, [(2,)])
 
 
-def test_closed_set_detects_nonclosing_hierarchy():
+def test_closed_hull_detects_nonclosing_hierarchy():
     x = sp.Symbol("x")
-    sde = T.PolySDE.from_sympy([x], [-x ** 3], [[1]], 1.0)
-    with pytest.raises(T.MomentsNotClosedError):
-        T.closed_set(sde, [(2,)], max_size=50)
+    sde = PolynomialSDE.from_sympy([x], [-x ** 3], G=[[1]], Q=1.0)
+    with pytest.raises(MomentsNotClosedError):
+        closed_hull(sde, [(2,)], max_size=50, with_noise=True)

@@ -54,3 +54,19 @@ def test_monomial_counts():
 def test_expect_is_linear_functional():
     p = Polynomial({(2,): 1.0, (0,): -1.0})
     assert p.expect({(2,): np.array([3.0, 4.0]), (0,): 1.0}).tolist() == [2.0, 3.0]
+
+
+def test_exact_coefficients_stay_rational_and_clean_pad_numeric():
+    q = sp.Symbol("q")
+    p = Polynomial.from_sympy(q / 2 * x**2 - x, [x, y], exact=True)
+    assert p.exact and p.terms == {(2, 0): q / 2, (1, 0): sp.Integer(-1)}
+    d = p.diff(0) * 3  # exactness propagates: 3 q x − 3, rational numbers kept
+    assert d.exact and d.terms == {(1, 0): 3 * q, (0, 0): sp.Integer(-3)}
+    assert (p**2).terms[(4, 0)] == q**2 / 4
+    f = Polynomial({(1, 0): 1e-17, (0, 1): 2.0}, 2)
+    assert f.clean(1e-15).terms == {(0, 1): 2.0} and f.clean().terms == f.terms
+    assert f.pad(3).terms == {(1, 0, 0): 1e-17, (0, 1, 0): 2.0}
+    with pytest.raises(ValueError, match="nvars"):
+        f.pad(1)
+    with pytest.raises(ValueError, match=r"f\[0\].*free symbols \['q'\]"):
+        Polynomial.from_sympy(q * x, [x], name="f[0]", numeric=True)

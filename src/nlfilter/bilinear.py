@@ -33,15 +33,15 @@ degree ≤ p to degree ≤ p); with ``h`` polynomial of degree ≤ p the measure
 
 from __future__ import annotations
 
-from typing import NamedTuple, Sequence
+from typing import NamedTuple
 
 import numpy as np
 import sympy as sp
 
 from . import _validate as V
 from .errors import NotPolynomialError
-from .moments.tensor import PolySDE, poly_from_sympy, monomials_upto
-from .moments.tensor import poly_clean as T_clean
+from .moments.ito import PolynomialSDE, bilinear_lift
+from .polynomials import Polynomial, monomial_name, monomials
 
 
 class Augmented(NamedTuple):
@@ -240,9 +240,10 @@ class BilinearModel:
         Gm = sp.Matrix.hstack(*cols)
         return cls(self.base_states, f, h, Gm, Qf, self.R, time=self.time)
 
-    def poly_sde(self) -> PolySDE:
-        """The state equation in ``base_states`` as a :class:`PolySDE` with standard noises
-        (multiplicative ones first, then the columns of ``B Q^{1/2}``); constant-time models only."""
+    def poly_sde(self) -> PolynomialSDE:
+        """The state equation in ``base_states`` as a :class:`~nlfilter.moments.ito.PolynomialSDE`
+        with its noise columns, standard noises (multiplicative ones first, then the columns of
+        ``B Q^{1/2}``); constant-time models only."""
         if self._base is not None:
             return self._base
         if self.time_varying:
@@ -254,22 +255,22 @@ class BilinearModel:
         z = unit + ([zero] if self.augment else [])  # augmented coordinate k as a monomial of x
 
         def row(M, i):
-            return T_clean({z[k]: float(M[i, k]) for k in range(N) if M[i, k] != 0})
+            return Polynomial({z[k]: float(M[i, k]) for k in range(N) if M[i, k] != 0}, n)
 
         drift = [row(aug.F, i) for i in range(n)]
-        diff = [[row(G, i) for G in aug.G] or [{}] for i in range(n)]
+        diff = [[row(G, i) for G in aug.G] or [Polynomial({}, n)] for i in range(n)]
         r = max(len(aug.G), 1)
-        self._base = PolySDE(drift, diff, np.eye(r), list(self.names))
+        self._base = PolynomialSDE.from_noise(drift, diff, np.eye(r), names=list(self.names))
         return self._base
 
     _base = None
 
     def coord_polys(self) -> list:
-        """Each augmented coordinate as a polynomial (dict) in ``base_states``."""
+        """Each augmented coordinate as a :class:`~nlfilter.polynomials.Polynomial` in ``base_states``."""
         nb = len(self.base_states)
-        out = [{e: 1.0} for e in self.coords]
+        out = [Polynomial({e: 1.0}, nb) for e in self.coords]
         if self.augment:
-            out.append({(0,) * nb: 1.0})
+            out.append(Polynomial.constant(1.0, nb))
         return out
 
     # -- lifting -------------------------------------------------------------------------------------
@@ -292,52 +293,39 @@ class BilinearModel:
         nb = len(xs)
         for name, M in (("f", model.sym["f"]), ("G", model.sym["G"])):
             for e in M:
-                p = poly_from_sympy(e, xs)
-                deg = max((sum(k) for k in p), default=0)
+                deg = Polynomial.from_sympy(e, xs, name=f"model.{name}", numeric=True).degree
                 if deg > 1:
                     raise NotPolynomialError(
                         f"model.{name}: term {e} has degree {deg} in the state; only affine drift and noise "
                         "gain lift exactly to a bilinear system (the Itô rule then preserves the degree)")
-        hpolys = [poly_from_sympy(e, xs) for e in model.sym["h"]]
-        hdeg = max((sum(k) for p in hpolys for k in p), default=1)
+        hpolys = [Polynomial.from_sympy(e, xs, name="model.h", numeric=True) for e in model.sym["h"]]
+        hdeg = max((sum(k) for p in hpolys for k in p.terms), default=1)
         degree = hdeg if degree is None else int(degree)
         if degree < hdeg:
             raise ValueError(f"degree: {degree} is below the measurement's degree {hdeg}")
-        coords = monomials_upto(nb, degree)
+        coords = monomials(nb, degree, min_degree=1)
         idx = {e: k for k, e in enumerate(coords)}
         N = len(coords)
         Lq = _sqrt_psd(model.Q)
         G = model.sym["G"] * sp.Matrix(Lq.tolist())  # standard noises
-        sde = PolySDE.from_sympy(xs, model.sym["f"], G, np.eye(G.shape[1]), names=[str(s) for s in xs])
+        sde = PolynomialSDE.from_sympy(xs, model.sym["f"], G=G, Q=np.eye(G.shape[1]))
         zero = (0,) * nb
-        F = np.zeros((N, N))
-        c = np.zeros(N)
-        Gs = np.zeros((sde.r, N, N))
-        Bc = np.zeros((N, sde.r))
-        for k, e in enumerate(coords):
-            for mon, v in sde.generator(e).items():
-                if mon == zero:
-                    c[k] += v
-                else:
-                    F[k, idx[mon]] += v
-            for a, p in enumerate(sde.noise(e)):
-                for mon, v in p.items():
-                    if mon == zero:
-                        Bc[k, a] += v
-                    else:
-                        Gs[a, k, idx[mon]] += v
+        A, Bs = bilinear_lift(sde, coords + [zero])  # z = (coords, 1): split off the constant column
+        F, c = A[:N, :N], A[:N, N]
+        Gs = np.array([B[:N, :N] for B in Bs])
+        Bc = np.array([B[:N, N] for B in Bs]).T
         m = model.m
         H = np.zeros((m, N))
         d = np.zeros(m)
         for i, p in enumerate(hpolys):
-            for mon, v in p.items():
+            for mon, v in p.terms.items():
                 if mon == zero:
                     d[i] += v
                 else:
                     H[i, idx[mon]] += v
         # noise a enters the lift as (G_a z + g_a) dw_a: one standard noise with a multiplicative
         # part and a constant column (the cubic sensor's d(x²) = ... + 2x dw, dx = ... + dw)
-        names = [_mon_name(e, [str(s) for s in xs]) for e in coords]
+        names = [monomial_name(e, [str(s) for s in xs]) for e in coords]
         self = cls(F, H, G=[Gs[a] for a in range(sde.r)], R=model.R, c=c, d=d if np.any(d) else None,
                    names=names)
         self._affine = [(Gs[a], Bc[:, a]) for a in range(sde.r)]
@@ -357,11 +345,6 @@ def _sqrt_psd(S):
     S = np.asarray(S, dtype=float)
     w, U = np.linalg.eigh(0.5 * (S + S.T))
     return U * np.sqrt(np.clip(w, 0.0, None))
-
-
-def _mon_name(e, names):
-    parts = [n if a == 1 else f"{n}^{a}" for n, a in zip(names, e) if a]
-    return "*".join(parts) or "1"
 
 
 def phase_model(q: float, r: float) -> BilinearModel:

@@ -57,3 +57,8 @@ class NotPolynomialError(NLFilterError, ValueError):
 
 class SingularSystemError(NLFilterError, np.linalg.LinAlgError):
     """A steady-state or moment system has no unique solution."""
+
+
+class MomentsNotClosedError(NLFilterError, ValueError):
+    """The monomials reachable from the requested ones by the Itô generator exceed the size cap:
+    the moment hierarchy does not close (a drift of degree > 1 raises the degree)."""

@@ -7,6 +7,11 @@ left symbolic, e.g. the tabulated gains of a filter whose error is analysed off-
 moment equations keep such coefficients apart and evaluate them numerically (see
 :class:`nlfilter.moments.ito.MomentEquations`).
 
+Numbers are stored as floats, unless the polynomial is *exact* (``exact=True``): then every
+coefficient is a SymPy expression, numbers stay rational and coefficients are expanded, so that
+generated systems can be compared entry by entry with hand-derived symbolic ones (seed 001,
+Appendices A-B). Exactness propagates through arithmetic.
+
 >>> import sympy as sp
 >>> x, y = sp.symbols("x y")
 >>> p = Polynomial.from_sympy(x**2 * y - 3 * x + 1, [x, y])
@@ -28,7 +33,7 @@ import sympy as sp
 
 from .errors import NotPolynomialError
 
-__all__ = ["Polynomial", "monomials", "as_polynomial", "add_exp", "sub_exp"]
+__all__ = ["Polynomial", "monomials", "monomial_name", "as_polynomial", "add_exp", "sub_exp"]
 
 
 def add_exp(a: tuple, b: tuple) -> tuple:
@@ -53,16 +58,24 @@ def _is_zero(c) -> bool:
     return (isinstance(c, float) and c == 0.0) or (not isinstance(c, float) and c == 0)
 
 
+def monomial_name(e: tuple, names) -> str:
+    """``x^γ`` written with variable ``names``, e.g. ``x*y^2`` (``1`` for the constant)."""
+    parts = [n if a == 1 else f"{n}^{a}" for n, a in zip(names, e) if a]
+    return "*".join(parts) or "1"
+
+
 class Polynomial:
     """A polynomial in ``nvars`` variables, ``terms = {γ: coefficient}`` (immutable by convention).
 
-    Coefficients are floats or SymPy expressions in symbols other than the state (time, gains).
+    Coefficients are floats or SymPy expressions in symbols other than the state (time, gains);
+    with ``exact=True`` all are SymPy (rational numbers kept, see the module docstring).
     Arithmetic: ``+``, ``-``, ``*`` (with polynomials or scalars), ``**`` (non-negative int).
     """
 
-    __slots__ = ("nvars", "terms")
+    __slots__ = ("nvars", "terms", "exact")
 
-    def __init__(self, terms: Mapping[tuple, object] | None = None, nvars: int | None = None):
+    def __init__(self, terms: Mapping[tuple, object] | None = None, nvars: int | None = None, *,
+                 exact: bool = False):
         terms = dict(terms or {})
         if nvars is None:
             if not terms:
@@ -74,28 +87,32 @@ class Polynomial:
             if len(e) != nvars or min(e, default=0) < 0:
                 raise ValueError(f"terms: exponent {e} is not a multi-index of length {nvars} "
                                  "with non-negative entries")
-            c = _clean(c)
+            c = sp.expand(sp.sympify(c)) if exact else _clean(c)
             if not _is_zero(c):
                 out[e] = c
         self.nvars = int(nvars)
         self.terms = out
+        self.exact = bool(exact)
 
     # -- construction ---------------------------------------------------------------------
     @classmethod
-    def constant(cls, c, nvars: int) -> "Polynomial":
-        return cls({(0,) * nvars: c}, nvars)
+    def constant(cls, c, nvars: int, *, exact: bool = False) -> "Polynomial":
+        return cls({(0,) * nvars: c}, nvars, exact=exact)
 
     @classmethod
-    def variable(cls, i: int, nvars: int) -> "Polynomial":
+    def variable(cls, i: int, nvars: int, *, exact: bool = False) -> "Polynomial":
         e = [0] * nvars
         e[i] = 1
-        return cls({tuple(e): 1.0}, nvars)
+        return cls({tuple(e): 1}, nvars, exact=exact)
 
     @classmethod
-    def from_sympy(cls, expr, states, *, name: str = "expression") -> "Polynomial":
+    def from_sympy(cls, expr, states, *, name: str = "expression", numeric: bool = False,
+                   exact: bool = False) -> "Polynomial":
         """Convert a SymPy expression, polynomial in ``states`` (coefficients may contain other
         symbols such as time). Raises :class:`~nlfilter.errors.NotPolynomialError` naming the
-        offending term otherwise."""
+        offending term otherwise. ``numeric``: require number coefficients (``ValueError``
+        naming the free symbols otherwise); ``exact``: keep SymPy coefficients (see the module
+        docstring)."""
         states = list(states)
         expr = sp.expand(sp.sympify(expr))
         if not expr.is_polynomial(*states):
@@ -105,7 +122,12 @@ class Polynomial:
                 f"{[str(s) for s in states]}; an exact moment method needs polynomial f, GQGᵀ and h "
                 "(use Gauss-Hermite expectations, nlfilter.moments.quadrature, for this model)")
         poly = sp.Poly(expr, *states)
-        return cls({e: c for e, c in poly.terms()}, len(states))
+        if numeric:
+            for _, c in poly.terms():
+                if c.free_symbols:
+                    raise ValueError(f"{name}: coefficient {c} of {expr} has free symbols "
+                                     f"{sorted(map(str, c.free_symbols))}; expected numbers (give their values)")
+        return cls({e: c for e, c in poly.terms()}, len(states), exact=exact)
 
     # -- algebra --------------------------------------------------------------------------
     def _coerce(self, other) -> "Polynomial":
@@ -113,19 +135,19 @@ class Polynomial:
             if other.nvars != self.nvars:
                 raise ValueError(f"other: polynomial in {other.nvars} variables, expected {self.nvars}")
             return other
-        return Polynomial.constant(other, self.nvars)
+        return Polynomial.constant(other, self.nvars, exact=self.exact)
 
     def __add__(self, other):
         other = self._coerce(other)
         t = dict(self.terms)
         for e, c in other.terms.items():
             t[e] = t[e] + c if e in t else c
-        return Polynomial(t, self.nvars)
+        return Polynomial(t, self.nvars, exact=self.exact or other.exact)
 
     __radd__ = __add__
 
     def __neg__(self):
-        return Polynomial({e: -c for e, c in self.terms.items()}, self.nvars)
+        return Polynomial({e: -c for e, c in self.terms.items()}, self.nvars, exact=self.exact)
 
     def __sub__(self, other):
         return self + (-self._coerce(other))
@@ -141,14 +163,14 @@ class Polynomial:
                 e = add_exp(e1, e2)
                 c = c1 * c2
                 t[e] = t[e] + c if e in t else c
-        return Polynomial(t, self.nvars)
+        return Polynomial(t, self.nvars, exact=self.exact or other.exact)
 
     __rmul__ = __mul__
 
     def __pow__(self, k: int):
         if not isinstance(k, numbers.Integral) or k < 0:
             raise ValueError(f"k: expected a non-negative integer power, got {k!r}")
-        out = Polynomial.constant(1.0, self.nvars)
+        out = Polynomial.constant(1, self.nvars, exact=self.exact)
         base = self
         while k:
             if k & 1:
@@ -173,7 +195,19 @@ class Polynomial:
                 d = list(e)
                 d[i] -= 1
                 t[tuple(d)] = c * e[i]
-        return Polynomial(t, self.nvars)
+        return Polynomial(t, self.nvars, exact=self.exact)
+
+    def clean(self, tol: float = 0.0) -> "Polynomial":
+        """Without the number coefficients of modulus ``<= tol`` (symbolic ones are kept)."""
+        return Polynomial({e: c for e, c in self.terms.items() if not (isinstance(c, float) and abs(c) <= tol)},
+                          self.nvars, exact=self.exact)
+
+    def pad(self, nvars: int) -> "Polynomial":
+        """The same polynomial in ``nvars >= self.nvars`` variables (the new ones last)."""
+        if nvars < self.nvars:
+            raise ValueError(f"nvars: expected at least {self.nvars}, got {nvars}")
+        z = (0,) * (nvars - self.nvars)
+        return Polynomial({e + z: c for e, c in self.terms.items()}, nvars, exact=self.exact)
 
     # -- inspection -----------------------------------------------------------------------
     @property
@@ -199,7 +233,7 @@ class Polynomial:
     def subs(self, values: Mapping) -> "Polynomial":
         """Substitute numbers for coefficient symbols (``{symbol: value}``)."""
         return Polynomial({e: (c if isinstance(c, float) else c.subs(values)) for e, c in self.terms.items()},
-                          self.nvars)
+                          self.nvars, exact=self.exact)
 
     def to_sympy(self, states):
         states = list(states)

@@ -179,3 +179,18 @@ def test_six_dimensional_cubic_generation_size():
     eq = moment_equations(sde, monomials(6, 6, min_degree=1))
     assert len(eq.indices) == 923
     assert all(sum(g) in (7, 8) for g in eq.missing)
+
+
+def test_noise_columns_give_sigma_and_noise_terms():
+    """dx = -x dt + x dβ1 + 2 dβ2, Q = [[1, .5], [.5, 4]]: σ = G Q Gᵀ and d x² = ... + 2x² dβ1 + 4x dβ2."""
+    sde = PolynomialSDE.from_sympy([x], [-x], G=[[x, 2]], Q=[[1.0, 0.5], [0.5, 4.0]])
+    assert sde.r == 2 and sde.names == ("x",)
+    assert sde.diffusion[0][0].terms == {(2,): 1.0, (1,): 2.0, (0,): 16.0}
+    assert [p.terms for p in sde.noise_terms((2,))] == [{(2,): 2.0}, {(1,): 4.0}]
+    assert sde.generator((2,)) == PolynomialSDE.from_sympy([x], [-x], [[x**2 + 2 * x + 16]]).generator((2,))
+    with pytest.raises(ValueError, match="noise columns"):
+        PolynomialSDE.from_sympy([x], [-x], [[1]]).noise_terms((1,))
+    with pytest.raises(ValueError, match="sigma, G"):
+        PolynomialSDE.from_sympy([x], [-x], [[1]], G=[[1]])
+    with pytest.raises(ValueError, match=r"Q: expected shape \(2, 2\)"):
+        PolynomialSDE.from_sympy([x], [-x], G=[[x, 2]], Q=1.0)

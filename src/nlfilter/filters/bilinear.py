@@ -16,7 +16,8 @@ measurement grid, or the steady state of the algebraic equations (2.54) solved d
 Post-processor (001 §3.3): ``x̂ = Σ_k α_k φ_k(ẑ)`` with ``φ_k`` odd monomials of the linear
 estimate (``α x̂ + β x̂³`` is eqs. 3.29-3.35); the gains solve the normal equations
 ``E[φ φᵀ] α = E[x φ]`` whose moments are the steady-state moments of the joint process
-``(x, ẑ)`` — exact, from the tensor moment system (:mod:`nlfilter.moments.tensor`).
+``(x, ẑ)`` — exact, from the closed moment system of the joint SDE
+(:func:`nlfilter.moments.solve.stationary_moments`, conservation laws imposed on the circle).
 """
 
 from __future__ import annotations
@@ -31,7 +32,9 @@ import scipy.sparse as sps
 from .. import _validate as V
 from ..bilinear import BilinearModel
 from ..errors import SingularSystemError
-from ..moments import tensor as T
+from ..moments.ito import PolynomialSDE, bilinear_lift, closed_hull
+from ..moments.solve import linear_steady_state, stationary_moments
+from ..polynomials import Polynomial, monomials
 from .base import Estimates, _Runner, symmetrize
 
 
@@ -116,8 +119,6 @@ def state_second_moments(model: BilinearModel, X0=None, t: float = 0.0) -> np.nd
     N, ci = model.N, model.constant_index
     A = _kron_operator(aug.F, aug.G)
     pairs = [(i, j) for j in range(N) for i in range(N)]  # column-major vec
-    ms = T.MomentSystem(pairs, sps.csr_matrix(A), np.zeros(N * N), [f"z{i}" for i in range(N)])
-    ms.labels = lambda: [f"z{i}z{j}" for i, j in pairs]  # type: ignore[method-assign]
     if X0 is not None:
         X0 = np.asarray(X0, dtype=float)
         if X0.shape == (model.n, model.n) and ci is not None:
@@ -135,7 +136,8 @@ def state_second_moments(model: BilinearModel, X0=None, t: float = 0.0) -> np.nd
         raise _NeedX0()
 
     try:
-        mu = T.steady_state(ms, initial=initial)
+        mu = linear_steady_state(sps.csr_matrix(A), np.zeros(N * N), indices=pairs, initial=initial,
+                                 labels=[f"z{i}z{j}" for i, j in pairs])
     except _NeedX0:
         raise SingularSystemError("state_second_moments: the dynamics conserve second moments other than "
                                   "the constant (e.g. |x|² on a sphere); pass X0 (or m0, P0) to fix them") from None
@@ -410,7 +412,7 @@ class DiscreteOptimalLinearFilter:
 @dataclass
 class JointProcess:
     """The joint SDE of the base variables and the linear filter's random estimates, as a
-    :class:`~nlfilter.moments.tensor.PolySDE` (001 eqs. 3.30, 4.26-4.27, 5.7).
+    :class:`~nlfilter.moments.ito.PolynomialSDE` with its noise columns (001 eqs. 3.30, 4.26-4.27, 5.7).
 
     ``estimate_vars``: augmented coordinate index of each estimate variable; ``fixed``: the
     coordinates whose estimate is deterministic in steady state (zero gain row, e.g. the cubic
@@ -418,24 +420,21 @@ class JointProcess:
     of z and of ẑ as polynomials in the joint variables.
     """
 
-    sde: T.PolySDE
+    sde: PolynomialSDE
     nb: int
     estimate_vars: list
     fixed: dict
     coords: list
     K: np.ndarray
 
-    def coord_poly(self, k: int) -> dict:
-        nv = self.sde.n
-        return {tuple(list(e) + [0] * (nv - self.nb)): c for e, c in self.coords[k].items()}
+    def coord_poly(self, k: int) -> Polynomial:
+        return self.coords[k].pad(self.sde.n)
 
-    def estimate_poly(self, k: int) -> dict:
+    def estimate_poly(self, k: int) -> Polynomial:
         nv = self.sde.n
         if k in self.estimate_vars:
-            e = [0] * nv
-            e[self.nb + self.estimate_vars.index(k)] = 1
-            return {tuple(e): 1.0}
-        return {(0,) * nv: float(self.fixed[k])}
+            return Polynomial.variable(self.nb + self.estimate_vars.index(k), nv)
+        return Polynomial.constant(float(self.fixed[k]), nv)
 
     def initial(self, base_initial: Callable, z0) -> Callable:
         """Moments of the joint variables at t = 0, the estimates starting at ``z0`` (deterministic)."""
@@ -486,57 +485,55 @@ def joint_process(model: BilinearModel, K: np.ndarray, *, tol: float = 1e-12) ->
     est = [k for k in range(N) if k not in fixed]
     nr = len(est)
     nv = nb + nr
-    ext = lambda p: {tuple(list(e) + [0] * nr): c for e, c in p.items()}  # noqa: E731
+    zero = Polynomial({}, nv)
 
     def zhat(k):
         if k in fixed:
-            return {(0,) * nv: float(fixed[k])}
-        e = [0] * nv
-        e[nb + est.index(k)] = 1
-        return {tuple(e): 1.0}
+            return Polynomial.constant(float(fixed[k]), nv)
+        return Polynomial.variable(nb + est.index(k), nv)
 
-    zx = [ext(p) for p in cp]
-    drift = [ext(p) for p in base.drift]
+    zx = [p.pad(nv) for p in cp]
+    drift = [p.pad(nv) for p in base.drift]
     q_proc = base.r
     r_meas = Ms.shape[0]
-    diff = [[ext(base.diffusion[i][a]) for a in range(q_proc)] + [{} for _ in range(r_meas)] for i in range(nb)]
-    innov = [dict() for _ in range(model.m)]  # H (z(x) − ẑ)
+    diff = [[base.noise[i][a].pad(nv) for a in range(q_proc)] + [zero] * r_meas for i in range(nb)]
+    innov = [zero] * model.m  # H (z(x) − ẑ)
     for i in range(model.m):
-        acc = {}
+        acc = zero
         for k in range(N):
             if H[i, k] != 0:
-                acc = T.poly_add(acc, zx[k], H[i, k])
-                acc = T.poly_add(acc, zhat(k), -H[i, k])
-        innov[i] = T.poly_clean(acc, 1e-15)
+                acc = acc + zx[k] * float(H[i, k])
+                acc = acc + zhat(k) * float(-H[i, k])
+        innov[i] = acc.clean(1e-15)
     meas_noise = []  # for each measurement noise l: the m-vector M_l z(x)
     for l in range(r_meas):
         rows = []
         for i in range(model.m):
-            acc = {}
+            acc = zero
             for k in range(N):
                 if Ms[l, i, k] != 0:
-                    acc = T.poly_add(acc, zx[k], Ms[l, i, k])
+                    acc = acc + zx[k] * float(Ms[l, i, k])
             rows.append(acc)
         meas_noise.append(rows)
     for j in est:
-        acc = {}
+        acc = zero
         for k in range(N):
             if F[j, k] != 0:
-                acc = T.poly_add(acc, zhat(k), F[j, k])
+                acc = acc + zhat(k) * float(F[j, k])
         for i in range(model.m):
             if K[j, i] != 0:
-                acc = T.poly_add(acc, innov[i], K[j, i])
-        drift.append(T.poly_clean(acc, 1e-15))
-        row = [{} for _ in range(q_proc)]
+                acc = acc + innov[i] * float(K[j, i])
+        drift.append(acc.clean(1e-15))
+        row = [zero] * q_proc
         for l in range(r_meas):
-            acc = {}
+            acc = zero
             for i in range(model.m):
-                if K[j, i] != 0 and meas_noise[l][i]:
-                    acc = T.poly_add(acc, meas_noise[l][i], K[j, i])
-            row.append(T.poly_clean(acc, 1e-15))
+                if K[j, i] != 0 and meas_noise[l][i].terms:
+                    acc = acc + meas_noise[l][i] * float(K[j, i])
+            row.append(acc.clean(1e-15))
         diff.append(row)
     names = list(base.names) + [f"hat({model.names[k]})" for k in est]
-    sde = T.PolySDE(drift, diff, np.eye(q_proc + r_meas), names)
+    sde = PolynomialSDE.from_noise(drift, diff, np.eye(q_proc + r_meas), names=names)
     return JointProcess(sde, nb, est, fixed, cp, K)
 
 
@@ -546,18 +543,18 @@ def odd_features(vars_: Sequence[int], degree: int, nv: int, *, cross: bool = Fa
     each variable alone (001 eq. 3.29, 5.11), or every odd-degree product if ``cross``."""
     out = []
     if cross:
-        for e in T.monomials_upto(len(vars_), degree):
+        for e in monomials(len(vars_), degree, min_degree=1):
             if sum(e) % 2 == 1:
                 full = [0] * nv
                 for v, a in zip(vars_, e):
                     full[v] = a
-                out.append({tuple(full): 1.0})
+                out.append(Polynomial({tuple(full): 1.0}, nv))
         return out
     for v in vars_:
         for p in range(1, degree + 1, 2):
             full = [0] * nv
             full[v] = p
-            out.append({tuple(full): 1.0})
+            out.append(Polynomial({tuple(full): 1.0}, nv))
     return out
 
 
@@ -571,7 +568,7 @@ class PostProcessorFit:
     features: list
     mse: float
     mse_linear: float
-    target: dict
+    target: Polynomial
     moments: dict = field(repr=False)
 
     @property
@@ -579,35 +576,31 @@ class PostProcessorFit:
         """Relative MSE reduction over the linear estimate, in percent (001 Fig. 4.3)."""
         return 100.0 * (1.0 - self.mse / self.mse_linear)
 
-    def output_poly(self) -> dict:
-        acc = {}
+    def output_poly(self) -> Polynomial:
+        acc = Polynomial({}, self.target.nvars)
         for a, f in zip(self.gains, self.features):
-            acc = T.poly_add(acc, f, float(a))
+            acc = acc + f * float(a)
         return acc
 
 
-def _products(polys_a, polys_b):
-    return [[T.poly_mul(a, b) for b in polys_b] for a in polys_a]
-
-
-def fit_post_processor(jp: JointProcess, target: dict, features: list, linear: dict, *,
+def fit_post_processor(jp: JointProcess, target: Polynomial, features: list, linear: Polynomial, *,
                        initial: Callable | None = None, moments: dict | None = None) -> PostProcessorFit:
     """Gains of the post-processor minimizing ``E[(target − Σ α_k φ_k)²]`` from the exact
     steady-state joint moments (001 eqs. 3.33-3.35 generalised to a least-squares solve):
     ``E[φ φᵀ] α = E[target φ]``. ``linear`` is the linear estimate of the target (for the
     reference MSE). ``initial``: moments at t = 0 of the joint variables, needed when the dynamics
-    conserve moments (see :func:`~nlfilter.moments.tensor.steady_state`)."""
-    Phi_p = _products(features, features)
-    g_p = [T.poly_mul(target, f) for f in features]
-    extra = [T.poly_mul(target, target), T.poly_mul(target, linear), T.poly_mul(linear, linear)]
+    conserve moments (see :func:`~nlfilter.moments.solve.linear_steady_state`)."""
+    Phi_p = [[a * b for b in features] for a in features]
+    g_p = [target * f for f in features]
+    extra = [target * target, target * linear, linear * linear]
     wanted = set()
     for p in [q for row in Phi_p for q in row] + g_p + extra:
-        wanted.update(p)
+        wanted.update(p.terms)
     mom = dict(moments or {})
     missing = [m for m in wanted if m not in mom]
     if missing:
-        mom.update(T.moments(jp.sde, missing, initial=initial))
-    E = lambda p: T.expectation(p, mom)  # noqa: E731
+        mom.update(stationary_moments(jp.sde, missing, initial=initial))
+    E = lambda p: float(p.expect(mom))  # noqa: E731
     Phi = np.array([[E(p) for p in row] for row in Phi_p])
     g = np.array([E(p) for p in g_p])
     dn = np.sqrt(np.maximum(np.diag(Phi), 1e-300))  # normalise the features to unit RMS
@@ -620,18 +613,6 @@ def fit_post_processor(jp: JointProcess, target: dict, features: list, linear: d
     mse = E(extra[0]) - float(g @ alpha)
     mse_lin = E(extra[0]) - 2 * E(extra[1]) + E(extra[2])
     return PostProcessorFit(alpha, list(features), mse, mse_lin, target, mom)
-
-
-def evaluate_poly(p: dict, values: np.ndarray) -> np.ndarray:
-    """``p`` at a batch of joint-variable values ``(..., nv)`` (only the variables it uses)."""
-    out = np.zeros(values.shape[:-1])
-    for e, c in p.items():
-        term = np.full(values.shape[:-1], float(c))
-        for v, a in enumerate(e):
-            if a:
-                term = term * values[..., v] ** a
-        out = out + term
-    return out
 
 
 class TensorFilter:
@@ -705,7 +686,7 @@ class TensorFilter:
         vals = np.zeros((*zhat.shape[:-1], jp.sde.n))
         for i, k in enumerate(jp.estimate_vars):
             vals[..., jp.nb + i] = zhat[..., k]
-        return np.stack([evaluate_poly(f.output_poly(), vals) for f in fits], axis=-1)
+        return np.stack([f.output_poly()(vals) for f in fits], axis=-1)
 
     def run(self, dys, m0, P0, *, on_divergence: str = "raise") -> Estimates:
         """Linear estimates (augmented) then post-processing; ``means`` are the targets'
@@ -726,8 +707,7 @@ def multistage(jp: JointProcess, first: PostProcessorFit, degree: int = 3, *, in
     ``x̃ = ψ(ẑ)`` (polynomials of ``ẑ`` of degree ``deg ψ · degree``), gains again by least squares
     from exact moments. Its MSE is never above the first stage's (``x̃`` itself is a feature)."""
     out = first.output_poly()
-    nv = jp.sde.n
-    feats = [T.poly_clean(T.poly_pow(out, p, nv), 0.0) for p in range(1, degree + 1, 2)]
+    feats = [out ** p for p in range(1, degree + 1, 2)]
     fit = fit_post_processor(jp, first.target, feats, out, initial=initial, moments=first.moments)
     fit.mse_linear = first.mse_linear
     return fit
@@ -845,23 +825,23 @@ class PseudoObservablesFilter:
         nb, m = base.n, model.m
         nv = nb + m
         aug = model.augmented(0)
-        ext = lambda p: {tuple(list(e) + [0] * m): c for e, c in p.items()}  # noqa: E731
         Lr = np.linalg.cholesky(model.R + 1e-300 * np.eye(m)) if np.all(np.linalg.eigvalsh(model.R) > 0) else None
         if Lr is None:
             raise ValueError("model.R: expected positive definite")
         q = base.r
-        drift = [ext(p) for p in base.drift]
-        diff = [[ext(base.diffusion[i][a]) for a in range(q)] + [{} for _ in range(m)] for i in range(nb)]
+        zero = Polynomial({}, nv)
+        drift = [p.pad(nv) for p in base.drift]
+        diff = [[base.noise[i][a].pad(nv) for a in range(q)] + [zero] * m for i in range(nb)]
         cp = model.coord_polys()
         for i in range(m):  # dy_i = (H z(x) + d)_i dt + (R^½ dv)_i
-            acc = {}
+            acc = zero
             for k in range(model.N):
                 if aug.H[i, k] != 0:
-                    acc = T.poly_add(acc, ext(cp[k]), aug.H[i, k])
-            drift.append(T.poly_clean(acc))
-            diff.append([{} for _ in range(q)] + [({(0,) * nv: float(Lr[i, j])} if Lr[i, j] else {}) for j in range(m)])
+                    acc = acc + cp[k].pad(nv) * float(aug.H[i, k])
+            drift.append(acc)
+            diff.append([zero] * q + [Polynomial.constant(float(Lr[i, j]), nv) for j in range(m)])
         names = list(base.names) + [f"y{i + 1}" for i in range(m)]
-        sde = T.PolySDE(drift, diff, np.eye(q + m), names)
+        sde = PolynomialSDE.from_noise(drift, diff, np.eye(q + m), names=names)
         obs, meta = [], []
         for i in range(m):
             for p in self.powers:
@@ -871,20 +851,12 @@ class PseudoObservablesFilter:
                 meta.append((i, p))
         self.obs_meta = meta
         seeds = [tuple(int(j == v) for j in range(nv)) for v in range(nb)] + obs
-        mons = T.closed_set(sde, seeds, with_noise=True)
-        zero = (0,) * nv
-        coords = mons + [zero]
-        A, Bs = T.bilinear_lift(sde, coords)
+        mons = closed_hull(sde, seeds, with_noise=True)
+        coords = mons + [(0,) * nv]
+        A, Bs = bilinear_lift(sde, coords)
         idx = {c: k for k, c in enumerate(coords)}
-        N = len(coords)
-        H = np.zeros((len(obs), N))
-        Ms = np.zeros((q + m, len(obs), N))
-        for o, mon in enumerate(obs):
-            for e, c in sde.generator(mon).items():
-                H[o, idx[e]] += c
-            for a, pa in enumerate(sde.noise(mon)):
-                for e, c in pa.items():
-                    Ms[a, o, idx[e]] += c
+        rows = [idx[o] for o in obs]  # the pseudo-observables are coordinates: their rows of the lift
+        H, Ms = A[rows], np.array([B[rows] for B in Bs])
         self.sde, self.coords, self.index, self.obs = sde, coords, idx, obs
         self.A, self.B, self.H, self.M = A, np.array(Bs), H, Ms
         self.nb, self.m = nb, m
@@ -967,4 +939,4 @@ class PseudoObservablesFilter:
 __all__ = ["PseudoObservablesFilter", "OptimalLinearFilter", "DiscreteOptimalLinearFilter", "LinearSteadyState", "WonhamReport",
            "wonham_condition", "state_second_moments", "augmented_second_moment", "JointProcess",
            "joint_process", "odd_features", "fit_post_processor", "PostProcessorFit", "TensorFilter",
-           "multistage", "UpdatedInnovationsFilter", "evaluate_poly"]
+           "multistage", "UpdatedInnovationsFilter"]

@@ -16,6 +16,16 @@ and ``c`` collects the constant monomial (``E[1] = 1``) unless ``(0,…,0)`` is 
 degree, a linear SDE with S = all monomials up to a degree …); then the moments are exact.
 Otherwise a closure (:mod:`nlfilter.moments.closures`) gives ``ν`` from ``μ``.
 
+Noise coefficients and the bilinear lift (seed 001 eqs. 2.16, 3.13, Appendices A-B). With the
+noise columns ``G`` kept (not only σ), the Itô rule gives the whole differential of a monomial::
+
+    d x^γ = L x^γ dt + Σ_a (Σ_i G_ia ∂_i x^γ) dβ_a
+
+When a set of monomials is closed under both ``L`` and the noise coefficients
+(:func:`closed_hull` with ``with_noise=True``), its vector ``x_[p]`` obeys the bilinear equation
+``d x_[p] = A x_[p] dt + Σ_a B_a x_[p] dβ_a`` (:func:`bilinear_lift`); SymPy coefficients
+(``exact=True``) reproduce the thesis' symbolic appendices entry by entry.
+
 Discrete time: ``x[k+1] = f(x[k]) + G(x[k]) w[k]`` with ``w`` independent of ``x`` and known
 moments gives ``μ[k+1] = A μ[k] + B ν[k] + c`` from ``E[x_{k+1}^γ] = E[(f + G w)^γ]``
 (:func:`discrete_moment_equations`).
@@ -26,7 +36,10 @@ Front doors
   objects (``from_model(SDEModel)``, ``from_sympy(states, f, sigma)`` or direct dicts), for any
   augmented state (e.g. (state, linear estimate) of seed 001);
 * :func:`moment_equations` — sparse ``(A, B, c)`` and the list of missing monomials;
-* :func:`closed_hull` / :func:`is_closed` — the smallest closed set containing given monomials;
+* :func:`closed_hull` / :func:`is_closed` — the smallest closed set containing given monomials
+  (optionally closed under the noise coefficients too);
+* :func:`bilinear_lift` — ``d x_[p] = A x_[p] dt + Σ_a B_a x_[p] dβ_a`` of a closed monomial set
+  (seed 001 eq. 3.13), from an SDE that keeps its noise columns G;
 * :class:`PolynomialMap` and :func:`discrete_moment_equations` — the discrete counterpart.
 
 Coefficients may depend on time or on other symbols (e.g. tabulated gains): the matrices are then
@@ -51,10 +64,12 @@ import numpy as np
 import scipy.sparse as sps
 import sympy as sp
 
-from ..polynomials import Polynomial, add_exp, as_polynomial, monomials
+from ..errors import MomentsNotClosedError
+from ..polynomials import Polynomial, add_exp, as_polynomial, monomial_name, monomials
 
 __all__ = ["PolynomialSDE", "PolynomialMap", "MomentEquations", "moment_equations",
-           "discrete_moment_equations", "closed_hull", "is_closed", "generator", "gaussian_noise_moments",
+           "discrete_moment_equations", "closed_hull", "is_closed", "generator", "bilinear_lift",
+           "gaussian_noise_moments",
            "monomials", "degree_order"]
 
 
@@ -94,9 +109,15 @@ class PolynomialSDE:
     ``diffusion`` (n x n symmetric polynomials σ = G Q Gᵀ).
 
     ``symbols``: the coefficient symbols (time first when given); ``states``: SymPy symbols of the
-    state if known (for messages and conversions). Use :meth:`from_model` for an
-    :class:`~nlfilter.models.SDEModel`, :meth:`from_sympy` for expressions, or build it from
-    :class:`Polynomial` objects / dicts for an augmented state.
+    state if known (for messages and conversions); ``names``: variable names (default from
+    ``states``, else x1..xn). Use :meth:`from_model` for an :class:`~nlfilter.models.SDEModel`,
+    :meth:`from_sympy` for expressions, or build it from :class:`Polynomial` objects / dicts for
+    an augmented state.
+
+    Noise columns (optional, :meth:`from_noise` or ``from_sympy(..., G=..., Q=...)``): ``noise``
+    (n x r polynomials G) and ``noise_cov`` (r x r, Q). The moments need only σ; the bilinear lift
+    ``d x_[p] = A x_[p] dt + Σ_a B_a x_[p] dβ_a`` of seed 001 (eqs. 3.13, A.2) needs the
+    coefficient of each ``dβ_a`` in ``d x^γ``, :meth:`noise_terms` (see :func:`bilinear_lift`).
     """
 
     drift: tuple
@@ -104,6 +125,10 @@ class PolynomialSDE:
     time: object = None
     states: tuple | None = None
     symbols: tuple = field(default=())
+    noise: tuple | None = None
+    noise_cov: object = field(default=None, compare=False)
+    names: tuple | None = None
+    _cache: dict = field(default_factory=dict, init=False, repr=False, compare=False)
 
     def __post_init__(self):
         n = len(self.drift)
@@ -127,24 +152,99 @@ class PolynomialSDE:
             syms |= p.symbols
         order = ([self.time] if self.time is not None else []) + sorted(syms - {self.time}, key=str)
         object.__setattr__(self, "symbols", tuple(order))
+        if self.noise is not None:
+            G = tuple(tuple(as_polynomial(p, n, name=f"noise[{i}][{a}]") for a, p in enumerate(row))
+                      for i, row in enumerate(self.noise))
+            r = len(G[0]) if G else 0
+            if len(G) != n or any(len(row) != r for row in G):
+                raise ValueError(f"noise: expected an {n} x r matrix of polynomials (G), got rows of lengths "
+                                 f"{[len(row) for row in G]}")
+            object.__setattr__(self, "noise", G)
+        if self.names is None:
+            names = [str(v) for v in self.states] if self.states is not None else [f"x{i + 1}" for i in range(n)]
+            object.__setattr__(self, "names", tuple(names))
+        elif len(self.names) != n:
+            raise ValueError(f"names: expected {n} names, got {len(self.names)}")
+        polys = drift + tuple(q for row in diff for q in row) + tuple(q for row in (self.noise or ()) for q in row)
+        object.__setattr__(self, "_exact", any(p.exact for p in polys))
 
     @property
     def n(self) -> int:
         return len(self.drift)
 
+    @property
+    def r(self) -> int:
+        """Number of noise columns (0 when only σ is known)."""
+        return len(self.noise[0]) if self.noise else 0
+
+    @property
+    def is_numeric(self) -> bool:
+        """True when every coefficient is a float (no symbols, not exact)."""
+        polys = self.drift + tuple(q for row in self.diffusion for q in row)
+        polys += tuple(q for row in (self.noise or ()) for q in row)
+        return all(p.is_numeric for p in polys)
+
     @classmethod
-    def from_sympy(cls, states, f, sigma, *, time=None) -> "PolynomialSDE":
-        """From SymPy: ``f`` (n expressions), ``sigma`` (n x n, σ = G Q Gᵀ)."""
+    def from_noise(cls, drift, G, Q=None, *, time=None, states=None, names=None) -> "PolynomialSDE":
+        """From the drift (n polynomials), the noise columns ``G`` (n x r polynomials) and the
+        noise covariance ``Q`` (r x r numbers or SymPy expressions; default I): σ = G Q Gᵀ."""
+        n = len(drift)
+        G = tuple(tuple(as_polynomial(p, n, name=f"G[{i}][{a}]") for a, p in enumerate(row)) for i, row in enumerate(G))
+        if len(G) != n:
+            raise ValueError(f"G: expected {n} rows, got {len(G)}")
+        r = len(G[0]) if G else 0
+        Q = np.eye(r) if Q is None else Q
+        Qa = Q if isinstance(Q, sp.MatrixBase) else np.asarray(Q, dtype=object if _symbolic(Q) else float)
+        if Qa.shape != (r, r):
+            raise ValueError(f"Q: expected shape ({r}, {r}) for {r} noise column(s), got {Qa.shape}")
+        exact = any(p.exact for row in G for p in row)
+        sigma = []
+        for i in range(n):
+            row = []
+            for j in range(n):
+                acc = Polynomial({}, n, exact=exact)
+                for a in range(r):
+                    for b in range(r):
+                        qab = float(Qa[a, b]) if isinstance(Qa[a, b], (float, np.floating)) else Qa[a, b]
+                        if qab != 0:
+                            acc = acc + (G[i][a] * G[j][b]) * qab
+                row.append(acc)
+            sigma.append(tuple(row))
+        return cls(tuple(drift), tuple(sigma), time=time, states=states, noise=G, noise_cov=Qa,
+                   names=None if names is None else tuple(names))
+
+    @classmethod
+    def from_sympy(cls, states, f, sigma=None, *, G=None, Q=None, time=None, exact: bool = False,
+                   names=None) -> "PolynomialSDE":
+        """From SymPy: ``f`` (n expressions) and either ``sigma`` (n x n, σ = G Q Gᵀ) or the noise
+        columns ``G`` (n x r) with their covariance ``Q`` (r x r or a scalar; default I).
+        ``exact``: exact SymPy coefficients (see :mod:`nlfilter.polynomials`)."""
         states = list(states)
-        fM = sp.Matrix(f)
-        sM = sp.Matrix(sigma)
-        drift = [Polynomial.from_sympy(e, states, name=f"f[{i}]") for i, e in enumerate(fM)]
         n = len(states)
+        fM = sp.Matrix(f)
+        drift = [Polynomial.from_sympy(e, states, name=f"f[{i}]", exact=exact) for i, e in enumerate(fM)]
+        if (sigma is None) == (G is None):
+            raise ValueError("sigma, G: expected exactly one of sigma (σ = G Q Gᵀ) and G (noise columns)")
+        if sigma is not None and Q is not None:
+            raise ValueError("Q: the noise covariance goes with G (noise columns), not with sigma = G Q Gᵀ")
+        if G is not None:
+            GM = sp.Matrix(G)
+            if GM.shape[0] != n:
+                raise ValueError(f"G: expected {n} rows, got shape {GM.shape}")
+            Gp = [[Polynomial.from_sympy(GM[i, a], states, name=f"G[{i},{a}]", exact=exact) for a in range(GM.shape[1])]
+                  for i in range(n)]
+            if Q is not None and np.ndim(Q) == 0 and not isinstance(Q, sp.MatrixBase):
+                Q = [[Q]]
+            if Q is not None and (exact or _symbolic(Q)):
+                Q = sp.Matrix(Q)
+            return cls.from_noise(drift, Gp, Q, time=time, states=tuple(states), names=names)
+        sM = sp.Matrix(sigma)
         if sM.shape != (n, n):
             raise ValueError(f"sigma: expected shape ({n}, {n}), got {sM.shape}")
-        diff = [[Polynomial.from_sympy(sM[i, j], states, name=f"GQGᵀ[{i},{j}]") for j in range(n)]
+        diff = [[Polynomial.from_sympy(sM[i, j], states, name=f"GQGᵀ[{i},{j}]", exact=exact) for j in range(n)]
                 for i in range(n)]
-        return cls(tuple(drift), tuple(map(tuple, diff)), time=time, states=tuple(states))
+        return cls(tuple(drift), tuple(map(tuple, diff)), time=time, states=tuple(states),
+                   names=None if names is None else tuple(names))
 
     @classmethod
     def from_model(cls, model) -> "PolynomialSDE":
@@ -158,10 +258,16 @@ class PolynomialSDE:
         return cls.from_sympy(model.states, model.sym["f"], sigma, time=model.time)
 
     def generator(self, gamma: tuple) -> Polynomial:
-        """The polynomial ``L x^γ`` (003 eq. 11)."""
+        """The polynomial ``L x^γ`` (003 eq. 11; 001 eq. 2.16), cached per monomial."""
+        gamma = tuple(gamma)
+        key = ("L", gamma)
+        if key in self._cache:
+            return self._cache[key]
         n = self.n
-        out = Polynomial({}, n)
-        mono = Polynomial({tuple(gamma): 1.0}, n)
+        exact = self._exact
+        out = Polynomial({}, n, exact=exact)
+        mono = Polynomial({gamma: 1}, n, exact=exact)
+        half = sp.Rational(1, 2) if exact else 0.5
         for s in range(n):
             if gamma[s]:
                 out = out + self.drift[s] * mono.diff(s)
@@ -169,8 +275,35 @@ class PolynomialSDE:
             for h in range(n):
                 d2 = mono.diff(s).diff(h)
                 if d2.terms:
-                    out = out + 0.5 * self.diffusion[s][h] * d2
+                    out = out + half * self.diffusion[s][h] * d2
+        self._cache[key] = out
         return out
+
+    def noise_terms(self, gamma: tuple) -> list:
+        """The coefficients of ``dβ_a`` in ``d x^γ``: ``Σ_i G_ia ∂_i x^γ`` for a = 1..r (001 eq. 2.16),
+        cached per monomial. Needs the noise columns."""
+        gamma = tuple(gamma)
+        key = ("noise", gamma)
+        if key in self._cache:
+            return self._cache[key]
+        if self.noise is None:
+            raise ValueError("sde: the noise columns G are not known (built from σ = G Q Gᵀ); build it with "
+                             "PolynomialSDE.from_noise or from_sympy(..., G=...)")
+        n = self.n
+        mono = Polynomial({gamma: 1}, n, exact=self._exact)
+        out = []
+        for a in range(self.r):
+            acc = Polynomial({}, n, exact=mono.exact)
+            for i in range(n):
+                if gamma[i] and self.noise[i][a].terms:
+                    acc = acc + self.noise[i][a] * mono.diff(i)
+            out.append(acc)
+        self._cache[key] = out
+        return out
+
+
+def _symbolic(Q) -> bool:
+    return any(isinstance(v, sp.Basic) and not v.is_number for v in np.asarray(Q, dtype=object).ravel())
 
 
 def generator(sde: PolynomialSDE, gamma) -> Polynomial:
@@ -542,10 +675,13 @@ def discrete_moment_equations(pmap: PolynomialMap, indices: Sequence[tuple]) -> 
     return _assemble(indices, rows, groups, symbols, "discrete", pmap.time)
 
 
-def closed_hull(sde, start: Sequence[tuple], *, max_size: int = 20000) -> list[tuple]:
-    """The smallest set of monomials containing ``start`` and closed under the generator
-    (the constant monomial is not added: it enters through ``c``). Raises ``ValueError`` when the
-    set grows past ``max_size`` (the hierarchy does not close, e.g. a cubic drift).
+def closed_hull(sde, start: Sequence[tuple], *, max_size: int = 20000, with_noise: bool = False) -> list[tuple]:
+    """The smallest set of monomials containing ``start`` and closed under the generator (and,
+    if ``with_noise``, under the noise coefficients :meth:`PolynomialSDE.noise_terms` too, as the
+    bilinear lift ``x_[p]`` of seed 001 eq. 3.13 needs). The constant monomial is not added: it
+    enters through ``c``. Raises :class:`~nlfilter.errors.MomentsNotClosedError` (a
+    ``ValueError``) when the set grows past ``max_size`` (the hierarchy does not close, e.g. a
+    cubic drift).
 
     >>> import sympy as sp
     >>> x, y = sp.symbols("x y")
@@ -561,14 +697,56 @@ def closed_hull(sde, start: Sequence[tuple], *, max_size: int = 20000) -> list[t
     zero = (0,) * n
     while todo:
         g = todo.pop()
-        for e in sde.generator(g).terms:
+        nxt = list(sde.generator(g).terms)
+        if with_noise:
+            for p in sde.noise_terms(g):
+                nxt.extend(p.terms)
+        for e in nxt:
             if e != zero and e not in seen:
                 seen.add(e)
                 todo.append(e)
                 if len(seen) > max_size:
-                    raise ValueError(f"start: the moment hierarchy from {list(start)[:3]} does not close "
-                                     f"within max_size={max_size} monomials (reached degree {sum(e)})")
+                    raise MomentsNotClosedError(
+                        f"start: the moment hierarchy from {list(start)[:3]} does not close within "
+                        f"max_size={max_size} monomials (reached {monomial_name(e, sde.names)}, degree {sum(e)})")
     return sorted(seen, key=degree_order)
+
+
+def bilinear_lift(sde: PolynomialSDE, indices: Sequence[tuple]):
+    """The bilinear system ``d z = A z dt + Σ_a B_a z dβ_a`` of ``z`` = the monomials ``indices``
+    (001 eqs. 3.13, A.2; the constant monomial may be included, e.g. last, as in 001
+    Appendices A-B). Rows: the generator ``L x^γ`` and the noise coefficients of ``d x^γ``.
+
+    Returns dense ``(A, [B_a])``: NumPy, or SymPy when a coefficient is symbolic or exact.
+    Raises :class:`~nlfilter.errors.MomentsNotClosedError` if the set is not closed under both.
+
+    >>> x = sp.Symbol("x")
+    >>> sde = PolynomialSDE.from_sympy([x], [-x], G=[[1]], Q=2.0)     # dx = -x dt + dw, E dw² = 2 dt
+    >>> A, (B,) = bilinear_lift(sde, [(1,), (2,), (0,)])            # z = (x, x², 1)
+    >>> A.tolist(), B.tolist()
+    ([[-1.0, 0.0, 0.0], [0.0, -2.0, 2.0], [0.0, 0.0, 0.0]], [[0.0, 0.0, 1.0], [2.0, 0.0, 0.0], [0.0, 0.0, 0.0]])
+    """
+    if not isinstance(sde, PolynomialSDE):
+        raise TypeError(f"sde: expected a PolynomialSDE with its noise columns, got {type(sde).__name__}")
+    mons = _check_indices(indices, sde.n)
+    idx = {m: k for k, m in enumerate(mons)}
+    N = len(mons)
+    sym = not sde.is_numeric
+    A = sp.zeros(N, N) if sym else np.zeros((N, N))
+    Bs = [sp.zeros(N, N) if sym else np.zeros((N, N)) for _ in range(sde.r)]
+    for k, m in enumerate(mons):
+        for e, c in sde.generator(m).terms.items():
+            if e not in idx:
+                raise MomentsNotClosedError(f"indices: L({monomial_name(m, sde.names)}) has "
+                                            f"{monomial_name(e, sde.names)}, not in the monomial set")
+            A[k, idx[e]] += c
+        for a, p in enumerate(sde.noise_terms(m)):
+            for e, c in p.terms.items():
+                if e not in idx:
+                    raise MomentsNotClosedError(f"indices: noise {a} of {monomial_name(m, sde.names)} "
+                                                f"has {monomial_name(e, sde.names)}, not in the monomial set")
+                Bs[a][k, idx[e]] += c
+    return A, Bs
 
 
 def is_closed(sde, indices: Sequence[tuple]) -> bool:
