@@ -200,8 +200,12 @@ class GridFilter:
         if initial is not None:
             logp = initial.logpdf(self.X)
         else:
-            m0 = V.as_float_array("m0", m0).reshape(-1) if np.ndim(m0) else np.full(self.model.n, float(m0))
-            logp = Gaussian(V.covariance("P0", P0, self.model.n)).logpdf(self.X - m0)
+            if m0 is None or P0 is None:
+                raise ValueError("m0/P0: expected the prior mean and covariance (or initial), got None")
+            n = self.model.n
+            m0 = V.as_float_array("m0", m0, ndim=1, shape_tail=(n,)) if np.ndim(m0) else np.full(n, float(m0))
+            V.finite("m0", m0)
+            logp = Gaussian(V.covariance("P0", P0, n)).logpdf(self.X - m0)
         p = np.exp(logp - np.max(logp))
         if not np.isfinite(p).all() or p.sum() <= 0:
             raise ValueError("m0/P0: the prior has no mass on the grid; widen bounds")
@@ -238,6 +242,7 @@ class GridFilter:
         and a too-narrow grid) is a divergence of that path."""
         md = self.model
         ys = V.as_float_array("ys", ys, ndim_min=2, shape_tail=(None, md.m))
+        V.finite("ys", ys, allow_nan=True)  # NaN: missing
         batch, T = ys.shape[:-2], ys.shape[-2]
         p = self.prior(m0, P0, batch, initial)
         out = _Runner(batch, T, md.n, on_divergence, self.name)
@@ -330,6 +335,7 @@ class ParticleFilter:
         md = self.model
         rng = V.rng(rng)
         ys = V.as_float_array("ys", ys, ndim_min=2, shape_tail=(None, md.m))
+        V.finite("ys", ys, allow_nan=True)  # NaN: missing
         batch, T = ys.shape[:-2], ys.shape[-2]
         B, Np = int(np.prod(batch)), self.particles
         yf = ys.reshape(B, T, md.m)
