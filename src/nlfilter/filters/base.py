@@ -126,6 +126,7 @@ def gaussian_update(state: GaussianState, y: np.ndarray, y_pred: np.ndarray, S: 
     ``C`` (..., n, m) = Cov[x, h]. With a linearization ``H`` (..., m, n) and ``R`` the covariance
     is updated in Joseph form, ``(I − K H) P (I − K H)ᵀ + K R Kᵀ`` (symmetric PSD by
     construction); otherwise ``P − K S Kᵀ``, symmetrized. NaN components of ``y`` are missing.
+    Paths whose ``S`` is singular come back as NaN (:func:`poison`: ``run`` raises or marks them).
     """
     m, P = state
     # a NaN anywhere makes the sum NaN: one reduction screens the common complete case
@@ -147,10 +148,14 @@ def gaussian_update(state: GaussianState, y: np.ndarray, y_pred: np.ndarray, S: 
             IKH = 1.0 - K * H
             return GaussianState(mean, IKH * IKH * P + K * K * R)
         return GaussianState(mean, P - K * K * S)
+    singular = None
     if S.shape[-1] == 1:  # scalar measurement: no solve needed
         K = C / S
     else:
-        K = np.swapaxes(np.linalg.solve(S, np.swapaxes(C, -1, -2)), -1, -2)  # K = C S⁻¹ (S symmetric)
+        try:
+            K = np.swapaxes(np.linalg.solve(S, np.swapaxes(C, -1, -2)), -1, -2)  # K = C S⁻¹ (S symmetric)
+        except np.linalg.LinAlgError:  # a (numerically) singular S on some path: poison those paths only
+            K, singular = _solve_paths(S, C)
     mean = m + (K[..., 0] * e if e.shape[-1] == 1 else np.einsum("...ij,...j->...i", K, e))
     Kt = np.swapaxes(K, -1, -2)
     if H is not None:  # Joseph form; K's missing columns are zero, so R's missing rows never enter
@@ -158,7 +163,20 @@ def gaussian_update(state: GaussianState, y: np.ndarray, y_pred: np.ndarray, S: 
         cov = mm(mm(IKH, P), np.swapaxes(IKH, -1, -2)) + mm(mm(K, R), Kt)
     else:
         cov = P - mm(mm(K, S), Kt)
-    return GaussianState(mean, symmetrize(cov))
+    return poison(GaussianState(mean, symmetrize(cov)), singular)
+
+
+def _solve_paths(S, C):
+    """``(K = C S⁻¹, singular)`` when a batched solve failed: the paths whose innovation covariance
+    ``S`` is non-finite or singular (LU determinant sign ≤ 0; S must be positive definite) get
+    ``S = I`` here and are returned in ``singular`` (the caller poisons them, so that ``run``
+    raises or marks them); the other paths are solved as usual."""
+    eye = np.eye(S.shape[-1])
+    ok = np.all(np.isfinite(S), axis=(-1, -2))
+    sign, _ = np.linalg.slogdet(np.where(ok[..., None, None], S, eye))
+    singular = ~ok | ~(sign > 0)
+    safe = np.where(singular[..., None, None], eye, S)
+    return np.swapaxes(np.linalg.solve(safe, np.swapaxes(C, -1, -2)), -1, -2), singular
 
 
 def _prepare(name_ys, ys, m0, P0, n, m):
@@ -175,6 +193,32 @@ def _prepare(name_ys, ys, m0, P0, n, m):
         raise ValueError(f"m0/P0: shapes {m0.shape}, {P0.shape} do not broadcast to the batch "
                          f"{batch} of {name_ys}") from None
     return ys, GaussianState(mean, cov), batch
+
+
+def screen_outputs(name: str, values: np.ndarray, diverged=None, step=None, on_divergence: str = "raise"):
+    """Screen estimates ``values (..., T, k)`` computed after a run's own checks (a post-processor
+    of its means, a filter without covariances): a path with a non-finite value that is not yet
+    flagged diverges at its first such step. ``"raise"``: :class:`DivergenceError` naming the step
+    and paths; ``"mark"``: returns ``(values, diverged, step)`` with the path flagged and its values
+    NaN from that step on (never silent)."""
+    V.choice("on_divergence", on_divergence, {"raise", "mark"})
+    batch, T = values.shape[:-2], values.shape[-2]
+    diverged = np.zeros(batch, bool) if diverged is None else diverged
+    step = np.full(batch, -1) if step is None else step
+    fin = np.all(np.isfinite(values), axis=-1)  # (..., T)
+    new = ~np.all(fin, axis=-1) & ~diverged
+    if not new.any():
+        return values, diverged, step
+    first = np.argmin(fin, axis=-1)
+    if on_divergence == "raise":
+        idx = np.flatnonzero(new.ravel())
+        k = int(first[new].min())
+        raise DivergenceError(f"{name}: an estimate became non-finite at step {k} on {idx.size} path(s), first "
+                              f"{idx[:5].tolist()}", step=k, paths=idx, what="mean")
+    diverged = diverged | new
+    step = np.where(new, first, step)
+    after = diverged[..., None] & (np.arange(T) >= step[..., None])  # (..., T)
+    return np.where(after[..., None], np.nan, values), diverged, step
 
 
 class _Runner:

@@ -35,7 +35,7 @@ from ..errors import SingularSystemError
 from ..moments.ito import PolynomialSDE, bilinear_lift, closed_hull
 from ..moments.solve import linear_steady_state, stationary_moments
 from ..polynomials import Polynomial, monomials
-from .base import Estimates, _Runner, symmetrize
+from .base import Estimates, _Runner, screen_outputs, symmetrize
 
 
 # =========================================================================== second moments
@@ -694,12 +694,16 @@ class TensorFilter:
         on the diagonal (cross terms not computed: NaN)."""
         self.fit()
         est = self.linear.run(dys, m0, P0, on_divergence=on_divergence, return_augmented=True)
-        means = self.post_process(est.means)
+        with np.errstate(over="ignore", invalid="ignore"):  # an overflowing polynomial is screened below
+            means = self.post_process(est.means)
+        # the linear run checked ẑ; its post-processed value may still overflow (x̂³ of a huge ẑ)
+        means, diverged, step = screen_outputs(self.name, means, est.diverged, est.diverged_step, on_divergence)
         nt = len(self.targets)
         cov = np.full((nt, nt), np.nan)
         np.fill_diagonal(cov, [f.mse for f in self._fits])
         covs = np.broadcast_to(cov, (*means.shape, nt)).copy()
-        return Estimates(means, covs, est.diverged, est.diverged_step)
+        covs[diverged[..., None] & (np.arange(means.shape[-2]) >= step[..., None])] = np.nan  # as _Runner
+        return Estimates(means, covs, diverged, step)
 
 
 def multistage(jp: JointProcess, first: PostProcessorFit, degree: int = 3, *, initial=None) -> PostProcessorFit:

@@ -19,6 +19,7 @@ import numpy as np
 
 from .. import _validate as V
 from ..bilinear import phase_model
+from .base import screen_outputs
 from .bilinear import OptimalLinearFilter, TensorFilter
 
 
@@ -70,6 +71,17 @@ def _check(dzs):
     return dzs
 
 
+def _per_path(name, value, batch, tail=()):
+    """``value`` checked (finite) and broadcast to ``(*batch, *tail)`` (a copy)."""
+    arr = V.finite(name, V.as_float_array(name, value))
+    try:
+        return np.broadcast_to(arr, (*batch, *tail)).copy()
+    except ValueError:
+        want = "an array (..., " + ", ".join(map(str, tail)) + ")" if tail else "a scalar or an array"
+        raise ValueError(f"{name}: expected {want} broadcasting to the batch {batch} of dzs, "
+                         f"got shape {arr.shape}") from None
+
+
 class PLL:
     """Classical phase-lock loop (001 eqs. 4.8-4.10): ``dθ̂ = K dz_I`` with the in-phase
     measurement ``dz_I = cos θ̂ dz₁ − sin θ̂ dz₂`` (= sin(θ − θ̂) dt + noise, 001 eq. 4.6) and
@@ -90,8 +102,10 @@ class PLL:
         self.K = pll_gain(q, r) if K is None else float(V.positive("K", K))
 
     def run(self, dzs, theta0=0.0) -> PhaseEstimates:
+        """Phase estimates for increments ``dzs (..., T, 2)`` from ``theta0`` (scalar or per path);
+        :class:`~nlfilter.errors.DivergenceError` if an estimate becomes non-finite."""
         dzs = _check(dzs)
-        th = np.broadcast_to(np.asarray(theta0, dtype=float), dzs.shape[:-2]).copy()
+        th = _per_path("theta0", theta0, dzs.shape[:-2])
         out = np.empty(dzs.shape[:-1])
         h, K = self.dt, self.K
         for k in range(dzs.shape[-2]):
@@ -106,6 +120,7 @@ class PLL:
                 k4 = f(th + h * k3)
                 th = th + h / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
             out[..., k] = th
+        screen_outputs(self.name, out[..., None])  # a huge increment overflows θ̂: raise, never NaN
         return PhaseEstimates(out, None)
 
 
@@ -194,9 +209,17 @@ class CircleGridFilter:
         self._decay = np.exp(-0.5 * self.q * k ** 2 * self.dt)
 
     def run(self, dzs, p0=None) -> PhaseEstimates:
+        """Filter ``dzs (..., T, 2)`` from the prior ``p0`` on the grid (``(..., size)``, non-negative;
+        default uniform); :class:`~nlfilter.errors.DivergenceError` if an estimate becomes non-finite."""
         dzs = _check(dzs)
         batch, T = dzs.shape[:-2], dzs.shape[-2]
-        p = np.full((*batch, self.size), 1.0 / self.size) if p0 is None else np.broadcast_to(p0, (*batch, self.size)).copy()
+        if p0 is None:
+            p = np.full((*batch, self.size), 1.0 / self.size)
+        else:
+            p = _per_path("p0", p0, batch, (self.size,))
+            if np.any(p < 0) or np.any(~(p.sum(axis=-1) > 0)):
+                raise ValueError("p0: expected non-negative weights with a positive sum on every path")
+            p = p / p.sum(axis=-1, keepdims=True)
         s, c = np.sin(self.theta), np.cos(self.theta)
         xs = np.empty((*batch, T, 2))
         for k in range(T):
@@ -207,6 +230,7 @@ class CircleGridFilter:
             p = w / w.sum(axis=-1, keepdims=True)
             xs[..., k, 0] = p @ s
             xs[..., k, 1] = p @ c
+        screen_outputs(self.name, xs)  # an overflowing likelihood: raise, never NaN
         return PhaseEstimates(np.arctan2(xs[..., 0], xs[..., 1]), xs)
 
 
