@@ -55,7 +55,9 @@ Second-order problem (000 eqs. 2.6-2.8) — :class:`SecondOrderMomentFilter`
    bounding box, restricted to the polygon;
 4. the update integrates it exactly over the polygon cut by the slab ``|z - c.x| <= c_v``
    (fan of triangles, collapsed Gauss–Legendre rules exact for degree 2N) — posterior moments,
-   mean, fallback to the uniform law on the cut polygon as in 1-D;
+   mean, fallback to the uniform law on the cut polygon as in 1-D, and also when the posterior
+   covariance is not positive semi-definite (the degree-N polynomial is negative over much of the
+   cut, as on a loose bounding box: its "moments" are no law's);
 5. adaptation uses ``kappa_i(w) = kappa_i(y) / sum_j (c^T A^j b)^i`` with ``y = c.x``.
 
 All filters here return a :class:`MomentRun`; ``MomentRun.to_estimates()`` gives the common
@@ -265,6 +267,7 @@ class ZeroOrderMomentFilter:
         m = np.broadcast_to(self.initial_moments, (*batch, self.N))
         powers = np.arange(1, self.N + 1)
         acc = np.zeros((*batch, self.N))  # 000 eq. 2.28
+        zl = _learning_data(self, zs, self.x_min - self.c, self.x_max + self.c)
         W = self.window
         n_bad = 0
         # Steps with 1-based index k = W, 2W, ... refresh before estimating (Fig. 7 steps 4-6).
@@ -273,7 +276,7 @@ class ZeroOrderMomentFilter:
         prev = 0
         for a, b in zip(bounds[:-1], bounds[1:]):
             if a in refresh:
-                acc = acc + np.sum(zs[..., prev:a + 1, None] ** powers, axis=-2)
+                acc = acc + np.sum(zl[..., prev:a + 1, None] ** powers, axis=-2)
                 prev = n_s = a + 1
                 m = self.recover_moments(acc / n_s, n_s)  # eqs. 2.27, 3.14, 3.15
                 hist.append(m)
@@ -375,15 +378,23 @@ def _configure_input(flt, w_bound, N, w_moments, adaptive, initial_w_moments, n0
     flt.window = int(V.positive("window", window, integer=True))
 
 
+def _learning_data(flt, zs, lo, hi):
+    """The measurements the adaptive learner accumulates: with ``outside="clip"`` the clipped ones
+    (``[lo, hi]``: every possible measurement), as the estimates use them, so that an impossible
+    outlier cannot overflow the sample moments; else ``zs`` (an impossible one raises)."""
+    return np.clip(zs, lo, hi) if flt.outside == "clip" else zs
+
+
 def _start_run(flt, zs):
     """Checked ``zs (..., T)``, the batch shape, T, the input moments to start from (known, or
-    the initial guess of the adaptive estimator) over the batch, and the adaptive learner."""
+    the initial guess of the adaptive estimator) over the batch, the adaptive learner and the
+    measurements it learns from (:func:`_learning_data`; ``flt.z_bound``: largest possible |z|)."""
     zs = V.as_float_array("zs", zs, ndim_min=1)
     V.finite("zs", zs)
     batch, T = zs.shape[:-1], zs.shape[-1]
     mw = np.broadcast_to(flt.w_moments if not flt.adaptive else flt.initial_w_moments, (*batch, flt.N))
     learner = _AdaptiveInput(flt.N, flt.S, flt.mv, flt.initial_w_moments, flt.n0, flt.window)
-    return zs, batch, T, mw, learner
+    return zs, batch, T, mw, learner, _learning_data(flt, zs, -flt.z_bound, flt.z_bound)
 
 
 class FirstOrderMomentFilter:
@@ -432,6 +443,7 @@ class FirstOrderMomentFilter:
                          noise_halfwidth, eps, outside)
         self.bound = self.wb / (1.0 - abs(self.h))  # stationary reachable set |x| <= w_b/(1-|h|)
         self.S = 1.0 / (1.0 - self.h ** np.arange(1, self.N + 1))  # sum_j h^{ij} = 1/(1 - h^i)
+        self.z_bound = self.bound + self.c  # largest possible |z|
 
     # -- building blocks (all batched) ------------------------------------------------------
     def stationary_moments(self, mw):
@@ -481,7 +493,7 @@ class FirstOrderMomentFilter:
 
     def run(self, zs) -> MomentRun:
         """Filter a batch of measurement sequences ``zs`` (..., T)."""
-        zs, batch, T, mw, learner = _start_run(self, zs)
+        zs, batch, T, mw, learner, zl = _start_run(self, zs)
         est = np.empty((*batch, T, 1))
         lower = np.empty((*batch, T, 1))
         upper = np.empty((*batch, T, 1))
@@ -496,7 +508,7 @@ class FirstOrderMomentFilter:
         for k in range(T):
             z = zs[..., k]
             if self.adaptive:
-                acc = acc + z[..., None] ** powers
+                acc = acc + zl[..., k, None] ** powers
                 if (k + 1) % self.window == 0:  # refresh before estimating, as Fig. 7
                     mw = learner.moments(acc, k + 1)
                     hist.append(mw)
@@ -658,6 +670,7 @@ class SecondOrderMomentFilter:
         Ab = np.array(Ab)
         self.bound = self.wb * np.sum(np.abs(Ab), axis=0)
         self.S = impulse_power_sums(Ab @ self.cv, self.N)
+        self.z_bound = self.wb * float(np.sum(np.abs(Ab @ self.cv))) + self.c  # largest possible |z|
         self._K = self.N + 2  # Gauss-Legendre nodes per direction: exact for the degree-2N integrands
         self._gl = np.polynomial.legendre.leggauss(self._K)
         self._mask = _monomial_index(self.N)
@@ -767,7 +780,7 @@ class SecondOrderMomentFilter:
         nhi = np.max(verts, axis=-2)
         mean = np.stack([post[..., 1, 0], post[..., 0, 1]], axis=-1)
         fb = (~(I[..., 0, 0] >= self.eps) | ~np.all((mean >= nlo) & (mean <= nhi), axis=-1)
-              | ~np.all(np.isfinite(post[..., self._mask]), axis=-1))
+              | ~np.all(np.isfinite(post[..., self._mask]), axis=-1) | _not_psd(post))
         area = U[..., 0, 0]
         tiny = ~(area > 1e-14 * np.prod(self.bound))
         post = np.where(fb[..., None, None], uni, post)
@@ -834,7 +847,7 @@ class SecondOrderMomentFilter:
         nlo, nhi = np.min(Q, axis=-2), np.max(Q, axis=-2)
         mean = np.stack([post[..., 1, 0], post[..., 0, 1]], axis=-1)
         fb = (~(I[..., 0, 0] >= self.eps) | ~np.all((mean >= nlo) & (mean <= nhi), axis=-1)
-              | ~np.all(np.isfinite(post[..., self._mask]), axis=-1))
+              | ~np.all(np.isfinite(post[..., self._mask]), axis=-1) | _not_psd(post))
         post = np.where(fb[..., None, None], uni, post)
         # degenerate / inconsistent (clip mode): point mass at the polygon point nearest the slab
         proj = np.einsum("k,...pk->...p", self.cv, verts)
@@ -847,7 +860,7 @@ class SecondOrderMomentFilter:
 
     def run(self, zs) -> MomentRun:
         """Filter a batch of measurement sequences ``zs`` (..., T)."""
-        zs, batch, T, mw, learner = _start_run(self, zs)
+        zs, batch, T, mw, learner, zl = _start_run(self, zs)
         M, lo, hi = self.stationary(self.w_moments if not self.adaptive else self.initial_w_moments)
         M = np.broadcast_to(M, (*batch, self.N + 1, self.N + 1))
         lo = np.broadcast_to(lo, (*batch, 2))
@@ -864,7 +877,7 @@ class SecondOrderMomentFilter:
         for k in range(T):
             z = zs[..., k]
             if self.adaptive:
-                acc = acc + z[..., None] ** powers
+                acc = acc + zl[..., k, None] ** powers
                 if (k + 1) % self.window == 0:
                     mw = learner.moments(acc, k + 1)
                     hist.append(mw)
@@ -885,6 +898,17 @@ class SecondOrderMomentFilter:
                 covs[..., k, 0, 1] = covs[..., k, 1, 0] = c01
         H = np.stack(hist, axis=-2) if hist else np.zeros((*batch, 0, self.N))
         return MomentRun(est, fbs, lower, upper, H, covs)
+
+
+def _not_psd(post):
+    """Boolean ``(...)``: mixed moments ``post (..., N+1, N+1)`` (N ≥ 2) whose covariance is not
+    positive semi-definite (False for N < 2: no second moments)."""
+    if post.shape[-1] < 3:
+        return np.zeros(post.shape[:-2], bool)
+    m0, m1 = post[..., 1, 0], post[..., 0, 1]
+    v0, v1 = post[..., 2, 0] - m0 * m0, post[..., 0, 2] - m1 * m1
+    c = post[..., 1, 1] - m0 * m1
+    return ~((v0 >= 0) & (v1 >= 0) & (v0 * v1 >= c * c))
 
 
 def _clip_halfplane(P, d, beta):
