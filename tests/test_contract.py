@@ -1,0 +1,551 @@
+"""One contract for every public filter (``nlfilter.filters``; protocol of ``filters/base.py`` and the
+README's Conventions): batch shapes, batch independence, input checks naming the argument, no
+silent NaN, symmetric PSD covariances, missing data. Each row of ``CASES`` is (filter factory,
+small model, a valid input); filters with their own run signature (phase, moment_bayes) are
+adapted to the parts of the contract that apply to them.
+"""
+
+from __future__ import annotations
+
+import functools
+import inspect
+from dataclasses import dataclass, field
+from typing import Callable
+
+import numpy as np
+import pytest
+import sympy as sp
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as hst
+
+from nlfilter import DiscreteModel, SDEModel
+from nlfilter.bilinear import BilinearModel
+from nlfilter.errors import DivergenceError
+from nlfilter.filters import (EKF, FORMS, MQLF, PLL, QLF, UKF, CircleGridFilter, ConditionalMomentFilter,
+                              ContinuousDiscreteSecondOrderFilter, ContinuousEKF, ContinuousSecondOrderFilter,
+                              DiscreteConditionalMomentFilter, DiscreteOptimalLinearFilter,
+                              DiscreteQuasilinearFilter, FirstOrderMomentFilter, GaussianState,
+                              GridFilter, KalmanBucy, KalmanFilter, LinearQuadratureFilter, OptimalLinearFilter,
+                              ParticleFilter, PhaseTensorFilter, SecondOrderFilter, SecondOrderMomentFilter,
+                              TensorFilter, ZeroOrderMomentFilter)
+from nlfilter.filters.phase import simulate_phase
+from nlfilter.moments.densities import uniform_moments
+from nlfilter.problems import euler_discretization
+from nlfilter.simulate import simulate
+
+x, x1, x2 = sp.symbols("x x1 x2")
+DT = 0.05
+T = 6
+
+# -- small models ------------------------------------------------------------------------------
+LIN = DiscreteModel.linear([[0.95, 0.1], [0.0, 0.9]], [[1.0, 0.0], [0.0, 1.0]], np.diag([0.1, 0.2]),
+                           np.diag([0.5, 0.3]))
+D2 = DiscreteModel([x1, x2], [0.9 * x1 + 0.1 * x2, 0.8 * x2 - 0.05 * x1**3], [x1 + 0.1 * x2**2, x2],
+                   Q=np.diag([0.1, 0.05]), R=np.diag([0.2, 0.1]))
+D1 = DiscreteModel([x], [0.9 * x - 0.05 * x**3], [x + 0.1 * x**2], Q=0.1, R=0.2)
+SLIN = SDEModel([x1, x2], [x2, -x1 - 0.5 * x2], [x1, x2], Q=np.eye(2) * 0.3, R=np.diag([0.2, 0.1]))
+S2 = SDEModel([x1, x2], [x2, -x1 - 0.5 * x2 - 0.1 * x1**3], [x1 + 0.1 * x2**2, x2], Q=np.eye(2) * 0.3,
+              R=np.diag([0.2, 0.1]))
+S1 = SDEModel([x], [-x**3], [x], Q=0.5, R=0.1)
+BIL = BilinearModel([[-1.0]], [[1.0]], G=[[[0.3]]], B=[[1.0]], R=[[1.0]])
+BILD = BilinearModel([[0.9]], [[1.0]], G=[[[0.3]]], B=[[1.0]], M=[[[0.2]]], R=[[0.3]], discrete=True)
+M2, P2 = np.array([0.3, -0.2]), np.array([[0.5, 0.1], [0.1, 0.4]])
+M1, P1 = np.array([0.5]), np.array([[0.3]])
+A2 = np.diag([0.6, -0.5])
+
+
+# -- inputs ------------------------------------------------------------------------------------
+def _sim(model, m0, P0, dt=None):
+    def make(batch, steps, seed):
+        B = int(np.prod(batch))
+        sim = simulate(model, steps, paths=B, rng=seed, m0=m0, P0=P0, dt=dt)
+        return sim.ys.reshape(*batch, steps, model.m)
+    return make
+
+
+def _phase(batch, steps, seed):
+    _, dzs = simulate_phase(1.0, 0.5, DT, steps, int(np.prod(batch)), np.random.default_rng(seed))
+    return dzs.reshape(*batch, steps, 2)
+
+
+def _bounded(n):
+    """``z = c·x + v`` with bounded ``x`` (|x| ≤ 0.4 per component: consistent with every reachable
+    set) and ``v ~ U(−1, 1)``."""
+    def make(batch, steps, seed):
+        rng = np.random.default_rng(seed)
+        xs = rng.uniform(-0.4, 0.4, (*batch, steps, n)).sum(axis=-1)
+        return xs + rng.uniform(-1.0, 1.0, (*batch, steps))
+    return make
+
+
+@dataclass
+class Case:
+    """One filter of the contract. ``make(**options)`` builds it; ``data(batch, T, seed)`` gives a
+    valid input ``(*batch, T, m)`` (``(*batch, T)`` when ``event == 1``); ``prior`` the keyword
+    arguments of the prior; ``kind``: ``"gaussian"`` (returns Estimates, has ``on_divergence``),
+    ``"phase"`` (PhaseEstimates), ``"moment"`` (MomentRun / ZeroOrderRun)."""
+
+    name: str
+    make: Callable
+    data: Callable
+    prior: dict = field(default_factory=dict)
+    kind: str = "gaussian"
+    event: int = 2
+    missing: str = "nan"  # "nan": NaN is missing data; "raise": ValueError naming the data argument
+    run_kw: dict = field(default_factory=dict)
+    options: tuple = ()  # (keyword, bogus value) of the constructor
+    bad_prior: tuple = ()  # (keyword, bad value) of run
+    random: bool = False
+
+    def filter(self, **kw):
+        return _build(self.name, tuple(sorted(kw.items()))) if kw else _build(self.name, ())
+
+    def run(self, data, flt=None, **kw):
+        flt = self.filter() if flt is None else flt
+        return flt.run(data, **{**self.prior, **self.run_kw, **kw})
+
+    @property
+    def arg(self):
+        """The name of the data argument of ``run`` (``ys``, ``dys``, ``dzs``, ``zs``)."""
+        return next(iter(inspect.signature(self.filter().run).parameters))
+
+
+def _gauss(name, make, model, m0, P0, *, dt=None, options=(), missing="nan", **kw):
+    bad = [("m0", np.zeros(model.n + 1)), ("P0", -P0), ("P0", np.full((model.n + 1, model.n + 1), 0.1))]
+    if model.n > 1:
+        bad.append(("P0", P0 + np.triu(np.ones_like(P0), 1)))  # not symmetric
+    return Case(name, make, _sim(model, m0, P0, dt), {"m0": m0, "P0": P0}, options=options, missing=missing,
+                bad_prior=bad, **kw)
+
+
+CASES = [
+    _gauss("kf", lambda **k: KalmanFilter(LIN, **k), LIN, M2, P2, options=(("start", "bogus"),)),
+    _gauss("ekf", lambda **k: EKF(D2, **k), D2, M2, P2, options=(("start", "bogus"),)),
+    _gauss("ukf", lambda **k: UKF(D2, **k), D2, M2, P2, options=(("start", "bogus"),)),
+    *[_gauss(f"sof-{form}", lambda form=form, **k: SecondOrderFilter(D2, form=form, **k), D2, M2, P2,
+             options=(("form", "bogus"), ("start", "bogus"))) for form in FORMS],
+    _gauss("cd-sof", lambda **k: ContinuousDiscreteSecondOrderFilter(S2, DT, **k), euler_discretization(S2, DT),
+           M2, P2, options=(("form", "bogus"), ("scheme", "bogus"))),
+    _gauss("kalman-bucy", lambda **k: KalmanBucy(SLIN, DT, **k), SLIN, M2, P2, dt=DT,
+           options=(("scheme", "bogus"),)),
+    _gauss("cekf", lambda **k: ContinuousEKF(S2, DT, **k), S2, M2, P2, dt=DT, options=(("scheme", "bogus"),)),
+    *[_gauss(f"csof-{form}", lambda form=form, **k: ContinuousSecondOrderFilter(S2, DT, form=form, **k), S2,
+             M2, P2, dt=DT, options=(("form", "bogus"), ("innovation", "bogus"))) for form in FORMS],
+    _gauss("qlf", lambda **k: QLF(S1, DT, **k), S1, M1, P1, dt=DT, missing="raise",
+           options=(("scheme", "bogus"),)),
+    _gauss("mqlf", lambda **k: MQLF(S1, DT, **k), S1, M1, P1, dt=DT, missing="raise",
+           options=(("scheme", "bogus"),)),
+    _gauss("dqlf", lambda **k: DiscreteQuasilinearFilter(D1, **k), D1, M1, P1, missing="raise",
+           options=(("order", "bogus"),)),
+    _gauss("cmf", lambda **k: ConditionalMomentFilter(S2, DT, points=8, **k), S2, M2, P2, dt=DT,
+           options=(("update", "bogus"),)),
+    _gauss("dcmf", lambda **k: DiscreteConditionalMomentFilter(D2, points=8, **k), D2, M2, P2,
+           options=(("start", "bogus"),)),
+    _gauss("linear", lambda **k: OptimalLinearFilter(BIL, DT, **k), SDEModel([x], [-x], [x], Q=1.0, R=1.0), M1,
+           P1, dt=DT, missing="raise", options=(("gains", "bogus"), ("scheme", "bogus"))),
+    _gauss("linear-tv", lambda **k: OptimalLinearFilter(BIL, DT, gains="time-varying", **k),
+           SDEModel([x], [-x], [x], Q=1.0, R=1.0), M1, P1, dt=DT, missing="raise",
+           options=(("scheme", "bogus"),)),
+    _gauss("linear-discrete", lambda **k: DiscreteOptimalLinearFilter(BILD, **k),
+           DiscreteModel([x], [0.9 * x], [x], Q=1.0, R=0.3), M1, P1, missing="raise"),
+    _gauss("tensor", lambda **k: TensorFilter(BIL, DT, **k), SDEModel([x], [-x], [x], Q=1.0, R=1.0), M1, P1,
+           dt=DT, missing="raise", options=(("inputs", "bogus"), ("scheme", "bogus"))),
+    _gauss("grid", lambda **k: GridFilter(D1, (-4.0, 4.0), 81, **k), D1, M1, P1, options=(("start", "bogus"),)),
+    _gauss("grid-2d", lambda **k: GridFilter(D2, [(-4.0, 4.0), (-4.0, 4.0)], 25, **k), D2, M2, P2,
+           options=(("start", "bogus"),)),
+    _gauss("grid-sde", lambda **k: GridFilter(S1, (-3.0, 3.0), 61, dt=DT, **k), S1, M1, P1, dt=DT),
+    _gauss("particle", lambda **k: ParticleFilter(D2, 200, **k), D2, M2, P2, run_kw={"rng": 5}, random=True,
+           options=(("start", "bogus"),)),
+    _gauss("particle-sde", lambda **k: ParticleFilter(S2, 200, dt=DT, **k), S2, M2, P2, dt=DT,
+           run_kw={"rng": 5}, random=True),
+    Case("pll", lambda **k: PLL(1.0, 0.5, DT, **k), _phase, {"theta0": 0.3}, kind="phase", missing="raise",
+         options=(("scheme", "bogus"),), bad_prior=(("theta0", np.zeros(7)),)),
+    Case("lqf", lambda **k: LinearQuadratureFilter(1.0, 0.5, DT, **k), _phase, {"m0": (0.1, 0.2)}, kind="phase",
+         missing="raise", options=(("scheme", "bogus"),), bad_prior=(("m0", np.zeros(3)),)),
+    Case("phase-tensor", lambda **k: PhaseTensorFilter(1.0, 0.5, DT, **k), _phase, {"m0": (0.1, 0.2)},
+         kind="phase", missing="raise", options=(("scheme", "bogus"),), bad_prior=(("m0", np.zeros(3)),)),
+    Case("circle-grid", lambda **k: CircleGridFilter(1.0, 0.5, DT, **{"size": 32, **k}), _phase, {}, kind="phase",
+         missing="raise", options=(("size", 0),), bad_prior=(("p0", np.ones(5)),)),
+    Case("zero-order", lambda **k: ZeroOrderMomentFilter(4, moments=uniform_moments(4), **k), _bounded(1),
+         kind="moment", event=1, missing="raise", options=(("outside", "bogus"), ("invalid_moments", "bogus"))),
+    Case("zero-order-adaptive", lambda **k: ZeroOrderMomentFilter(4, adaptive=True, window=2, **k), _bounded(1),
+         kind="moment", event=1, missing="raise", options=(("outside", "bogus"),)),
+    Case("first-order", lambda **k: FirstOrderMomentFilter(0.5, 1.0, 4, w_moments=uniform_moments(4), **k),
+         _bounded(1), kind="moment", event=1, missing="raise", options=(("outside", "bogus"),)),
+    Case("first-order-adaptive", lambda **k: FirstOrderMomentFilter(0.5, 1.0, 4, adaptive=True, window=2, **k),
+         _bounded(1), kind="moment", event=1, missing="raise", options=(("outside", "bogus"),)),
+    Case("second-order-moment", lambda **k: SecondOrderMomentFilter(A2, [1.0, 1.0], [1.0, 1.0], 1.0, 2,
+                                                                    w_moments=uniform_moments(2), **k),
+         _bounded(2), kind="moment", event=1, missing="raise", options=(("bounding", "bogus"), ("outside", "bogus"))),
+    Case("second-order-moment-adaptive", lambda **k: SecondOrderMomentFilter(A2, [1.0, 1.0], [1.0, 1.0], 1.0, 2,
+                                                                             adaptive=True, window=2, **k),
+         _bounded(2), kind="moment", event=1, missing="raise", options=(("outside", "bogus"),)),
+    Case("second-order-moment-box", lambda **k: SecondOrderMomentFilter(A2, [1.0, 1.0], [1.0, 1.0], 1.0, 2,
+                                                                        w_moments=uniform_moments(2),
+                                                                        bounding="box", **k),
+         _bounded(2), kind="moment", event=1, missing="raise", options=(("directions", 0),)),
+]
+BY_NAME = {c.name: c for c in CASES}
+IDS = [c.name for c in CASES]
+
+
+@functools.lru_cache(maxsize=None)
+def _build(name, kw):
+    return BY_NAME[name].make(**dict(kw))
+
+
+def outputs(res) -> dict:
+    """The arrays of a result whose leading axes are the batch."""
+    return {k: np.asarray(v) for k, v in res._asdict().items() if v is not None and k != "w_moments"
+            and k != "moments"}
+
+
+def close(a: dict, b: dict, tol=1e-12, keys=None):
+    for k in (a if keys is None else keys):
+        np.testing.assert_allclose(np.asarray(a[k], float), np.asarray(b[k], float), rtol=tol, atol=tol, err_msg=k)
+
+
+def _take(res: dict, idx, keys=None):
+    return {k: res[k][idx] for k in (res if keys is None else keys)}
+
+
+GAUSS = [c for c in CASES if c.kind == "gaussian"]
+DETERMINISTIC = [c for c in CASES if not c.random]
+
+
+# -- 1. shapes: the output's leading axes are the input's batch axes ----------------------------------
+def _event_shapes(case, T_):
+    if case.kind == "gaussian":
+        n = len(case.prior["m0"])
+        return {"means": (T_, n), "covs": (T_, n, n), "diverged": (), "diverged_step": ()}
+    if case.kind == "phase":
+        return {"theta": (T_,), "x": (T_, 2)}
+    n = {"zero-order": 0, "zero-order-adaptive": 0, "first-order": 1, "first-order-adaptive": 1}.get(case.name, 2)
+    if n == 0:
+        return {"estimates": (T_,), "fallback": (T_,), "invalid": (T_,)}
+    return {"estimates": (T_, n), "fallback": (T_,), "lower": (T_, n), "upper": (T_, n), "covs": (T_, n, n)}
+
+
+@pytest.mark.parametrize("case", CASES, ids=IDS)
+def test_two_batch_axes_equal_the_flattened_batch(case):
+    d = case.data((2, 3), T, 1)
+    res = outputs(case.run(d))
+    flat = outputs(case.run(d.reshape(6, *d.shape[2:])))
+    want = _event_shapes(case, T)
+    if case.kind == "phase" and case.name == "pll":
+        want.pop("x")
+    assert {k: v.shape for k, v in res.items()} == {k: (2, 3, *s) for k, s in want.items()}
+    if case.kind == "gaussian":
+        assert res["diverged"].dtype == bool and np.issubdtype(res["diverged_step"].dtype, np.integer)
+    close({k: v.reshape(flat[k].shape) for k, v in res.items()}, flat)
+
+
+@settings(max_examples=25, deadline=None, derandomize=True, suppress_health_check=list(HealthCheck))
+@given(case=hst.sampled_from(CASES), batch=hst.lists(hst.integers(1, 3), min_size=0, max_size=3))
+def test_any_batch_shape(case, batch):
+    """Random batch shapes, including none (one path ``(T, m)``): leading axes follow, values equal
+    the flattened batch's."""
+    batch = tuple(batch)
+    d = case.data(batch, 3, 7)
+    res = outputs(case.run(d))
+    flat = outputs(case.run(d.reshape(-1, *d.shape[len(batch):])))
+    want = _event_shapes(case, 3)
+    for k, v in res.items():
+        assert v.shape == (*batch, *want[k]), k
+    close({k: v.reshape(flat[k].shape) for k, v in res.items()}, flat)
+
+
+# -- 2. paths are independent; the particle filter is reproducible from its seed -----------------------
+@pytest.mark.parametrize("case", DETERMINISTIC, ids=[c.name for c in DETERMINISTIC])
+def test_a_path_does_not_depend_on_the_others(case):
+    d = case.data((4,), T, 2)
+    full = outputs(case.run(d))
+    for i in range(4):
+        close(_take(full, slice(i, i + 1)), outputs(case.run(d[i:i + 1])))
+    perm = [2, 0, 3, 1]
+    close(_take(full, perm), outputs(case.run(d[perm])))
+
+
+@pytest.mark.parametrize("case", [c for c in CASES if c.random], ids=[c.name for c in CASES if c.random])
+def test_random_filter_is_reproducible_from_its_seed(case):
+    d = case.data((3,), T, 2)
+    a, b = outputs(case.run(d, rng=11)), outputs(case.run(d, rng=11))
+    close(a, b, tol=0)
+    gen = outputs(case.run(d, rng=np.random.default_rng(11)))
+    close(a, gen, tol=0)
+    c = outputs(case.run(d, rng=12))
+    assert np.max(np.abs(c["means"] - a["means"])) > 1e-6  # the seed matters
+
+
+# -- 3. bad input: errors name the argument ------------------------------------------------------------
+@pytest.mark.parametrize("case", CASES, ids=IDS)
+def test_bad_data_is_refused_naming_the_argument(case):
+    d = case.data((2,), T, 1)
+    arg = rf"^{case.arg}\b"
+    bad = [d[0, :, 0] if case.event == 2 else np.float64(0.3)]  # too few dimensions
+    if case.event == 2:
+        bad.append(np.concatenate([d, d[..., :1]], axis=-1))  # wrong measurement dimension
+    for v in (np.inf, -np.inf):
+        e = d.copy()
+        e[(1, 2) + (0,) * (case.event - 1)] = v
+        bad.append(e)
+    for b in bad:
+        with pytest.raises(ValueError, match=arg):
+            case.run(b)
+    with pytest.raises(TypeError, match=arg):
+        case.run("not data")
+
+
+@pytest.mark.parametrize("case", [c for c in CASES if c.bad_prior], ids=[c.name for c in CASES if c.bad_prior])
+def test_bad_prior_is_refused_naming_the_argument(case):
+    d = case.data((2,), T, 1)
+    for name, value in case.bad_prior:
+        with pytest.raises(ValueError, match=rf"^{name}\b"):
+            case.run(d, **{name: value})
+
+
+@pytest.mark.parametrize("case", CASES, ids=IDS)
+def test_unknown_options_are_refused_naming_the_option(case):
+    options = list(case.options)
+    for name, value in options:
+        with pytest.raises(ValueError, match=rf"^{name}\b"):
+            case.make(**{name: value})
+    if case.kind == "gaussian":
+        with pytest.raises(ValueError, match=r"^on_divergence\b"):
+            case.run(case.data((2,), T, 1), on_divergence="ignore")
+        options.append("on_divergence")
+    assert options, "every filter has at least one checked option"
+
+
+# -- 4. never NaN silently ---------------------------------------------------------------------------
+def _overflow(d):
+    """Path 1 of 3 gets the largest measurements of opposite signs at steps 2 and 3: every filter's
+    arithmetic overflows there (the linear ones too)."""
+    e = d.copy()
+    e[1, 2], e[1, 3] = 1.7e308, -1.7e308
+    return e
+
+
+def _assert_flagged(res, clean, case, bad_path=None):
+    """Non-finite output only on flagged paths, from their divergence step on; the paths other than
+    path 1 (the provoked one) are unflagged and equal the clean run's (deterministic filters)."""
+    div, step = res.diverged, res.diverged_step
+    assert np.all((step >= 0) == div)
+    fin_m = np.isfinite(res.means).all(axis=-1)  # (B, T)
+    fin_c = np.isfinite(res.covs).all(axis=(-1, -2))
+    after = div[:, None] & (np.arange(res.means.shape[1]) >= step[:, None])
+    np.testing.assert_array_equal(fin_m, ~after)
+    np.testing.assert_array_equal(fin_c, ~after)
+    if bad_path is not None:
+        assert div.tolist() == [i == bad_path for i in range(len(div))]
+    assert not div[[0, 2]].any()
+    if not case.random:
+        ok = [0, 2]
+        close(_take(res._asdict(), ok), _take(clean._asdict(), ok), keys=("means", "covs"))
+
+
+@pytest.mark.parametrize("case", GAUSS, ids=[c.name for c in GAUSS])
+def test_overflow_raises_or_marks_exactly_that_path(case):
+    d = case.data((3,), T, 3)
+    e = _overflow(d)
+    with pytest.raises(DivergenceError) as info:
+        case.run(e)
+    assert info.value.paths == (1,) and info.value.step in (2, 3)
+    res = case.run(e, on_divergence="mark")
+    _assert_flagged(res, case.run(d), case, bad_path=1)
+    assert res.diverged_step[1] in (2, 3)
+
+
+NONLINEAR = [c for c in GAUSS if c.name not in ("kf", "kalman-bucy")]
+
+
+@pytest.mark.parametrize("big", [1e3, 1e6, 1e150])
+@pytest.mark.parametrize("case", NONLINEAR, ids=[c.name for c in NONLINEAR])
+def test_outliers_never_give_silent_nan(case, big):
+    """An outlier on path 1: whatever a filter makes of it (cope, raise, mark), nothing non-finite is
+    returned unflagged and the other paths are untouched."""
+    d = case.data((3,), T, 3)
+    e = d.copy()
+    e[1, 2] = big
+    try:
+        res = case.run(e)
+    except DivergenceError as exc:
+        assert exc.paths == (1,)
+        res = case.run(e, on_divergence="mark")
+        assert res.diverged.tolist() == [False, True, False]
+    _assert_flagged(res, case.run(d), case)
+
+
+PHASE = [c for c in CASES if c.kind == "phase"]
+
+
+@pytest.mark.parametrize("case", PHASE, ids=[c.name for c in PHASE])
+def test_phase_filters_raise_on_overflow(case):
+    """No ``diverged`` field: a non-finite estimate raises (documented in each ``run``)."""
+    d = case.data((3,), T, 3)
+    with pytest.raises(DivergenceError) as info:
+        case.run(_overflow(d))
+    assert info.value.paths == (1,)
+    assert all(np.isfinite(v).all() for v in outputs(case.run(d)).values())
+
+
+MOMENT = [c for c in CASES if c.kind == "moment"]
+
+
+@pytest.mark.parametrize("case", MOMENT, ids=[c.name for c in MOMENT])
+def test_moment_filters_refuse_or_clip_impossible_measurements(case):
+    """Documented (``outside``): an impossible measurement raises ValueError naming ``zs``; with
+    ``outside="clip"`` every output is finite (``MomentRun.to_estimates``: no divergence possible)."""
+    d = case.data((3,), T, 3)
+    e = d.copy()
+    e[1, 2] = 1e300
+    with pytest.raises(ValueError, match=r"^zs\b"):
+        case.run(e)
+    res = outputs(case.run(e, flt=case.filter(outside="clip")))
+    assert all(np.isfinite(v.astype(float)).all() for k, v in res.items() if k != "covs")
+    if "covs" in res:
+        assert np.isfinite(res["covs"]).all()
+
+
+# -- 5. covariances are symmetric and PSD ---------------------------------------------------------------
+COVS = [c for c in GAUSS if c.name != "tensor"] + [c for c in MOMENT if "zero" not in c.name]
+
+
+@pytest.mark.parametrize("case", COVS, ids=[c.name for c in COVS])
+def test_covariances_symmetric_psd(case):
+    d = case.data((8,), 12, 4)
+    res = outputs(case.run(d))
+    if "diverged" in res:
+        assert not res["diverged"].any()
+    P = res["covs"]
+    assert np.isfinite(P).all()
+    scale = np.maximum(1.0, np.abs(P).max(axis=(-1, -2)))
+    asym = np.abs(P - np.swapaxes(P, -1, -2)).max(axis=(-1, -2))
+    assert np.all(asym <= 1e-12 * scale)
+    assert np.all(np.linalg.eigvalsh(0.5 * (P + np.swapaxes(P, -1, -2)))[..., 0] >= -1e-9 * scale)
+
+
+# -- 6. missing data ----------------------------------------------------------------------------------
+MISSING_STEP = 3
+
+
+def _missing(d, paths=slice(None)):
+    e = d.copy()
+    e[paths, MISSING_STEP] = np.nan
+    return e
+
+
+def _api_run(flt, ys, m0, P0, skip):
+    """The filter's own ``predict``/``update`` loop, with the update at step ``skip`` left out."""
+    off = 0 if flt.start == "update" else 1
+    st = GaussianState(np.broadcast_to(m0, (*ys.shape[:-2], len(m0))).copy(),
+                       np.broadcast_to(P0, (*ys.shape[:-2], *P0.shape)).copy())
+    means, covs = [], []
+    for k in range(ys.shape[-2]):
+        if k > 0 or off:
+            st = flt.predict(st, k + off - 1)
+        if k != skip:
+            st = flt.update(st, ys[..., k, :], k + off)
+        means.append(st.mean)
+        covs.append(st.cov)
+    return {"means": np.stack(means, axis=-2), "covs": np.stack(covs, axis=-3)}
+
+
+HAS_API = [c for c in GAUSS if hasattr(c.filter(), "predict") and hasattr(c.filter(), "update")]
+
+
+@pytest.mark.parametrize("start", ["update", "predict"])
+@pytest.mark.parametrize("case", HAS_API, ids=[c.name for c in HAS_API])
+def test_missing_step_is_predict_only(case, start):
+    """A fully missing step = the filter's ``predict`` without ``update`` (its step API), for the
+    whole batch at once and for one path of a batch whose others are observed."""
+    flt = case.filter(start=start)
+    d = case.data((3,), T, 5)
+    tol = 1e-10 if case.name == "dcmf" else 1e-12  # dcmf: moments ↔ (mean, cov) conversions
+    ref = _api_run(flt, d, case.prior["m0"], case.prior["P0"], MISSING_STEP)
+    close(outputs(case.run(_missing(d), flt)), ref, tol, keys=("means", "covs"))
+    one = outputs(case.run(_missing(d, 0), flt))  # only path 0 missing at that step
+    mc = ("means", "covs")
+    close(_take(one, 0, mc), _take(ref, 0), tol)
+    close(_take(one, [1, 2], mc), _take(outputs(case.run(d, flt)), [1, 2], mc), tol)
+
+
+WITH_START = [c for c in GAUSS if c.missing == "nan" and "start" in inspect.signature(c.make().__init__).parameters
+              and not c.name.endswith("-sde")]  # documented: SDE models have no step convention
+
+
+@pytest.mark.parametrize("case", WITH_START, ids=[c.name for c in WITH_START])
+def test_missing_first_measurement_is_the_predict_convention(case):
+    """``start="update"`` with ``ys[..., 0, :]`` missing = ``start="predict"`` on the rest: both predict
+    from the prior, then update with ``ys[..., 1, :]`` (exact, the particle filter's draws included)."""
+    d = case.data((3,), T, 5)
+    e = d.copy()
+    e[:, 0] = np.nan
+    a = outputs(case.run(e, case.filter(start="update")))
+    b = outputs(case.run(d[:, 1:], case.filter(start="predict")))
+    close(_take(a, (slice(None), slice(1, None)), ("means", "covs")), b, keys=("means", "covs"))
+    if not case.name.startswith(("grid", "particle")):  # their step 0 is the prior's grid/sample moments
+        np.testing.assert_array_equal(a["means"][:, 0], np.broadcast_to(case.prior["m0"], (3, 2)))
+        np.testing.assert_array_equal(a["covs"][:, 0], np.broadcast_to(case.prior["P0"], (3, 2, 2)))
+
+
+# continuous time: a missing increment leaves only the drift part of the step, which is the
+# prediction of the continuous-discrete filter of the same form (same scheme and substeps)
+PREDICT_REF = {"kalman-bucy": (SLIN, "first-order"), "cekf": (S2, "first-order"),
+               **{f"csof-{form}": (S2, form) for form in FORMS}}
+
+
+@pytest.mark.parametrize("name", sorted(PREDICT_REF))
+def test_missing_increment_is_the_continuous_prediction(name):
+    case = BY_NAME[name]
+    model, form = PREDICT_REF[name]
+    pred = ContinuousDiscreteSecondOrderFilter(model, DT, form=form)
+    d = case.data((3,), T, 5)
+    for paths in (slice(None), 0):  # the whole batch, or path 0 alone, misses the increment
+        res = case.run(_missing(d, paths))
+        prev = GaussianState(res.means[:, MISSING_STEP - 1], res.covs[:, MISSING_STEP - 1])
+        want = pred.predict(prev, MISSING_STEP)  # integrates over [t_k, t_k + dt], t_k = k dt
+        sel = [0, 1, 2] if paths == slice(None) else [0]
+        close({"means": res.means[sel, MISSING_STEP], "covs": res.covs[sel, MISSING_STEP]},
+              {"means": want.mean[sel], "covs": want.cov[sel]})
+
+
+def test_missing_increment_conditional_moment_filter():
+    """Bayes update of a missing increment = no update (the Itô update of a missing increment is
+    exactly zero): the step is the moment drift alone."""
+    case = BY_NAME["cmf"]
+    bayes, ito = case.filter(), case.filter(update="ito")
+    d = case.data((3,), T, 5)
+    res = case.run(_missing(d))
+    mu = bayes.init_moments(np.broadcast_to(M2, (3, 2)), np.broadcast_to(P2, (3, 2, 2)))
+    for k in range(MISSING_STEP):
+        mu = bayes.step_moments(mu, d[:, k], k * DT)
+    want = bayes.set.gaussian_state(ito.step_moments(mu, d[:, MISSING_STEP] * np.nan, MISSING_STEP * DT))
+    close({"means": res.means[:, MISSING_STEP], "covs": res.covs[:, MISSING_STEP]},
+          {"means": want.mean, "covs": want.cov}, 1e-10)
+
+
+NO_MEASUREMENT = {"grid-sde": lambda: GridFilter(S1_BLIND, (-3.0, 3.0), 61, dt=DT),
+                  "particle-sde": lambda: ParticleFilter(S2_BLIND, 200, dt=DT)}
+S1_BLIND = SDEModel([x], [-x**3], [0 * x], Q=0.5, R=0.1)  # h = 0: the likelihood is flat
+S2_BLIND = SDEModel([x1, x2], S2.sym["f"], [0 * x1, 0 * x2], Q=np.eye(2) * 0.3, R=np.diag([0.2, 0.1]))
+
+
+@pytest.mark.parametrize("name", sorted(NO_MEASUREMENT))
+def test_missing_increments_of_reference_filters_are_prediction(name):
+    """All increments missing = the same model with h = 0 (flat likelihood) on any data."""
+    case = BY_NAME[name]
+    d = case.data((3,), T, 5)
+    a = outputs(case.run(d * np.nan))
+    b = outputs(case.run(d, NO_MEASUREMENT[name]()))
+    close(a, b)
+
+
+@pytest.mark.parametrize("case", [c for c in CASES if c.missing == "raise"],
+                         ids=[c.name for c in CASES if c.missing == "raise"])
+def test_filters_without_missing_data_refuse_nan(case):
+    d = case.data((2,), T, 5)
+    e = d.copy()
+    e[(1, 2) + (0,) * (case.event - 1)] = np.nan
+    with pytest.raises(ValueError, match=rf"^{case.arg}\b"):
+        case.run(e)
