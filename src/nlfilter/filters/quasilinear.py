@@ -88,14 +88,21 @@ def _unit(n, i, k=1):
     return tuple(e)
 
 
-def _prior(n, m0, P0):
-    """One prior ``(m0 (n,), P0 (n, n))`` for all paths (the off-line gains depend on it)."""
+def _prior(n, m0, P0, *, definite: bool = True):
+    """One prior ``(m0 (n,), P0 (n, n))`` for all paths (the off-line gains depend on it); P0
+    positive definite when ``definite`` (the statistical linearization inverts it)."""
+    given = np.shape(m0)
     m0 = V.as_float_array("m0", m0).reshape(-1) if np.ndim(m0) else np.full(n, float(m0))
     if m0.shape != (n,):
         raise ValueError(f"m0: the off-line gains need one prior mean of shape ({n},) for all paths, "
-                         f"got shape {np.shape(m0)}")
+                         f"got shape {given}")
     V.finite("m0", m0)
-    return m0, V.covariance("P0", P0, n)
+    P0 = V.covariance("P0", P0, n)
+    low = float(np.linalg.eigvalsh(P0)[0])
+    if definite and not low > 0:  # a1 = E[f (x − m)ᵀ] K⁻¹ (003 eqs. 4-5) needs K(t0) = P0 invertible
+        raise ValueError(f"P0: the statistical linearization (003 eqs. 4-5) needs a positive definite prior "
+                         f"covariance, got smallest eigenvalue {low:.3g}")
+    return m0, P0
 
 
 def _symbols(name, rows, cols=None):
@@ -515,7 +522,7 @@ def discrete_gain_error_analysis(model, coefficients, m0, P0, steps: int, *, xha
         raise ValueError(f"order: expected an integer ≥ the closure's order {closure.order}, got {order}")
     V.positive("steps", steps, integer=True)
     n, mm, r = model.n, model.m, model.r
-    m0, P0 = _prior(n, m0, P0)
+    m0, P0 = _prior(n, m0, P0, definite=False)  # no linearization here: a known x[0] is fine
     xh0 = m0 if xhat0 is None else V.as_float_array("xhat0", xhat0, shape_tail=(n,)).reshape(n)
     if noise_moment is None:
         for nm in ("process_noise", "measurement_noise"):
@@ -649,8 +656,7 @@ class DiscreteQuasilinearFilter:
 
     def run(self, ys, m0, P0, *, on_divergence: str = "raise") -> Estimates:
         md = self.model
-        m0v = V.as_float_array("m0", m0).reshape(-1)
-        P0v = V.covariance("P0", P0, md.n)
+        m0v, P0v = _prior(md.n, m0, P0)
         ys, state, batch = _prepare("ys", ys, m0v, P0v, md.n, md.m)
         T = ys.shape[-2]
         rows = self.offline(m0v, P0v, T)
