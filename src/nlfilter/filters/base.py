@@ -34,6 +34,7 @@ import numpy as np
 
 from .. import _validate as V
 from ..errors import DivergenceError
+from ..noise import Gaussian, Independent
 
 PSD_TOL = 1e-9
 
@@ -94,6 +95,27 @@ def bad_paths(mean: np.ndarray, cov: np.ndarray, tol: float = PSD_TOL) -> np.nda
         low = np.linalg.eigvalsh(symmetrize(safe))[..., 0]
     scale = np.maximum(1.0, np.max(np.abs(safe), axis=(-1, -2)))
     return ~ok | (low < -tol * scale)
+
+
+def sqrt_psd(P: np.ndarray, tol: float = PSD_TOL):
+    """``(L, bad)`` with ``L Lᵀ = P`` on every path of ``P (..., n, n)``: the lower Cholesky factor
+    where P is positive definite; where it is only semi-definite (rank-deficient, e.g. a known
+    initial state) the eigen root ``U √w`` (any root serves sigma points and quadrature nodes);
+    the identity where P is non-finite or has an eigenvalue below ``−tol·scale`` (``bad``: the
+    caller poisons those paths, so that ``run`` raises or marks them)."""
+    try:
+        return np.linalg.cholesky(P), np.zeros(P.shape[:-2], bool)
+    except np.linalg.LinAlgError:
+        pass
+    eye = np.eye(P.shape[-1])
+    finite = np.all(np.isfinite(P), axis=(-1, -2))
+    safe = np.where(finite[..., None, None], P, eye)
+    w, U = np.linalg.eigh(symmetrize(safe))
+    pd = finite & (w[..., 0] > 0)
+    bad = ~finite | (w[..., 0] < -tol * np.maximum(1.0, np.max(np.abs(safe), axis=(-1, -2))))
+    L = np.linalg.cholesky(np.where(pd[..., None, None], safe, eye))  # the same factor as alone
+    root = U * np.sqrt(np.maximum(w, 0.0))[..., None, :]
+    return np.where(pd[..., None, None], L, np.where(bad[..., None, None], eye, root)), bad
 
 
 def poison(state: GaussianState, bad) -> GaussianState:
@@ -164,6 +186,35 @@ def gaussian_update(state: GaussianState, y: np.ndarray, y_pred: np.ndarray, S: 
     else:
         cov = P - mm(mm(K, S), Kt)
     return poison(GaussianState(mean, symmetrize(cov)), singular)
+
+
+def observed_precision(R: np.ndarray, Rinv: np.ndarray, obs: np.ndarray) -> np.ndarray:
+    """Precision of the observed components of a measurement with noise covariance ``R (m, m)``:
+    ``Rinv`` when ``obs (..., m)`` is all True, else ``(..., m, m)`` holding the inverse of R's
+    observed block (the Gaussian marginal of the observed components) and zeros in the missing
+    rows and columns. (With correlated noise this is not R⁻¹ with rows zeroed.)"""
+    if obs.all():
+        return Rinv
+    both = obs[..., :, None] & obs[..., None, :]
+    return np.where(both, np.linalg.inv(np.where(both, R, np.eye(R.shape[-1]))), 0.0)
+
+
+def measurement_loglik(law, resid, obs=None):
+    """log p_v(resid) ``(..., N)`` for residuals ``(..., N, m)`` under the noise law ``law``;
+    ``obs (..., m)`` marks the observed components of each path: a partly missing measurement has
+    the marginal law of its observed components (exact for Gaussian and Independent laws; a fully
+    missing one has log-likelihood 0)."""
+    if obs is None or obs.all():
+        return law.logpdf(resid)
+    if isinstance(law, Independent):
+        return sum(np.where(obs[..., None, i], d.logpdf(resid[..., i]), 0.0) for i, d in enumerate(law.dists))
+    if isinstance(law, Gaussian):
+        both = obs[..., :, None] & obs[..., None, :]
+        _, logdet = np.linalg.slogdet(np.where(both, law.cov, np.eye(law.dim)))  # log det of the observed block
+        d = np.where(obs[..., None, :], resid - law.mean, 0.0)
+        quad = np.einsum("...pi,...ij,...pj->...p", d, observed_precision(law.cov, None, obs), d)
+        return -0.5 * quad - 0.5 * (logdet + obs.sum(axis=-1) * np.log(2 * np.pi))[..., None]
+    raise ValueError("measurement_noise: partly missing measurements need a Gaussian or Independent law")
 
 
 def _solve_paths(S, C):

@@ -20,7 +20,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .base import ContinuousFilter, DiscreteFilter, GaussianState, gaussian_update, mm
+from .base import ContinuousFilter, DiscreteFilter, GaussianState, gaussian_update, mm, observed_precision
 
 
 class EKF(DiscreteFilter):
@@ -78,12 +78,13 @@ class ContinuousEKF(ContinuousFilter):
         """Itô step: the ``dt`` terms integrated by ``scheme``, the innovation ``K dy`` added with
         the gain at the start of the step. (Holding ``dy/dt`` constant inside RK4 stages would
         converge to the Stratonovich reading whenever the gain depends on the state.)"""
-        md, Rinv = self.model, self._Rinv
+        md = self.model
         obs = ~np.isnan(dy)
         dy0 = np.where(obs, dy, 0.0)
+        Rinv = observed_precision(md.R, self._Rinv, obs)  # missing components do not update
 
         def gain(m, P, s):
-            H = md.h_x(m, s) * obs[..., :, None]  # missing components do not update
+            H = md.h_x(m, s) * obs[..., :, None]
             PHt = mm(P, np.swapaxes(H, -1, -2))
             return mm(PHt, Rinv), PHt
 

@@ -46,7 +46,8 @@ from ..moments.expect import PolynomialExpectations
 from ..moments.quadrature import gaussian_rule
 from ..moments.ito import PolynomialMap, PolynomialSDE, discrete_moment_equations, moment_equations
 from ..polynomials import Polynomial, monomials
-from .base import ContinuousFilter, DiscreteFilter, Estimates, GaussianState, _prepare, _Runner
+from .base import (ContinuousFilter, DiscreteFilter, Estimates, GaussianState, _prepare, _Runner,
+                   measurement_loglik, observed_precision, sqrt_psd)
 
 __all__ = ["ConditionalMomentFilter", "DiscreteConditionalMomentFilter"]
 
@@ -108,7 +109,7 @@ class _MomentSet:
         ``(..., P, n)`` to ``(..., P)``."""
         gs = self.gaussian_state(mu)
         z, w = self._nodes
-        L = np.linalg.cholesky(gs.cov)
+        L, bad = sqrt_psd(gs.cov)  # a path whose covariance is not PSD comes back NaN (run flags it)
         x = gs.mean[..., None, :] + np.einsum("...ij,pj->...pi", L, z)  # (..., P, n)
         X = self._mono(x)  # (..., P, 1 + K): [1, x^γ]
         if self._Z is not None:  # g(z) = Σ a_ν z^ν with Σ_p w_p g(z_p) x_p^γ = E x^γ, |γ| ≤ N
@@ -122,7 +123,8 @@ class _MomentSet:
             omega = np.broadcast_to(w, x.shape[:-1])
         ll = loglik(x)
         lw = np.exp(ll - ll.max(axis=-1, keepdims=True)) * omega
-        return np.einsum("...p,...pg->...g", lw, X[..., 1:]) / lw.sum(axis=-1)[..., None]
+        out = np.einsum("...p,...pg->...g", lw, X[..., 1:]) / lw.sum(axis=-1)[..., None]
+        return np.where(bad[..., None], np.nan, out)
 
     def gaussian_state(self, mu):
         mean = mu[..., self.pos1]
@@ -200,18 +202,21 @@ class ConditionalMomentFilter(ContinuousFilter):
         """KS innovation term as one Euler-Maruyama increment (gain at the start of the step)."""
         Eh, Ephih, _ = self.set.split(mu)
         C = Ephih - mu[..., :, None] * Eh[..., None, :]  # Cov(φ, hᵀ)
-        innov = np.where(~np.isnan(dy), dy - Eh * self.dt, 0.0)
-        return mu + np.einsum("...km,mn,...n->...k", C, self._Rinv, innov)
+        obs = ~np.isnan(dy)
+        innov = np.where(obs, dy - Eh * self.dt, 0.0)
+        Rinv = observed_precision(self.model.R, self._Rinv, obs)
+        return mu + np.einsum("...km,...mn,...n->...k", C, Rinv, innov)
 
     def _update_bayes(self, mu, dy, t):
         """Bayes update over the step by the likelihood exp(hᵀR⁻¹dy − ½hᵀR⁻¹h dt) (see module docstring)."""
         obs = ~np.isnan(dy)
         dyz = np.where(obs, dy, 0.0)[..., None, :]
-        Rinv, dt, md = self._Rinv, self.dt, self.model
+        dt, md = self.dt, self.model
+        Rinv = observed_precision(md.R, self._Rinv, obs)  # zero in the missing rows and columns
 
         def loglik(x):
-            hx = md.h(x, t + dt) * obs[..., None, :]
-            Rh = np.einsum("mn,...pn->...pm", Rinv, hx)
+            hx = md.h(x, t + dt)
+            Rh = np.einsum("...mn,...pn->...pm", Rinv, hx)
             return np.einsum("...pm,...pm->...p", Rh, dyz) - 0.5 * dt * np.einsum("...pm,...pm->...p", Rh, hx)
 
         return self.set.bayes(mu, loglik)
@@ -290,12 +295,8 @@ class DiscreteConditionalMomentFilter(DiscreteFilter):
         md = self.model
         law = md.measurement_noise
 
-        def loglik(x):
-            r = np.where(obs[..., None, :], y[..., None, :] - md.h(x, k), 0.0)
-            if obs.all():
-                return law.logpdf(r)
-            Rinv = np.linalg.pinv(md.R)  # missing components: Gaussian marginal of the observed ones
-            return -0.5 * np.einsum("...pi,ij,...pj->...p", r, Rinv, r)
+        def loglik(x):  # partly missing: the marginal law of the observed components
+            return measurement_loglik(law, np.where(obs[..., None, :], y[..., None, :] - md.h(x, k), 0.0), obs)
 
         return self.set.bayes(mu, loglik)
 

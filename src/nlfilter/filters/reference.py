@@ -36,29 +36,8 @@ import scipy.linalg as sla
 from scipy import sparse
 
 from .. import _validate as V
-from ..noise import Gaussian, Independent
-from .base import Estimates, _Runner, GaussianState
-
-
-def _measurement_loglik(law, resid, obs=None):
-    """log p_v(resid) ``(..., N)`` for residuals ``(..., N, m)``; ``obs`` (..., m) marks observed
-    components (marginal law over them)."""
-    if obs is None or obs.all():
-        return law.logpdf(resid)
-    if isinstance(law, Independent):
-        return sum(np.where(obs[..., None, i], d.logpdf(resid[..., i]), 0.0) for i, d in enumerate(law.dists))
-    if isinstance(law, Gaussian):
-        out = np.empty(resid.shape[:-1])
-        flat_obs = obs.reshape(-1, obs.shape[-1])
-        flat_res = resid.reshape(-1, *resid.shape[-2:])
-        flat_out = out.reshape(-1, out.shape[-1])
-        for b, o in enumerate(flat_obs):  # patterns of missingness are few; rare path
-            if not o.any():
-                flat_out[b] = 0.0
-                continue
-            flat_out[b] = Gaussian(law.cov[np.ix_(o, o)]).logpdf(flat_res[b][:, o])
-        return out
-    raise ValueError("measurement_noise: partly missing measurements need a Gaussian or Independent law")
+from ..noise import Gaussian
+from .base import Estimates, GaussianState, _Runner, measurement_loglik, observed_precision
 
 
 def _check_time_step(flt, model, dt, who):
@@ -205,7 +184,11 @@ class GridFilter:
             n = self.model.n
             m0 = V.as_float_array("m0", m0, ndim=1, shape_tail=(n,)) if np.ndim(m0) else np.full(n, float(m0))
             V.finite("m0", m0)
-            logp = Gaussian(V.covariance("P0", P0, n)).logpdf(self.X - m0)
+            P0 = V.covariance("P0", P0, n)
+            if not np.linalg.eigvalsh(P0)[0] > 0:
+                raise ValueError("P0: the grid filter needs a prior density (positive definite P0), got a "
+                                 "singular covariance; pass initial= for another law")
+            logp = Gaussian(P0).logpdf(self.X - m0)
         p = np.exp(logp - np.max(logp))
         if not np.isfinite(p).all() or p.sum() <= 0:
             raise ValueError("m0/P0: the prior has no mass on the grid; widen bounds")
@@ -219,12 +202,16 @@ class GridFilter:
         hX = md.h(X, k)  # (N, m)
         if md.kind == "discrete":
             resid = np.where(obs[..., None, :], y[..., None, :] - hX, 0.0)
-            ll = _measurement_loglik(md.measurement_noise, resid, obs)
+            ll = measurement_loglik(md.measurement_noise, resid, obs)
         else:
-            Rinv = self._Rinv
-            hR = hX @ Rinv
+            Rinv = observed_precision(md.R, self._Rinv, obs)  # partly missing: the observed marginal
             yo = np.where(obs, y, 0.0)
-            ll = yo @ hR.T - 0.5 * self.dt * np.einsum("ka,ka->k", hR, hX)
+            if Rinv.ndim == 2:
+                hR = hX @ Rinv
+                ll = yo @ hR.T - 0.5 * self.dt * np.einsum("ka,ka->k", hR, hX)
+            else:
+                hR = np.einsum("ka,...ab->...kb", hX, Rinv)
+                ll = np.einsum("...a,...ka->...k", yo, hR) - 0.5 * self.dt * np.einsum("...ka,ka->...k", hR, hX)
         with np.errstate(divide="ignore"):
             lp = np.log(p) + ll
         mx = np.max(lp, axis=-1, keepdims=True)
@@ -310,9 +297,10 @@ class ParticleFilter:
         obs = ~np.isnan(y)
         if md.kind == "discrete":
             resid = np.where(obs[..., None, :], y[..., None, :] - md.h(x, k), 0.0)
-            return _measurement_loglik(md.measurement_noise, resid, obs)
+            return measurement_loglik(md.measurement_noise, resid, obs)
         hx = md.h(x, k)
-        hR = hx @ self._Rinv
+        Rinv = observed_precision(md.R, self._Rinv, obs)  # partly missing: the observed marginal
+        hR = hx @ Rinv if Rinv.ndim == 2 else np.einsum("...pa,...ab->...pb", hx, Rinv)
         yo = np.where(obs, y, 0.0)
         return np.einsum("...a,...pa->...p", yo, hR) - 0.5 * self.dt * np.einsum("...pa,...pa->...p", hR, hx)
 
@@ -338,6 +326,9 @@ class ParticleFilter:
         V.finite("ys", ys, allow_nan=True)  # NaN: missing
         batch, T = ys.shape[:-2], ys.shape[-2]
         B, Np = int(np.prod(batch)), self.particles
+        if initial is None and np.ndim(m0) > 1:
+            raise ValueError(f"m0: the particle filter takes one prior mean ({md.n},) for all paths, "
+                             f"got shape {np.shape(m0)}")
         yf = ys.reshape(B, T, md.m)
         x = initial_states(md.n, B * Np, rng, m0=m0, P0=P0, initial=initial).reshape(B, Np, md.n)
         logw = np.zeros((B, Np))

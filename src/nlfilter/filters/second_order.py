@@ -63,8 +63,8 @@ import numpy as np
 
 from .. import _validate as V
 from ..errors import DivergenceError
-from .base import (ContinuousFilter, DiscreteFilter, GaussianState, bad_paths, gaussian_update, poison,
-                   symmetrize)
+from .base import (ContinuousFilter, DiscreteFilter, GaussianState, bad_paths, gaussian_update,
+                   observed_precision, poison, symmetrize)
 
 FORMS = ("truncated", "truncated-jazwinski", "modified", "gaussian", "modified-gaussian", "first-order")
 
@@ -368,11 +368,13 @@ class ContinuousSecondOrderFilter(_Family, ContinuousFilter):
             self._innov = "none"  # 004 sec. 3: no −¼ term exists in continuous time
         self._Winv = np.linalg.inv(model.R)
 
-    def _gain_parts(self, m, X, s, obs):
+    def _gain_parts(self, m, X, s, obs, Winv):
+        """Gain, X Hᵀ, ĥ and the forcing tensor M W⁻¹; ``Winv``: the precision of the observed
+        components (:func:`~nlfilter.filters.base.observed_precision`; missing ones do not update)."""
         md = self.model
-        H = md.h_x(m, s) * obs[..., :, None]  # missing components do not update
+        H = md.h_x(m, s) * obs[..., :, None]
         PHt = X @ np.swapaxes(H, -1, -2)
-        K = PHt @ self._Winv  # 004 eq. 37
+        K = PHt @ Winv  # 004 eq. 37
         hhat = md.h(m, s)
         M = None
         if self._second:
@@ -380,15 +382,16 @@ class ContinuousSecondOrderFilter(_Family, ContinuousFilter):
             hhat = hhat + 0.5 * hessian_trace(X, h_xx)  # 004 eq. 35
             M = _forcing(self.form, X, h_xx)
             if M is not None:
-                M = np.einsum("...ijk,kl->...ijl", M * obs[..., None, None, :], self._Winv)  # M W⁻¹
+                M = np.einsum("...ijk,...kl->...ijl", M * obs[..., None, None, :], Winv)  # M W⁻¹
         return K, PHt, hhat * obs, M
 
     def _rhs_factory(self, obs):
         md = self.model
+        Winv = observed_precision(md.R, self._Winv, obs)
 
         def rhs(m, X, z, s):
             F = md.f_x(m, s)
-            K, PHt, hhat, M = self._gain_parts(m, X, s, obs)
+            K, PHt, hhat, M = self._gain_parts(m, X, s, obs, Winv)
             dm = md.f(m, s) - np.einsum("...ij,...j->...i", K, hhat)
             if self._second:
                 dm = dm + 0.5 * hessian_trace(X, md.f_xx(m, s))
@@ -410,7 +413,7 @@ class ContinuousSecondOrderFilter(_Family, ContinuousFilter):
             return self.integrate(self._rhs_factory(np.zeros_like(obs)), new, None, t), bad
         dy0 = np.where(obs, dy, 0.0)
         m, X = state
-        K, _, _, M = self._gain_parts(m, X, t, obs)  # Itô: gain at the start of the step
+        K, _, _, M = self._gain_parts(m, X, t, obs, observed_precision(self.model.R, self._Winv, obs))  # Itô: gain at the start
         new = self.integrate(self._rhs_factory(obs), GaussianState(m, X), None, t)
         mean = new.mean + np.einsum("...ij,...j->...i", K, dy0)
         cov = new.cov

@@ -15,22 +15,17 @@ from __future__ import annotations
 import numpy as np
 
 from .. import _validate as V
-from .base import DiscreteFilter, GaussianState, gaussian_update, poison, symmetrize
+from .base import DiscreteFilter, GaussianState, gaussian_update, poison, sqrt_psd
 
 
 def sigma_points(m, P, alpha, beta, kappa):
     """Sigma points ``(..., 2n+1, n)``, weights ``(Wm, Wc)`` of shape ``(2n+1,)``, and the paths
-    ``(...)`` whose covariance has no Cholesky factor (their points are drawn from the identity
-    and must be discarded: the UKF poisons them so that ``run`` raises or marks them)."""
+    ``(...)`` whose covariance is not PSD (their points are drawn from the identity and must be
+    discarded: the UKF poisons them so that ``run`` raises or marks them). The square root is the
+    Cholesky factor, or the eigen root where P is only semi-definite (:func:`sqrt_psd`)."""
     n = m.shape[-1]
     lam = alpha**2 * (n + kappa) - n
-    bad = np.zeros(m.shape[:-1], dtype=bool)
-    try:
-        L = np.linalg.cholesky((n + lam) * P)
-    except np.linalg.LinAlgError:
-        bad = ~np.all(np.linalg.eigvalsh(symmetrize(P)) > 0, axis=-1) | ~np.isfinite(P).all(axis=(-1, -2))
-        safe = np.where(bad[..., None, None], np.eye(n), np.nan_to_num(P))
-        L = np.linalg.cholesky((n + lam) * safe)
+    L, bad = sqrt_psd((n + lam) * P)
     Lt = np.swapaxes(L, -1, -2)  # rows = columns of L
     X = np.concatenate([m[..., None, :], m[..., None, :] + Lt, m[..., None, :] - Lt], axis=-2)
     Wm = np.full(2 * n + 1, 0.5 / (n + lam))
