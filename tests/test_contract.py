@@ -664,3 +664,20 @@ def test_partly_missing_non_gaussian_noise_uses_the_marginal_law(name):
         a = outputs(NON_GAUSSIAN[name](full).run(e, M2, P2))
         c = outputs(NON_GAUSSIAN[name](full).run(d, M2, P2))
         close(_take(a, [1, 2]), _take(c, [1, 2]))
+
+
+NAN_OK = [c for c in GAUSS if c.missing == "nan" and not c.random]
+
+
+@settings(max_examples=20, deadline=None, derandomize=True, suppress_health_check=list(HealthCheck))
+@given(case=hst.sampled_from(NAN_OK), seed=hst.integers(0, 2**16), rate=hst.sampled_from([0.2, 0.5]))
+def test_random_missing_patterns_keep_paths_independent(case, seed, rate):
+    """Random NaN patterns (components, whole steps, whole paths' steps): each path's estimates in the
+    batch equal those of the path run alone."""
+    rng = np.random.default_rng(seed)
+    d = case.data((3,), 5, seed)
+    e = np.where(rng.random(d.shape) < rate, np.nan, d)
+    e[0, 2] = np.nan
+    full = outputs(case.run(e, on_divergence="mark"))
+    for i in range(3):
+        close(_take(full, slice(i, i + 1)), outputs(case.run(e[i:i + 1], on_divergence="mark")))
