@@ -681,3 +681,14 @@ def test_random_missing_patterns_keep_paths_independent(case, seed, rate):
     full = outputs(case.run(e, on_divergence="mark"))
     for i in range(3):
         close(_take(full, slice(i, i + 1)), outputs(case.run(e[i:i + 1], on_divergence="mark")))
+
+
+@pytest.mark.parametrize("make", [lambda: FirstOrderMomentFilter(0.5, 1.0, 1, w_moments=uniform_moments(1)),
+                                  lambda: SecondOrderMomentFilter(A2, [1.0, 1.0], [1.0, 1.0], 1.0, 1,
+                                                                  w_moments=uniform_moments(1))])
+def test_moment_filters_of_order_one_have_no_covariance(make):
+    """Documented (MomentRun.covs): with N = 1 no second moment is carried; covs are NaN, the
+    estimates finite, and nothing diverged."""
+    res = make().run(_bounded(2)((3,), T, 1))
+    assert np.isfinite(res.estimates).all() and np.isnan(res.covs).all()
+    assert not res.to_estimates().diverged.any()

@@ -306,6 +306,8 @@ class MomentRun(NamedTuple):
     lower, upper : (..., T, n) the posterior's bounding interval / box (Schweppe's reachable set
         intersected with the measurement's)
     w_moments : (..., U, N) input moments in use after each refresh (adaptive mode; else U = 0)
+    covs : (..., T, n, n) posterior covariances; NaN when N < 2 (the second moments are not
+        carried: no covariance exists, which is not a divergence)
     """
 
     estimates: np.ndarray
