@@ -29,6 +29,7 @@ from nlfilter.filters import (EKF, FORMS, MQLF, PLL, QLF, UKF, CircleGridFilter,
                               ParticleFilter, PhaseTensorFilter, SecondOrderFilter, SecondOrderMomentFilter,
                               TensorFilter, ZeroOrderMomentFilter)
 from nlfilter.filters.phase import simulate_phase
+from nlfilter.moments.closures import EdgeworthClosure
 from nlfilter.moments.densities import uniform_moments
 from nlfilter.problems import euler_discretization
 from nlfilter.simulate import simulate
@@ -144,6 +145,12 @@ CASES = [
            options=(("order", "bogus"),)),
     _gauss("cmf", lambda model=S2, **k: ConditionalMomentFilter(model, DT, points=8, **k), S2, M2, P2, dt=DT,
            options=(("update", "bogus"),)),
+    _gauss("cmf-edgeworth4", lambda model=S2, **k: ConditionalMomentFilter(model, DT, closure=EdgeworthClosure(4),
+                                                                         points=8, **k), S2, M2, P2, dt=DT,
+           options=(("update", "bogus"),)),
+    _gauss("dcmf-edgeworth4", lambda model=D2, **k: DiscreteConditionalMomentFilter(model, closure=EdgeworthClosure(4),
+                                                                                  points=8, **k), D2, M2, P2,
+           options=(("start", "bogus"),)),
     _gauss("dcmf", lambda model=D2, **k: DiscreteConditionalMomentFilter(model, points=8, **k), D2, M2, P2,
            options=(("start", "bogus"),)),
     _gauss("linear", lambda **k: OptimalLinearFilter(BIL, DT, **k), SDEModel([x], [-x], [x], Q=1.0, R=1.0), M1,
@@ -509,7 +516,9 @@ def _api_run(flt, ys, m0, P0, skip):
     return {"means": np.stack(means, axis=-2), "covs": np.stack(covs, axis=-3)}
 
 
-HAS_API = [c for c in GAUSS if hasattr(c.filter(), "predict") and hasattr(c.filter(), "update")]
+# (documented: the conditional-moment filter's step API carries a GaussianState, so only for N = 2)
+HAS_API = [c for c in GAUSS if hasattr(c.filter(), "predict") and hasattr(c.filter(), "update")
+           and "edgeworth" not in c.name]
 
 
 @pytest.mark.parametrize("start", ["update", "predict"])
