@@ -118,6 +118,19 @@ def sqrt_psd(P: np.ndarray, tol: float = PSD_TOL):
     return np.where(pd[..., None, None], L, np.where(bad[..., None, None], eye, root)), bad
 
 
+def screened(run):
+    """Decorator for a ``run`` that checks its own results (raises or marks a failing path, never
+    returns NaN silently): NumPy's overflow/invalid/divide warnings are off inside it, as they are
+    in the protocol's run loops, so a caught failure is reported once, by the filter."""
+
+    @functools.wraps(run)
+    def wrapper(*args, **kwargs):
+        with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
+            return run(*args, **kwargs)
+
+    return wrapper
+
+
 def poison(state: GaussianState, bad) -> GaussianState:
     """NaN on the paths in ``bad`` so that ``run``'s divergence check records them (never
     silent: ``run`` raises or marks them)."""

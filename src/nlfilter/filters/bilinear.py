@@ -35,7 +35,7 @@ from ..errors import SingularSystemError
 from ..moments.ito import PolynomialSDE, bilinear_lift, closed_hull
 from ..moments.solve import linear_steady_state, stationary_moments
 from ..polynomials import Polynomial, monomials
-from .base import Estimates, _Runner, screen_outputs, symmetrize
+from .base import Estimates, _Runner, screen_outputs, screened, symmetrize
 
 
 # =========================================================================== second moments
@@ -303,6 +303,7 @@ class OptimalLinearFilter:
         a0, a1, a2 = m.augmented(t), m.augmented(t + h / 2), m.augmented(t + h)
         return _affine_step(a0.F - K0 @ a0.H, a1.F - K1 @ a1.H, a2.F - K2 @ a2.H, K0, K1, K2, h, self.scheme)
 
+    @screened
     def run(self, dys, m0, P0, *, t0: float = 0.0, on_divergence: str = "raise",
             return_augmented: bool = False) -> Estimates:
         """Filter a batch of increments ``dys (..., T, m)``; estimates at ``t0 + k dt``, k = 1..T."""
@@ -381,6 +382,7 @@ class DiscreteOptimalLinearFilter:
             raise TypeError("model: expected a discrete-time BilinearModel (discrete=True)")
         self.model = model
 
+    @screened
     def run(self, ys, m0, P0, *, on_divergence: str = "raise") -> Estimates:
         from .base import GaussianState
         model = self.model

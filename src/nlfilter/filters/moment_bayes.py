@@ -76,6 +76,7 @@ from .. import _validate as V
 from ..moments.densities import (LegendreDensity, LegendreDensity2D, cumulants_to_moments, difference_moments,
                                  is_moment_sequence, moments_to_cumulants, sum_moments,
                                  uniform_moments)
+from .base import screened
 
 __all__ = ["ZeroOrderMomentFilter", "ZeroOrderRun", "zero_order_estimate", "power_density_estimate",
            "FirstOrderMomentFilter", "MomentRun", "BoundedGridFilter1D", "impulse_power_sums",
@@ -493,6 +494,7 @@ class FirstOrderMomentFilter:
         post = np.where(point[..., None], pt, np.where(fb[..., None], uni, post))
         return post, lo, hi, fb & ~point
 
+    @screened
     def run(self, zs) -> MomentRun:
         """Filter a batch of measurement sequences ``zs`` (..., T)."""
         zs, batch, T, mw, learner, zl = _start_run(self, zs)
@@ -860,6 +862,7 @@ class SecondOrderMomentFilter:
         post = np.where(self._mask, post, 0.0)
         return post, Q, np.min(Q, axis=-2), np.max(Q, axis=-2), fb & ~tiny
 
+    @screened
     def run(self, zs) -> MomentRun:
         """Filter a batch of measurement sequences ``zs`` (..., T)."""
         zs, batch, T, mw, learner, zl = _start_run(self, zs)

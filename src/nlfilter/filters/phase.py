@@ -19,7 +19,7 @@ import numpy as np
 
 from .. import _validate as V
 from ..bilinear import phase_model
-from .base import screen_outputs
+from .base import screen_outputs, screened
 from .bilinear import OptimalLinearFilter, TensorFilter
 
 
@@ -101,6 +101,7 @@ class PLL:
         self.scheme = V.choice("scheme", scheme, {"rk4", "euler"})
         self.K = pll_gain(q, r) if K is None else float(V.positive("K", K))
 
+    @screened
     def run(self, dzs, theta0=0.0) -> PhaseEstimates:
         """Phase estimates for increments ``dzs (..., T, 2)`` from ``theta0`` (scalar or per path);
         :class:`~nlfilter.errors.DivergenceError` if an estimate becomes non-finite."""
@@ -208,6 +209,7 @@ class CircleGridFilter:
         k = np.fft.rfftfreq(self.size, d=1.0 / self.size)
         self._decay = np.exp(-0.5 * self.q * k ** 2 * self.dt)
 
+    @screened
     def run(self, dzs, p0=None) -> PhaseEstimates:
         """Filter ``dzs (..., T, 2)`` from the prior ``p0`` on the grid (``(..., size)``, non-negative;
         default uniform); :class:`~nlfilter.errors.DivergenceError` if an estimate becomes non-finite."""

@@ -61,7 +61,7 @@ from ..moments.quadrature import expect_gaussian, gaussian_rule
 from ..moments.solve import MomentSolution, iterate, propagate
 from ..noise import Gaussian
 from ..polynomials import Polynomial, monomials
-from .base import ContinuousFilter, Estimates, GaussianState, _prepare, _Runner, symmetrize
+from .base import ContinuousFilter, Estimates, GaussianState, _prepare, _Runner, screened, symmetrize
 
 __all__ = ["statistical_linearization", "QuasilinearFilter", "DiscreteQuasilinearFilter", "QLF", "MQLF",
            "OfflineGains", "ErrorAnalysis", "gain_error_analysis", "discrete_gain_error_analysis"]
@@ -654,6 +654,7 @@ class DiscreteQuasilinearFilter:
 
         return discrete_gain_error_analysis(self.model, coefficients, m0, P0, steps, closure=closure, order=order)
 
+    @screened
     def run(self, ys, m0, P0, *, on_divergence: str = "raise") -> Estimates:
         md = self.model
         m0v, P0v = _prior(md.n, m0, P0)

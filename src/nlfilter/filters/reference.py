@@ -37,7 +37,7 @@ from scipy import sparse
 
 from .. import _validate as V
 from ..noise import Gaussian
-from .base import Estimates, GaussianState, _Runner, measurement_loglik, observed_precision
+from .base import Estimates, GaussianState, _Runner, measurement_loglik, observed_precision, screened
 
 
 def _check_time_step(flt, model, dt, who):
@@ -221,6 +221,7 @@ class GridFilter:
         dead |= ~(s[..., 0] > 0)
         return np.where(dead[..., None], p, w / np.where(s > 0, s, 1.0)), dead
 
+    @screened
     def run(self, ys, m0=None, P0=None, *, initial=None, on_divergence: str = "raise",
             progress: bool = False) -> Estimates:
         """Filter ``ys (..., T, m)`` (increments for SDEs) from N(m0, P0) or the law ``initial``.
@@ -315,6 +316,7 @@ class ParticleFilter:
         idx = np.searchsorted((c + off).ravel(), (u + off).ravel(), side="right")
         return np.minimum(idx.reshape(B, Np) - off * Np, Np - 1)
 
+    @screened
     def run(self, ys, m0=None, P0=None, *, rng=None, initial=None, on_divergence: str = "raise",
             progress: bool = False) -> Estimates:
         """Filter ``ys (..., T, m)`` from N(m0, P0) or the law ``initial``; ``rng`` seeds the
