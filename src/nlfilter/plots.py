@@ -69,8 +69,8 @@ def plot_result(result, path, *, dpi: int = 100) -> None:
     ncol = 2 if n == 4 else min(3, n)
     nrow = math.ceil(n / ncol)
     shared = _shared_labels(panels)  # line panels showing the same filters share one legend
-    outside = any(_outside(p) for k, p in panels.items() if k not in shared)
-    width = (5.0 + (1.9 if outside else 0.0)) * ncol + (1.9 if shared else 0.0)
+    cols = {i % ncol for i, (k, p) in enumerate(panels.items()) if k not in shared and _outside(p)}
+    width = 5.0 * ncol + 1.9 * len(cols) + (1.9 if shared else 0.0)  # room for legends right of axes
     fig = Figure(figsize=(max(7.5, width), 3.7 * nrow + 0.7), layout="constrained")
     colour = _Colours()
     handles = {}
@@ -93,14 +93,17 @@ def plot_result(result, path, *, dpi: int = 100) -> None:
         ax.grid(alpha=0.3)
         h, labels = ax.get_legend_handles_labels()
         if shared and name in shared:
-            handles.update({lab: hd for hd, lab in zip(h, labels) if lab not in handles})
+            handles[i] = dict(zip(labels, h))
         elif _outside(panel):
             ax.legend(fontsize=7.5, loc="upper left", bbox_to_anchor=(1.01, 1.0), borderaxespad=0.0)
         else:
             ax.legend(fontsize=7.5, framealpha=0.85)
-    if handles:
-        handles = {k: v for k, v in sorted(handles.items(), key=lambda kv: kv[0].startswith("shaded"))}
-        fig.legend(list(handles.values()), list(handles), loc="outside right upper", fontsize=8)
+    if handles:  # in the order of the fullest panel, then what the others add; the band note last
+        merged = {}
+        for per in sorted(handles.values(), key=len, reverse=True):
+            merged.update({k: v for k, v in per.items() if k not in merged})
+        merged = dict(sorted(merged.items(), key=lambda kv: kv[0].startswith("shaded")))
+        fig.legend(list(merged.values()), list(merged), loc="outside right upper", fontsize=8)
     title, source = _heading(result)
     head = textwrap.fill(f"{result.experiment}: {title}", 130)
     fig.suptitle(f"{head}\n" + textwrap.fill(f"source: {source}", 130), fontsize=10)
