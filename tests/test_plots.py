@@ -42,3 +42,16 @@ def test_linear_gaussian_figure(check_figure):
     assert np.all(panel["lines"]["riccati"] == res.get("riccati", "mse").value)
     lo, hi = panel["bands"]["kf"]
     assert np.all(lo < panel["lines"]["kf"]) and np.all(panel["lines"]["kf"] < hi)
+
+
+def test_gallery_has_every_experiment_and_readme_links_it():
+    from pathlib import Path
+
+    from nlfilter.experiments import registry
+
+    root = Path(__file__).resolve().parents[1]
+    readme = (root / "README.md").read_text()
+    for id in registry():
+        png = root / "docs" / "figures" / f"{id}.png"
+        assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and png.stat().st_size < 150_000, id
+        assert f"(docs/figures/{id}.png)" in readme, id
