@@ -168,6 +168,7 @@ def run_table1(params, *, quick, runs, seed, progress):
             se = np.sqrt(max(s2 / n_mc - mean ** 2, 0.0) / (n_mc - 1))
             res.add(name, "mse_mc", mean, stderr=se, paper=paper_value(J, name), J=J)
     names = ["optimal"] + [f"moment{N}" for N in Ns] + ["linear"]
+    Js = sorted(set(Js))  # the figure's x axis
     res.series["Table 1 (Fig. 8): ensemble MSE vs J, exact quadrature"] = {
         "x": np.array(Js), "lines": {nm: np.array([res.get(nm, "mse", J=J).value for J in Js]) for nm in names},
         "styles": {nm: "o-" for nm in names}, "xlabel": "J (state density ∝ x^J on (−1, 1))",
