@@ -13,3 +13,54 @@ def nonlinear3():
     h = [x1**2 / 4 + x3, sp.atan(x2) + 0.3 * x1]
     G = [[1, 0], [0.1 * x1, 1], [0, 0.5 + 0.1 * x3**2]]
     return DiscreteModel([x1, x2, x3], f, h, G, Q=np.diag([0.02, 0.05]), R=np.diag([0.1, 0.2]))
+
+
+PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
+
+
+def _check_figure(result, tmp_path, expect: dict, paper=()):
+    """Draw ``result`` and check its panels: exactly the panels of ``expect`` (name -> labels each
+    must draw), finite arrays of matching lengths, x increasing, bands ordered, and the paper's
+    values present in the panels named in ``paper``. Returns the PNG path."""
+    import struct
+
+    from nlfilter.plots import plot_result
+
+    assert set(result.series) == set(expect)
+    for name, panel in result.series.items():
+        if panel.get("kind", "line") == "bar":
+            k = len(panel["categories"])
+            assert k >= 1 and set(expect[name]) <= set(panel["bars"])
+            for label, y in panel["bars"].items():
+                assert len(y) == k and np.all(np.isfinite(y)), (name, label)
+            for label, e in panel.get("errors", {}).items():
+                assert len(e) == k and np.all(np.asarray(e) >= 0), (name, label)
+            has_paper = any(v is not None for vals in panel.get("paper", {}).values() for v in vals)
+        else:
+            x = np.asarray(panel["x"], dtype=float)
+            assert x.ndim == 1 and x.size >= 2 and np.all(np.isfinite(x)) and np.all(np.diff(x) > 0), name
+            assert set(expect[name]) <= set(panel["lines"]), (name, set(panel["lines"]))
+            for label, y in panel["lines"].items():
+                y = np.asarray(y, dtype=float)
+                assert y.shape == x.shape and np.all(np.isfinite(y)), (name, label)
+            for label, (lo, hi) in panel.get("bands", {}).items():
+                assert np.shape(lo) == x.shape and np.all(np.asarray(lo) <= np.asarray(hi)), (name, label)
+            has_paper = bool(panel.get("paper"))
+            for px, py in panel.get("paper", {}).values():
+                assert np.all(np.isfinite(py)) and (px is None or np.size(px) == np.size(py))
+        assert has_paper == (name in paper), name
+        assert panel.get("ylabel"), name
+    path = tmp_path / f"{result.experiment}.png"
+    plot_result(result, path)
+    data = path.read_bytes()
+    assert data[:8] == PNG_MAGIC
+    w, h = struct.unpack(">II", data[16:24])  # IHDR: width, height
+    assert 600 <= w <= 3000 and 300 <= h <= 2000
+    assert 15_000 < len(data) < 600_000
+    return path
+
+
+@pytest.fixture
+def check_figure(tmp_path):
+    """``check_figure(result, expect, paper=())``: see :func:`_check_figure`."""
+    return lambda result, expect, paper=(): _check_figure(result, tmp_path, expect, paper)

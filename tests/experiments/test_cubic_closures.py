@@ -43,3 +43,11 @@ def test_custom_case_and_bad_params():
         get("cubic-sensor-closures").run({"q": [1.0, 2.0], "r": [1.0]}, quick=True)
     with pytest.raises(ValueError, match="q"):
         get("cubic-sensor-closures").run({"q": [-1.0], "r": [1.0]}, quick=True)
+
+
+def test_figure(quick, check_figure):
+    names = {f"q={q:g}, r=1: MSE over t (running mean over 0.5, 16 paths)" for q in (2, 1)}
+    check_figure(quick, {n: {"ekf", "gaussian-closure", "edgeworth4-closure", "optimal"} for n in names},
+                 paper=names)
+    p = quick.series["q=2, r=1: MSE over t (running mean over 0.5, 16 paths)"]["paper"]
+    assert p["best linear filter, 001 Tables 5.1-5.2"] == (None, 0.540)  # 001 Table 5.1 (context)

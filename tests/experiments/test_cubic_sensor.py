@@ -152,3 +152,28 @@ def test_qlf_monte_carlo_matches_offline_analysis(offline):
     se = d.std(ddof=1) / np.sqrt(d.size)
     assert abs(d.mean() - (off_q - off_l)) < 3 * se, (d.mean(), se, off_q - off_l)
     assert d.mean() > 3 * se  # and the QLF is measurably worse than the thesis' linear filter
+
+
+def test_figure(quick_mc, check_figure):
+    mse = "Steady-state MSE of x against r (q=2): exact off-line"
+    red = "MSE reduction by the post-processors over the linear filter (q=2)"
+    tab = "Tables 5.1-5.2: steady-state MSE of x (off-line; MC where marked)"
+    check_figure(quick_mc, {mse: {"linear", "tensor (cubic)", "tensor5 (quintic)", "Bobrovsky-Zakai bound"},
+                            red: {"x, cubic", "x³, cubic"}, tab: {"q=2, r=1"}}, paper={mse, red, tab})
+    p = quick_mc.series[mse]
+    assert p["paper"]["linear"] == ([1.0], [0.540]) and p["paper"]["tensor (cubic)"] == ([1.0], [0.522])
+    assert np.all(np.asarray(p["lines"]["tensor (cubic)"]) <= np.asarray(p["lines"]["linear"]) + 1e-12)
+    assert np.all(np.asarray(p["lines"]["Bobrovsky-Zakai bound"]) < np.asarray(p["lines"]["tensor5 (quintic)"]))
+    opt = quick_mc.get("optimal", "mse_x_mc", q=2.0, r=1.0).value
+    assert p["points"]["optimal (grid, Monte Carlo)"][1] == [opt]
+    bars = quick_mc.series[tab]
+    assert "optimal (MC)" in bars["categories"]
+    assert bars["paper"]["q=2, r=1"][bars["categories"].index("linear")] == 0.540
+
+
+def test_figure_without_monte_carlo(offline, check_figure):
+    tab = "Tables 5.1-5.2: steady-state MSE of x (off-line; MC where marked)"
+    check_figure(offline, {"Steady-state MSE of x against r (q=2): exact off-line": {"linear"},
+                           "MSE reduction by the post-processors over the linear filter (q=2)": {"x, cubic"},
+                           tab: {"q=2, r=1", "q=1, r=1"}}, paper=set(offline.series))
+    assert "optimal (MC)" not in offline.series[tab]["categories"]  # no Monte Carlo, no such bar

@@ -7,7 +7,7 @@ import pytest
 from nlfilter.experiments import get
 
 
-def test_first_order_quick_bimodal_beats_kalman_and_near_optimal():
+def test_first_order_quick_bimodal_beats_kalman_and_near_optimal(check_figure):
     res = get("moment-first-order").run({"laws": ["bimodal"], "N": [4], "T": 150, "skip": 30, "grid": 200},
                                         quick=True, runs=24, seed=5)
     kf = res.get("kalman", "mse", law="bimodal")
@@ -24,6 +24,11 @@ def test_first_order_quick_bimodal_beats_kalman_and_near_optimal():
     gk = res.get("kalman", "gap_to_optimal", law="bimodal").value
     assert g4 < 0.25 * gk
     assert m4.value < kf.value
+    mse = "MSE by input law (24 paths × steps 30..119; optimal: grid filter)"
+    gap = "Excess MSE over the optimum (paired on the same paths)"
+    check_figure(res, {mse: {"optimal", "kalman", "moment4"}, gap: {"kalman", "moment4", "adaptive4"}})
+    assert res.series[mse]["categories"] == ["bimodal"]
+    assert res.series[gap]["bars"]["kalman"] == [gk]
 
 
 def test_first_order_bad_params():
@@ -33,7 +38,7 @@ def test_first_order_bad_params():
         get("moment-first-order").run({"T": 100, "skip": 100}, quick=False, runs=2)
 
 
-def test_second_order_quick_runs_and_optimum_not_beaten():
+def test_second_order_quick_runs_and_optimum_not_beaten(check_figure):
     res = get("moment-second-order").run({"laws": ["bimodal"], "N": [4], "T": 60, "skip": 10,
                                           "particles": 1000}, quick=True, runs=6, seed=2)
     for name in ("optimal", "kalman", "moment4", "adaptive4"):
@@ -42,3 +47,6 @@ def test_second_order_quick_runs_and_optimum_not_beaten():
     for name in ("kalman", "moment4", "adaptive4"):
         g = res.get(name, "gap_to_optimal", law="bimodal")
         assert g.value > -3 * g.stderr
+    mse = "MSE by input law (6 paths × steps 10..59; E|x − x̂|² over both states; optimal: particle filter, 1000 particles)"
+    check_figure(res, {mse: {"optimal", "kalman", "moment4"},
+                       "Excess MSE over the optimum (paired on the same paths)": {"kalman", "moment4", "adaptive4"}})

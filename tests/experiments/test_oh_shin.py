@@ -20,7 +20,7 @@ def test_rows_and_paper_values(quick):
     assert quick.get("mqlf", "mse_t1_diff_vs_qlf").paper == pytest.approx(-0.0013)
     for f in FILTERS[:-1]:
         quick.get(f, "mse_t1_gap", t=1.0)
-    assert "MSE E(x - x̂)² over t (003 Fig. 2)" in quick.series
+    assert "MSE E(x − x̂)² over t (003 Fig. 2)" in quick.series
 
 
 def test_offline_and_monte_carlo_agree(quick):
@@ -47,3 +47,16 @@ def test_bad_params():
         get("oh-shin").run({"t_end": 0.015}, quick=True)
     with pytest.raises(ValueError, match="Q"):
         get("oh-shin").run({"Q": -1.0}, quick=True)
+
+
+def test_figure(quick, check_figure):
+    fig2 = "MSE E(x − x̂)² over t (003 Fig. 2)"
+    diff = "MQLF − QLF, paired on common noise, against the paper's difference at t = 1"
+    check_figure(quick, {fig2: {"qlf (MC)", "mqlf (MC)", "optimal (MC)", "qlf (off-line)", "mqlf (off-line)"},
+                         diff: {"mqlf − qlf (MC)", "mqlf − qlf (off-line)"}}, paper={fig2, diff})
+    panel = quick.series[fig2]
+    assert panel["x"][0] == 0.0 and panel["x"][-1] == pytest.approx(1.0)
+    assert panel["paper"] == {"qlf": (1.0, 0.0163), "mqlf": (1.0, 0.015)}  # printed under 003 Fig. 2
+    # the off-line curve at t = 1 is the table's off-line row
+    assert panel["lines"]["qlf (off-line)"][-1] == pytest.approx(quick.get("qlf", "mse_t1_offline").value)
+    assert quick.series[diff]["paper"]["mqlf − qlf"][1] == pytest.approx(-0.0013)

@@ -33,3 +33,15 @@ def test_series_for_figures(quick):
     assert {"Fig. 4.3: MSE reduction of x1 = sin θ", "Fig. 4.4: post-processor α, β"} <= set(quick.series)
     red = np.asarray(quick.series["Fig. 4.3: MSE reduction of x1 = sin θ"]["lines"]["cubic post-processor"])
     assert np.all(red > -1e-9) and red.max() < 9.3
+
+
+def test_figure(quick, check_figure):
+    f43, f44 = "Fig. 4.3: MSE reduction of x1 = sin θ", "Fig. 4.4: post-processor α, β"
+    tab = "Table 4.1: phase error at P_θℓ = 0.129 (4 runs × 40 time constants)"
+    check_figure(quick, {f43: {"cubic post-processor", "quintic post-processor"}, f44: {"α", "β"},
+                         tab: {"ours (Monte Carlo)"}}, paper={f43, tab})
+    assert quick.series[f43]["paper"]["cubic post-processor"] == (0.129, 9.2)
+    bars = quick.series[tab]
+    assert bars["categories"] == ["pll", "lqf", "tensor", "optimal"]
+    assert bars["paper"]["ours (Monte Carlo)"] == [0.1401, 0.1477, 0.1511, None]  # 001 Table 4.1
+    assert bars["bars"]["ours (Monte Carlo)"][0] == quick.get("pll", "mse_theta", P=0.129).value

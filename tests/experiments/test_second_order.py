@@ -32,8 +32,10 @@ def test_rows_cover_every_filter_problem_and_quantity(quick):
                 assert row.paper is None  # seed 004 prints no numbers
                 if q == "psd_loss_rate":
                     assert 0.0 <= row.value <= 1.0
-    assert set(quick.series) == {"quadratic: MSE of x1", "state-noise: MSE of x1",
-                                 "falling-body: MSE of x1", "falling-body: MSE of x3"}
+    assert set(quick.series) == {"quadratic: MSE of x1 per step", "state-noise: MSE of x1 per step",
+                                 "falling-body: MSE of x1 per step (paired: the 8 runs of the reference)",
+                                 "falling-body: MSE of x3 per step (paired: the 8 runs of the reference)",
+                                 "Covariance lost positive definiteness (fraction of runs)"}
 
 
 def test_quadratic_pre_correction_loses_psd_and_correct_form_does_not(quick):
@@ -102,3 +104,17 @@ def test_problems():
         pb.quadratic(r=-1.0)
     with pytest.raises(TypeError, match="model"):
         pb.euler_discretization(q.model, 0.1)
+
+
+def test_figure(quick, check_figure):
+    lines = {"ekf", "ukf", "truncated", "optimal"}
+    psd = "Covariance lost positive definiteness (fraction of runs)"
+    check_figure(quick, {**{n: lines for n in quick.series if n != psd},
+                         psd: {"quadratic", "state-noise", "falling-body"}})
+    bars = quick.series[psd]
+    assert set(bars["bars"]) == {"quadratic", "state-noise", "falling-body"}
+    i = bars["categories"].index("truncated-jazwinski")
+    assert bars["bars"]["quadratic"][i] == quick.get("truncated-jazwinski", "psd_loss_rate", problem="quadratic").value
+    # a form that lost PSD on every quadratic run has no MSE curve, and the panel says so
+    assert "truncated-jazwinski" not in quick.series["quadratic: MSE of x1 per step"]["lines"]
+    assert "truncated-jazwinski" in quick.series["quadratic: MSE of x1 per step"]["note"]

@@ -84,8 +84,13 @@ def test_J0_all_equal_optimal_eq_3_26():
     np.testing.assert_allclose(vals, 1 / 6, atol=1e-12)
 
 
-def test_experiment_quick_rows_and_mc_check():
+def test_experiment_quick_rows_and_mc_check(check_figure):
     res = get("zero-order").run({"J": [4, 10], "N": [2, 6]}, quick=True, runs=40_000, seed=1)
+    fig, diff = "Table 1 (Fig. 8): ensemble MSE vs J, exact quadrature", "Table 1 cell by cell: ours − the paper's printed value"
+    names = {"optimal", "moment2", "moment6", "linear"}
+    check_figure(res, {fig: names, diff: names}, paper={fig})
+    assert res.series[fig]["paper"]["moment2"] == ([4, 10], [0.151448, 0.210309])
+    assert res.series[diff]["lines"]["moment2"][1] == pytest.approx(res.get("moment2", "mse", J=10).value - 0.210309)
     for J in (4, 10):
         for name in ("optimal", "moment2", "moment6", "linear"):
             det = res.get(name, "mse", J=J)
@@ -102,8 +107,12 @@ def test_experiment_quick_rows_and_mc_check():
         get("zero-order").run({"N": [13]}, quick=True)
 
 
-def test_adaptive_quick_rows():
+def test_adaptive_quick_rows(check_figure):
     res = get("zero-order-adaptive").run({}, quick=True, runs=30, seed=3)
+    names = {"moment2", "moment4", "moment6", "linear", "optimal"}
+    check_figure(res, {"Fig. 10 J=10": names, "Fig. 10 J=0": names})
+    panel = res.series["Fig. 10 J=0"]
+    assert panel["x"][-1] == 600 and panel["lines"]["optimal"][-1] == pytest.approx(res.get("optimal", "mse_n600", J=0).value)
     q = "mse_n600"
     for J in (10, 0):
         for name in ("moment2", "moment4", "moment6", "linear", "optimal"):
@@ -150,9 +159,16 @@ def test_correlated_optimal_beats_filters_by_monte_carlo():
         assert d.mean() > -3 * d.std() / np.sqrt(d.size)
 
 
-def test_robustness_quick():
-    res = get("zero-order-robustness").run({"r": [0.0, 0.6], "beta": [0.0, 0.5], "N": [2, 4]},
+def test_robustness_quick(check_figure):
+    res = get("zero-order-robustness").run({"r": [0.6, 0.0], "beta": [0.0, 0.5], "N": [2, 4]},
                                            quick=True, runs=16, seed=9)
+    corr = "correlated input and noise: MSE against the copula r"
+    scaled = "non-additive noise z = x + (1 + βx)v: MSE against β"
+    check_figure(res, {corr: {"optimal", "linear", "moment2 (adaptive)", "moment4 (known moments)"},
+                       scaled: {"optimal", "linear", "moment4 (exact likelihood)", "moment4 (additive filter)"}})
+    assert list(res.series[corr]["x"]) == [0.0, 0.6]  # sorted, whatever the order given
+    assert res.series[corr]["lines"]["moment4 (known moments)"][1] == res.get(
+        "moment4-known", "mse_n400", case="correlated", r=0.6).value
     for case, key, vals in (("correlated", "r", (0.0, 0.6)), ("scaled-noise", "beta", (0.0, 0.5))):
         for val in vals:
             for name in ("linear", "moment2", "moment4"):

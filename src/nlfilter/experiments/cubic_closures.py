@@ -101,8 +101,12 @@ def run(params, *, quick, runs, seed, progress):
             k = max(1, int(round(0.5 / dt)))  # half-unit running mean, for legibility
             norm = np.convolve(np.ones_like(mse_t), np.ones(k), mode="same")  # shorter windows at the ends
             lines[name] = np.convolve(mse_t, np.ones(k), mode="same") / norm
-        res.series[f"q={q:g}, r={r:g}: MSE over t (running mean over 0.5)"] = {
-            "x": sim.t, "lines": lines, "xlabel": "t", "ylabel": "mean square error of x"}
+        th = THESIS.get((q, r), {})  # context: the thesis' steady-state best linear filter and its bound
+        paper = {f"{k}, 001 Tables 5.1-5.2": (None, th[v]) for k, v in
+                 (("best linear filter", "linear"), ("Bobrovsky-Zakai bound", "bz_bound")) if v in th}
+        res.series[f"q={q:g}, r={r:g}: MSE over t (running mean over 0.5, {npaths} paths)"] = {
+            "x": sim.t, "lines": lines, "paper": paper, "xlabel": "t", "ylabel": "E (x − x̂)²",
+            "styles": {"ekf": "--"}}
         gc = res.get("gaussian-closure", "mse_x", q=q, r=r).value
         e4 = res.get("edgeworth4-closure", "mse_x", q=q, r=r).value
         res.notes.append(

@@ -140,6 +140,7 @@ def run(params, *, quick, runs, seed, progress):
                  "seed 001, Tables 5.1-5.2", params)
     pairs = _pairs(params)
     ss_seq = np.random.SeedSequence(seed)
+    cache = {}
     for (q, r), child in zip(pairs, ss_seq.spawn(len(pairs))):
         paper = PAPER.get((q, r), {})
         model = cubic_model(q, r)
@@ -154,7 +155,9 @@ def run(params, *, quick, runs, seed, progress):
                 res.add(name, qty, v, paper=paper.get((name, qty)), **row)
         res.add("bz-bound", "mse_x", bz_bound(q, r), paper=paper.get(("bz-bound", "mse_x")), **row)
         tf5 = TensorFilter(lift, 1.0, targets=[0, 2], degree=5)
-        for qty, f in zip(("mse_x", "mse_x3"), tf5.fit()):
+        fits5 = tf5.fit()
+        cache[(q, r)] = (fits, fits5)  # reused by the figure's sweep over r
+        for qty, f in zip(("mse_x", "mse_x3"), fits5):
             res.add("tensor5", qty, f.mse, **row)
         qlf_off = qlf_steady_state(model, q)
         res.add("qlf", "mse_x", qlf_off["mse"], **row)
@@ -177,23 +180,62 @@ def run(params, *, quick, runs, seed, progress):
             continue
         _monte_carlo(res, model, lift, tf, q, r, params, quick, runs, child, progress, row)
         _qlf_notes(res, qlf_off, q, r, row, fits[0].mse_linear)
-    # the thesis' conjecture (001 §5.3): post-processing pays more at low noise-to-signal ratios
-    q0 = pairs[0][0]
-    rs = np.geomspace(1e-3, 10.0, 2 if quick else 30)
-    lines = {"x, cubic": [], "x, quintic": [], "x³, cubic": [], "x³, quintic": []}
-    for rv in tqdm(rs, disable=not progress, desc="reduction vs r"):
-        lift_r = BilinearModel.from_polynomial(cubic_model(q0, float(rv)))
-        f3 = TensorFilter(lift_r, 1.0, targets=[0, 2], degree=3).fit()
-        f5 = TensorFilter(lift_r, 1.0, targets=[0, 2], degree=5).fit()
-        lines["x, cubic"].append(f3[0].reduction)
-        lines["x, quintic"].append(f5[0].reduction)
-        lines["x³, cubic"].append(f3[1].reduction)
-        lines["x³, quintic"].append(f5[1].reduction)
-    res.series[f"MSE reduction over the linear filter (q={q0:g})"] = {
-        "x": rs, "lines": lines, "xlabel": "r", "ylabel": "reduction (%)", "logx": True}
+    _figures(res, pairs, quick, progress, cache)
     if any(k in PAPER for k in pairs):
         res.notes.append("Paper percentages (3.3%, 2.5%; 1.9%, 1.5%) were computed from the printed, rounded MSEs.")
     return res
+
+
+def _figures(res, pairs, quick, progress, cache):
+    """Three panels: exact steady-state MSE against r (at the first q) with the thesis' cells, the
+    reduction by the post-processors (the thesis' conjecture, 001 §5.3: post-processing pays more at
+    low noise-to-signal ratios), and Tables 5.1-5.2 as bars beside the Monte Carlo optimum."""
+    q0 = pairs[0][0]
+    rs = np.geomspace(1e-3, 10.0, 5 if quick else 29)  # one point a decade (quick) or 7; r = 1 included
+    mse = {"linear": [], "tensor (cubic)": [], "tensor5 (quintic)": [], "Bobrovsky-Zakai bound": []}
+    red = {"x, cubic": [], "x, quintic": [], "x³, cubic": [], "x³, quintic": []}
+    for rv in tqdm(rs, disable=not progress, desc="sweep over r"):
+        if (q0, float(rv)) in cache:
+            f3, f5 = cache[(q0, float(rv))]
+        else:
+            lift_r = BilinearModel.from_polynomial(cubic_model(q0, float(rv)))
+            f3 = TensorFilter(lift_r, 1.0, targets=[0, 2], degree=3).fit()
+            f5 = TensorFilter(lift_r, 1.0, targets=[0, 2], degree=5).fit()
+        for k, v in zip(mse, (f3[0].mse_linear, f3[0].mse, f5[0].mse, bz_bound(q0, float(rv)))):
+            mse[k].append(v)
+        for k, v in zip(red, (f3[0].reduction, f5[0].reduction, f3[1].reduction, f5[1].reduction)):
+            red[k].append(v)
+    at = [(q, r) for q, r in pairs if q == q0]
+    paper = {}
+    for lab, key in (("linear", "linear"), ("tensor (cubic)", "tensor"), ("Bobrovsky-Zakai bound", "bz-bound")):
+        pts = [(r, PAPER[(q, r)][(key, "mse_x")]) for q, r in at if (q, r) in PAPER]
+        if pts:
+            paper[lab] = tuple(map(list, zip(*pts)))
+    points = {}
+    opt = [(r, _get(res, "optimal", "mse_x_mc", dict(q=q, r=r))) for q, r in at]
+    opt = [(r, o) for r, o in opt if o is not None]
+    if opt:
+        points["optimal (grid, Monte Carlo)"] = ([r for r, _ in opt], [o.value for _, o in opt],
+                                                 [2 * (o.stderr or 0.0) for _, o in opt])
+    res.series[f"Steady-state MSE of x against r (q={q0:g}): exact off-line"] = {
+        "x": rs, "lines": mse, "paper": paper, "points": points, "xlabel": "r (measurement noise intensity)",
+        "ylabel": "E (x − x̂)²", "logx": True, "styles": {"Bobrovsky-Zakai bound": ":"}}
+    pct = {lab: ([r for q, r in at if (q, r) in PRINTED_PCT], [PRINTED_PCT[(q, r)][i] for q, r in at
+                                                               if (q, r) in PRINTED_PCT])
+           for i, lab in enumerate(("x, cubic", "x³, cubic"))}
+    res.series[f"MSE reduction by the post-processors over the linear filter (q={q0:g})"] = {
+        "x": rs, "lines": red, "paper": {k: v for k, v in pct.items() if v[0]},
+        "xlabel": "r (measurement noise intensity)", "ylabel": "reduction (%)", "logx": True}
+    cats = ["bz-bound", "optimal", "gaussian-closure", "tensor5", "tensor", "linear", "qlf"]
+    qty = {"optimal": "mse_x_mc", "gaussian-closure": "mse_x_mc"}
+    rows = {f"q={q:g}, r={r:g}": [_get(res, c, qty.get(c, "mse_x"), dict(q=q, r=r)) for c in cats] for q, r in pairs}
+    keep = [i for i in range(len(cats)) if all(v[i] is not None for v in rows.values())]
+    names = {"optimal": "optimal (MC)", "gaussian-closure": "gauss.-closure (MC)", "bz-bound": "BZ bound"}
+    res.series["Tables 5.1-5.2: steady-state MSE of x (off-line; MC where marked)"] = {
+        "kind": "bar", "categories": [names.get(cats[i], cats[i]) for i in keep],
+        "bars": {k: [v[i].value for i in keep] for k, v in rows.items()},
+        "errors": {k: [2 * (v[i].stderr or 0.0) for i in keep] for k, v in rows.items()},
+        "paper": {k: [v[i].paper for i in keep] for k, v in rows.items()}, "ylabel": "E (x − x̂)²"}
 
 
 def _monte_carlo(res, model, lift, tf, q, r, params, quick, runs, seedseq, progress, row):
@@ -308,6 +350,7 @@ def _get(res, flt, qty, row):
     return None
 
 
+PRINTED_PCT = {(2.0, 1.0): (3.3, 2.5), (1.0, 1.0): (1.9, 1.5)}  # 001 Tables 5.1-5.2: tensor filter's reductions
 TABLE = {(2.0, 1.0): ", 001 Table 5.1: .540", (1.0, 1.0): ", 001 Table 5.2: .378"}
 TAYLOR = {"ekf", "second-order-truncated", "second-order-gaussian"}
 

@@ -141,13 +141,26 @@ def run(params, *, quick, runs, seed, progress):
         "equations at dt = 0.01 (the paper's integrators): P(1) moves by < 1 %, both filters alike; neither the "
         "level 0.015-0.0163 nor an 8.6 % gap appears. The paper's numbers cannot be reproduced from its stated "
         "model and parameters; both our methods (off-line moments and Monte Carlo) agree with each other.")
-    lines = {}
+    lines, bands = {}, {}
     for name in filters:
-        mse_t, _ = ev.mse_per_step(ests[name], sim.xs)
+        mse_t, se_t = ev.mse_per_step(ests[name], sim.xs)
         lines[f"{name} (MC)"] = np.concatenate([[p["D0"]], mse_t])
+        if name == "optimal":
+            bands[f"{name} (MC)"] = (np.concatenate([[p["D0"]], mse_t - 2 * se_t]),
+                                     np.concatenate([[p["D0"]], mse_t + 2 * se_t]))
     for name in off:
         lines[f"{name} (off-line)"] = off[name].mse[:, 0]
     styles = {f"{n} (off-line)": "--" for n in off}
-    res.series["MSE E(x - x̂)² over t (003 Fig. 2)"] = {
-        "x": t, "lines": lines, "styles": styles, "xlabel": "t", "ylabel": "mean square error", "logy": True}
+    res.series["MSE E(x − x̂)² over t (003 Fig. 2)"] = {
+        "x": t, "lines": lines, "styles": styles, "bands": bands, "xlabel": "t", "ylabel": "mean square error",
+        "logy": True, "paper": {n: (p["t_end"], PAPER[n]) for n in ("qlf", "mqlf")}}
+    # the paper's claim in one panel: MQLF − QLF, paired on common noise, against its −0.0013 at t = 1
+    both = ok["mqlf"] & ok["qlf"]
+    d = (e2["mqlf"] - e2["qlf"])[both]
+    dm, ds = d.mean(axis=0), d.std(axis=0, ddof=1) / np.sqrt(d.shape[0])
+    dm, ds = np.concatenate([[0.0], dm]), np.concatenate([[0.0], ds])
+    res.series["MQLF − QLF, paired on common noise, against the paper's difference at t = 1"] = {
+        "x": t, "lines": {"mqlf − qlf (MC)": dm, "mqlf − qlf (off-line)": off["mqlf"].mse[:, 0] - off["qlf"].mse[:, 0]},
+        "styles": {"mqlf − qlf (off-line)": "--"}, "bands": {"mqlf − qlf (MC)": (dm - 2 * ds, dm + 2 * ds)},
+        "paper": {"mqlf − qlf": (p["t_end"], paper_diff)}, "xlabel": "t", "ylabel": "difference of mean square errors"}
     return res

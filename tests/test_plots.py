@@ -1,0 +1,57 @@
+"""plots.py: the panel kinds, legends and the figure file (experiment figures: tests/experiments)."""
+
+import numpy as np
+import pytest
+
+from nlfilter.experiments import get
+from nlfilter.results import Result
+
+
+def _synthetic():
+    res = Result("synthetic", "a synthetic result", "no paper", {})
+    x = np.arange(1, 11)
+    lines = {"ekf": 1.0 / x + 0.2, "ukf": 1.0 / x + 0.1, "optimal": 1.0 / x}
+    res.series["per step"] = {"x": x, "lines": lines, "bands": {"optimal": (1.0 / x - 0.02, 1.0 / x + 0.02)},
+                              "paper": {"ekf": ([10], [0.31]), "bound": (None, 0.05)},
+                              "points": {"optimal (MC)": ([5], [0.2], [0.01])}, "ylabel": "MSE", "logy": True,
+                              "note": "a note"}
+    res.series["same filters again"] = {"x": x, "lines": lines, "ylabel": "MSE"}
+    res.series["bars"] = {"kind": "bar", "categories": ["a", "b"], "bars": {"g1": [1.0, 2.0], "g2": [1.5, 0.5]},
+                          "errors": {"g1": [0.1, 0.1]}, "paper": {"g1": [None, 2.1]}, "ylabel": "value"}
+    return res
+
+
+def test_every_panel_kind(check_figure):
+    res = _synthetic()
+    check_figure(res, {"per step": {"ekf", "ukf", "optimal"}, "same filters again": {"optimal"},
+                       "bars": {"g1", "g2"}}, paper={"per step", "bars"})
+
+
+def test_empty_series_raises(tmp_path):
+    from nlfilter.plots import plot_result
+
+    with pytest.raises(ValueError, match="no series"):
+        plot_result(Result("empty", "t", "s", {}), tmp_path / "x.png")
+
+
+def test_linear_gaussian_figure(check_figure):
+    res = get("linear-gaussian").run({"steps": 30}, quick=True, runs=12, seed=1)
+    name = "MSE of x1 per step (12 paths): all filters optimal, on the Riccati value"
+    check_figure(res, {name: {"kf", "ekf", "ukf", "grid", "particle", "riccati"}})
+    panel = res.series[name]
+    assert np.all(panel["lines"]["riccati"] == res.get("riccati", "mse").value)
+    lo, hi = panel["bands"]["kf"]
+    assert np.all(lo < panel["lines"]["kf"]) and np.all(panel["lines"]["kf"] < hi)
+
+
+def test_gallery_has_every_experiment_and_readme_links_it():
+    from pathlib import Path
+
+    from nlfilter.experiments import registry
+
+    root = Path(__file__).resolve().parents[1]
+    readme = (root / "README.md").read_text()
+    for id in registry():
+        png = root / "docs" / "figures" / f"{id}.png"
+        assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and png.stat().st_size < 150_000, id
+        assert f"(docs/figures/{id}.png)" in readme, id
