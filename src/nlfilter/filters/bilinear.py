@@ -189,6 +189,15 @@ def _pinv_psd(S, tol=1e-12):
 
 
 # =========================================================================== the linear filter
+def _start_run(model, name, ys, m0, P0):
+    """Checked measurements ``ys (..., T, m)`` (named ``name``), the augmented prior
+    ``(z0, X0, Pa)`` of :func:`augmented_second_moment`, and the batch of augmented means."""
+    ys = V.as_float_array(name, ys, ndim_min=2, shape_tail=(None, model.m))
+    V.finite(name, ys)
+    prior = augmented_second_moment(model, m0, P0)
+    return ys, prior, np.broadcast_to(prior[0], (*ys.shape[:-2], model.N)).copy()
+
+
 class OptimalLinearFilter:
     """The linear minimum-variance filter of a continuous-time bilinear system (001 eqs. 2.31-2.47).
 
@@ -308,12 +317,9 @@ class OptimalLinearFilter:
             return_augmented: bool = False) -> Estimates:
         """Filter a batch of increments ``dys (..., T, m)``; estimates at ``t0 + k dt``, k = 1..T."""
         model = self.model
-        dys = V.as_float_array("dys", dys, ndim_min=2, shape_tail=(None, model.m))
-        V.finite("dys", dys)
-        z0, X0, Pa = augmented_second_moment(model, m0, P0)
+        dys, (z0, X0, Pa), zs = _start_run(model, "dys", dys, m0, P0)
         batch, T_ = dys.shape[:-2], dys.shape[-2]
         N = model.N
-        zs = np.broadcast_to(z0, (*batch, N)).copy()
         nout = N if return_augmented else model.n
         out = _Runner(batch, T_, nout, on_divergence, self.name)
         if self.gains == "steady":
@@ -386,12 +392,9 @@ class DiscreteOptimalLinearFilter:
     def run(self, ys, m0, P0, *, on_divergence: str = "raise") -> Estimates:
         from .base import GaussianState
         model = self.model
-        ys = V.as_float_array("ys", ys, ndim_min=2, shape_tail=(None, model.m))
-        V.finite("ys", ys)
-        z, X, P = augmented_second_moment(model, m0, P0)
+        ys, (z, X, P), zs = _start_run(model, "ys", ys, m0, P0)
         batch, T_ = ys.shape[:-2], ys.shape[-2]
         n = model.n
-        zs = np.broadcast_to(z, (*batch, model.N)).copy()
         out = _Runner(batch, T_, n, on_divergence, self.name)
         for k in range(T_):
             a = model.augmented(k)
