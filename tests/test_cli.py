@@ -12,6 +12,25 @@ def test_list_names_every_experiment(capsys):
     assert all(len(line.split("\t")) == 3 for line in lines)
 
 
+def test_list_params_round_trip_through_param(capsys):
+    """Every listed ``--param NAME=DEFAULT`` line is accepted back by the experiment and converts
+    to its default (lists included)."""
+    from nlfilter import experiments
+
+    assert cli.main(["list", "--params"]) == 0
+    current, seen = None, 0
+    for line in capsys.readouterr().out.splitlines():
+        if not line.startswith("    "):
+            current = experiments.get(line.split("\t")[0])
+            continue
+        name, _, value = line.strip().removeprefix("--param ").partition("=")
+        default = current.params[name]
+        got = current.convert(name, value)
+        assert got == (list(default) if isinstance(default, tuple) else default) or str(got) == str(default)
+        seen += 1
+    assert seen == sum(len(e.params) for e in experiments.registry().values()) > 0
+
+
 def test_reproduce_quick_writes_schema(tmp_path, capsys):
     out = tmp_path / "out.json"
     png = tmp_path / "fig.png"

@@ -21,7 +21,9 @@ class _Parser(argparse.ArgumentParser):
 def _parser() -> argparse.ArgumentParser:
     p = _Parser(prog="nlfilter", description="Moment-based nonlinear filters: reproduce the papers' experiments.")
     sub = p.add_subparsers(dest="command", required=True, parser_class=_Parser)
-    sub.add_parser("list", help="list the experiments: id, title, source")
+    ls = sub.add_parser("list", help="list the experiments: id, title, source")
+    ls.add_argument("--params", action="store_true",
+                    help="also list each experiment's parameters (what --param accepts) with their defaults")
     r = sub.add_parser("reproduce", help="run one experiment and print its table")
     r.add_argument("id", help="experiment id (see `nlfilter list`)")
     r.add_argument("--quick", action="store_true", help="small version (same code path), for tests and CI")
@@ -45,11 +47,21 @@ def _parse_params(items) -> dict:
     return out
 
 
+def _show(value) -> str:
+    """A default as ``--param`` takes it (lists comma-separated)."""
+    if isinstance(value, (list, tuple)):
+        return ",".join(map(str, value))
+    return str(value)
+
+
 def main(argv=None) -> int:
     args = _parser().parse_args(argv)
     if args.command == "list":
         for exp in experiments.registry().values():
             print(f"{exp.id}\t{exp.title}\t{exp.source}")
+            if args.params:
+                for name, default in sorted(exp.params.items()):
+                    print(f"    --param {name}={_show(default)}")
         return 0
     try:
         exp = experiments.get(args.id)
