@@ -99,6 +99,15 @@ def _claims(res, per_path, law_name, Ns, prefix):
                              f"(kalman - {key} = {m:.4f} +- {s:.4f}) -> {verdict}")
 
 
+def _horizon(params, quick, T_quick, skip_quick):
+    """Steps ``T`` and the burn-in ``skip`` left out of the MSE (capped in quick runs)."""
+    T = int(params["T"]) if not quick else min(int(params["T"]), T_quick)
+    skip = int(params["skip"]) if not quick else min(int(params["skip"]), skip_quick)
+    if not 0 <= skip < T:
+        raise ValueError(f"skip: expected 0 <= skip < T = {T}, got {skip}")
+    return T, skip
+
+
 @experiment("moment-first-order", title="First-order system: moment filter vs Kalman vs grid optimum",
             source="seed 000, eqs. 2.4-2.5 (Chapter IV, outlined in the abstract)",
             params={"h": 0.5, "w_bound": 2.0, "N": [2, 4, 6], "laws": list(LAWS), "T": 2000, "skip": 500,
@@ -106,10 +115,7 @@ def _claims(res, per_path, law_name, Ns, prefix):
 def run_first_order(params, *, quick, runs, seed, progress):
     h, wb = float(params["h"]), float(params["w_bound"])
     Ns = [int(N) for N in params["N"]]
-    T = int(params["T"]) if not quick else min(int(params["T"]), 120)
-    skip = int(params["skip"]) if not quick else min(int(params["skip"]), 30)
-    if not 0 <= skip < T:
-        raise ValueError(f"skip: expected 0 <= skip < T = {T}, got {skip}")
+    T, skip = _horizon(params, quick, 120, 30)
     G = int(params["grid"]) if not quick else min(int(params["grid"]), 200)
     R = runs or (20 if quick else 200)
     res = Result("moment-first-order", "First-order system x+ = h x + w, z = x + v",
@@ -190,10 +196,7 @@ def run_second_order(params, *, quick, runs, seed, progress):
     c = b.copy()  # 000 eqs. 2.6-2.7 as the OCR reads them: the same d1, d2 in the input and the output
     wb = float(params["w_bound"])
     Ns = [int(N) for N in params["N"]]
-    T = int(params["T"]) if not quick else min(int(params["T"]), 100)
-    skip = int(params["skip"]) if not quick else min(int(params["skip"]), 20)
-    if not 0 <= skip < T:
-        raise ValueError(f"skip: expected 0 <= skip < T = {T}, got {skip}")
+    T, skip = _horizon(params, quick, 100, 20)
     P = int(params["particles"]) if not quick else min(int(params["particles"]), 1000)
     R = runs or (8 if quick else 80)
     bkw = dict(bounding=params["bounding"], directions=int(params["directions"]))
