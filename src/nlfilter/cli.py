@@ -7,6 +7,7 @@ line on stderr and exit with code 2, never a traceback.
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 
 from . import experiments
@@ -55,6 +56,14 @@ def _show(value) -> str:
 
 
 def main(argv=None) -> int:
+    try:
+        return _main(argv)
+    except BrokenPipeError:  # output piped into e.g. `head`, which closed early: not an error
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())  # no second error at exit
+        return 0
+
+
+def _main(argv) -> int:
     args = _parser().parse_args(argv)
     if args.command == "list":
         for exp in experiments.registry().values():
