@@ -200,6 +200,15 @@ def test_updated_innovations_runs_and_marks_divergence():
     est = UpdatedInnovationsFilter(lift, 0.01, targets=[0, 2]).run(dys, *stationary_lift_moments(1.0), on_divergence="mark")
     assert est.means.shape == (5, 300, 2) and np.all(np.isfinite(est.means))
     assert ((est.means[..., 0] - xs) ** 2).mean() < 1.0  # prior variance q/2 = 0.5 plus margin
+    uf = UpdatedInnovationsFilter(lift, 0.01, targets=[0, 2])
+    bad = dys.copy()
+    bad[1, 10, 0] = 1e200  # overflows path 1's cubic post-processor: marked there only
+    est2 = uf.run(bad, *stationary_lift_moments(1.0), on_divergence="mark")
+    assert est2.diverged.tolist() == [False, True, False, False, False]
+    assert np.all(np.isnan(est2.means[1, 10:])) and np.array_equal(est2.means[[0, 2, 3, 4]], est.means[[0, 2, 3, 4]])
+    bad[1, 10, 0] = np.inf
+    with pytest.raises(ValueError, match="dys"):
+        uf.run(bad, *stationary_lift_moments(1.0))
 
 
 def test_linear_filter_input_errors():

@@ -743,17 +743,16 @@ class UpdatedInnovationsFilter(TensorFilter):
         other.__dict__.update((tf if dt is None else tf.with_dt(dt)).__dict__)
         return other
 
+    @screened
     def run(self, dys, m0, P0, *, on_divergence: str = "raise") -> Estimates:
         from .base import GaussianState
         self.fit()
         model = self.model
-        dys = V.as_float_array("dys", dys, ndim_min=2, shape_tail=(None, model.m))
-        z0, _, Pa = augmented_second_moment(model, m0, P0)
+        dys, (z0, _, Pa), zs = _start_run(model, "dys", dys, m0, P0)
         ss = self.linear.steady_state()
         aug = model.augmented(0)
         F, H, K = aug.F, aug.H, ss.K
         batch, T_ = dys.shape[:-2], dys.shape[-2]
-        zs = np.broadcast_to(z0, (*batch, model.N)).copy()
         nt = len(self.targets)
         out = _Runner(batch, T_, nt, on_divergence, self.name)
         h = self.dt
@@ -918,6 +917,7 @@ class PseudoObservablesFilter:
         ix = [self.index[tuple(int(j == v) for j in range(self.nb + self.m))] for v in range(self.nb)]
         return np.stack([Ps[::2, i, i] for i in ix], axis=-1)
 
+    @screened
     def run(self, dys, *, on_divergence: str = "raise") -> Estimates:
         """Filter increments ``dys (..., T, m)`` (y0 = 0): pseudo-observable increments are formed
         from the running ``y``; returns estimates of the base variables."""
