@@ -745,6 +745,9 @@ class UpdatedInnovationsFilter(TensorFilter):
 
     @screened
     def run(self, dys, m0, P0, *, on_divergence: str = "raise") -> Estimates:
+        """Estimates of the targets for increments ``dys (..., T, m)``. ``covs`` are NaN on every
+        path: the nonlinear recursion has no error covariance (its error is measured by
+        simulation); a path whose estimate overflows is raised or marked in ``diverged``."""
         from .base import GaussianState
         self.fit()
         model = self.model
