@@ -9,6 +9,7 @@ Models (:mod:`~nlfilter.models`, :mod:`~nlfilter.bilinear`), simulation
 
 from . import filters, moments, problems
 from .bilinear import BilinearModel
+from .compare import compare
 from .evaluate import mse, mse_per_step, nees, paired_difference
 from .models import DiscreteModel, SDEModel
 from .noise import Gaussian, Independent, Sampler
@@ -18,5 +19,5 @@ from .simulate import Simulation, simulate
 __version__ = "0.1.0"
 
 __all__ = ["DiscreteModel", "SDEModel", "BilinearModel", "Gaussian", "Independent", "Sampler",
-           "simulate", "Simulation", "mse", "mse_per_step", "nees", "paired_difference", "Result", "Row",
+           "simulate", "Simulation", "compare", "mse", "mse_per_step", "nees", "paired_difference", "Result", "Row",
            "filters", "moments", "problems"]

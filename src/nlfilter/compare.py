@@ -1,0 +1,226 @@
+"""A fair Monte Carlo comparison in one call: every filter against a near-optimal reference on
+common random numbers, as a :class:`~nlfilter.results.Result` (table and figure).
+
+One :func:`~nlfilter.simulate.simulate` run is shared by every filter and by the reference, so
+the differences between filters are not blurred by different noise: ``gap_to_optimal`` is the
+paired difference of squared errors on the same paths, whose standard error is much smaller
+than that of either MSE.
+
+Automatic reference (``reference="auto"``)
+------------------------------------------
+* ``n ≤ 2``: a :class:`~nlfilter.filters.reference.GridFilter`. Per axis ``i`` let ``s_i`` be
+  the smaller of the prior standard deviation ``√P0_ii`` and the root-mean-square standard
+  deviation of the noise over one measurement step (``G Q Gᵀ``, times ``dt`` for an SDE, over
+  the simulated states), and ``S_i`` the larger. The bounds are the range of the simulated
+  states and of ``m0`` widened by ``4 S_i`` on each side; the spacing is at most ``s_i / 4``
+  (a quarter of the narrowest noise the kernel must resolve), with at least 101 points (1-D)
+  or 21 per axis (2-D) and at most :data:`GRID_MAX` points per axis (the cap bounds time and
+  memory; pass your own ``GridFilter`` for a finer grid).
+* ``n > 2``: a :class:`~nlfilter.filters.reference.ParticleFilter` with :data:`PARTICLES`
+  particles, seeded from its own spawned stream (the simulation's numbers do not move).
+"""
+
+from __future__ import annotations
+
+import math
+import numbers
+
+import numpy as np
+
+from . import _validate as V
+from .evaluate import _window, mse, mse_per_step, nees, paired_difference, stream
+from .filters.reference import GridFilter, ParticleFilter
+from .results import Result
+from .simulate import simulate
+
+PARTICLES = 2000
+GRID_MAX = {1: 801, 2: 61}
+GRID_MIN = {1: 101, 2: 21}
+OPTIMAL = "optimal"
+
+
+def _streams(rng):
+    """``(simulation generator, reference generator, seed or None)``; an int seed uses
+    ``stream(seed, 0)`` and ``stream(seed, 1)``, a Generator itself and a spawned child."""
+    if isinstance(rng, np.random.Generator):
+        return rng, rng.spawn(1)[0], None
+    if isinstance(rng, bool) or not isinstance(rng, numbers.Integral) or rng < 0:
+        raise TypeError(f"rng: expected a non-negative integer seed or a numpy.random.Generator, got {rng!r}")
+    return stream(int(rng), 0), stream(int(rng), 1), int(rng)
+
+
+def _check_filters(filters, model, dt, start, reference):
+    if not isinstance(filters, dict) or not filters:
+        raise TypeError(f"filters: expected a non-empty dict of name -> filter instance, got {filters!r}")
+    for name, flt in filters.items():
+        if not isinstance(name, str) or not name:
+            raise TypeError(f"filters: expected non-empty string names, got {name!r}")
+        if name == OPTIMAL and reference is not None:
+            raise ValueError(f"filters: the name {OPTIMAL!r} is the reference's; rename that filter")
+        if not callable(getattr(flt, "run", None)):
+            raise TypeError(f"filters[{name!r}]: expected a filter with a run(ys, m0, P0) method, "
+                            f"got {type(flt).__name__}")
+        fs = getattr(flt, "start", None)
+        if model.kind == "discrete" and isinstance(fs, str) and fs != start:
+            raise ValueError(f"filters[{name!r}]: its start={fs!r} differs from start={start!r} of the comparison")
+        fdt = getattr(flt, "dt", None)
+        if model.kind == "sde" and isinstance(fdt, numbers.Real) and not math.isclose(fdt, dt, rel_tol=1e-12):
+            raise ValueError(f"filters[{name!r}]: its dt={fdt!r} differs from dt={dt!r} of the comparison")
+
+
+def _grid(model, sim, m0, P0, dt, start):
+    """The automatic grid reference (rule in the module docstring) and its bounds and sizes."""
+    n = model.n
+    xs = sim.xs.reshape(-1, n)
+    g = model.GQGT(xs)
+    var = np.diagonal(g if g.ndim == 3 else np.broadcast_to(g, (len(xs), n, n)), axis1=-2, axis2=-1)
+    noise = np.sqrt(np.mean(var, axis=0) * (dt if model.kind == "sde" else 1.0))
+    prior = np.sqrt(np.diag(P0))
+    small = np.minimum(noise, prior)
+    small = np.where(small > 0, small, np.maximum(noise, prior))
+    big = np.maximum(noise, prior)
+    if not np.all(small > 0):
+        raise ValueError("reference: the automatic grid needs a positive prior or noise variance per state; "
+                         "pass a GridFilter or ParticleFilter as reference")
+    m0v = np.broadcast_to(np.asarray(m0, dtype=float), (n,))
+    lo = np.minimum(xs.min(axis=0), m0v) - 4 * big
+    hi = np.maximum(xs.max(axis=0), m0v) + 4 * big
+    sizes = np.clip(np.ceil((hi - lo) / (small / 4)).astype(int) + 1, GRID_MIN[n], GRID_MAX[n])
+    bounds = [(float(a), float(b)) for a, b in zip(lo, hi)]
+    if n == 2 and model.kind == "sde":
+        off = np.abs(np.asarray(g)[..., 0, 1])
+        if np.any(off > 1e-12 * (np.abs(np.asarray(g)[..., 0, 0]) + np.abs(np.asarray(g)[..., 1, 1]) + 1e-300)):
+            return None, bounds, sizes  # the 2-D SDE grid needs a diagonal diffusion
+    kw = {"dt": dt} if model.kind == "sde" else {"start": start}
+    flt = GridFilter(model, bounds[0] if n == 1 else bounds, [int(s) for s in sizes] if n > 1 else int(sizes[0]), **kw)
+    return flt, bounds, sizes
+
+
+def _component_names(model):
+    states = getattr(model, "states", None)
+    return [str(s) for s in states] if states else [f"x{i + 1}" for i in range(model.n)]
+
+
+def compare(model, filters, steps, *, paths=200, m0, P0, rng=0, reference="auto", window=0.5, dt=None,
+            substeps=10, start="update", progress=False, on_divergence="mark") -> Result:
+    """Run every filter and a near-optimal reference on one shared simulation; a :class:`Result`.
+
+    Parameters
+    ----------
+    model : DiscreteModel or SDEModel
+    filters : dict name -> filter instance (anything with ``run(ys, m0, P0, on_divergence=...)``
+        returning :class:`~nlfilter.filters.base.Estimates`), built for ``model`` (and ``dt``)
+    steps, paths : measurement steps and Monte Carlo paths (``paths ≥ 2``)
+    m0, P0 : the prior: true initial states are drawn from N(m0, P0); every filter starts there
+    rng : an integer seed or a ``numpy.random.Generator``
+    reference : ``"auto"`` (see the module docstring), a filter instance, or ``None`` (no
+        reference, no ``gap_to_optimal`` rows); it is named ``"optimal"`` in rows and figure
+    window : what :func:`~nlfilter.evaluate.mse` averages over (``0.5``: the second half)
+    dt, substeps : SDE models only: measurement step (required) and Euler–Maruyama substeps of
+        the simulation (and of an automatic particle reference)
+    start : discrete models: step convention (see :mod:`nlfilter.filters.base`)
+    progress : show a progress bar over the filters
+    on_divergence : passed to every ``run``; ``"mark"`` leaves diverged paths out of the
+        statistics and reports their share as ``divergence_rate``
+
+    Rows (``Result.get(name, quantity, component=i)``): per filter and component ``i``: ``mse``
+    (window average ± stderr) and ``gap_to_optimal`` (MSE minus the reference's on the same
+    paths ± stderr); per filter: ``nees`` (when its covariances are finite) and
+    ``divergence_rate``. ``series``: one panel per component, MSE per step with ± 2 s.e. bands.
+
+    >>> import sympy as sp; from nlfilter import DiscreteModel; from nlfilter.filters import EKF, UKF
+    >>> x = sp.Symbol("x")
+    >>> md = DiscreteModel([x], f=[0.9 * x], h=[x], Q=0.1, R=0.5)
+    >>> res = compare(md, {"ekf": EKF(md), "ukf": UKF(md)}, 20, paths=10, m0=0.0, P0=0.5, rng=1)
+    >>> round(res.get("ekf", "mse", component=0).value - res.get("ukf", "mse", component=0).value, 12)
+    0.0
+    >>> sorted({r.quantity for r in res.rows})
+    ['divergence_rate', 'gap_to_optimal', 'mse', 'nees']
+    """
+    kind = getattr(model, "kind", None)
+    if kind not in ("discrete", "sde"):
+        raise TypeError(f"model: expected a DiscreteModel or SDEModel, got {type(model).__name__}")
+    V.positive("steps", steps, integer=True)
+    V.positive("paths", paths, integer=True)
+    if paths < 2:
+        raise ValueError(f"paths: expected at least 2 paths (for standard errors), got {paths!r}")
+    if kind == "sde" and dt is None:
+        raise ValueError("dt: expected the measurement step for an SDEModel, got None")
+    if kind == "discrete" and dt is not None:
+        raise ValueError(f"dt: a DiscreteModel has no time step; expected None, got {dt!r}")
+    if dt is not None:
+        dt = float(V.positive("dt", dt))
+    V.choice("start", start, {"update", "predict"})
+    V.choice("on_divergence", on_divergence, {"raise", "mark"})
+    _window(steps, window)  # raises TypeError naming window
+    if isinstance(reference, str) and reference != "auto":
+        raise ValueError(f"reference: expected 'auto', None or a filter instance, got {reference!r}")
+    if not (reference is None or isinstance(reference, str) or callable(getattr(reference, "run", None))):
+        raise TypeError(f"reference: expected 'auto', None or a filter with a run method, "
+                        f"got {type(reference).__name__}")
+    _check_filters(filters, model, dt, start, reference)
+    P0m = V.covariance("P0", P0, model.n)
+    sim_rng, ref_rng, seed = _streams(rng)
+
+    sim_kw = {"dt": dt, "substeps": substeps} if kind == "sde" else {"start": start}
+    sim = simulate(model, steps, paths=paths, rng=sim_rng, m0=m0, P0=P0m, **sim_kw)
+
+    params = {"steps": steps, "paths": paths, "window": window, "seed": seed, "start": start,
+              "on_divergence": on_divergence, "m0": np.broadcast_to(np.asarray(m0, float), (model.n,)).tolist(),
+              "P0": P0m.tolist()}
+    if kind == "sde":
+        params.update(dt=dt, substeps=substeps)
+    runs = dict(filters)
+    ref = reference
+    if reference == "auto":
+        ref = None
+        if model.n <= 2:
+            ref, bounds, sizes = _grid(model, sim, m0, P0m, dt, start)
+            if ref is not None:
+                params.update(reference="grid", grid_bounds=bounds, grid_size=[int(s) for s in sizes])
+        if ref is None:
+            ref = ParticleFilter(model, PARTICLES, **({"dt": dt, "substeps": substeps} if kind == "sde"
+                                                      else {"start": start}))
+            params.update(reference="particle", particles=PARTICLES)
+    elif reference is not None:
+        params["reference"] = type(reference).__name__
+    else:
+        params["reference"] = None
+    if ref is not None:
+        runs[OPTIMAL] = ref
+
+    from tqdm.auto import tqdm
+    est = {}
+    for name, flt in tqdm(runs.items(), disable=not progress, desc="compare"):
+        kw = {"rng": ref_rng} if isinstance(flt, ParticleFilter) and name == OPTIMAL else {}
+        est[name] = flt.run(sim.ys, m0, P0m, on_divergence=on_divergence, **kw)
+
+    what = getattr(model, "name", "") or repr(model)
+    res = Result("compare", f"{len(filters)} filter(s) against the optimal reference on {what}",
+                 "nlfilter.compare: Monte Carlo on common random numbers", params)
+    comps = _component_names(model)
+    for name, e in est.items():
+        for i in range(model.n):
+            s = mse(e, sim.xs, component=i, window=window)
+            res.add(name, "mse", s.value, s.stderr, component=i)
+            if ref is not None and name != OPTIMAL:
+                d = paired_difference(e, est[OPTIMAL], sim.xs, component=i, window=window)
+                res.add(name, "gap_to_optimal", d.value, d.stderr, component=i)
+        ok = ~np.asarray(e.diverged, bool)
+        if ok.any() and np.all(np.isfinite(e.covs[ok])):
+            s = nees(e, sim.xs, window=window)
+            res.add(name, "nees", s.value, s.stderr)
+        res.add(name, "divergence_rate", float(np.mean(e.diverged)))
+    for i, c in enumerate(comps):
+        lines, bands = {}, {}
+        for name, e in est.items():
+            if np.sum(~np.asarray(e.diverged, bool)) < 2:
+                continue  # nothing to draw: every path (but one) diverged
+            lines[name], se = mse_per_step(e, sim.xs, component=i)
+            bands[name] = (lines[name] - 2 * se, lines[name] + 2 * se)
+        res.series[f"MSE of {c} per step ({paths} paths)"] = {
+            "x": sim.t, "lines": lines, "bands": bands, "ylabel": f"E ({c} − {c}̂)²",
+            "xlabel": "t" if kind == "sde" else "step k"}
+    res.notes.append(f"window {window!r} of {steps} steps, {paths} paths; gap_to_optimal = MSE − MSE(optimal) "
+                     f"on the same paths; NEES ≈ {model.n} for a consistent filter")
+    return res

@@ -1,0 +1,174 @@
+"""nlfilter.compare: every filter against the reference on common random numbers."""
+
+import pathlib
+import re
+
+import numpy as np
+import pytest
+import scipy.linalg as sla
+import sympy as sp
+
+from nlfilter import DiscreteModel, SDEModel, compare
+from nlfilter.filters import EKF, UKF, ContinuousEKF, GridFilter, KalmanFilter
+
+x = sp.Symbol("x")
+A, Q, R = 0.9, 0.1, 0.5
+LIN = DiscreteModel([x], f=[A * x], h=[x], Q=Q, R=R)
+CUBIC = DiscreteModel([x], f=[0.99 * x], h=[x**3], Q=0.01, R=0.1)
+
+# Grid discretization: the automatic grid has spacing ≤ σ/4 for the narrowest Gaussian it holds
+# (σ ≥ 0.31 here: process noise √0.1; the filtered std √0.156 = 0.39), so the trapezoid sums
+# behind its moments err by ~exp(-2π²(σ/h)²) < 1e-100, and its bounds lie ≥ 4 σ past every
+# simulated state. 1e-6 is a generous allowance for that and for round-off.
+GRID_TOL = 1e-6
+
+
+@pytest.fixture(scope="module")
+def linear():
+    return compare(LIN, {"kf": KalmanFilter(LIN), "ekf": EKF(LIN)}, 200, paths=400, m0=0.0, P0=0.5, rng=0)
+
+
+def _row(res, name, q, **kw):
+    return res.get(name, q, **kw)
+
+
+def test_linear_gaussian_kf_ekf_grid_riccati(linear):
+    kf, ekf, opt = (_row(linear, k, "mse", component=0) for k in ("kf", "ekf", "optimal"))
+    assert abs(kf.value - ekf.value) < 1e-12 and abs(kf.stderr - ekf.stderr) < 1e-12
+    assert abs(kf.value - opt.value) < 3 * kf.stderr
+    gap = _row(linear, "kf", "gap_to_optimal", component=0)
+    assert abs(gap.value) < 3 * gap.stderr + GRID_TOL  # observed: ~3e-17 ± 3e-15
+    # steady-state filtered variance from the predicted Riccati solution
+    Pp = sla.solve_discrete_are(np.array([[A]]), np.array([[1.0]]), np.array([[Q]]), np.array([[R]]))[0, 0]
+    Pf = Pp - Pp**2 / (Pp + R)  # 0.15570
+    assert abs(kf.value - Pf) < 3 * kf.stderr  # observed 0.1561 ± 0.0017
+    nees = _row(linear, "kf", "nees")
+    assert abs(nees.value - 1.0) < 3 * nees.stderr
+    assert _row(linear, "kf", "divergence_rate").value == 0.0
+    p = linear.params
+    assert (p["steps"], p["paths"], p["window"], p["seed"], p["reference"]) == (200, 400, 0.5, 0, "grid")
+    assert {"kf", "ekf", "optimal"} <= set(next(iter(linear.series.values()))["lines"])
+
+
+def test_nonlinear_ekf_gap_positive():
+    res = compare(CUBIC, {"ekf": EKF(CUBIC), "ukf": UKF(CUBIC)}, 200, paths=200, m0=0.5, P0=0.1, rng=0)
+    gap = _row(res, "ekf", "gap_to_optimal", component=0)
+    assert gap.value > 3 * gap.stderr  # observed 0.169 ± 0.023
+    ukf = _row(res, "ukf", "gap_to_optimal", component=0)
+    assert ukf.value > -3 * ukf.stderr  # no filter beats the reference beyond its noise (0.0016 ± 0.0005)
+
+
+def test_sde_continuous_ekf():
+    md = SDEModel([x], [-x], [x], Q=1.0, R=0.5)
+    dt = 0.05
+    res = compare(md, {"cekf": ContinuousEKF(md, dt)}, 100, paths=200, m0=0.0, P0=0.5, rng=0, dt=dt)
+    assert res.params["reference"] == "grid" and res.params["dt"] == dt
+    m = _row(res, "cekf", "mse", component=0)
+    opt = _row(res, "optimal", "mse", component=0)
+    # linear SDE: the Kalman–Bucy filter is optimal; its steady variance solves 2aP + q − P²/r = 0,
+    # P = r (a + √(a² + q/r)) = 0.366 for a = −1, q = 1, r = 0.5
+    Pinf = 0.5 * (-1 + np.sqrt(1 + 1.0 / 0.5))
+    assert abs(m.value - Pinf) < 3 * m.stderr + 0.01  # 0.01: O(dt) time discretization
+    gap = _row(res, "cekf", "gap_to_optimal", component=0)
+    # the grid (Kushner chain, O(h) and O(dt)) is near-optimal: the gap is a fraction of the MSE
+    assert abs(gap.value) < 3 * gap.stderr + 0.02 * opt.value
+    np.testing.assert_allclose(res.series[next(iter(res.series))]["x"], dt * np.arange(1, 101))
+
+
+def test_same_seed_identical_and_common_random_numbers(linear):
+    again = compare(LIN, {"kf": KalmanFilter(LIN), "ekf": EKF(LIN)}, 200, paths=400, m0=0.0, P0=0.5, rng=0)
+    assert [r.to_dict() for r in again.rows] == [r.to_dict() for r in linear.rows]
+    solo = compare(LIN, {"ekf": EKF(LIN)}, 200, paths=400, m0=0.0, P0=0.5, rng=0)
+    for q in ("mse", "gap_to_optimal"):
+        assert _row(solo, "ekf", q, component=0) == _row(linear, "ekf", q, component=0)
+    other = compare(LIN, {"ekf": EKF(LIN)}, 200, paths=400, m0=0.0, P0=0.5, rng=1)
+    assert _row(other, "ekf", "mse", component=0).value != _row(solo, "ekf", "mse", component=0).value
+    g = compare(LIN, {"ekf": EKF(LIN)}, 50, paths=20, m0=0.0, P0=0.5, rng=np.random.default_rng(5))
+    assert g.params["seed"] is None and np.isfinite(_row(g, "ekf", "mse", component=0).value)
+
+
+def test_particle_reference_for_three_states():
+    F = np.diag([0.9, 0.8, 0.7])
+    md = DiscreteModel.linear(F, np.eye(3), 0.1 * np.eye(3), 0.5 * np.eye(3))
+    run = lambda: compare(md, {"kf": KalmanFilter(md)}, 15, paths=10, m0=np.zeros(3), P0=np.eye(3), rng=3)
+    a, b = run(), run()
+    assert a.params["reference"] == "particle" and len(a.series) == 3
+    assert [r.to_dict() for r in a.rows] == [r.to_dict() for r in b.rows]  # the particles are seeded
+
+
+def test_given_and_no_reference():
+    grid = GridFilter(LIN, (-5.0, 5.0), 201)
+    res = compare(LIN, {"kf": KalmanFilter(LIN)}, 40, paths=30, m0=0.0, P0=0.5, rng=0, reference=grid)
+    assert res.params["reference"] == "GridFilter" and _row(res, "optimal", "mse", component=0)
+    again = compare(LIN, {"kf": KalmanFilter(LIN)}, 40, paths=30, m0=0.0, P0=0.5, rng=0, reference=grid,
+                    progress=True)
+    assert [r.to_dict() for r in again.rows] == [r.to_dict() for r in res.rows]
+    none = compare(LIN, {"kf": KalmanFilter(LIN)}, 40, paths=30, m0=0.0, P0=0.5, rng=0, reference=None)
+    assert {r.quantity for r in none.rows} == {"mse", "nees", "divergence_rate"}
+    assert {r.filter for r in none.rows} == {"kf"}
+
+
+@pytest.mark.parametrize("kwargs, exc, name", [
+    ({"filters": {}}, TypeError, "filters"),
+    ({"filters": [EKF(LIN)]}, TypeError, "filters"),
+    ({"filters": {"ekf": object()}}, TypeError, "filters"),
+    ({"filters": {"optimal": EKF(LIN)}}, ValueError, "filters"),
+    ({"filters": {"ekf": EKF(LIN, start="predict")}}, ValueError, "filters"),
+    ({"dt": 0.1}, ValueError, "dt"),
+    ({"reference": "grid"}, ValueError, "reference"),
+    ({"reference": 3}, TypeError, "reference"),
+    ({"paths": 1}, ValueError, "paths"),
+    ({"paths": 2.5}, TypeError, "paths"),
+    ({"rng": "x"}, TypeError, "rng"),
+    ({"window": 2}, TypeError, "window"),
+])
+def test_bad_input_names_argument(kwargs, exc, name):
+    kw = {"filters": {"ekf": EKF(LIN)}, "paths": 5, "m0": 0.0, "P0": 0.5}
+    kw.update(kwargs)
+    with pytest.raises(exc, match=f"^{name}"):
+        compare(LIN, kw.pop("filters"), 10, **kw)
+
+
+def test_sde_needs_dt():
+    md = SDEModel([x], [-x], [x], Q=1.0, R=0.5)
+    with pytest.raises(ValueError, match="^dt"):
+        compare(md, {"cekf": ContinuousEKF(md, 0.1)}, 10, paths=5, m0=0.0, P0=0.5)
+    with pytest.raises(ValueError, match=r"^filters\['cekf'\].*dt"):
+        compare(md, {"cekf": ContinuousEKF(md, 0.1)}, 10, paths=5, m0=0.0, P0=0.5, dt=0.05)
+
+
+def test_plot_result_writes_png(linear, check_figure):
+    check_figure(linear, {"MSE of x per step (400 paths)": ["kf", "ekf", "optimal"]})
+
+
+def test_readme_compare_block_runs(monkeypatch, tmp_path, capsys):
+    readme = pathlib.Path(__file__).resolve().parents[1] / "README.md"
+    code = re.search(r"### One call: `compare`\n.*?```python\n(.*?)```", readme.read_text(), re.S).group(1)
+    monkeypatch.chdir(tmp_path)
+    exec(compile(code, "README-compare", "exec"), {"model": CUBIC, "EKF": EKF, "UKF": UKF})  # the Quickstart's
+    assert "gap_to_optimal" in capsys.readouterr().out
+    assert (tmp_path / "compare.png").stat().st_size > 5000
+
+
+class _MarksFirstPath:
+    """A KF whose first path is marked diverged (NaN from step 3), to check the bookkeeping."""
+
+    def __init__(self, model):
+        self.kf = KalmanFilter(model)
+
+    def run(self, ys, m0, P0, *, on_divergence="raise"):
+        e = self.kf.run(ys, m0, P0, on_divergence=on_divergence)
+        means, covs = e.means.copy(), e.covs.copy()
+        means[0, 3:], covs[0, 3:] = np.nan, np.nan
+        div, step = e.diverged.copy(), e.diverged_step.copy()
+        div[0], step[0] = True, 3
+        return type(e)(means, covs, div, step)
+
+
+def test_diverged_paths_left_out_and_counted():
+    res = compare(LIN, {"kf": KalmanFilter(LIN), "bad": _MarksFirstPath(LIN)}, 40, paths=20, m0=0.0, P0=0.5, rng=0)
+    assert _row(res, "bad", "divergence_rate").value == 1 / 20
+    gap = _row(res, "bad", "gap_to_optimal", component=0)
+    assert abs(gap.value) < GRID_TOL  # the KF on the 19 other paths, where it equals the grid
+    lines = next(iter(res.series.values()))["lines"]
+    assert np.all(np.isfinite(lines["bad"]))
