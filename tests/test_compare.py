@@ -9,7 +9,7 @@ import scipy.linalg as sla
 import sympy as sp
 
 from nlfilter import DiscreteModel, SDEModel, compare
-from nlfilter.filters import EKF, UKF, ContinuousEKF, GridFilter, KalmanFilter
+from nlfilter.filters import EKF, UKF, ContinuousEKF, GridFilter, KalmanFilter, ParticleFilter
 
 x = sp.Symbol("x")
 A, Q, R = 0.9, 0.1, 0.5
@@ -121,6 +121,9 @@ def test_given_and_no_reference():
     ({"paths": 2.5}, TypeError, "paths"),
     ({"rng": "x"}, TypeError, "rng"),
     ({"window": 2}, TypeError, "window"),
+    ({"m0": [0.0, 1.0]}, ValueError, "m0"),
+    ({"P0": -1.0}, ValueError, "P0"),
+    ({"reference": GridFilter(LIN, (-5.0, 5.0), 51, start="predict")}, ValueError, "reference"),
 ])
 def test_bad_input_names_argument(kwargs, exc, name):
     kw = {"filters": {"ekf": EKF(LIN)}, "paths": 5, "m0": 0.0, "P0": 0.5}
@@ -172,3 +175,12 @@ def test_diverged_paths_left_out_and_counted():
     assert abs(gap.value) < GRID_TOL  # the KF on the 19 other paths, where it equals the grid
     lines = next(iter(res.series.values()))["lines"]
     assert np.all(np.isfinite(lines["bad"]))
+
+
+def test_particle_filter_in_filters_seeded_by_name():
+    run = lambda fs: compare(LIN, fs, 30, paths=10, m0=0.0, P0=0.5, rng=4)
+    a = run({"pf": ParticleFilter(LIN, 200), "kf": KalmanFilter(LIN)})
+    b = run({"pf": ParticleFilter(LIN, 200)})
+    assert _row(a, "pf", "mse", component=0) == _row(b, "pf", "mse", component=0)
+    c = run({"pf2": ParticleFilter(LIN, 200)})  # another name, another stream
+    assert _row(c, "pf2", "mse", component=0).value != _row(b, "pf", "mse", component=0).value

@@ -18,12 +18,17 @@ Automatic reference (``reference="auto"``)
   memory; pass your own ``GridFilter`` for a finer grid).
 * ``n > 2``: a :class:`~nlfilter.filters.reference.ParticleFilter` with :data:`PARTICLES`
   particles, seeded from its own spawned stream (the simulation's numbers do not move).
+
+Any filter whose ``run`` takes ``rng`` (a particle filter in ``filters``) gets a stream of its
+own, keyed by its name: runs are reproducible from ``rng`` and do not depend on the other filters.
 """
 
 from __future__ import annotations
 
+import inspect
 import math
 import numbers
+import zlib
 
 import numpy as np
 
@@ -40,13 +45,42 @@ OPTIMAL = "optimal"
 
 
 def _streams(rng):
-    """``(simulation generator, reference generator, seed or None)``; an int seed uses
-    ``stream(seed, 0)`` and ``stream(seed, 1)``, a Generator itself and a spawned child."""
+    """``(simulation generator, root SeedSequence of the filters' own streams, seed or None)``.
+
+    An int seed simulates with ``stream(seed, 0)``; a Generator simulates itself and roots the
+    filters' streams in a spawned child, so neither shifts the simulation's numbers."""
     if isinstance(rng, np.random.Generator):
-        return rng, rng.spawn(1)[0], None
+        return rng, rng.spawn(1)[0].bit_generator.seed_seq, None
     if isinstance(rng, bool) or not isinstance(rng, numbers.Integral) or rng < 0:
         raise TypeError(f"rng: expected a non-negative integer seed or a numpy.random.Generator, got {rng!r}")
-    return stream(int(rng), 0), stream(int(rng), 1), int(rng)
+    return stream(int(rng), 0), np.random.SeedSequence(int(rng)), int(rng)
+
+
+def _run_rng(root, name):
+    """The generator of a filter whose ``run`` takes ``rng`` (particle filters): the reference gets
+    spawn key 1 (``stream(seed, 1)`` for an int seed), a filter a key from its name, so that
+    adding or removing other filters does not change its numbers."""
+    key = (1,) if name == OPTIMAL else (2, zlib.crc32(name.encode()))
+    return np.random.default_rng(np.random.SeedSequence(root.entropy, spawn_key=(*root.spawn_key, *key)))
+
+
+def _takes_rng(flt):
+    try:
+        return "rng" in inspect.signature(flt.run).parameters
+    except (TypeError, ValueError):  # pragma: no cover - builtins without a signature
+        return False
+
+
+def _check_filter(label, flt, model, dt, start):
+    """``flt`` has ``run`` and the comparison's step convention (discrete) or ``dt`` (SDE)."""
+    if not callable(getattr(flt, "run", None)):
+        raise TypeError(f"{label}: expected a filter with a run(ys, m0, P0) method, got {type(flt).__name__}")
+    fs = getattr(flt, "start", None)
+    if model.kind == "discrete" and isinstance(fs, str) and fs != start:
+        raise ValueError(f"{label}: its start={fs!r} differs from start={start!r} of the comparison")
+    fdt = getattr(flt, "dt", None)
+    if model.kind == "sde" and isinstance(fdt, numbers.Real) and not math.isclose(fdt, dt, rel_tol=1e-12):
+        raise ValueError(f"{label}: its dt={fdt!r} differs from dt={dt!r} of the comparison")
 
 
 def _check_filters(filters, model, dt, start, reference):
@@ -57,15 +91,7 @@ def _check_filters(filters, model, dt, start, reference):
             raise TypeError(f"filters: expected non-empty string names, got {name!r}")
         if name == OPTIMAL and reference is not None:
             raise ValueError(f"filters: the name {OPTIMAL!r} is the reference's; rename that filter")
-        if not callable(getattr(flt, "run", None)):
-            raise TypeError(f"filters[{name!r}]: expected a filter with a run(ys, m0, P0) method, "
-                            f"got {type(flt).__name__}")
-        fs = getattr(flt, "start", None)
-        if model.kind == "discrete" and isinstance(fs, str) and fs != start:
-            raise ValueError(f"filters[{name!r}]: its start={fs!r} differs from start={start!r} of the comparison")
-        fdt = getattr(flt, "dt", None)
-        if model.kind == "sde" and isinstance(fdt, numbers.Real) and not math.isclose(fdt, dt, rel_tol=1e-12):
-            raise ValueError(f"filters[{name!r}]: its dt={fdt!r} differs from dt={dt!r} of the comparison")
+        _check_filter(f"filters[{name!r}]", flt, model, dt, start)
 
 
 def _grid(model, sim, m0, P0, dt, start):
@@ -73,7 +99,7 @@ def _grid(model, sim, m0, P0, dt, start):
     n = model.n
     xs = sim.xs.reshape(-1, n)
     g = model.GQGT(xs)
-    var = np.diagonal(g if g.ndim == 3 else np.broadcast_to(g, (len(xs), n, n)), axis1=-2, axis2=-1)
+    var = np.diagonal(g, axis1=-2, axis2=-1)  # (states, n)
     noise = np.sqrt(np.mean(var, axis=0) * (dt if model.kind == "sde" else 1.0))
     prior = np.sqrt(np.diag(P0))
     small = np.minimum(noise, prior)
@@ -82,15 +108,12 @@ def _grid(model, sim, m0, P0, dt, start):
     if not np.all(small > 0):
         raise ValueError("reference: the automatic grid needs a positive prior or noise variance per state; "
                          "pass a GridFilter or ParticleFilter as reference")
-    m0v = np.broadcast_to(np.asarray(m0, dtype=float), (n,))
-    lo = np.minimum(xs.min(axis=0), m0v) - 4 * big
-    hi = np.maximum(xs.max(axis=0), m0v) + 4 * big
+    lo = np.minimum(xs.min(axis=0), m0) - 4 * big
+    hi = np.maximum(xs.max(axis=0), m0) + 4 * big
     sizes = np.clip(np.ceil((hi - lo) / (small / 4)).astype(int) + 1, GRID_MIN[n], GRID_MAX[n])
     bounds = [(float(a), float(b)) for a, b in zip(lo, hi)]
-    if n == 2 and model.kind == "sde":
-        off = np.abs(np.asarray(g)[..., 0, 1])
-        if np.any(off > 1e-12 * (np.abs(np.asarray(g)[..., 0, 0]) + np.abs(np.asarray(g)[..., 1, 1]) + 1e-300)):
-            return None, bounds, sizes  # the 2-D SDE grid needs a diagonal diffusion
+    if n == 2 and model.kind == "sde" and np.any(np.abs(g[..., 0, 1]) > 1e-12 * (np.sum(var, axis=-1) + 1e-300)):
+        return None, bounds, sizes  # the 2-D SDE grid needs a diagonal diffusion: particles instead
     kw = {"dt": dt} if model.kind == "sde" else {"start": start}
     flt = GridFilter(model, bounds[0] if n == 1 else bounds, [int(s) for s in sizes] if n > 1 else int(sizes[0]), **kw)
     return flt, bounds, sizes
@@ -112,7 +135,8 @@ def compare(model, filters, steps, *, paths=200, m0, P0, rng=0, reference="auto"
         returning :class:`~nlfilter.filters.base.Estimates`), built for ``model`` (and ``dt``)
     steps, paths : measurement steps and Monte Carlo paths (``paths ≥ 2``)
     m0, P0 : the prior: true initial states are drawn from N(m0, P0); every filter starts there
-    rng : an integer seed or a ``numpy.random.Generator``
+    rng : an integer seed or a ``numpy.random.Generator`` (the simulation's; filters that draw
+        random numbers get spawned streams of their own)
     reference : ``"auto"`` (see the module docstring), a filter instance, or ``None`` (no
         reference, no ``gap_to_optimal`` rows); it is named ``"optimal"`` in rows and figure
     window : what :func:`~nlfilter.evaluate.mse` averages over (``0.5``: the second half)
@@ -155,18 +179,20 @@ def compare(model, filters, steps, *, paths=200, m0, P0, rng=0, reference="auto"
     _window(steps, window)  # raises TypeError naming window
     if isinstance(reference, str) and reference != "auto":
         raise ValueError(f"reference: expected 'auto', None or a filter instance, got {reference!r}")
-    if not (reference is None or isinstance(reference, str) or callable(getattr(reference, "run", None))):
-        raise TypeError(f"reference: expected 'auto', None or a filter with a run method, "
-                        f"got {type(reference).__name__}")
+    if not (reference is None or isinstance(reference, str)):
+        _check_filter("reference", reference, model, dt, start)
     _check_filters(filters, model, dt, start, reference)
+    m0v = (V.as_float_array("m0", m0, ndim=1, shape_tail=(model.n,)) if np.ndim(m0)
+           else np.full(model.n, float(m0)))
+    V.finite("m0", m0v)
     P0m = V.covariance("P0", P0, model.n)
-    sim_rng, ref_rng, seed = _streams(rng)
+    sim_rng, root, seed = _streams(rng)
 
     sim_kw = {"dt": dt, "substeps": substeps} if kind == "sde" else {"start": start}
-    sim = simulate(model, steps, paths=paths, rng=sim_rng, m0=m0, P0=P0m, **sim_kw)
+    sim = simulate(model, steps, paths=paths, rng=sim_rng, m0=m0v, P0=P0m, **sim_kw)
 
     params = {"steps": steps, "paths": paths, "window": window, "seed": seed, "start": start,
-              "on_divergence": on_divergence, "m0": np.broadcast_to(np.asarray(m0, float), (model.n,)).tolist(),
+              "on_divergence": on_divergence, "m0": m0v.tolist(),
               "P0": P0m.tolist()}
     if kind == "sde":
         params.update(dt=dt, substeps=substeps)
@@ -175,7 +201,7 @@ def compare(model, filters, steps, *, paths=200, m0, P0, rng=0, reference="auto"
     if reference == "auto":
         ref = None
         if model.n <= 2:
-            ref, bounds, sizes = _grid(model, sim, m0, P0m, dt, start)
+            ref, bounds, sizes = _grid(model, sim, m0v, P0m, dt, start)
             if ref is not None:
                 params.update(reference="grid", grid_bounds=bounds, grid_size=[int(s) for s in sizes])
         if ref is None:
@@ -192,8 +218,8 @@ def compare(model, filters, steps, *, paths=200, m0, P0, rng=0, reference="auto"
     from tqdm.auto import tqdm
     est = {}
     for name, flt in tqdm(runs.items(), disable=not progress, desc="compare"):
-        kw = {"rng": ref_rng} if isinstance(flt, ParticleFilter) and name == OPTIMAL else {}
-        est[name] = flt.run(sim.ys, m0, P0m, on_divergence=on_divergence, **kw)
+        kw = {"rng": _run_rng(root, name)} if _takes_rng(flt) else {}
+        est[name] = flt.run(sim.ys, m0v, P0m, on_divergence=on_divergence, **kw)
 
     what = getattr(model, "name", "") or repr(model)
     res = Result("compare", f"{len(filters)} filter(s) against the optimal reference on {what}",
