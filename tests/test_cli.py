@@ -46,6 +46,15 @@ def test_reproduce_quick_writes_schema(tmp_path, capsys):
     ric = rows[("riccati", "mse")]["value"]
     kf = rows[("kf", "mse")]
     assert abs(kf["value"] - ric) < 4 * kf["stderr"]  # KF is optimal: its MSE is the Riccati value
+    # gaps to the KF, paired on common noise: EKF/UKF are the KF on a linear model (exact up to
+    # rounding); the grid is within 4 paired se plus its discretization; the particle filter
+    # can only lose (within 4 se of zero from below)
+    for f in ("ekf", "ukf"):
+        assert abs(rows[(f, "gap_to_optimal")]["value"]) < 1e-12
+    g = rows[("grid", "gap_to_optimal")]
+    assert abs(g["value"]) < 4 * g["stderr"] + 1e-3 * ric
+    pf = rows[("particle", "gap_to_optimal")]
+    assert pf["value"] > -4 * pf["stderr"]
     assert png.stat().st_size > 10_000
     assert "riccati" in capsys.readouterr().out
 
