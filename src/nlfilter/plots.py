@@ -135,9 +135,14 @@ def _outside(panel) -> bool:
     return _n_entries(panel) > 5 or (panel.get("kind") == "bar" and len(panel.get("bars", {})) > 1)
 
 
+def _many_paper(paper) -> bool:
+    """More than two paper markers on a line panel: one legend entry for all of them."""
+    return sum(px is not None for px, _ in paper.values()) > 2
+
+
 def _n_entries(panel) -> int:
     paper = panel.get("paper", {})
-    many = sum(px is not None for px, _ in paper.values()) > 2 if panel.get("kind", "line") == "line" else False
+    many = panel.get("kind", "line") == "line" and _many_paper(paper)
     return sum(len(panel.get(k, {})) for k in ("lines", "bars", "points")) + (1 if many else len(paper))
 
 
@@ -159,7 +164,7 @@ def _lines(ax, panel, colour):
     for label, (px, py, err) in panel.get("points", {}).items():
         ax.errorbar(px, py, yerr=err, fmt="o", ms=5, capsize=3, color=colour(label), label=label, zorder=4)
     paper = panel.get("paper", {})
-    many = sum(px is not None for px, _ in paper.values()) > 2  # then one legend entry for all markers
+    many = _many_paper(paper)
     for label, (px, py) in paper.items():
         if px is None:
             ax.axhline(py, color=colour(label), ls=":", lw=1.4, label=f"{label} (paper)")

@@ -693,14 +693,14 @@ class TensorFilter:
             vals[..., jp.nb + i] = zhat[..., k]
         return np.stack([f.output_poly()(vals) for f in fits], axis=-1)
 
+    @screened
     def run(self, dys, m0, P0, *, on_divergence: str = "raise") -> Estimates:
         """Linear estimates (augmented) then post-processing; ``means`` are the targets'
         estimates ``(..., T, len(targets))``; ``covs`` hold the off-line post-processor MSEs
         on the diagonal (cross terms not computed: NaN)."""
         self.fit()
         est = self.linear.run(dys, m0, P0, on_divergence=on_divergence, return_augmented=True)
-        with np.errstate(over="ignore", invalid="ignore"):  # an overflowing polynomial is screened below
-            means = self.post_process(est.means)
+        means = self.post_process(est.means)
         # the linear run checked ẑ; its post-processed value may still overflow (x̂³ of a huge ẑ)
         means, diverged, step = screen_outputs(self.name, means, est.diverged, est.diverged_step, on_divergence)
         nt = len(self.targets)

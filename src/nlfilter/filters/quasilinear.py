@@ -449,9 +449,8 @@ def gain_error_analysis(model, coefficients, m0, P0, t, *, xhat0=None, closure: 
     """
     closure = EdgeworthClosure(order) if closure is None else closure
     n, mm = model.n, model.m
-    m0 = np.asarray(m0, dtype=float).reshape(n)
-    P0 = V.covariance("P0", P0, n)
-    xh0 = m0 if xhat0 is None else np.asarray(xhat0, dtype=float).reshape(n)
+    m0, P0 = _prior(n, m0, P0, definite=False)
+    xh0 = m0 if xhat0 is None else V.as_float_array("xhat0", xhat0, shape_tail=(n,)).reshape(n)
     st = list(model.states)
     xh = [sp.Symbol(f"xhat_{i}") for i in range(n)]
     Fs, us, Ks = _symbols("F", n, n), _symbols("u", n), _symbols("Kg", n, mm)
@@ -478,7 +477,6 @@ def gain_error_analysis(model, coefficients, m0, P0, t, *, xhat0=None, closure: 
     sol = propagate(eqs, mu0, np.asarray(t, dtype=float), closure=closure, values=values, rtol=1e-8, atol=1e-11)
     mse = _mse(sol, n)
     return ErrorAnalysis(sol.t, mse, sol)
-
 
 
 def discrete_gain_error_analysis(model, coefficients, m0, P0, steps: int, *, xhat0=None,

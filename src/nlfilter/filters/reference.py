@@ -206,12 +206,8 @@ class GridFilter:
         else:
             Rinv = observed_precision(md.R, self._Rinv, obs)  # partly missing: the observed marginal
             yo = np.where(obs, y, 0.0)
-            if Rinv.ndim == 2:
-                hR = hX @ Rinv
-                ll = yo @ hR.T - 0.5 * self.dt * np.einsum("ka,ka->k", hR, hX)
-            else:
-                hR = np.einsum("ka,...ab->...kb", hX, Rinv)
-                ll = np.einsum("...a,...ka->...k", yo, hR) - 0.5 * self.dt * np.einsum("...ka,ka->...k", hR, hX)
+            hR = np.einsum("ka,...ab->...kb", hX, Rinv)  # Rinv (m, m), or (..., m, m) if partly missing
+            ll = np.einsum("...a,...ka->...k", yo, hR) - 0.5 * self.dt * np.einsum("...ka,ka->...k", hR, hX)
         with np.errstate(divide="ignore"):
             lp = np.log(p) + ll
         mx = np.max(lp, axis=-1, keepdims=True)
@@ -301,7 +297,7 @@ class ParticleFilter:
             return measurement_loglik(md.measurement_noise, resid, obs)
         hx = md.h(x, k)
         Rinv = observed_precision(md.R, self._Rinv, obs)  # partly missing: the observed marginal
-        hR = hx @ Rinv if Rinv.ndim == 2 else np.einsum("...pa,...ab->...pb", hx, Rinv)
+        hR = np.einsum("...pa,...ab->...pb", hx, Rinv)
         yo = np.where(obs, y, 0.0)
         return np.einsum("...a,...pa->...p", yo, hR) - 0.5 * self.dt * np.einsum("...pa,...pa->...p", hR, hx)
 

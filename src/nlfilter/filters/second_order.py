@@ -385,9 +385,8 @@ class ContinuousSecondOrderFilter(_Family, ContinuousFilter):
                 M = np.einsum("...ijk,...kl->...ijl", M * obs[..., None, None, :], Winv)  # M W⁻¹
         return K, PHt, hhat * obs, M
 
-    def _rhs_factory(self, obs):
+    def _rhs_factory(self, obs, Winv):
         md = self.model
-        Winv = observed_precision(md.R, self._Winv, obs)
 
         def rhs(m, X, z, s):
             F = md.f_x(m, s)
@@ -410,11 +409,13 @@ class ContinuousSecondOrderFilter(_Family, ContinuousFilter):
         if self.innovation == "update":
             new, bad = self._update(state, dy / self.dt, t, R=self.model.R / self.dt)
             new = poison(new, bad)
-            return self.integrate(self._rhs_factory(np.zeros_like(obs)), new, None, t), bad
+            none = np.zeros_like(obs)
+            return self.integrate(self._rhs_factory(none, np.zeros_like(self._Winv)), new, None, t), bad
         dy0 = np.where(obs, dy, 0.0)
         m, X = state
-        K, _, _, M = self._gain_parts(m, X, t, obs, observed_precision(self.model.R, self._Winv, obs))  # Itô: gain at the start
-        new = self.integrate(self._rhs_factory(obs), GaussianState(m, X), None, t)
+        Winv = observed_precision(self.model.R, self._Winv, obs)
+        K, _, _, M = self._gain_parts(m, X, t, obs, Winv)  # Itô: gain at the start of the step
+        new = self.integrate(self._rhs_factory(obs, Winv), GaussianState(m, X), None, t)
         mean = new.mean + np.einsum("...ij,...j->...i", K, dy0)
         cov = new.cov
         if M is not None:

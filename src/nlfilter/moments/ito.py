@@ -165,8 +165,7 @@ class PolynomialSDE:
             object.__setattr__(self, "names", tuple(names))
         elif len(self.names) != n:
             raise ValueError(f"names: expected {n} names, got {len(self.names)}")
-        polys = drift + tuple(q for row in diff for q in row) + tuple(q for row in (self.noise or ()) for q in row)
-        object.__setattr__(self, "_exact", any(p.exact for p in polys))
+        object.__setattr__(self, "_exact", any(p.exact for p in self._polys()))
 
     @property
     def n(self) -> int:
@@ -177,12 +176,15 @@ class PolynomialSDE:
         """Number of noise columns (0 when only σ is known)."""
         return len(self.noise[0]) if self.noise else 0
 
+    def _polys(self) -> tuple:
+        """Every polynomial of the SDE: drift, diffusion, noise columns."""
+        return (self.drift + tuple(q for row in self.diffusion for q in row)
+                + tuple(q for row in (self.noise or ()) for q in row))
+
     @property
     def is_numeric(self) -> bool:
         """True when every coefficient is a float (no symbols, not exact)."""
-        polys = self.drift + tuple(q for row in self.diffusion for q in row)
-        polys += tuple(q for row in (self.noise or ()) for q in row)
-        return all(p.is_numeric for p in polys)
+        return all(p.is_numeric for p in self._polys())
 
     @classmethod
     def from_noise(cls, drift, G, Q=None, *, time=None, states=None, names=None) -> "PolynomialSDE":
@@ -641,12 +643,11 @@ def discrete_moment_equations(pmap: PolynomialMap, indices: Sequence[tuple]) -> 
     n, r = pmap.n, pmap.r
     indices = _check_indices(indices, n)
     N = n + r
-    lift = lambda p: Polynomial({e + (0,) * r: c for e, c in p.terms.items()}, N)  # noqa: E731
     comps = []
     for i in range(n):
-        p = lift(pmap.f[i])
+        p = pmap.f[i].pad(N)
         for a in range(r):
-            p = p + lift(pmap.G[i][a]) * Polynomial.variable(n + a, N)
+            p = p + pmap.G[i][a].pad(N) * Polynomial.variable(n + a, N)
         comps.append(p)
     powers = [{0: Polynomial.constant(1.0, N)} for _ in range(n)]
 
