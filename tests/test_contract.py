@@ -207,6 +207,7 @@ BY_NAME = {c.name: c for c in CASES}
 IDS = [c.name for c in CASES]
 
 
+
 @functools.lru_cache(maxsize=None)
 def _build(name, kw):
     return BY_NAME[name].make(**dict(kw))

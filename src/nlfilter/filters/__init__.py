@@ -16,7 +16,8 @@ reference                 GridFilter, ParticleFilter: the near-optimal yardstick
 """
 
 from .base import ContinuousFilter, DiscreteFilter, Estimates, GaussianState
-from .bilinear import DiscreteOptimalLinearFilter, OptimalLinearFilter, TensorFilter
+from .bilinear import (DiscreteOptimalLinearFilter, OptimalLinearFilter, PseudoObservablesFilter, TensorFilter,
+                       UpdatedInnovationsFilter)
 from .ekf import EKF, ContinuousEKF
 from .kalman import KalmanBucy, KalmanFilter
 from .moment_bayes import FirstOrderMomentFilter, SecondOrderMomentFilter, ZeroOrderMomentFilter
@@ -28,10 +29,36 @@ from .second_order import (FORMS, ContinuousDiscreteSecondOrderFilter, Continuou
                            SecondOrderFilter)
 from .ukf import UKF
 
-__all__ = ["GaussianState", "Estimates", "DiscreteFilter", "ContinuousFilter", "KalmanFilter", "KalmanBucy",
+from . import registry as _registry
+
+#: Every public filter by name (a plain dict; see :mod:`nlfilter.filters.registry`).
+REGISTRY = {
+    "kf": KalmanFilter, "kalman-bucy": KalmanBucy,
+    "ekf": EKF, "continuous-ekf": ContinuousEKF, "ukf": UKF,
+    "second-order": SecondOrderFilter, "continuous-second-order": ContinuousSecondOrderFilter,
+    "continuous-discrete-second-order": ContinuousDiscreteSecondOrderFilter,
+    "conditional-moment": ConditionalMomentFilter, "discrete-conditional-moment": DiscreteConditionalMomentFilter,
+    "quasilinear": QuasilinearFilter, "discrete-quasilinear": DiscreteQuasilinearFilter,
+    "optimal-linear": OptimalLinearFilter, "discrete-optimal-linear": DiscreteOptimalLinearFilter,
+    "tensor": TensorFilter, "updated-innovations": UpdatedInnovationsFilter,
+    "pseudo-observables": PseudoObservablesFilter,
+    "pll": PLL, "lqf": LinearQuadratureFilter, "phase-tensor": PhaseTensorFilter, "circle-grid": CircleGridFilter,
+    "zero-order-moment": ZeroOrderMomentFilter, "first-order-moment": FirstOrderMomentFilter,
+    "second-order-moment": SecondOrderMomentFilter,
+    "grid": GridFilter, "particle": ParticleFilter,
+}
+
+
+def get(name: str):
+    """The filter class registered under ``name`` (ValueError listing the choices otherwise)."""
+    return _registry.get(REGISTRY, name)
+
+
+__all__ = ["REGISTRY", "get", "GaussianState", "Estimates", "DiscreteFilter", "ContinuousFilter", "KalmanFilter", "KalmanBucy",
            "EKF", "ContinuousEKF", "UKF", "SecondOrderFilter", "ContinuousSecondOrderFilter",
            "ContinuousDiscreteSecondOrderFilter", "FORMS", "QLF", "MQLF", "QuasilinearFilter",
            "DiscreteQuasilinearFilter", "ConditionalMomentFilter", "DiscreteConditionalMomentFilter",
-           "OptimalLinearFilter", "DiscreteOptimalLinearFilter", "TensorFilter", "PLL",
+           "OptimalLinearFilter", "DiscreteOptimalLinearFilter", "TensorFilter", "UpdatedInnovationsFilter",
+           "PseudoObservablesFilter", "PLL",
            "LinearQuadratureFilter", "PhaseTensorFilter", "CircleGridFilter", "ZeroOrderMomentFilter",
            "FirstOrderMomentFilter", "SecondOrderMomentFilter", "GridFilter", "ParticleFilter"]
