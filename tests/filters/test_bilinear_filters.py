@@ -207,7 +207,7 @@ def test_updated_innovations_runs_and_marks_divergence():
     assert est2.diverged.tolist() == [False, True, False, False, False]
     assert np.all(np.isnan(est2.means[1, 10:])) and np.array_equal(est2.means[[0, 2, 3, 4]], est.means[[0, 2, 3, 4]])
     bad[1, 10, 0] = np.inf
-    with pytest.raises(ValueError, match="dys"):
+    with pytest.raises(ValueError, match="^ys"):
         uf.run(bad, *stationary_lift_moments(1.0))
 
 

@@ -3,14 +3,16 @@
 import numpy as np
 import pytest
 
+from nlfilter.bilinear import phase_model
 from nlfilter.filters.phase import (PLL, CircleGridFilter, LinearQuadratureFilter, PhaseTensorFilter, circle_moment,
-                                    lqf_gain, pll_gain, post_processor, qr_from_P, simulate_phase, wrap)
+                                    lqf_gain, pll_gain, post_processor, qr_from_P, wrap)
+from nlfilter.simulate import simulate_phase
 
 
 @pytest.mark.parametrize("q,r", [(1.0, 0.0083205), (0.3, 2.0), (4.0, 0.01)])
 def test_lqf_gain_eq_4_18_equals_riccati_steady_state(q, r):
     """001 eq. 4.18 (closed form) = the steady state of eq. 2.43 solved by OptimalLinearFilter."""
-    K = LinearQuadratureFilter(q, r, 0.01).linear.steady_state().K
+    K = LinearQuadratureFilter(phase_model(q, r), 0.01).linear.steady_state().K
     assert K[0, 0] == pytest.approx(lqf_gain(q, r), rel=1e-10)
     assert K[1, 1] == pytest.approx(lqf_gain(q, r), rel=1e-10)
     assert abs(K[0, 1]) < 1e-12
@@ -28,7 +30,8 @@ def test_pll_phase_error_matches_tikhonov_law():
     w = np.exp(np.cos(phi) / P)
     exact = float((phi ** 2 * w).sum() / w.sum())
     th, dz = simulate_phase(q, r, dt, int(4 / dt), 48, np.random.default_rng(1))
-    est = PLL(q, r, dt).run(dz, theta0=th[:, 0]).theta
+    x0 = np.stack([np.sin(th[:, 0]), np.cos(th[:, 0])], axis=-1)  # θ̂0 = atan2(m0) = θ0
+    est = PLL(phase_model(q, r), dt).run(dz, x0, np.eye(2)).extras["theta"]
     per = (wrap(th - est)[:, int(0.5 / dt):] ** 2).mean(axis=1)
     mc, se = per.mean(), per.std(ddof=1) / np.sqrt(per.size)
     assert abs(mc - exact) < 3 * se, (mc, se, exact)
@@ -38,13 +41,13 @@ def test_pll_phase_error_matches_tikhonov_law():
 def test_circle_grid_prediction_is_the_exact_heat_kernel():
     """No information (zero increments, huge r): from θ = 0, E[cos θ_t] = exp(−q t / 2) exactly."""
     q, dt, T = 0.8, 0.05, 40
-    g = CircleGridFilter(q, 1e12, dt, size=128)
+    g = CircleGridFilter(phase_model(q, 1e12), dt, size=128)
     p0 = np.zeros(128)
     p0[0] = 1.0
-    est = g.run(np.zeros((1, T, 2)), p0=p0)
+    est = g.run(np.zeros((1, T, 2)), initial=p0)
     t = dt * np.arange(1, T + 1)
-    assert np.allclose(est.x[0, :, 1], np.exp(-q * t / 2), atol=1e-12)
-    assert np.allclose(est.x[0, :, 0], 0.0, atol=1e-12)
+    assert np.allclose(est.means[0, :, 1], np.exp(-q * t / 2), atol=1e-12)
+    assert np.allclose(est.means[0, :, 0], 0.0, atol=1e-12)
 
 
 def test_optimal_filter_beats_suboptimal_on_common_noise():
@@ -52,9 +55,10 @@ def test_optimal_filter_beats_suboptimal_on_common_noise():
     q, r = qr_from_P(0.129)
     dt = 0.01 / pll_gain(q, r)
     th, dz = simulate_phase(q, r, dt, 10000, 12, np.random.default_rng(8))
-    opt = CircleGridFilter(q, r, dt, size=96).run(dz).x[..., 0]
-    lqf = LinearQuadratureFilter(q, r, dt).run(dz).x[..., 0]
-    ten = PhaseTensorFilter(q, r, dt).run(dz).x[..., 0]
+    model, m0, P0 = phase_model(q, r), np.zeros(2), 0.5 * np.eye(2)
+    opt = CircleGridFilter(model, dt, size=96).run(dz).means[..., 0]
+    lqf = LinearQuadratureFilter(model, dt).run(dz, m0, P0).means[..., 0]
+    ten = PhaseTensorFilter(model, dt).run(dz, m0, P0).means[..., 0]
     x1 = np.sin(th)
     mse = {k: ((v - x1)[:, 500:] ** 2).mean(axis=1) for k, v in (("opt", opt), ("lqf", lqf), ("ten", ten))}
     for a, b in (("opt", "ten"), ("ten", "lqf")):  # paired differences, 3 standard errors
@@ -81,13 +85,15 @@ def test_post_processor_independent_of_time_scale():
 
 def test_tensor_filter_symmetric_in_x1_x2():
     q, r = qr_from_P(0.2)
-    f1, f2 = PhaseTensorFilter(q, r, 0.01).fits()
+    f1, f2 = PhaseTensorFilter(phase_model(q, r), 0.01).fits()
     assert np.allclose(f1.gains, f2.gains, rtol=1e-9) and f1.mse == pytest.approx(f2.mse, rel=1e-9)
 
 
 def test_circle_moments_and_input_errors():
     assert circle_moment((4, 0)) == pytest.approx(3 / 8) and circle_moment((3, 1)) == 0.0
-    with pytest.raises(ValueError, match="dzs"):
-        PLL(1.0, 1.0, 0.01).run(np.zeros((2, 3)))
+    with pytest.raises(ValueError, match="^ys"):
+        PLL(phase_model(1.0, 1.0), 0.01).run(np.zeros((2, 3)), np.zeros(2), np.eye(2))
+    with pytest.raises(TypeError, match="^model"):
+        PLL(1.0, 0.01)
     with pytest.raises(ValueError, match="P"):
         qr_from_P(-0.1)
