@@ -97,3 +97,64 @@ def test_circle_moments_and_input_errors():
         PLL(1.0, 0.01)
     with pytest.raises(ValueError, match="P"):
         qr_from_P(-0.1)
+
+
+def _dz(T=40, paths=3, seed=2, q=1.0, r=0.5, dt=0.01):
+    return simulate_phase(q, r, dt, T, paths, np.random.default_rng(seed))[1]
+
+
+def test_circle_grid_missing_component_is_a_flat_likelihood():
+    """A missing component of dz = a zero increment of it (|h|² = 1 cancels: exp(0) is flat);
+    every increment missing = the exact heat semigroup alone, whatever the data."""
+    g = CircleGridFilter(phase_model(1.0, 0.5), 0.01, size=64)
+    m0, P0 = np.array([0.3, 0.5]), 0.2 * np.eye(2)
+    dz = _dz()
+    e = dz.copy()
+    e[:, 5:20, 1] = np.nan
+    z = dz.copy()
+    z[:, 5:20, 1] = 0.0
+    a, b = g.run(e, m0, P0), g.run(z, m0, P0)
+    np.testing.assert_allclose(a.means, b.means, rtol=0, atol=1e-14)
+    np.testing.assert_allclose(a.extras["theta"], b.extras["theta"], rtol=0, atol=1e-13)
+    blind = g.run(dz * np.nan, m0, P0)
+    np.testing.assert_allclose(blind.means, g.run(np.zeros_like(dz), m0, P0).means, rtol=0, atol=1e-14)
+
+
+def test_von_mises_prior_has_the_mean_m0():
+    """The prior from m0 is the von Mises law with E[(sin θ0, cos θ0)] = m0 (on the grid)."""
+    g = CircleGridFilter(phase_model(1.0, 0.5), 0.01, size=256)
+    m0 = np.array([[0.3, 0.5], [0.0, 0.0], [-0.6, -0.1]])
+    b = g.init(m0, np.eye(2), (3,))
+    mean, cov = g.summary(b)
+    np.testing.assert_allclose(mean, m0, atol=1e-10)
+    assert np.all(np.linalg.eigvalsh(cov) > 0)
+    with pytest.raises(ValueError, match="^m0"):
+        g.run(_dz(), [0.8, 0.8], np.eye(2))
+
+
+def test_quadrature_filters_missing_increments_only_predict():
+    """Every increment missing: no innovation, the LQF's x̂ decays as E[x_t | x0] = e^{−qt/2} m0
+    (RK4 of the mean equation); the PLL's θ̂ stays at θ̂0 = atan2(m0)."""
+    q, dt = 1.0, 0.01
+    model, m0, P0 = phase_model(q, 0.5), np.array([0.3, 0.5]), 0.2 * np.eye(2)
+    d = _dz(q=q, dt=dt) * np.nan
+    t = dt * np.arange(1, d.shape[1] + 1)
+    lqf = LinearQuadratureFilter(model, dt).run(d, m0, P0)
+    np.testing.assert_allclose(lqf.means, np.broadcast_to(np.exp(-q * t / 2)[:, None] * m0, lqf.means.shape), rtol=1e-10)
+    np.testing.assert_allclose(lqf.extras["theta"], np.arctan2(0.3, 0.5), rtol=1e-12)
+    pll = PLL(model, dt).run(d, m0, P0)
+    assert np.all(pll.extras["theta"] == np.arctan2(0.3, 0.5)) and np.isnan(pll.covs).all()
+
+
+def test_phase_filters_mark_a_diverged_path():
+    """An overflowing increment on one path: marked (NaN from its step, θ̂ too), the others as clean."""
+    dz = _dz(T=10)
+    bad = dz.copy()
+    bad[1, 4] = 1.7e308
+    model = phase_model(1.0, 0.5)
+    for flt in (PLL(model, 0.01), LinearQuadratureFilter(model, 0.01), PhaseTensorFilter(model, 0.01)):
+        a = flt.run(bad, np.zeros(2), 0.5 * np.eye(2), on_divergence="mark")
+        b = flt.run(dz, np.zeros(2), 0.5 * np.eye(2))
+        assert a.diverged.tolist() == [False, True, False] and a.diverged_step[1] == 4, flt.name
+        assert np.isnan(a.extras["theta"][1, 4:]).all() and np.isfinite(a.extras["theta"][1, :4]).all()
+        np.testing.assert_array_equal(a.means[[0, 2]], b.means[[0, 2]])
