@@ -769,6 +769,13 @@ class PseudoObservablesFilter(Filter):
     model : BilinearModel with additive measurement noise only (``R``; no ``M``)
     powers : the powers of each measurement component used as observables (``(1, 3)``: y and y³)
     dt : measurement step;  x_moment : callable ``base monomial -> E[x0^α]`` (initial law of x)
+
+    ``run(ys)`` (``ys`` the increments ``dy``, y0 = 0): a continuous-time
+    :class:`~nlfilter.filters.base.Filter` over a :class:`PseudoObservablesState`; ``means`` the
+    estimates of the base variables, ``covs`` the off-line error covariance of the gain schedule.
+    The prior is the law of x0 whose moments ``x_moment`` gives (every moment enters the
+    pseudo-observables' gains), so ``m0``/``P0`` must be None (refused naming ``m0``). A missing
+    increment component: its observables give no innovation (see :meth:`step`).
     """
 
     name = "pseudo-observables"
