@@ -1,7 +1,7 @@
 """One contract for every public filter (``nlfilter.filters``; protocol of ``filters/base.py`` and the
 README's Conventions): batch shapes, batch independence, input checks naming the argument, no
 silent NaN, symmetric PSD covariances, missing data. Each row of ``CASES`` is (filter factory,
-small model, a valid input); filters with their own run signature (phase, moment_bayes) are
+small model, a valid input); filters with their own run signature (moment_bayes) are
 adapted to the parts of the contract that apply to them.
 """
 
@@ -19,7 +19,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as hst
 
 from nlfilter import DiscreteModel, SDEModel
-from nlfilter.bilinear import BilinearModel
+from nlfilter.bilinear import BilinearModel, phase_model
 from nlfilter.errors import DivergenceError
 from nlfilter.filters import (EKF, FORMS, MQLF, PLL, QLF, UKF, CircleGridFilter, ConditionalMomentFilter,
                               ContinuousDiscreteSecondOrderFilter, ContinuousEKF, ContinuousSecondOrderFilter,
@@ -29,11 +29,10 @@ from nlfilter.filters import (EKF, FORMS, MQLF, PLL, QLF, UKF, CircleGridFilter,
                               ParticleFilter, PhaseTensorFilter, SecondOrderFilter, SecondOrderMomentFilter,
                               TensorFilter, ZeroOrderMomentFilter)
 from nlfilter.filters.bilinear import UpdatedInnovationsFilter
-from nlfilter.filters.phase import simulate_phase
 from nlfilter.moments.closures import EdgeworthClosure
 from nlfilter.moments.densities import uniform_moments
 from nlfilter.problems import euler_discretization
-from nlfilter.simulate import simulate
+from nlfilter.simulate import simulate, simulate_phase
 
 x, x1, x2 = sp.symbols("x x1 x2")
 DT = 0.05
@@ -90,7 +89,8 @@ class Case:
     """One filter of the contract. ``make(**options)`` builds it; ``data(batch, T, seed)`` gives a
     valid input ``(*batch, T, m)`` (``(*batch, T)`` when ``event == 1``); ``prior`` the keyword
     arguments of the prior; ``kind``: ``"gaussian"`` (returns Estimates, has ``on_divergence``),
-    ``"phase"`` (PhaseEstimates), ``"moment"`` (MomentRun / ZeroOrderRun)."""
+    ``"moment"`` (MomentRun / ZeroOrderRun); ``extras``: the names of its per-step scalar
+    ``Estimates.extras`` (e.g. the phase filters' ``theta``)."""
 
     name: str
     make: Callable
@@ -103,6 +103,7 @@ class Case:
     options: tuple = ()  # (keyword, bogus value) of the constructor
     bad_prior: tuple = ()  # (keyword, bad value) of run
     random: bool = False
+    extras: tuple = ()
 
     def filter(self, **kw):
         return _build(self.name, tuple(sorted(kw.items()))) if kw else _build(self.name, ())
@@ -123,6 +124,16 @@ def _gauss(name, make, model, m0, P0, *, dt=None, options=(), missing="nan", **k
         bad.append(("P0", P0 + np.triu(np.ones_like(P0), 1)))  # not symmetric
     return Case(name, make, _sim(model, m0, P0, dt), {"m0": m0, "P0": P0}, options=options, missing=missing,
                 bad_prior=bad, **kw)
+
+
+PHASE_MODEL = phase_model(1.0, 0.5)
+
+
+def _phase_row(name, make, options):
+    """A phase filter (``ys`` the increments dz): the prior of x = (sin θ, cos θ), θ̂ in extras."""
+    m0, P0 = np.array([0.1, 0.2]), np.diag([0.45, 0.4])
+    bad = [("m0", np.zeros(3)), ("P0", -P0), ("P0", np.full((3, 3), 0.1)), ("P0", P0 + np.triu(np.ones_like(P0), 1))]
+    return Case(name, make, _phase, {"m0": m0, "P0": P0}, options=options, bad_prior=bad, extras=("theta",))
 
 
 CASES = [
@@ -162,9 +173,9 @@ CASES = [
     _gauss("linear-discrete", lambda **k: DiscreteOptimalLinearFilter(BILD, **k),
            DiscreteModel([x], [0.9 * x], [x], Q=1.0, R=0.3), M1, P1, missing="raise"),
     _gauss("tensor", lambda **k: TensorFilter(BIL, DT, **k), SDEModel([x], [-x], [x], Q=1.0, R=1.0), M1, P1,
-           dt=DT, missing="raise", options=(("inputs", "bogus"), ("scheme", "bogus"))),
+           dt=DT, options=(("inputs", "bogus"), ("scheme", "bogus"))),
     _gauss("updated-innovations", lambda **k: UpdatedInnovationsFilter(BIL, DT, **k),
-           SDEModel([x], [-x], [x], Q=1.0, R=1.0), M1, P1, dt=DT, missing="raise",
+           SDEModel([x], [-x], [x], Q=1.0, R=1.0), M1, P1, dt=DT,
            options=(("inputs", "bogus"), ("scheme", "bogus"))),
     _gauss("grid", lambda model=D1, **k: GridFilter(model, (-4.0, 4.0), 81, **k), D1, M1, P1, options=(("start", "bogus"),)),
     _gauss("grid-2d", lambda model=D2, **k: GridFilter(model, [(-4.0, 4.0), (-4.0, 4.0)], 25, **k), D2, M2, P2,
@@ -176,14 +187,10 @@ CASES = [
            options=(("start", "bogus"),)),
     _gauss("particle-sde", lambda model=S2, **k: ParticleFilter(model, 200, dt=DT, **k), S2, M2, P2, dt=DT,
            run_kw={"rng": 5}, random=True),
-    Case("pll", lambda **k: PLL(1.0, 0.5, DT, **k), _phase, {"theta0": 0.3}, kind="phase", missing="raise",
-         options=(("scheme", "bogus"),), bad_prior=(("theta0", np.zeros(7)),)),
-    Case("lqf", lambda **k: LinearQuadratureFilter(1.0, 0.5, DT, **k), _phase, {"m0": (0.1, 0.2)}, kind="phase",
-         missing="raise", options=(("scheme", "bogus"),), bad_prior=(("m0", np.zeros(3)),)),
-    Case("phase-tensor", lambda **k: PhaseTensorFilter(1.0, 0.5, DT, **k), _phase, {"m0": (0.1, 0.2)},
-         kind="phase", missing="raise", options=(("scheme", "bogus"),), bad_prior=(("m0", np.zeros(3)),)),
-    Case("circle-grid", lambda **k: CircleGridFilter(1.0, 0.5, DT, **{"size": 32, **k}), _phase, {}, kind="phase",
-         missing="raise", options=(("size", 0),), bad_prior=(("p0", np.ones(5)),)),
+    _phase_row("pll", lambda **k: PLL(PHASE_MODEL, DT, **k), (("scheme", "bogus"),)),
+    _phase_row("lqf", lambda **k: LinearQuadratureFilter(PHASE_MODEL, DT, **k), (("scheme", "bogus"),)),
+    _phase_row("phase-tensor", lambda **k: PhaseTensorFilter(PHASE_MODEL, DT, **k), (("scheme", "bogus"),)),
+    _phase_row("circle-grid", lambda **k: CircleGridFilter(PHASE_MODEL, DT, **{"size": 32, **k}), (("size", 0),)),
     Case("zero-order", lambda **k: ZeroOrderMomentFilter(4, moments=uniform_moments(4), **k), _bounded(1),
          kind="moment", event=1, missing="raise", options=(("outside", "bogus"), ("invalid_moments", "bogus"))),
     Case("zero-order-adaptive", lambda **k: ZeroOrderMomentFilter(4, adaptive=True, window=2, **k), _bounded(1),
@@ -239,9 +246,8 @@ DETERMINISTIC = [c for c in CASES if not c.random]
 def _event_shapes(case, T_):
     if case.kind == "gaussian":
         n = len(case.prior["m0"])
-        return {"means": (T_, n), "covs": (T_, n, n), "diverged": (), "diverged_step": ()}
-    if case.kind == "phase":
-        return {"theta": (T_,), "x": (T_, 2)}
+        return {"means": (T_, n), "covs": (T_, n, n), "diverged": (), "diverged_step": (),
+                **{f"extras.{k}": (T_,) for k in case.extras}}
     n = {"zero-order": 0, "zero-order-adaptive": 0, "first-order": 1, "first-order-adaptive": 1}.get(case.name, 2)
     if n == 0:
         return {"estimates": (T_,), "fallback": (T_,), "invalid": (T_,)}
@@ -254,8 +260,6 @@ def test_two_batch_axes_equal_the_flattened_batch(case):
     res = outputs(case.run(d))
     flat = outputs(case.run(d.reshape(6, *d.shape[2:])))
     want = _event_shapes(case, T)
-    if case.kind == "phase" and case.name == "pll":
-        want.pop("x")
     assert {k: v.shape for k, v in res.items()} == {k: (2, 3, *s) for k, s in want.items()}
     if case.kind == "gaussian":
         assert res["diverged"].dtype == bool and np.issubdtype(res["diverged_step"].dtype, np.integer)
@@ -357,7 +361,7 @@ def test_singular_psd_prior(case):
         assert not res.diverged.any() and np.isfinite(res.means).all() and _covs_ok(case, res.covs).all()
 
 
-ONE_PRIOR = {"qlf", "mqlf", "dqlf", "linear", "linear-tv", "linear-discrete", "tensor", "updated-innovations", "grid", "grid-2d",
+ONE_PRIOR = {"qlf", "mqlf", "dqlf", "linear", "linear-tv", "linear-discrete", "grid", "grid-2d",
              "grid-sde", "grid-2d-sde", "particle", "particle-sde"}  # off-line gains / one prior for all paths
 
 
@@ -388,9 +392,9 @@ def _overflow(d):
 # documented (README, seed 004): these forms lose positive definiteness on nonlinear problems, so a
 # clean run may mark paths too; the contract is then that exactly those paths are flagged
 LOSES_PSD = {"sof-truncated-jazwinski", "sof-gaussian"}
-# documented (UpdatedInnovationsFilter.run): the nonlinear recursion has no error covariance, so
-# its covs are NaN on every path; what the contract checks there is that they are NaN everywhere
-NO_COVS = {"updated-innovations"}
+# documented (UpdatedInnovationsFilter, PLL): the nonlinear recursion / the loop has no error
+# covariance, so their covs are NaN on every path; what the contract checks there is that they are NaN everywhere
+NO_COVS = {"updated-innovations", "pll"}
 
 
 def _covs_ok(case, covs):
@@ -457,19 +461,6 @@ def test_outliers_never_give_silent_nan(case, big):
     _assert_raises_at_first_divergence(case, e, res)
 
 
-PHASE = [c for c in CASES if c.kind == "phase"]
-
-
-@pytest.mark.parametrize("case", PHASE, ids=[c.name for c in PHASE])
-def test_phase_filters_raise_on_overflow(case):
-    """No ``diverged`` field: a non-finite estimate raises (documented in each ``run``)."""
-    d = case.data((3,), T, 3)
-    with pytest.raises(DivergenceError) as info:
-        case.run(_overflow(d))
-    assert info.value.paths == (1,)
-    assert all(np.isfinite(v).all() for v in outputs(case.run(d)).values())
-
-
 MOMENT = [c for c in CASES if c.kind == "moment"]
 
 
@@ -489,7 +480,7 @@ def test_moment_filters_refuse_or_clip_impossible_measurements(case):
 
 
 # -- 5. covariances are symmetric and PSD ---------------------------------------------------------------
-COVS = [c for c in GAUSS if c.name not in ("tensor", "updated-innovations")] + [c for c in MOMENT if "zero" not in c.name]
+COVS = [c for c in GAUSS if c.name not in NO_COVS] + [c for c in MOMENT if "zero" not in c.name]
 
 
 @pytest.mark.parametrize("case", COVS, ids=[c.name for c in COVS])
