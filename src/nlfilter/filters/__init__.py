@@ -3,7 +3,11 @@
 ========================  ==================================================================
 module                    filters
 ========================  ==================================================================
-kalman, ekf, ukf          KalmanFilter, KalmanBucy, EKF, ContinuousEKF, UKF
+kalman, ekf, ukf          KalmanFilter, KalmanBucy, EKF, IteratedEKF, ContinuousEKF, UKF,
+                          ContinuousDiscreteEKF, ContinuousDiscreteIEKF, ContinuousDiscreteUKF
+cubature                  CKF, GHKF, ContinuousDiscreteCKF, ContinuousDiscreteGHKF
+gaussian, rules           GaussianFilter, ContinuousDiscreteGaussianFilter over a moment rule
+                          (Taylor1, Unscented, Cubature, GaussHermite)
 second_order              SecondOrderFilter, ContinuousSecondOrderFilter,
                           ContinuousDiscreteSecondOrderFilter (seed 004; ``form=`` FORMS)
 quasilinear               QLF, MQLF, QuasilinearFilter, DiscreteQuasilinearFilter (seed 003)
@@ -17,7 +21,9 @@ reference                 GridFilter, ParticleFilter: the near-optimal yardstick
 
 from .base import ContinuousFilter, DiscreteFilter, Estimates, GaussianState
 from .bilinear import DiscreteOptimalLinearFilter, OptimalLinearFilter, TensorFilter
-from .ekf import EKF, ContinuousEKF
+from .cubature import CKF, GHKF, ContinuousDiscreteCKF, ContinuousDiscreteGHKF
+from .ekf import EKF, ContinuousDiscreteEKF, ContinuousDiscreteIEKF, ContinuousEKF, IteratedEKF
+from .gaussian import ContinuousDiscreteGaussianFilter, GaussianFilter
 from .kalman import KalmanBucy, KalmanFilter
 from .moment_bayes import FirstOrderMomentFilter, SecondOrderMomentFilter, ZeroOrderMomentFilter
 from .moment_filters import ConditionalMomentFilter, DiscreteConditionalMomentFilter
@@ -26,7 +32,7 @@ from .quasilinear import MQLF, QLF, DiscreteQuasilinearFilter, QuasilinearFilter
 from .reference import GridFilter, ParticleFilter
 from .second_order import (FORMS, ContinuousDiscreteSecondOrderFilter, ContinuousSecondOrderFilter,
                            SecondOrderFilter)
-from .ukf import UKF
+from .ukf import UKF, ContinuousDiscreteUKF
 
 __all__ = ["GaussianState", "Estimates", "DiscreteFilter", "ContinuousFilter", "KalmanFilter", "KalmanBucy",
            "EKF", "ContinuousEKF", "UKF", "SecondOrderFilter", "ContinuousSecondOrderFilter",
@@ -34,4 +40,6 @@ __all__ = ["GaussianState", "Estimates", "DiscreteFilter", "ContinuousFilter", "
            "DiscreteQuasilinearFilter", "ConditionalMomentFilter", "DiscreteConditionalMomentFilter",
            "OptimalLinearFilter", "DiscreteOptimalLinearFilter", "TensorFilter", "PLL",
            "LinearQuadratureFilter", "PhaseTensorFilter", "CircleGridFilter", "ZeroOrderMomentFilter",
-           "FirstOrderMomentFilter", "SecondOrderMomentFilter", "GridFilter", "ParticleFilter"]
+           "FirstOrderMomentFilter", "SecondOrderMomentFilter", "GridFilter", "ParticleFilter",
+           "CKF", "GHKF", "IteratedEKF", "ContinuousDiscreteEKF", "ContinuousDiscreteIEKF", "ContinuousDiscreteUKF",
+           "ContinuousDiscreteCKF", "ContinuousDiscreteGHKF", "GaussianFilter", "ContinuousDiscreteGaussianFilter"]

@@ -1,0 +1,198 @@
+"""Moment rules for the Gaussian family: E[g], Cov[x, g], Cov[g, g] under a Gaussian belief.
+
+A rule is a small frozen object. Given a batch of Gaussian beliefs ``x ~ N(m, P)`` (``m (..., n)``,
+``P (..., n, n)``) and a batched function ``g(X, t) -> (..., p)`` it returns :class:`GaussMoments`::
+
+    mean  = E[g(x)]                  (..., p)
+    cross = Cov[x, g(x)]             (..., n, p)   (None when not asked for)
+    cov   = Cov[g(x), g(x)]          (..., p, p)
+    jac   = the linearization g_x(m) (..., p, n)   (Taylor rules only, else None)
+    bad   = paths whose P has no square root (..., ) bool, or None
+    noise = E[G(x) Q G(x)ᵀ] (..., n, n) of ``model`` when asked for (``noise_of=model``), else None
+
+(the noise term uses the same nodes as the moments of ``g``). The filters of
+:mod:`nlfilter.filters.gaussian` are one predict/update skeleton over a rule, as in dynamax's generalized Gaussian filter (its
+``EKFIntegrals``, ``UKFIntegrals``, ``GHKFIntegrals``):
+
+=====================  ===========================================================================
+rule                   approximation
+=====================  ===========================================================================
+:class:`Taylor1`       ``g(x) ≈ g(m) + J (x − m)``, ``J = g_x(m)``: E[g] = g(m), Cov[x, g] = P Jᵀ,
+                       Cov[g] = J P Jᵀ (the EKF; exact on linear g)
+:class:`Unscented`     scaled sigma points of van der Merwe (2n + 1 points), ``(alpha, beta, kappa)``
+:class:`Cubature`      the third-degree spherical-radial rule of Arasaratnam & Haykin (2009):
+                       2n points ``m ± √n L e_i`` (``P = L Lᵀ``), equal weights ``1/(2n)``
+:class:`GaussHermite`  tensor-product Gauss–Hermite rule with ``order`` points per axis
+                       (``order**n`` points; exact for polynomials of degree ``2·order − 1`` in
+                       each variable; Ito & Xiong 2000)
+=====================  ===========================================================================
+
+Node rules share one implementation: points ``X_i = m + L z_i`` with mean weights ``w_i`` and
+covariance weights ``w^c_i``, then ``E[g] ≈ Σ w_i g(X_i)``, ``Cov[x, g] ≈ Σ w^c_i (X_i − m)(g_i − ĝ)ᵀ``,
+``Cov[g] ≈ Σ w^c_i (g_i − ĝ)(g_i − ĝ)ᵀ``, ``E[G Q Gᵀ] ≈ Σ w_i G(X_i) Q G(X_i)ᵀ`` (``G Q Gᵀ`` for
+constant G). The square root is the Cholesky factor, the eigen root where P is only semi-definite,
+and the identity on paths whose P is not PSD (``bad``: the filter poisons them, so that ``run``
+raises or marks them; :func:`~nlfilter.filters.base.sqrt_psd`).
+
+>>> import numpy as np
+>>> from nlfilter.filters.base import GaussianState
+>>> s = GaussianState(np.array([1.0]), np.array([[0.5]]))
+>>> sq = lambda X, t: X**2                                   # E[x²] = m² + P = 1.5
+>>> round(float(GaussHermite(3).moments(s, sq, 0).mean[0]), 12), float(Cubature().moments(s, sq, 0).mean[0])
+(1.5, 1.5)
+>>> float(Taylor1().moments(s, sq, 0, jac=lambda X, t: 2 * X[..., None]).mean[0])   # g(m)
+1.0
+"""
+
+from __future__ import annotations
+
+import functools
+import math
+from dataclasses import dataclass
+from typing import NamedTuple
+
+import numpy as np
+
+from .. import _validate as V
+from ..moments.quadrature import gauss_hermite_rule
+from .base import mm, sqrt_psd
+
+__all__ = ["GaussMoments", "Taylor1", "Unscented", "Cubature", "GaussHermite", "NodeRule"]
+
+
+class GaussMoments(NamedTuple):
+    """Moments of ``g(x)`` under a Gaussian belief (see the module docstring)."""
+
+    mean: np.ndarray
+    cross: np.ndarray | None
+    cov: np.ndarray
+    jac: np.ndarray | None = None
+    bad: np.ndarray | None = None
+    noise: np.ndarray | None = None
+
+
+@dataclass(frozen=True)
+class Taylor1:
+    """First-order Taylor rule (the EKF's): ``E[g] = g(m)``, ``Cov[x, g] = P Jᵀ``, ``Cov[g] = J P Jᵀ``
+    with ``J = g_x(m)``; ``E[G Q Gᵀ] = G(m) Q G(m)ᵀ``. Exact when g is affine (and G constant)."""
+
+    name = "taylor1"
+    linearizes = True
+
+    def moments(self, state, g, t, *, jac, cross: bool = True, cov: bool = True, noise_of=None
+                ) -> GaussMoments:
+        """``cross``/``cov``: whether Cov[x, g] / Cov[g] are wanted (else None); ``noise_of``: a
+        model whose ``E[G Q Gᵀ]`` to add to the result."""
+        m, P = state
+        J = jac(m, t)
+        Q = None if noise_of is None else noise_of.GQGT(m, t)  # G(m) Q G(m)ᵀ
+        if cross:
+            C = mm(P, np.swapaxes(J, -1, -2))  # Cov[x, g] = P Jᵀ
+            return GaussMoments(g(m, t), C, mm(J, C) if cov else None, J, None, Q)
+        S = mm(mm(J, P), np.swapaxes(J, -1, -2)) if cov else None  # J P Jᵀ
+        return GaussMoments(g(m, t), None, S, J, None, Q)
+
+
+class NodeRule:
+    """Base of the node rules: subclasses give ``nodes(m, P) -> (X (..., N, n), w (N,), wc (N,), bad)``."""
+
+    linearizes = False
+
+    def nodes(self, m, P):  # pragma: no cover
+        raise NotImplementedError
+
+    def moments(self, state, g, t, *, jac=None, cross: bool = True, cov: bool = True, noise_of=None
+                ) -> GaussMoments:
+        """As :meth:`Taylor1.moments` (``jac`` is not used)."""
+        m = state.mean
+        X, w, wc, bad = self.nodes(m, state.cov)
+        GX = g(X, t)
+        mean = np.einsum("i,...ij->...j", w, GX)  # Σ w_i g(X_i)
+        D = GX - mean[..., None, :]
+        S = np.einsum("i,...ia,...ib->...ab", wc, D, D) if cov else None  # Σ wc_i (g_i − ĝ)(g_i − ĝ)ᵀ
+        C = np.einsum("i,...ia,...ib->...ab", wc, X - m[..., None, :], D) if cross else None
+        Q = None
+        if noise_of is not None:  # E[G Q Gᵀ]: G Q Gᵀ for constant G, else Σ w_i G(X_i) Q G(X_i)ᵀ
+            Q = (noise_of.GQGT(m, t) if noise_of.G_constant
+                 else np.einsum("i,...iab->...ab", w, noise_of.GQGT(X, t)))
+        return GaussMoments(mean, C, S, None, bad if bad.any() else None, Q)
+
+
+@dataclass(frozen=True)
+class Unscented(NodeRule):
+    """Scaled unscented transform (van der Merwe), nodes of :func:`~nlfilter.filters.ukf.sigma_points`."""
+
+    alpha: float = 1.0
+    beta: float = 2.0
+    kappa: float = 0.0
+    name = "unscented"
+
+    def __post_init__(self):
+        object.__setattr__(self, "alpha", float(V.positive("alpha", self.alpha)))
+        object.__setattr__(self, "beta", float(V.positive("beta", self.beta, strict=False)))
+        if not np.isfinite(self.kappa):
+            raise ValueError(f"kappa: expected a finite number, got {self.kappa!r}")
+        object.__setattr__(self, "kappa", float(self.kappa))
+
+    def check(self, n):
+        if n + self.kappa <= 0:
+            raise ValueError(f"kappa: expected n + kappa > 0 (n = {n}), got {self.kappa!r}")
+
+    def nodes(self, m, P):
+        from .ukf import sigma_points
+        return sigma_points(m, P, self.alpha, self.beta, self.kappa)
+
+
+def _weights(w):
+    w = np.asarray(w, float)
+    w.flags.writeable = False
+    return w
+
+
+@functools.lru_cache(maxsize=None)
+def _cubature_weights(n):
+    return _weights(np.full(2 * n, 0.5 / n))
+
+
+@functools.lru_cache(maxsize=None)
+def _gh_rule(n, order):
+    z, w = gauss_hermite_rule(n, order)
+    z.flags.writeable = False
+    return z, _weights(w)
+
+
+@dataclass(frozen=True)
+class Cubature(NodeRule):
+    """Third-degree spherical-radial cubature (Arasaratnam & Haykin 2009, eqs. 27-28 / the CKF):
+    ``X_{±i} = m ± √n L e_i``, weights ``1/(2n)`` (the unscented points with α = 1, β = κ = 0,
+    whose centre point has weight zero)."""
+
+    name = "cubature"
+
+    def nodes(self, m, P):
+        n = m.shape[-1]
+        L, bad = sqrt_psd(P)
+        Lt = math.sqrt(n) * np.swapaxes(L, -1, -2)  # rows: √n × the columns of L
+        X = np.concatenate([m[..., None, :] + Lt, m[..., None, :] - Lt], axis=-2)
+        w = _cubature_weights(n)
+        return X, w, w, bad
+
+
+@dataclass(frozen=True)
+class GaussHermite(NodeRule):
+    """Tensor-product Gauss–Hermite rule (Ito & Xiong 2000, sec. 4): ``order`` nodes per axis,
+    ``X_p = m + L z_p`` with ``z_p`` the probabilists' Hermite nodes (``order**n`` points)."""
+
+    order: int = 3
+    name = "gauss-hermite"
+
+    def __post_init__(self):
+        if isinstance(self.order, bool) or not isinstance(self.order, (int, np.integer)) or self.order < 1:
+            raise ValueError(f"order: expected a positive integer, got {self.order!r}")
+        object.__setattr__(self, "order", int(self.order))
+
+    def nodes(self, m, P):
+        z, w = _gh_rule(m.shape[-1], self.order)
+        L, bad = sqrt_psd(P)
+        X = m[..., None, :] + np.einsum("...ij,pj->...pi", L, z)  # X_p = m + L z_p
+        return X, w, w, bad
