@@ -8,9 +8,10 @@ weighted sums over points ``X_i = m + L z_i`` (``P = L Lᵀ``)::
     ŷ = Σ w_i h(X_i),         S = Σ w_i (h_i − ŷ)(h_i − ŷ)ᵀ + R,   C = Σ w_i (X_i − m⁻)(h_i − ŷ)ᵀ
     K = C S⁻¹,  m⁺ = m⁻ + K (y − ŷ),  P⁺ = P⁻ − K S Kᵀ     (points redrawn from (m⁻, P⁻))
 
-* CKF (Arasaratnam & Haykin 2009, IEEE TAC 54(6) 1254-1269, sec. IV and eqs. 27-28): the
+* CKF (Arasaratnam & Haykin 2009, Cubature Kalman filters, IEEE TAC 54(6) 1254-1269): the
   third-degree spherical-radial rule, ``z_{±i} = ±√n e_i``, ``w_i = 1/(2n)`` (2n points);
-* GHKF (Ito & Xiong 2000, IEEE TAC 45(5) 910-927, sec. 4): the tensor-product Gauss–Hermite
+* GHKF (Ito & Xiong 2000, Gaussian filters for nonlinear filtering problems, IEEE TAC 45(5)
+  910-927): the tensor-product Gauss–Hermite
   rule with ``order`` nodes per axis (``order**n`` points, exact for polynomials of degree
   ``2·order − 1`` in each variable).
 
@@ -26,8 +27,8 @@ from .rules import Cubature, GaussHermite
 
 __all__ = ["CKF", "GHKF", "ContinuousDiscreteCKF", "ContinuousDiscreteGHKF"]
 
-_CKF_SOURCE = "Arasaratnam & Haykin 2009, Cubature Kalman filters, IEEE TAC 54(6) 1254-1269, eqs. 27-28"
-_GHKF_SOURCE = "Ito & Xiong 2000, Gaussian filters for nonlinear filtering problems, IEEE TAC 45(5), sec. 4"
+_CKF_SOURCE = "Arasaratnam & Haykin 2009, Cubature Kalman filters, IEEE TAC 54(6) 1254-1269"
+_GHKF_SOURCE = "Ito & Xiong 2000, Gaussian filters for nonlinear filtering problems, IEEE TAC 45(5) 910-927"
 
 
 class CKF(GaussianFilter):

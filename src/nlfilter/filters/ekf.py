@@ -44,7 +44,7 @@ class EKF(GaussianFilter):
     """
 
     name = "ekf"
-    source = "Jazwinski 1970, sec. 8.3 (extended Kalman filter); Joseph-form update"
+    source = "Jazwinski 1970, Stochastic Processes and Filtering Theory, ch. 8 (extended Kalman filter)"
     needs = ("f_x", "h_x")
 
     def __init__(self, model, *, start: str = "update"):
@@ -76,7 +76,7 @@ class IteratedEKF(_Iterated, EKF):
     """
 
     name = "iekf"
-    source = "Bell & Cathey 1993, IEEE TAC 38(2) 294-297, eqs. 6-8 (iterated Kalman filter update)"
+    source = "Bell & Cathey 1993, The iterated Kalman filter update as a Gauss-Newton method, IEEE TAC 38(2) 294-297"
 
     def __init__(self, model, *, iterations: int = 10, tol: float = 1e-10, start: str = "update"):
         super().__init__(model, start=start)
@@ -85,7 +85,7 @@ class IteratedEKF(_Iterated, EKF):
 
 class ContinuousDiscreteEKF(ContinuousDiscreteGaussianFilter):
     """Continuous-discrete EKF on an :class:`~nlfilter.models.SDEModel` with measurements
-    ``y_k = h(x(t_k)) + v_k`` at ``t_k = t0 + k dt`` (Jazwinski 1970, sec. 8.3, eq. 8.111)::
+    ``y_k = h(x(t_k)) + v_k`` at ``t_k = t0 + k dt`` (Jazwinski 1970, ch. 8)::
 
         dm/dt = f(m),   dP/dt = F P + P Fᵀ + G Q Gᵀ   (F = f_x(m), between measurements)
 
@@ -101,7 +101,7 @@ class ContinuousDiscreteEKF(ContinuousDiscreteGaussianFilter):
     """
 
     name = "cd-ekf"
-    source = "Jazwinski 1970, sec. 8.3 (continuous-discrete extended Kalman filter)"
+    source = "Jazwinski 1970, Stochastic Processes and Filtering Theory, ch. 8 (continuous-discrete EKF)"
     needs = ("f_x", "h_x")
 
     def __init__(self, model, dt: float, *, scheme: str = "rk4", substeps: int = 1, start: str = "update",
@@ -122,7 +122,7 @@ class ContinuousDiscreteIEKF(_Iterated, ContinuousDiscreteEKF):
     """
 
     name = "cd-iekf"
-    source = "Bell & Cathey 1993 (iterated update); Jazwinski 1970, sec. 8.3 (prediction)"
+    source = "Bell & Cathey 1993, IEEE TAC 38(2) (iterated update); Jazwinski 1970, ch. 8 (prediction)"
 
     def __init__(self, model, dt: float, *, iterations: int = 10, tol: float = 1e-10, scheme: str = "rk4",
                  substeps: int = 1, start: str = "update", t0: float = 0.0):

@@ -14,7 +14,7 @@ to the update, which then uses the Joseph form ``(I − K H) P (I − K H)ᵀ + 
 
 Continuous-discrete time (an :class:`~nlfilter.models.SDEModel` ``dx = f dt + G dβ`` measured at
 ``t_k = t0 + k dt`` by ``y_k = h(x(t_k)) + v_k``, ``v_k ~ N(0, R)``): between measurements the
-moment equations of the Gaussian closure (Särkkä 2007, eqs. 7-8; Jazwinski 1970, ch. 9)::
+moment equations of the Gaussian closure (Särkkä 2007, IEEE TAC 52(9); Jazwinski 1970, ch. 9)::
 
     dm/dt = E[f(x)],    dP/dt = Cov[x, f(x)] + Cov[f(x), x] + E[G(x) Q G(x)ᵀ]
 
@@ -60,7 +60,7 @@ class GaussianFilter(DiscreteFilter):
 
     name = "gaussian"
     family = "gaussian"
-    source = "Särkkä, Bayesian Filtering and Smoothing (2013), alg. 5.x-6.x; dynamax generalized Gaussian filter"
+    source = "Ito & Xiong 2000 (Gaussian filters); Särkkä 2013, Bayesian Filtering and Smoothing, ch. 6"
     accepts = ("discrete",)
     needs: tuple = ()
     time = "discrete"
@@ -151,7 +151,7 @@ class ContinuousDiscreteGaussianFilter(GaussianFilter):
 
 
 def iterated_update(model, state, y, t, iterations: int, tol: float) -> GaussianState:
-    """Iterated EKF update (Bell & Cathey 1993, eqs. 6-8: Gauss–Newton on the MAP problem)::
+    """Iterated EKF update (Bell & Cathey 1993, IEEE TAC 38(2): Gauss–Newton on the MAP problem)::
 
         x_0 = m⁻,   H_i = h_x(x_i),   S_i = H_i P⁻ H_iᵀ + R,   K_i = P⁻ H_iᵀ S_i⁻¹
         x_{i+1} = m⁻ + K_i (y − h(x_i) − H_i (m⁻ − x_i))

@@ -163,7 +163,7 @@ def _gh_rule(n, order):
 
 @dataclass(frozen=True)
 class Cubature(NodeRule):
-    """Third-degree spherical-radial cubature (Arasaratnam & Haykin 2009, eqs. 27-28 / the CKF):
+    """Third-degree spherical-radial cubature (Arasaratnam & Haykin 2009, the CKF's rule):
     ``X_{±i} = m ± √n L e_i``, weights ``1/(2n)`` (the unscented points with α = 1, β = κ = 0,
     whose centre point has weight zero)."""
 
@@ -180,7 +180,7 @@ class Cubature(NodeRule):
 
 @dataclass(frozen=True)
 class GaussHermite(NodeRule):
-    """Tensor-product Gauss–Hermite rule (Ito & Xiong 2000, sec. 4): ``order`` nodes per axis,
+    """Tensor-product Gauss–Hermite rule (Ito & Xiong 2000): ``order`` nodes per axis,
     ``X_p = m + L z_p`` with ``z_p`` the probabilists' Hermite nodes (``order**n`` points)."""
 
     order: int = 3

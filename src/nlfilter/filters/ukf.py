@@ -64,8 +64,8 @@ class UKF(GaussianFilter):
 
 
 class ContinuousDiscreteUKF(ContinuousDiscreteGaussianFilter):
-    """Continuous-discrete unscented Kalman filter (Särkkä 2007, IEEE TAC 52(9), eqs. 7-8 and
-    sec. IV): between measurements ``dm/dt = E[f]``, ``dP/dt = Cov[x, f] + Cov[f, x] + E[G Q Gᵀ]``
+    """Continuous-discrete unscented Kalman filter (Särkkä 2007, IEEE TAC 52(9) 1631-1641):
+    between measurements ``dm/dt = E[f]``, ``dP/dt = Cov[x, f] + Cov[f, x] + E[G Q Gᵀ]``
     with the expectations over the sigma points of ``(m, P)`` at every stage of the integrator;
     the UKF update at the measurements ``y_k = h(x(t_k)) + v_k``.
 
@@ -78,7 +78,7 @@ class ContinuousDiscreteUKF(ContinuousDiscreteGaussianFilter):
     """
 
     name = "cd-ukf"
-    source = "Särkkä 2007, On unscented Kalman filtering for state estimation of continuous-time nonlinear systems"
+    source = "Särkkä 2007, On unscented Kalman filtering for state estimation of continuous-time nonlinear systems, IEEE TAC 52(9)"
 
     def __init__(self, model, dt: float, *, alpha: float = 1.0, beta: float = 2.0, kappa: float = 0.0,
                  scheme: str = "rk4", substeps: int = 1, start: str = "update", t0: float = 0.0):
