@@ -85,17 +85,18 @@ class GaussianFilter(DiscreteFilter):
 
     def predict(self, state, k):
         md = self.model
-        mo = self.rule.moments(GaussianState(*state), md.f, self._time(k), jac=md.f_x, cross=False, noise_of=md)
-        return poison(GaussianState(mo.mean, mo.cov + mo.noise), mo.bad)  # m⁻ = E[f], P⁻ = Cov[f] + E[GQGᵀ]
+        mo = self.rule.moments(state, md.f, self._time(k), jac=md.f_x, cross=False, noise_of=md)
+        new = GaussianState(mo.mean, mo.cov + mo.noise)  # m⁻ = E[f], P⁻ = Cov[f] + E[G Q Gᵀ]
+        return new if mo.bad is None else poison(new, mo.bad)
 
     def update(self, state, y, k):
         md = self.model
-        state = GaussianState(*state)
         mo = self.rule.moments(state, md.h, self._time(k), jac=md.h_x)
         S = mo.cov + md.R
         if mo.jac is not None:  # Joseph form with the linearization
             return gaussian_update(state, y, mo.mean, S, mo.cross, H=mo.jac, R=md.R)
-        return poison(gaussian_update(state, y, mo.mean, S, mo.cross), mo.bad)
+        new = gaussian_update(state, y, mo.mean, S, mo.cross)
+        return new if mo.bad is None else poison(new, mo.bad)
 
 
 class ContinuousDiscreteGaussianFilter(GaussianFilter):

@@ -104,8 +104,8 @@ class NodeRule:
     def moments(self, state, g, t, *, jac=None, cross: bool = True, cov: bool = True, noise_of=None
                 ) -> GaussMoments:
         """As :meth:`Taylor1.moments` (``jac`` is not used)."""
-        m = state.mean
-        X, w, wc, bad = self.nodes(m, state.cov)
+        m, P = state
+        X, w, wc, bad = self.nodes(m, P)
         GX = g(X, t)
         mean = np.einsum("i,...ij->...j", w, GX)  # Σ w_i g(X_i)
         D = GX - mean[..., None, :]
