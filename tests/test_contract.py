@@ -28,8 +28,10 @@ from nlfilter.filters import (CKF, EKF, FORMS, GHKF, MQLF, PLL, QLF, UKF, Circle
                               GridFilter, KalmanBucy, KalmanFilter, LinearQuadratureFilter, OptimalLinearFilter,
                               ParticleFilter, PhaseTensorFilter, SecondOrderFilter, SecondOrderMomentFilter,
                               TensorFilter, ZeroOrderMomentFilter)
-from nlfilter.filters import (ContinuousDiscreteCKF, ContinuousDiscreteEKF, ContinuousDiscreteGHKF,
-                              ContinuousDiscreteIEKF, ContinuousDiscreteUKF, IteratedEKF)
+from nlfilter.filters import (ContinuousDiscreteCKF, ContinuousDiscreteEKF, ContinuousDiscreteGaussianFilter,
+                              ContinuousDiscreteGHKF, ContinuousDiscreteIEKF, ContinuousDiscreteUKF, GaussianFilter,
+                              IteratedEKF)
+from nlfilter.filters.rules import Taylor2
 from nlfilter.filters.bilinear import UpdatedInnovationsFilter
 from nlfilter.filters.phase import simulate_phase
 from nlfilter.moments.closures import EdgeworthClosure
@@ -145,6 +147,10 @@ CASES = [
       for name, cls in (("cd-ekf", ContinuousDiscreteEKF), ("cd-ukf", ContinuousDiscreteUKF),
                         ("cd-ckf", ContinuousDiscreteCKF), ("cd-ghkf", ContinuousDiscreteGHKF),
                         ("cd-iekf", ContinuousDiscreteIEKF))],
+    _gauss("gaussian-taylor2", lambda model=D2, **k: GaussianFilter(model, Taylor2(), **k), D2, M2, P2,
+           options=(("start", "bogus"),)),
+    _gauss("cd-gaussian-taylor2", lambda model=S2, **k: ContinuousDiscreteGaussianFilter(model, DT, Taylor2(), **k),
+           euler_discretization(S2, DT), M2, P2, options=(("scheme", "bogus"), ("start", "bogus"))),
     _gauss("kalman-bucy", lambda model=SLIN, **k: KalmanBucy(model, DT, **k), SLIN, M2, P2, dt=DT,
            options=(("scheme", "bogus"),)),
     _gauss("cekf", lambda model=S2, **k: ContinuousEKF(model, DT, **k), S2, M2, P2, dt=DT, options=(("scheme", "bogus"),)),

@@ -361,3 +361,39 @@ def test_registry_attributes(cls):
     assert cls.needs == (("f_x", "h_x") if "EKF" in cls.__name__ or "IEKF" in cls.__name__ else ())
     if cls is not UKF:  # the UKF's example is its module's
         assert ">>>" in cls.__doc__
+
+
+# -- Taylor-2: the Gaussian second-order filter of seed 004 as a rule ----------------------------------
+def test_taylor2_rule_is_the_modified_gaussian_second_order_filter(nonlinear3):
+    """State-dependent G (its fourth-moment term included): identical numbers to rounding."""
+    from nlfilter.filters import SecondOrderFilter
+    from nlfilter.filters.rules import Taylor2
+    ys = simulate(nonlinear3, 25, paths=3, rng=8, m0=M0, P0=P0).ys
+    ys[0, 4, 1] = np.nan
+    a = GaussianFilter(nonlinear3, Taylor2()).run(ys, M0, P0)
+    b = SecondOrderFilter(nonlinear3, form="modified-gaussian").run(ys, M0, P0)
+    np.testing.assert_allclose(a.means, b.means, atol=1e-12)
+    np.testing.assert_allclose(a.covs, b.covs, atol=1e-12)
+    ys = _cd_data(S2G, 15, 3, 1)
+    m0, P0_ = np.array([0.3, -0.2]), np.eye(2) * 0.2
+    a = ContinuousDiscreteGaussianFilter(S2G, DT, Taylor2(), substeps=2).run(ys, m0, P0_)
+    b = ContinuousDiscreteSecondOrderFilter(S2G, DT, form="modified-gaussian", substeps=2).run(ys, m0, P0_)
+    np.testing.assert_allclose(a.means, b.means, atol=1e-12)
+    np.testing.assert_allclose(a.covs, b.covs, atol=1e-12)
+
+
+def test_taylor2_and_gauss_hermite_are_exact_on_a_quadratic():
+    from nlfilter.filters.rules import Taylor2
+    m, P = np.array([0.4, -0.3]), np.array([[0.5, 0.2], [0.2, 0.3]])
+    B = np.array([[1.0, 0.5], [0.5, -2.0]])
+    g = lambda X, t: np.einsum("...i,ij,...j->...", X, B, X)[..., None]  # noqa: E731
+    jac = lambda X, t: (2 * X @ B)[..., None, :]  # noqa: E731
+    hess = lambda X, t: np.broadcast_to(2 * B, (*X.shape[:-1], 1, 2, 2))  # noqa: E731
+    E = m @ B @ m + np.trace(B @ P)  # E[xᵀBx]
+    V = 2 * np.trace(B @ P @ B @ P) + 4 * m @ B @ P @ B @ m
+    C = 2 * P @ B @ m
+    for mo in (Taylor2().moments(GaussianState(m, P), g, 0, jac=jac, hess=hess),
+               GaussHermite(3).moments(GaussianState(m, P), g, 0)):  # degree 4 ≤ 2·3 − 1
+        np.testing.assert_allclose(mo.mean, [E], atol=1e-13)
+        np.testing.assert_allclose(mo.cov, [[V]], atol=1e-13)
+        np.testing.assert_allclose(mo.cross[:, 0], C, atol=1e-13)

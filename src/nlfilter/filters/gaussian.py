@@ -42,7 +42,7 @@ class GaussianFilter(DiscreteFilter):
     Parameters
     ----------
     model : DiscreteModel
-    rule : a rule of :mod:`nlfilter.filters.rules` (``Taylor1()``, ``Unscented(...)``,
+    rule : a rule of :mod:`nlfilter.filters.rules` (``Taylor1()``, ``Taylor2()``, ``Unscented(...)``,
         ``Cubature()``, ``GaussHermite(order)``)
     start : ``"update"`` or ``"predict"`` (see :mod:`nlfilter.filters.base`)
 
@@ -71,27 +71,26 @@ class GaussianFilter(DiscreteFilter):
 
     def _set_rule(self, rule):
         if not callable(getattr(rule, "moments", None)):
-            raise TypeError(f"rule: expected a moment rule (Taylor1, Unscented, Cubature, GaussHermite), "
+            raise TypeError(f"rule: expected a moment rule (Taylor1, Taylor2, Unscented, Cubature, GaussHermite), "
                             f"got {type(rule).__name__}")
         check = getattr(rule, "check", None)
         if check is not None:
             check(self.model.n)
         self.rule = rule
-        need = ["f", "f_x", "h", "h_x", "G"] if rule.linearizes else ["f", "h", "G"]
-        self.model.require(*need, by=type(self).__name__)
+        self.model.require("f", "h", "G", *rule.needs(self.model), by=type(self).__name__)
 
     def _time(self, k):
         return k
 
     def predict(self, state, k):
         md = self.model
-        mo = self.rule.moments(state, md.f, self._time(k), jac=md.f_x, cross=False, noise_of=md)
+        mo = self.rule.moments(state, md.f, self._time(k), jac=md.f_x, hess=md.f_xx, cross=False, noise_of=md)
         new = GaussianState(mo.mean, mo.cov + mo.noise)  # m⁻ = E[f], P⁻ = Cov[f] + E[G Q Gᵀ]
         return new if mo.bad is None else poison(new, mo.bad)
 
     def update(self, state, y, k):
         md = self.model
-        mo = self.rule.moments(state, md.h, self._time(k), jac=md.h_x)
+        mo = self.rule.moments(state, md.h, self._time(k), jac=md.h_x, hess=md.h_xx)
         S = mo.cov + md.R
         if mo.jac is not None:  # Joseph form with the linearization
             return gaussian_update(state, y, mo.mean, S, mo.cross, H=mo.jac, R=md.R)
@@ -141,7 +140,7 @@ class ContinuousDiscreteGaussianFilter(GaussianFilter):
 
     def _rhs(self, m, P, z, s):
         md = self.model
-        mo = self.rule.moments(GaussianState(m, P), md.f, s, jac=md.f_x, cov=False, noise_of=md)
+        mo = self.rule.moments(GaussianState(m, P), md.f, s, jac=md.f_x, hess=md.f_xx, cov=False, noise_of=md)
         dP = mo.cross + np.swapaxes(mo.cross, -1, -2) + mo.noise  # Cov[x, f] + Cov[f, x] + E[G Q Gᵀ]
         dm = mo.mean if mo.bad is None else np.where(mo.bad[..., None], np.nan, mo.mean)  # poisoned paths
         return dm, dP

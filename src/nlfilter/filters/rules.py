@@ -19,6 +19,8 @@ rule                   approximation
 =====================  ===========================================================================
 :class:`Taylor1`       ``g(x) ≈ g(m) + J (x − m)``, ``J = g_x(m)``: E[g] = g(m), Cov[x, g] = P Jᵀ,
                        Cov[g] = J P Jᵀ (the EKF; exact on linear g)
+:class:`Taylor2`       second-order expansion with Gaussian fourth moments (the Gaussian
+                       second-order filter; exact on quadratic g)
 :class:`Unscented`     scaled sigma points of van der Merwe (2n + 1 points), ``(alpha, beta, kappa)``
 :class:`Cubature`      the third-degree spherical-radial rule of Arasaratnam & Haykin (2009):
                        2n points ``m ± √n L e_i`` (``P = L Lᵀ``), equal weights ``1/(2n)``
@@ -57,7 +59,7 @@ from .. import _validate as V
 from ..moments.quadrature import gauss_hermite_rule
 from .base import mm, sqrt_psd
 
-__all__ = ["GaussMoments", "Taylor1", "Unscented", "Cubature", "GaussHermite", "NodeRule"]
+__all__ = ["GaussMoments", "Taylor1", "Taylor2", "Unscented", "Cubature", "GaussHermite", "NodeRule"]
 
 
 class GaussMoments(NamedTuple):
@@ -77,12 +79,15 @@ class Taylor1:
     with ``J = g_x(m)``; ``E[G Q Gᵀ] = G(m) Q G(m)ᵀ``. Exact when g is affine (and G constant)."""
 
     name = "taylor1"
-    linearizes = True
 
-    def moments(self, state, g, t, *, jac, cross: bool = True, cov: bool = True, noise_of=None
+    def needs(self, model):
+        """The model's derivatives this rule evaluates."""
+        return ("f_x", "h_x")
+
+    def moments(self, state, g, t, *, jac, hess=None, cross: bool = True, cov: bool = True, noise_of=None
                 ) -> GaussMoments:
-        """``cross``/``cov``: whether Cov[x, g] / Cov[g] are wanted (else None); ``noise_of``: a
-        model whose ``E[G Q Gᵀ]`` to add to the result."""
+        """``jac``: the Jacobian ``g_x(X, t) -> (..., p, n)``; ``cross``/``cov``: whether
+        Cov[x, g] / Cov[g] are wanted (else None); ``noise_of``: a model whose ``E[G Q Gᵀ]`` to add."""
         m, P = state
         J = jac(m, t)
         Q = None if noise_of is None else noise_of.GQGT(m, t)  # G(m) Q G(m)ᵀ
@@ -93,17 +98,52 @@ class Taylor1:
         return GaussMoments(g(m, t), None, S, J, None, Q)
 
 
+@dataclass(frozen=True)
+class Taylor2:
+    """Gaussian second-order rule: ``g`` expanded to second order about ``m``, moments of a Gaussian::
+
+        E[g] = g(m) + ½ (P g_xx),   Cov[x, g] = P Jᵀ,   Cov[g]_ij = (J P Jᵀ)_ij + ½ tr(g_xx⁽ⁱ⁾ P g_xx⁽ʲ⁾ P)
+
+    (``(P g_xx)_i = Σ_jl P_jl ∂²g_i/∂x_j∂x_l``; third moments vanish, fourth are Gaussian) and
+    ``E[G Q Gᵀ]`` to second order with its Gaussian fourth-moment term (seed 004 eqs. 13-14). Exact
+    for quadratic g. Over the skeleton it is the Gaussian second-order filter without the C tensor,
+    ``SecondOrderFilter(form="modified-gaussian")`` (Jazwinski 1970, ch. 9; seed 004).
+    ``hess``: the Hessian ``g_xx(X, t) -> (..., p, n, n)``."""
+
+    name = "taylor2"
+
+    def needs(self, model):
+        return ("f_x", "f_xx", "h_x", "h_xx") + (() if model.G_constant else ("G_x", "G_xx"))
+
+    def moments(self, state, g, t, *, jac, hess, cross: bool = True, cov: bool = True, noise_of=None
+                ) -> GaussMoments:
+        from .second_order import gaussian_quartic, hessian_trace, noise_covariance
+        m, P = state
+        J, A = jac(m, t), hess(m, t)
+        mean = g(m, t) + 0.5 * hessian_trace(P, A)  # 004 eqs. 18, 20
+        C = P @ np.swapaxes(J, -1, -2) if (cross or cov) else None  # Cov[x, g] = P Jᵀ
+        S = J @ C + gaussian_quartic(P, A) if cov else None
+        Q = None
+        if noise_of is not None:
+            md = noise_of
+            Q = noise_covariance(P, md.Q, md.G(m, t), None if md.G_constant else md.G_x(m, t),
+                                 None if md.G_constant else md.G_xx(m, t), gaussian=True)
+        return GaussMoments(mean, C if cross else None, S, None, None, Q)
+
+
 class NodeRule:
     """Base of the node rules: subclasses give ``nodes(m, P) -> (X (..., N, n), w (N,), wc (N,), bad)``."""
 
-    linearizes = False
 
     def nodes(self, m, P):  # pragma: no cover
         raise NotImplementedError
 
-    def moments(self, state, g, t, *, jac=None, cross: bool = True, cov: bool = True, noise_of=None
-                ) -> GaussMoments:
-        """As :meth:`Taylor1.moments` (``jac`` is not used)."""
+    def needs(self, model):
+        return ()
+
+    def moments(self, state, g, t, *, jac=None, hess=None, cross: bool = True, cov: bool = True,
+                noise_of=None) -> GaussMoments:
+        """As :meth:`Taylor1.moments` (``jac``, ``hess`` are not used)."""
         m, P = state
         X, w, wc, bad = self.nodes(m, P)
         GX = g(X, t)
