@@ -327,6 +327,8 @@ def test_bad_options_name_the_argument(nonlinear3):
         GHKF(nonlinear3, order=0)
     with pytest.raises(ValueError, match="^order"):
         GaussHermite(2.5)
+    with pytest.raises(ValueError, match="^order"):
+        GHKF(nonlinear3, order=50)  # 125000 nodes
     with pytest.raises(ValueError, match="^alpha"):
         Unscented(alpha=-1.0)
     with pytest.raises(ValueError, match="^kappa"):

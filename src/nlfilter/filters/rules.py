@@ -11,8 +11,8 @@ A rule is a small frozen object. Given a batch of Gaussian beliefs ``x ~ N(m, P)
     noise = E[G(x) Q G(x)ᵀ] (..., n, n) of ``model`` when asked for (``noise_of=model``), else None
 
 (the noise term uses the same nodes as the moments of ``g``). The filters of
-:mod:`nlfilter.filters.gaussian` are one predict/update skeleton over a rule, as in dynamax's generalized Gaussian filter (its
-``EKFIntegrals``, ``UKFIntegrals``, ``GHKFIntegrals``):
+:mod:`nlfilter.filters.gaussian` are one predict/update skeleton over a rule, as in dynamax's
+generalized Gaussian filter (its ``EKFIntegrals``, ``UKFIntegrals``, ``GHKFIntegrals``):
 
 =====================  ===========================================================================
 rule                   approximation
@@ -58,8 +58,13 @@ import numpy as np
 from .. import _validate as V
 from ..moments.quadrature import gauss_hermite_rule
 from .base import mm, sqrt_psd
+from .second_order import gaussian_quartic, hessian_trace, noise_covariance
 
-__all__ = ["GaussMoments", "Taylor1", "Taylor2", "Unscented", "Cubature", "GaussHermite", "NodeRule"]
+__all__ = ["GaussMoments", "Taylor1", "Taylor2", "Unscented", "Cubature", "GaussHermite", "NodeRule",
+           "sigma_points"]
+
+
+MAX_NODES = 100_000  # Gauss–Hermite tensor grids larger than this are refused (order**n nodes)
 
 
 class GaussMoments(NamedTuple):
@@ -102,7 +107,8 @@ class Taylor1:
 class Taylor2:
     """Gaussian second-order rule: ``g`` expanded to second order about ``m``, moments of a Gaussian::
 
-        E[g] = g(m) + ½ (P g_xx),   Cov[x, g] = P Jᵀ,   Cov[g]_ij = (J P Jᵀ)_ij + ½ tr(g_xx⁽ⁱ⁾ P g_xx⁽ʲ⁾ P)
+        E[g] = g(m) + ½ (P g_xx),   Cov[x, g] = P Jᵀ,
+        Cov[g]_ij = (J P Jᵀ)_ij + ½ tr(g_xx⁽ⁱ⁾ P g_xx⁽ʲ⁾ P)
 
     (``(P g_xx)_i = Σ_jl P_jl ∂²g_i/∂x_j∂x_l``; third moments vanish, fourth are Gaussian) and
     ``E[G Q Gᵀ]`` to second order with its Gaussian fourth-moment term (seed 004 eqs. 13-14). Exact
@@ -117,7 +123,6 @@ class Taylor2:
 
     def moments(self, state, g, t, *, jac, hess, cross: bool = True, cov: bool = True, noise_of=None
                 ) -> GaussMoments:
-        from .second_order import gaussian_quartic, hessian_trace, noise_covariance
         m, P = state
         J, A = jac(m, t), hess(m, t)
         mean = g(m, t) + 0.5 * hessian_trace(P, A)  # 004 eqs. 18, 20
@@ -133,7 +138,6 @@ class Taylor2:
 
 class NodeRule:
     """Base of the node rules: subclasses give ``nodes(m, P) -> (X (..., N, n), w (N,), wc (N,), bad)``."""
-
 
     def nodes(self, m, P):  # pragma: no cover
         raise NotImplementedError
@@ -158,6 +162,24 @@ class NodeRule:
         return GaussMoments(mean, C, S, None, bad if bad.any() else None, Q)
 
 
+def sigma_points(m, P, alpha, beta, kappa):
+    """Sigma points ``(..., 2n+1, n)``, weights ``(Wm, Wc)`` of shape ``(2n+1,)``, and the paths
+    ``(...)`` whose covariance is not PSD (their points are drawn from the identity and must be
+    discarded: the filter poisons them so that ``run`` raises or marks them). The square root is the
+    Cholesky factor, or the eigen root where P is only semi-definite (:func:`sqrt_psd`)."""
+    n = m.shape[-1]
+    lam = alpha**2 * (n + kappa) - n
+    L, bad = sqrt_psd((n + lam) * P)
+    Lt = np.swapaxes(L, -1, -2)  # rows = columns of L
+    X = np.concatenate([m[..., None, :], m[..., None, :] + Lt, m[..., None, :] - Lt], axis=-2)
+    Wm = np.full(2 * n + 1, 0.5 / (n + lam))
+    Wc = Wm.copy()
+    Wm[0] = lam / (n + lam)
+    Wc[0] = lam / (n + lam) + 1 - alpha**2 + beta
+    return X, Wm, Wc, bad
+
+
+
 @dataclass(frozen=True)
 class Unscented(NodeRule):
     """Scaled unscented transform (van der Merwe), nodes of :func:`~nlfilter.filters.ukf.sigma_points`."""
@@ -179,7 +201,6 @@ class Unscented(NodeRule):
             raise ValueError(f"kappa: expected n + kappa > 0 (n = {n}), got {self.kappa!r}")
 
     def nodes(self, m, P):
-        from .ukf import sigma_points
         return sigma_points(m, P, self.alpha, self.beta, self.kappa)
 
 
@@ -230,6 +251,11 @@ class GaussHermite(NodeRule):
         if isinstance(self.order, bool) or not isinstance(self.order, (int, np.integer)) or self.order < 1:
             raise ValueError(f"order: expected a positive integer, got {self.order!r}")
         object.__setattr__(self, "order", int(self.order))
+
+    def check(self, n):
+        if self.order ** n > MAX_NODES:
+            raise ValueError(f"order: {self.order}**{n} = {self.order ** n} nodes per expectation exceed "
+                             f"{MAX_NODES}; expected a lower order, or the Cubature rule for n = {n}")
 
     def nodes(self, m, P):
         z, w = _gh_rule(m.shape[-1], self.order)

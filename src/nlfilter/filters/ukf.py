@@ -19,26 +19,9 @@ from __future__ import annotations
 import numpy as np
 
 from .. import _validate as V
-from .base import DiscreteFilter, GaussianState, sqrt_psd
+from .base import DiscreteFilter, GaussianState  # noqa: F401  (GaussianState: the doctests)
 from .gaussian import ContinuousDiscreteGaussianFilter, GaussianFilter
-from .rules import Unscented
-
-
-def sigma_points(m, P, alpha, beta, kappa):
-    """Sigma points ``(..., 2n+1, n)``, weights ``(Wm, Wc)`` of shape ``(2n+1,)``, and the paths
-    ``(...)`` whose covariance is not PSD (their points are drawn from the identity and must be
-    discarded: the UKF poisons them so that ``run`` raises or marks them). The square root is the
-    Cholesky factor, or the eigen root where P is only semi-definite (:func:`sqrt_psd`)."""
-    n = m.shape[-1]
-    lam = alpha**2 * (n + kappa) - n
-    L, bad = sqrt_psd((n + lam) * P)
-    Lt = np.swapaxes(L, -1, -2)  # rows = columns of L
-    X = np.concatenate([m[..., None, :], m[..., None, :] + Lt, m[..., None, :] - Lt], axis=-2)
-    Wm = np.full(2 * n + 1, 0.5 / (n + lam))
-    Wc = Wm.copy()
-    Wm[0] = lam / (n + lam)
-    Wc[0] = lam / (n + lam) + 1 - alpha**2 + beta
-    return X, Wm, Wc, bad
+from .rules import Unscented, sigma_points
 
 
 class UKF(GaussianFilter):
@@ -78,7 +61,8 @@ class ContinuousDiscreteUKF(ContinuousDiscreteGaussianFilter):
     """
 
     name = "cd-ukf"
-    source = "Särkkä 2007, On unscented Kalman filtering for state estimation of continuous-time nonlinear systems, IEEE TAC 52(9)"
+    source = ("Särkkä 2007, On unscented Kalman filtering for state estimation of continuous-time nonlinear "
+              "systems, IEEE TAC 52(9)")
 
     def __init__(self, model, dt: float, *, alpha: float = 1.0, beta: float = 2.0, kappa: float = 0.0,
                  scheme: str = "rk4", substeps: int = 1, start: str = "update", t0: float = 0.0):
