@@ -21,13 +21,17 @@ from hypothesis import strategies as hst
 from nlfilter import DiscreteModel, SDEModel
 from nlfilter.bilinear import BilinearModel, phase_model
 from nlfilter.errors import DivergenceError
-from nlfilter.filters import (EKF, FORMS, MQLF, PLL, QLF, UKF, CircleGridFilter, ConditionalMomentFilter,
+from nlfilter.filters import (CKF, EKF, FORMS, GHKF, MQLF, PLL, QLF, UKF, CircleGridFilter, ConditionalMomentFilter,
                               ContinuousDiscreteSecondOrderFilter, ContinuousEKF, ContinuousSecondOrderFilter,
                               DiscreteConditionalMomentFilter, DiscreteOptimalLinearFilter,
                               DiscreteQuasilinearFilter, FirstOrderMomentFilter, GaussianState,
                               GridFilter, KalmanBucy, KalmanFilter, LinearQuadratureFilter, OptimalLinearFilter,
                               ParticleFilter, PhaseTensorFilter, SecondOrderFilter, SecondOrderMomentFilter,
                               TensorFilter, ZeroOrderMomentFilter)
+from nlfilter.filters import (ContinuousDiscreteCKF, ContinuousDiscreteEKF, ContinuousDiscreteGaussianFilter,
+                              ContinuousDiscreteGHKF, ContinuousDiscreteIEKF, ContinuousDiscreteUKF, GaussianFilter,
+                              IteratedEKF)
+from nlfilter.filters.rules import Taylor2
 from nlfilter.filters.bilinear import UpdatedInnovationsFilter
 from nlfilter.moments.closures import EdgeworthClosure
 from nlfilter.moments.densities import uniform_moments
@@ -144,6 +148,20 @@ CASES = [
              options=(("form", "bogus"), ("start", "bogus"))) for form in FORMS],
     _gauss("cd-sof", lambda model=S2, **k: ContinuousDiscreteSecondOrderFilter(model, DT, **k), euler_discretization(S2, DT),
            M2, P2, options=(("form", "bogus"), ("scheme", "bogus"))),
+    _gauss("ckf", lambda model=D2, **k: CKF(model, **k), D2, M2, P2, options=(("start", "bogus"),)),
+    _gauss("ghkf", lambda model=D2, **k: GHKF(model, **k), D2, M2, P2,
+           options=(("order", "bogus"), ("order", 0), ("start", "bogus"))),
+    _gauss("iekf", lambda model=D2, **k: IteratedEKF(model, **k), D2, M2, P2,
+           options=(("iterations", 0), ("tol", -1.0), ("start", "bogus"))),
+    *[_gauss(name, lambda cls=cls, model=S2, **k: cls(model, DT, **k), euler_discretization(S2, DT), M2, P2,
+             options=(("scheme", "bogus"), ("start", "bogus")))
+      for name, cls in (("cd-ekf", ContinuousDiscreteEKF), ("cd-ukf", ContinuousDiscreteUKF),
+                        ("cd-ckf", ContinuousDiscreteCKF), ("cd-ghkf", ContinuousDiscreteGHKF),
+                        ("cd-iekf", ContinuousDiscreteIEKF))],
+    _gauss("gaussian-taylor2", lambda model=D2, **k: GaussianFilter(model, Taylor2(), **k), D2, M2, P2,
+           options=(("start", "bogus"),)),
+    _gauss("cd-gaussian-taylor2", lambda model=S2, **k: ContinuousDiscreteGaussianFilter(model, DT, Taylor2(), **k),
+           euler_discretization(S2, DT), M2, P2, options=(("scheme", "bogus"), ("start", "bogus"))),
     _gauss("kalman-bucy", lambda model=SLIN, **k: KalmanBucy(model, DT, **k), SLIN, M2, P2, dt=DT,
            options=(("scheme", "bogus"),)),
     _gauss("cekf", lambda model=S2, **k: ContinuousEKF(model, DT, **k), S2, M2, P2, dt=DT, options=(("scheme", "bogus"),)),

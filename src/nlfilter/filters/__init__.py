@@ -3,7 +3,11 @@
 ========================  ==================================================================
 module                    filters
 ========================  ==================================================================
-kalman, ekf, ukf          KalmanFilter, KalmanBucy, EKF, ContinuousEKF, UKF
+kalman, ekf, ukf          KalmanFilter, KalmanBucy, EKF, IteratedEKF, ContinuousEKF, UKF,
+                          ContinuousDiscreteEKF, ContinuousDiscreteIEKF, ContinuousDiscreteUKF
+cubature                  CKF, GHKF, ContinuousDiscreteCKF, ContinuousDiscreteGHKF
+gaussian, rules           GaussianFilter, ContinuousDiscreteGaussianFilter over a moment rule
+                          (Taylor1, Unscented, Cubature, GaussHermite)
 second_order              SecondOrderFilter, ContinuousSecondOrderFilter,
                           ContinuousDiscreteSecondOrderFilter (seed 004; ``form=`` FORMS)
 quasilinear               QLF, MQLF, QuasilinearFilter, DiscreteQuasilinearFilter (seed 003)
@@ -18,7 +22,9 @@ reference                 GridFilter, ParticleFilter: the near-optimal yardstick
 from .base import ContinuousFilter, DiscreteFilter, Estimates, GaussianState
 from .bilinear import (DiscreteOptimalLinearFilter, OptimalLinearFilter, PseudoObservablesFilter, TensorFilter,
                        UpdatedInnovationsFilter)
-from .ekf import EKF, ContinuousEKF
+from .cubature import CKF, GHKF, ContinuousDiscreteCKF, ContinuousDiscreteGHKF
+from .ekf import EKF, ContinuousDiscreteEKF, ContinuousDiscreteIEKF, ContinuousEKF, IteratedEKF
+from .gaussian import ContinuousDiscreteGaussianFilter, GaussianFilter
 from .kalman import KalmanBucy, KalmanFilter
 from .moment_bayes import FirstOrderMomentFilter, SecondOrderMomentFilter, ZeroOrderMomentFilter
 from .moment_filters import ConditionalMomentFilter, DiscreteConditionalMomentFilter
@@ -27,14 +33,18 @@ from .quasilinear import MQLF, QLF, DiscreteQuasilinearFilter, QuasilinearFilter
 from .reference import GridFilter, ParticleFilter
 from .second_order import (FORMS, ContinuousDiscreteSecondOrderFilter, ContinuousSecondOrderFilter,
                            SecondOrderFilter)
-from .ukf import UKF
+from .ukf import UKF, ContinuousDiscreteUKF
 
 from . import registry as _registry
 
 #: Every public filter by name (a plain dict; see :mod:`nlfilter.filters.registry`).
 REGISTRY = {
     "kf": KalmanFilter, "kalman-bucy": KalmanBucy,
-    "ekf": EKF, "continuous-ekf": ContinuousEKF, "ukf": UKF,
+    "ekf": EKF, "iekf": IteratedEKF, "ukf": UKF, "ckf": CKF, "ghkf": GHKF,
+    "continuous-ekf": ContinuousEKF,
+    "continuous-discrete-ekf": ContinuousDiscreteEKF, "continuous-discrete-iekf": ContinuousDiscreteIEKF,
+    "continuous-discrete-ukf": ContinuousDiscreteUKF, "continuous-discrete-ckf": ContinuousDiscreteCKF,
+    "continuous-discrete-ghkf": ContinuousDiscreteGHKF,
     "second-order": SecondOrderFilter, "continuous-second-order": ContinuousSecondOrderFilter,
     "continuous-discrete-second-order": ContinuousDiscreteSecondOrderFilter,
     "conditional-moment": ConditionalMomentFilter, "discrete-conditional-moment": DiscreteConditionalMomentFilter,
@@ -61,4 +71,6 @@ __all__ = ["REGISTRY", "get", "GaussianState", "Estimates", "DiscreteFilter", "C
            "OptimalLinearFilter", "DiscreteOptimalLinearFilter", "TensorFilter", "UpdatedInnovationsFilter",
            "PseudoObservablesFilter", "PLL",
            "LinearQuadratureFilter", "PhaseTensorFilter", "CircleGridFilter", "ZeroOrderMomentFilter",
-           "FirstOrderMomentFilter", "SecondOrderMomentFilter", "GridFilter", "ParticleFilter"]
+           "FirstOrderMomentFilter", "SecondOrderMomentFilter", "GridFilter", "ParticleFilter",
+           "CKF", "GHKF", "IteratedEKF", "ContinuousDiscreteEKF", "ContinuousDiscreteIEKF", "ContinuousDiscreteUKF",
+           "ContinuousDiscreteCKF", "ContinuousDiscreteGHKF", "GaussianFilter", "ContinuousDiscreteGaussianFilter"]
