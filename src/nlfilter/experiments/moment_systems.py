@@ -26,7 +26,9 @@ from tqdm import tqdm
 
 from . import experiment
 from ..filters.kalman import KalmanFilter
-from ..filters.moment_bayes import BoundedGridFilter1D, FirstOrderMomentFilter
+from ..bounded import BoundedNoiseModel
+from ..filters.moment_bayes import FirstOrderMomentFilter
+from ..filters.reference_bounded import BoundedGridFilter1D
 from ..models import DiscreteModel
 from ..results import Result
 
@@ -128,13 +130,14 @@ def run_first_order(params, *, quick, runs, seed, progress):
         est = {"optimal": BoundedGridFilter1D(h, law, wb, G=G).run(zs)[..., 0],
                "kalman": kalman_first_order(zs, h, law)}
         fb = {}
+        model = BoundedNoiseModel.first_order(h, wb)
         for N in tqdm(Ns, disable=not progress, desc=law_name):
-            r = FirstOrderMomentFilter(h, wb, N, w_moments=raw_moments(law, N)).run(zs)
-            est[f"moment{N}"] = r.estimates[..., 0]
-            fb[f"moment{N}"] = r.fallback.mean()
-            r = FirstOrderMomentFilter(h, wb, N, adaptive=True, n0=params["n0"], window=params["window"]).run(zs)
-            est[f"adaptive{N}"] = r.estimates[..., 0]
-            fb[f"adaptive{N}"] = r.fallback.mean()
+            r = FirstOrderMomentFilter(model, N, w_moments=raw_moments(law, N)).run(zs[..., None])
+            est[f"moment{N}"] = r.means[..., 0]
+            fb[f"moment{N}"] = r.extras["fallback"].mean()
+            r = FirstOrderMomentFilter(model, N, adaptive=True, n0=params["n0"], window=params["window"]).run(zs[..., None])
+            est[f"adaptive{N}"] = r.means[..., 0]
+            fb[f"adaptive{N}"] = r.extras["fallback"].mean()
         per_path = _mse_rows(res, {k: v - xs for k, v in est.items()}, skip, law_name)
         _claims(res, per_path, law_name, Ns, "first-order")
         res.notes.append(f"first-order law={law_name}: uniform fallback used in "
@@ -190,7 +193,8 @@ def kalman_second_order(zs, A, b, c, law, noise_halfwidth=1.0):
                     "laws": list(LAWS), "T": 400, "skip": 100, "n0": 100.0, "window": 20,
                     "particles": 4000, "bounding": "polygon", "directions": 16})
 def run_second_order(params, *, quick, runs, seed, progress):
-    from ..filters.moment_bayes import SecondOrderMomentFilter, bootstrap_particle_means
+    from ..filters.moment_bayes import SecondOrderMomentFilter
+    from ..filters.reference_bounded import bootstrap_particle_means
     A = np.diag([float(params["h1"]), float(params["h2"])])
     b = np.array([float(params["d1"]), float(params["d2"])])
     c = b.copy()  # 000 eqs. 2.6-2.7 as the OCR reads them: the same d1, d2 in the input and the output
@@ -218,12 +222,13 @@ def run_second_order(params, *, quick, runs, seed, progress):
                                                    x0_sampler, particles=P),
                "kalman": kalman_second_order(zs, A, b, c, law)}
         fb = {}
+        model = BoundedNoiseModel(A, b, c, wb)
         for N in tqdm(Ns, disable=not progress, desc=law_name):
-            r = SecondOrderMomentFilter(A, b, c, wb, N, w_moments=raw_moments(law, N), **bkw).run(zs)
-            est[f"moment{N}"], fb[f"moment{N}"] = r.estimates, r.fallback.mean()
-            r = SecondOrderMomentFilter(A, b, c, wb, N, adaptive=True, n0=params["n0"],
-                                        window=params["window"], **bkw).run(zs)
-            est[f"adaptive{N}"], fb[f"adaptive{N}"] = r.estimates, r.fallback.mean()
+            r = SecondOrderMomentFilter(model, N, w_moments=raw_moments(law, N), **bkw).run(zs[..., None])
+            est[f"moment{N}"], fb[f"moment{N}"] = r.means, r.extras["fallback"].mean()
+            r = SecondOrderMomentFilter(model, N, adaptive=True, n0=params["n0"],
+                                        window=params["window"], **bkw).run(zs[..., None])
+            est[f"adaptive{N}"], fb[f"adaptive{N}"] = r.means, r.extras["fallback"].mean()
         errs = {k: np.sqrt(np.sum((v - xs) ** 2, axis=-1)) for k, v in est.items()}  # |x - x_hat|
         per_path = _mse_rows(res, errs, skip, law_name)
         _claims(res, per_path, law_name, Ns, "second-order")

@@ -210,9 +210,9 @@ def adaptive_curves(J, Ns, *, n_max, runs, n0, window, eps, invalid_moments, rng
                                   invalid_moments=invalid_moments)
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", MomentFilterWarning)
-            r = f.run(z)
-        out[f"moment{N}"] = np.cumsum((x - r.estimates) ** 2, axis=-1) / k
-        fb_rate[f"moment{N}"] = (float(np.mean(r.fallback)), float(np.mean(r.invalid)))
+            r = f.run(z[..., None])
+        out[f"moment{N}"] = np.cumsum((x - r.means[..., 0]) ** 2, axis=-1) / k
+        fb_rate[f"moment{N}"] = (float(np.mean(r.extras["fallback"])), float(np.mean(r.extras["invalid"])))
     # linear filter with the exact second moment of x (000: "second moment known exactly")
     out["linear"] = np.cumsum((x - linear_gain(J) * z) ** 2, axis=-1) / k
     out["optimal"] = np.cumsum((x - power_density_estimate(z, J)) ** 2, axis=-1) / k
@@ -358,9 +358,9 @@ def run_robustness(params, *, quick, runs, seed, progress):
         exv = float(np.mean(x * v))  # E[xv] (the linear filter is given the true second moments)
         est["linear"] = (m2x + exv) / (m2x + 2 * exv + 1 / 3) * z
         for N in tqdm(Ns, disable=not progress, desc=f"r={r}"):
-            est[f"moment{N}"] = ZeroOrderMomentFilter(N, adaptive=True, invalid_moments="ignore", **kw).run(z).estimates
+            est[f"moment{N}"] = ZeroOrderMomentFilter(N, adaptive=True, invalid_moments="ignore", **kw).run(z[..., None]).means[..., 0]
             est[f"moment{N}-known"] = ZeroOrderMomentFilter(N, moments=power_density_moments(N, J),
-                                                            invalid_moments="ignore").run(z).estimates
+                                                            invalid_moments="ignore").run(z[..., None]).means[..., 0]
         errs = {name: np.cumsum((x - e) ** 2, axis=-1)[:, -1] / n for name, e in est.items()}
         for name, e in errs.items():
             res.add(name, f"mse_n{n}", e.mean(), stderr=e.std(ddof=1) / np.sqrt(R), case="correlated", r=r)
@@ -379,12 +379,12 @@ def run_robustness(params, *, quick, runs, seed, progress):
         z = x + (1 + beta * x) * rng.uniform(-1.0, 1.0, (R, n))
         # exact optimum: the same estimator with the true density (a degree-J polynomial, N = J)
         est = {"optimal": ScaledNoiseZeroOrderFilter(max(J, 1), beta, moments=power_density_moments(max(J, 1), J),
-                                                     nodes=96).run(z).estimates}
+                                                     nodes=96).run(z[..., None]).means[..., 0]}
         est["linear"] = m2x / (m2x + (1 + beta ** 2 * m2x) / 3) * z
         for N in tqdm(Ns, disable=not progress, desc=f"beta={beta}"):
-            est[f"moment{N}"] = ScaledNoiseZeroOrderFilter(N, beta, adaptive=True, **kw).run(z).estimates
+            est[f"moment{N}"] = ScaledNoiseZeroOrderFilter(N, beta, adaptive=True, **kw).run(z[..., None]).means[..., 0]
             est[f"moment{N}-additive"] = ZeroOrderMomentFilter(N, adaptive=True, outside="clip",
-                                                               invalid_moments="ignore", **kw).run(z).estimates
+                                                               invalid_moments="ignore", **kw).run(z[..., None]).means[..., 0]
         errs = {name: np.mean((x - e) ** 2, axis=-1) for name, e in est.items()}
         for name, e in errs.items():
             res.add(name, f"mse_n{n}", e.mean(), stderr=e.std(ddof=1) / np.sqrt(R), case="scaled-noise", beta=beta)
