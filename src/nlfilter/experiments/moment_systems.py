@@ -127,7 +127,8 @@ def run_first_order(params, *, quick, runs, seed, progress):
         law = input_law(law_name, wb)
         rng = np.random.default_rng(child)
         xs, zs = simulate_first_order(rng, law, h, R, T)
-        est = {"optimal": BoundedGridFilter1D(h, law, wb, G=G).run(zs)[..., 0],
+        grid = BoundedGridFilter1D(BoundedNoiseModel.first_order(h, wb, w_law=law), G=G)
+        est = {"optimal": grid.run(zs[..., None]).means[..., 0],
                "kalman": kalman_first_order(zs, h, law)}
         fb = {}
         model = BoundedNoiseModel.first_order(h, wb)
@@ -135,7 +136,8 @@ def run_first_order(params, *, quick, runs, seed, progress):
             r = FirstOrderMomentFilter(model, N, w_moments=raw_moments(law, N)).run(zs[..., None])
             est[f"moment{N}"] = r.means[..., 0]
             fb[f"moment{N}"] = r.extras["fallback"].mean()
-            r = FirstOrderMomentFilter(model, N, adaptive=True, n0=params["n0"], window=params["window"]).run(zs[..., None])
+            r = FirstOrderMomentFilter(model, N, adaptive=True, n0=params["n0"],
+                                       window=params["window"]).run(zs[..., None])
             est[f"adaptive{N}"] = r.means[..., 0]
             fb[f"adaptive{N}"] = r.extras["fallback"].mean()
         per_path = _mse_rows(res, {k: v - xs for k, v in est.items()}, skip, law_name)
@@ -194,7 +196,7 @@ def kalman_second_order(zs, A, b, c, law, noise_halfwidth=1.0):
                     "particles": 4000, "bounding": "polygon", "directions": 16})
 def run_second_order(params, *, quick, runs, seed, progress):
     from ..filters.moment_bayes import SecondOrderMomentFilter
-    from ..filters.reference_bounded import bootstrap_particle_means
+    from ..filters.reference_bounded import BoundedParticleFilter
     A = np.diag([float(params["h1"]), float(params["h2"])])
     b = np.array([float(params["d1"]), float(params["d2"])])
     c = b.copy()  # 000 eqs. 2.6-2.7 as the OCR reads them: the same d1, d2 in the input and the output
@@ -218,8 +220,8 @@ def run_second_order(params, *, quick, runs, seed, progress):
                 x = x @ A.T + law.rvs(size=shape, random_state=r)[..., None] * b
             return x
 
-        est = {"optimal": bootstrap_particle_means(rng, zs, A, b, c, lambda r, s, law=law: law.rvs(size=s, random_state=r),
-                                                   x0_sampler, particles=P),
+        est = {"optimal": BoundedParticleFilter(BoundedNoiseModel(A, b, c, wb, w_law=law), particles=P).run(
+                   zs[..., None], initial=x0_sampler, rng=rng).means,
                "kalman": kalman_second_order(zs, A, b, c, law)}
         fb = {}
         model = BoundedNoiseModel(A, b, c, wb)

@@ -11,6 +11,7 @@ moment_filters            ConditionalMomentFilter, DiscreteConditionalMomentFilt
 bilinear                  OptimalLinearFilter, DiscreteOptimalLinearFilter, TensorFilter ... (001)
 phase                     PLL, LinearQuadratureFilter, PhaseTensorFilter, CircleGridFilter (001)
 moment_bayes              ZeroOrderMomentFilter, FirstOrderMomentFilter, SecondOrderMomentFilter (000)
+reference_bounded         BoundedGridFilter1D, BoundedParticleFilter: the yardsticks of moment_bayes
 reference                 GridFilter, ParticleFilter: the near-optimal yardsticks
 ========================  ==================================================================
 """
