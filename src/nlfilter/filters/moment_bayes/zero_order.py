@@ -35,14 +35,17 @@ from ._common import MomentFilter, MomentFilterWarning, check_N, keep_missing, o
 class ZeroOrderBelief(NamedTuple):
     """Per path: ``mean (B, 1)`` the estimate of x_k; ``fallback``/``invalid (B,)`` flags;
     ``moments (B, N)`` the moments of x in use (adaptive; per-path known ones; else ``(B, 0)``),
-    ``valid (B,)`` whether they are a moment sequence; the learner's power sums ``acc (B, N)``
-    (completed windows) and ``part (B, N)`` (current window), ``count (B,)`` samples learnt."""
+    ``valid (B,)`` whether they are a moment sequence, ``coef (B, N+1)`` the Legendre coefficients
+    of their polynomial prior (``(B, 0)`` with the known moments); the learner's power sums
+    ``acc (B, N)`` (completed windows) and ``part (B, N)`` (current window), ``count (B,)``
+    samples learnt."""
 
     mean: np.ndarray
     fallback: np.ndarray
     invalid: np.ndarray
     moments: np.ndarray
     valid: np.ndarray
+    coef: np.ndarray
     acc: np.ndarray
     part: np.ndarray
     count: np.ndarray
@@ -226,7 +229,8 @@ class ZeroOrderMomentFilter(MomentFilter):
                                 (B,)).copy()
         zero = np.zeros((B, self.N))
         mean = self._prior_mean(m, B)
-        return ZeroOrderBelief(mean, np.zeros(B, bool), ~valid, m, valid, zero, zero.copy(), np.zeros(B, int))
+        coef = self.density(m).coef.copy() if m.shape[1] else np.zeros((B, 0))
+        return ZeroOrderBelief(mean, np.zeros(B, bool), ~valid, m, valid, coef, zero, zero.copy(), np.zeros(B, int))
 
     def _prior_mean(self, m, B):
         mom = m if m.shape[1] else np.broadcast_to(self.moments, (B, self.N))
@@ -240,7 +244,8 @@ class ZeroOrderMomentFilter(MomentFilter):
     def update(self, belief, y, k):
         z, obs = observed(y)
         z = np.where(obs, z, 0.5 * (self.x_min + self.x_max))  # a possible value on missing paths
-        m, valid, acc, part, count = belief.moments, belief.valid, belief.acc, belief.part, belief.count
+        m, valid, coef = belief.moments, belief.valid, belief.coef
+        acc, part, count = belief.acc, belief.part, belief.count
         if self.adaptive:  # 000 Fig. 7 steps 4-6: accumulate, refresh if due, then estimate
             part = np.where(obs[:, None], part + self._learning_data(z)[:, None] ** self._powers, part)
             count = count + obs
@@ -251,16 +256,21 @@ class ZeroOrderMomentFilter(MomentFilter):
                 new = self.recover_moments(acc / np.maximum(count, 1)[:, None], count)  # eqs. 2.27, 3.14, 3.15
                 m = np.where(due[:, None], new, m)
                 valid = np.where(due, is_moment_sequence(m, self.x_min, self.x_max), valid)
-        xh, fb = self._estimate(z, m)
+                coef = np.where(due[:, None], self.density(m).coef, coef)
+        xh, fb = self._estimate(z, coef)
         if self.invalid_moments == "warn":
             l, u = _interval(z, self.x_min, self.x_max, self.c, self.outside)
             xh = np.where(valid, xh, 0.5 * (l + u))
             fb = fb | ~valid
-        new = ZeroOrderBelief(xh[:, None], fb, ~valid, m, valid, acc, part, count)
+        new = ZeroOrderBelief(xh[:, None], fb, ~valid, m, valid, coef, acc, part, count)
         return keep_missing(obs, new, belief)
 
-    def _estimate(self, z, m):
-        return self.estimate(z, m if m.shape[1] else None)
+    def _estimate(self, z, coef):
+        if not coef.shape[1]:
+            return self.estimate(z)
+        d = LegendreDensity(coef, self.x_min, self.x_max)
+        return zero_order_estimate(z, d, x_min=self.x_min, x_max=self.x_max,
+                                   noise_halfwidth=self.c, eps=self.eps, outside=self.outside)
 
     def summary(self, belief):
         return belief.mean, None
@@ -342,8 +352,14 @@ class ScaledNoiseZeroOrderFilter(ZeroOrderMomentFilter):
                     np.concatenate([p[1] for p in parts]).reshape(z.shape))
         return self._estimate_sn(z, moments)
 
-    def _estimate_sn(self, z, moments=None):
-        d = self._density if moments is None and self._density is not None else self.density(moments)
+    def _estimate(self, z, coef):
+        if not coef.shape[1]:
+            return self.estimate(z)
+        return self._estimate_sn(z, density=LegendreDensity(coef, self.x_min, self.x_max))
+
+    def _estimate_sn(self, z, moments=None, density=None):
+        d = density if density is not None else (
+            self._density if moments is None and self._density is not None else self.density(moments))
         l, u = self.interval(z)
         x = 0.5 * (l + u)[..., None] + 0.5 * (u - l)[..., None] * self._t
         wq = 0.5 * (u - l)[..., None] * self._w
