@@ -385,3 +385,27 @@ def test_estimates_protocol_and_posterior_variance():
                                  w_moments=uniform_moments(2)).run(_z(z[:, :8]))
     C = r2.covs
     assert np.allclose(C, np.swapaxes(C, -1, -2)) and np.all(np.linalg.eigvalsh(C) > -1e-12)
+
+
+def test_per_path_known_moments_and_their_batch_check():
+    # moments (B, N): each path uses its own polynomial prior (= the one-prior filter on that path)
+    M = np.stack([uniform_moments(4), power_density_moments(4, 2)])
+    z = np.random.default_rng(0).uniform(-1.5, 1.5, (2, 5))
+    r = ZeroOrderMomentFilter(4, moments=M).run(_z(z))
+    for i in range(2):
+        np.testing.assert_allclose(r.means[i, :, 0], ZeroOrderMomentFilter(4, moments=M[i]).estimate(z[i])[0],
+                                   atol=1e-14)
+    with pytest.raises(ValueError, match=r"^moments\b"):
+        ZeroOrderMomentFilter(4, moments=M).run(np.zeros((3, 2, 1)))
+    assert ZeroOrderMomentFilter(4, moments=M[0]).run(np.zeros((3, 0, 1))).means.shape == (3, 0, 1)
+
+
+def test_filter_objects_are_not_changed_by_run():
+    # the adaptive learners' statistics live in the belief: two runs give the same result
+    f = FirstOrderMomentFilter(BoundedNoiseModel.first_order(0.5, 1.0), 3, adaptive=True, window=4)
+    z = _z(np.random.default_rng(4).uniform(-1.5, 1.5, (2, 30)))
+    before = dict(vars(f))
+    a, b = f.run(z), f.run(z)
+    np.testing.assert_array_equal(a.means, b.means)
+    np.testing.assert_array_equal(a.extras["w_moments"], b.extras["w_moments"])
+    assert vars(f).keys() == before.keys() and all(vars(f)[k] is before[k] for k in before)

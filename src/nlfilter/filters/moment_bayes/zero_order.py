@@ -221,8 +221,12 @@ class ZeroOrderMomentFilter(MomentFilter):
         B = math.prod(batch)
         if self.adaptive:
             m = np.broadcast_to(self.initial_moments, (*batch, self.N)).reshape(B, self.N).copy()
-        elif self.moments.ndim > 1:
-            m = np.broadcast_to(self.moments, (*batch, self.N)).reshape(B, self.N).copy()
+        elif self.moments.ndim > 1:  # per-path known moments
+            try:
+                m = np.broadcast_to(self.moments, (*batch, self.N)).reshape(B, self.N).copy()
+            except ValueError:
+                raise ValueError(f"moments: per-path moments of shape {self.moments.shape} do not broadcast to "
+                                 f"the batch {tuple(batch)} of ys") from None
         else:
             m = np.zeros((B, 0))
         valid = np.broadcast_to(is_moment_sequence(self.moments if m.shape[1] == 0 else m, self.x_min, self.x_max),
@@ -282,7 +286,7 @@ class ZeroOrderMomentFilter(MomentFilter):
         return out
 
     def output(self, est):
-        if self.invalid_moments == "warn" and est.extras["invalid"].any():
+        if self.invalid_moments == "warn" and "invalid" in est.extras and est.extras["invalid"].any():
             n = int(np.sum(est.extras["invalid"]))
             warnings.warn(f"moments: {n} estimate(s) used moments that no law on [{self.x_min}, {self.x_max}] "
                           f"has (N = {self.N} too high for the data); eq. 3.16 used there",
