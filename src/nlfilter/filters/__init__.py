@@ -15,6 +15,7 @@ moment_filters            ConditionalMomentFilter, DiscreteConditionalMomentFilt
 bilinear                  OptimalLinearFilter, DiscreteOptimalLinearFilter, TensorFilter ... (001)
 phase                     PLL, LinearQuadratureFilter, PhaseTensorFilter, CircleGridFilter (001)
 moment_bayes              ZeroOrderMomentFilter, FirstOrderMomentFilter, SecondOrderMomentFilter (000)
+reference_bounded         BoundedGridFilter1D, BoundedParticleFilter: the yardsticks of moment_bayes
 reference                 GridFilter, ParticleFilter: the near-optimal yardsticks
 ========================  ==================================================================
 """
@@ -26,11 +27,13 @@ from .cubature import CKF, GHKF, ContinuousDiscreteCKF, ContinuousDiscreteGHKF
 from .ekf import EKF, ContinuousDiscreteEKF, ContinuousDiscreteIEKF, ContinuousEKF, IteratedEKF
 from .gaussian import ContinuousDiscreteGaussianFilter, GaussianFilter
 from .kalman import KalmanBucy, KalmanFilter
-from .moment_bayes import FirstOrderMomentFilter, SecondOrderMomentFilter, ZeroOrderMomentFilter
+from .moment_bayes import (FirstOrderMomentFilter, ScaledNoiseZeroOrderFilter, SecondOrderMomentFilter,
+                           ZeroOrderMomentFilter)
 from .moment_filters import ConditionalMomentFilter, DiscreteConditionalMomentFilter
 from .phase import PLL, CircleGridFilter, LinearQuadratureFilter, PhaseTensorFilter
 from .quasilinear import MQLF, QLF, DiscreteQuasilinearFilter, QuasilinearFilter
 from .reference import GridFilter, ParticleFilter
+from .reference_bounded import BoundedGridFilter1D, BoundedParticleFilter
 from .second_order import (FORMS, ContinuousDiscreteSecondOrderFilter, ContinuousSecondOrderFilter,
                            SecondOrderFilter)
 from .ukf import UKF, ContinuousDiscreteUKF
@@ -54,7 +57,8 @@ REGISTRY = {
     "pseudo-observables": PseudoObservablesFilter,
     "pll": PLL, "lqf": LinearQuadratureFilter, "phase-tensor": PhaseTensorFilter, "circle-grid": CircleGridFilter,
     "zero-order-moment": ZeroOrderMomentFilter, "first-order-moment": FirstOrderMomentFilter,
-    "second-order-moment": SecondOrderMomentFilter,
+    "second-order-moment": SecondOrderMomentFilter, "scaled-noise-zero-order-moment": ScaledNoiseZeroOrderFilter,
+    "bounded-grid": BoundedGridFilter1D, "bounded-particle": BoundedParticleFilter,
     "grid": GridFilter, "particle": ParticleFilter,
 }
 
@@ -71,6 +75,7 @@ __all__ = ["REGISTRY", "get", "GaussianState", "Estimates", "DiscreteFilter", "C
            "OptimalLinearFilter", "DiscreteOptimalLinearFilter", "TensorFilter", "UpdatedInnovationsFilter",
            "PseudoObservablesFilter", "PLL",
            "LinearQuadratureFilter", "PhaseTensorFilter", "CircleGridFilter", "ZeroOrderMomentFilter",
-           "FirstOrderMomentFilter", "SecondOrderMomentFilter", "GridFilter", "ParticleFilter",
+           "FirstOrderMomentFilter", "SecondOrderMomentFilter", "ScaledNoiseZeroOrderFilter", "GridFilter",
+           "ParticleFilter", "BoundedGridFilter1D", "BoundedParticleFilter",
            "CKF", "GHKF", "IteratedEKF", "ContinuousDiscreteEKF", "ContinuousDiscreteIEKF", "ContinuousDiscreteUKF",
            "ContinuousDiscreteCKF", "ContinuousDiscreteGHKF", "GaussianFilter", "ContinuousDiscreteGaussianFilter"]
