@@ -47,6 +47,18 @@ def _weights(logw):
     return np.where(dead[:, None], 1.0 / Np, w)
 
 
+def systematic_resample(w, rng):
+    """Systematic resampling of each row of ``w (B, Np)`` (normalized weights): indices ``(B, Np)``,
+    one uniform draw per row from ``rng``."""
+    B, Np = w.shape
+    c = np.cumsum(w, axis=1)
+    c[:, -1] = 1.0
+    u = (rng.random((B, 1)) + np.arange(Np)) / Np
+    off = np.arange(B)[:, None]
+    idx = np.searchsorted((c + off).ravel(), (u + off).ravel(), side="right")
+    return np.minimum(idx.reshape(B, Np) - off * Np, Np - 1)
+
+
 class ParticleFilter(_ReferenceFilter):
     """Bootstrap particle filter, batched over paths; see :mod:`nlfilter.filters.reference`.
     Discrete models: ``predict``/``update``; SDE models: ``step`` (``time`` is ``"continuous"``).
@@ -148,7 +160,7 @@ class ParticleFilter(_ReferenceFilter):
         ess = 1.0 / np.sum(w**2, axis=1)
         rs = ess < self.threshold * Np
         if rs.any():
-            idx = self._systematic(w[rs], belief.rng)
+            idx = systematic_resample(w[rs], belief.rng)
             x, logw = x.copy(), logw.copy()
             x[rs] = np.take_along_axis(x[rs], idx[..., None], axis=1)
             logw[rs] = 0.0
@@ -181,13 +193,4 @@ class ParticleFilter(_ReferenceFilter):
         yo = np.where(obs, y, 0.0)
         return np.einsum("...a,...pa->...p", yo, hR) - 0.5 * self.dt * np.einsum("...pa,...pa->...p", hR, hx)
 
-    @staticmethod
-    def _systematic(w, rng):
-        """Systematic resampling of each row of ``w (B, Np)`` (normalized): indices (B, Np)."""
-        B, Np = w.shape
-        c = np.cumsum(w, axis=1)
-        c[:, -1] = 1.0
-        u = (rng.random((B, 1)) + np.arange(Np)) / Np
-        off = np.arange(B)[:, None]
-        idx = np.searchsorted((c + off).ravel(), (u + off).ravel(), side="right")
-        return np.minimum(idx.reshape(B, Np) - off * Np, Np - 1)
+    _systematic = staticmethod(systematic_resample)  # the name the experiments use
