@@ -569,7 +569,9 @@ def _api_run(flt, ys, m0, P0, skip):
     return {"means": np.stack(means, axis=-2), "covs": np.stack(covs, axis=-3)}
 
 
-HAS_API = [c for c in GAUSS if getattr(c.filter(), "time", None) == "discrete" and hasattr(c.filter(), "predict")]
+# (random filters: one path missing changes the draws of the others, so not path by path)
+HAS_API = [c for c in GAUSS if getattr(c.filter(), "time", None) == "discrete" and hasattr(c.filter(), "predict")
+           and not c.random]
 
 
 @pytest.mark.parametrize("start", ["update", "predict"])

@@ -148,7 +148,7 @@ def test_invalid_moments_warn_and_fall_back():
 import scipy.stats as st  # noqa: E402
 
 from nlfilter.filters.moment_bayes import FirstOrderMomentFilter  # noqa: E402
-from nlfilter.filters.reference_bounded import BoundedGridFilter1D  # noqa: E402
+from nlfilter.filters.reference.bounded import BoundedGridFilter1D  # noqa: E402
 
 
 def test_first_order_with_h0_is_the_zero_order_filter():

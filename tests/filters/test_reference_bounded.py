@@ -5,7 +5,7 @@ import pytest
 import scipy.stats as st
 
 from nlfilter.bounded import BoundedNoiseModel
-from nlfilter.filters.reference_bounded import BoundedGridFilter1D, BoundedParticleFilter
+from nlfilter.filters.reference.bounded import BoundedGridFilter1D, BoundedParticleFilter
 
 LAW = st.uniform(-1, 2)
 MODEL = BoundedNoiseModel.first_order(0.5, 1.0, w_law=LAW)

@@ -28,7 +28,7 @@ from . import experiment
 from ..filters.kalman import KalmanFilter
 from ..bounded import BoundedNoiseModel
 from ..filters.moment_bayes import FirstOrderMomentFilter
-from ..filters.reference_bounded import BoundedGridFilter1D
+from ..filters.reference.bounded import BoundedGridFilter1D
 from ..models import DiscreteModel
 from ..results import Result
 
@@ -196,7 +196,7 @@ def kalman_second_order(zs, A, b, c, law, noise_halfwidth=1.0):
                     "particles": 4000, "bounding": "polygon", "directions": 16})
 def run_second_order(params, *, quick, runs, seed, progress):
     from ..filters.moment_bayes import SecondOrderMomentFilter
-    from ..filters.reference_bounded import BoundedParticleFilter
+    from ..filters.reference.bounded import BoundedParticleFilter
     A = np.diag([float(params["h1"]), float(params["h2"])])
     b = np.array([float(params["d1"]), float(params["d2"])])
     c = b.copy()  # 000 eqs. 2.6-2.7 as the OCR reads them: the same d1, d2 in the input and the output

@@ -15,7 +15,7 @@ moment_filters            ConditionalMomentFilter, DiscreteConditionalMomentFilt
 bilinear                  OptimalLinearFilter, DiscreteOptimalLinearFilter, TensorFilter ... (001)
 phase                     PLL, LinearQuadratureFilter, PhaseTensorFilter, CircleGridFilter (001)
 moment_bayes              ZeroOrderMomentFilter, FirstOrderMomentFilter, SecondOrderMomentFilter (000)
-reference_bounded         BoundedGridFilter1D, BoundedParticleFilter: the yardsticks of moment_bayes
+reference.bounded         BoundedGridFilter1D, BoundedParticleFilter: the yardsticks of moment_bayes
 reference                 GridFilter, ParticleFilter: the near-optimal yardsticks
 ========================  ==================================================================
 """
@@ -33,7 +33,7 @@ from .moment_filters import ConditionalMomentFilter, DiscreteConditionalMomentFi
 from .phase import PLL, CircleGridFilter, LinearQuadratureFilter, PhaseTensorFilter
 from .quasilinear import MQLF, QLF, DiscreteQuasilinearFilter, QuasilinearFilter
 from .reference import GridFilter, ParticleFilter
-from .reference_bounded import BoundedGridFilter1D, BoundedParticleFilter
+from .reference.bounded import BoundedGridFilter1D, BoundedParticleFilter
 from .second_order import (FORMS, ContinuousDiscreteSecondOrderFilter, ContinuousSecondOrderFilter,
                            SecondOrderFilter)
 from .ukf import UKF, ContinuousDiscreteUKF

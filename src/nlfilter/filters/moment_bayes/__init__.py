@@ -16,7 +16,7 @@ posterior covariances from the carried moments (NaN where none: N = 1, and the z
 estimator), and ``extras`` the family's flags and bounds (``fallback``, ``invalid``, ``lower``,
 ``upper``, the moments in use). The prior is the filter's own (``m0 = P0 = None``). The
 adaptive learners' running statistics are per path in the belief: a filter object never changes.
-The reference (grid/particle) yardsticks are in :mod:`nlfilter.filters.reference_bounded`.
+The reference (grid/particle) yardsticks are in :mod:`nlfilter.filters.reference.bounded`.
 """
 
 from ._common import MomentFilterWarning, impulse_power_sums

@@ -21,9 +21,9 @@ from typing import NamedTuple
 
 import numpy as np
 
-from .. import _validate as V
-from ..bounded import BoundedNoiseModel
-from .base import Filter
+from ... import _validate as V
+from ...bounded import BoundedNoiseModel
+from ..base import Filter
 
 __all__ = ["BoundedGridFilter1D", "BoundedParticleFilter", "GridBelief", "ParticleBelief"]
 
