@@ -209,14 +209,21 @@ class Model:
                       if all(not e.free_symbols for e in GM) else None)  # fixed G Q Gᵀ, computed once
         self.is_linear = self.G_constant and all(  # f and h affine in the state
             e.is_polynomial(*states) and sp.Poly(e, *states).total_degree() <= 1 for e in list(fM) + list(hM))
+        # f, h and G do not depend on the time: filters may compute time-fixed quantities once
+        self.time_invariant = time is None or not any(M.has(time) for M in (fM, hM, GM))
 
     # -- construction from plain callables -----------------------------------------------------
     @classmethod
     def from_functions(cls, n: int, m: int, f: Callable, h: Callable, *, Q, R, G: Callable | None = None,
                        r: int | None = None, f_x=None, f_xx=None, h_x=None, h_xx=None, G_x=None, G_xx=None,
-                       process_noise=None, measurement_noise=None, name: str = "", is_linear: bool = False):
+                       process_noise=None, measurement_noise=None, name: str = "", is_linear: bool = False,
+                       time_invariant: bool = False):
         """A model from callables ``f(x, t)``, ``h(x, t)`` (and ``G(x, t)``, derivatives) that take a
-        batch ``(..., n)``. Derivatives not given are ``None``; filters that need them say so."""
+        batch ``(..., n)``. Derivatives not given are ``None``; filters that need them say so.
+
+        The callables receive the time (``k`` or ``t``) at every call, so the model is taken to
+        vary with it unless ``time_invariant=True`` promises that none of them reads it (filters
+        then compute time-fixed quantities, such as the Kalman filter's matrices, once)."""
         self = cls.__new__(cls)
         V.positive("n", n, integer=True)
         V.positive("m", m, integer=True)
@@ -251,6 +258,9 @@ class Model:
             setattr(self, key, fn)
         self.given = {k for k, v in fns.items() if v is not None}
         self.is_linear = bool(is_linear)
+        if not isinstance(time_invariant, bool):
+            raise TypeError(f"time_invariant: expected True or False, got {type(time_invariant).__name__}")
+        self.time_invariant = time_invariant
         return self
 
     @classmethod

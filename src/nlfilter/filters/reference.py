@@ -114,7 +114,7 @@ class GridFilter:
         self.X = np.stack([g.ravel() for g in mesh], axis=-1)  # (N, n), first axis slowest
         self.start = V.choice("start", start, {"update", "predict"})
         _check_time_step(self, model, dt, "grid filter")
-        self._time_varying = model.time is not None
+        self._time_varying = not getattr(model, "time_invariant", False)
         self._kernel_cache = None
 
     # -- transition ------------------------------------------------------------------------
