@@ -52,9 +52,29 @@ from .noise import NoiseLaw, as_law
 _DERIVS = ("f", "f_x", "f_xx", "h", "h_x", "h_xx", "G", "G_x", "G_xx")
 
 
-class _Printer(NumPyPrinter):
+class FullPrecisionPrinter(NumPyPrinter):
+    """NumPy code whose float constants carry full double precision: ``repr(float(c))``, the
+    shortest text that reads back to the same double (up to 17 significant digits). SymPy's own
+    printer writes 15 (``0.1 + 2**-50`` would become ``0.100000000000001``)."""
+
+    def _print_Float(self, expr):
+        value = float(expr)
+        if np.isfinite(value):
+            return repr(value)
+        return super()._print_Float(expr)
+
+
+def lambdify_numpy(args, exprs, **kw):
+    """``sympy.lambdify`` to NumPy with :class:`FullPrecisionPrinter` (the one code generator of
+    the library; ``kw`` such as ``cse=True`` pass through)."""
+    return sp.lambdify(args, exprs, modules="numpy",
+                       printer=FullPrecisionPrinter({"fully_qualified_modules": False, "inline": True,
+                                                     "allow_unknown_functions": True}), **kw)
+
+
+class _Printer(FullPrecisionPrinter):
     """NumPy code with small integer powers written as products (``x*x*x`` is several times
-    faster than ``x**3`` on arrays)."""
+    faster than ``x**3`` on arrays), float constants in full precision."""
 
     def _print_Pow(self, expr, rational=False):
         if expr.exp.is_Integer and 2 <= int(expr.exp) <= 4:

@@ -65,6 +65,7 @@ import scipy.sparse as sps
 import sympy as sp
 
 from ..errors import MomentsNotClosedError
+from ..models import lambdify_numpy
 from ..polynomials import Polynomial, add_exp, as_polynomial, monomial_name, monomials
 
 __all__ = ["PolynomialSDE", "PolynomialMap", "MomentEquations", "moment_equations",
@@ -421,7 +422,7 @@ class MomentEquations:
         self._groups = groups  # list of (A_j, B_j, c_j)
         self._exprs = exprs
         if len(groups) > 1:  # A(w) = Σ_j w_j A_j on the union pattern: data = W w, one lambdified call for w
-            self._weights = sp.lambdify(self.symbols, list(exprs[1:]), modules="numpy")
+            self._weights = lambdify_numpy(self.symbols, list(exprs[1:]))
             self._A = _union([g[0] for g in groups])
             self._B = _union([g[1] for g in groups])
             self._C = np.stack([g[2] for g in groups], axis=-1)
