@@ -41,7 +41,7 @@ from __future__ import annotations
 import numpy as np
 
 from .. import _validate as V
-from ..moments.closures import Closure, GaussianClosure, gaussian_moments
+from ..moments.closures import Closure, GaussianClosure, gaussian_moments, kept_order
 from ..moments.expect import PolynomialExpectations
 from ..moments.quadrature import gaussian_rule
 from ..moments.ito import PolynomialMap, PolynomialSDE, discrete_moment_equations, moment_equations
@@ -143,15 +143,6 @@ def _model_polys(model, who):
     return [Polynomial.from_sympy(e, st, name=f"h[{i}]") for i, e in enumerate(model.sym["h"])]
 
 
-def _order(closure, order):
-    if not isinstance(closure, Closure):
-        raise TypeError(f"closure: expected a Closure instance, got {type(closure).__name__}")
-    N = closure.order if order is None else order
-    if isinstance(N, bool) or not isinstance(N, int) or N < closure.order:
-        raise ValueError(f"order: expected an integer ≥ the closure's order {closure.order}, got {order!r}")
-    return N
-
-
 class ConditionalMomentFilter(ContinuousFilter):
     """Kushner-Stratonovich conditional-moment filter for a polynomial :class:`SDEModel`.
 
@@ -178,7 +169,7 @@ class ConditionalMomentFilter(ContinuousFilter):
         ContinuousFilter.__init__(self, model, dt, scheme="rk4", substeps=substeps)
         self.update = V.choice("update", update, {"bayes", "ito"})
         closure = GaussianClosure() if closure is None else closure
-        N = _order(closure, order)
+        N = kept_order(closure, order)
         h = _model_polys(model, "ConditionalMomentFilter")
         sde = PolynomialSDE.from_model(model)
         if sde.symbols:
@@ -273,7 +264,7 @@ class DiscreteConditionalMomentFilter(DiscreteFilter):
                  start: str = "update", points: int = 24, name: str | None = None):
         DiscreteFilter.__init__(self, model, start=start)
         closure = GaussianClosure() if closure is None else closure
-        N = _order(closure, order)
+        N = kept_order(closure, order)
         h = _model_polys(model, "DiscreteConditionalMomentFilter")
         pm = PolynomialMap.from_model(model)
         eqs = discrete_moment_equations(pm, monomials(model.n, N, min_degree=1))
