@@ -140,3 +140,28 @@ def test_float_constants_in_time_dependent_coefficients_bit_exact():
     assert eqs.at(t=1.0)[0].toarray()[0, 0] == -np.sin(C_FULL)
     bm = BilinearModel(sp.Matrix([[-1 - C_FULL * t]]), [[1.0]], G=[[[0.5]]], R=[[1.0]], time=t)
     assert bm.F(1.0)[0, 0] == -1 - C_FULL
+
+
+def test_constructor_signatures_are_visible():
+    """issue 10 item 8.6: help()/inspect show the real parameters, not (*args, **kw)."""
+    import inspect
+    from nlfilter import BilinearModel
+    from nlfilter.filters.quasilinear import MQLF, QLF, QuasilinearFilter
+    want = ["states", "f", "h", "G", "Q", "R", "params", "time", "process_noise", "measurement_noise", "name"]
+    for cls in (DiscreteModel, SDEModel):
+        sig = inspect.signature(cls)
+        assert list(sig.parameters) == want, cls
+        assert all(p.kind is not p.VAR_POSITIONAL and p.kind is not p.VAR_KEYWORD for p in sig.parameters.values())
+        assert sig.parameters["time"].kind is inspect.Parameter.KEYWORD_ONLY
+        assert list(inspect.signature(cls.linear).parameters) == ["F", "H", "Q", "R", "G", "process_noise",
+                                                                   "measurement_noise", "name"]
+    assert list(inspect.signature(BilinearModel).parameters) == ["F", "H", "G", "M", "B", "Q", "R", "c", "d",
+                                                                  "time", "discrete", "names"]
+    qf = [p for p in inspect.signature(QuasilinearFilter).parameters if p != "closure"]
+    assert list(inspect.signature(QLF).parameters) == qf
+    assert list(inspect.signature(MQLF).parameters) == list(inspect.signature(QuasilinearFilter).parameters)
+    x = sp.Symbol("x")
+    m = SDEModel([x], [-x], [x], None, 0.5, 0.2, name="ou")  # positional G, Q, R still work
+    assert (m.Q.tolist(), m.R.tolist(), m.name) == ([[0.5]], [[0.2]], "ou")
+    with pytest.raises(TypeError):
+        DiscreteModel.linear([[0.5]], [[1.0]], 1.0, 1.0, time=x)  # no time symbol in a numeric linear model

@@ -284,7 +284,8 @@ class Model:
         return self
 
     @classmethod
-    def linear(cls, F, H, Q, R, G=None, **kw):
+    def linear(cls, F, H, Q, R, G=None, *, process_noise: NoiseLaw | None = None,
+               measurement_noise: NoiseLaw | None = None, name: str = ""):
         """A linear model ``f = F x``, ``h = H x`` (``G`` constant, identity by default)."""
         F = V.as_float_array("F", F, ndim=2)
         H = V.as_float_array("H", H, ndim=2)
@@ -296,7 +297,8 @@ class Model:
         X = sp.Matrix(xs)
         Fm = sp.Matrix(F.tolist()) * X
         Hm = sp.Matrix(H.tolist()) * X
-        return cls(list(xs), Fm, Hm, None if G is None else sp.Matrix(np.asarray(G, float).tolist()), Q, R, **kw)
+        return cls(list(xs), Fm, Hm, None if G is None else sp.Matrix(np.asarray(G, float).tolist()), Q, R,
+                   process_noise=process_noise, measurement_noise=measurement_noise, name=name)
 
     def require(self, *names: str, by: str = "this filter") -> None:
         """Raise ``ValueError`` naming each derivative in ``names`` that the model lacks."""
@@ -350,8 +352,11 @@ class SDEModel(Model):
     kind = "sde"
     time_name = "t"
 
-    def __init__(self, *args, **kw):
-        super().__init__(*args, **kw)
+    def __init__(self, states, f, h, G=None, Q=None, R=None, *, params=None, time=None,
+                 process_noise: NoiseLaw | None = None, measurement_noise: NoiseLaw | None = None,
+                 name: str = ""):
+        super().__init__(states, f, h, G, Q, R, params=params, time=time, process_noise=process_noise,
+                         measurement_noise=measurement_noise, name=name)
         from .noise import Gaussian
         for nm in ("process_noise", "measurement_noise"):
             if not isinstance(getattr(self, nm), Gaussian):

@@ -582,17 +582,23 @@ def discrete_gain_error_analysis(model, coefficients, m0, P0, steps: int, *, xha
     return ErrorAnalysis(sol.t, _mse(sol, n), sol)
 
 
-def QLF(model, dt, **kw) -> QuasilinearFilter:
-    """The quasilinear filter: statistical linearization under the Gaussian closure (003 eqs. 3-8)."""
-    f = QuasilinearFilter(model, dt, closure=GaussianClosure(), **kw)
+def QLF(model, dt, *, order: int | None = None, substeps: int = 4, scheme: str = "rk4", rtol: float = 1e-9,
+        atol: float = 1e-12) -> QuasilinearFilter:
+    """The quasilinear filter: statistical linearization under the Gaussian closure (003 eqs. 3-8);
+    the other arguments as :class:`QuasilinearFilter`'s."""
+    f = QuasilinearFilter(model, dt, closure=GaussianClosure(), order=order, substeps=substeps, scheme=scheme,
+                          rtol=rtol, atol=atol)
     f.name = "qlf"
     return f
 
 
-def MQLF(model, dt, *, closure: Closure | None = None, **kw) -> QuasilinearFilter:
+def MQLF(model, dt, *, closure: Closure | None = None, order: int | None = None, substeps: int = 4,
+         scheme: str = "rk4", rtol: float = 1e-9, atol: float = 1e-12) -> QuasilinearFilter:
     """The modified quasilinear filter (003 Theorem 4.1): coefficients from the method of moments
-    closed by ``closure`` (default: Edgeworth / Hermite quasi-moments of order 4, 003 eqs. 27-33)."""
-    f = QuasilinearFilter(model, dt, closure=EdgeworthClosure(4) if closure is None else closure, **kw)
+    closed by ``closure`` (default: Edgeworth / Hermite quasi-moments of order 4, 003 eqs. 27-33);
+    the other arguments as :class:`QuasilinearFilter`'s."""
+    f = QuasilinearFilter(model, dt, closure=EdgeworthClosure(4) if closure is None else closure, order=order,
+                          substeps=substeps, scheme=scheme, rtol=rtol, atol=atol)
     f.name = "mqlf"
     return f
 
