@@ -1,7 +1,7 @@
 """One contract for every public filter (``nlfilter.filters``; protocol of ``filters/base.py`` and the
 README's Conventions): batch shapes, batch independence, input checks naming the argument, no
 silent NaN, symmetric PSD covariances, missing data. Each row of ``CASES`` is (filter factory,
-small model, a valid input); filters with their own run signature (phase, moment_bayes) are
+small model, a valid input); filters with their own run signature (moment_bayes) are
 adapted to the parts of the contract that apply to them.
 """
 
@@ -19,21 +19,24 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as hst
 
 from nlfilter import DiscreteModel, SDEModel
-from nlfilter.bilinear import BilinearModel
+from nlfilter.bilinear import BilinearModel, phase_model
 from nlfilter.errors import DivergenceError
-from nlfilter.filters import (EKF, FORMS, MQLF, PLL, QLF, UKF, CircleGridFilter, ConditionalMomentFilter,
+from nlfilter.filters import (CKF, EKF, FORMS, GHKF, MQLF, PLL, QLF, UKF, CircleGridFilter, ConditionalMomentFilter,
                               ContinuousDiscreteSecondOrderFilter, ContinuousEKF, ContinuousSecondOrderFilter,
                               DiscreteConditionalMomentFilter, DiscreteOptimalLinearFilter,
                               DiscreteQuasilinearFilter, FirstOrderMomentFilter, GaussianState,
                               GridFilter, KalmanBucy, KalmanFilter, LinearQuadratureFilter, OptimalLinearFilter,
                               ParticleFilter, PhaseTensorFilter, SecondOrderFilter, SecondOrderMomentFilter,
                               TensorFilter, ZeroOrderMomentFilter)
+from nlfilter.filters import (ContinuousDiscreteCKF, ContinuousDiscreteEKF, ContinuousDiscreteGaussianFilter,
+                              ContinuousDiscreteGHKF, ContinuousDiscreteIEKF, ContinuousDiscreteUKF, GaussianFilter,
+                              IteratedEKF)
+from nlfilter.filters.rules import Taylor2
 from nlfilter.filters.bilinear import UpdatedInnovationsFilter
-from nlfilter.filters.phase import simulate_phase
 from nlfilter.moments.closures import EdgeworthClosure
 from nlfilter.moments.densities import uniform_moments
 from nlfilter.problems import euler_discretization
-from nlfilter.simulate import simulate
+from nlfilter.simulate import simulate, simulate_phase
 
 x, x1, x2 = sp.symbols("x x1 x2")
 DT = 0.05
@@ -90,7 +93,8 @@ class Case:
     """One filter of the contract. ``make(**options)`` builds it; ``data(batch, T, seed)`` gives a
     valid input ``(*batch, T, m)`` (``(*batch, T)`` when ``event == 1``); ``prior`` the keyword
     arguments of the prior; ``kind``: ``"gaussian"`` (returns Estimates, has ``on_divergence``),
-    ``"phase"`` (PhaseEstimates), ``"moment"`` (MomentRun / ZeroOrderRun)."""
+    ``"moment"`` (MomentRun / ZeroOrderRun); ``extras``: the names of its per-step scalar
+    ``Estimates.extras`` (e.g. the phase filters' ``theta``)."""
 
     name: str
     make: Callable
@@ -103,6 +107,7 @@ class Case:
     options: tuple = ()  # (keyword, bogus value) of the constructor
     bad_prior: tuple = ()  # (keyword, bad value) of run
     random: bool = False
+    extras: tuple = ()
 
     def filter(self, **kw):
         return _build(self.name, tuple(sorted(kw.items()))) if kw else _build(self.name, ())
@@ -125,6 +130,16 @@ def _gauss(name, make, model, m0, P0, *, dt=None, options=(), missing="nan", **k
                 bad_prior=bad, **kw)
 
 
+PHASE_MODEL = phase_model(1.0, 0.5)
+
+
+def _phase_row(name, make, options):
+    """A phase filter (``ys`` the increments dz): the prior of x = (sin θ, cos θ), θ̂ in extras."""
+    m0, P0 = np.array([0.1, 0.2]), np.diag([0.45, 0.4])
+    bad = [("m0", np.zeros(3)), ("P0", -P0), ("P0", np.full((3, 3), 0.1)), ("P0", P0 + np.triu(np.ones_like(P0), 1))]
+    return Case(name, make, _phase, {"m0": m0, "P0": P0}, options=options, bad_prior=bad, extras=("theta",))
+
+
 CASES = [
     _gauss("kf", lambda model=LIN, **k: KalmanFilter(model, **k), LIN, M2, P2, options=(("start", "bogus"),)),
     _gauss("ekf", lambda model=D2, **k: EKF(model, **k), D2, M2, P2, options=(("start", "bogus"),)),
@@ -133,6 +148,20 @@ CASES = [
              options=(("form", "bogus"), ("start", "bogus"))) for form in FORMS],
     _gauss("cd-sof", lambda model=S2, **k: ContinuousDiscreteSecondOrderFilter(model, DT, **k), euler_discretization(S2, DT),
            M2, P2, options=(("form", "bogus"), ("scheme", "bogus"))),
+    _gauss("ckf", lambda model=D2, **k: CKF(model, **k), D2, M2, P2, options=(("start", "bogus"),)),
+    _gauss("ghkf", lambda model=D2, **k: GHKF(model, **k), D2, M2, P2,
+           options=(("order", "bogus"), ("order", 0), ("start", "bogus"))),
+    _gauss("iekf", lambda model=D2, **k: IteratedEKF(model, **k), D2, M2, P2,
+           options=(("iterations", 0), ("tol", -1.0), ("start", "bogus"))),
+    *[_gauss(name, lambda cls=cls, model=S2, **k: cls(model, DT, **k), euler_discretization(S2, DT), M2, P2,
+             options=(("scheme", "bogus"), ("start", "bogus")))
+      for name, cls in (("cd-ekf", ContinuousDiscreteEKF), ("cd-ukf", ContinuousDiscreteUKF),
+                        ("cd-ckf", ContinuousDiscreteCKF), ("cd-ghkf", ContinuousDiscreteGHKF),
+                        ("cd-iekf", ContinuousDiscreteIEKF))],
+    _gauss("gaussian-taylor2", lambda model=D2, **k: GaussianFilter(model, Taylor2(), **k), D2, M2, P2,
+           options=(("start", "bogus"),)),
+    _gauss("cd-gaussian-taylor2", lambda model=S2, **k: ContinuousDiscreteGaussianFilter(model, DT, Taylor2(), **k),
+           euler_discretization(S2, DT), M2, P2, options=(("scheme", "bogus"), ("start", "bogus"))),
     _gauss("kalman-bucy", lambda model=SLIN, **k: KalmanBucy(model, DT, **k), SLIN, M2, P2, dt=DT,
            options=(("scheme", "bogus"),)),
     _gauss("cekf", lambda model=S2, **k: ContinuousEKF(model, DT, **k), S2, M2, P2, dt=DT, options=(("scheme", "bogus"),)),
@@ -162,9 +191,9 @@ CASES = [
     _gauss("linear-discrete", lambda **k: DiscreteOptimalLinearFilter(BILD, **k),
            DiscreteModel([x], [0.9 * x], [x], Q=1.0, R=0.3), M1, P1, missing="raise"),
     _gauss("tensor", lambda **k: TensorFilter(BIL, DT, **k), SDEModel([x], [-x], [x], Q=1.0, R=1.0), M1, P1,
-           dt=DT, missing="raise", options=(("inputs", "bogus"), ("scheme", "bogus"))),
+           dt=DT, options=(("inputs", "bogus"), ("scheme", "bogus"))),
     _gauss("updated-innovations", lambda **k: UpdatedInnovationsFilter(BIL, DT, **k),
-           SDEModel([x], [-x], [x], Q=1.0, R=1.0), M1, P1, dt=DT, missing="raise",
+           SDEModel([x], [-x], [x], Q=1.0, R=1.0), M1, P1, dt=DT,
            options=(("inputs", "bogus"), ("scheme", "bogus"))),
     _gauss("grid", lambda model=D1, **k: GridFilter(model, (-4.0, 4.0), 81, **k), D1, M1, P1, options=(("start", "bogus"),)),
     _gauss("grid-2d", lambda model=D2, **k: GridFilter(model, [(-4.0, 4.0), (-4.0, 4.0)], 25, **k), D2, M2, P2,
@@ -176,14 +205,10 @@ CASES = [
            options=(("start", "bogus"),)),
     _gauss("particle-sde", lambda model=S2, **k: ParticleFilter(model, 200, dt=DT, **k), S2, M2, P2, dt=DT,
            run_kw={"rng": 5}, random=True),
-    Case("pll", lambda **k: PLL(1.0, 0.5, DT, **k), _phase, {"theta0": 0.3}, kind="phase", missing="raise",
-         options=(("scheme", "bogus"),), bad_prior=(("theta0", np.zeros(7)),)),
-    Case("lqf", lambda **k: LinearQuadratureFilter(1.0, 0.5, DT, **k), _phase, {"m0": (0.1, 0.2)}, kind="phase",
-         missing="raise", options=(("scheme", "bogus"),), bad_prior=(("m0", np.zeros(3)),)),
-    Case("phase-tensor", lambda **k: PhaseTensorFilter(1.0, 0.5, DT, **k), _phase, {"m0": (0.1, 0.2)},
-         kind="phase", missing="raise", options=(("scheme", "bogus"),), bad_prior=(("m0", np.zeros(3)),)),
-    Case("circle-grid", lambda **k: CircleGridFilter(1.0, 0.5, DT, **{"size": 32, **k}), _phase, {}, kind="phase",
-         missing="raise", options=(("size", 0),), bad_prior=(("p0", np.ones(5)),)),
+    _phase_row("pll", lambda **k: PLL(PHASE_MODEL, DT, **k), (("scheme", "bogus"),)),
+    _phase_row("lqf", lambda **k: LinearQuadratureFilter(PHASE_MODEL, DT, **k), (("scheme", "bogus"),)),
+    _phase_row("phase-tensor", lambda **k: PhaseTensorFilter(PHASE_MODEL, DT, **k), (("scheme", "bogus"),)),
+    _phase_row("circle-grid", lambda **k: CircleGridFilter(PHASE_MODEL, DT, **{"size": 32, **k}), (("size", 0),)),
     Case("zero-order", lambda **k: ZeroOrderMomentFilter(4, moments=uniform_moments(4), **k), _bounded(1),
          kind="moment", event=1, missing="raise", options=(("outside", "bogus"), ("invalid_moments", "bogus"))),
     Case("zero-order-adaptive", lambda **k: ZeroOrderMomentFilter(4, adaptive=True, window=2, **k), _bounded(1),
@@ -207,15 +232,19 @@ BY_NAME = {c.name: c for c in CASES}
 IDS = [c.name for c in CASES]
 
 
+
 @functools.lru_cache(maxsize=None)
 def _build(name, kw):
     return BY_NAME[name].make(**dict(kw))
 
 
 def outputs(res) -> dict:
-    """The arrays of a result whose leading axes are the batch."""
-    return {k: np.asarray(v) for k, v in res._asdict().items() if v is not None and k != "w_moments"
-            and k != "moments"}
+    """The arrays of a result whose leading axes are the batch (``Estimates.extras`` flattened
+    into ``"extras.NAME"`` keys)."""
+    d = res._asdict()
+    extras = d.pop("extras", {})
+    out = {k: np.asarray(v) for k, v in d.items() if v is not None and k != "w_moments" and k != "moments"}
+    return {**out, **{f"extras.{k}": np.asarray(v) for k, v in extras.items()}}
 
 
 def close(a: dict, b: dict, tol=1e-12, keys=None):
@@ -235,9 +264,8 @@ DETERMINISTIC = [c for c in CASES if not c.random]
 def _event_shapes(case, T_):
     if case.kind == "gaussian":
         n = len(case.prior["m0"])
-        return {"means": (T_, n), "covs": (T_, n, n), "diverged": (), "diverged_step": ()}
-    if case.kind == "phase":
-        return {"theta": (T_,), "x": (T_, 2)}
+        return {"means": (T_, n), "covs": (T_, n, n), "diverged": (), "diverged_step": (),
+                **{f"extras.{k}": (T_,) for k in case.extras}}
     n = {"zero-order": 0, "zero-order-adaptive": 0, "first-order": 1, "first-order-adaptive": 1}.get(case.name, 2)
     if n == 0:
         return {"estimates": (T_,), "fallback": (T_,), "invalid": (T_,)}
@@ -250,8 +278,6 @@ def test_two_batch_axes_equal_the_flattened_batch(case):
     res = outputs(case.run(d))
     flat = outputs(case.run(d.reshape(6, *d.shape[2:])))
     want = _event_shapes(case, T)
-    if case.kind == "phase" and case.name == "pll":
-        want.pop("x")
     assert {k: v.shape for k, v in res.items()} == {k: (2, 3, *s) for k, s in want.items()}
     if case.kind == "gaussian":
         assert res["diverged"].dtype == bool and np.issubdtype(res["diverged_step"].dtype, np.integer)
@@ -353,7 +379,7 @@ def test_singular_psd_prior(case):
         assert not res.diverged.any() and np.isfinite(res.means).all() and _covs_ok(case, res.covs).all()
 
 
-ONE_PRIOR = {"qlf", "mqlf", "dqlf", "linear", "linear-tv", "linear-discrete", "tensor", "updated-innovations", "grid", "grid-2d",
+ONE_PRIOR = {"qlf", "mqlf", "dqlf", "linear", "linear-tv", "linear-discrete", "grid", "grid-2d",
              "grid-sde", "grid-2d-sde", "particle", "particle-sde"}  # off-line gains / one prior for all paths
 
 
@@ -384,9 +410,9 @@ def _overflow(d):
 # documented (README, seed 004): these forms lose positive definiteness on nonlinear problems, so a
 # clean run may mark paths too; the contract is then that exactly those paths are flagged
 LOSES_PSD = {"sof-truncated-jazwinski", "sof-gaussian"}
-# documented (UpdatedInnovationsFilter.run): the nonlinear recursion has no error covariance, so
-# its covs are NaN on every path; what the contract checks there is that they are NaN everywhere
-NO_COVS = {"updated-innovations"}
+# documented (UpdatedInnovationsFilter, PLL): the nonlinear recursion / the loop has no error
+# covariance, so their covs are NaN on every path; what the contract checks there is that they are NaN everywhere
+NO_COVS = {"updated-innovations", "pll"}
 
 
 def _covs_ok(case, covs):
@@ -412,7 +438,7 @@ def _assert_flagged(res, clean, case):
     if case.name not in LOSES_PSD:
         assert not clean.diverged.any()
     if not case.random:
-        close(_take(res._asdict(), others), _take(clean._asdict(), others), keys=("means", "covs", "diverged_step"))
+        close(_take(outputs(res), others), _take(outputs(clean), others), keys=("means", "covs", "diverged_step"))
 
 
 def _assert_raises_at_first_divergence(case, e, marked):
@@ -453,19 +479,6 @@ def test_outliers_never_give_silent_nan(case, big):
     _assert_raises_at_first_divergence(case, e, res)
 
 
-PHASE = [c for c in CASES if c.kind == "phase"]
-
-
-@pytest.mark.parametrize("case", PHASE, ids=[c.name for c in PHASE])
-def test_phase_filters_raise_on_overflow(case):
-    """No ``diverged`` field: a non-finite estimate raises (documented in each ``run``)."""
-    d = case.data((3,), T, 3)
-    with pytest.raises(DivergenceError) as info:
-        case.run(_overflow(d))
-    assert info.value.paths == (1,)
-    assert all(np.isfinite(v).all() for v in outputs(case.run(d)).values())
-
-
 MOMENT = [c for c in CASES if c.kind == "moment"]
 
 
@@ -485,7 +498,7 @@ def test_moment_filters_refuse_or_clip_impossible_measurements(case):
 
 
 # -- 5. covariances are symmetric and PSD ---------------------------------------------------------------
-COVS = [c for c in GAUSS if c.name not in ("tensor", "updated-innovations")] + [c for c in MOMENT if "zero" not in c.name]
+COVS = [c for c in GAUSS if c.name not in NO_COVS] + [c for c in MOMENT if "zero" not in c.name]
 
 
 @pytest.mark.parametrize("case", COVS, ids=[c.name for c in COVS])
@@ -516,24 +529,23 @@ def _missing(d, paths=slice(None)):
 
 
 def _api_run(flt, ys, m0, P0, skip):
-    """The filter's own ``predict``/``update`` loop, with the update at step ``skip`` left out."""
+    """The filter's own step functions — ``init``, ``predict``, ``update``, ``summary`` — by hand,
+    with the update at step ``skip`` left out."""
     off = 0 if flt.start == "update" else 1
-    st = GaussianState(np.broadcast_to(m0, (*ys.shape[:-2], len(m0))).copy(),
-                       np.broadcast_to(P0, (*ys.shape[:-2], *P0.shape)).copy())
+    st = flt.init(m0, P0, ys.shape[:-2])
     means, covs = [], []
     for k in range(ys.shape[-2]):
         if k > 0 or off:
             st = flt.predict(st, k + off - 1)
         if k != skip:
             st = flt.update(st, ys[..., k, :], k + off)
-        means.append(st.mean)
-        covs.append(st.cov)
+        mean, cov = flt.summary(st)
+        means.append(mean)
+        covs.append(cov)
     return {"means": np.stack(means, axis=-2), "covs": np.stack(covs, axis=-3)}
 
 
-# (documented: the conditional-moment filter's step API carries a GaussianState, so only for N = 2)
-HAS_API = [c for c in GAUSS if hasattr(c.filter(), "predict") and hasattr(c.filter(), "update")
-           and "edgeworth" not in c.name]
+HAS_API = [c for c in GAUSS if getattr(c.filter(), "time", None) == "discrete" and hasattr(c.filter(), "predict")]
 
 
 @pytest.mark.parametrize("start", ["update", "predict"])
@@ -599,10 +611,10 @@ def test_missing_increment_conditional_moment_filter():
     bayes, ito = case.filter(), case.filter(update="ito")
     d = case.data((3,), T, 5)
     res = case.run(_missing(d))
-    mu = bayes.init_moments(np.broadcast_to(M2, (3, 2)), np.broadcast_to(P2, (3, 2, 2)))
+    b = bayes.init(M2, P2, (3,))
     for k in range(MISSING_STEP):
-        mu = bayes.step_moments(mu, d[:, k], k * DT)
-    want = bayes.set.gaussian_state(ito.step_moments(mu, d[:, MISSING_STEP] * np.nan, MISSING_STEP * DT))
+        b = bayes.step(b, d[:, k], k * DT)
+    want = bayes.set.gaussian_state(ito.step_moments(b.mu, d[:, MISSING_STEP] * np.nan, MISSING_STEP * DT))
     close({"means": res.means[:, MISSING_STEP], "covs": res.covs[:, MISSING_STEP]},
           {"means": want.mean, "covs": want.cov}, 1e-10)
 

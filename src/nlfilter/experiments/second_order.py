@@ -220,7 +220,7 @@ def _robust_ukf_run(flt, ys, m0, P0):
                 T, n = ys.shape[1], len(np.atleast_1d(m0))
                 parts.append(Estimates(np.full((1, T, n), np.nan), np.full((1, T, n, n), np.nan),
                                        np.ones(1, bool), np.zeros(1, int)))
-        return Estimates(*(np.concatenate(a) for a in zip(*parts)))
+        return Estimates.concatenate(parts)
 
 
 def _ukf_on_euler(md, dt, dys, m0, P0):
@@ -374,7 +374,7 @@ def _report(res, problem, ests, xs, ref, ref_paths, late=False):
                 s = ev.mse(est, xt, component=i, window=w)
                 res.add(name, f"mse_x{i + 1}{tag}", s.value, s.stderr, problem=problem)
                 if name != "optimal":
-                    sub = Estimates(*(a[ref_paths] for a in est))
+                    sub = est.take(ref_paths)
                     g = ev.paired_difference(sub, ref, xs[ref_paths], component=i, window=w)
                     res.add(name, f"gap_mse_x{i + 1}{tag}", g.value, g.stderr, problem=problem)
             if name not in ("optimal", "truncated"):  # the paper's comparison, paired on all runs
@@ -391,7 +391,7 @@ def _report(res, problem, ests, xs, ref, ref_paths, late=False):
         lines, bands = {}, {}
         for name in ORDER:
             try:  # every filter on the reference's paths, so the gap to it is paired
-                est = ests[name] if name == "optimal" else Estimates(*(a[ref_paths] for a in ests[name]))
+                est = ests[name] if name == "optimal" else ests[name].take(ref_paths)
                 lines[name], se = ev.mse_per_step(est, xs[ref_paths], component=i)
             except ValueError:  # fewer than 2 non-diverged paths: nothing to draw
                 continue

@@ -25,6 +25,9 @@ class KalmanFilter(DiscreteFilter):
     """Discrete Kalman filter on a linear :class:`DiscreteModel` (batched, Joseph-form update)."""
 
     name = "kf"
+    family = "gaussian"
+    source = "seed 000 eqs. 1.33-1.36 (Kalman 1960)"
+    needs = ("linear",)
 
     def __init__(self, model, *, start: str = "update"):
         super().__init__(model, start=start)
@@ -79,6 +82,8 @@ class KalmanBucy(ContinuousEKF):
     """Kalman–Bucy filter on a linear :class:`SDEModel` (the continuous EKF is exact there)."""
 
     name = "kf"
+    source = "Kalman & Bucy 1961 (seed 004 eqs. 35-37, linear)"
+    needs = ("linear",)
 
     def __init__(self, model, dt, *, scheme="rk4", substeps=1):
         _require_linear(model, "KalmanBucy")

@@ -1,0 +1,203 @@
+"""Numerical steps shared by the Gaussian filters: symmetric square roots, the PSD screen, the
+Kalman update with missing components (Joseph form), the observed block of a precision, and the
+log-likelihood of a partly missing measurement.
+
+Every function here is batch-first (``(..., n)`` means, ``(..., n, n)`` covariances) and pure.
+"""
+
+from __future__ import annotations
+
+import functools
+import math
+
+import numpy as np
+
+from ..noise import Gaussian, Independent
+from .beliefs import GaussianState
+
+PSD_TOL = 1e-9
+
+
+def symmetrize(P: np.ndarray) -> np.ndarray:
+    if P.shape[-1] == 1:
+        return P
+    return 0.5 * (P + np.swapaxes(P, -1, -2))
+
+
+@functools.lru_cache(maxsize=None)
+def _eye(n: int) -> np.ndarray:
+    e = np.eye(n)
+    e.flags.writeable = False
+    return e
+
+
+def mm(A: np.ndarray, B: np.ndarray) -> np.ndarray:
+    """``A @ B`` for batches of small matrices; an outer product (a broadcast multiply, several
+    times faster than a batched matmul) when the inner dimension is 1."""
+    if A.shape[-1] == 1:
+        return A * B
+    return A @ B
+
+
+def bad_paths(mean: np.ndarray, cov: np.ndarray, tol: float = PSD_TOL) -> np.ndarray:
+    """Boolean ``(...)``: paths whose mean/cov is non-finite or whose cov is not PSD."""
+    n = cov.shape[-1]
+    ok = np.all(np.isfinite(mean), axis=-1) & np.all(np.isfinite(cov), axis=(-1, -2))
+    safe = np.where(ok[..., None, None], cov, np.eye(n))
+    if n == 1:
+        low = safe[..., 0, 0]
+    elif n == 2:  # closed-form smallest eigenvalue of a symmetric 2x2
+        a, b, c = safe[..., 0, 0], 0.5 * (safe[..., 0, 1] + safe[..., 1, 0]), safe[..., 1, 1]
+        low = 0.5 * (a + c) - np.sqrt(0.25 * (a - c) ** 2 + b * b)
+    else:
+        low = np.linalg.eigvalsh(symmetrize(safe))[..., 0]
+    scale = np.maximum(1.0, np.max(np.abs(safe), axis=(-1, -2)))
+    return ~ok | (low < -tol * scale)
+
+
+def sqrt_psd(P: np.ndarray, tol: float = PSD_TOL):
+    """``(L, bad)`` with ``L Lᵀ = P`` on every path of ``P (..., n, n)``: the lower Cholesky factor
+    where P is positive definite; where it is only semi-definite (rank-deficient, e.g. a known
+    initial state) the eigen root ``U √w`` (any root serves sigma points and quadrature nodes);
+    the identity where P is non-finite or has an eigenvalue below ``−tol·scale`` (``bad``: the
+    caller poisons those paths, so that ``run`` raises or marks them)."""
+    try:
+        return np.linalg.cholesky(P), np.zeros(P.shape[:-2], bool)
+    except np.linalg.LinAlgError:
+        pass
+    eye = np.eye(P.shape[-1])
+    finite = np.all(np.isfinite(P), axis=(-1, -2))
+    safe = np.where(finite[..., None, None], P, eye)
+    w, U = np.linalg.eigh(symmetrize(safe))
+    pd = finite & (w[..., 0] > 0)
+    bad = ~finite | (w[..., 0] < -tol * np.maximum(1.0, np.max(np.abs(safe), axis=(-1, -2))))
+    L = np.linalg.cholesky(np.where(pd[..., None, None], safe, eye))  # the same factor as alone
+    root = U * np.sqrt(np.maximum(w, 0.0))[..., None, :]
+    return np.where(pd[..., None, None], L, np.where(bad[..., None, None], eye, root)), bad
+
+
+def screened(run):
+    """Decorator for a ``run`` that checks its own results (raises or marks a failing path, never
+    returns NaN silently): NumPy's overflow/invalid/divide warnings are off inside it, as they are
+    in the protocol's run loops, so a caught failure is reported once, by the filter."""
+
+    @functools.wraps(run)
+    def wrapper(*args, **kwargs):
+        with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
+            return run(*args, **kwargs)
+
+    return wrapper
+
+
+def poison(state: GaussianState, bad) -> GaussianState:
+    """NaN on the paths in ``bad`` so that ``run``'s divergence check records them (never
+    silent: ``run`` raises or marks them)."""
+    if bad is None or not np.any(bad):
+        return state
+    return GaussianState(np.where(bad[..., None], np.nan, state.mean),
+                         np.where(bad[..., None, None], np.nan, state.cov))
+
+
+def _all_ok(mean: np.ndarray, cov: np.ndarray) -> bool:
+    """Quick test that every path is finite with PSD covariance (exact for n = 1; for n > 1
+    it only screens, and :func:`bad_paths` decides)."""
+    if cov.shape[-1] != 1:
+        return not bad_paths(mean, cov).any()
+    # ufunc reductions and Python floats: this runs twice a step, and method calls cost here
+    return bool(_min(cov, axis=None) >= 0.0) and math.isfinite(_sum(cov, axis=None) + _sum(mean, axis=None))
+
+
+_min, _sum = np.minimum.reduce, np.add.reduce
+
+
+def gaussian_update(state: GaussianState, y: np.ndarray, y_pred: np.ndarray, S: np.ndarray,
+                    C: np.ndarray, H: np.ndarray | None = None, R: np.ndarray | None = None
+                    ) -> GaussianState:
+    """Condition a Gaussian belief on ``y`` given the predicted measurement moments.
+
+    ``y_pred`` (..., m) = E[h], ``S`` (..., m, m) = Cov[h] + R (innovation covariance),
+    ``C`` (..., n, m) = Cov[x, h]. With a linearization ``H`` (..., m, n) and ``R`` the covariance
+    is updated in Joseph form, ``(I − K H) P (I − K H)ᵀ + K R Kᵀ`` (symmetric PSD by
+    construction); otherwise ``P − K S Kᵀ``, symmetrized. NaN components of ``y`` are missing.
+    Paths whose ``S`` is singular come back as NaN (:func:`poison`: ``run`` raises or marks them).
+    """
+    m, P = state
+    # a NaN anywhere makes the sum NaN: one reduction screens the common complete case
+    miss = np.isnan(y) if math.isnan(_sum(y, axis=None)) else None
+    if miss is not None and miss.any():
+        e = np.where(miss, 0.0, y - y_pred)
+        C = np.where(miss[..., None, :], 0.0, C)
+        both = miss[..., :, None] | miss[..., None, :]
+        eye = np.eye(y.shape[-1], dtype=bool)
+        S = np.where(both, np.where(eye & miss[..., None, :], 1.0, 0.0), S)
+        if H is not None:
+            H = np.where(miss[..., :, None], 0.0, H)
+    else:
+        e = y - y_pred
+    if S.shape[-1] == 1 and m.shape[-1] == 1:  # scalar state and measurement: elementwise
+        K = C / S
+        mean = m + K[..., 0] * e
+        if H is not None:  # Joseph form (1 − K H)² P + K² R
+            IKH = 1.0 - K * H
+            return GaussianState(mean, IKH * IKH * P + K * K * R)
+        return GaussianState(mean, P - K * K * S)
+    singular = None
+    if S.shape[-1] == 1:  # scalar measurement: no solve needed
+        K = C / S
+    else:
+        try:
+            K = np.swapaxes(np.linalg.solve(S, np.swapaxes(C, -1, -2)), -1, -2)  # K = C S⁻¹ (S symmetric)
+        except np.linalg.LinAlgError:  # a (numerically) singular S on some path: poison those paths only
+            K, singular = _solve_paths(S, C)
+    mean = m + (K[..., 0] * e if e.shape[-1] == 1 else np.einsum("...ij,...j->...i", K, e))
+    Kt = np.swapaxes(K, -1, -2)
+    if H is not None:  # Joseph form; K's missing columns are zero, so R's missing rows never enter
+        IKH = _eye(m.shape[-1]) - mm(K, H)
+        cov = mm(mm(IKH, P), np.swapaxes(IKH, -1, -2)) + mm(mm(K, R), Kt)
+    else:
+        cov = P - mm(mm(K, S), Kt)
+    return poison(GaussianState(mean, symmetrize(cov)), singular)
+
+
+def observed_precision(R: np.ndarray, Rinv: np.ndarray, obs: np.ndarray) -> np.ndarray:
+    """Precision of the observed components of a measurement with noise covariance ``R (m, m)``:
+    ``Rinv`` when ``obs (..., m)`` is all True, else ``(..., m, m)`` holding the inverse of R's
+    observed block (the Gaussian marginal of the observed components) and zeros in the missing
+    rows and columns. (With correlated noise this is not R⁻¹ with rows zeroed.)"""
+    if obs.all():
+        return Rinv
+    both = obs[..., :, None] & obs[..., None, :]
+    return np.where(both, np.linalg.inv(np.where(both, R, np.eye(R.shape[-1]))), 0.0)
+
+
+def measurement_loglik(law, resid, obs=None):
+    """log p_v(resid) ``(..., N)`` for residuals ``(..., N, m)`` under the noise law ``law``;
+    ``obs (..., m)`` marks the observed components of each path: a partly missing measurement has
+    the marginal law of its observed components (exact for Gaussian and Independent laws; a fully
+    missing one has log-likelihood 0)."""
+    if obs is None or obs.all():
+        return law.logpdf(resid)
+    if isinstance(law, Independent):
+        return sum(np.where(obs[..., None, i], d.logpdf(resid[..., i]), 0.0) for i, d in enumerate(law.dists))
+    if isinstance(law, Gaussian):
+        both = obs[..., :, None] & obs[..., None, :]
+        _, logdet = np.linalg.slogdet(np.where(both, law.cov, np.eye(law.dim)))  # log det of the observed block
+        d = np.where(obs[..., None, :], resid - law.mean, 0.0)
+        quad = np.einsum("...pi,...ij,...pj->...p", d, observed_precision(law.cov, None, obs), d)
+        return -0.5 * quad - 0.5 * (logdet + obs.sum(axis=-1) * np.log(2 * np.pi))[..., None]
+    raise ValueError("measurement_noise: partly missing measurements need a Gaussian or Independent law")
+
+
+def _solve_paths(S, C):
+    """``(K = C S⁻¹, singular)`` when a batched solve failed: the paths whose innovation covariance
+    ``S`` is non-finite or singular (LU determinant sign ≤ 0; S must be positive definite) get
+    ``S = I`` here and are returned in ``singular`` (the caller poisons them, so that ``run``
+    raises or marks them); the other paths are solved as usual."""
+    eye = np.eye(S.shape[-1])
+    ok = np.all(np.isfinite(S), axis=(-1, -2))
+    sign, _ = np.linalg.slogdet(np.where(ok[..., None, None], S, eye))
+    singular = ~ok | ~(sign > 0)
+    safe = np.where(singular[..., None, None], eye, S)
+    return np.swapaxes(np.linalg.solve(safe, np.swapaxes(C, -1, -2)), -1, -2), singular
+
+
