@@ -1,4 +1,4 @@
-"""Run the docstring examples of every nlfilter module (DESIGN.md rule 7)."""
+"""Run the docstring examples of every nlfilter module (docstrings carry small examples that run)."""
 
 import doctest
 import importlib

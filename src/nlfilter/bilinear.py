@@ -40,6 +40,7 @@ import sympy as sp
 
 from . import _validate as V
 from .errors import NotPolynomialError
+from .models import lambdify_numpy
 from .moments.ito import PolynomialSDE, bilinear_lift
 from .polynomials import Polynomial, monomial_name, monomials
 
@@ -68,7 +69,7 @@ def _mat(name, value, shape, time):
             raise ValueError(f"{name}: uses symbol(s) {sorted(map(str, extra))} other than the time symbol {time}")
         if not M.free_symbols:
             return np.array(M.tolist(), dtype=float)
-        fn = sp.lambdify([time], M, modules="numpy")
+        fn = lambdify_numpy([time], M)
         return lambda t: np.asarray(fn(t), dtype=float)
     arr = V.as_float_array(name, value)
     if arr.shape != shape:

@@ -153,3 +153,20 @@ def test_step_functions_flag_an_impossible_measurement_and_reset_keeps_the_strea
     assert r.rng is b.rng
     np.testing.assert_array_equal(r.x[1], b.x[1])
     np.testing.assert_array_equal(r.x[0], moved.x[0])
+
+
+def test_grid_filter_reads_time_of_from_functions_model():
+    """issue 10 item 8.1 (same defect as the KF's): the grid filter cached its transition kernel of
+    k = 0 for every model without a time symbol; on a time-varying linear from_functions model it
+    must equal the EKF, exact on a linear model (the grid's discretization error, ~1e-7 here, aside)."""
+    from nlfilter.filters.ekf import EKF
+    a = lambda k: 0.9 + 0.3 * np.sin(k)  # noqa: E731
+    md = DiscreteModel.from_functions(1, 1, lambda x, k=0: a(k) * x + 0.3 * np.cos(k), lambda x, k=0: x,
+                                      f_x=lambda x, k=0: np.full((*np.shape(x)[:-1], 1, 1), a(k)),
+                                      h_x=lambda x, k=0: np.ones((*np.shape(x)[:-1], 1, 1)),
+                                      Q=[[0.1]], R=[[0.2]], is_linear=True)
+    ys = np.random.default_rng(1).normal(size=(2, 25, 1))
+    kf = EKF(md).run(ys, [0.0], [[0.5]])
+    g = GridFilter(md, (-6, 6), 801).run(ys, 0.0, 0.5)
+    np.testing.assert_allclose(g.means, kf.means, atol=1e-5)
+    np.testing.assert_allclose(g.covs, kf.covs, atol=1e-5)

@@ -32,7 +32,7 @@ class KalmanFilter(DiscreteFilter):
     def __init__(self, model, *, start: str = "update"):
         super().__init__(model, start=start)
         _require_linear(model, "KalmanFilter")
-        self._const = model.time is None
+        self._const = getattr(model, "time_invariant", False)  # else F, b, H, d, GQGᵀ read at every step
         if self._const:
             self._mats = self._matrices(0)
 

@@ -43,7 +43,7 @@ from typing import NamedTuple
 import numpy as np
 
 from .. import _validate as V
-from ..moments.closures import Closure, GaussianClosure, gaussian_moments
+from ..moments.closures import Closure, GaussianClosure, gaussian_moments, kept_order
 from ..moments.expect import PolynomialExpectations
 from ..moments.quadrature import gaussian_rule
 from ..moments.ito import PolynomialMap, PolynomialSDE, discrete_moment_equations, moment_equations
@@ -173,15 +173,6 @@ def _model_polys(model, who):
     return [Polynomial.from_sympy(e, st, name=f"h[{i}]") for i, e in enumerate(model.sym["h"])]
 
 
-def _order(closure, order):
-    if not isinstance(closure, Closure):
-        raise TypeError(f"closure: expected a Closure instance, got {type(closure).__name__}")
-    N = closure.order if order is None else order
-    if isinstance(N, bool) or not isinstance(N, int) or N < closure.order:
-        raise ValueError(f"order: expected an integer ≥ the closure's order {closure.order}, got {order!r}")
-    return N
-
-
 class ConditionalMomentFilter(_MomentFilter, ContinuousFilter):
     """Kushner-Stratonovich conditional-moment filter for a polynomial :class:`SDEModel`.
 
@@ -210,7 +201,7 @@ class ConditionalMomentFilter(_MomentFilter, ContinuousFilter):
         ContinuousFilter.__init__(self, model, dt, scheme="rk4", substeps=substeps)
         self.update_rule = V.choice("update", update, {"bayes", "ito"})
         closure = GaussianClosure() if closure is None else closure
-        N = _order(closure, order)
+        N = kept_order(closure, order)
         h = _model_polys(model, "ConditionalMomentFilter")
         sde = PolynomialSDE.from_model(model)
         if sde.symbols:
@@ -283,7 +274,7 @@ class DiscreteConditionalMomentFilter(_MomentFilter, DiscreteFilter):
                  start: str = "update", points: int = 24, name: str | None = None):
         DiscreteFilter.__init__(self, model, start=start)
         closure = GaussianClosure() if closure is None else closure
-        N = _order(closure, order)
+        N = kept_order(closure, order)
         h = _model_polys(model, "DiscreteConditionalMomentFilter")
         pm = PolynomialMap.from_model(model)
         eqs = discrete_moment_equations(pm, monomials(model.n, N, min_degree=1))

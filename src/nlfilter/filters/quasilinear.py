@@ -53,7 +53,7 @@ from scipy.integrate import solve_ivp
 
 from .. import _validate as V
 from ..errors import ClosureDivergedError, NotPolynomialError
-from ..moments.closures import Closure, EdgeworthClosure, GaussianClosure, gaussian_moments
+from ..moments.closures import Closure, EdgeworthClosure, GaussianClosure, gaussian_moments, kept_order
 from ..moments.expect import PolynomialExpectations, statistical_linearization_polys
 from ..moments.ito import (PolynomialMap, PolynomialSDE, discrete_moment_equations, gaussian_noise_moments,
                            moment_equations)
@@ -151,9 +151,7 @@ class _Linearizer:
         self.model, self.closure, self.kind = model, closure, kind
         n, m = model.n, model.m
         self.n, self.m = n, m
-        N = closure.order if order is None else order
-        if isinstance(N, bool) or not isinstance(N, int) or N < closure.order:
-            raise ValueError(f"order: expected an integer ≥ the closure's order {closure.order}, got {order!r}")
+        N = kept_order(closure, order)
         if getattr(model, "sym", None) is None:
             raise TypeError("model: quasilinear filters need a model stated in SymPy")
         if model.time is not None and (model.sym["f"].has(model.time) or model.sym["h"].has(model.time)
@@ -425,10 +423,12 @@ class QuasilinearFilter(ContinuousFilter):
         raise NotImplementedError("QuasilinearFilter: use run(); the gains are tabulated off-line for a run")
 
     # -- accuracy ------------------------------------------------------------------------------
-    def error_analysis(self, m0, P0, steps: int, *, closure: Closure | None = None, order: int = 4,
+    def error_analysis(self, m0, P0, steps: int, *, closure: Closure | None = None, order: int | None = None,
                        t0: float = 0.0) -> ErrorAnalysis:
         """True MSE E(x − x̂)² on the grid, from the moments of the joint process (x, x̂) (003 Fig. 2),
-        closed by ``closure`` (default Edgeworth of ``order`` 4 as in the paper). Polynomial models."""
+        closed by ``closure`` (default Edgeworth of ``order`` 4 as in the paper); ``order``
+        defaults to the closure's order (:func:`~nlfilter.moments.closures.kept_order`).
+        Polynomial models."""
         if not self.lin.polynomial:
             raise NotPolynomialError("model: the off-line accuracy analysis needs polynomial f, GQGᵀ and h")
         m0, P0 = self._prior(m0, P0)
@@ -437,17 +437,31 @@ class QuasilinearFilter(ContinuousFilter):
                                    closure=closure, order=order)
 
 
+def _closure_and_order(closure, order):
+    """The error analyses' pair: Edgeworth of ``order`` (default 4) when no closure is given, else
+    ``closure`` with :func:`~nlfilter.moments.closures.kept_order` (its own order by default)."""
+    if closure is None:
+        if order is None:
+            order = 4
+        if isinstance(order, bool) or not isinstance(order, int) or order < 2:
+            raise ValueError(f"order: expected an integer ≥ 2 (the MSE needs second moments), got {order!r}")
+        return EdgeworthClosure(order), order
+    return closure, kept_order(closure, order)
+
+
 def gain_error_analysis(model, coefficients, m0, P0, t, *, xhat0=None, closure: Closure | None = None,
-                        order: int = 4) -> ErrorAnalysis:
+                        order: int | None = None) -> ErrorAnalysis:
     """Off-line accuracy of ANY filter with precomputed gains of the form
     ``dx̂ = [F(t) x̂ + u(t)] dt + Kg(t) dy`` on a polynomial :class:`SDEModel`: the moments of the
     joint polynomial SDE (x, x̂) (``dx̂ = [F x̂ + u + Kg h(x)] dt + Kg dη``) up to ``order``, closed by
-    ``closure`` (default Edgeworth of that order), give ``E(x − x̂)²`` on the times ``t``.
+    ``closure`` (default Edgeworth of that order), give ``E(x − x̂)²`` on the times ``t``. With a
+    closure and no ``order`` the order is the closure's (an ``order`` below it is a ``ValueError``);
+    neither given: Edgeworth of order 4.
 
     ``coefficients(t) -> (F (n, n), u (n,), Kg (n, m))``; ``x̂(t[0]) = xhat0`` (default m0), ``x(t[0]) ~
     N(m0, P0)``. For linear models and a Kalman-Bucy gain this is the Riccati solution (exact).
     """
-    closure = EdgeworthClosure(order) if closure is None else closure
+    closure, order = _closure_and_order(closure, order)
     n, mm = model.n, model.m
     m0, P0 = _prior(n, m0, P0, definite=False)
     xh0 = m0 if xhat0 is None else V.as_float_array("xhat0", xhat0, shape_tail=(n,)).reshape(n)
@@ -480,7 +494,7 @@ def gain_error_analysis(model, coefficients, m0, P0, t, *, xhat0=None, closure: 
 
 
 def discrete_gain_error_analysis(model, coefficients, m0, P0, steps: int, *, xhat0=None,
-                                 closure: Closure | None = None, order: int = 4,
+                                 closure: Closure | None = None, order: int | None = None,
                                  noise_moment=None) -> ErrorAnalysis:
     """Off-line accuracy of ANY discrete filter with precomputed coefficients on a polynomial
     :class:`~nlfilter.models.DiscreteModel` ``x[k+1] = f(x[k]) + G(x[k]) w[k]``,
@@ -498,8 +512,8 @@ def discrete_gain_error_analysis(model, coefficients, m0, P0, steps: int, *, xha
         x̂⁻[k+1] = a1 M x̂⁻ + a1 Kg h(x) + e − a1 Kg d + a1 Kg v
 
     whose raw moments up to ``order`` follow from :func:`~nlfilter.moments.ito.discrete_moment_equations`
-    (003 eq. 11 in discrete form), closed by ``closure`` (default Edgeworth of ``order``, as the
-    paper's Fig. 2; :class:`GaussianClosure` is an option). The estimate ``x̂⁺[k] = M x̂⁻ + Kg h(x)
+    (003 eq. 11 in discrete form), closed by ``closure`` (default Edgeworth of ``order`` 4, as the
+    paper's Fig. 2; :class:`GaussianClosure` is an option; ``order`` defaults to the closure's). The estimate ``x̂⁺[k] = M x̂⁻ + Kg h(x)
     − Kg d + Kg v`` is one more polynomial map of ``z[k]`` and ``v[k]``: its moments give
     ``E(x[k] − x̂⁺[k])²`` (per component) at k = 0 .. steps − 1, the steps of ``run``.
 
@@ -511,13 +525,7 @@ def discrete_gain_error_analysis(model, coefficients, m0, P0, steps: int, *, xha
     """
     if getattr(model, "kind", None) != "discrete" or getattr(model, "sym", None) is None:
         raise TypeError(f"model: expected a DiscreteModel stated in SymPy, got {type(model).__name__}")
-    if isinstance(order, bool) or not isinstance(order, int) or order < 2:
-        raise ValueError(f"order: expected an integer ≥ 2 (the MSE needs second moments), got {order!r}")
-    closure = EdgeworthClosure(order) if closure is None else closure
-    if not isinstance(closure, Closure):
-        raise TypeError(f"closure: expected a Closure instance, got {type(closure).__name__}")
-    if order < closure.order:
-        raise ValueError(f"order: expected an integer ≥ the closure's order {closure.order}, got {order}")
+    closure, order = _closure_and_order(closure, order)
     V.positive("steps", steps, integer=True)
     n, mm, r = model.n, model.m, model.r
     m0, P0 = _prior(n, m0, P0, definite=False)  # no linearization here: a known x[0] is fine
@@ -574,17 +582,23 @@ def discrete_gain_error_analysis(model, coefficients, m0, P0, steps: int, *, xha
     return ErrorAnalysis(sol.t, _mse(sol, n), sol)
 
 
-def QLF(model, dt, **kw) -> QuasilinearFilter:
-    """The quasilinear filter: statistical linearization under the Gaussian closure (003 eqs. 3-8)."""
-    f = QuasilinearFilter(model, dt, closure=GaussianClosure(), **kw)
+def QLF(model, dt, *, order: int | None = None, substeps: int = 4, scheme: str = "rk4", rtol: float = 1e-9,
+        atol: float = 1e-12) -> QuasilinearFilter:
+    """The quasilinear filter: statistical linearization under the Gaussian closure (003 eqs. 3-8);
+    the other arguments as :class:`QuasilinearFilter`'s."""
+    f = QuasilinearFilter(model, dt, closure=GaussianClosure(), order=order, substeps=substeps, scheme=scheme,
+                          rtol=rtol, atol=atol)
     f.name = "qlf"
     return f
 
 
-def MQLF(model, dt, *, closure: Closure | None = None, **kw) -> QuasilinearFilter:
+def MQLF(model, dt, *, closure: Closure | None = None, order: int | None = None, substeps: int = 4,
+         scheme: str = "rk4", rtol: float = 1e-9, atol: float = 1e-12) -> QuasilinearFilter:
     """The modified quasilinear filter (003 Theorem 4.1): coefficients from the method of moments
-    closed by ``closure`` (default: Edgeworth / Hermite quasi-moments of order 4, 003 eqs. 27-33)."""
-    f = QuasilinearFilter(model, dt, closure=EdgeworthClosure(4) if closure is None else closure, **kw)
+    closed by ``closure`` (default: Edgeworth / Hermite quasi-moments of order 4, 003 eqs. 27-33);
+    the other arguments as :class:`QuasilinearFilter`'s."""
+    f = QuasilinearFilter(model, dt, closure=EdgeworthClosure(4) if closure is None else closure, order=order,
+                          substeps=substeps, scheme=scheme, rtol=rtol, atol=atol)
     f.name = "mqlf"
     return f
 
@@ -633,10 +647,11 @@ class DiscreteQuasilinearFilter:
         return rows
 
     def error_analysis(self, m0, P0, steps: int, *, closure: Closure | None = None,
-                       order: int = 4) -> ErrorAnalysis:
+                       order: int | None = None) -> ErrorAnalysis:
         """True MSE E(x[k] − x̂⁺[k])² at k = 0 .. steps − 1 (the estimates of :meth:`run` on
         ``steps`` measurements) from the moments of the joint process (x, x̂), closed by ``closure``
-        (default Edgeworth of ``order`` 4, as 003 Fig. 2 in continuous time). The coefficients of
+        (default Edgeworth of ``order`` 4, as 003 Fig. 2 in continuous time; ``order`` defaults to
+        the closure's order). The coefficients of
         :meth:`offline` (003 eqs. 4-5 on the prior moments, eq. 11 in discrete form) enter
         :func:`discrete_gain_error_analysis` as ``d = b0 − b1 m``, ``e = a0 − a1 m``. Polynomial
         models; ``t`` holds the step indices."""

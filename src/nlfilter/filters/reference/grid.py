@@ -88,7 +88,7 @@ class GridFilter(_ReferenceFilter):
         mesh = np.meshgrid(*self.axes, indexing="ij")
         self.X = np.stack([g.ravel() for g in mesh], axis=-1)  # (N, n), first axis slowest
         self._setup(model, dt, start, "grid filter")
-        self._time_varying = model.time is not None
+        self._time_varying = not getattr(model, "time_invariant", False)
         self._kernel_cache = None
 
     # -- transition ------------------------------------------------------------------------
