@@ -198,3 +198,57 @@ def test_module_and_function_both_reachable():
     assert nlfilter.compare is mod.compare and nlfilter.compare.__module__ == "nlfilter.comparison"
     with pytest.raises(ModuleNotFoundError):
         importlib.import_module("nlfilter.compare")
+
+
+# -- compare(model, "all") over the filter registry ----------------------------------------------------
+x1, x2 = sp.symbols("x1 x2")
+D2 = DiscreteModel([x1, x2], [0.9 * x1 + 0.1 * x2, 0.8 * x2 - 0.05 * x1**3], [x1 + 0.1 * x2**2, x2],
+                   Q=np.diag([0.1, 0.05]), R=np.diag([0.2, 0.1]))
+CUBIC_SDE = SDEModel([x], [-x], [x**3], Q=1.0, R=1.0)
+
+
+def _families(res):
+    from nlfilter.filters import REGISTRY
+    return {REGISTRY[r.filter].family for r in res.rows if r.filter in REGISTRY}
+
+
+def test_all_on_a_two_state_discrete_model_runs_every_family_that_accepts_it():
+    from nlfilter.filters import REGISTRY
+    res = compare(D2, "all", 12, paths=4, m0=[0.3, -0.2], P0=np.diag([0.5, 0.4]), rng=0)
+    ran = {r.filter for r in res.rows} - {"optimal"}
+    want = {name for name, cls in REGISTRY.items() if "discrete" in getattr(cls, "accepts", ()) and cls.family != "reference"
+            and getattr(cls, "time", None) == "discrete"}
+    assert ran | set(res.params.get("skipped", {})) == want  # each one ran, or is skipped with a reason
+    assert {"gaussian", "second-order", "conditional moments"} <= _families(res)
+    assert "kf" in res.params["skipped"] and "linear" in res.params["skipped"]["kf"]  # D2 is nonlinear
+    for name in ran:  # one shared simulation: every filter's MSE is finite, the paired gap has a stderr
+        assert np.isfinite(res.get(name, "mse", component=1).value)
+        assert res.get(name, "gap_to_optimal", component=0).stderr >= 0
+
+
+def test_all_on_a_scalar_polynomial_sde_and_on_its_bilinear_lift():
+    from nlfilter.bilinear import BilinearModel
+    kw = dict(paths=6, m0=0.0, P0=0.5, dt=0.05, rng=1)
+    sde = compare(CUBIC_SDE, "all", 20, **kw)
+    assert {"continuous-ekf", "continuous-second-order", "conditional-moment", "quasilinear"} <= {r.filter for r in sde.rows}
+    assert not any(r.filter.startswith("continuous-discrete") for r in sde.rows)  # they read samples, not increments
+    lift = compare(BilinearModel.from_polynomial(CUBIC_SDE), "all", 20, **kw)
+    names = {r.filter for r in lift.rows}
+    assert {"tensor", "updated-innovations"} <= names  # the bilinear family, on the lift
+    assert {"continuous-ekf", "quasilinear"} <= names  # and every SDE filter, on the SDE it lifts
+    # same simulation (the lift's SDE view is the SDE itself): the SDE filters' numbers do not move
+    for name in ("continuous-ekf", "quasilinear", "optimal"):
+        assert lift.get(name, "mse", component=0).value == sde.get(name, "mse", component=0).value
+    assert "pseudo-observables" in lift.params["skipped"]  # needs the user's x_moment
+
+
+def test_named_filters_and_unknown_names():
+    res = compare(LIN, ["kf", "ekf"], 20, paths=4, m0=0.0, P0=0.5, rng=0)
+    assert {r.filter for r in res.rows} == {"kf", "ekf", "optimal"}
+    assert res.get("kf", "mse", component=0).value == pytest.approx(res.get("ekf", "mse", component=0).value, abs=1e-12)
+    with pytest.raises(ValueError, match=r"^filters: expected registry names from .*'ekf'.*, got 'bogus'"):
+        compare(LIN, ["ekf", "bogus"], 20, paths=4, m0=0.0, P0=0.5, rng=0)
+    with pytest.raises(ValueError, match=r"^filters: kf: model: KalmanFilter needs a linear model"):
+        compare(CUBIC, ["kf"], 20, paths=4, m0=0.0, P0=0.5, rng=0)
+    with pytest.raises(TypeError, match=r"^filters: expected 'all'"):
+        compare(LIN, "some", 20, paths=4, m0=0.0, P0=0.5, rng=0)

@@ -19,13 +19,12 @@ Automatic reference (``reference="auto"``)
 * ``n > 2``: a :class:`~nlfilter.filters.reference.ParticleFilter` with :data:`PARTICLES`
   particles, seeded from its own spawned stream (the simulation's numbers do not move).
 
-Any filter whose ``run`` takes ``rng`` (a particle filter in ``filters``) gets a stream of its
+Any filter that draws (``random = True``: a particle filter in ``filters``) gets a stream of its
 own, keyed by its name: runs are reproducible from ``rng`` and do not depend on the other filters.
 """
 
 from __future__ import annotations
 
-import inspect
 import math
 import numbers
 import zlib
@@ -34,7 +33,11 @@ import numpy as np
 
 from . import _validate as V
 from .evaluate import _window, mse, mse_per_step, nees, paired_difference, stream
+from .filters import REGISTRY
+from .filters.base import Estimates
+from .moments.closures import gaussian_moments
 from .filters.reference import GridFilter, ParticleFilter
+from .filters.registry import accepting, model_kind
 from .results import Result
 from .simulate import simulate
 
@@ -64,13 +67,6 @@ def _run_rng(root, name):
     return np.random.default_rng(np.random.SeedSequence(root.entropy, spawn_key=(*root.spawn_key, *key)))
 
 
-def _takes_rng(flt):
-    try:
-        return "rng" in inspect.signature(flt.run).parameters
-    except (TypeError, ValueError):  # pragma: no cover - builtins without a signature
-        return False
-
-
 def _check_filter(label, flt, model, dt, start):
     """``flt`` has ``run`` and the comparison's step convention (discrete) or ``dt`` (SDE)."""
     if not callable(getattr(flt, "run", None)):
@@ -81,6 +77,53 @@ def _check_filter(label, flt, model, dt, start):
     fdt = getattr(flt, "dt", None)
     if model.kind == "sde" and isinstance(fdt, numbers.Real) and not math.isclose(fdt, dt, rel_tol=1e-12):
         raise ValueError(f"{label}: its dt={fdt!r} differs from dt={dt!r} of the comparison")
+
+
+def _applies(cls, model, kind_of_data) -> bool:
+    """A registered filter applies when it accepts the model's kind and reads the comparison's
+    data: measurement increments (continuous-time filters) for an SDE, samples for a discrete model."""
+    return model_kind(model) in getattr(cls, "accepts", ()) and getattr(cls, "time", None) == kind_of_data
+
+
+def _resolve(filters, model, sim_model, dt, start):
+    """``(dict name -> filter instance, dict name -> reason skipped)`` from a dict of instances,
+    ``"all"`` (every registered filter that applies, the reference family aside: the reference is
+    the yardstick), or a list of registry names (built with ``cls.for_model``)."""
+    if isinstance(filters, dict):
+        return dict(filters), {}
+    data = "continuous" if sim_model.kind == "sde" else "discrete"
+    models = [sim_model] + ([model] if model is not sim_model else [])
+    if isinstance(filters, str) and filters == "all":
+        names = [name for m in models for name, cls in accepting(REGISTRY, m).items()
+                 if getattr(cls, "family", "") != "reference" and _applies(cls, m, data)]
+        explicit = False
+    elif isinstance(filters, (list, tuple)) and filters and all(isinstance(f, str) for f in filters):
+        names = list(filters)
+        explicit = True
+    else:
+        raise TypeError(f"filters: expected 'all', a list of registry names or a non-empty dict of name -> filter "
+                        f"instance, got {filters!r}")
+    out, skipped = {}, {}
+    for name in names:
+        if name in out:
+            continue
+        cls = REGISTRY.get(name)
+        if cls is None:
+            raise ValueError(f"filters: expected registry names from {sorted(REGISTRY)!r}, got {name!r}")
+        target = next((m for m in models if _applies(cls, m, data)), None)
+        try:
+            if target is None:
+                raise ValueError(f"{name} accepts {getattr(cls, 'accepts', ())} models read through "
+                                 f"{getattr(cls, 'time', '?')}-time data; this comparison has a "
+                                 f"{model_kind(model)} model and {data}-time data")
+            out[name] = cls.for_model(target, dt=dt, start=start)
+        except (ValueError, TypeError, NotImplementedError) as exc:  # the model lacks what it needs
+            if explicit:
+                raise ValueError(f"filters: {name}: {exc}") from None
+            skipped[name] = str(exc).splitlines()[0]
+    if not out:
+        raise ValueError(f"filters: no registered filter applies to {model!r}; skipped: {skipped}")
+    return out, skipped
 
 
 def _check_filters(filters, model, dt, start, reference):
@@ -119,6 +162,22 @@ def _grid(model, sim, m0, P0, dt, start):
     return flt, bounds, sizes
 
 
+def _lifted_prior(lift, m0, P0):
+    """The prior of a bilinear model's state (for a lift, the monomials ``coords`` of the base
+    state) under the base prior N(m0, P0): exact Gaussian moments; and the columns of its state
+    that are the base state's coordinates (where the comparison reads its estimates)."""
+    coords = [tuple(c) for c in lift.coords]
+    nb = len(m0)
+    mean = gaussian_moments(m0, P0, coords)
+    second = gaussian_moments(m0, P0, [tuple(a + b for a, b in zip(ci, cj)) for ci in coords for cj in coords])
+    cov = second.reshape(len(coords), len(coords)) - np.outer(mean, mean)
+    units = [tuple(int(i == j) for i in range(nb)) for j in range(nb)]
+    missing = [u for u in units if u not in coords]
+    if missing:
+        raise ValueError(f"model: the bilinear model's state does not contain the base state (coords {coords})")
+    return mean, 0.5 * (cov + cov.T), [coords.index(u) for u in units]
+
+
 def _component_names(model):
     states = getattr(model, "states", None)
     return [str(s) for s in states] if states else [f"x{i + 1}" for i in range(model.n)]
@@ -130,9 +189,16 @@ def compare(model, filters, steps, *, paths=200, m0, P0, rng=0, reference="auto"
 
     Parameters
     ----------
-    model : DiscreteModel or SDEModel
-    filters : dict name -> filter instance (anything with ``run(ys, m0, P0, on_divergence=...)``
-        returning :class:`~nlfilter.filters.base.Estimates`), built for ``model`` (and ``dt``)
+    model : DiscreteModel, SDEModel or BilinearModel (simulated through its SDE/discrete view —
+        for a lift, the SDE it lifts; the filters of the bilinear family run on the bilinear model
+        from the lifted prior, and are read at the base state's coordinates)
+    filters : ``"all"`` — every filter of :data:`nlfilter.filters.REGISTRY` that accepts the model
+        and reads its data (increments for an SDE), the reference family aside, each built with
+        ``cls.for_model(model, dt=dt, start=start)``; those the model cannot serve (e.g. the KF on
+        a nonlinear model) are listed with the reason in ``params["skipped"]`` and a note —, a list
+        of registry names (built the same way; one that cannot be built is an error), or a dict
+        name -> filter instance (anything with ``run(ys, m0, P0, on_divergence=...)`` returning
+        :class:`~nlfilter.filters.base.Estimates`), built for ``model`` (and ``dt``)
     steps, paths : measurement steps and Monte Carlo paths (``paths ≥ 2``)
     m0, P0 : the prior: true initial states are drawn from N(m0, P0); every filter starts there
     rng : an integer seed or a ``numpy.random.Generator`` (the simulation's; filters that draw
@@ -161,9 +227,14 @@ def compare(model, filters, steps, *, paths=200, m0, P0, rng=0, reference="auto"
     >>> sorted({r.quantity for r in res.rows})
     ['divergence_rate', 'gap_to_optimal', 'mse', 'nees']
     """
+    given = model
+    if model_kind(model) in ("bilinear", "bilinear-discrete"):
+        # simulated (and the reference run) on its DiscreteModel/SDEModel view: for a lift, the SDE
+        # it lifts; the filters that take the bilinear model itself run on it (prior lifted)
+        model = model.to_discrete() if model.discrete else model.to_sde()
     kind = getattr(model, "kind", None)
     if kind not in ("discrete", "sde"):
-        raise TypeError(f"model: expected a DiscreteModel or SDEModel, got {type(model).__name__}")
+        raise TypeError(f"model: expected a DiscreteModel, SDEModel or BilinearModel, got {type(model).__name__}")
     V.positive("steps", steps, integer=True)
     V.positive("paths", paths, integer=True)
     if paths < 2:
@@ -181,6 +252,7 @@ def compare(model, filters, steps, *, paths=200, m0, P0, rng=0, reference="auto"
         raise ValueError(f"reference: expected 'auto', None or a filter instance, got {reference!r}")
     if not (reference is None or isinstance(reference, str)):
         _check_filter("reference", reference, model, dt, start)
+    filters, skipped = _resolve(filters, given, model, dt, start)
     _check_filters(filters, model, dt, start, reference)
     m0v = (V.as_float_array("m0", m0, ndim=1, shape_tail=(model.n,)) if np.ndim(m0)
            else np.full(model.n, float(m0)))
@@ -218,9 +290,21 @@ def compare(model, filters, steps, *, paths=200, m0, P0, rng=0, reference="auto"
     from tqdm.auto import tqdm
     est = {}
     for name, flt in tqdm(runs.items(), disable=not progress, desc="compare"):
-        kw = {"rng": _run_rng(root, name)} if _takes_rng(flt) else {}
-        est[name] = flt.run(sim.ys, m0v, P0m, on_divergence=on_divergence, **kw)
+        kw = {"rng": _run_rng(root, name)} if getattr(flt, "random", False) else {}
+        if getattr(flt, "own_prior", False):  # it starts from a prior of its own
+            est[name] = flt.run(sim.ys, on_divergence=on_divergence, **kw)
+        elif given is not model and getattr(flt, "model", None) is given:  # a filter of the bilinear model
+            lm0, lP0, cols = _lifted_prior(given, m0v, P0m)
+            e = flt.run(sim.ys, lm0, lP0, on_divergence=on_divergence, **kw)
+            if e.means.shape[-1] != len(cols):  # the whole lifted state: read the base coordinates
+                e = Estimates(e.means[..., cols], e.covs[..., cols, :][..., :, cols], e.diverged,
+                              e.diverged_step, e.extras)
+            est[name] = e
+        else:
+            est[name] = flt.run(sim.ys, m0v, P0m, on_divergence=on_divergence, **kw)
 
+    if skipped:
+        params["skipped"] = skipped
     what = getattr(model, "name", "") or repr(model)
     res = Result("compare", f"{len(filters)} filter(s) against the optimal reference on {what}",
                  "nlfilter.compare: Monte Carlo on common random numbers", params)
@@ -247,6 +331,8 @@ def compare(model, filters, steps, *, paths=200, m0, P0, rng=0, reference="auto"
         res.series[f"MSE of {c} per step ({paths} paths)"] = {
             "x": sim.t, "lines": lines, "bands": bands, "ylabel": f"E ({c} − {c}̂)²",
             "xlabel": "t" if kind == "sde" else "step k"}
+    if skipped:
+        res.notes.append("not run (the model lacks what they need): " + "; ".join(f"{k}: {v}" for k, v in skipped.items()))
     res.notes.append(f"window {window!r} of {steps} steps, {paths} paths; gap_to_optimal = MSE − MSE(optimal) "
                      f"on the same paths; NEES ≈ {model.n} for a consistent filter")
     return res

@@ -231,7 +231,19 @@ class Filter:
     needs: tuple = ()
     time = "discrete"
     random = False
+    own_prior = False  # True: the filter starts from a prior of its own (run takes m0 = P0 = None)
     start = "update"
+
+    @classmethod
+    def for_model(cls, model, *, dt: float | None = None, start: str = "update"):
+        """An instance for ``model`` with the default options (what ``compare(model, "all")``
+        builds): ``cls(model, dt)`` on a continuous-time model (an SDE, a continuous bilinear or
+        phase model), ``cls(model)`` on a discrete one, with ``start=start`` for discrete-time
+        filters. Filters that need more (bounds, a model-specific option) override it."""
+        continuous = getattr(model, "kind", None) in ("sde", "phase") or (
+            getattr(model, "kind", None) == "bilinear" and not getattr(model, "discrete", False))
+        args = (model, dt) if continuous else (model,)
+        return cls(*args, start=start) if cls.time == "discrete" else cls(*args)
 
     # -- the belief functions ----------------------------------------------------------------------
     @property

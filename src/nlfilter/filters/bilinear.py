@@ -602,6 +602,14 @@ class TensorFilter(_SteadyLinearRecursion):
         self._fits = None
         self._cov = None
 
+    @classmethod
+    def for_model(cls, model, *, dt=None, start="update"):
+        """Default instance: the targets are the coordinates of the base state (for a lift, the
+        degree-1 monomials), the estimates a comparison reads."""
+        nb = len(model.coords[0])
+        units = [tuple(int(i == j) for i in range(nb)) for j in range(nb)]
+        return cls(model, dt, targets=[model.coords.index(u) for u in units if u in model.coords])
+
     @property
     def state_dim(self) -> int:
         return len(self.targets)
@@ -779,6 +787,13 @@ class PseudoObservablesFilter(Filter):
     """
 
     name = "pseudo-observables"
+    own_prior = True  # the law of x0 comes from x_moment: run takes m0 = P0 = None
+
+    @classmethod
+    def for_model(cls, model, *, dt=None, start="update"):
+        """No default instance: the initial law's moments ``x_moment`` are the user's to give."""
+        raise ValueError("x_moment: PseudoObservablesFilter needs the initial law's moments of x (no default); "
+                         "build it with PseudoObservablesFilter(model, dt, x_moment=...)")
     family = "off-line gains"
     source = "seed 001 §3.2, eqs. 3.11-3.16"
     accepts = ("bilinear",)
