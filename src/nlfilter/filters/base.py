@@ -232,6 +232,9 @@ class Filter:
     time = "discrete"
     random = False
     own_prior = False  # True: the filter starts from a prior of its own (run takes m0 = P0 = None)
+    # run checks the belief after predict too; a filter whose prediction cannot fail on its own
+    # (a density pushed through a kernel) skips that check: a failure shows after the update, same step
+    screen_predict = True
     start = "update"
 
     @classmethod
@@ -358,12 +361,14 @@ class Filter:
                 offset = 0 if self.start == "update" else 1
                 absent = np.isnan(yf).all(axis=(0, 2))  # (T,): steps with no measurement on any path
                 for k in steps:
+                    bad = None
                     if k > 0 or offset:
                         belief, bad = self._predict_unchecked(belief, k + offset - 1)
-                        belief = rec.record(k, belief, bad, start, write=False)
-                    bad = None
+                        if self.screen_predict:
+                            belief, bad = rec.record(k, belief, bad, start, write=False), None
                     if not absent[k]:
-                        belief, bad = self._update_unchecked(belief, yf[:, k], k + offset)
+                        belief, bad_u = self._update_unchecked(belief, yf[:, k], k + offset)
+                        bad = bad_u if bad is None else (bad if bad_u is None else bad | bad_u)
                     belief = rec.record(k, belief, bad, start)
         return self.output(rec.result(batch))
 
