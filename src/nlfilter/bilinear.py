@@ -41,7 +41,8 @@ import sympy as sp
 from . import _validate as V
 from .errors import NotPolynomialError
 from .models import lambdify_numpy
-from .moments.ito import PolynomialSDE, bilinear_lift
+from .moments.closed import bilinear_lift
+from .moments.ito import PolynomialSDE
 from .polynomials import Polynomial, monomial_name, monomials
 
 

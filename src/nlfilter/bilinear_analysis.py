@@ -16,7 +16,7 @@ import scipy.sparse as sps
 from . import _validate as V
 from .bilinear import BilinearModel
 from .errors import SingularSystemError
-from .moments.solve import linear_steady_state
+from .moments.stationary import linear_steady_state
 
 
 def symmetrize(P: np.ndarray) -> np.ndarray:  # as filters.linalg.symmetrize (no import of the filters here)

@@ -5,7 +5,7 @@ a dict from multi-indices ``γ = (γ_1, …, γ_n)`` to coefficients. A coeffici
 SymPy expression in the *coefficient symbols* (the time symbol of a model, or any parameter
 left symbolic, e.g. the tabulated gains of a filter whose error is analysed off-line); the
 moment equations keep such coefficients apart and evaluate them numerically (see
-:class:`nlfilter.moments.ito.MomentEquations`).
+:class:`nlfilter.moments.equations.MomentEquations`).
 
 Numbers are stored as floats, unless the polynomial is *exact* (``exact=True``): then every
 coefficient is a SymPy expression, numbers stay rational and coefficients are expanded, so that

@@ -46,7 +46,8 @@ from .. import _validate as V
 from ..moments.closures import Closure, GaussianClosure, gaussian_moments, kept_order
 from ..moments.expect import PolynomialExpectations
 from ..moments.quadrature import gaussian_rule
-from ..moments.ito import PolynomialMap, PolynomialSDE, discrete_moment_equations, moment_equations
+from ..moments.discrete import PolynomialMap, discrete_moment_equations
+from ..moments.ito import PolynomialSDE, moment_equations
 from ..polynomials import Polynomial, monomials
 from .base import ContinuousFilter, DiscreteFilter, GaussianState, ode_step, measurement_loglik, observed_precision, sqrt_psd
 

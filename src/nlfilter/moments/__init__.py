@@ -1,13 +1,19 @@
 """The moment engine: Itô rule on monomials, closures, exact closed systems, steady states.
 
-* :mod:`.ito` — :class:`PolynomialSDE`, :func:`moment_equations` (sparse ``dμ/dt = A μ + B ν + c``),
-  :func:`closed_hull`, :func:`bilinear_lift` (seed 001's tensor systems, from the noise columns),
-  discrete counterpart :func:`discrete_moment_equations`;
+* :mod:`.ito` — :class:`PolynomialSDE` (Itô generator, noise coefficients), :func:`moment_equations`
+  (sparse ``dμ/dt = A μ + B ν + c``);
+* :mod:`.equations` — :class:`MomentEquations`, the sparse container both generators fill
+  (coefficients depending on time or symbols evaluated by ``.at``);
+* :mod:`.discrete` — the discrete counterpart: :class:`PolynomialMap`,
+  :func:`discrete_moment_equations`, :func:`gaussian_noise_moments`;
+* :mod:`.closed` — :func:`closed_hull`, :func:`is_closed`, :func:`bilinear_lift` (seed 001's
+  tensor systems, from the noise columns);
 * :mod:`.closures` — :class:`GaussianClosure`, :class:`CumulantClosure` (cumulant neglect of order N),
   :class:`EdgeworthClosure` (Hermite quasi-moments, seed 003 eqs. 12-15, 28-33), n-dimensional;
 * :mod:`.solve` — :func:`propagate` (solve_ivp), :func:`iterate` (discrete), :func:`steady_state`
-  (direct sparse solve with E[1] = 1, Newton with a closure), :func:`linear_steady_state`
-  (rescaled, conservation laws imposed), :func:`stationary_moments` (monomial moments at rest);
+  (direct sparse solve with E[1] = 1, Newton with a closure);
+* :mod:`.stationary` — :func:`linear_steady_state` (closed linear systems, rescaled, conservation
+  laws imposed), :func:`stationary_moments` (monomial moments at rest);
 * :mod:`.quadrature` — Gauss-Hermite / cubature expectations under a Gaussian for non-polynomial
   models;
 * :mod:`.expect` — :class:`PolynomialExpectations`: E[p(x)] for many polynomials from kept moments
@@ -25,12 +31,14 @@ Typical use (the moments of dx = −x³ dt + dβ, order 4, Edgeworth closure)::
 
 from .closures import (CumulantClosure, EdgeworthClosure, GaussianClosure, closure_by_name,
                        gaussian_moments)
-from .ito import (MomentEquations, PolynomialMap, PolynomialSDE, bilinear_lift, closed_hull, degree_order,
-                  discrete_moment_equations, gaussian_noise_moments, is_closed, moment_equations)
+from .equations import MomentEquations, degree_order
+from .ito import PolynomialSDE, moment_equations
+from .discrete import PolynomialMap, discrete_moment_equations, gaussian_noise_moments
+from .closed import bilinear_lift, closed_hull, is_closed
 from .expect import PolynomialExpectations
 from .quadrature import expect_gaussian, gauss_hermite_rule
-from .solve import (MomentSolution, iterate, linear_steady_state, propagate, stationary_moments,
-                    steady_state)
+from .solve import MomentSolution, iterate, propagate, steady_state
+from .stationary import linear_steady_state, stationary_moments
 from ..polynomials import Polynomial, monomials
 
 __all__ = ["PolynomialSDE", "PolynomialMap", "MomentEquations", "moment_equations",

@@ -22,7 +22,7 @@ import numpy as np
 
 from ..polynomials import Polynomial
 from .closures import Closure
-from .ito import degree_order
+from .equations import degree_order
 
 __all__ = ["PolynomialExpectations", "statistical_linearization_polys"]
 
