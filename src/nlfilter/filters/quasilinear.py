@@ -61,7 +61,8 @@ from ..moments.quadrature import expect_gaussian, gaussian_rule
 from ..moments.solve import MomentSolution, iterate, propagate
 from ..noise import Gaussian
 from ..polynomials import Polynomial, monomials
-from .base import ContinuousFilter, Estimates, GaussianState, _prepare, _Runner, screened, symmetrize
+from .base import ContinuousFilter, symmetrize
+from .offline import ContinuousSchedule, DiscreteSchedule, OfflineGainFilter
 
 __all__ = ["statistical_linearization", "QuasilinearFilter", "DiscreteQuasilinearFilter", "QLF", "MQLF",
            "OfflineGains", "ErrorAnalysis", "gain_error_analysis", "discrete_gain_error_analysis"]
@@ -293,7 +294,31 @@ class ErrorAnalysis:
     solution: object
 
 
-class QuasilinearFilter(ContinuousFilter):
+class _QLFSchedule(ContinuousSchedule):
+    """The QLF's gains on the stage grid of its scheme, from the dense off-line solution."""
+
+    convention = "ito"
+
+    def __init__(self, flt, g: OfflineGains, t0: float):
+        self.dt, self.substeps, self.scheme = flt.dt, flt.substeps, flt.scheme
+        self.gains = g
+        T = g.t.size - 1
+        h = flt.dt / flt.substeps
+        ts = t0 + 0.5 * h * np.arange(2 * flt.substeps * T + 1)  # every RK4 stage time t_k + j h/2
+        self.F, self.u, self.Kg, self.A, self.b, self.H, self.d, self.Q = flt._tables(g.dense(ts).T)
+        self.S = flt.model.R
+
+    def cov(self, k):
+        return self.gains.P[k]
+
+    def drift(self, i):
+        return self.F[i], self.u[i]
+
+    def coeffs(self, i):
+        return self.A[i], self.b[i], self.H[i], self.d[i], self.Kg[i], self.Q[i], self.S
+
+
+class QuasilinearFilter(OfflineGainFilter, ContinuousFilter):
     """QLF / MQLF for an :class:`~nlfilter.models.SDEModel` (003 Theorem 4.1, eqs. 16-17).
 
     Parameters
@@ -318,6 +343,11 @@ class QuasilinearFilter(ContinuousFilter):
     """
 
     name = "qlf"
+    family = "off-line gains"
+    source = "seed 003 eqs. 3-8, 11, 16-17 (Theorem 4.1)"
+    accepts = ("sde",)
+    needs = ("sympy",)
+    time = "continuous"
 
     def __init__(self, model, dt, *, closure: Closure | None = None, order: int | None = None,
                  substeps: int = 4, scheme: str = "rk4", rtol: float = 1e-9, atol: float = 1e-12):
@@ -371,58 +401,35 @@ class QuasilinearFilter(ContinuousFilter):
         self._cache = {key: out}
         return out
 
-    def _coeff(self, y):
-        """On-line coefficients F, u, Kg at dense states ``y (..., S + n²)``."""
+    def _tables(self, y):
+        """Coefficients at dense states ``y (..., S + n²)``: ``(F, u, Kg, a1, b, b1, d, σ̄)`` with
+        ``F = a1 − Kg b1``, ``u = b − Kg d``, ``b = a0 − a1 m``, ``d = b0 − b1 m``."""
         lin, n, Rinv = self.lin, self.model.n, self._Rinv
         S = lin.size
         mu, P = y[..., :S], y[..., S:].reshape(*y.shape[:-1], n, n)
-        mean, K, a0, a1, b0, b1, _ = lin.coeffs(mu)
+        mean, K, a0, a1, b0, b1, sig = lin.coeffs(mu)
         Kg = P @ np.swapaxes(b1, -1, -2) @ Rinv
         F = a1 - Kg @ b1
-        u = a0 - np.einsum("...ij,...j->...i", a1, mean) - np.einsum("...ij,...j->...i", Kg,
-                                                                    b0 - np.einsum("...ij,...j->...i", b1, mean))
-        return F, u, Kg
+        b = a0 - np.einsum("...ij,...j->...i", a1, mean)
+        d = b0 - np.einsum("...ij,...j->...i", b1, mean)
+        u = b - np.einsum("...ij,...j->...i", Kg, d)
+        return F, u, Kg, a1, b, b1, d, sig
 
-    # -- on-line -------------------------------------------------------------------------------
-    def run(self, dys, m0, P0, *, t0: float = 0.0, on_divergence: str = "raise") -> Estimates:
-        """Filter a batch of increments ``dys (..., T, m)`` (003 eq. 16); ``covs`` holds P(t)."""
-        model = self.model
-        m0v, P0v = self._prior(m0, P0)
-        dys, state, batch = _prepare("dys", dys, m0v, P0v, model.n, model.m)
-        T = dys.shape[-2]
-        g = self.offline(m0v, P0v, T, t0=t0)
-        h = self.dt / self.substeps
-        # coefficients at every RK4 stage time t_k + j h/2
-        ts = t0 + 0.5 * h * np.arange(2 * self.substeps * T + 1)
-        F, u, Kg = self._coeff(g.dense(ts).T)
-        out = _Runner(batch, T, model.n, on_divergence, self.name)
-        x = state.mean
-        init = GaussianState(state.mean.copy(), state.cov.copy())
-        ev = lambda i, x: np.einsum("ij,...j->...i", F[i], x) + u[i]  # noqa: E731  (the dt terms)
-        for k in range(T):
-            dy = dys[..., k, :]
-            if np.isnan(dy).any():
-                raise ValueError("dys: missing measurements are not supported by the quasilinear filters")
-            i0 = 2 * k * self.substeps
-            Kdy = np.einsum("ij,...j->...i", Kg[i0], dy)  # Itô: the innovation with the gain at t_k
-            for j in range(self.substeps):  # the dt terms (F x̂ + u) by the scheme
-                i0 = 2 * (k * self.substeps + j)
-                k1 = ev(i0, x)
-                if self.scheme == "euler":
-                    x = x + h * k1
-                    continue
-                k2 = ev(i0 + 1, x + 0.5 * h * k1)
-                k3 = ev(i0 + 1, x + 0.5 * h * k2)
-                k4 = ev(i0 + 2, x + h * k3)
-                x = x + h / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
-            x = x + Kdy
-            st = GaussianState(x, np.broadcast_to(g.P[k + 1], (*batch, model.n, model.n)).copy())
-            st = out.record(k, st, init)
-            x = st.mean
-        return out.result()
+    def _coeff(self, y):
+        """On-line coefficients F, u, Kg at dense states ``y (..., S + n²)``."""
+        return self._tables(y)[:3]
 
-    def step(self, state, dy, t):
-        raise NotImplementedError("QuasilinearFilter: use run(); the gains are tabulated off-line for a run")
+    # -- on-line (the affine runner of :mod:`.offline`) -------------------------------------------
+    def schedule(self, m0, P0, batch, steps, t0):
+        """The gain schedule of a run of ``steps`` increments from ``t0`` (:meth:`offline`, then the
+        coefficients at every stage time ``t_k + j h/2`` of the scheme)."""
+        if steps is None:
+            raise ValueError("steps: the QLF's off-line gains are solved for a horizon; pass steps= to init")
+        m0, P0 = self._prior(m0, P0)
+        g = self.offline(m0, P0, max(int(steps), 1), t0=t0)
+        return _QLFSchedule(self, g, t0), m0, P0
+
+    # ``run`` is :meth:`OfflineGainFilter.run` (003 eq. 16); ``covs`` holds P(t) (not the error covariance)
 
     # -- accuracy ------------------------------------------------------------------------------
     def error_analysis(self, m0, P0, steps: int, *, closure: Closure | None = None, order: int = 4,
@@ -586,15 +593,42 @@ def MQLF(model, dt, *, closure: Closure | None = None, **kw) -> QuasilinearFilte
     closed by ``closure`` (default: Edgeworth / Hermite quasi-moments of order 4, 003 eqs. 27-33)."""
     f = QuasilinearFilter(model, dt, closure=EdgeworthClosure(4) if closure is None else closure, **kw)
     f.name = "mqlf"
+    f.needs = ("sympy", "polynomial")  # a closure beyond Gaussian needs the exact polynomial moments
     return f
 
 
-class DiscreteQuasilinearFilter:
+class _DQLFSchedule(DiscreteSchedule):
+    """The discrete QLF's gains: the Kalman recursion (Joseph form) of the statistically
+    linearized model, the coefficients from the prior moments of x[k], extended along k."""
+
+    def __init__(self, flt, m0, P0, start):
+        super().__init__(P0, start)
+        self.lin, self.R, self.name = flt.lin, flt.model.R, flt.name
+        self.mu = flt.lin.init(m0, P0)
+        self.rows = []  # (mean, a0, a1, b0, b1) per step, for error_analysis
+
+    def model(self, k):
+        mean, _, a0, a1, b0, b1, sig = self.lin.coeffs(self.mu, k)
+        self.rows.append((mean, a0, a1, b0, b1))
+        self.mu = self.lin.step(self.mu, k)
+        if not np.all(np.isfinite(self.mu)):
+            raise ClosureDivergedError(f"{self.name}: prior moments blew up at k = {k + 1}", time=k + 1)
+        return a1, a0 - a1 @ mean, b1, b0 - b1 @ mean, sig, self.R
+
+    def gain(self, P, H, S):
+        Kg = P @ H.T @ np.linalg.inv(H @ P @ H.T + S)
+        IKH = np.eye(P.shape[0]) - Kg @ H
+        return Kg, symmetrize(IKH @ P @ IKH.T + Kg @ S @ Kg.T)  # Joseph form
+
+
+class DiscreteQuasilinearFilter(OfflineGainFilter):
     """Discrete-time QLF/MQLF for a :class:`~nlfilter.models.DiscreteModel`: the Kalman filter of
     the statistically linearized model ``x[k+1] ≈ a1 x + a0 − a1 m + G w``,
     ``y ≈ b1 x + b0 − b1 m + v`` with coefficients from the prior moments of ``x[k]`` (discrete
-    moment equations + closure). Gains off-line; step convention ``start="update"`` (``ys[k]``
-    measures ``x[k]``, ``x[0] ~ (m0, P0)``).
+    moment equations + closure). Gains off-line (:mod:`.offline`: ``predict``/``update`` run the
+    affine recursion; NaN components of ``y`` are missing); step convention ``start`` as
+    :class:`~nlfilter.filters.base.DiscreteFilter` (default ``"update"``: ``ys[k]`` measures
+    ``x[k]``, ``x[0] ~ (m0, P0)``).
 
     >>> import sympy as sp; from nlfilter import DiscreteModel
     >>> x = sp.Symbol("x")
@@ -605,41 +639,37 @@ class DiscreteQuasilinearFilter:
     """
 
     name = "qlf"
+    source = "seed 003 eqs. 3-5, 11 in discrete form (the library's extension)"
+    accepts = ("discrete",)
+    needs = ("sympy",)
+    time = "discrete"
 
-    def __init__(self, model, *, closure: Closure | None = None, order: int | None = None):
+    def __init__(self, model, *, closure: Closure | None = None, order: int | None = None, start: str = "update"):
         if getattr(model, "kind", None) != "discrete":
             raise TypeError(f"model: DiscreteQuasilinearFilter expects a DiscreteModel, got {type(model).__name__}")
         self.model = model
         self.closure = GaussianClosure() if closure is None else closure
+        self.start = V.choice("start", start, {"update", "predict"})
         self.lin = _Linearizer(model, self.closure, order, "discrete")
 
+    def schedule(self, m0, P0, batch, steps, t0):
+        m0, P0 = _prior(self.model.n, m0, P0)
+        return _DQLFSchedule(self, m0, P0, self.start), m0, P0
+
     def offline(self, m0, P0, steps: int):
-        """Gains ``K (T, n, m)``, coefficients and P on k = 0..T−1 (update then predict)."""
-        md, n = self.model, self.model.n
-        mu = self.lin.init(m0, P0)
-        P = P0.copy()
-        rows = []
-        for k in range(steps):
-            mean, Kc, a0, a1, b0, b1, sig = self.lin.coeffs(mu, k)
-            S = b1 @ P @ b1.T + md.R
-            Kg = P @ b1.T @ np.linalg.inv(S)
-            IKH = np.eye(n) - Kg @ b1
-            Pu = symmetrize(IKH @ P @ IKH.T + Kg @ md.R @ Kg.T)  # Joseph form
-            rows.append((mean, a0, a1, b0, b1, Kg, Pu))
-            P = symmetrize(a1 @ Pu @ a1.T + sig)
-            mu = self.lin.step(mu, k)
-            if not np.all(np.isfinite(mu)):
-                raise ClosureDivergedError(f"{self.name}: prior moments blew up at k = {k + 1}", time=k + 1)
-        return rows
+        """Rows ``(mean, a0, a1, b0, b1, Kg, P⁺)`` on k = 0..T−1 (update then predict)."""
+        sch = _DQLFSchedule(self, m0, P0, "update")
+        sch.ensure(steps - 1)
+        return [(*sch.rows[k], sch.gains[k], sch.filt[k]) for k in range(steps)]
 
     def error_analysis(self, m0, P0, steps: int, *, closure: Closure | None = None,
                        order: int = 4) -> ErrorAnalysis:
         """True MSE E(x[k] − x̂⁺[k])² at k = 0 .. steps − 1 (the estimates of :meth:`run` on
-        ``steps`` measurements) from the moments of the joint process (x, x̂), closed by ``closure``
-        (default Edgeworth of ``order`` 4, as 003 Fig. 2 in continuous time). The coefficients of
-        :meth:`offline` (003 eqs. 4-5 on the prior moments, eq. 11 in discrete form) enter
-        :func:`discrete_gain_error_analysis` as ``d = b0 − b1 m``, ``e = a0 − a1 m``. Polynomial
-        models; ``t`` holds the step indices."""
+        ``steps`` measurements, ``start="update"``) from the moments of the joint process (x, x̂),
+        closed by ``closure`` (default Edgeworth of ``order`` 4, as 003 Fig. 2 in continuous time).
+        The coefficients of :meth:`offline` (003 eqs. 4-5 on the prior moments, eq. 11 in discrete
+        form) enter :func:`discrete_gain_error_analysis` as ``d = b0 − b1 m``, ``e = a0 − a1 m``.
+        Polynomial models; ``t`` holds the step indices."""
         if not self.lin.polynomial:
             raise NotPolynomialError("model: the off-line accuracy analysis needs polynomial f, G and h")
         m0, P0 = _prior(self.model.n, m0, P0)
@@ -651,27 +681,3 @@ class DiscreteQuasilinearFilter:
             return Kg, b1, b0 - b1 @ mean, a1, a0 - a1 @ mean
 
         return discrete_gain_error_analysis(self.model, coefficients, m0, P0, steps, closure=closure, order=order)
-
-    @screened
-    def run(self, ys, m0, P0, *, on_divergence: str = "raise") -> Estimates:
-        md = self.model
-        m0v, P0v = _prior(md.n, m0, P0)
-        ys, state, batch = _prepare("ys", ys, m0v, P0v, md.n, md.m)
-        T = ys.shape[-2]
-        rows = self.offline(m0v, P0v, T)
-        out = _Runner(batch, T, md.n, on_divergence, self.name)
-        init = GaussianState(state.mean.copy(), state.cov.copy())
-        x = state.mean
-        ein = lambda A, v: np.einsum("ij,...j->...i", A, v)  # noqa: E731
-        for k in range(T):
-            mean, a0, a1, b0, b1, Kg, Pu = rows[k]
-            if k > 0:
-                pm, pa0, pa1 = rows[k - 1][0], rows[k - 1][1], rows[k - 1][2]
-                x = ein(pa1, x) + pa0 - pa1 @ pm
-            y = ys[..., k, :]
-            if np.isnan(y).any():
-                raise ValueError("ys: missing measurements are not supported by the quasilinear filters")
-            x = x + ein(Kg, y - ein(b1, x) - b0 + b1 @ mean)
-            st = out.record(k, GaussianState(x, np.broadcast_to(Pu, (*batch, md.n, md.n)).copy()), init)
-            x = st.mean
-        return out.result()
