@@ -107,11 +107,36 @@ def test_continuous_bilinear_missing_increment_is_the_drift():
     e = dys.copy()
     e[0, k] = np.nan
     flt = OptimalLinearFilter(model, dt)
-    a = flt.run(e, [0.0], [[0.5]], return_augmented=True)
-    b = flt.run(dys, [0.0], [[0.5]], return_augmented=True)
+    a, b = flt.run(e, [0.0], [[0.5]]), flt.run(dys, [0.0], [[0.5]])
     np.testing.assert_array_equal(a.means[1], b.means[1])
     aug, ss = model.augmented(0), flt.steady_state()
     Q = np.einsum("aij,jk,alk->il", aug.G, ss.X, aug.G)
-    m, P = _drift_only(aug.F, np.zeros(model.N), Q, b.means[0, k - 1], b.covs[0, k - 1], dt, 1, "rk4")
-    np.testing.assert_allclose(a.means[0, k], m, rtol=1e-12, atol=1e-14)
-    np.testing.assert_allclose(a.covs[0, k], P, rtol=1e-12, atol=1e-14)
+    z = np.append(b.means[0, k - 1], 1.0)  # augmented z = (x, 1); the constant has no error
+    Pz = np.zeros((2, 2))
+    Pz[:1, :1] = b.covs[0, k - 1]
+    m, P = _drift_only(aug.F, np.zeros(model.N), Q, z, Pz, dt, 1, "rk4")
+    np.testing.assert_allclose(a.means[0, k], m[:1], rtol=1e-12, atol=1e-14)
+    np.testing.assert_allclose(a.covs[0, k], P[:1, :1], rtol=1e-12, atol=1e-14)
+
+
+def test_joint_analysis_reproduces_joint_process_on_a_bilinear_model():
+    """The one joint (x, x̂) analysis of precomputed gains (offline_analysis.gain_error_analysis), fed the
+    optimal linear filter's steady gain on dx = −x dt + 0.3 x dβ₁ + dβ₂, dy = x dt + dv written as an
+    SDEModel, reaches the stationary E(x − x̂)² that joint_process's exact moments give (and the
+    filter's own steady P, exact for bilinear systems)."""
+    from nlfilter.filters.bilinear import TensorFilter
+    from nlfilter.filters.offline_analysis import gain_error_analysis
+    from nlfilter.moments.closures import GaussianClosure
+    bil = BilinearModel([[-1.0]], [[1.0]], G=[[[0.3]]], B=[[1.0]], R=[[1.0]])
+    sde = SDEModel([x], [-x], [x], G=[[0.3 * x, 1.0]], Q=np.eye(2), R=1.0)
+    ss = OptimalLinearFilter(bil, 0.01).steady_state()
+    aug, n = bil.augmented(0), bil.n
+    K = ss.K[:n]
+    F = aug.F[:n, :n] - K @ aug.H[:, :n]
+    u = aug.F[:n, n] - K @ aug.H[:, n]
+    s2 = 1.0 / (2.0 - 0.09)  # stationary variance c²/−(2a + b²)
+    ea = gain_error_analysis(sde, lambda t: (F, u, K), [0.0], [[s2]], np.linspace(0.0, 15.0, 31),
+                             closure=GaussianClosure(), order=2)
+    fit = TensorFilter(bil, 0.01, degree=3).fit()[0]  # joint_process + its stationary moments
+    np.testing.assert_allclose(ea.mse[-1, 0], fit.mse_linear, rtol=1e-6)
+    np.testing.assert_allclose(fit.mse_linear, ss.P[0, 0], rtol=1e-9)

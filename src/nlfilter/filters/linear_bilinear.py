@@ -374,7 +374,18 @@ class OptimalLinearFilter(OfflineGainFilter):
         if return_augmented:
             flt = copy.copy(self)
             flt._augmented = True
+            flt._legacy = True
         return OfflineGainFilter.run(flt, ys, m0, P0, **kw)
+
+    # ``return_augmented`` is the entry of TensorFilter.run (not yet on the protocol): there the data
+    # keep TensorFilter's contract — named ``dys``, NaN refused — until TensorFilter moves over
+    _legacy = False
+
+    def check_data(self, ys):
+        if not self._legacy:
+            return OfflineGainFilter.check_data(self, ys)
+        ys = V.as_float_array("dys", ys, ndim_min=2, shape_tail=(None, self.data_dim))
+        return V.finite("dys", ys)
 
     def _conserves(self) -> bool:
         rep = wonham_condition(self.model)
