@@ -157,7 +157,10 @@ class OfflineGainFilter(Filter):
     _horizon = None  # (steps, t0) of the current run: the continuous schedules are solved for it
 
     def run(self, ys, m0=None, P0=None, *, t0: float = 0.0, **kw):
-        shape = np.shape(ys) if not isinstance(ys, str) else ()
+        try:
+            shape = np.shape(ys) if not isinstance(ys, str) else ()
+        except ValueError:  # ragged: check_data names it
+            shape = ()
         self._horizon = (int(shape[-2]) if len(shape) >= 2 else None, t0)
         try:
             return Filter.run(self, ys, m0, P0, t0=t0, **kw)
