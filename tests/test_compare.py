@@ -1,4 +1,4 @@
-"""nlfilter.compare: every filter against the reference on common random numbers."""
+"""nlfilter.comparison (the function nlfilter.compare): every filter against the reference on common random numbers."""
 
 import pathlib
 import re
@@ -184,3 +184,17 @@ def test_particle_filter_in_filters_seeded_by_name():
     assert _row(a, "pf", "mse", component=0) == _row(b, "pf", "mse", component=0)
     c = run({"pf2": ParticleFilter(LIN, 200)})  # another name, another stream
     assert _row(c, "pf2", "mse", component=0).value != _row(b, "pf", "mse", component=0).value
+
+
+def test_module_and_function_both_reachable():
+    """issue 10 item 8.5: the module is nlfilter.comparison, the function nlfilter.compare (the
+    package's `from .compare import compare` used to shadow the module of the same name)."""
+    import importlib
+    import types
+    import nlfilter
+    mod = importlib.import_module("nlfilter.comparison")
+    assert isinstance(mod, types.ModuleType) and mod.__name__ == "nlfilter.comparison"
+    assert callable(nlfilter.compare) and isinstance(nlfilter.compare, types.FunctionType)
+    assert nlfilter.compare is mod.compare and nlfilter.compare.__module__ == "nlfilter.comparison"
+    with pytest.raises(ModuleNotFoundError):
+        importlib.import_module("nlfilter.compare")

@@ -1,4 +1,4 @@
-"""Run the docstring examples of every nlfilter module (DESIGN.md rule 7)."""
+"""Run the docstring examples of every nlfilter module (docstrings carry small examples that run)."""
 
 import doctest
 import importlib
@@ -10,7 +10,8 @@ import nlfilter
 
 MUST_HAVE_EXAMPLES = {"nlfilter.models", "nlfilter.simulate", "nlfilter.evaluate", "nlfilter.polynomials",
                       "nlfilter.moments.ito", "nlfilter.moments.closures", "nlfilter.moments.solve",
-                      "nlfilter.moments.quadrature", "nlfilter.filters.ekf"}
+                      "nlfilter.moments.quadrature", "nlfilter.filters.ekf", "nlfilter.filters.rules",
+                      "nlfilter.filters.gaussian", "nlfilter.filters.cubature", "nlfilter.filters.ukf"}
 MODULES = sorted(m.name for m in pkgutil.walk_packages(nlfilter.__path__, "nlfilter."))
 
 

@@ -109,3 +109,59 @@ def test_generated_code_equals_sympy_on_powers_in_denominators():
     pts = np.array([[0.7, 1.3], [1.9, 0.4]])
     want = np.array([[float(e.subs({x: a, y: b})) for e in exprs] for a, b in pts])
     np.testing.assert_allclose(m.h(pts), want, rtol=1e-13)
+
+
+C_FULL = 0.1 + 2**-50  # 0.1000000000000009: 15 significant digits would print it as 0.100000000000001
+
+
+def test_float_constants_reach_numeric_functions_bit_exactly():
+    """issue 10 item 8.2: SymPy's printer writes floats with 15 significant digits; the generated
+    code must carry the double itself (compared with ==, no tolerance)."""
+    x, k = sp.symbols("x k")
+    third = 1 / 3.0
+    m = DiscreteModel([x], [C_FULL * x + third * x**2], [x / 3.0 + C_FULL * k], G=[[third + C_FULL * k]],
+                      Q=1.0, R=1.0, time=k)
+    one = np.array([1.0])
+    assert m.f(one, 0)[0] == C_FULL + third
+    assert m.f_x(np.zeros(1), 0)[0, 0] == C_FULL
+    assert m.f_xx(np.zeros(1), 0)[0, 0, 0] == 2 * third
+    assert m.h(one, 1.0)[0] == 1 / 3.0 + C_FULL
+    assert m.h_x(np.zeros(1), 0)[0, 0] == third
+    assert m.G(one, 1.0)[0, 0] == third + C_FULL
+
+
+
+def test_float_constants_in_time_dependent_coefficients_bit_exact():
+    """The moment engine's and the bilinear model's compiled coefficient functions keep the double."""
+    from nlfilter.bilinear import BilinearModel
+    from nlfilter.moments import PolynomialSDE, moment_equations
+    x, t = sp.symbols("x t")
+    eqs = moment_equations(PolynomialSDE.from_sympy([x], [-sp.sin(C_FULL * t) * x], sigma=[[1]], time=t), [(1,)])
+    assert eqs.at(t=1.0)[0].toarray()[0, 0] == -np.sin(C_FULL)
+    bm = BilinearModel(sp.Matrix([[-1 - C_FULL * t]]), [[1.0]], G=[[[0.5]]], R=[[1.0]], time=t)
+    assert bm.F(1.0)[0, 0] == -1 - C_FULL
+
+
+def test_constructor_signatures_are_visible():
+    """issue 10 item 8.6: help()/inspect show the real parameters, not (*args, **kw)."""
+    import inspect
+    from nlfilter import BilinearModel
+    from nlfilter.filters.quasilinear import MQLF, QLF, QuasilinearFilter
+    want = ["states", "f", "h", "G", "Q", "R", "params", "time", "process_noise", "measurement_noise", "name"]
+    for cls in (DiscreteModel, SDEModel):
+        sig = inspect.signature(cls)
+        assert list(sig.parameters) == want, cls
+        assert all(p.kind is not p.VAR_POSITIONAL and p.kind is not p.VAR_KEYWORD for p in sig.parameters.values())
+        assert sig.parameters["time"].kind is inspect.Parameter.KEYWORD_ONLY
+        assert list(inspect.signature(cls.linear).parameters) == ["F", "H", "Q", "R", "G", "process_noise",
+                                                                   "measurement_noise", "name"]
+    assert list(inspect.signature(BilinearModel).parameters) == ["F", "H", "G", "M", "B", "Q", "R", "c", "d",
+                                                                  "time", "discrete", "names"]
+    qf = [p for p in inspect.signature(QuasilinearFilter).parameters if p != "closure"]
+    assert list(inspect.signature(QLF).parameters) == qf
+    assert list(inspect.signature(MQLF).parameters) == list(inspect.signature(QuasilinearFilter).parameters)
+    x = sp.Symbol("x")
+    m = SDEModel([x], [-x], [x], None, 0.5, 0.2, name="ou")  # positional G, Q, R still work
+    assert (m.Q.tolist(), m.R.tolist(), m.name) == ([[0.5]], [[0.2]], "ou")
+    with pytest.raises(TypeError):
+        DiscreteModel.linear([[0.5]], [[1.0]], 1.0, 1.0, time=x)  # no time symbol in a numeric linear model

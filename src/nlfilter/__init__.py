@@ -9,7 +9,7 @@ Models (:mod:`~nlfilter.models`, :mod:`~nlfilter.bilinear`), simulation
 
 from . import filters, moments, problems
 from .bilinear import BilinearModel
-from .compare import compare
+from .comparison import compare
 from .evaluate import mse, mse_per_step, nees, paired_difference
 from .models import DiscreteModel, SDEModel
 from .noise import Gaussian, Independent, Sampler

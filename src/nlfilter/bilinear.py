@@ -40,6 +40,7 @@ import sympy as sp
 
 from . import _validate as V
 from .errors import NotPolynomialError
+from .models import lambdify_numpy
 from .moments.ito import PolynomialSDE, bilinear_lift
 from .polynomials import Polynomial, monomial_name, monomials
 
@@ -68,7 +69,7 @@ def _mat(name, value, shape, time):
             raise ValueError(f"{name}: uses symbol(s) {sorted(map(str, extra))} other than the time symbol {time}")
         if not M.free_symbols:
             return np.array(M.tolist(), dtype=float)
-        fn = sp.lambdify([time], M, modules="numpy")
+        fn = lambdify_numpy([time], M)
         return lambda t: np.asarray(fn(t), dtype=float)
     arr = V.as_float_array(name, value)
     if arr.shape != shape:
@@ -102,6 +103,8 @@ class BilinearModel:
     coords : for a lift, the monomial (in ``base_states``) of each coordinate of x; else unit vectors
     base_states : SymPy symbols of the underlying variables
     """
+
+    kind = "bilinear"
 
     def __init__(self, F, H, *, G=(), M=(), B=None, Q=None, R=None, c=None, d=None, time=None,
                  discrete: bool = False, names=None):
@@ -347,18 +350,39 @@ def _sqrt_psd(S):
     return U * np.sqrt(np.clip(w, 0.0, None))
 
 
-def phase_model(q: float, r: float) -> BilinearModel:
+class PhaseModel(BilinearModel):
+    """The phase-tracking problem (001 eqs. 4.1-4.6, 4.11-4.14) as a :class:`BilinearModel` in
+    rectangular coordinates ``x = (sin θ, cos θ)``, carrying its parameters: ``q`` the intensity of
+    the Brownian phase θ, ``r`` the baseband noise parameter (``E dn dnᵀ = 2 r I dt``), and
+    ``P = √(2 r q)`` the noise-to-signal parameter (001 eq. 4.9). ``kind = "phase"``: the phase
+    filters (:mod:`nlfilter.filters.phase`) take this model; every bilinear filter takes it too."""
+
+    kind = "phase"
+
+    def __init__(self, q: float, r: float):
+        self.q, self.r = float(V.positive("q", q)), float(V.positive("r", r))
+        J = np.array([[0.0, 1.0], [-1.0, 0.0]])
+        super().__init__(-self.q / 2 * np.eye(2), np.eye(2), G=[np.sqrt(self.q) * J], R=2 * self.r * np.eye(2),
+                         names=["x1", "x2"])
+
+    @property
+    def P(self) -> float:
+        """``P_θℓ = √(2 r q)`` (001 eq. 4.9)."""
+        return float(np.sqrt(2 * self.r * self.q))
+
+    def __repr__(self):
+        return f"PhaseModel(q={self.q:g}, r={self.r:g})"
+
+
+def phase_model(q: float, r: float) -> PhaseModel:
     """Phase tracking in rectangular coordinates (001 eqs. 4.12-4.14): ``x = (sin θ, cos θ)``,
-    ``dθ`` of intensity ``q``, baseband measurement ``dz = x dt + dn``, ``E dn dnᵀ = 2 r I dt``.
+    ``dθ`` of intensity ``q``, baseband measurement ``dz = x dt + dn``, ``E dn dnᵀ = 2 r I dt``
+    (a :class:`PhaseModel`).
 
     >>> phase_model(1.0, 0.5).augmented(0).G[0][:2, :2].tolist()   # dx = J x dθ, q = 1
     [[0.0, 1.0], [-1.0, 0.0]]
     """
-    V.positive("q", q)
-    V.positive("r", r)
-    J = np.array([[0.0, 1.0], [-1.0, 0.0]])
-    return BilinearModel(-q / 2 * np.eye(2), np.eye(2), G=[np.sqrt(q) * J], R=2 * r * np.eye(2),
-                         names=["x1", "x2"])
+    return PhaseModel(q, r)
 
 
-__all__ = ["BilinearModel", "Augmented", "phase_model"]
+__all__ = ["BilinearModel", "Augmented", "PhaseModel", "phase_model"]

@@ -1,4 +1,4 @@
-"""The ``nlfilter`` command: ``nlfilter list`` and ``nlfilter reproduce ID``.
+"""The ``nlfilter`` command: ``nlfilter list`` (``--filters``: the filter registry) and ``nlfilter reproduce ID``.
 
 Errors in what the user typed (unknown experiment, unknown or malformed ``--param``) print one
 line on stderr and exit with code 2, never a traceback.
@@ -25,6 +25,8 @@ def _parser() -> argparse.ArgumentParser:
     ls = sub.add_parser("list", help="list the experiments: id, title, source")
     ls.add_argument("--params", action="store_true",
                     help="also list each experiment's parameters (what --param accepts) with their defaults")
+    ls.add_argument("--filters", action="store_true",
+                    help="list the filter registry instead: name, family, time, model kinds, needs, source")
     r = sub.add_parser("reproduce", help="run one experiment and print its table")
     r.add_argument("id", help="experiment id (see `nlfilter list`)")
     r.add_argument("--quick", action="store_true", help="small version (same code path), for tests and CI")
@@ -65,6 +67,14 @@ def main(argv=None) -> int:
 
 def _main(argv) -> int:
     args = _parser().parse_args(argv)
+    if args.command == "list" and args.filters:
+        from .filters import REGISTRY
+        from .filters.registry import table
+
+        for row in table(REGISTRY):
+            print("\t".join([row["name"], row["class"], row["family"] or "-", row["time"] or "-",
+                              row["accepts"] or "-", row["needs"] or "-", row["source"] or "-"]))
+        return 0
     if args.command == "list":
         for exp in experiments.registry().values():
             print(f"{exp.id}\t{exp.title}\t{exp.source}")

@@ -1,6 +1,6 @@
 """Models stated once, in SymPy, with batched numeric functions generated at construction.
 
-Two kinds of model (DESIGN.md; seed 004 eqs. 1-2 and 24-25 use the same forms):
+Two kinds of model (the forms of seed 004, eqs. 1-2 and 24-25; README, "Conventions"):
 
 * :class:`DiscreteModel` — ``x[k+1] = f(x[k], k) + G(x[k], k) w[k]``,
   ``y[k] = h(x[k], k) + v[k]``, ``w ~ (0, Q)``, ``v ~ (0, R)``;
@@ -52,9 +52,29 @@ from .noise import NoiseLaw, as_law
 _DERIVS = ("f", "f_x", "f_xx", "h", "h_x", "h_xx", "G", "G_x", "G_xx")
 
 
-class _Printer(NumPyPrinter):
+class FullPrecisionPrinter(NumPyPrinter):
+    """NumPy code whose float constants carry full double precision: ``repr(float(c))``, the
+    shortest text that reads back to the same double (up to 17 significant digits). SymPy's own
+    printer writes 15 (``0.1 + 2**-50`` would become ``0.100000000000001``)."""
+
+    def _print_Float(self, expr):
+        value = float(expr)
+        if np.isfinite(value):
+            return repr(value)
+        return super()._print_Float(expr)
+
+
+def lambdify_numpy(args, exprs, **kw):
+    """``sympy.lambdify`` to NumPy with :class:`FullPrecisionPrinter` (the one code generator of
+    the library; ``kw`` such as ``cse=True`` pass through)."""
+    return sp.lambdify(args, exprs, modules="numpy",
+                       printer=FullPrecisionPrinter({"fully_qualified_modules": False, "inline": True,
+                                                     "allow_unknown_functions": True}), **kw)
+
+
+class _Printer(FullPrecisionPrinter):
     """NumPy code with small integer powers written as products (``x*x*x`` is several times
-    faster than ``x**3`` on arrays)."""
+    faster than ``x**3`` on arrays), float constants in full precision."""
 
     def _print_Pow(self, expr, rational=False):
         if expr.exp.is_Integer and 2 <= int(expr.exp) <= 4:
@@ -209,14 +229,21 @@ class Model:
                       if all(not e.free_symbols for e in GM) else None)  # fixed G Q Gᵀ, computed once
         self.is_linear = self.G_constant and all(  # f and h affine in the state
             e.is_polynomial(*states) and sp.Poly(e, *states).total_degree() <= 1 for e in list(fM) + list(hM))
+        # f, h and G do not depend on the time: filters may compute time-fixed quantities once
+        self.time_invariant = time is None or not any(M.has(time) for M in (fM, hM, GM))
 
     # -- construction from plain callables -----------------------------------------------------
     @classmethod
     def from_functions(cls, n: int, m: int, f: Callable, h: Callable, *, Q, R, G: Callable | None = None,
                        r: int | None = None, f_x=None, f_xx=None, h_x=None, h_xx=None, G_x=None, G_xx=None,
-                       process_noise=None, measurement_noise=None, name: str = "", is_linear: bool = False):
+                       process_noise=None, measurement_noise=None, name: str = "", is_linear: bool = False,
+                       time_invariant: bool = False):
         """A model from callables ``f(x, t)``, ``h(x, t)`` (and ``G(x, t)``, derivatives) that take a
-        batch ``(..., n)``. Derivatives not given are ``None``; filters that need them say so."""
+        batch ``(..., n)``. Derivatives not given are ``None``; filters that need them say so.
+
+        The callables receive the time (``k`` or ``t``) at every call, so the model is taken to
+        vary with it unless ``time_invariant=True`` promises that none of them reads it (filters
+        then compute time-fixed quantities, such as the Kalman filter's matrices, once)."""
         self = cls.__new__(cls)
         V.positive("n", n, integer=True)
         V.positive("m", m, integer=True)
@@ -251,10 +278,14 @@ class Model:
             setattr(self, key, fn)
         self.given = {k for k, v in fns.items() if v is not None}
         self.is_linear = bool(is_linear)
+        if not isinstance(time_invariant, bool):
+            raise TypeError(f"time_invariant: expected True or False, got {type(time_invariant).__name__}")
+        self.time_invariant = time_invariant
         return self
 
     @classmethod
-    def linear(cls, F, H, Q, R, G=None, **kw):
+    def linear(cls, F, H, Q, R, G=None, *, process_noise: NoiseLaw | None = None,
+               measurement_noise: NoiseLaw | None = None, name: str = ""):
         """A linear model ``f = F x``, ``h = H x`` (``G`` constant, identity by default)."""
         F = V.as_float_array("F", F, ndim=2)
         H = V.as_float_array("H", H, ndim=2)
@@ -266,7 +297,8 @@ class Model:
         X = sp.Matrix(xs)
         Fm = sp.Matrix(F.tolist()) * X
         Hm = sp.Matrix(H.tolist()) * X
-        return cls(list(xs), Fm, Hm, None if G is None else sp.Matrix(np.asarray(G, float).tolist()), Q, R, **kw)
+        return cls(list(xs), Fm, Hm, None if G is None else sp.Matrix(np.asarray(G, float).tolist()), Q, R,
+                   process_noise=process_noise, measurement_noise=measurement_noise, name=name)
 
     def require(self, *names: str, by: str = "this filter") -> None:
         """Raise ``ValueError`` naming each derivative in ``names`` that the model lacks."""
@@ -320,8 +352,11 @@ class SDEModel(Model):
     kind = "sde"
     time_name = "t"
 
-    def __init__(self, *args, **kw):
-        super().__init__(*args, **kw)
+    def __init__(self, states, f, h, G=None, Q=None, R=None, *, params=None, time=None,
+                 process_noise: NoiseLaw | None = None, measurement_noise: NoiseLaw | None = None,
+                 name: str = ""):
+        super().__init__(states, f, h, G, Q, R, params=params, time=time, process_noise=process_noise,
+                         measurement_noise=measurement_noise, name=name)
         from .noise import Gaussian
         for nm in ("process_noise", "measurement_noise"):
             if not isinstance(getattr(self, nm), Gaussian):

@@ -113,3 +113,30 @@ def simulate(model, steps: int, *, paths: int = 1, rng=None, m0=None, P0=None, x
         xs[:, k] = x
         ys[:, k] = ydt + rng.standard_normal((paths, m)) @ LR.T * np.sqrt(dt)
     return Simulation(xs, ys, x_init, t0 + dt * np.arange(1, steps + 1))
+
+
+def simulate_phase(q: float, r: float, dt: float, steps: int, paths: int, rng, *, substeps: int = 4,
+                   theta0=None):
+    """The phase-tracking problem (seed 001 ch. 4, :class:`~nlfilter.bilinear.PhaseModel`):
+    phase paths ``theta (paths, steps)`` at ``t_k = k dt`` (k = 1..steps, aligned with a filter's
+    estimates) and baseband increments ``dzs (paths, steps, 2)``: θ exact Brownian increments on
+    ``substeps`` sub-intervals, ``∫ (sin θ, cos θ) dt`` by the trapezoidal rule,
+    ``dn ~ N(0, 2 r dt I)`` (001 eq. 4.14). θ0 uniform on the circle unless ``theta0`` is given."""
+    h = dt / substeps
+    th = rng.uniform(-np.pi, np.pi, size=paths) if theta0 is None else np.broadcast_to(theta0, (paths,)).astype(float)
+    thetas = np.empty((paths, steps))
+    dzs = np.empty((paths, steps, 2))
+    sq = np.sqrt(q * h)
+    sn = np.sqrt(2 * r * dt)
+    for k in range(steps):
+        acc1 = np.zeros(paths)
+        acc2 = np.zeros(paths)
+        for _ in range(substeps):
+            tn = th + sq * rng.standard_normal(paths)
+            acc1 += 0.5 * h * (np.sin(th) + np.sin(tn))
+            acc2 += 0.5 * h * (np.cos(th) + np.cos(tn))
+            th = tn
+        thetas[:, k] = th
+        dzs[:, k, 0] = acc1 + sn * rng.standard_normal(paths)
+        dzs[:, k, 1] = acc2 + sn * rng.standard_normal(paths)
+    return thetas, dzs

@@ -207,7 +207,7 @@ def test_updated_innovations_runs_and_marks_divergence():
     assert est2.diverged.tolist() == [False, True, False, False, False]
     assert np.all(np.isnan(est2.means[1, 10:])) and np.array_equal(est2.means[[0, 2, 3, 4]], est.means[[0, 2, 3, 4]])
     bad[1, 10, 0] = np.inf
-    with pytest.raises(ValueError, match="dys"):
+    with pytest.raises(ValueError, match="^ys"):
         uf.run(bad, *stationary_lift_moments(1.0))
 
 
@@ -285,3 +285,44 @@ def test_time_varying_model_equals_kalman_bucy():
     dt = 0.01
     with pytest.raises(ValueError, match="steady"):
         OptimalLinearFilter(model, dt, gains="steady")
+
+
+def test_tensor_and_updated_innovations_without_measurements_only_predict():
+    """Every increment missing: no innovation in either recursion, so both follow dẑ/dt = F ẑ,
+    ẑ(t) = e^{Ft} ẑ0 (RK4), and report the post-processor of that prediction."""
+    import scipy.linalg as sla_
+    from nlfilter.experiments.cubic_sensor import stationary_lift_moments
+    lift, dt, T = _cubic(1.0, 1.0), 0.01, 30
+    m0, P0 = stationary_lift_moments(1.0)
+    m0 = np.asarray(m0) + 0.3
+    tf = TensorFilter(lift, dt, targets=[0, 2])
+    uf = UpdatedInnovationsFilter.from_tensor(tf)
+    d = np.full((2, T, 1), np.nan)
+    F = lift.augmented(0).F
+    z = np.stack([sla_.expm(F * dt * (k + 1)) @ np.append(m0, 1.0) for k in range(T)])
+    want = tf.post_process(z)
+    a, b = tf.run(d, m0, P0), uf.run(d, m0, P0)
+    np.testing.assert_allclose(a.means[0], want, rtol=1e-8, atol=1e-12)  # RK4 truncation (λ dt)⁴
+    np.testing.assert_allclose(b.means, a.means, rtol=1e-12, atol=1e-14)
+    cov = tf.error_covariance()
+    assert np.allclose(np.diag(cov), [f.mse for f in tf.fit()]) and np.all(np.linalg.eigvalsh(cov) > 0)
+    assert np.all(a.covs == cov) and np.isnan(b.covs).all()
+
+
+def test_pseudo_observables_protocol_prior_and_missing_data():
+    """``run(ys)`` takes no Gaussian prior (the law of x0 is x_moment's): m0/P0 are refused naming
+    m0; a missing increment on one path leaves the others as they were, and its estimate finite."""
+    from nlfilter.filters.bilinear import PseudoObservablesFilter
+    model = BilinearModel([[-2.0]], [[1.0]], G=[[[1.0]]], R=[[1.0]])
+    po = PseudoObservablesFilter(model, 0.004, powers=(1, 3), x_moment=_x_uniform10)
+    rng = np.random.default_rng(3)
+    dys = 0.1 * rng.standard_normal((3, 20, 1))
+    with pytest.raises(ValueError, match="^m0"):
+        po.run(dys, [0.0], [[1.0]])
+    full = po.run(dys)
+    e = dys.copy()
+    e[0, 5] = np.nan
+    part = po.run(e)
+    np.testing.assert_array_equal(part.means[1:], full.means[1:])
+    assert np.isfinite(part.means).all() and not np.array_equal(part.means[0, 5:], full.means[0, 5:])
+    np.testing.assert_array_equal(part.covs, full.covs)  # off-line error covariances: the schedule's

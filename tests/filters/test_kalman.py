@@ -174,3 +174,41 @@ def test_ukf_marks_a_path_whose_covariance_has_no_cholesky_factor():
     bad = GaussianState(np.zeros((2, 1)), P0)
     out = ukf.predict(bad, 0)
     assert np.isnan(out.mean[1]).all() and np.isfinite(out.mean[0]).all()
+
+
+def _time_varying_functions(time_invariant=False):
+    """x[k+1] = a(k) x + b(k) + w, y = c(k) x + v, a(k) = 0.9 + 0.1 sin k (f, h read k)."""
+    a = lambda k: 0.9 + 0.1 * np.sin(k)  # noqa: E731
+    c = lambda k: 1.0 + 0.5 * np.cos(0.7 * k)  # noqa: E731
+    return DiscreteModel.from_functions(
+        1, 1, lambda x, k=0: a(k) * x + 0.2 * k, lambda x, k=0: c(k) * x,
+        f_x=lambda x, k=0: np.full((*np.shape(x)[:-1], 1, 1), a(k)),
+        h_x=lambda x, k=0: np.full((*np.shape(x)[:-1], 1, 1), c(k)),
+        Q=[[0.1]], R=[[0.3]], is_linear=True, time_invariant=time_invariant)
+
+
+def test_kf_on_time_varying_from_functions_model_reads_time():
+    """issue 10 item 8.1: a from_functions model expresses time only through the t argument of its
+    callables, so the KF must not freeze F, b, H at k = 0; it equals the EKF (exact on a linear
+    model) and differs from the k = 0-frozen filter."""
+    md = _time_varying_functions()
+    assert md.time_invariant is False
+    ys = np.random.default_rng(3).normal(size=(4, 40, 1)) + np.arange(40)[:, None]
+    kf = KalmanFilter(md).run(ys, [0.5], [[1.0]])
+    ekf = EKF(md).run(ys, [0.5], [[1.0]])
+    np.testing.assert_allclose(kf.means, ekf.means, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(kf.covs, ekf.covs, rtol=0, atol=1e-12)
+    frozen = KalmanFilter(_time_varying_functions(time_invariant=True)).run(ys, [0.5], [[1.0]])
+    assert np.max(np.abs(frozen.means - kf.means)) > 1.0  # the k = 0 answer is far off
+    np.testing.assert_allclose(frozen.means[:, 0], kf.means[:, 0], atol=1e-12)  # same first update
+
+
+def test_time_invariant_flag():
+    x, k = sp.symbols("x k")
+    assert DiscreteModel([x], [0.9 * x], [x], Q=1.0, R=1.0).time_invariant
+    assert DiscreteModel([x], [0.9 * x], [x], Q=1.0, R=1.0, time=k).time_invariant  # k unused
+    assert not DiscreteModel([x], [0.9 * x + k], [x], Q=1.0, R=1.0, time=k).time_invariant
+    assert not DiscreteModel([x], [0.9 * x], [x], G=[[1 + k]], Q=1.0, R=1.0, time=k).time_invariant
+    with pytest.raises(TypeError, match="time_invariant: expected True or False, got str"):
+        DiscreteModel.from_functions(1, 1, lambda x, k=0: x, lambda x, k=0: x, Q=[[1.0]], R=[[1.0]],
+                                     time_invariant="yes")

@@ -7,14 +7,22 @@ import numpy as np
 import pytest
 from scipy import integrate
 
+import nlfilter.bounded as BD
 import nlfilter.filters.moment_bayes as MB
+from nlfilter.bounded import BoundedNoiseModel
 from nlfilter.filters.moment_bayes import (MomentFilterWarning, ZeroOrderMomentFilter,
                                            power_density_estimate, zero_order_estimate)
 from nlfilter.moments.densities import LegendreDensity, power_density_moments, uniform_moments
 
 
-def test_doctests():
-    assert doctest.testmod(MB).failed == 0
+@pytest.mark.parametrize("mod", [MB.zero_order, MB.first_order, MB.second_order, BD])
+def test_doctests(mod):
+    assert doctest.testmod(mod).failed == 0
+
+
+def _z(z):
+    """Scalar measurements (..., T) as the protocol's ys (..., T, 1)."""
+    return np.asarray(z, dtype=float)[..., None]
 
 
 @pytest.mark.parametrize("N", [1, 2, 4, 6, 12])
@@ -63,11 +71,11 @@ def test_fallback_eq_3_16_when_denominator_small():
 
 def test_impossible_measurement_raises_or_clips():
     f = ZeroOrderMomentFilter(2, moments=uniform_moments(2))
-    with pytest.raises(ValueError, match="zs: measurement 2.5"):
-        f.run(np.array([[0.1, 2.5]]))
+    with pytest.raises(ValueError, match="ys: measurement 2.5"):
+        f.run(_z([[0.1, 2.5]]))
     g = ZeroOrderMomentFilter(2, moments=uniform_moments(2), outside="clip")
-    r = g.run(np.array([[0.1, 2.5, -3.0]]))
-    np.testing.assert_allclose(r.estimates, [[0.05, 1.0, -1.0]])
+    r = g.run(_z([[0.1, 2.5, -3.0]]))
+    np.testing.assert_allclose(r.means[..., 0], [[0.05, 1.0, -1.0]])
 
 
 def test_bad_arguments():
@@ -88,17 +96,19 @@ def test_adaptive_moments_follow_eqs_2_27_3_14_3_15():
     T, W, n0 = 65, 20, 100.0
     z = rng.uniform(-1, 1, T) + rng.uniform(-1, 1, T)
     f = ZeroOrderMomentFilter(2, adaptive=True, n0=n0, window=W)
-    r = f.run(z[None])
-    assert r.moments.shape == (1, 3, 2)  # refreshes at k = 20, 40, 60
+    r = f.run(_z(z[None]))
+    hist = r.extras["moments"][:, W - 1::W]  # the moments in use at the refreshes
+    assert hist.shape == (1, 3, 2)  # refreshes at k = 20, 40, 60
     for j, k in enumerate((20, 40, 60)):
         mz1, mz2 = np.mean(z[:k]), np.mean(z[:k] ** 2)
         mx = np.array([mz1, mz2 - 1 / 3])  # eq. 3.14 with m_v1 = 0, m_v2 = 1/3
         want = n0 / (k + n0) * np.array([0.0, 1 / 3]) + k / (k + n0) * mx  # eq. 3.15
-        np.testing.assert_allclose(r.moments[0, j], want, atol=1e-13)
+        np.testing.assert_allclose(hist[0, j], want, atol=1e-13)
     # steps 1..19 use the initial guess (uniform => z/2), step 20 already the refreshed moments
-    np.testing.assert_allclose(r.estimates[0, :19], z[:19] / 2, atol=1e-12)
-    xh20 = f.estimate(z[19], r.moments[0, 0])[0]
-    assert r.estimates[0, 19] == pytest.approx(float(xh20))
+    np.testing.assert_allclose(r.means[0, :19, 0], z[:19] / 2, atol=1e-12)
+    xh20 = f.estimate(z[19], hist[0, 0])[0]
+    assert r.means[0, 19, 0] == pytest.approx(float(xh20))
+    np.testing.assert_array_equal(r.extras["moments"][0, :19], np.broadcast_to([0.0, 1 / 3], (19, 2)))
 
 
 def test_adaptive_converges_to_known_moment_estimator():
@@ -108,10 +118,10 @@ def test_adaptive_converges_to_known_moment_estimator():
     R, T = 200, 3000
     x = np.where(rng.random((R, T)) < 0.5, -1, 1) * rng.random((R, T)) ** (1 / 5)
     z = x + rng.uniform(-1, 1, (R, T))
-    r = ZeroOrderMomentFilter(2, adaptive=True).run(z)
-    known = ZeroOrderMomentFilter(2, moments=power_density_moments(2, 4)).run(z)
+    r = ZeroOrderMomentFilter(2, adaptive=True).run(_z(z))
+    known = ZeroOrderMomentFilter(2, moments=power_density_moments(2, 4)).run(_z(z))
     tail = slice(2000, None)
-    d = ((x - r.estimates) ** 2 - (x - known.estimates) ** 2)[:, tail].mean(axis=1)
+    d = ((x - r.means[..., 0]) ** 2 - (x - known.means[..., 0]) ** 2)[:, tail].mean(axis=1)
     se = d.std(ddof=1) / np.sqrt(R)
     assert abs(d.mean()) < 4 * se + 1e-3
 
@@ -121,22 +131,24 @@ def test_invalid_moments_warn_and_fall_back():
     z = rng.uniform(-1, 1, (5, 60)) + rng.uniform(-1, 1, (5, 60))
     f = ZeroOrderMomentFilter(12, adaptive=True, n0=0.0, window=20)
     with pytest.warns(MomentFilterWarning, match="N = 12"):
-        r = f.run(z)
-    assert np.isfinite(r.estimates).all()
-    assert r.invalid.any()
+        r = f.run(_z(z))
+    est, invalid = r.means[..., 0], r.extras["invalid"]
+    assert np.isfinite(est).all()
+    assert invalid.any()
     l, u = np.maximum(-1, z - 1), np.minimum(1, z + 1)
-    np.testing.assert_allclose(r.estimates[r.invalid], (0.5 * (l + u))[r.invalid])
+    np.testing.assert_allclose(est[invalid], (0.5 * (l + u))[invalid])
     with warnings.catch_warnings():
         warnings.simplefilter("error")
-        r2 = ZeroOrderMomentFilter(12, adaptive=True, n0=0.0, invalid_moments="ignore").run(z)
-    assert np.isfinite(r2.estimates).all()
+        r2 = ZeroOrderMomentFilter(12, adaptive=True, n0=0.0, invalid_moments="ignore").run(_z(z))
+    assert np.isfinite(r2.means).all()
 
 
 # ------------------------------------------------------------------ first-order system
 
 import scipy.stats as st  # noqa: E402
 
-from nlfilter.filters.moment_bayes import BoundedGridFilter1D, FirstOrderMomentFilter  # noqa: E402
+from nlfilter.filters.moment_bayes import FirstOrderMomentFilter  # noqa: E402
+from nlfilter.filters.reference.bounded import BoundedGridFilter1D  # noqa: E402
 
 
 def test_first_order_with_h0_is_the_zero_order_filter():
@@ -144,9 +156,9 @@ def test_first_order_with_h0_is_the_zero_order_filter():
     rng = np.random.default_rng(1)
     m = power_density_moments(4, 6)
     z = rng.uniform(-1.9, 1.9, (3, 25))
-    r = FirstOrderMomentFilter(0.0, 1.0, 4, w_moments=m).run(z)
+    r = FirstOrderMomentFilter(BoundedNoiseModel.first_order(0.0, 1.0), 4, w_moments=m).run(_z(z))
     xh = ZeroOrderMomentFilter(4, moments=m, eps=1e-9).estimate(z)[0]
-    np.testing.assert_allclose(r.estimates[..., 0], xh, atol=1e-12)
+    np.testing.assert_allclose(r.means[..., 0], xh, atol=1e-12)
 
 
 def test_first_order_posterior_moments_against_quadrature():
@@ -154,7 +166,7 @@ def test_first_order_posterior_moments_against_quadrature():
     # reachable interval, posterior moments = ratios of integrals over [max(l, z-1), min(u, z+1)]
     f = FirstOrderMomentFilter(0.6, 1.0, 4, w_moments=power_density_moments(4, 2))
     m0 = np.array([0.1, 0.5, 0.05, 0.35])
-    mp, lp, up = f.predict(m0, np.array(-0.8), np.array(1.0), f.w_moments)
+    mp, lp, up = f.predict_moments(m0, np.array(-0.8), np.array(1.0), f.w_moments)
     np.testing.assert_allclose(lp, -1.48)
     np.testing.assert_allclose(up, 1.6)
     # predicted moments by direct expansion of E[(0.6 x + w)^i]
@@ -164,7 +176,7 @@ def test_first_order_posterior_moments_against_quadrature():
     want = [sum(comb(i, j) * 0.6 ** j * mx[j] * mw[i - j] for j in range(i + 1)) for i in range(1, 5)]
     np.testing.assert_allclose(mp, want, atol=1e-13)
     z = 0.9
-    post, lo, hi, fb = f.update(mp, lp, up, np.array(z))
+    post, lo, hi, fb = f.update_moments(mp, lp, up, np.array(z))
     d = LegendreDensity.from_moments(mp, lp, up)
     den = integrate.quad(lambda x: float(d.pdf(x)), z - 1, 1.6)[0]
     for i in range(1, 5):
@@ -178,7 +190,7 @@ def test_grid_filter_exact_case_uniform_prior_uniform_likelihood():
     g = BoundedGridFilter1D(0.0, st.uniform(-1, 2), 1.0, G=400)
     z = np.array([[0.3, -1.5, 1.9, 0.0]])
     want = 0.5 * (np.maximum(-1, z - 1) + np.minimum(1, z + 1))
-    np.testing.assert_allclose(g.run(z)[..., 0], want, atol=2.5e-3)  # cell width 0.005
+    np.testing.assert_allclose(g.run(_z(z)).means[..., 0], want, atol=2.5e-3)  # cell width 0.005
 
 
 def test_first_order_adaptive_learns_input_moments():
@@ -194,8 +206,8 @@ def test_first_order_adaptive_learns_input_moments():
         xs[:, k] = x
         x = h * x + w[:, k]
     z = xs[:, 200:] + rng.uniform(-1, 1, (R, T))
-    r = FirstOrderMomentFilter(h, 1.0, 3, adaptive=True, n0=0.0, window=T).run(z)
-    learned = r.w_moments[:, -1]
+    r = FirstOrderMomentFilter(h, 1.0, 3, adaptive=True, n0=0.0, window=T).run(_z(z))
+    learned = r.extras["w_moments"][:, -1]
     true = np.array([law.moment(i) for i in (1, 2, 3)])
     se = learned.std(axis=0, ddof=1) / np.sqrt(R)
     assert np.all(np.abs(learned.mean(axis=0) - true) < 4 * se + 1e-3)
@@ -203,12 +215,12 @@ def test_first_order_adaptive_learns_input_moments():
 
 def test_first_order_impossible_measurement():
     f = FirstOrderMomentFilter(0.5, 1.0, 2, w_moments=uniform_moments(2))
-    with pytest.raises(ValueError, match="zs: measurement 3.5"):
-        f.run(np.array([0.0, 3.5]))
+    with pytest.raises(ValueError, match="ys: measurement 3.5"):
+        f.run(_z([0.0, 3.5]))
     g = FirstOrderMomentFilter(0.5, 1.0, 2, w_moments=uniform_moments(2), outside="clip")
-    r = g.run(np.array([0.0, 3.5, 0.2]))
+    r = g.run(_z([0.0, 3.5, 0.2]))
     # step 1: reachable interval h [-1, 1] + [-1, 1] = [-1.5, 1.5]; z - 1 = 2.5 beyond it -> end point 1.5
-    assert np.isfinite(r.estimates).all() and r.estimates[1, 0] == pytest.approx(1.5)
+    assert np.isfinite(r.means).all() and r.means[1, 0] == pytest.approx(1.5)
     with pytest.raises(ValueError, match="h"):
         FirstOrderMomentFilter(1.0, 1.0, 2, w_moments=uniform_moments(2))
     with pytest.raises(ValueError, match="w_moments"):
@@ -246,7 +258,7 @@ def test_second_order_update_against_quadrature():
                                 w_moments=uniform_moments(N))
     M, lo, hi = f.stationary(f.w_moments)
     z = 0.7
-    post, nlo, nhi, fb = f.update(M, lo, hi, np.array(z))
+    post, nlo, nhi, fb = f.update_box(M, lo, hi, np.array(z))
     d = LegendreDensity2D.from_moments(M, lo, hi)
     g0 = lambda x0: max(lo[1], (z - 1 - x0) / 0.8)
     g1 = lambda x0: min(hi[1], (z + 1 - x0) / 0.8)
@@ -268,7 +280,7 @@ def test_second_order_wide_slab_keeps_box_moments():
     f = SecondOrderMomentFilter(np.diag([0.5, 0.2]), [0.2, 0.1], [1.0, 1.0], 1.0, 4,
                                 w_moments=uniform_moments(4), noise_halfwidth=5.0)
     M, lo, hi = f.stationary(f.w_moments)
-    post, nlo, nhi, fb = f.update(M, lo, hi, np.array(0.0))
+    post, nlo, nhi, fb = f.update_box(M, lo, hi, np.array(0.0))
     mask = np.add.outer(np.arange(5), np.arange(5)) <= 4
     np.testing.assert_allclose(post[mask], LegendreDensity2D.from_moments(M, lo, hi).box_moments()[mask],
                                atol=1e-12)
@@ -279,11 +291,11 @@ def test_second_order_bad_input():
     with pytest.raises(ValueError, match="A: expected a stable"):
         SecondOrderMomentFilter(np.eye(2), [1, 1], [1, 1], 1.0, 2, w_moments=uniform_moments(2))
     f = SecondOrderMomentFilter(np.diag([0.5, 0.2]), [1, 1], [1, 1], 1.0, 2, w_moments=uniform_moments(2))
-    with pytest.raises(ValueError, match="zs: measurement 9.0"):
-        f.run(np.array([0.0, 9.0]))
+    with pytest.raises(ValueError, match="ys: measurement 9.0"):
+        f.run(_z([0.0, 9.0]))
     g = SecondOrderMomentFilter(np.diag([0.5, 0.2]), [1, 1], [1, 1], 1.0, 2, w_moments=uniform_moments(2),
                                 outside="clip")
-    assert np.isfinite(g.run(np.array([0.0, 9.0, 0.1])).estimates).all()
+    assert np.isfinite(g.run(_z([0.0, 9.0, 0.1])).means).all()
 
 
 # ------------------------------------------------------------------ non-additive measurement
@@ -319,7 +331,8 @@ def test_scaled_noise_moment_recovery_exact():
 
 
 def test_polygon_clip_and_quadrature_exact():
-    from nlfilter.filters.moment_bayes import _clip_halfplane, _polygon_quadrature
+    from nlfilter.moments.polygons import clip_halfplane as _clip_halfplane
+    from nlfilter.moments.polygons import polygon_quadrature as _polygon_quadrature
     P = np.array([[[-1.0, -1.0], [1.0, -1.0], [1.0, 1.0], [-1.0, 1.0]]])
     Q = _clip_halfplane(P, np.array([1.0, 1.0]) / np.sqrt(2), np.array([0.0]))  # x + y <= 0: a triangle
     t, w = np.polynomial.legendre.leggauss(4)
@@ -336,7 +349,7 @@ def test_polygon_update_equals_box_update_on_a_box():
     M, lo, hi = f.stationary(f.w_moments)
     box = np.array([[lo[0], lo[1]], [hi[0], lo[1]], [hi[0], hi[1]], [lo[0], hi[1]]])
     for z in (0.7, -2.1, 3.0):
-        pb, lb, hb, _ = f.update(M, lo, hi, np.array(z))
+        pb, lb, hb, _ = f.update_box(M, lo, hi, np.array(z))
         pp, Q, lp, hp, _ = f.update_polygon(M, box, np.array(z))
         np.testing.assert_allclose(pp, pb, atol=1e-11)
         np.testing.assert_allclose(lp, lb, atol=1e-12)
@@ -354,21 +367,45 @@ def test_polygon_bound_contains_the_true_state():
             xs[:, k - 100] = x
         x = x @ A.T + rng.uniform(-1.5, 1.5, (R, 1)) * b
     zs = xs @ b + rng.uniform(-1, 1, (R, T))
-    r = SecondOrderMomentFilter(A, b, b, 1.5, 2, w_moments=uniform_moments(2, -1.5, 1.5)).run(zs)
-    assert np.all(r.lower <= xs + 1e-9) and np.all(xs <= r.upper + 1e-9)
-    assert np.all((r.estimates >= r.lower) & (r.estimates <= r.upper))
+    r = SecondOrderMomentFilter(BoundedNoiseModel(A, b, b, 1.5), 2, w_moments=uniform_moments(2, -1.5, 1.5)).run(_z(zs))
+    lower, upper = r.extras["lower"], r.extras["upper"]
+    assert np.all(lower <= xs + 1e-9) and np.all(xs <= upper + 1e-9)
+    assert np.all((r.means >= lower) & (r.means <= upper))
 
 
-def test_to_estimates_protocol_and_posterior_variance():
+def test_estimates_protocol_and_posterior_variance():
     rng = np.random.default_rng(2)
     z = rng.uniform(-1.5, 1.5, (3, 20))
-    r = FirstOrderMomentFilter(0.5, 1.0, 4, w_moments=uniform_moments(4)).run(z)
-    e = r.to_estimates()
+    e = FirstOrderMomentFilter(0.5, 1.0, 4, w_moments=uniform_moments(4)).run(_z(z))
     assert e.means.shape == (3, 20, 1) and e.covs.shape == (3, 20, 1, 1) and not e.diverged.any()
     # a law on an interval of width w has variance in [0, w^2/4] (Popoviciu)
-    w = (r.upper - r.lower)[..., 0]
+    w = (e.extras["upper"] - e.extras["lower"])[..., 0]
     assert np.all(e.covs[..., 0, 0] >= 0) and np.all(e.covs[..., 0, 0] <= w ** 2 / 4 + 1e-12)
     r2 = SecondOrderMomentFilter(np.diag([0.6, -0.5]), [1, 1], [1, 1], 1.0, 2,
-                                 w_moments=uniform_moments(2)).run(z[:, :8])
-    C = r2.to_estimates().covs
+                                 w_moments=uniform_moments(2)).run(_z(z[:, :8]))
+    C = r2.covs
     assert np.allclose(C, np.swapaxes(C, -1, -2)) and np.all(np.linalg.eigvalsh(C) > -1e-12)
+
+
+def test_per_path_known_moments_and_their_batch_check():
+    # moments (B, N): each path uses its own polynomial prior (= the one-prior filter on that path)
+    M = np.stack([uniform_moments(4), power_density_moments(4, 2)])
+    z = np.random.default_rng(0).uniform(-1.5, 1.5, (2, 5))
+    r = ZeroOrderMomentFilter(4, moments=M).run(_z(z))
+    for i in range(2):
+        np.testing.assert_allclose(r.means[i, :, 0], ZeroOrderMomentFilter(4, moments=M[i]).estimate(z[i])[0],
+                                   atol=1e-14)
+    with pytest.raises(ValueError, match=r"^moments\b"):
+        ZeroOrderMomentFilter(4, moments=M).run(np.zeros((3, 2, 1)))
+    assert ZeroOrderMomentFilter(4, moments=M[0]).run(np.zeros((3, 0, 1))).means.shape == (3, 0, 1)
+
+
+def test_filter_objects_are_not_changed_by_run():
+    # the adaptive learners' statistics live in the belief: two runs give the same result
+    f = FirstOrderMomentFilter(BoundedNoiseModel.first_order(0.5, 1.0), 3, adaptive=True, window=4)
+    z = _z(np.random.default_rng(4).uniform(-1.5, 1.5, (2, 30)))
+    before = dict(vars(f))
+    a, b = f.run(z), f.run(z)
+    np.testing.assert_array_equal(a.means, b.means)
+    np.testing.assert_array_equal(a.extras["w_moments"], b.extras["w_moments"])
+    assert vars(f).keys() == before.keys() and all(vars(f)[k] is before[k] for k in before)

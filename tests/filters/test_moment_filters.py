@@ -48,11 +48,10 @@ def test_discrete_linear_equals_kalman_filter():
     # the update integrates the Gaussian likelihood by 24-node Gauss-Hermite: ~3e-6 relative error here
     np.testing.assert_allclose(a.means, b.means, rtol=2e-5, atol=1e-7)
     np.testing.assert_allclose(a.covs, b.covs, rtol=2e-5, atol=1e-7)
-    # step functions carry a GaussianState for the Gaussian closure
+    # the step functions carry the moment belief: init -> update -> summary
     f = DiscreteConditionalMomentFilter(m)
-    from nlfilter.filters.base import GaussianState
-    st = f.update(GaussianState(np.zeros(1), 2 * np.eye(1)), np.array([1.0]), 0)
-    assert st.mean[0] == pytest.approx(2 / 3) and st.cov[0, 0] == pytest.approx(2 / 3)
+    mean, cov = f.summary(f.update(f.init([0.0], [[2.0]], ()), np.array([[1.0]]), 0))
+    assert mean[0, 0] == pytest.approx(2 / 3) and cov[0, 0, 0] == pytest.approx(2 / 3)
 
 
 def test_cubic_sensor_gaussian_closure_near_optimal_and_ekf_stuck():

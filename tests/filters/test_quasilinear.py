@@ -5,7 +5,7 @@ import pytest
 import sympy as sp
 
 from nlfilter import DiscreteModel, SDEModel
-from nlfilter.errors import NotPolynomialError
+from nlfilter.errors import ClosureDivergedError, NotPolynomialError
 from nlfilter.filters.kalman import KalmanBucy, KalmanFilter
 from nlfilter.filters.quasilinear import (MQLF, QLF, DiscreteQuasilinearFilter, QuasilinearFilter,
                                           statistical_linearization)
@@ -172,13 +172,14 @@ def test_discrete_error_analysis_cubic_drift_agrees_with_monte_carlo():
     error, estimated by the change of the analysis from Edgeworth-4 to Edgeworth-6 (≈ 2e-5, 0.1 se).
     Measured (seed 5): E4 within 1.6 se at k ≥ 2 and 0.25 se on the k ≥ 10 average; at k = 0, where the
     analysis is exactly the Kalman P⁺, this seed's MC is 3.1 se off (sampling: corr(x[0], v[0]) of the
-    draw is −3.3 se). The MC is sharp enough to reject the Gaussian-closure analysis (+0.8 %, 14.6 se)."""
+    draw is −3.3 se). The MC is sharp enough to reject the Gaussian-closure analysis
+    at order 4 (moments ≤ 4 kept, higher ones Gaussian: +0.8 %, 14.6 se)."""
     from nlfilter.moments import GaussianClosure
     model = DiscreteModel([x], [0.9 * x - 0.05 * x**3], [x], Q=0.1, R=0.1)
     f = DiscreteQuasilinearFilter(model)
     e4 = f.error_analysis([2.0], [[0.2]], 30).mse[:, 0]
     e6 = f.error_analysis([2.0], [[0.2]], 30, order=6).mse[:, 0]
-    eg = f.error_analysis([2.0], [[0.2]], 30, closure=GaussianClosure()).mse[:, 0]
+    eg = f.error_analysis([2.0], [[0.2]], 30, closure=GaussianClosure(), order=4).mse[:, 0]  # moments ≤ 4 kept
     e2 = _mc_errors(model, 30, 2.0, 0.2, 400_000, 5)
     mc, se = e2.mean(axis=0), e2.std(axis=0, ddof=1) / np.sqrt(e2.shape[0])
     for k in (0, 2, 5, 10, 20, 29):
@@ -198,7 +199,7 @@ def test_discrete_error_analysis_cubic_sensor_agrees_with_monte_carlo():
     model = DiscreteModel([x], [0.9 * x], [x**3], Q=0.1, R=0.1)
     f = DiscreteQuasilinearFilter(model)
     e4 = f.error_analysis([1.0], [[0.1]], 25).mse[:, 0]
-    eg = f.error_analysis([1.0], [[0.1]], 25, closure=GaussianClosure()).mse[:, 0]
+    eg = f.error_analysis([1.0], [[0.1]], 25, closure=GaussianClosure(), order=4).mse[:, 0]
     np.testing.assert_allclose(eg, e4, rtol=1e-9)
     e2 = _mc_errors(model, 25, 1.0, 0.1, 200_000, 7)
     mc, se = e2.mean(axis=0), e2.std(axis=0, ddof=1) / np.sqrt(e2.shape[0])
@@ -224,3 +225,51 @@ def test_discrete_error_analysis_bad_input():
     with pytest.raises(NotPolynomialError, match="polynomial"):
         DiscreteQuasilinearFilter(DiscreteModel([x], [sp.sin(x)], [x], Q=0.1, R=0.1)).error_analysis(
             [1.0], [[0.2]], 5)
+
+
+def test_error_analysis_order_defaults_to_the_closures():
+    """issue 10 item 8.4: error_analysis(closure=GaussianClosure()) used the default order 4, a
+    set whose 4th moments the Gaussian closure ignores; on dx = −x³dt + dβ from N(4, 0.05) that
+    hybrid blew up (ClosureDivergedError). The order now defaults to the closure's (2 here)."""
+    from nlfilter.moments import EdgeworthClosure, GaussianClosure
+    md = SDEModel([x], [-x**3], [x], Q=0.05, R=0.05)
+    f = QLF(md, 0.01)
+    eg = f.error_analysis([4.0], [[0.05]], 100, closure=GaussianClosure())
+    eg2 = f.error_analysis([4.0], [[0.05]], 100, closure=GaussianClosure(), order=2)
+    np.testing.assert_array_equal(eg.mse, eg2.mse)
+    assert eg.solution.eqs.indices == [(1, 0), (0, 1), (2, 0), (1, 1), (0, 2)]
+    np.testing.assert_allclose(eg.mse[-1, 0], 0.0123577, rtol=1e-4)  # vs Edgeworth-4 0.012554 (README)
+    with pytest.raises(ClosureDivergedError):  # the hybrid the old default gave
+        f.error_analysis([4.0], [[0.05]], 100, closure=GaussianClosure(), order=4)
+    e6 = f.error_analysis([4.0], [[0.05]], 100, closure=EdgeworthClosure(6))
+    assert max(map(sum, e6.solution.eqs.indices)) == 6
+    np.testing.assert_allclose(e6.mse[-1, 0], f.error_analysis([4.0], [[0.05]], 100).mse[-1, 0], rtol=1e-4)
+    # discrete: the default order follows the closure too
+    dm = DiscreteModel([x], [0.9 * x - 0.05 * x**3], [x], Q=0.1, R=0.1)
+    df = DiscreteQuasilinearFilter(dm)
+    np.testing.assert_array_equal(df.error_analysis([2.0], [[0.2]], 12, closure=GaussianClosure()).mse,
+                                  df.error_analysis([2.0], [[0.2]], 12, closure=GaussianClosure(), order=2).mse)
+
+
+def test_error_analysis_refuses_order_below_the_closures():
+    """An explicit order below the closure's (the closure reads moments that are not kept) is a
+    ValueError up front naming both arguments, in every analysis and moment filter."""
+    from nlfilter.filters.moment_filters import ConditionalMomentFilter
+    from nlfilter.filters.quasilinear import gain_error_analysis
+    from nlfilter.moments import EdgeworthClosure
+    msg = r"order, closure: expected order ≥ 6, the order of closure=EdgeworthClosure\(order=6\) .*got order=4"
+    md = SDEModel([x], [-x**3], [x], Q=0.05, R=0.05)
+    with pytest.raises(ValueError, match=msg):
+        QLF(md, 0.01).error_analysis([4.0], [[0.05]], 10, closure=EdgeworthClosure(6), order=4)
+    with pytest.raises(ValueError, match=msg):
+        gain_error_analysis(md, lambda t: (np.zeros((1, 1)), np.zeros(1), np.ones((1, 1))), [4.0], [[0.05]],
+                            [0.0, 0.1], closure=EdgeworthClosure(6), order=4)
+    dm = DiscreteModel([x], [0.9 * x - 0.05 * x**3], [x], Q=0.1, R=0.1)
+    with pytest.raises(ValueError, match=msg):
+        DiscreteQuasilinearFilter(dm).error_analysis([2.0], [[0.2]], 5, closure=EdgeworthClosure(6), order=4)
+    with pytest.raises(ValueError, match=msg):
+        ConditionalMomentFilter(md, 0.01, closure=EdgeworthClosure(6), order=4)
+    with pytest.raises(ValueError, match=msg):
+        MQLF(md, 0.01, closure=EdgeworthClosure(6), order=4)
+    with pytest.raises(ValueError, match="order: expected an integer or None"):
+        QLF(md, 0.01).error_analysis([4.0], [[0.05]], 10, closure=EdgeworthClosure(4), order=4.0)

@@ -73,3 +73,100 @@ def test_grid_rejects_bad_input():
         GridFilter(md, (-3, 3), 2)
     with pytest.raises(ValueError, match="dt"):
         GridFilter(md, (-3, 3), dt=0.1)
+
+
+# -- the protocol's step functions by hand = run ------------------------------------------------------
+x1, x2 = sp.symbols("x1 x2")
+D2 = DiscreteModel([x1, x2], [0.9 * x1 + 0.1 * x2, 0.8 * x2 - 0.05 * x1**3], [x1 + 0.1 * x2**2, x2],
+                   Q=np.diag([0.1, 0.05]), R=[[0.2, 0.08], [0.08, 0.1]])
+S1 = SDEModel([x], [-x**3], [x], Q=0.5, R=0.1)
+M2, P2 = np.array([0.3, -0.2]), np.array([[0.5, 0.1], [0.1, 0.4]])
+
+
+def _by_hand(flt, ys, m0, P0, rng):
+    """The loop of ``Filter.run`` written with the public step functions."""
+    b = flt.init(m0, P0, ys.shape[:-2], rng=rng)
+    means, covs = [], []
+    for k in range(ys.shape[-2]):
+        if flt.time == "continuous":
+            b = flt.step(b, ys[:, k], k * flt.dt)
+        else:
+            off = 0 if flt.start == "update" else 1
+            if k > 0 or off:
+                b = flt.predict(b, k + off - 1)
+            b = flt.update(b, ys[:, k], k + off)
+        m, c = flt.summary(b)
+        means.append(m)
+        covs.append(c)
+    return np.stack(means, axis=1), np.stack(covs, axis=1)
+
+
+@pytest.mark.parametrize("start", ["update", "predict"])
+@pytest.mark.parametrize("make", [lambda s: GridFilter(D2, [(-4.0, 4.0), (-4.0, 4.0)], 25, start=s),
+                                  lambda s: ParticleFilter(D2, 300, start=s)], ids=["grid", "particle"])
+def test_predict_update_by_hand_reproduce_run(make, start):
+    flt = make(start)
+    assert flt.time == "discrete" and flt.family == "reference" and flt.accepts == ("discrete", "sde")
+    ys = simulate(D2, 8, paths=4, rng=2, m0=M2, P0=P2, start=start).ys
+    ys[:, 3] = np.nan  # a fully missing step: the loop only predicts, update(NaN) leaves the belief
+    ys[1, 5, 0] = np.nan  # a partly missing measurement
+    est = flt.run(ys, M2, P2, rng=7)
+    means, covs = _by_hand(flt, ys, M2, P2, np.random.default_rng(7))
+    np.testing.assert_array_equal(est.means, means)  # the same arithmetic, the same draws
+    np.testing.assert_array_equal(est.covs, covs)
+    again = flt.run(ys, M2, P2, rng=7, progress=True)
+    np.testing.assert_array_equal(again.means, est.means)
+
+
+@pytest.mark.parametrize("make", [lambda: GridFilter(S1, (-3.0, 3.0), 61, dt=0.05),
+                                  lambda: ParticleFilter(S1, 300, dt=0.05)], ids=["grid", "particle"])
+def test_step_by_hand_reproduces_run_on_an_sde(make):
+    flt = make()
+    assert flt.time == "continuous"
+    ys = simulate(S1, 10, paths=3, rng=4, m0=[0.5], P0=[[0.3]], dt=0.05).ys
+    ys[:, 4] = np.nan  # a missing increment: prediction only
+    est = flt.run(ys, [0.5], [[0.3]], rng=9)
+    means, covs = _by_hand(flt, ys, [0.5], [[0.3]], np.random.default_rng(9))
+    np.testing.assert_array_equal(est.means, means)
+    np.testing.assert_array_equal(est.covs, covs)
+    with pytest.raises(TypeError, match="^predict"):
+        flt.predict(flt.init([0.5], [[0.3]], (3,), rng=0), 0)
+
+
+def test_step_functions_flag_an_impossible_measurement_and_reset_keeps_the_stream():
+    from nlfilter.errors import DivergenceError
+    md = DiscreteModel([x], [0.5 * x], [x], R=1 / 3, Q=1 / 3, process_noise=Independent(st.uniform(-1, 2)),
+                       measurement_noise=Independent(st.uniform(-1, 2)))
+    y = np.array([[0.2], [50.0]])
+    for flt in (GridFilter(md, (-3, 3), 301), ParticleFilter(md, 200)):
+        b = flt.init(None, None, (2,), initial=Independent(st.uniform(-1, 2)), rng=1)
+        _, bad = flt._update_unchecked(b, y, 0)
+        assert bad.tolist() == [False, True]
+        with pytest.raises(DivergenceError) as info:
+            flt.update(b, y, 0)
+        assert info.value.paths == (1,)
+        with pytest.raises(TypeError, match="^step"):
+            flt.step(b, y, 0.0)
+    b = flt.init(None, None, (2,), initial=Independent(st.uniform(-1, 2)), rng=1)
+    moved = flt.predict(b, 0)
+    r = flt.reset(moved, np.array([False, True]), b)
+    assert r.rng is b.rng
+    np.testing.assert_array_equal(r.x[1], b.x[1])
+    np.testing.assert_array_equal(r.x[0], moved.x[0])
+
+
+def test_grid_filter_reads_time_of_from_functions_model():
+    """issue 10 item 8.1 (same defect as the KF's): the grid filter cached its transition kernel of
+    k = 0 for every model without a time symbol; on a time-varying linear from_functions model it
+    must equal the EKF, exact on a linear model (the grid's discretization error, ~1e-7 here, aside)."""
+    from nlfilter.filters.ekf import EKF
+    a = lambda k: 0.9 + 0.3 * np.sin(k)  # noqa: E731
+    md = DiscreteModel.from_functions(1, 1, lambda x, k=0: a(k) * x + 0.3 * np.cos(k), lambda x, k=0: x,
+                                      f_x=lambda x, k=0: np.full((*np.shape(x)[:-1], 1, 1), a(k)),
+                                      h_x=lambda x, k=0: np.ones((*np.shape(x)[:-1], 1, 1)),
+                                      Q=[[0.1]], R=[[0.2]], is_linear=True)
+    ys = np.random.default_rng(1).normal(size=(2, 25, 1))
+    kf = EKF(md).run(ys, [0.0], [[0.5]])
+    g = GridFilter(md, (-6, 6), 801).run(ys, 0.0, 0.5)
+    np.testing.assert_allclose(g.means, kf.means, atol=1e-5)
+    np.testing.assert_allclose(g.covs, kf.covs, atol=1e-5)

@@ -8,7 +8,7 @@ from scipy.special import gamma as Gamma
 from nlfilter.errors import ClosureDivergedError, SingularSystemError
 from nlfilter.moments import (CumulantClosure, EdgeworthClosure, GaussianClosure, PolynomialSDE,
                               discrete_moment_equations, gaussian_moments, iterate, moment_equations,
-                              monomials, propagate, steady_state)
+                              monomials, propagate, stationary_moments, steady_state)
 from nlfilter import DiscreteModel
 
 x, y = sp.symbols("x y")
@@ -146,3 +146,37 @@ def test_negative_variance_raises_naming_time_and_moment():
     assert info.value.moment == (2,)
     assert info.value.time == pytest.approx(1 / 19, rel=1e-3)  # μ2(t) = 1 − 19 t
     assert "variance of x_1" in str(info.value)
+
+
+def test_stationary_moments_of_sde_model_ou_closed_form():
+    """issue 10 item 8.3: stationary_moments takes an SDEModel (as moment_equations does). OU
+    dx = −a x dt + g dβ, E dβ² = q dt: stationary N(0, g²q/(2a)), so E x² = g²q/(2a), E x⁴ = 3 (E x²)²."""
+    from nlfilter import SDEModel
+    x = sp.Symbol("x")
+    a, g, q = 1.5, 0.7, 0.4
+    md = SDEModel([x], [-a * x], [x], G=[[g]], Q=q, R=1.0)
+    mom = stationary_moments(md, [(1,), (2,), (4,)])
+    var = g * g * q / (2 * a)
+    assert abs(mom[(1,)]) < 1e-14
+    np.testing.assert_allclose(mom[(2,)], var, rtol=1e-12)
+    np.testing.assert_allclose(mom[(4,)], 3 * var**2, rtol=1e-12)
+
+
+def test_stationary_moments_of_2d_sde_model_solve_lyapunov():
+    """A 2-D linear SDEModel: the stationary covariance solves F P + P Fᵀ + G Q Gᵀ = 0."""
+    import scipy.linalg as sla
+    from nlfilter import SDEModel
+    x1, x2 = sp.symbols("x1 x2")
+    F = np.array([[0.0, 1.0], [-2.0, -0.6]])
+    GQG = np.array([[0.0, 0.0], [0.0, 0.5]])
+    md = SDEModel([x1, x2], [x2, -2 * x1 - 0.6 * x2], [x1], Q=GQG, R=1.0)
+    mom = stationary_moments(md, [(2, 0), (1, 1), (0, 2)])
+    P = sla.solve_continuous_lyapunov(F, -GQG)
+    np.testing.assert_allclose([mom[(2, 0)], mom[(1, 1)], mom[(0, 2)]], [P[0, 0], P[0, 1], P[1, 1]],
+                               rtol=1e-12, atol=1e-15)
+
+
+def test_stationary_moments_rejects_other_models():
+    with pytest.raises(TypeError, match="sde: expected a PolynomialSDE or an SDEModel, got DiscreteModel"):
+        x = sp.Symbol("x")
+        stationary_moments(DiscreteModel([x], [0.5 * x], [x], Q=1.0, R=1.0), [(2,)])

@@ -26,7 +26,9 @@ from tqdm import tqdm
 
 from . import experiment
 from ..filters.kalman import KalmanFilter
-from ..filters.moment_bayes import BoundedGridFilter1D, FirstOrderMomentFilter
+from ..bounded import BoundedNoiseModel
+from ..filters.moment_bayes import FirstOrderMomentFilter
+from ..filters.reference.bounded import BoundedGridFilter1D
 from ..models import DiscreteModel
 from ..results import Result
 
@@ -125,16 +127,19 @@ def run_first_order(params, *, quick, runs, seed, progress):
         law = input_law(law_name, wb)
         rng = np.random.default_rng(child)
         xs, zs = simulate_first_order(rng, law, h, R, T)
-        est = {"optimal": BoundedGridFilter1D(h, law, wb, G=G).run(zs)[..., 0],
+        grid = BoundedGridFilter1D(BoundedNoiseModel.first_order(h, wb, w_law=law), G=G)
+        est = {"optimal": grid.run(zs[..., None]).means[..., 0],
                "kalman": kalman_first_order(zs, h, law)}
         fb = {}
+        model = BoundedNoiseModel.first_order(h, wb)
         for N in tqdm(Ns, disable=not progress, desc=law_name):
-            r = FirstOrderMomentFilter(h, wb, N, w_moments=raw_moments(law, N)).run(zs)
-            est[f"moment{N}"] = r.estimates[..., 0]
-            fb[f"moment{N}"] = r.fallback.mean()
-            r = FirstOrderMomentFilter(h, wb, N, adaptive=True, n0=params["n0"], window=params["window"]).run(zs)
-            est[f"adaptive{N}"] = r.estimates[..., 0]
-            fb[f"adaptive{N}"] = r.fallback.mean()
+            r = FirstOrderMomentFilter(model, N, w_moments=raw_moments(law, N)).run(zs[..., None])
+            est[f"moment{N}"] = r.means[..., 0]
+            fb[f"moment{N}"] = r.extras["fallback"].mean()
+            r = FirstOrderMomentFilter(model, N, adaptive=True, n0=params["n0"],
+                                       window=params["window"]).run(zs[..., None])
+            est[f"adaptive{N}"] = r.means[..., 0]
+            fb[f"adaptive{N}"] = r.extras["fallback"].mean()
         per_path = _mse_rows(res, {k: v - xs for k, v in est.items()}, skip, law_name)
         _claims(res, per_path, law_name, Ns, "first-order")
         res.notes.append(f"first-order law={law_name}: uniform fallback used in "
@@ -190,7 +195,8 @@ def kalman_second_order(zs, A, b, c, law, noise_halfwidth=1.0):
                     "laws": list(LAWS), "T": 400, "skip": 100, "n0": 100.0, "window": 20,
                     "particles": 4000, "bounding": "polygon", "directions": 16})
 def run_second_order(params, *, quick, runs, seed, progress):
-    from ..filters.moment_bayes import SecondOrderMomentFilter, bootstrap_particle_means
+    from ..filters.moment_bayes import SecondOrderMomentFilter
+    from ..filters.reference.bounded import BoundedParticleFilter
     A = np.diag([float(params["h1"]), float(params["h2"])])
     b = np.array([float(params["d1"]), float(params["d2"])])
     c = b.copy()  # 000 eqs. 2.6-2.7 as the OCR reads them: the same d1, d2 in the input and the output
@@ -214,16 +220,17 @@ def run_second_order(params, *, quick, runs, seed, progress):
                 x = x @ A.T + law.rvs(size=shape, random_state=r)[..., None] * b
             return x
 
-        est = {"optimal": bootstrap_particle_means(rng, zs, A, b, c, lambda r, s, law=law: law.rvs(size=s, random_state=r),
-                                                   x0_sampler, particles=P),
+        est = {"optimal": BoundedParticleFilter(BoundedNoiseModel(A, b, c, wb, w_law=law), particles=P).run(
+                   zs[..., None], initial=x0_sampler, rng=rng).means,
                "kalman": kalman_second_order(zs, A, b, c, law)}
         fb = {}
+        model = BoundedNoiseModel(A, b, c, wb)
         for N in tqdm(Ns, disable=not progress, desc=law_name):
-            r = SecondOrderMomentFilter(A, b, c, wb, N, w_moments=raw_moments(law, N), **bkw).run(zs)
-            est[f"moment{N}"], fb[f"moment{N}"] = r.estimates, r.fallback.mean()
-            r = SecondOrderMomentFilter(A, b, c, wb, N, adaptive=True, n0=params["n0"],
-                                        window=params["window"], **bkw).run(zs)
-            est[f"adaptive{N}"], fb[f"adaptive{N}"] = r.estimates, r.fallback.mean()
+            r = SecondOrderMomentFilter(model, N, w_moments=raw_moments(law, N), **bkw).run(zs[..., None])
+            est[f"moment{N}"], fb[f"moment{N}"] = r.means, r.extras["fallback"].mean()
+            r = SecondOrderMomentFilter(model, N, adaptive=True, n0=params["n0"],
+                                        window=params["window"], **bkw).run(zs[..., None])
+            est[f"adaptive{N}"], fb[f"adaptive{N}"] = r.means, r.extras["fallback"].mean()
         errs = {k: np.sqrt(np.sum((v - xs) ** 2, axis=-1)) for k, v in est.items()}  # |x - x_hat|
         per_path = _mse_rows(res, errs, skip, law_name)
         _claims(res, per_path, law_name, Ns, "second-order")

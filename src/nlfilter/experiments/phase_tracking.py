@@ -17,9 +17,11 @@ from scipy.optimize import minimize_scalar
 from tqdm import tqdm
 
 from . import experiment
-from ..filters.phase import (CircleGridFilter, PLL, PhaseTensorFilter, pll_gain, post_processor, qr_from_P,
-                             simulate_phase, wrap)
+from ..bilinear import phase_model
+from ..filters.phase import (CircleGridFilter, LinearQuadratureFilter, PLL, PhaseTensorFilter, pll_gain,
+                             post_processor, qr_from_P, wrap)
 from ..results import Result
+from ..simulate import simulate_phase
 
 TABLE_4_1 = {  # seed 001 Table 4.1, P_θℓ = .129: E[ε²] (rad²), RMS error (deg), E[1 − cos ε]
     "pll": (0.1401, 21.4, 0.068),
@@ -88,20 +90,19 @@ def _simulation(res, params, q, quick, runs, seed, progress):
     paths = runs or (2 if quick else 16)
     rng = np.random.default_rng(np.random.SeedSequence(seed).spawn(1)[0])
     theta, dzs = simulate_phase(q, r, dt, steps, paths, rng)
-    th0 = theta[:, 0] * 0.0  # filters start without phase information: θ̂0 = 0, x̂0 = E x0 = 0
-    tf = PhaseTensorFilter(q, r, dt)
+    model = phase_model(q, r)
+    m0, P0 = np.zeros(2), 0.5 * np.eye(2)  # filters start without phase information: x̂0 = E x0 = 0, θ̂0 = 0
+    tf = PhaseTensorFilter(model, dt)
     fits = tf.fits()
-    lin = tf.tensor.linear.run(dzs, np.zeros(2), 0.5 * np.eye(2), return_augmented=True).means
-    xt = tf.tensor.post_process(lin)
-    ests = {"pll": PLL(q, r, dt).run(dzs, theta0=th0).theta,
-            "lqf": np.arctan2(lin[..., 0], lin[..., 1]),
-            "tensor": np.arctan2(xt[..., 0], xt[..., 1])}
-    xs = {"lqf": lin[..., :2], "tensor": xt}
+    pll = PLL(model, dt).run(dzs, m0, P0)
+    lqf = LinearQuadratureFilter(model, dt).run(dzs, m0, P0)
+    ten = tf.run(dzs, m0, P0)
+    ests = {"pll": pll.extras["theta"], "lqf": lqf.extras["theta"], "tensor": ten.extras["theta"]}
+    xs = {"lqf": lqf.means, "tensor": ten.means}
     if not quick or params["grid"] > 0:
-        g = CircleGridFilter(q, r, dt, size=64 if quick else int(params["grid"]))
-        ge = g.run(dzs)
-        ests["optimal"] = ge.theta
-        xs["optimal"] = ge.x
+        ge = CircleGridFilter(model, dt, size=64 if quick else int(params["grid"])).run(dzs)
+        ests["optimal"] = ge.extras["theta"]
+        xs["optimal"] = ge.means
     x1 = np.sin(theta)
     se = lambda v: float(v.std(ddof=1) / np.sqrt(v.size)) if v.size > 1 else None  # noqa: E731
     for name, th in ests.items():

@@ -3,7 +3,11 @@
 ========================  ==================================================================
 module                    filters
 ========================  ==================================================================
-kalman, ekf, ukf          KalmanFilter, KalmanBucy, EKF, ContinuousEKF, UKF
+kalman, ekf, ukf          KalmanFilter, KalmanBucy, EKF, IteratedEKF, ContinuousEKF, UKF,
+                          ContinuousDiscreteEKF, ContinuousDiscreteIEKF, ContinuousDiscreteUKF
+cubature                  CKF, GHKF, ContinuousDiscreteCKF, ContinuousDiscreteGHKF
+gaussian, rules           GaussianFilter, ContinuousDiscreteGaussianFilter over a moment rule
+                          (Taylor1, Unscented, Cubature, GaussHermite)
 second_order              SecondOrderFilter, ContinuousSecondOrderFilter,
                           ContinuousDiscreteSecondOrderFilter (seed 004; ``form=`` FORMS)
 offline                   the off-line-gain runner (schedule + affine recursion) of the two below
@@ -13,27 +17,67 @@ moment_filters            ConditionalMomentFilter, DiscreteConditionalMomentFilt
 bilinear                  OptimalLinearFilter, DiscreteOptimalLinearFilter, TensorFilter ... (001)
 phase                     PLL, LinearQuadratureFilter, PhaseTensorFilter, CircleGridFilter (001)
 moment_bayes              ZeroOrderMomentFilter, FirstOrderMomentFilter, SecondOrderMomentFilter (000)
+reference.bounded         BoundedGridFilter1D, BoundedParticleFilter: the yardsticks of moment_bayes
 reference                 GridFilter, ParticleFilter: the near-optimal yardsticks
 ========================  ==================================================================
 """
 
 from .base import ContinuousFilter, DiscreteFilter, Estimates, GaussianState
-from .bilinear import DiscreteOptimalLinearFilter, OptimalLinearFilter, TensorFilter
-from .ekf import EKF, ContinuousEKF
+from .bilinear import (DiscreteOptimalLinearFilter, OptimalLinearFilter, PseudoObservablesFilter, TensorFilter,
+                       UpdatedInnovationsFilter)
+from .cubature import CKF, GHKF, ContinuousDiscreteCKF, ContinuousDiscreteGHKF
+from .ekf import EKF, ContinuousDiscreteEKF, ContinuousDiscreteIEKF, ContinuousEKF, IteratedEKF
+from .gaussian import ContinuousDiscreteGaussianFilter, GaussianFilter
 from .kalman import KalmanBucy, KalmanFilter
-from .moment_bayes import FirstOrderMomentFilter, SecondOrderMomentFilter, ZeroOrderMomentFilter
+from .moment_bayes import (FirstOrderMomentFilter, ScaledNoiseZeroOrderFilter, SecondOrderMomentFilter,
+                           ZeroOrderMomentFilter)
 from .moment_filters import ConditionalMomentFilter, DiscreteConditionalMomentFilter
 from .phase import PLL, CircleGridFilter, LinearQuadratureFilter, PhaseTensorFilter
 from .quasilinear import MQLF, QLF, DiscreteQuasilinearFilter, QuasilinearFilter
 from .reference import GridFilter, ParticleFilter
+from .reference.bounded import BoundedGridFilter1D, BoundedParticleFilter
 from .second_order import (FORMS, ContinuousDiscreteSecondOrderFilter, ContinuousSecondOrderFilter,
                            SecondOrderFilter)
-from .ukf import UKF
+from .ukf import UKF, ContinuousDiscreteUKF
 
-__all__ = ["GaussianState", "Estimates", "DiscreteFilter", "ContinuousFilter", "KalmanFilter", "KalmanBucy",
+from . import registry as _registry
+
+#: Every public filter by name (a plain dict; see :mod:`nlfilter.filters.registry`).
+REGISTRY = {
+    "kf": KalmanFilter, "kalman-bucy": KalmanBucy,
+    "ekf": EKF, "iekf": IteratedEKF, "ukf": UKF, "ckf": CKF, "ghkf": GHKF,
+    "continuous-ekf": ContinuousEKF,
+    "continuous-discrete-ekf": ContinuousDiscreteEKF, "continuous-discrete-iekf": ContinuousDiscreteIEKF,
+    "continuous-discrete-ukf": ContinuousDiscreteUKF, "continuous-discrete-ckf": ContinuousDiscreteCKF,
+    "continuous-discrete-ghkf": ContinuousDiscreteGHKF,
+    "second-order": SecondOrderFilter, "continuous-second-order": ContinuousSecondOrderFilter,
+    "continuous-discrete-second-order": ContinuousDiscreteSecondOrderFilter,
+    "conditional-moment": ConditionalMomentFilter, "discrete-conditional-moment": DiscreteConditionalMomentFilter,
+    "quasilinear": QuasilinearFilter, "discrete-quasilinear": DiscreteQuasilinearFilter,
+    "optimal-linear": OptimalLinearFilter, "discrete-optimal-linear": DiscreteOptimalLinearFilter,
+    "tensor": TensorFilter, "updated-innovations": UpdatedInnovationsFilter,
+    "pseudo-observables": PseudoObservablesFilter,
+    "pll": PLL, "lqf": LinearQuadratureFilter, "phase-tensor": PhaseTensorFilter, "circle-grid": CircleGridFilter,
+    "zero-order-moment": ZeroOrderMomentFilter, "first-order-moment": FirstOrderMomentFilter,
+    "second-order-moment": SecondOrderMomentFilter, "scaled-noise-zero-order-moment": ScaledNoiseZeroOrderFilter,
+    "bounded-grid": BoundedGridFilter1D, "bounded-particle": BoundedParticleFilter,
+    "grid": GridFilter, "particle": ParticleFilter,
+}
+
+
+def get(name: str):
+    """The filter class registered under ``name`` (ValueError listing the choices otherwise)."""
+    return _registry.get(REGISTRY, name)
+
+
+__all__ = ["REGISTRY", "get", "GaussianState", "Estimates", "DiscreteFilter", "ContinuousFilter", "KalmanFilter", "KalmanBucy",
            "EKF", "ContinuousEKF", "UKF", "SecondOrderFilter", "ContinuousSecondOrderFilter",
            "ContinuousDiscreteSecondOrderFilter", "FORMS", "QLF", "MQLF", "QuasilinearFilter",
            "DiscreteQuasilinearFilter", "ConditionalMomentFilter", "DiscreteConditionalMomentFilter",
-           "OptimalLinearFilter", "DiscreteOptimalLinearFilter", "TensorFilter", "PLL",
+           "OptimalLinearFilter", "DiscreteOptimalLinearFilter", "TensorFilter", "UpdatedInnovationsFilter",
+           "PseudoObservablesFilter", "PLL",
            "LinearQuadratureFilter", "PhaseTensorFilter", "CircleGridFilter", "ZeroOrderMomentFilter",
-           "FirstOrderMomentFilter", "SecondOrderMomentFilter", "GridFilter", "ParticleFilter"]
+           "FirstOrderMomentFilter", "SecondOrderMomentFilter", "ScaledNoiseZeroOrderFilter", "GridFilter",
+           "ParticleFilter", "BoundedGridFilter1D", "BoundedParticleFilter",
+           "CKF", "GHKF", "IteratedEKF", "ContinuousDiscreteEKF", "ContinuousDiscreteIEKF", "ContinuousDiscreteUKF",
+           "ContinuousDiscreteCKF", "ContinuousDiscreteGHKF", "GaussianFilter", "ContinuousDiscreteGaussianFilter"]

@@ -27,21 +27,24 @@ from typing import Callable, NamedTuple, Sequence
 
 import numpy as np
 import scipy.linalg as sla
-import scipy.sparse as sps
 
 from .. import _validate as V
 from ..bilinear import BilinearModel
 from ..errors import SingularSystemError
 from ..moments.ito import PolynomialSDE, bilinear_lift, closed_hull
-from ..moments.solve import linear_steady_state, stationary_moments
+from ..moments.solve import stationary_moments
 from ..polynomials import Polynomial, monomials
-from .base import Estimates, _Runner, screen_outputs, screened, symmetrize
+from .base import Estimates, Filter, _Runner, gaussian_prior, ode_step, screened, symmetrize
+
+
+# the model analysis lives beside BilinearModel (nlfilter.bilinear_analysis); re-exported here
+from ..bilinear_analysis import (WonhamReport, _kron_operator, _NeedX0, augmented_second_moment,  # noqa: E402,F401
+                                 state_second_moments, wonham_condition)
 
 
 # ================================================ the optimal linear filters (moved: linear_bilinear)
 from .linear_bilinear import (DiscreteOptimalLinearFilter, LinearSteadyState, OptimalLinearFilter,  # noqa: E402,F401
-                              WonhamReport, _affine_step, _kron_operator, _pinv_psd, _start_run,
-                              augmented_second_moment, state_second_moments, wonham_condition)
+                              _affine_step, _pinv_psd, _start_run)
 
 
 # ====================================================================== joint moments (x, ẑ)
@@ -251,7 +254,77 @@ def fit_post_processor(jp: JointProcess, target: Polynomial, features: list, lin
     return PostProcessorFit(alpha, list(features), mse, mse_lin, target, mom)
 
 
-class TensorFilter:
+class AugmentedEstimate(NamedTuple):
+    """Belief of the steady-gain filters of this module: the linear filter's estimate ``z (B, N)``
+    of the augmented state ``z = (x, 1)`` (the constant coordinate included)."""
+
+    z: np.ndarray
+
+
+class _SteadyLinearRecursion(Filter):
+    """The optimal linear filter's steady-gain recursion ``dẑ = F ẑ dt + K (dy − H ẑ dt)``
+    (001 eqs. 2.31-2.32, gains of eq. 2.54) over an :class:`AugmentedEstimate`, as a
+    continuous-time :class:`~nlfilter.filters.base.Filter`: one RK4 (or Euler) step with
+    ``dy/dt`` held constant is the affine map ``ẑ ↦ Φ ẑ + Γ dy/dt``, computed once.
+
+    Missing data: a NaN component of ``dy`` contributes no innovation (its gain column is
+    dropped for that step; the off-line gains are not re-optimised). Prior: ``ẑ0 = (m0, 1)``,
+    per path allowed; the gains are the steady state's from t = 0 and do not depend on the prior,
+    so ``P0`` is checked but does not enter."""
+
+    family = "off-line gains"
+    accepts = ("bilinear", "phase")
+    needs = ("time-invariant model", "finite steady state (Wonham condition)")
+    time = "continuous"
+
+    def _linear(self, model, dt, scheme, X0):
+        self.linear = OptimalLinearFilter(model, dt, gains="steady", X0=X0, scheme=scheme)
+        self.model, self.dt = model, self.linear.dt
+        self._maps = {}
+
+    @property
+    def data_dim(self) -> int:
+        return self.model.m
+
+    def init(self, m0, P0, batch, *, initial=None, rng=None):
+        """``ẑ0 = (m0, 1)`` on every path (``m0`` common or per path); ``P0`` checked only."""
+        if initial is not None:
+            raise ValueError(f"initial: {type(self).__name__} starts from the prior mean m0 (ẑ0 = (m0, 1)); "
+                             f"expected None, got {type(initial).__name__}")
+        g = gaussian_prior(m0, P0, self.model.n, batch)
+        z = g.mean if self.model.N == self.model.n else np.concatenate([g.mean, np.ones((len(g.mean), 1))], axis=1)
+        return AugmentedEstimate(z)
+
+    def _affine(self, observed: tuple):
+        """``(Φ, Γ)`` of one step with the components ``observed`` (a tuple of bools) measured."""
+        maps = self._maps.get(observed)
+        if maps is None:
+            K = self.linear.steady_state().K
+            if not all(observed):
+                K = K * np.asarray(observed, float)  # no innovation from a missing component
+            a = self.model.augmented(0)
+            A = a.F - K @ a.H
+            maps = self._maps[observed] = _affine_step(A, A, A, K, K, K, self.dt, self.linear.scheme)
+        return maps
+
+    def step(self, belief, dy, t):
+        """``ẑ`` at ``t + dt`` after the increment ``dy (B, m)`` (NaN components: no innovation)."""
+        z = belief.z
+        miss = np.isnan(dy)
+        if not miss.any():
+            Phi, Gam = self._affine((True,) * dy.shape[-1])
+            return AugmentedEstimate(z @ Phi.T + (dy / self.dt) @ Gam.T)
+        y = np.where(miss, 0.0, dy) / self.dt
+        out = np.empty_like(z)
+        patterns, which = np.unique(~miss, axis=0, return_inverse=True)
+        for j, obs in enumerate(patterns):  # one affine map per missing pattern (not per path)
+            sel = which.ravel() == j
+            Phi, Gam = self._affine(tuple(bool(o) for o in obs))
+            out[sel] = z[sel] @ Phi.T + y[sel] @ Gam.T
+        return AugmentedEstimate(out)
+
+
+class TensorFilter(_SteadyLinearRecursion):
     """Optimal linear filter followed by memoryless polynomial post-processors (001 Fig. 3.3,
     §3.3; "tensor filter", 001 §4.3 and ch. 5). All gains are computed off-line from the steady
     state.
@@ -264,20 +337,34 @@ class TensorFilter:
     inputs : "own" (each target from powers of its own linear estimate, as 001 eqs. 4.20, 5.11-5.12)
         or "cross" (odd monomials of all random estimates, with cross terms)
     initial : callable ``base monomial -> E[.]`` at t = 0 (needed on conservative state spaces)
+
+    ``run(ys, m0, P0)`` (``ys`` the increments ``dy``): the belief is the linear filter's augmented
+    estimate ``ẑ`` (:class:`_SteadyLinearRecursion`: prior ``ẑ0 = (m0, 1)``, missing components
+    give no innovation); the post-processor is the map from ``ẑ`` to the reported estimate,
+    applied at every step (``summary``) so that the run loop screens its overflow too (``x̂³``
+    of a huge but finite ``ẑ``). ``means`` are the targets' estimates ``(..., T, len(targets))``;
+    ``covs`` the off-line steady-state error covariance of the post-processed estimates
+    (:meth:`error_covariance`), the same at every step.
     """
 
     name = "tensor"
+    source = "seed 001 §3.3, Fig. 3.3, eqs. 3.29-3.35 (ch. 4-5)"
 
     def __init__(self, model: BilinearModel, dt: float, *, targets=None, degree: int = 3, inputs: str = "own",
                  initial: Callable | None = None, X0=None, scheme: str = "rk4"):
         if degree < 1 or degree % 2 == 0:
             raise ValueError(f"degree: expected an odd positive integer, got {degree!r}")
-        self.linear = OptimalLinearFilter(model, dt, gains="steady", X0=X0, scheme=scheme)
-        self.model, self.dt, self.degree = model, dt, degree
+        self._linear(model, dt, scheme, X0)
+        self.degree = degree
         self.inputs = V.choice("inputs", inputs, {"own", "cross"})
         self.targets = list(range(model.n)) if targets is None else list(targets)
         self.initial = initial
         self._fits = None
+        self._cov = None
+
+    @property
+    def state_dim(self) -> int:
+        return len(self.targets)
 
     def fit(self) -> list:
         """Off-line: steady gains, the joint process, and one post-processor per target."""
@@ -290,6 +377,7 @@ class TensorFilter:
         if self.model.constant_index is not None:
             z0[self.model.constant_index] = 1.0
         init = None if self.initial is None else jp.initial(self.initial, z0)
+        self._joint_initial = init
         nv = jp.sde.n
         fits, mom = [], {}
         for k in self.targets:
@@ -304,7 +392,29 @@ class TensorFilter:
             mom = fit.moments
             fits.append(fit)
         self._fits = fits
+        self._outputs = [f.output_poly() for f in fits]
         return fits
+
+    def error_covariance(self) -> np.ndarray:
+        """Off-line steady-state ``E[(t − ψ)(t − ψ)ᵀ]`` of the targets ``t`` and their
+        post-processed estimates ``ψ``: the diagonal is each fit's ``mse``; the cross terms come
+        from the same exact joint moments (a few more monomials)."""
+        if self._cov is None:
+            fits = self.fit()
+            nt = len(fits)
+            errs = [f.target - f.output_poly() for f in fits]
+            cov = np.diag([f.mse for f in fits])
+            pairs = [(i, j) for i in range(nt) for j in range(i + 1, nt)]
+            if pairs:
+                mom = dict(fits[-1].moments)
+                prods = {(i, j): errs[i] * errs[j] for i, j in pairs}
+                missing = sorted({e for p in prods.values() for e in p.terms if e not in mom})
+                if missing:
+                    mom.update(stationary_moments(self.joint.sde, missing, initial=self._joint_initial))
+                for (i, j), p in prods.items():
+                    cov[i, j] = cov[j, i] = float(p.expect(mom))
+            self._cov = cov
+        return self._cov
 
     def with_dt(self, dt: float) -> "TensorFilter":
         """The same filter (same off-line gains, computed once) for increments of step ``dt``."""
@@ -313,33 +423,26 @@ class TensorFilter:
         other.linear = OptimalLinearFilter(self.model, dt, gains="steady", X0=self.linear.X0, scheme=self.linear.scheme)
         other.linear._steady = self.linear._steady
         other.dt = float(dt)
+        other._maps = {}  # the step maps depend on dt
         return other
 
     def post_process(self, zhat: np.ndarray) -> np.ndarray:
         """Apply the post-processors to linear estimates ``(..., N)`` (augmented) -> ``(..., len(targets))``."""
-        fits = self.fit()
+        self.fit()
         jp = self.joint
         vals = np.zeros((*zhat.shape[:-1], jp.sde.n))
         for i, k in enumerate(jp.estimate_vars):
             vals[..., jp.nb + i] = zhat[..., k]
-        return np.stack([f.output_poly()(vals) for f in fits], axis=-1)
+        return np.stack([out(vals) for out in self._outputs], axis=-1)
 
-    @screened
-    def run(self, dys, m0, P0, *, on_divergence: str = "raise") -> Estimates:
-        """Linear estimates (augmented) then post-processing; ``means`` are the targets'
-        estimates ``(..., T, len(targets))``; ``covs`` hold the off-line post-processor MSEs
-        on the diagonal (cross terms not computed: NaN)."""
+    def init(self, m0, P0, batch, *, initial=None, rng=None):
         self.fit()
-        est = self.linear.run(dys, m0, P0, on_divergence=on_divergence, return_augmented=True)
-        means = self.post_process(est.means)
-        # the linear run checked ẑ; its post-processed value may still overflow (x̂³ of a huge ẑ)
-        means, diverged, step = screen_outputs(self.name, means, est.diverged, est.diverged_step, on_divergence)
-        nt = len(self.targets)
-        cov = np.full((nt, nt), np.nan)
-        np.fill_diagonal(cov, [f.mse for f in self._fits])
-        covs = np.broadcast_to(cov, (*means.shape, nt)).copy()
-        covs[diverged[..., None] & (np.arange(means.shape[-2]) >= step[..., None])] = np.nan  # as _Runner
-        return Estimates(means, covs, diverged, step)
+        return super().init(m0, P0, batch, initial=initial, rng=rng)
+
+    def summary(self, belief):
+        """``(ψ(ẑ) (B, len(targets)), the off-line error covariance)``."""
+        cov = self.error_covariance()
+        return self.post_process(belief.z), np.broadcast_to(cov, (len(belief.z), *cov.shape))
 
 
 def multistage(jp: JointProcess, first: PostProcessorFit, degree: int = 3, *, initial=None) -> PostProcessorFit:
@@ -362,10 +465,14 @@ class UpdatedInnovationsFilter(TensorFilter):
 
     Gains ``K`` and post-processor gains are those of :class:`TensorFilter` (off-line). The
     recursion is nonlinear, so its error has no closed moment system: it is evaluated by
-    simulation. Integration: explicit RK4 (or Euler) with ``dy/dt`` held constant over a step.
+    simulation, and ``covs`` are NaN on every path (no error covariance; a path whose estimate
+    overflows is raised or marked in ``diverged``). Integration: explicit RK4 (or Euler) with
+    ``dy/dt`` held constant over a step; a missing component of ``dy`` gives no innovation
+    (skipped in the recursion). Prior as :class:`TensorFilter`: ``ẑ0 = (m0, 1)``.
     """
 
     name = "updated-innovations"
+    source = "seed 001 §3.4, Fig. 3.4"
 
     @classmethod
     def from_tensor(cls, tf: TensorFilter, dt: float | None = None) -> "UpdatedInnovationsFilter":
@@ -374,51 +481,31 @@ class UpdatedInnovationsFilter(TensorFilter):
         other.__dict__.update((tf if dt is None else tf.with_dt(dt)).__dict__)
         return other
 
-    @screened
-    def run(self, dys, m0, P0, *, on_divergence: str = "raise") -> Estimates:
-        """Estimates of the targets for increments ``dys (..., T, m)``. ``covs`` are NaN on every
-        path: the nonlinear recursion has no error covariance (its error is measured by
-        simulation); a path whose estimate overflows is raised or marked in ``diverged``."""
-        from .base import GaussianState
-        self.fit()
-        model = self.model
-        dys, (z0, _, Pa), zs = _start_run(model, "dys", dys, m0, P0)
-        ss = self.linear.steady_state()
-        aug = model.augmented(0)
-        F, H, K = aug.F, aug.H, ss.K
-        batch, T_ = dys.shape[:-2], dys.shape[-2]
-        nt = len(self.targets)
-        out = _Runner(batch, T_, nt, on_divergence, self.name)
-        h = self.dt
+    def step(self, belief, dy, t):
+        """``ẑ`` at ``t + dt`` after ``dy (B, m)``: RK4 (or Euler) of the updated-innovations SDE."""
+        aug = self.model.augmented(0)
+        F, H, K = aug.F, aug.H, self.linear.steady_state().K
         tg = self.targets
+        miss = np.isnan(dy)
+        y = (np.where(miss, 0.0, dy) if miss.any() else dy) / self.dt
 
-        def rhs(z, y):
+        def rhs(z):
             zp = z.copy()
             zp[..., tg] = self.post_process(z)
-            return z @ F.T + (y - zp @ H.T) @ K.T
+            innov = y - zp @ H.T
+            if miss.any():
+                innov = np.where(miss, 0.0, innov)  # a missing component: no innovation
+            return z @ F.T + innov @ K.T
 
-        eye = np.broadcast_to(np.eye(nt), (*batch, nt, nt))  # placeholder: the divergence screen checks means
-        reset = GaussianState(np.broadcast_to(z0[tg], (*batch, nt)), eye)
-        for k in range(T_):
-            y = dys[..., k, :] / h
-            if self.linear.scheme == "euler":
-                zs = zs + h * rhs(zs, y)
-            else:
-                k1 = rhs(zs, y)
-                k2 = rhs(zs + h / 2 * k1, y)
-                k3 = rhs(zs + h / 2 * k2, y)
-                k4 = rhs(zs + h * k3, y)
-                zs = zs + h / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
-            out.record(k, GaussianState(self.post_process(zs), eye), reset)
-            if out.diverged.any():  # diverged paths restart harmlessly; their outputs are NaN
-                zs = np.where(out.diverged[..., None], z0, zs)
-        res = out.result()
-        cov = np.full((nt, nt), np.nan)  # no error covariance for this nonlinear recursion
-        return Estimates(res.means, np.broadcast_to(cov, res.covs.shape).copy(), res.diverged, res.diverged_step)
+        return AugmentedEstimate(ode_step(lambda z, s: rhs(z), belief.z, t, self.dt, scheme=self.linear.scheme))
+
+    def summary(self, belief):
+        """``(ψ(ẑ), None)``: no error covariance for this nonlinear recursion (``covs`` NaN)."""
+        return self.post_process(belief.z), None
 
 
 # ====================================================================== pseudo-observables
-class PseudoObservablesFilter:
+class PseudoObservablesFilter(Filter):
     """Optimal linear filter using tensored observables ``y, y^p, ...`` (001 §3.2, eq. 3.14):
     ``x̂ = P[x | H^y ⊕ H^{y³} ⊕ ...]``.
 
@@ -442,9 +529,21 @@ class PseudoObservablesFilter:
     model : BilinearModel with additive measurement noise only (``R``; no ``M``)
     powers : the powers of each measurement component used as observables (``(1, 3)``: y and y³)
     dt : measurement step;  x_moment : callable ``base monomial -> E[x0^α]`` (initial law of x)
+
+    ``run(ys)`` (``ys`` the increments ``dy``, y0 = 0): a continuous-time
+    :class:`~nlfilter.filters.base.Filter` over a :class:`PseudoObservablesState`; ``means`` the
+    estimates of the base variables, ``covs`` the off-line error covariance of the gain schedule.
+    The prior is the law of x0 whose moments ``x_moment`` gives (every moment enters the
+    pseudo-observables' gains), so ``m0``/``P0`` must be None (refused naming ``m0``). A missing
+    increment component: its observables give no innovation (see :meth:`step`).
     """
 
     name = "pseudo-observables"
+    family = "off-line gains"
+    source = "seed 001 §3.2, eqs. 3.11-3.16"
+    accepts = ("bilinear",)
+    needs = ("additive measurement noise", "time-invariant model", "moments of x0 (x_moment)")
+    time = "continuous"
 
     def __init__(self, model: BilinearModel, dt: float, *, powers=(1, 3), x_moment=None, scheme: str = "rk4"):
         if model.M:
@@ -460,6 +559,8 @@ class PseudoObservablesFilter:
             raise ValueError(f"powers: expected positive integers including 1, got {powers!r}")
         self.x_moment = x_moment
         self._build()
+        self._path = None
+        self._ix = [self.index[tuple(int(j == v) for j in range(self.nb + self.m))] for v in range(self.nb)]
 
     def _build(self):
         model = self.model
@@ -551,32 +652,83 @@ class PseudoObservablesFilter:
         ix = [self.index[tuple(int(j == v) for j in range(self.nb + self.m))] for v in range(self.nb)]
         return np.stack([Ps[::2, i, i] for i in ix], axis=-1)
 
-    @screened
-    def run(self, dys, *, on_divergence: str = "raise") -> Estimates:
-        """Filter increments ``dys (..., T, m)`` (y0 = 0): pseudo-observable increments are formed
-        from the running ``y``; returns estimates of the base variables."""
-        from .base import GaussianState
-        dys = V.as_float_array("dys", dys, ndim_min=2, shape_tail=(None, self.m))
-        V.finite("dys", dys)
-        batch, T_ = dys.shape[:-2], dys.shape[-2]
+    # -- the belief functions (Filter) ---------------------------------------------------------
+    @property
+    def state_dim(self) -> int:
+        return self.nb
+
+    @property
+    def data_dim(self) -> int:
+        return self.m
+
+    def _schedule(self, k: int):
+        """``(Ps, Ks)`` of :meth:`covariance_path` covering step ``k`` (computed once and extended
+        by doubling; the path is one sequential RK4 run, so a longer one has the same prefix)."""
+        if self._path is None or len(self._path[1]) < 2 * k + 3:
+            T_ = max(k + 1, 2 * (len(self._path[1]) // 2) if self._path is not None else 0, 16)
+            self._path = self.covariance_path(T_)
+        return self._path[1], self._path[2]
+
+    def init(self, m0=None, P0=None, batch=(), *, initial=None, rng=None):
+        """The start ``ẑ0`` of :meth:`initial_moments` (x0 from ``x_moment``, all its moments, and
+        y0 = 0): this filter refuses a Gaussian prior (m0, P0), which would not give the moments
+        of the pseudo-observables."""
+        if m0 is not None or P0 is not None:
+            raise ValueError(f"m0: {type(self).__name__} starts from the law of x0 given by x_moment (and y0 = 0); "
+                             f"expected m0=None, P0=None, got m0={m0!r}, P0={P0!r}")
+        if initial is not None:
+            raise ValueError(f"initial: the initial law is x_moment's; expected None, got {type(initial).__name__}")
+        B = int(np.prod(batch))
         z0, _ = self.initial_moments()
-        _, Ps, Ks = self.covariance_path(T_)
-        y = np.concatenate([np.zeros((*batch, 1, self.m)), np.cumsum(dys, axis=-2)], axis=-2)
-        Y = np.stack([y[..., i] ** p for i, p in self.obs_meta], axis=-1)  # pseudo-observables y_i^p
-        dY = np.diff(Y, axis=-2)
-        zs = np.broadcast_to(z0, (*batch, len(z0))).copy()
-        ix = [self.index[tuple(int(j == v) for j in range(self.nb + self.m))] for v in range(self.nb)]
-        out = _Runner(batch, T_, self.nb, on_divergence, self.name)
-        h = self.dt
-        for k in range(T_):
-            K0, K1, K2 = Ks[2 * k], Ks[2 * k + 1], Ks[2 * k + 2]
-            Phi, Gam = _affine_step(self.A - K0 @ self.H, self.A - K1 @ self.H, self.A - K2 @ self.H,
-                                    K0, K1, K2, h, self.scheme)
-            zs = zs @ Phi.T + (dY[..., k, :] / h) @ Gam.T
-            Pk = Ps[2 * k + 2][np.ix_(ix, ix)]
-            st = GaussianState(zs[..., ix], np.broadcast_to(Pk, (*batch, self.nb, self.nb)))
-            out.record(k, st, st)
-        return out.result()
+        return PseudoObservablesState(np.broadcast_to(z0, (B, len(z0))).copy(), np.zeros((B, self.m)), 0)
+
+    def step(self, belief, dy, t):
+        """One increment ``dy (B, m)``: the pseudo-observables' increments ``d(y_i^p)`` are formed
+        from the running ``y``. A missing component ``i``: its observables give no innovation at
+        that step, and ``y_i`` goes on from its estimate ``ŷ_i`` (y is a coordinate of the lift;
+        exact for the power 1, an approximation for the higher powers after a gap)."""
+        k = belief.k
+        Ps, Ks = self._schedule(k)
+        miss = np.isnan(dy)
+        A, H, h = self.A, self.H, self.dt
+        y_new = belief.y + (np.where(miss, 0.0, dy) if miss.any() else dy)
+        dY = np.stack([y_new[..., i] ** p - belief.y[..., i] ** p for i, p in self.obs_meta], axis=-1)
+        K0, K1, K2 = Ks[2 * k], Ks[2 * k + 1], Ks[2 * k + 2]
+        if not miss.any():
+            Phi, Gam = _affine_step(A - K0 @ H, A - K1 @ H, A - K2 @ H, K0, K1, K2, h, self.scheme)
+            z = belief.z @ Phi.T + (dY / h) @ Gam.T
+            return PseudoObservablesState(z, y_new, k + 1)
+        z = np.empty_like(belief.z)
+        comp = np.array([i for i, _ in self.obs_meta])
+        patterns, which = np.unique(~miss, axis=0, return_inverse=True)
+        for j, obs in enumerate(patterns):
+            sel = which.ravel() == j
+            keep = obs[comp].astype(float)  # the observables of a missing component: no innovation
+            k0, k1, k2 = K0 * keep, K1 * keep, K2 * keep
+            Phi, Gam = _affine_step(A - k0 @ H, A - k1 @ H, A - k2 @ H, k0, k1, k2, h, self.scheme)
+            z[sel] = belief.z[sel] @ Phi.T + (np.where(keep > 0, dY[sel], 0.0) / h) @ Gam.T
+        iy = [self.index[tuple(int(j == self.nb + i) for j in range(self.nb + self.m))] for i in range(self.m)]
+        y_new = np.where(miss, z[:, iy], y_new)  # an unobserved y_i goes on from its estimate
+        return PseudoObservablesState(z, y_new, k + 1)
+
+    def summary(self, belief):
+        """``(x̂ (B, n_base), the off-line error covariance at that step)``."""
+        Ps, _ = self._schedule(max(belief.k - 1, 0))
+        ix = self._ix
+        Pk = Ps[2 * belief.k][np.ix_(ix, ix)]
+        return belief.z[:, ix], np.broadcast_to(Pk, (len(belief.z), self.nb, self.nb))
+
+
+class PseudoObservablesState(NamedTuple):
+    """Belief of :class:`PseudoObservablesFilter`: the estimate ``z (B, N)`` of the lifted state,
+    the running observation ``y (B, m)`` (y0 = 0), and the step count ``k`` (shared by the paths:
+    the gains are a schedule from t = 0)."""
+
+    z: np.ndarray
+    y: np.ndarray
+    k: int
+
+    _shared = ("k",)
 
 
 __all__ = ["PseudoObservablesFilter", "OptimalLinearFilter", "DiscreteOptimalLinearFilter", "LinearSteadyState", "WonhamReport",

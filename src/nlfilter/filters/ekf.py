@@ -14,17 +14,26 @@ terms)::
 
 one step per increment: the ``dt`` terms integrated by Euler or RK4, then ``K dy`` added with the
 gain at the start of the step (the Itô reading; with Euler this is Euler–Maruyama).
+
+Also here: the iterated EKF (:class:`IteratedEKF`, Bell & Cathey 1993) and the continuous-discrete
+EKF and IEKF (:class:`ContinuousDiscreteEKF`, :class:`ContinuousDiscreteIEKF`): SDE dynamics,
+discrete measurements. The discrete and continuous-discrete ones are the skeletons of
+:mod:`nlfilter.filters.gaussian` with the Taylor-1 rule.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from .base import ContinuousFilter, DiscreteFilter, GaussianState, gaussian_update, mm, observed_precision
+from .base import ContinuousFilter, GaussianState, mm, observed_precision
+from .gaussian import ContinuousDiscreteGaussianFilter, GaussianFilter, _Iterated
+from .rules import Taylor1
 
 
-class EKF(DiscreteFilter):
-    """Extended Kalman filter for a :class:`~nlfilter.models.DiscreteModel` (batched).
+class EKF(GaussianFilter):
+    """Extended Kalman filter for a :class:`~nlfilter.models.DiscreteModel` (batched): the
+    :class:`~nlfilter.filters.gaussian.GaussianFilter` skeleton with the
+    :class:`~nlfilter.filters.rules.Taylor1` rule (equations in the module docstring).
 
     >>> import sympy as sp; from nlfilter import DiscreteModel
     >>> x = sp.Symbol("x")
@@ -35,25 +44,90 @@ class EKF(DiscreteFilter):
     """
 
     name = "ekf"
+    source = "Jazwinski 1970, Stochastic Processes and Filtering Theory, ch. 8 (extended Kalman filter)"
+    needs = ("f_x", "h_x")
 
     def __init__(self, model, *, start: str = "update"):
+        super().__init__(model, Taylor1(), start=start)
+
+
+class IteratedEKF(_Iterated, EKF):
+    """Iterated extended Kalman filter (Bell & Cathey 1993): the EKF prediction, and an update that
+    repeats the linearization of h at the latest estimate (Gauss–Newton on the MAP problem)::
+
+        x_0 = m⁻,  H_i = h_x(x_i),  K_i = P⁻ H_iᵀ (H_i P⁻ H_iᵀ + R)⁻¹
+        x_{i+1} = m⁻ + K_i (y − h(x_i) − H_i (m⁻ − x_i)),    m⁺ = x_N
+        P⁺ = (I − K H) P⁻ (I − K H)ᵀ + K R Kᵀ  (last K_i, H_i)
+
+    Parameters
+    ----------
+    model : DiscreteModel
+    iterations : int — the maximum number of Gauss–Newton updates (1: the EKF); default 10
+    tol : float — a path stops when ``|x_{i+1} − x_i| ≤ tol (1 + |x_i|)``; default 1e-10
+    start : ``"update"`` or ``"predict"``
+
+    >>> import sympy as sp; from nlfilter import DiscreteModel
+    >>> x = sp.Symbol("x")
+    >>> model = DiscreteModel([x], [x], [x**3], Q=0.1, R=0.01)
+    >>> s = GaussianState(np.array([1.0]), np.array([[0.5]]))
+    >>> y = np.array([8.0])                                  # x = 2 explains it
+    >>> round(float(EKF(model).update(s, y, 0).mean[0]), 4), round(float(IteratedEKF(model).update(s, y, 0).mean[0]), 4)
+    (3.3282, 1.9999)
+    """
+
+    name = "iekf"
+    source = "Bell & Cathey 1993, The iterated Kalman filter update as a Gauss-Newton method, IEEE TAC 38(2) 294-297"
+
+    def __init__(self, model, *, iterations: int = 10, tol: float = 1e-10, start: str = "update"):
         super().__init__(model, start=start)
-        model.require("f", "f_x", "h", "h_x", "G", by="EKF")
+        self._set_iterations(iterations, tol)
 
-    def predict(self, state, k):
-        m, P = state
-        md = self.model
-        F = md.f_x(m, k)
-        cov = mm(mm(F, P), np.swapaxes(F, -1, -2)) + md.GQGT(m, k)
-        return GaussianState(md.f(m, k), cov)
 
-    def update(self, state, y, k):
-        m, P = state
-        md = self.model
-        H = md.h_x(m, k)
-        C = mm(P, np.swapaxes(H, -1, -2))
-        S = mm(H, C) + md.R
-        return gaussian_update(state, y, md.h(m, k), S, C, H=H, R=md.R)
+class ContinuousDiscreteEKF(ContinuousDiscreteGaussianFilter):
+    """Continuous-discrete EKF on an :class:`~nlfilter.models.SDEModel` with measurements
+    ``y_k = h(x(t_k)) + v_k`` at ``t_k = t0 + k dt`` (Jazwinski 1970, ch. 8)::
+
+        dm/dt = f(m),   dP/dt = F P + P Fᵀ + G Q Gᵀ   (F = f_x(m), between measurements)
+
+    integrated by ``scheme`` with ``substeps`` steps per interval, then the EKF update. The same
+    filter as ``ContinuousDiscreteSecondOrderFilter(form="first-order")`` (as a Taylor-1 rule).
+
+    >>> import sympy as sp; from nlfilter import SDEModel
+    >>> x = sp.Symbol("x")
+    >>> model = SDEModel([x], [-x], [x], Q=2.0, R=1.0)
+    >>> s = ContinuousDiscreteEKF(model, 0.1, substeps=4).predict(GaussianState(np.array([1.0]), np.array([[0.5]])), 0)
+    >>> round(float(s.mean[0]), 6), round(float(s.cov[0, 0]), 6)   # e^{-0.1}, 1 − 0.5 e^{-0.2}
+    (0.904837, 0.590635)
+    """
+
+    name = "cd-ekf"
+    source = "Jazwinski 1970, Stochastic Processes and Filtering Theory, ch. 8 (continuous-discrete EKF)"
+    needs = ("f_x", "h_x")
+
+    def __init__(self, model, dt: float, *, scheme: str = "rk4", substeps: int = 1, start: str = "update",
+                 t0: float = 0.0):
+        super().__init__(model, dt, Taylor1(), scheme=scheme, substeps=substeps, start=start, t0=t0)
+
+
+class ContinuousDiscreteIEKF(_Iterated, ContinuousDiscreteEKF):
+    """Continuous-discrete iterated EKF: the prediction of :class:`ContinuousDiscreteEKF`, the
+    iterated update of :class:`IteratedEKF` (Bell & Cathey 1993) at the measurements.
+
+    >>> import sympy as sp; from nlfilter import SDEModel
+    >>> x = sp.Symbol("x")
+    >>> model = SDEModel([x], [-x], [x**3], Q=0.2, R=0.01)
+    >>> flt = ContinuousDiscreteIEKF(model, 0.1, iterations=20)
+    >>> round(float(flt.update(GaussianState(np.array([1.0]), np.array([[0.5]])), np.array([8.0]), 0).mean[0]), 4)
+    1.9999
+    """
+
+    name = "cd-iekf"
+    source = "Bell & Cathey 1993, IEEE TAC 38(2) (iterated update); Jazwinski 1970, ch. 8 (prediction)"
+
+    def __init__(self, model, dt: float, *, iterations: int = 10, tol: float = 1e-10, scheme: str = "rk4",
+                 substeps: int = 1, start: str = "update", t0: float = 0.0):
+        super().__init__(model, dt, scheme=scheme, substeps=substeps, start=start, t0=t0)
+        self._set_iterations(iterations, tol)
 
 
 class ContinuousEKF(ContinuousFilter):

@@ -25,11 +25,14 @@ class KalmanFilter(DiscreteFilter):
     """Discrete Kalman filter on a linear :class:`DiscreteModel` (batched, Joseph-form update)."""
 
     name = "kf"
+    family = "gaussian"
+    source = "seed 000 eqs. 1.33-1.36 (Kalman 1960)"
+    needs = ("linear",)
 
     def __init__(self, model, *, start: str = "update"):
         super().__init__(model, start=start)
         _require_linear(model, "KalmanFilter")
-        self._const = model.time is None
+        self._const = getattr(model, "time_invariant", False)  # else F, b, H, d, GQGᵀ read at every step
         if self._const:
             self._mats = self._matrices(0)
 
@@ -79,6 +82,8 @@ class KalmanBucy(ContinuousEKF):
     """Kalman–Bucy filter on a linear :class:`SDEModel` (the continuous EKF is exact there)."""
 
     name = "kf"
+    source = "Kalman & Bucy 1961 (seed 004 eqs. 35-37, linear)"
+    needs = ("linear",)
 
     def __init__(self, model, dt, *, scheme="rk4", substeps=1):
         _require_linear(model, "KalmanBucy")

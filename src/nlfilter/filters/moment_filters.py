@@ -38,18 +38,40 @@ Failures (variance ≤ 0, non-finite moments) are divergences of the path (``on_
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import numpy as np
 
 from .. import _validate as V
-from ..moments.closures import Closure, GaussianClosure, gaussian_moments
+from ..moments.closures import Closure, GaussianClosure, gaussian_moments, kept_order
 from ..moments.expect import PolynomialExpectations
 from ..moments.quadrature import gaussian_rule
 from ..moments.ito import PolynomialMap, PolynomialSDE, discrete_moment_equations, moment_equations
 from ..polynomials import Polynomial, monomials
-from .base import (ContinuousFilter, DiscreteFilter, Estimates, GaussianState, _prepare, _Runner,
-                   measurement_loglik, observed_precision, sqrt_psd)
+from .base import ContinuousFilter, DiscreteFilter, GaussianState, ode_step, measurement_loglik, observed_precision, sqrt_psd
 
-__all__ = ["ConditionalMomentFilter", "DiscreteConditionalMomentFilter"]
+__all__ = ["ConditionalMomentFilter", "DiscreteConditionalMomentFilter", "MomentBelief"]
+
+
+class MomentBelief(NamedTuple):
+    """The kept conditional moments ``mu (..., K)`` of a batch (order of ``filter.set.indices``)."""
+
+    mu: np.ndarray
+
+
+class _MomentFilter:
+    """What the continuous and discrete conditional-moment filters share: the moment belief."""
+
+    family = "conditional moments"
+    needs = ("polynomial",)
+
+    def init(self, m0, P0, batch, *, initial=None, rng=None):
+        """The moments of order ≤ N of the Gaussian prior N(m0, P0)."""
+        g = super().init(m0, P0, batch, initial=initial)
+        return MomentBelief(gaussian_moments(g.mean, g.cov, self.set.indices))
+
+    def summary(self, belief):
+        return tuple(self.set.gaussian_state(belief.mu))
 
 
 def _unit(n, i, k=1):
@@ -136,6 +158,14 @@ class _MomentSet:
         return GaussianState(mean, cov)
 
 
+def _unless_missing(obs, mu, post):
+    """The updated moments ``post``, except on the paths whose measurement is missing entirely
+    (``obs (..., m)`` all False): those keep ``mu`` (a flat likelihood would still move the kept
+    moments of order > 2 where the clipped Edgeworth density differs from them)."""
+    none = ~obs.any(axis=-1)
+    return np.where(none[..., None], mu, post) if none.any() else post
+
+
 def _model_polys(model, who):
     if getattr(model, "sym", None) is None:
         raise TypeError(f"model: {who} needs a model stated in SymPy")
@@ -143,16 +173,7 @@ def _model_polys(model, who):
     return [Polynomial.from_sympy(e, st, name=f"h[{i}]") for i, e in enumerate(model.sym["h"])]
 
 
-def _order(closure, order):
-    if not isinstance(closure, Closure):
-        raise TypeError(f"closure: expected a Closure instance, got {type(closure).__name__}")
-    N = closure.order if order is None else order
-    if isinstance(N, bool) or not isinstance(N, int) or N < closure.order:
-        raise ValueError(f"order: expected an integer ≥ the closure's order {closure.order}, got {order!r}")
-    return N
-
-
-class ConditionalMomentFilter(ContinuousFilter):
+class ConditionalMomentFilter(_MomentFilter, ContinuousFilter):
     """Kushner-Stratonovich conditional-moment filter for a polynomial :class:`SDEModel`.
 
     Parameters
@@ -173,12 +194,14 @@ class ConditionalMomentFilter(ContinuousFilter):
     ((2, 3, 1), (2, 3, 1, 1))
     """
 
+    source = "seed 003 eqs. 11-12 (conditional law), Kushner-Stratonovich"
+
     def __init__(self, model, dt, *, closure: Closure | None = None, order: int | None = None,
                  substeps: int = 1, update: str = "bayes", points: int = 24, name: str | None = None):
         ContinuousFilter.__init__(self, model, dt, scheme="rk4", substeps=substeps)
-        self.update = V.choice("update", update, {"bayes", "ito"})
+        self.update_rule = V.choice("update", update, {"bayes", "ito"})
         closure = GaussianClosure() if closure is None else closure
-        N = _order(closure, order)
+        N = kept_order(closure, order)
         h = _model_polys(model, "ConditionalMomentFilter")
         sde = PolynomialSDE.from_model(model)
         if sde.symbols:
@@ -188,7 +211,7 @@ class ConditionalMomentFilter(ContinuousFilter):
         self.set = _MomentSet(eqs, h, closure, model.n)
         self._Rinv = np.linalg.inv(model.R)
         self.name = name or (f"{closure.name}-closure" if N == closure.order else f"{closure.name}{N}-closure")
-        if self.update == "bayes":
+        if self.update_rule == "bayes":
             self.set.quadrature(points, N)
 
     def init_moments(self, m0, P0):
@@ -219,47 +242,23 @@ class ConditionalMomentFilter(ContinuousFilter):
             Rh = np.einsum("...mn,...pn->...pm", Rinv, hx)
             return np.einsum("...pm,...pm->...p", Rh, dyz) - 0.5 * dt * np.einsum("...pm,...pm->...p", Rh, hx)
 
-        return self.set.bayes(mu, loglik)
+        return _unless_missing(obs, mu, self.set.bayes(mu, loglik))
 
     def step_moments(self, mu, dy, t):
         """One measurement step of the conditional moments ``mu (..., K)`` with increments ``dy (..., m)``:
         the update (``"bayes"`` or ``"ito"``), then the ``dt`` term of the moment equations by RK4."""
-        mu = self._update_bayes(mu, dy, t) if self.update == "bayes" else self._update_ito(mu, dy)
-        h = self.dt / self.substeps
-        for _ in range(self.substeps):
-            k1 = self._drift(mu)
-            k2 = self._drift(mu + 0.5 * h * k1)
-            k3 = self._drift(mu + 0.5 * h * k2)
-            k4 = self._drift(mu + h * k3)
-            mu = mu + h / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
-        return mu
+        mu = self._update_bayes(mu, dy, t) if self.update_rule == "bayes" else self._update_ito(mu, dy)
+        return ode_step(lambda v, s: self._drift(v), mu, t, self.dt, substeps=self.substeps)
 
-    def step(self, state, dy, t):
-        raise NotImplementedError("ConditionalMomentFilter: the state is the moment vector; use "
-                                  "step_moments(mu, dy, t) or run()")
-
-    def run(self, dys, m0, P0, *, t0: float = 0.0, on_divergence: str = "raise") -> Estimates:
-        """Filter ``dys (..., T, m)`` from the Gaussian prior N(m0, P0) (its moments of order ≤ N)."""
-        model = self.model
-        dys, state, batch = _prepare("dys", dys, m0, P0, model.n, model.m)
-        mu = self.init_moments(state.mean, state.cov)
-        mu0 = mu.copy()
-        init = GaussianState(state.mean.copy(), state.cov.copy())
-        T = dys.shape[-2]
-        out = _Runner(batch, T, model.n, on_divergence, self.name)
-        with np.errstate(over="ignore", invalid="ignore"):
-            for k in range(T):
-                mu = self.step_moments(mu, dys[..., k, :], t0 + k * self.dt)
-                out.record(k, self.set.gaussian_state(mu), init)
-                if out.diverged.any():  # diverged paths restart harmlessly; their outputs are NaN
-                    mu = np.where(out.diverged[..., None], mu0, mu)
-        return out.result()
+    def step(self, belief, dy, t):
+        return MomentBelief(self.step_moments(belief.mu, dy, t))
 
 
-class DiscreteConditionalMomentFilter(DiscreteFilter):
+class DiscreteConditionalMomentFilter(_MomentFilter, DiscreteFilter):
     """Discrete-time conditional-moment filter (predict: discrete moment equations + closure;
     update: Bayes rule on the assumed density, Gauss-Hermite quadrature with ``points`` per axis). The belief passed between ``predict``
-    and ``update`` is a :class:`GaussianState` only for N = 2; use :meth:`run` for N > 2.
+    and ``update`` is a :class:`MomentBelief` (all kept moments; ``init`` makes it from N(m0, P0),
+    ``summary`` gives its mean and covariance).
 
     >>> import sympy as sp; from nlfilter import DiscreteModel
     >>> x = sp.Symbol("x")
@@ -269,11 +268,13 @@ class DiscreteConditionalMomentFilter(DiscreteFilter):
     [0.5, 0.117647]
     """
 
+    source = "seed 003 eqs. 11-12 (discrete moment equations), Bayes update of the assumed density"
+
     def __init__(self, model, *, closure: Closure | None = None, order: int | None = None,
                  start: str = "update", points: int = 24, name: str | None = None):
         DiscreteFilter.__init__(self, model, start=start)
         closure = GaussianClosure() if closure is None else closure
-        N = _order(closure, order)
+        N = kept_order(closure, order)
         h = _model_polys(model, "DiscreteConditionalMomentFilter")
         pm = PolynomialMap.from_model(model)
         eqs = discrete_moment_equations(pm, monomials(model.n, N, min_degree=1))
@@ -298,39 +299,10 @@ class DiscreteConditionalMomentFilter(DiscreteFilter):
         def loglik(x):  # partly missing: the marginal law of the observed components
             return measurement_loglik(law, np.where(obs[..., None, :], y[..., None, :] - md.h(x, k), 0.0), obs)
 
-        return self.set.bayes(mu, loglik)
+        return _unless_missing(obs, mu, self.set.bayes(mu, loglik))
 
-    def run(self, ys, m0, P0, *, on_divergence: str = "raise") -> Estimates:
-        model = self.model
-        ys, state, batch = _prepare("ys", ys, m0, P0, model.n, model.m)
-        mu = gaussian_moments(state.mean, state.cov, self.set.indices)
-        mu0 = mu.copy()
-        init = GaussianState(state.mean.copy(), state.cov.copy())
-        T = ys.shape[-2]
-        out = _Runner(batch, T, model.n, on_divergence, self.name)
-        offset = 0 if self.start == "update" else 1
-        with np.errstate(over="ignore", invalid="ignore"):
-            for k in range(T):
-                if k > 0 or offset:
-                    mu = self.predict_moments(mu, k + offset - 1)
-                y = ys[..., k, :]
-                if not np.all(np.isnan(y)):
-                    mu = self.update_moments(mu, y, k + offset)
-                out.record(k, self.set.gaussian_state(mu), init)
-                if out.diverged.any():
-                    mu = np.where(out.diverged[..., None], mu0, mu)
-        return out.result()
+    def predict(self, belief, k):
+        return MomentBelief(self.predict_moments(belief.mu, k))
 
-    def predict(self, state, k):
-        if len(self.set.indices) != self.model.n + self.model.n * (self.model.n + 1) // 2:
-            raise ValueError("predict: step functions carry a GaussianState, which holds only the moments of "
-                             "order ≤ 2; use run() for a closure of order > 2")
-        mu = gaussian_moments(state.mean, state.cov, self.set.indices)
-        return self.set.gaussian_state(self.predict_moments(mu, k))
-
-    def update(self, state, y, k):
-        if len(self.set.indices) != self.model.n + self.model.n * (self.model.n + 1) // 2:
-            raise ValueError("update: step functions carry a GaussianState, which holds only the moments of "
-                             "order ≤ 2; use run() for a closure of order > 2")
-        mu = gaussian_moments(state.mean, state.cov, self.set.indices)
-        return self.set.gaussian_state(self.update_moments(mu, np.asarray(y, float), k))
+    def update(self, belief, y, k):
+        return MomentBelief(self.update_moments(belief.mu, y, k))

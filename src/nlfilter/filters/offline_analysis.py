@@ -18,7 +18,7 @@ import numpy as np
 import sympy as sp
 
 from .. import _validate as V
-from ..moments.closures import Closure, EdgeworthClosure, gaussian_moments
+from ..moments.closures import Closure, EdgeworthClosure, gaussian_moments, kept_order
 from ..moments.ito import PolynomialMap, PolynomialSDE, discrete_moment_equations, gaussian_noise_moments, moment_equations
 from ..moments.solve import MomentSolution, iterate, propagate
 from ..noise import Gaussian
@@ -98,17 +98,31 @@ class ErrorAnalysis:
 
 
 
+def _closure_and_order(closure, order):
+    """The error analyses' pair: Edgeworth of ``order`` (default 4) when no closure is given, else
+    ``closure`` with :func:`~nlfilter.moments.closures.kept_order` (its own order by default)."""
+    if closure is None:
+        if order is None:
+            order = 4
+        if isinstance(order, bool) or not isinstance(order, int) or order < 2:
+            raise ValueError(f"order: expected an integer ≥ 2 (the MSE needs second moments), got {order!r}")
+        return EdgeworthClosure(order), order
+    return closure, kept_order(closure, order)
+
+
 def gain_error_analysis(model, coefficients, m0, P0, t, *, xhat0=None, closure: Closure | None = None,
-                        order: int = 4) -> ErrorAnalysis:
+                        order: int | None = None) -> ErrorAnalysis:
     """Off-line accuracy of ANY filter with precomputed gains of the form
     ``dx̂ = [F(t) x̂ + u(t)] dt + Kg(t) dy`` on a polynomial :class:`SDEModel`: the moments of the
     joint polynomial SDE (x, x̂) (``dx̂ = [F x̂ + u + Kg h(x)] dt + Kg dη``) up to ``order``, closed by
-    ``closure`` (default Edgeworth of that order), give ``E(x − x̂)²`` on the times ``t``.
+    ``closure`` (default Edgeworth of that order), give ``E(x − x̂)²`` on the times ``t``. With a
+    closure and no ``order`` the order is the closure's (an ``order`` below it is a ``ValueError``);
+    neither given: Edgeworth of order 4.
 
     ``coefficients(t) -> (F (n, n), u (n,), Kg (n, m))``; ``x̂(t[0]) = xhat0`` (default m0), ``x(t[0]) ~
     N(m0, P0)``. For linear models and a Kalman-Bucy gain this is the Riccati solution (exact).
     """
-    closure = EdgeworthClosure(order) if closure is None else closure
+    closure, order = _closure_and_order(closure, order)
     n, mm = model.n, model.m
     m0, P0 = _prior(n, m0, P0, definite=False)
     xh0 = m0 if xhat0 is None else V.as_float_array("xhat0", xhat0, shape_tail=(n,)).reshape(n)
@@ -141,7 +155,7 @@ def gain_error_analysis(model, coefficients, m0, P0, t, *, xhat0=None, closure: 
 
 
 def discrete_gain_error_analysis(model, coefficients, m0, P0, steps: int, *, xhat0=None,
-                                 closure: Closure | None = None, order: int = 4,
+                                 closure: Closure | None = None, order: int | None = None,
                                  noise_moment=None) -> ErrorAnalysis:
     """Off-line accuracy of ANY discrete filter with precomputed coefficients on a polynomial
     :class:`~nlfilter.models.DiscreteModel` ``x[k+1] = f(x[k]) + G(x[k]) w[k]``,
@@ -159,8 +173,8 @@ def discrete_gain_error_analysis(model, coefficients, m0, P0, steps: int, *, xha
         x̂⁻[k+1] = a1 M x̂⁻ + a1 Kg h(x) + e − a1 Kg d + a1 Kg v
 
     whose raw moments up to ``order`` follow from :func:`~nlfilter.moments.ito.discrete_moment_equations`
-    (003 eq. 11 in discrete form), closed by ``closure`` (default Edgeworth of ``order``, as the
-    paper's Fig. 2; :class:`GaussianClosure` is an option). The estimate ``x̂⁺[k] = M x̂⁻ + Kg h(x)
+    (003 eq. 11 in discrete form), closed by ``closure`` (default Edgeworth of ``order`` 4, as the
+    paper's Fig. 2; :class:`GaussianClosure` is an option; ``order`` defaults to the closure's). The estimate ``x̂⁺[k] = M x̂⁻ + Kg h(x)
     − Kg d + Kg v`` is one more polynomial map of ``z[k]`` and ``v[k]``: its moments give
     ``E(x[k] − x̂⁺[k])²`` (per component) at k = 0 .. steps − 1, the steps of ``run``.
 
@@ -172,13 +186,7 @@ def discrete_gain_error_analysis(model, coefficients, m0, P0, steps: int, *, xha
     """
     if getattr(model, "kind", None) != "discrete" or getattr(model, "sym", None) is None:
         raise TypeError(f"model: expected a DiscreteModel stated in SymPy, got {type(model).__name__}")
-    if isinstance(order, bool) or not isinstance(order, int) or order < 2:
-        raise ValueError(f"order: expected an integer ≥ 2 (the MSE needs second moments), got {order!r}")
-    closure = EdgeworthClosure(order) if closure is None else closure
-    if not isinstance(closure, Closure):
-        raise TypeError(f"closure: expected a Closure instance, got {type(closure).__name__}")
-    if order < closure.order:
-        raise ValueError(f"order: expected an integer ≥ the closure's order {closure.order}, got {order}")
+    closure, order = _closure_and_order(closure, order)
     V.positive("steps", steps, integer=True)
     n, mm, r = model.n, model.m, model.r
     m0, P0 = _prior(n, m0, P0, definite=False)  # no linearization here: a known x[0] is fine

@@ -3,24 +3,36 @@ an optimal reference by a grid filter on the circle.
 
 Problem (001 eqs. 4.1-4.6, 4.11-4.14): θ is a Brownian motion of intensity ``q``; the baseband
 measurement is ``dz = (sin θ, cos θ) dt + dn``, ``E dn dnᵀ = 2 r I dt``. In rectangular
-coordinates ``x = (sin θ, cos θ)`` the problem is bilinear (:func:`~nlfilter.bilinear.phase_model`)
-and the state lives on the unit circle. ``P_θℓ = √(2 r q)`` (001 eq. 4.9) is the noise-to-signal
-parameter; every steady-state quantity depends on ``q`` and ``r`` only through it.
+coordinates ``x = (sin θ, cos θ)`` the problem is bilinear (:class:`~nlfilter.bilinear.PhaseModel`,
+built by :func:`~nlfilter.bilinear.phase_model`) and the state lives on the unit circle.
+``P_θℓ = √(2 r q)`` (001 eq. 4.9) is the noise-to-signal parameter; every steady-state quantity
+depends on ``q`` and ``r`` only through it.
 
-All filters take the increments ``dzs (..., T, 2)`` on a grid of step ``dt`` and return phase
-estimates ``(..., T)`` (and, where they have them, estimates of x).
+Every filter here is a continuous-time :class:`~nlfilter.filters.base.Filter` on a
+:class:`~nlfilter.bilinear.PhaseModel`: ``run(ys, m0, P0)`` with ``ys`` the increments
+``dz (..., T, 2)`` on a grid of step ``dt``. ``Estimates.means`` estimate ``x = (sin θ, cos θ)``
+``(..., T, 2)``; the phase estimate ``θ̂ (..., T)`` is ``Estimates.extras["theta"]`` (``atan2`` of
+the estimate of x — the output map of each filter — except for the PLL, whose θ̂ is its own
+unwrapped loop phase). The prior is that of x: ``m0`` the mean of ``(sin θ0, cos θ0)``, ``P0``
+its covariance (each filter says how it uses them). A NaN component of an increment is missing:
+it contributes no innovation (the grid filter: a flat likelihood for it).
 """
 
 from __future__ import annotations
 
+from types import MappingProxyType
 from typing import NamedTuple
 
 import numpy as np
+from scipy.special import i0e, i1e
 
 from .. import _validate as V
-from ..bilinear import phase_model
-from .base import screen_outputs, screened
-from .bilinear import OptimalLinearFilter, TensorFilter
+from ..bilinear import PhaseModel, phase_model
+from ..simulate import simulate_phase  # noqa: F401  (re-exported: it moved to nlfilter.simulate)
+from .base import Estimates, Filter, gaussian_prior, ode_step
+from .bilinear import TensorFilter, _SteadyLinearRecursion
+
+X0_CIRCLE = np.diag([0.5, 0.5, 1.0])  # E[z zᵀ] of z = (sin θ, cos θ, 1), θ uniform: fixes the conserved |x|²
 
 
 def wrap(a):
@@ -58,117 +70,123 @@ def pll_gain(q: float, r: float) -> float:
     return float(np.sqrt(q / (2 * r)))
 
 
-class PhaseEstimates(NamedTuple):
-    """``theta (..., T)`` phase estimates; ``x (..., T, 2)`` estimates of (sin θ, cos θ) or None."""
+def _phase_model(model):
+    if not isinstance(model, PhaseModel):
+        raise TypeError(f"model: expected a PhaseModel (nlfilter.bilinear.phase_model(q, r)), got {type(model).__name__}")
+    return model
+
+
+def _with_theta(est: Estimates) -> Estimates:
+    """The output map of the quadrature filters: ``θ̂ = atan2(x̂₁, x̂₂)`` into ``extras["theta"]``."""
+    theta = np.arctan2(est.means[..., 0], est.means[..., 1])
+    return est._replace(extras=MappingProxyType({**est.extras, "theta": theta}))
+
+
+class PhaseEstimate(NamedTuple):
+    """Belief of the PLL: the loop phase ``theta (B,)`` (unwrapped)."""
 
     theta: np.ndarray
-    x: np.ndarray | None
 
 
-def _check(dzs):
-    dzs = V.as_float_array("dzs", dzs, ndim_min=2, shape_tail=(None, 2))
-    V.finite("dzs", dzs)
-    return dzs
-
-
-def _per_path(name, value, batch, tail=()):
-    """``value`` checked (finite) and broadcast to ``(*batch, *tail)`` (a copy)."""
-    arr = V.finite(name, V.as_float_array(name, value))
-    try:
-        return np.broadcast_to(arr, (*batch, *tail)).copy()
-    except ValueError:
-        want = "an array (..., " + ", ".join(map(str, tail)) + ")" if tail else "a scalar or an array"
-        raise ValueError(f"{name}: expected {want} broadcasting to the batch {batch} of dzs, "
-                         f"got shape {arr.shape}") from None
-
-
-class PLL:
+class PLL(Filter):
     """Classical phase-lock loop (001 eqs. 4.8-4.10): ``dθ̂ = K dz_I`` with the in-phase
     measurement ``dz_I = cos θ̂ dz₁ − sin θ̂ dz₂`` (= sin(θ − θ̂) dt + noise, 001 eq. 4.6) and
     ``K = √(q/2r)``. Integrated by RK4 (or Euler) with ``dz/dt`` held constant over a step
     (001 §4.3, after Eterno).
 
-    >>> pll = PLL(1.0, 0.5, 0.01)
-    >>> float(pll.run(np.zeros((1, 3, 2)), theta0=0.0).theta[0, -1])
+    Prior: ``θ̂0 = atan2(m0₁, m0₂)`` (the direction of the prior mean of x = (sin θ, cos θ); per
+    path allowed; ``m0 = 0`` gives θ̂0 = 0); ``P0`` is checked but not used. ``means`` are
+    ``(sin θ̂, cos θ̂)``, ``covs`` NaN (the loop carries no covariance), ``extras["theta"]`` the
+    unwrapped loop phase θ̂. A missing component of ``dz`` drops its term of ``dz_I``.
+
+    >>> pll = PLL(phase_model(1.0, 0.5), 0.01)
+    >>> float(pll.run(np.zeros((1, 3, 2)), [0.0, 1.0], np.eye(2)).extras["theta"][0, -1])
     0.0
     """
 
     name = "pll"
+    family = "off-line gains"
+    source = "seed 001 §4.1, eqs. 4.6-4.10"
+    accepts = ("phase",)
+    time = "continuous"
 
-    def __init__(self, q: float, r: float, dt: float, *, scheme: str = "rk4", K: float | None = None):
-        self.q, self.r = float(V.positive("q", q)), float(V.positive("r", r))
+    def __init__(self, model: PhaseModel, dt: float, *, scheme: str = "rk4", K: float | None = None):
+        self.model = _phase_model(model)
+        self.q, self.r = model.q, model.r
         self.dt = float(V.positive("dt", dt))
         self.scheme = V.choice("scheme", scheme, {"rk4", "euler"})
-        self.K = pll_gain(q, r) if K is None else float(V.positive("K", K))
+        self.K = pll_gain(self.q, self.r) if K is None else float(V.positive("K", K))
 
-    @screened
-    def run(self, dzs, theta0=0.0) -> PhaseEstimates:
-        """Phase estimates for increments ``dzs (..., T, 2)`` from ``theta0`` (scalar or per path);
-        :class:`~nlfilter.errors.DivergenceError` if an estimate becomes non-finite."""
-        dzs = _check(dzs)
-        th = _per_path("theta0", theta0, dzs.shape[:-2])
-        out = np.empty(dzs.shape[:-1])
+    def init(self, m0, P0, batch, *, initial=None, rng=None):
+        g = super().init(m0, P0, batch, initial=initial, rng=rng)
+        return PhaseEstimate(np.arctan2(g.mean[:, 0], g.mean[:, 1]))
+
+    def step(self, belief, dy, t):
         h, K = self.dt, self.K
-        for k in range(dzs.shape[-2]):
-            z1, z2 = dzs[..., k, 0] / h, dzs[..., k, 1] / h
-            f = lambda t: K * (np.cos(t) * z1 - np.sin(t) * z2)  # noqa: E731
-            if self.scheme == "euler":
-                th = th + h * f(th)
-            else:
-                k1 = f(th)
-                k2 = f(th + h / 2 * k1)
-                k3 = f(th + h / 2 * k2)
-                k4 = f(th + h * k3)
-                th = th + h / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
-            out[..., k] = th
-        screen_outputs(self.name, out[..., None])  # a huge increment overflows θ̂: raise, never NaN
-        return PhaseEstimates(out, None)
+        if np.isnan(dy).any():
+            dy = np.where(np.isnan(dy), 0.0, dy)  # a missing component: no term in dz_I
+        z1, z2 = dy[..., 0] / h, dy[..., 1] / h
+        f = lambda th, s: K * (np.cos(th) * z1 - np.sin(th) * z2)  # noqa: E731
+        return PhaseEstimate(ode_step(f, belief.theta, t, h, scheme=self.scheme))
+
+    def summary(self, belief):
+        th = belief.theta
+        return np.stack([np.sin(th), np.cos(th)], axis=-1), None
+
+    def extras(self, belief):
+        return {"theta": belief.theta}
 
 
-class LinearQuadratureFilter:
+class LinearQuadratureFilter(_SteadyLinearRecursion):
     """Linear quadrature filter (Gustafson-Speyer; 001 eqs. 4.17-4.19): the optimal linear filter
-    of the bilinear phase model in steady state, ``θ̂ = atan2(x̂₁, x̂₂)``. The gain is computed by
-    :class:`~nlfilter.filters.bilinear.OptimalLinearFilter` from eq. 2.54 (equal to eq. 4.18)."""
+    of the bilinear phase model in steady state, ``θ̂ = atan2(x̂₁, x̂₂)`` (the output map). The gain
+    is computed by :class:`~nlfilter.filters.bilinear.OptimalLinearFilter` from eq. 2.54 (equal to
+    eq. 4.18). Prior: ``x̂0 = m0`` (per path allowed; ``m0 = 0``: no phase information); ``P0``
+    checked only (steady gains from t = 0). ``covs``: the steady error covariance of x̂."""
 
     name = "lqf"
+    source = "seed 001 §4.2, eqs. 4.17-4.19 (2.31-2.54)"
+    accepts = ("phase",)
 
-    def __init__(self, q: float, r: float, dt: float, *, scheme: str = "rk4"):
-        self.q, self.r = float(V.positive("q", q)), float(V.positive("r", r))
-        self.model = phase_model(q, r)
-        self.linear = OptimalLinearFilter(self.model, dt, gains="steady", scheme=scheme,
-                                          X0=np.diag([0.5, 0.5, 1.0]))
-        self.dt = self.linear.dt
+    def __init__(self, model: PhaseModel, dt: float, *, scheme: str = "rk4"):
+        self._linear(_phase_model(model), dt, scheme, X0_CIRCLE)
+        self.q, self.r = model.q, model.r
+        self._P = None
 
-    def run(self, dzs, m0=(0.0, 0.0)) -> PhaseEstimates:
-        dzs = _check(dzs)
-        est = self.linear.run(dzs, np.asarray(m0, float), 0.5 * np.eye(2))
-        x = est.means
-        return PhaseEstimates(np.arctan2(x[..., 0], x[..., 1]), x)
+    @property
+    def state_dim(self) -> int:
+        return 2
+
+    def summary(self, belief):
+        if self._P is None:
+            self._P = self.linear.steady_state().P[:2, :2]
+        return belief.z[:, :2], np.broadcast_to(self._P, (len(belief.z), 2, 2))
+
+    def output(self, est):
+        return _with_theta(est)
 
 
-class PhaseTensorFilter:
+class PhaseTensorFilter(TensorFilter):
     """Tensor filter for phase tracking (001 §4.2-4.3): LQF estimates post-processed by
     ``α x̂ᵢ + β x̂ᵢ³`` (odd powers up to ``degree``) with gains from the exact steady-state
     moments of ``(x, x̂)`` on the circle (the conservation laws ``E|x|^{2k} = 1`` imposed), then
-    ``θ̂ = atan2(x̃₁, x̃₂)`` (001 eq. 4.31)."""
+    ``θ̂ = atan2(x̃₁, x̃₂)`` (001 eq. 4.31; the output map). Belief, prior and missing data as
+    :class:`~nlfilter.filters.bilinear.TensorFilter` (``x̂0 = m0``)."""
 
-    name = "tensor"
+    name = "phase-tensor"
+    source = "seed 001 §4.2-4.3, eqs. 4.20-4.31"
+    accepts = ("phase",)
 
-    def __init__(self, q: float, r: float, dt: float, *, degree: int = 3, scheme: str = "rk4"):
-        self.q, self.r = float(V.positive("q", q)), float(V.positive("r", r))
-        self.model = phase_model(q, r)
-        self.tensor = TensorFilter(self.model, dt, targets=[0, 1], degree=degree, initial=circle_moment,
-                                   X0=np.diag([0.5, 0.5, 1.0]), scheme=scheme)
-        self.dt = float(dt)
+    def __init__(self, model: PhaseModel, dt: float, *, degree: int = 3, scheme: str = "rk4"):
+        super().__init__(_phase_model(model), dt, targets=[0, 1], degree=degree, initial=circle_moment,
+                         X0=X0_CIRCLE, scheme=scheme)
+        self.q, self.r = model.q, model.r
 
     def fits(self):
-        return self.tensor.fit()
+        return self.fit()
 
-    def run(self, dzs, m0=(0.0, 0.0)) -> PhaseEstimates:
-        dzs = _check(dzs)
-        est = self.tensor.run(dzs, np.asarray(m0, float), 0.5 * np.eye(2))
-        x = est.means
-        return PhaseEstimates(np.arctan2(x[..., 0], x[..., 1]), x)
+    def output(self, est):
+        return _with_theta(est)
 
 
 def post_processor(P: float, *, degree: int = 3, q: float = 1.0):
@@ -186,80 +204,109 @@ def post_processor(P: float, *, degree: int = 3, q: float = 1.0):
     return tf.fit()[0]
 
 
-class CircleGridFilter:
+class CircleDensity(NamedTuple):
+    """Belief of :class:`CircleGridFilter`: weights ``p (B, size)`` on the grid of the circle."""
+
+    p: np.ndarray
+
+
+def _von_mises_concentration(rho):
+    """``κ`` with ``I₁(κ)/I₀(κ) = ρ`` (bisection, vectorized), 0 where ρ = 0."""
+    rho = np.asarray(rho, float)
+    lo = np.zeros_like(rho)
+    hi = np.full_like(rho, 1.0) + 2.0 / np.maximum(1.0 - rho, 1e-300)
+    for _ in range(200):
+        mid = 0.5 * (lo + hi)
+        big = i1e(mid) / i0e(mid) > rho
+        hi, lo = np.where(big, mid, hi), np.where(big, lo, mid)
+    return np.where(rho > 0, 0.5 * (lo + hi), 0.0)
+
+
+class CircleGridFilter(Filter):
     """Optimal (Bayes) phase filter on a grid of ``size`` points on the circle: the exact heat
     semigroup of the Brownian phase in Fourier space (``p̂_k ← p̂_k e^{−q k² dt / 2}``), then the
     Kallianpur-Striebel likelihood of the increment, ``exp(h(θ)ᵀ dz / 2r)`` with
-    ``h = (sin θ, cos θ)`` (``|h|² = 1`` cancels in the normalisation). Estimates:
-    ``E[sin θ], E[cos θ]`` (optimal for x) and ``θ̂ = arg E[e^{iθ}]`` (optimal for E[1 − cos ε]).
+    ``h = (sin θ, cos θ)`` (``|h|² = 1`` cancels in the normalisation; a missing component of
+    ``dz``: a flat likelihood for it). Estimates: ``means`` ``E[sin θ], E[cos θ]`` (optimal for
+    x), ``covs`` their posterior covariance on the grid, ``extras["theta"]`` ``θ̂ = arg E[e^{iθ}]``
+    (optimal for E[1 − cos ε]; the output map).
 
-    >>> g = CircleGridFilter(1.0, 0.5, 0.01, size=64)
+    Prior: ``m0 = P0 = None`` (default) the uniform law; ``m0`` the mean of x = (sin θ0, cos θ0)
+    (``|m0| < 1``, per path allowed): the von Mises law with that mean (direction
+    ``atan2(m0₁, m0₂)``, mean resultant length ``|m0|``; ``P0`` is checked but does not enter, the
+    von Mises law fixing the second moments); or ``initial``: weights on the grid, ``(size,)`` or
+    per path ``(..., size)``, non-negative with a positive sum.
+
+    >>> g = CircleGridFilter(phase_model(1.0, 0.5), 0.01, size=64)
     >>> est = g.run(np.zeros((1, 2, 2)))
-    >>> np.abs(np.round(est.x[0, -1], 12)).tolist()          # uniform prior, no information
+    >>> np.abs(np.round(est.means[0, -1], 12)).tolist()          # uniform prior, no information
     [0.0, 0.0]
     """
 
-    name = "optimal"
+    name = "circle-grid"
+    family = "reference"
+    source = "seed 001 ch. 4 (optimal filter of Table 4.1; eqs. 4.11-4.14)"
+    accepts = ("phase",)
+    time = "continuous"
 
-    def __init__(self, q: float, r: float, dt: float, *, size: int = 256):
-        self.q, self.r = float(V.positive("q", q)), float(V.positive("r", r))
+    def __init__(self, model: PhaseModel, dt: float, *, size: int = 256):
+        self.model = _phase_model(model)
+        self.q, self.r = model.q, model.r
         self.dt = float(V.positive("dt", dt))
         self.size = int(V.positive("size", size, integer=True))
         self.theta = 2 * np.pi * np.arange(self.size) / self.size
+        self._sc = np.sin(self.theta), np.cos(self.theta)
         k = np.fft.rfftfreq(self.size, d=1.0 / self.size)
         self._decay = np.exp(-0.5 * self.q * k ** 2 * self.dt)
 
-    @screened
-    def run(self, dzs, p0=None) -> PhaseEstimates:
-        """Filter ``dzs (..., T, 2)`` from the prior ``p0`` on the grid (``(..., size)``, non-negative;
-        default uniform); :class:`~nlfilter.errors.DivergenceError` if an estimate becomes non-finite."""
-        dzs = _check(dzs)
-        batch, T = dzs.shape[:-2], dzs.shape[-2]
-        if p0 is None:
-            p = np.full((*batch, self.size), 1.0 / self.size)
-        else:
-            p = _per_path("p0", p0, batch, (self.size,))
+    def init(self, m0, P0, batch, *, initial=None, rng=None):
+        B = int(np.prod(batch))
+        if initial is not None:
+            if m0 is not None or P0 is not None:
+                raise ValueError("initial: give the prior either as grid weights (initial) or as m0, P0, not both")
+            arr = V.finite("initial", V.as_float_array("initial", initial))
+            try:
+                p = np.broadcast_to(arr, (*batch, self.size)).reshape(B, self.size).copy()
+            except ValueError:
+                raise ValueError(f"initial: expected weights (..., {self.size}) broadcasting to the batch {batch} "
+                                 f"of ys, got shape {arr.shape}") from None
             if np.any(p < 0) or np.any(~(p.sum(axis=-1) > 0)):
-                raise ValueError("p0: expected non-negative weights with a positive sum on every path")
-            p = p / p.sum(axis=-1, keepdims=True)
-        s, c = np.sin(self.theta), np.cos(self.theta)
-        xs = np.empty((*batch, T, 2))
-        for k in range(T):
-            p = np.fft.irfft(np.fft.rfft(p, axis=-1) * self._decay, n=self.size, axis=-1)
-            p = np.maximum(p, 0.0)
-            a = (dzs[..., k, 0, None] * s + dzs[..., k, 1, None] * c) / (2 * self.r)
-            w = p * np.exp(a - a.max(axis=-1, keepdims=True))
-            p = w / w.sum(axis=-1, keepdims=True)
-            xs[..., k, 0] = p @ s
-            xs[..., k, 1] = p @ c
-        screen_outputs(self.name, xs)  # an overflowing likelihood: raise, never NaN
-        return PhaseEstimates(np.arctan2(xs[..., 0], xs[..., 1]), xs)
+                raise ValueError("initial: expected non-negative weights with a positive sum on every path")
+            return CircleDensity(p / p.sum(axis=-1, keepdims=True))
+        if m0 is None and P0 is None:
+            return CircleDensity(np.full((B, self.size), 1.0 / self.size))
+        g = gaussian_prior(m0, P0, 2, batch)
+        rho = np.hypot(g.mean[:, 0], g.mean[:, 1])
+        if np.any(rho >= 1):
+            raise ValueError(f"m0: the mean of (sin θ0, cos θ0) lies inside the unit circle (|m0| < 1); got |m0| = "
+                             f"{float(rho.max()):.6g}")
+        kappa = _von_mises_concentration(rho)
+        mu = np.arctan2(g.mean[:, 0], g.mean[:, 1])
+        w = np.exp(kappa[:, None] * (np.cos(self.theta[None, :] - mu[:, None]) - 1.0))
+        return CircleDensity(w / w.sum(axis=-1, keepdims=True))
+
+    def step(self, belief, dy, t):
+        s, c = self._sc
+        p = np.fft.irfft(np.fft.rfft(belief.p, axis=-1) * self._decay, n=self.size, axis=-1)
+        p = np.maximum(p, 0.0)
+        if np.isnan(dy).any():
+            dy = np.where(np.isnan(dy), 0.0, dy)  # a missing component: flat likelihood
+        a = (dy[..., 0, None] * s + dy[..., 1, None] * c) / (2 * self.r)
+        w = p * np.exp(a - a.max(axis=-1, keepdims=True))
+        return CircleDensity(w / w.sum(axis=-1, keepdims=True))
+
+    def summary(self, belief):
+        s, c = self._sc
+        p = belief.p
+        m = np.stack([p @ s, p @ c], axis=-1)
+        ss, sc, cc = p @ (s * s), p @ (s * c), p @ (c * c)
+        cov = np.stack([np.stack([ss, sc], -1), np.stack([sc, cc], -1)], -2) - m[:, :, None] * m[:, None, :]
+        return m, 0.5 * (cov + np.swapaxes(cov, -1, -2))
+
+    def output(self, est):
+        return _with_theta(est)
 
 
-def simulate_phase(q: float, r: float, dt: float, steps: int, paths: int, rng, *, substeps: int = 4,
-                   theta0=None):
-    """Phase paths ``theta (paths, steps)`` at ``t_k = k dt`` and baseband increments
-    ``dzs (paths, steps, 2)``: θ exact Brownian increments on ``substeps`` sub-intervals,
-    ``∫ (sin θ, cos θ) dt`` by the trapezoidal rule, ``dn ~ N(0, 2 r dt I)`` (001 eq. 4.14)."""
-    h = dt / substeps
-    th = rng.uniform(-np.pi, np.pi, size=paths) if theta0 is None else np.broadcast_to(theta0, (paths,)).astype(float)
-    thetas = np.empty((paths, steps))
-    dzs = np.empty((paths, steps, 2))
-    sq = np.sqrt(q * h)
-    sn = np.sqrt(2 * r * dt)
-    for k in range(steps):
-        acc1 = np.zeros(paths)
-        acc2 = np.zeros(paths)
-        for _ in range(substeps):
-            tn = th + sq * rng.standard_normal(paths)
-            acc1 += 0.5 * h * (np.sin(th) + np.sin(tn))
-            acc2 += 0.5 * h * (np.cos(th) + np.cos(tn))
-            th = tn
-        thetas[:, k] = th
-        dzs[:, k, 0] = acc1 + sn * rng.standard_normal(paths)
-        dzs[:, k, 1] = acc2 + sn * rng.standard_normal(paths)
-    return thetas, dzs
-
-
-__all__ = ["PLL", "LinearQuadratureFilter", "PhaseTensorFilter", "CircleGridFilter", "PhaseEstimates",
-           "post_processor", "circle_moment", "qr_from_P", "lqf_gain", "pll_gain", "simulate_phase", "wrap"]
+__all__ = ["PLL", "LinearQuadratureFilter", "PhaseTensorFilter", "CircleGridFilter", "PhaseEstimate",
+           "CircleDensity", "post_processor", "circle_moment", "qr_from_P", "lqf_gain", "pll_gain", "simulate_phase",
+           "wrap", "phase_model"]

@@ -54,7 +54,7 @@ from scipy.integrate import solve_ivp
 
 from .. import _validate as V
 from ..errors import ClosureDivergedError, NotPolynomialError
-from ..moments.closures import Closure, EdgeworthClosure, GaussianClosure, gaussian_moments
+from ..moments.closures import Closure, EdgeworthClosure, GaussianClosure, gaussian_moments, kept_order
 from ..moments.expect import PolynomialExpectations, statistical_linearization_polys
 from ..moments.ito import (PolynomialMap, PolynomialSDE, discrete_moment_equations, gaussian_noise_moments,
                            moment_equations)
@@ -100,9 +100,7 @@ class _Linearizer:
         self.model, self.closure, self.kind = model, closure, kind
         n, m = model.n, model.m
         self.n, self.m = n, m
-        N = closure.order if order is None else order
-        if isinstance(N, bool) or not isinstance(N, int) or N < closure.order:
-            raise ValueError(f"order: expected an integer ≥ the closure's order {closure.order}, got {order!r}")
+        N = kept_order(closure, order)
         if getattr(model, "sym", None) is None:
             raise TypeError("model: quasilinear filters need a model stated in SymPy")
         if model.time is not None and (model.sym["f"].has(model.time) or model.sym["h"].has(model.time)
@@ -370,10 +368,12 @@ class QuasilinearFilter(OfflineGainFilter, ContinuousFilter):
     # ``run`` is :meth:`OfflineGainFilter.run` (003 eq. 16); ``covs`` holds P(t) (not the error covariance)
 
     # -- accuracy ------------------------------------------------------------------------------
-    def error_analysis(self, m0, P0, steps: int, *, closure: Closure | None = None, order: int = 4,
+    def error_analysis(self, m0, P0, steps: int, *, closure: Closure | None = None, order: int | None = None,
                        t0: float = 0.0) -> ErrorAnalysis:
         """True MSE E(x − x̂)² on the grid, from the moments of the joint process (x, x̂) (003 Fig. 2),
-        closed by ``closure`` (default Edgeworth of ``order`` 4 as in the paper). Polynomial models."""
+        closed by ``closure`` (default Edgeworth of ``order`` 4 as in the paper); ``order``
+        defaults to the closure's order (:func:`~nlfilter.moments.closures.kept_order`).
+        Polynomial models."""
         if not self.lin.polynomial:
             raise NotPolynomialError("model: the off-line accuracy analysis needs polynomial f, GQGᵀ and h")
         m0, P0 = self._prior(m0, P0)
@@ -382,17 +382,23 @@ class QuasilinearFilter(OfflineGainFilter, ContinuousFilter):
                                    closure=closure, order=order)
 
 
-def QLF(model, dt, **kw) -> QuasilinearFilter:
-    """The quasilinear filter: statistical linearization under the Gaussian closure (003 eqs. 3-8)."""
-    f = QuasilinearFilter(model, dt, closure=GaussianClosure(), **kw)
+def QLF(model, dt, *, order: int | None = None, substeps: int = 4, scheme: str = "rk4", rtol: float = 1e-9,
+        atol: float = 1e-12) -> QuasilinearFilter:
+    """The quasilinear filter: statistical linearization under the Gaussian closure (003 eqs. 3-8);
+    the other arguments as :class:`QuasilinearFilter`'s."""
+    f = QuasilinearFilter(model, dt, closure=GaussianClosure(), order=order, substeps=substeps, scheme=scheme,
+                          rtol=rtol, atol=atol)
     f.name = "qlf"
     return f
 
 
-def MQLF(model, dt, *, closure: Closure | None = None, **kw) -> QuasilinearFilter:
+def MQLF(model, dt, *, closure: Closure | None = None, order: int | None = None, substeps: int = 4,
+         scheme: str = "rk4", rtol: float = 1e-9, atol: float = 1e-12) -> QuasilinearFilter:
     """The modified quasilinear filter (003 Theorem 4.1): coefficients from the method of moments
-    closed by ``closure`` (default: Edgeworth / Hermite quasi-moments of order 4, 003 eqs. 27-33)."""
-    f = QuasilinearFilter(model, dt, closure=EdgeworthClosure(4) if closure is None else closure, **kw)
+    closed by ``closure`` (default: Edgeworth / Hermite quasi-moments of order 4, 003 eqs. 27-33);
+    the other arguments as :class:`QuasilinearFilter`'s."""
+    f = QuasilinearFilter(model, dt, closure=EdgeworthClosure(4) if closure is None else closure, order=order,
+                          substeps=substeps, scheme=scheme, rtol=rtol, atol=atol)
     f.name = "mqlf"
     f.needs = ("sympy", "polynomial")  # a closure beyond Gaussian needs the exact polynomial moments
     return f
@@ -464,13 +470,13 @@ class DiscreteQuasilinearFilter(OfflineGainFilter):
         return [(*sch.rows[k], sch.gains[k], sch.filt[k]) for k in range(steps)]
 
     def error_analysis(self, m0, P0, steps: int, *, closure: Closure | None = None,
-                       order: int = 4) -> ErrorAnalysis:
+                       order: int | None = None) -> ErrorAnalysis:
         """True MSE E(x[k] − x̂⁺[k])² at k = 0 .. steps − 1 (the estimates of :meth:`run` on
         ``steps`` measurements, ``start="update"``) from the moments of the joint process (x, x̂),
-        closed by ``closure`` (default Edgeworth of ``order`` 4, as 003 Fig. 2 in continuous time).
-        The coefficients of :meth:`offline` (003 eqs. 4-5 on the prior moments, eq. 11 in discrete
-        form) enter :func:`discrete_gain_error_analysis` as ``d = b0 − b1 m``, ``e = a0 − a1 m``.
-        Polynomial models; ``t`` holds the step indices."""
+        closed by ``closure`` (default Edgeworth of ``order`` 4, as 003 Fig. 2 in continuous time;
+        ``order`` defaults to the closure's order). The coefficients of :meth:`offline` (003 eqs.
+        4-5 on the prior moments, eq. 11 in discrete form) enter :func:`discrete_gain_error_analysis`
+        as ``d = b0 − b1 m``, ``e = a0 − a1 m``. Polynomial models; ``t`` holds the step indices."""
         if not self.lin.polynomial:
             raise NotPolynomialError("model: the off-line accuracy analysis needs polynomial f, G and h")
         m0, P0 = _prior(self.model.n, m0, P0)

@@ -150,6 +150,8 @@ def _pd_mask(S):
 
 
 class _Family:
+    family = "second-order"
+    needs = ("f_x", "f_xx", "h_x", "h_xx")
     """Configuration shared by the three time settings: the form and the model's derivatives."""
 
     def _configure(self, model, form, who):
@@ -257,6 +259,8 @@ class SecondOrderFilter(_DiscreteFamily):
     ``on_divergence="mark"``, records such paths.
     """
 
+    source = "seed 004 eqs. 18-23 (discrete), Henriksen 1979"
+
     def __init__(self, model, *, form: str = "truncated", start: str = "update"):
         DiscreteFilter.__init__(self, model, start=start)
         self._configure(model, form, "SecondOrderFilter")
@@ -299,6 +303,9 @@ class ContinuousDiscreteSecondOrderFilter(_DiscreteFamily):
     >>> est.means.shape, bool(est.diverged.any())
     ((2, 3, 3), False)
     """
+
+    source = "seed 004 eqs. 35-36 between measurements, eqs. 20-22 at them"
+    accepts = ("sde",)
 
     def __init__(self, model, dt: float, *, form: str = "truncated", scheme: str = "rk4",
                  substeps: int = 1, start: str = "update", t0: float = 0.0):
@@ -358,6 +365,8 @@ class ContinuousSecondOrderFilter(_Family, ContinuousFilter):
     >>> round(float(s.mean[0]), 6), round(float(s.cov[0, 0]), 6)   # −K·½X h_xx dt; X(1 − 2dt) + (0.25 + 0.04 X − X²/0.1) dt
     (-0.05, 0.8829)
     """
+
+    source = "seed 004 eqs. 35-37 (continuous), Henriksen 1979"
 
     def __init__(self, model, dt, *, form: str = "truncated", scheme: str = "rk4", substeps: int = 1,
                  innovation: str = "ito"):

@@ -8,6 +8,10 @@ Predict: ``m⁻ = Σ W_i f(χ_i)``, ``P⁻ = Σ W^c_i (f(χ_i) − m⁻)(·)ᵀ 
 (the expected noise covariance over the sigma points; equals ``G Q Gᵀ`` for constant G).
 Update: sigma points redrawn from ``(m⁻, P⁻)``, ``ŷ = Σ W_i h(χ_i)``, ``S = Σ W^c_i (h_i − ŷ)(·)ᵀ + R``,
 ``C = Σ W^c_i (χ_i − m⁻)(h_i − ŷ)ᵀ``, then :func:`~nlfilter.filters.base.gaussian_update`.
+
+The UKF is the skeleton of :mod:`nlfilter.filters.gaussian` with the
+:class:`~nlfilter.filters.rules.Unscented` rule; :class:`ContinuousDiscreteUKF` its
+continuous-discrete version (SDE dynamics, discrete measurements).
 """
 
 from __future__ import annotations
@@ -15,63 +19,55 @@ from __future__ import annotations
 import numpy as np
 
 from .. import _validate as V
-from .base import DiscreteFilter, GaussianState, gaussian_update, poison, sqrt_psd
+from .base import DiscreteFilter, GaussianState  # noqa: F401  (GaussianState: the doctests)
+from .gaussian import ContinuousDiscreteGaussianFilter, GaussianFilter
+from .rules import Unscented, sigma_points
 
 
-def sigma_points(m, P, alpha, beta, kappa):
-    """Sigma points ``(..., 2n+1, n)``, weights ``(Wm, Wc)`` of shape ``(2n+1,)``, and the paths
-    ``(...)`` whose covariance is not PSD (their points are drawn from the identity and must be
-    discarded: the UKF poisons them so that ``run`` raises or marks them). The square root is the
-    Cholesky factor, or the eigen root where P is only semi-definite (:func:`sqrt_psd`)."""
-    n = m.shape[-1]
-    lam = alpha**2 * (n + kappa) - n
-    L, bad = sqrt_psd((n + lam) * P)
-    Lt = np.swapaxes(L, -1, -2)  # rows = columns of L
-    X = np.concatenate([m[..., None, :], m[..., None, :] + Lt, m[..., None, :] - Lt], axis=-2)
-    Wm = np.full(2 * n + 1, 0.5 / (n + lam))
-    Wc = Wm.copy()
-    Wm[0] = lam / (n + lam)
-    Wc[0] = lam / (n + lam) + 1 - alpha**2 + beta
-    return X, Wm, Wc, bad
-
-
-class UKF(DiscreteFilter):
-    """Unscented Kalman filter (batched). ``alpha, beta, kappa``: scaling of the sigma points."""
+class UKF(GaussianFilter):
+    """Unscented Kalman filter (batched): the :class:`~nlfilter.filters.gaussian.GaussianFilter`
+    skeleton with the :class:`~nlfilter.filters.rules.Unscented` rule. ``alpha, beta, kappa``:
+    scaling of the sigma points (module docstring)."""
 
     name = "ukf"
+    source = "Julier & Uhlmann 1997; van der Merwe 2004 (scaled sigma points)"
 
     def __init__(self, model, *, alpha: float = 1.0, beta: float = 2.0, kappa: float = 0.0,
                  start: str = "update"):
-        super().__init__(model, start=start)
-        self.alpha = float(V.positive("alpha", alpha))
-        self.beta = float(V.positive("beta", beta, strict=False))
+        DiscreteFilter.__init__(self, model, start=start)
+        alpha = float(V.positive("alpha", alpha))
+        beta = float(V.positive("beta", beta, strict=False))
         if not np.isfinite(kappa) or model.n + kappa <= 0:
             raise ValueError(f"kappa: expected n + kappa > 0 (n = {model.n}), got {kappa!r}")
-        self.kappa = float(kappa)
+        self._set_rule(Unscented(alpha, beta, float(kappa)))
+        self.alpha, self.beta, self.kappa = self.rule.alpha, self.rule.beta, self.rule.kappa
 
     def _points(self, state):
         return sigma_points(state.mean, state.cov, self.alpha, self.beta, self.kappa)
 
-    def predict(self, state, k):
-        md = self.model
-        X, Wm, Wc, bad = self._points(state)
-        FX = md.f(X, k)
-        m = np.einsum("i,...ij->...j", Wm, FX)
-        D = FX - m[..., None, :]
-        P = np.einsum("i,...ia,...ib->...ab", Wc, D, D)
-        if md.G_constant:
-            P = P + md.GQGT(state.mean, k)
-        else:
-            P = P + np.einsum("i,...iab->...ab", Wm, md.GQGT(X, k))
-        return poison(GaussianState(m, P), bad)
 
-    def update(self, state, y, k):
-        md = self.model
-        X, Wm, Wc, bad = self._points(state)
-        HX = md.h(X, k)
-        yp = np.einsum("i,...ij->...j", Wm, HX)
-        Dy = HX - yp[..., None, :]
-        Dx = X - state.mean[..., None, :]
-        S = np.einsum("i,...ia,...ib->...ab", Wc, Dy, Dy) + md.R
-        C = np.einsum("i,...ia,...ib->...ab", Wc, Dx, Dy)
-        return poison(gaussian_update(state, y, yp, S, C), bad)
+class ContinuousDiscreteUKF(ContinuousDiscreteGaussianFilter):
+    """Continuous-discrete unscented Kalman filter (Särkkä 2007, IEEE TAC 52(9) 1631-1641):
+    between measurements ``dm/dt = E[f]``, ``dP/dt = Cov[x, f] + Cov[f, x] + E[G Q Gᵀ]``
+    with the expectations over the sigma points of ``(m, P)`` at every stage of the integrator;
+    the UKF update at the measurements ``y_k = h(x(t_k)) + v_k``.
+
+    >>> import sympy as sp; from nlfilter import SDEModel
+    >>> x = sp.Symbol("x")
+    >>> model = SDEModel([x], [-x], [x], Q=2.0, R=1.0)
+    >>> s = ContinuousDiscreteUKF(model, 0.1, substeps=4).predict(GaussianState(np.array([1.0]), np.array([[0.5]])), 0)
+    >>> round(float(s.mean[0]), 6), round(float(s.cov[0, 0]), 6)   # linear: the exact moments (RK4)
+    (0.904837, 0.590635)
+    """
+
+    name = "cd-ukf"
+    source = ("Särkkä 2007, On unscented Kalman filtering for state estimation of continuous-time nonlinear "
+              "systems, IEEE TAC 52(9)")
+
+    def __init__(self, model, dt: float, *, alpha: float = 1.0, beta: float = 2.0, kappa: float = 0.0,
+                 scheme: str = "rk4", substeps: int = 1, start: str = "update", t0: float = 0.0):
+        if getattr(model, "kind", None) == "sde" and (not np.isfinite(kappa) or model.n + kappa <= 0):
+            raise ValueError(f"kappa: expected n + kappa > 0 (n = {model.n}), got {kappa!r}")
+        super().__init__(model, dt, Unscented(alpha, beta, kappa), scheme=scheme, substeps=substeps,
+                         start=start, t0=t0)
+        self.alpha, self.beta, self.kappa = self.rule.alpha, self.rule.beta, self.rule.kappa

@@ -40,7 +40,7 @@ import numpy as np
 from ..polynomials import monomials
 
 __all__ = ["Closure", "GaussianClosure", "CumulantClosure", "EdgeworthClosure", "closure_by_name",
-           "gaussian_moments", "raw_to_central", "central_to_raw"]
+           "kept_order", "gaussian_moments", "raw_to_central", "central_to_raw"]
 
 
 def _below(alpha):
@@ -433,6 +433,27 @@ def closure_by_name(name: str, order: int | None = None) -> Closure:
         return EdgeworthClosure(4 if order is None else order)
     raise ValueError(f"closure: expected one of ['cumulant', 'edgeworth', 'gaussian', 'quasi-moment'], "
                      f"got {name!r}")
+
+
+def kept_order(closure: Closure, order: int | None) -> int:
+    """The order N of the kept moment set for ``closure``: ``order`` if given, else the closure's
+    own order. ``order`` below the closure's order is refused: the closure reads every moment of
+    degree ≤ its order, so they must all be kept. (A larger ``order`` keeps more moments than the
+    closure reads: allowed, but such a set is closed less consistently and can diverge.)
+
+    >>> kept_order(GaussianClosure(), None), kept_order(EdgeworthClosure(4), 6)
+    (2, 6)
+    """
+    if not isinstance(closure, Closure):
+        raise TypeError(f"closure: expected a Closure instance, got {type(closure).__name__}")
+    if order is None:
+        return closure.order
+    if isinstance(order, bool) or not isinstance(order, int):
+        raise ValueError(f"order: expected an integer or None (the closure's order), got {order!r}")
+    if order < closure.order:
+        raise ValueError(f"order, closure: expected order ≥ {closure.order}, the order of closure={closure!r} "
+                         f"(it reads every moment of degree ≤ {closure.order}), got order={order}")
+    return order
 
 
 def gaussian_moments(mean, cov, indices: Sequence[tuple]) -> np.ndarray:

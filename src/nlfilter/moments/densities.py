@@ -432,3 +432,18 @@ def _affine_matrix(N: int, s, c) -> np.ndarray:
         for k in range(i + 1):
             B[..., i, k] = math.comb(i, k) * s ** k * c ** (i - k)
     return B
+
+
+def pdf_batched_1d(d: LegendreDensity, x) -> np.ndarray:
+    """Values ``(..., Q)`` at points ``x (..., Q)`` of a batch of 1-D densities ``d`` of shape ``(...)``."""
+    t = d.alpha[..., None] * (x - d.center[..., None])
+    P = legendre_values(t, d.degree)
+    return d.alpha[..., None] * np.einsum("...i,...qi->...q", d.coef, P)
+
+
+def pdf_batched_2d(d: LegendreDensity2D, X) -> np.ndarray:
+    """Values ``(..., Q)`` at points ``X (..., Q, 2)`` of a batch of 2-D densities ``d`` of shape ``(...)``."""
+    t = d.alpha[..., None, :] * (X - d.center[..., None, :])
+    P0 = legendre_values(t[..., 0], d.degree)
+    P1 = legendre_values(t[..., 1], d.degree)
+    return np.prod(d.alpha, axis=-1)[..., None] * np.einsum("...ij,...qi,...qj->...q", d.coef, P0, P1)

@@ -65,10 +65,11 @@ import scipy.sparse as sps
 import sympy as sp
 
 from ..errors import MomentsNotClosedError
+from ..models import lambdify_numpy
 from ..polynomials import Polynomial, add_exp, as_polynomial, monomial_name, monomials
 
 __all__ = ["PolynomialSDE", "PolynomialMap", "MomentEquations", "moment_equations",
-           "discrete_moment_equations", "closed_hull", "is_closed", "generator", "bilinear_lift",
+           "discrete_moment_equations", "closed_hull", "is_closed", "generator", "bilinear_lift", "as_polynomial_sde",
            "gaussian_noise_moments",
            "monomials", "degree_order"]
 
@@ -421,7 +422,7 @@ class MomentEquations:
         self._groups = groups  # list of (A_j, B_j, c_j)
         self._exprs = exprs
         if len(groups) > 1:  # A(w) = Σ_j w_j A_j on the union pattern: data = W w, one lambdified call for w
-            self._weights = sp.lambdify(self.symbols, list(exprs[1:]), modules="numpy")
+            self._weights = lambdify_numpy(self.symbols, list(exprs[1:]))
             self._A = _union([g[0] for g in groups])
             self._B = _union([g[1] for g in groups])
             self._C = np.stack([g[2] for g in groups], axis=-1)
@@ -563,6 +564,16 @@ def _check_indices(indices, n):
     return idx
 
 
+def as_polynomial_sde(sde) -> PolynomialSDE:
+    """``sde`` itself if a :class:`PolynomialSDE`, else the polynomial SDE of an
+    :class:`~nlfilter.models.SDEModel` stated in SymPy (:meth:`PolynomialSDE.from_model`)."""
+    if isinstance(sde, PolynomialSDE):
+        return sde
+    if getattr(sde, "kind", None) == "sde":
+        return PolynomialSDE.from_model(sde)
+    raise TypeError(f"sde: expected a PolynomialSDE or an SDEModel, got {type(sde).__name__}")
+
+
 def moment_equations(sde, indices: Sequence[tuple]) -> MomentEquations:
     """The moment equations ``dμ/dt = A μ + B ν + c`` for the monomials ``indices``
     (003 eq. 11; 001 eqs. 3.8-3.9).
@@ -576,11 +587,7 @@ def moment_equations(sde, indices: Sequence[tuple]) -> MomentEquations:
     -------
     :class:`MomentEquations` with sparse ``A (K, K)``, ``B (K, M)``, ``c (K,)`` and ``missing``.
     """
-    if not isinstance(sde, PolynomialSDE):
-        if getattr(sde, "kind", None) == "sde":
-            sde = PolynomialSDE.from_model(sde)
-        else:
-            raise TypeError(f"sde: expected a PolynomialSDE or an SDEModel, got {type(sde).__name__}")
+    sde = as_polynomial_sde(sde)
     n = sde.n
     indices = _check_indices(indices, n)
     groups = _Groups()
@@ -690,8 +697,7 @@ def closed_hull(sde, start: Sequence[tuple], *, max_size: int = 20000, with_nois
     >>> closed_hull(sde, [(1, 1)])
     [(2, 0), (1, 1)]
     """
-    if not isinstance(sde, PolynomialSDE):
-        sde = PolynomialSDE.from_model(sde)
+    sde = as_polynomial_sde(sde)
     n = sde.n
     todo = list(_check_indices(start, n))
     seen = set(todo)

@@ -38,7 +38,7 @@ from .. import _validate as V
 from ..errors import ClosureDivergedError, SingularSystemError
 from ..polynomials import monomial_name
 from .closures import Closure
-from .ito import MomentEquations, closed_hull, moment_equations
+from .ito import MomentEquations, as_polynomial_sde, closed_hull, moment_equations
 
 __all__ = ["propagate", "iterate", "steady_state", "linear_steady_state", "stationary_moments", "gaussian_scale",
            "MomentSolution", "variance_positions"]
@@ -530,6 +530,7 @@ def stationary_moments(sde, wanted, *, initial=None, max_size: int = 20000, resc
     within ``max_size`` monomials, :class:`~nlfilter.errors.SingularSystemError` when there is no
     unique steady state.
     """
+    sde = as_polynomial_sde(sde)  # once: the generator's cache serves the hull and the equations
     n = sde.n
     zero = (0,) * n
     start = list(dict.fromkeys(tuple(int(a) for a in m) for m in wanted if any(m)))

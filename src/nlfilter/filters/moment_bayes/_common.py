@@ -1,0 +1,108 @@
+"""What the seed-000 moment filters share: option checks, the pure adaptive-input learner (its
+running statistics live in the belief, per path), the missing-data helper and the warning."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ... import _validate as V
+from ...moments.densities import (cumulants_to_moments, difference_moments, moments_to_cumulants,
+                                  uniform_moments)
+from ..base import Filter
+from ..beliefs import where_paths
+
+
+class MomentFilterWarning(UserWarning):
+    """The moments in use cannot be those of a law on the support (N too high for the data)."""
+
+
+def impulse_power_sums(g, N: int) -> np.ndarray:
+    """``S_i = sum_j g_j^i`` for i = 1..N from impulse-response coefficients ``g`` (1-D array).
+
+    With ``y = sum_j g_j w_{k-j}`` and i.i.d. ``w``: ``kappa_i(y) = kappa_i(w) S_i`` (cumulants add
+    over independent terms and scale by ``g^i``) — the dynamic counterpart of eq. 3.13.
+    """
+    g = np.asarray(g, dtype=float)
+    return np.array([np.sum(g ** i) for i in range(1, N + 1)])
+
+
+def input_moments(N, S, mv, initial, n0, acc, n_s):
+    """Moments of the input ``w`` learnt from data (analogue of 000 eqs. 2.27-2.29, 3.14-3.15):
+    sample moments ``acc / n_s`` of z -> moments of y = z - v (eq. 3.14) -> cumulants of y ->
+    cumulants of w (divide by S_i) -> moments of w, blended with the initial guess (eq. 3.15).
+    ``n_s`` is per path (``(B,)``) or a number."""
+    n_s = np.asarray(n_s, dtype=float)[..., None]
+    my = difference_moments(acc / n_s, mv)  # 000 eq. 3.14
+    kw = moments_to_cumulants(my) / S
+    mw_hat = cumulants_to_moments(kw)
+    w0 = n0 / (n_s + n0)
+    return w0 * initial + (1.0 - w0) * mw_hat  # 000 eq. 3.15
+
+
+def check_N(N):
+    V.positive("N", N, integer=True)
+    if N > 40:
+        raise ValueError(f"N: expected at most 40, got {N}")
+    return int(N)
+
+
+def configure_input(flt, w_bound, N, w_moments, adaptive, initial_w_moments, n0, window,
+                    noise_halfwidth, eps, outside):
+    """Checks and stores the options shared by the first- and second-order filters: input bound,
+    order N, known or adaptive input moments (000 eqs. 2.27-2.29), measurement half-width."""
+    flt.wb = float(V.positive("w_bound", w_bound))
+    flt.N = check_N(N)
+    flt.c = float(V.positive("noise_halfwidth", noise_halfwidth))
+    flt.mv = uniform_moments(flt.N, -flt.c, flt.c)
+    flt.eps = float(V.positive("eps", eps, strict=False))
+    flt.outside = V.choice("outside", outside, {"raise", "clip"})
+    flt.adaptive = bool(adaptive)
+    if flt.adaptive == (w_moments is not None):
+        raise ValueError("w_moments: expected the N known input moments, or None with adaptive=True; "
+                         f"got w_moments={'None' if w_moments is None else 'an array'}, adaptive={adaptive}")
+    chk = lambda name, m: V.finite(name, V.as_float_array(name, m, shape_tail=(flt.N,)))  # noqa: E731
+    flt.w_moments = None if w_moments is None else chk("w_moments", w_moments)
+    flt.initial_w_moments = (uniform_moments(flt.N, -flt.wb, flt.wb) if initial_w_moments is None
+                             else chk("initial_w_moments", initial_w_moments))
+    flt.n0 = float(V.positive("n0", n0, strict=False))
+    flt.window = int(V.positive("window", window, integer=True))
+
+
+def observed(y):
+    """``(z (B,), obs (B,))``: the scalar measurement of each path and whether it is observed."""
+    z = np.asarray(y, dtype=float)[..., 0]
+    return z, ~np.isnan(z)
+
+
+def keep_missing(obs, new, old):
+    """The updated belief on the observed paths, the predicted one (unchanged) on the others."""
+    return new if obs.all() else where_paths(obs, new, old)
+
+
+class MomentFilter(Filter):
+    """Base of the seed-000 filters: a :class:`~nlfilter.bounded.BoundedNoiseModel` (``kind =
+    "bounded"``), scalar measurements ``ys (..., T, 1)``; the prior is the filter's own (the
+    stationary law implied by the input moments, or the known/learnt law of x), so ``m0``/``P0``
+    must be None."""
+
+    family = "method-of-moments"
+    accepts = ("bounded",)
+    needs = ("linear dynamics", "bounded input", "uniform measurement noise")
+    time = "discrete"
+
+    @property
+    def data_dim(self) -> int:
+        return 1
+
+    def _no_prior(self, m0, P0, initial):
+        for name, v in (("m0", m0), ("P0", P0), ("initial", initial)):
+            if v is not None:
+                raise ValueError(f"{name}: {type(self).__name__} starts from its own prior (the law implied "
+                                 f"by the input moments on the reachable set); expected None, got {v!r}")
+
+    def _learn(self, acc, count, zl, obs):
+        """Accumulate ``zl`` into the power sums of the observed paths (000 eq. 2.28); returns the
+        new ``(acc, count, due)`` with ``due`` the paths whose window is complete (refresh)."""
+        acc = np.where(obs[:, None], acc + zl[:, None] ** self._powers, acc)
+        count = count + obs
+        return acc, count, obs & (count % self.window == 0)

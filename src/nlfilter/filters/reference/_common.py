@@ -1,0 +1,53 @@
+"""What the reference filters share: the registry attributes, the time kind of the model, the
+measurement-step check."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ... import _validate as V
+from ..base import Filter
+
+
+def _check_time_step(flt, model, dt, who):
+    """SDE models need the measurement step ``dt`` (and use R⁻¹); discrete ones take none and
+    need a measurement law with a density. Sets ``flt.time`` (``"continuous"`` for an SDEModel:
+    the run loop then calls ``step`` on increments), ``flt.dt`` and ``flt._Rinv``."""
+    if model.kind == "sde":
+        if dt is None:
+            raise ValueError("dt: expected the measurement step for an SDEModel, got None")
+        flt.dt = float(V.positive("dt", dt))
+        flt._Rinv = np.linalg.inv(model.R)
+        flt.time = "continuous"
+    elif dt is not None:
+        raise ValueError(f"dt: a DiscreteModel has no time step; expected None, got {dt!r}")
+    elif not model.measurement_noise.has_density:
+        raise ValueError(f"measurement_noise: the {who} needs a law with a density (logpdf)")
+    else:
+        flt.time = "discrete"
+
+
+class _ReferenceFilter(Filter):
+    """Base of the reference filters: discrete models (``predict``/``update``) and SDE models
+    (``step``), the kind decided by the model (``time`` is an instance attribute)."""
+
+    family = "reference"
+    accepts = ("discrete", "sde")
+
+    def _setup(self, model, dt, start, who):
+        self.model = model
+        self.start = V.choice("start", start, {"update", "predict"})
+        _check_time_step(self, model, dt, who)
+
+    def _need(self, time, call):
+        if self.time != time:
+            other = "step(belief, dy, t)" if self.time == "continuous" else "predict/update"
+            raise TypeError(f"{call}: {type(self).__name__} on a{' DiscreteModel' if self.time == 'discrete' else 'n SDEModel'} "
+                            f"uses {other}")
+
+    def _raise_dead(self, bad, where):
+        if bad is not None:
+            from ...errors import DivergenceError
+            idx = np.flatnonzero(bad)
+            raise DivergenceError(f"{self.name}: the measurement has zero likelihood everywhere at {where} on "
+                                  f"{idx.size} path(s), first {idx[:5].tolist()}", paths=idx, what="likelihood")

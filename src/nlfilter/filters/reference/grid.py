@@ -1,0 +1,228 @@
+"""Grid (point-mass) Bayesian filter for 1-D and 2-D states (see :mod:`nlfilter.filters.reference`).
+
+The belief is a :class:`GridBelief`: one probability vector ``p (B, N)`` per path over the grid
+points ``GridFilter.X (N, n)``.
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import numpy as np
+import scipy.linalg as sla
+from scipy import sparse
+
+from ... import _validate as V
+from ...noise import Gaussian
+from ..base import gaussian_prior, measurement_loglik, observed_precision
+from ._common import _ReferenceFilter
+
+
+class GridBelief(NamedTuple):
+    """Probability vectors ``p (B, N)`` over the grid points ``GridFilter.X (N, n)``."""
+
+    p: np.ndarray
+
+
+def _maybe_sparse(K, rel: float = 1e-13):
+    """Drop entries below ``rel`` times their row's largest (their mass is far below the grid's
+    own error) and return CSR when that leaves the kernel sparse: ``p @ K`` then costs the
+    kernel's support, not N²."""
+    K = np.where(K >= rel * K.max(axis=1, keepdims=True), K, 0.0)
+    nnz = np.count_nonzero(K)
+    return sparse.csr_array(K) if nnz < 0.05 * K.size else K
+
+
+def _apply(p, K):
+    """``p @ K`` for a batch ``p (..., N)`` and a dense or sparse kernel."""
+    if isinstance(K, np.ndarray):
+        return p @ K
+    flat = p.reshape(-1, p.shape[-1])
+    return np.asarray((K.T @ flat.T).T).reshape(p.shape)
+
+
+def _moments(p, X):
+    """Mean (..., n) and covariance (..., n, n) of probability vectors p (..., N) on points X (N, n)."""
+    n = X.shape[-1]
+    mean = p @ X
+    second = (p @ (X[:, :, None] * X[:, None, :]).reshape(-1, n * n)).reshape(*p.shape[:-1], n, n)
+    cov = second - mean[..., :, None] * mean[..., None, :]
+    return mean, 0.5 * (cov + np.swapaxes(cov, -1, -2))
+
+
+class GridFilter(_ReferenceFilter):
+    """Point-mass Bayesian filter on a regular grid (1-D or 2-D states); see
+    :mod:`nlfilter.filters.reference`. Discrete models: ``predict``/``update``; SDE models: ``step``
+    (``time`` is ``"continuous"``). ``run`` takes the prior N(m0, P0) (P0 positive definite: a
+    density) or any law ``initial`` with a ``logpdf``.
+
+    Parameters
+    ----------
+    model : DiscreteModel or SDEModel with ``n ≤ 2``
+    bounds : ``(lo, hi)`` for 1-D, or ``[(lo1, hi1), (lo2, hi2)]``
+    size : points per axis (int, or one per axis)
+    dt : SDE models: the measurement step
+    start : discrete models: step convention (see :mod:`nlfilter.filters.base`)
+    """
+
+    name = "grid"
+    source = ("point-mass filter (Bucy & Senne); SDEs: Kushner's Markov-chain approximation of the "
+              "Fokker–Planck operator and the Kallianpur–Striebel likelihood")
+    needs = ("n ≤ 2", "noise density")
+
+    def __init__(self, model, bounds, size=401, *, dt: float | None = None, start: str = "update"):
+        if model.n > 2:
+            raise ValueError(f"model: the grid filter handles n ≤ 2 states, got n = {model.n}; use ParticleFilter")
+        n = model.n
+        b = np.asarray(bounds, dtype=float).reshape(n, 2) if np.size(bounds) == 2 * n else None
+        if b is None or np.any(b[:, 1] <= b[:, 0]) or not np.all(np.isfinite(b)):
+            raise ValueError(f"bounds: expected {'(lo, hi)' if n == 1 else '[(lo1, hi1), (lo2, hi2)]'} "
+                             f"with lo < hi, got {bounds!r}")
+        sizes = np.broadcast_to(np.asarray(size), (n,))
+        for s in sizes:
+            V.positive("size", int(s), integer=True)
+            if s < 3:
+                raise ValueError(f"size: expected at least 3 points per axis, got {size!r}")
+        self.axes = [np.linspace(lo, hi, int(s)) for (lo, hi), s in zip(b, sizes)]
+        self.steps = np.array([ax[1] - ax[0] for ax in self.axes])
+        mesh = np.meshgrid(*self.axes, indexing="ij")
+        self.X = np.stack([g.ravel() for g in mesh], axis=-1)  # (N, n), first axis slowest
+        self._setup(model, dt, start, "grid filter")
+        self._time_varying = not getattr(model, "time_invariant", False)
+        self._kernel_cache = None
+
+    # -- transition ------------------------------------------------------------------------
+    def _kernel_discrete(self, k):
+        md, X = self.model, self.X
+        f = md.f(X, k)  # (N, n)
+        G = md.G(X, k)  # (N, n, r)
+        D = X[None, :, :] - f[:, None, :]  # (from i, to j, n)
+        law = md.process_noise
+        if md.r == md.n and law.has_density:
+            Ginv = np.linalg.inv(G)
+            z = np.einsum("iab,ijb->ija", Ginv, D)
+            logk = law.logpdf(z) - np.log(np.abs(np.linalg.det(G)))[:, None]
+        elif isinstance(law, Gaussian):
+            C = np.einsum("iab,bc,idc->iad", G, md.Q, G)
+            Ci = np.linalg.inv(C)
+            logk = (-0.5 * np.einsum("ija,iab,ijb->ij", D, Ci, D)
+                    - 0.5 * np.log(np.linalg.det(2 * np.pi * C))[:, None])
+        else:
+            raise ValueError("process_noise: the grid filter needs a Gaussian law, or a law with a "
+                             "density and a square G")
+        return _maybe_sparse(np.exp(logk) * np.prod(self.steps))
+
+    def _kernel_sde(self, t):
+        md, X, n = self.model, self.X, self.model.n
+        N = X.shape[0]
+        f = md.f(X, t)
+        D = md.GQGT(X, t)
+        if n == 2 and np.any(np.abs(D[:, 0, 1]) > 1e-12 * (np.abs(D[:, 0, 0]) + np.abs(D[:, 1, 1]) + 1e-300)):
+            raise ValueError("model: the 2-D grid filter for SDEs needs a diagonal diffusion G Q Gᵀ")
+        sizes = [len(a) for a in self.axes]
+        idx = np.arange(N).reshape(sizes)
+        rows, cols, vals = [], [], []
+        for d in range(n):
+            h = self.steps[d]
+            diff = 0.5 * D[:, d, d] / h**2
+            drift = f[:, d] / h
+            up = diff + 0.5 * drift
+            down = diff - 0.5 * drift
+            bad = (up < 0) | (down < 0)  # central differences would give a negative rate: upwind
+            up = np.where(bad, diff + np.maximum(drift, 0.0), up)
+            down = np.where(bad, diff + np.maximum(-drift, 0.0), down)
+            src = idx.take(range(0, sizes[d] - 1), axis=d).ravel()
+            dst = idx.take(range(1, sizes[d]), axis=d).ravel()
+            rows += [src, dst]
+            cols += [dst, src]
+            vals += [up[src], down[dst]]
+        rows, cols, vals = np.concatenate(rows), np.concatenate(cols), np.concatenate(vals)
+        L = sparse.coo_matrix((vals, (rows, cols)), shape=(N, N)).toarray()
+        L[np.diag_indices(N)] = -L.sum(axis=1)
+        return _maybe_sparse(sla.expm(L * self.dt))
+
+    def _kernel(self, k):
+        if self._kernel_cache is not None and not self._time_varying:
+            return self._kernel_cache
+        K = self._kernel_discrete(k) if self.model.kind == "discrete" else self._kernel_sde(k)
+        self._kernel_cache = K
+        return K
+
+    # -- the belief functions ----------------------------------------------------------------
+    def init(self, m0, P0, batch, *, initial=None, rng=None) -> GridBelief:
+        """The prior on the grid for ``prod(batch)`` paths: N(m0, P0) (one prior for all paths,
+        P0 positive definite) or the law ``initial`` (its ``logpdf`` at the grid points)."""
+        if initial is not None:
+            if not callable(getattr(initial, "logpdf", None)):
+                raise TypeError(f"initial: expected a law with a logpdf, got {type(initial).__name__}")
+            logp = initial.logpdf(self.X)
+        else:
+            prior = gaussian_prior(m0, P0, self.model.n, (), one=True)
+            m0, P0 = prior.mean[0], prior.cov[0]
+            if not np.linalg.eigvalsh(P0)[0] > 0:
+                raise ValueError("P0: the grid filter needs a prior density (positive definite P0), got a "
+                                 "singular covariance; pass initial= for another law")
+            logp = Gaussian(P0).logpdf(self.X - m0)
+        p = np.exp(logp - np.max(logp))
+        if not np.isfinite(p).all() or p.sum() <= 0:
+            raise ValueError("m0/P0: the prior has no mass on the grid; widen bounds")
+        B = int(np.prod(batch))
+        return GridBelief(np.broadcast_to(p / p.sum(), (B, self.X.shape[0])).copy())
+
+    def predict(self, belief: GridBelief, k) -> GridBelief:
+        """Discrete time: ``p⁻ ∝ p · τ(k)``, the belief of step ``k + 1``."""
+        self._need("discrete", "predict")
+        p = _apply(belief.p, self._kernel(k))
+        return GridBelief(p / p.sum(axis=-1, keepdims=True))
+
+    def update(self, belief: GridBelief, y, k) -> GridBelief:
+        """Discrete time: ``p⁺ ∝ p · p_v(y − h(x, k))`` for ``y (B, m)`` (NaN components missing);
+        raises :class:`~nlfilter.errors.DivergenceError` where ``y`` is impossible at every grid point."""
+        belief, bad = self._update_unchecked(belief, y, k)
+        self._raise_dead(bad, f"step {k}")
+        return belief
+
+    def step(self, belief: GridBelief, dy, t) -> GridBelief:
+        """SDE: ``p · expm(L dt)`` over ``[t, t + dt]``, then the likelihood of the increment ``dy (B, m)``."""
+        belief, bad = self._step_unchecked(belief, dy, t)
+        self._raise_dead(bad, f"t = {t}")
+        return belief
+
+    def summary(self, belief: GridBelief):
+        """Mean and covariance of the grid density."""
+        return _moments(belief.p, self.X)
+
+    def _update_unchecked(self, belief, y, k):
+        self._need("discrete", "update")
+        p, bad = self._update(belief.p, y, k)
+        return GridBelief(p), bad
+
+    def _step_unchecked(self, belief, dy, t):
+        self._need("continuous", "step")
+        p = _apply(belief.p, self._kernel(t))
+        p, bad = self._update(p, dy, t + self.dt)
+        return GridBelief(p), bad
+
+    def _update(self, p, y, k):
+        """``(p⁺, dead paths or None)``; a dead path (zero likelihood everywhere) keeps ``p``."""
+        md, X = self.model, self.X
+        obs = ~np.isnan(y)
+        if not obs.any():
+            return p, None
+        hX = md.h(X, k)  # (N, m)
+        if md.kind == "discrete":
+            resid = np.where(obs[..., None, :], y[..., None, :] - hX, 0.0)
+            ll = measurement_loglik(md.measurement_noise, resid, obs)
+        else:
+            Rinv = observed_precision(md.R, self._Rinv, obs)  # partly missing: the observed marginal
+            yo = np.where(obs, y, 0.0)
+            hR = np.einsum("ka,...ab->...kb", hX, Rinv)  # Rinv (m, m), or (..., m, m) if partly missing
+            ll = np.einsum("...a,...ka->...k", yo, hR) - 0.5 * self.dt * np.einsum("...ka,ka->...k", hR, hX)
+        with np.errstate(divide="ignore"):
+            lp = np.log(p) + ll
+        mx = np.max(lp, axis=-1, keepdims=True)
+        dead = ~np.isfinite(mx[..., 0])
+        w = np.exp(lp - np.where(np.isfinite(mx), mx, 0.0))
+        s = w.sum(axis=-1, keepdims=True)
+        dead |= ~(s[..., 0] > 0)
+        return np.where(dead[..., None], p, w / np.where(s > 0, s, 1.0)), (dead if dead.any() else None)

@@ -1,0 +1,196 @@
+"""Bootstrap particle filter, batched over paths (see :mod:`nlfilter.filters.reference`).
+
+The belief is a :class:`ParticleBelief`: particles ``x (B, Np, n)``, their log-weights
+``logw (B, Np)`` and the random generator the filter draws from (shared by all paths: the
+particles of every path are drawn from one stream, path after path, in a fixed order).
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import numpy as np
+
+from ... import _validate as V
+from ..base import measurement_loglik, observed_precision
+from ._common import _ReferenceFilter
+
+
+class ParticleBelief(NamedTuple):
+    """Particles ``x (B, Np, n)``, log-weights ``logw (B, Np)`` (unnormalized: the weights of the
+    last update, kept until the next ``predict``/``step`` resamples), and the generator ``rng``
+    (not per path)."""
+
+    x: np.ndarray
+    logw: np.ndarray
+    rng: np.random.Generator
+
+    _shared = ("rng",)
+
+
+def _dead_paths(logw):
+    """``(B,)``: the paths whose log-weights ``(B, N)`` have no finite maximum (zero mass everywhere,
+    or a non-finite likelihood): returned as ``bad`` to the run loop, which raises or marks them;
+    None when there are none (the loop's fast path)."""
+    mx = np.max(logw, axis=-1)
+    dead = ~np.isfinite(mx)
+    return dead if dead.any() else None
+
+
+def _weights(logw):
+    """Normalized weights ``(B, Np)``; uniform on a path without a finite log-weight."""
+    Np = logw.shape[1]
+    mx = logw.max(axis=1, keepdims=True)
+    dead = ~np.isfinite(mx[:, 0])
+    w = np.exp(logw - np.where(np.isfinite(mx), mx, 0.0))
+    w /= w.sum(axis=1, keepdims=True)
+    return np.where(dead[:, None], 1.0 / Np, w)
+
+
+def systematic_resample(w, rng):
+    """Systematic resampling of each row of ``w (B, Np)`` (normalized weights): indices ``(B, Np)``,
+    one uniform draw per row from ``rng``."""
+    B, Np = w.shape
+    c = np.cumsum(w, axis=1)
+    c[:, -1] = 1.0
+    u = (rng.random((B, 1)) + np.arange(Np)) / Np
+    off = np.arange(B)[:, None]
+    idx = np.searchsorted((c + off).ravel(), (u + off).ravel(), side="right")
+    return np.minimum(idx.reshape(B, Np) - off * Np, Np - 1)
+
+
+class ParticleFilter(_ReferenceFilter):
+    """Bootstrap particle filter, batched over paths; see :mod:`nlfilter.filters.reference`.
+    Discrete models: ``predict``/``update``; SDE models: ``step`` (``time`` is ``"continuous"``).
+    ``run(..., rng=)`` seeds the particles (a Generator or seed); the prior is N(m0, P0) (one for
+    all paths) or the law ``initial``.
+
+    Parameters
+    ----------
+    model : DiscreteModel or SDEModel
+    particles : number of particles per path
+    dt, substeps : SDE models: measurement step and Euler–Maruyama steps per measurement step
+    threshold : resample when ESS < threshold · particles
+    start : discrete models: step convention
+    """
+
+    name = "particle"
+    source = "bootstrap particle filter (Gordon, Salmond & Smith 1993), systematic resampling"
+    needs = ("noise density",)
+    random = True
+
+    def __init__(self, model, particles: int = 2000, *, dt: float | None = None, substeps: int = 5,
+                 threshold: float = 0.5, start: str = "update"):
+        self.particles = V.positive("particles", particles, integer=True)
+        self.threshold = float(threshold)
+        if not 0.0 <= self.threshold <= 1.0:
+            raise ValueError(f"threshold: expected a number in [0, 1], got {threshold!r}")
+        self.substeps = V.positive("substeps", substeps, integer=True)
+        self._setup(model, dt, start, "particle filter")
+
+    # -- the belief functions ----------------------------------------------------------------
+    def init(self, m0, P0, batch, *, initial=None, rng=None) -> ParticleBelief:
+        """``particles`` draws per path from N(m0, P0) (one prior for all paths) or the law
+        ``initial``, all paths from ``rng`` in turn; equal weights."""
+        from ...simulate import initial_states
+        md = self.model
+        rng = V.rng(rng)
+        if initial is None and np.ndim(m0) > 1:
+            raise ValueError(f"m0: the particle filter takes one prior mean ({md.n},) for all paths, "
+                             f"got shape {np.shape(m0)}")
+        B, Np = int(np.prod(batch)), self.particles
+        x = initial_states(md.n, B * Np, rng, m0=m0, P0=P0, initial=initial).reshape(B, Np, md.n)
+        return ParticleBelief(x, np.zeros((B, Np)), rng)
+
+    def predict(self, belief: ParticleBelief, k) -> ParticleBelief:
+        """Discrete time: resample (systematic) the paths whose ESS is below ``threshold ·
+        particles``, then propagate every particle through ``f(x, k) + G(x, k) w``."""
+        self._need("discrete", "predict")
+        x, logw = self._resample(belief)
+        return ParticleBelief(self._propagate(x, k, belief.rng), logw, belief.rng)
+
+    def update(self, belief: ParticleBelief, y, k) -> ParticleBelief:
+        """Discrete time: weight by the likelihood of ``y (B, m)`` (NaN components missing); raises
+        :class:`~nlfilter.errors.DivergenceError` where ``y`` is impossible for every particle."""
+        belief, bad = self._update_unchecked(belief, y, k)
+        self._raise_dead(bad, f"step {k}")
+        return belief
+
+    def step(self, belief: ParticleBelief, dy, t) -> ParticleBelief:
+        """SDE: resample as in ``predict``, Euler–Maruyama over ``[t, t + dt]`` (``substeps``), then
+        weight by the likelihood of the increment ``dy (B, m)``."""
+        belief, bad = self._step_unchecked(belief, dy, t)
+        self._raise_dead(bad, f"t = {t}")
+        return belief
+
+    def summary(self, belief: ParticleBelief):
+        """Weighted mean and covariance of the particles."""
+        x = belief.x
+        w = _weights(belief.logw)
+        mean = np.einsum("bp,bpi->bi", w, x)
+        d = x - mean[:, None, :]
+        return mean, np.einsum("bp,bpi,bpj->bij", w, d, d)
+
+    def _update_unchecked(self, belief, y, k):
+        self._need("discrete", "update")
+        return self._weigh(belief, belief.x, belief.logw, y, k)
+
+    def _step_unchecked(self, belief, dy, t):
+        self._need("continuous", "step")
+        x, logw = self._resample(belief)
+        x = self._propagate(x, t, belief.rng)
+        return self._weigh(belief, x, logw, dy, t + self.dt)
+
+    # -- the pieces ----------------------------------------------------------------------------
+    def _weigh(self, belief, x, logw, y, k):
+        """The belief after adding the log-likelihood of ``y``; a dead path (no finite log-weight)
+        gets equal weights and is returned as bad."""
+        if not np.all(np.isnan(y)):
+            logw = logw + self._loglik(x, y, k)
+        bad = _dead_paths(logw)
+        if bad is not None:
+            logw = np.where(bad[:, None], 0.0, logw)
+        return ParticleBelief(x, logw, belief.rng), bad
+
+    def _resample(self, belief):
+        """``(x, logw)`` with the paths whose ESS < threshold · particles resampled (systematic)."""
+        x, logw = belief.x, belief.logw
+        Np = self.particles
+        w = _weights(logw)
+        ess = 1.0 / np.sum(w**2, axis=1)
+        rs = ess < self.threshold * Np
+        if rs.any():
+            idx = systematic_resample(w[rs], belief.rng)
+            x, logw = x.copy(), logw.copy()
+            x[rs] = np.take_along_axis(x[rs], idx[..., None], axis=1)
+            logw[rs] = 0.0
+        return x, logw
+
+    def _propagate(self, x, t, rng):
+        """The particles one step on: ``f(x, k) + G(x, k) w`` (discrete, ``t = k``), or
+        Euler–Maruyama substeps over ``[t, t + dt]`` (SDE)."""
+        md = self.model
+        if md.kind == "discrete":
+            w = md.process_noise.sample(rng, x.shape[:-1])
+            return md.f(x, t) + md.Gw(x, w, t)
+        h = self.dt / self.substeps
+        L = md.process_noise._sqrt
+        for j in range(self.substeps):
+            s = t + j * h
+            dB = rng.standard_normal((*x.shape[:-1], md.r)) @ L.T * np.sqrt(h)
+            x = x + md.f(x, s) * h + md.Gw(x, dB, s)
+        return x
+
+    def _loglik(self, x, y, k):
+        md = self.model
+        obs = ~np.isnan(y)
+        if md.kind == "discrete":
+            resid = np.where(obs[..., None, :], y[..., None, :] - md.h(x, k), 0.0)
+            return measurement_loglik(md.measurement_noise, resid, obs)
+        hx = md.h(x, k)
+        Rinv = observed_precision(md.R, self._Rinv, obs)  # partly missing: the observed marginal
+        hR = np.einsum("...pa,...ab->...pb", hx, Rinv)
+        yo = np.where(obs, y, 0.0)
+        return np.einsum("...a,...pa->...p", yo, hR) - 0.5 * self.dt * np.einsum("...pa,...pa->...p", hR, hx)
+
+    _systematic = staticmethod(systematic_resample)  # the name the experiments use

@@ -1,0 +1,43 @@
+"""The filter registry: every public filter of nlfilter by name, in one plain dict (the way
+``scipy.integrate.solve_ivp`` keeps ``METHODS``).
+
+``nlfilter list --filters`` prints it; :func:`nlfilter.compare` runs the registered filters that
+accept a model (``compare(model, "all", ...)``); ``tests/test_contract.py`` iterates it, so a new
+filter cannot skip the contract. Each class declares what the registry shows: ``family``,
+``source`` (seed and equations), ``accepts`` (model kinds: ``"discrete"``, ``"sde"``,
+``"bilinear"``, ...), ``needs`` (what the model must offer) and ``time``.
+"""
+
+from __future__ import annotations
+
+
+def get(registry: dict, name: str):
+    """The class registered under ``name``; an unknown name is a ValueError listing the choices."""
+    try:
+        return registry[name]
+    except (KeyError, TypeError):
+        raise ValueError(f"filter: expected one of {sorted(registry)!r}, got {name!r}") from None
+
+
+def model_kind(model) -> str:
+    """The kind of a model as the registry's ``accepts`` names it."""
+    kind = getattr(model, "kind", None)
+    if kind == "model" or kind is None:  # BilinearModel and other model classes
+        if hasattr(model, "discrete"):
+            return "bilinear-discrete" if model.discrete else "bilinear"
+    return kind
+
+
+def accepting(registry: dict, model) -> dict:
+    """The registered filters whose ``accepts`` include the model's kind (their ``needs`` are
+    checked when they are built: a model without them is refused there, naming the need)."""
+    kind = model_kind(model)
+    return {name: cls for name, cls in registry.items() if kind in getattr(cls, "accepts", ())}
+
+
+def table(registry: dict) -> list[dict]:
+    """One row per registered filter: name, class, family, time, accepts, needs, source."""
+    return [{"name": name, "class": cls.__name__, "family": getattr(cls, "family", ""),
+             "time": getattr(cls, "time", ""), "accepts": ", ".join(getattr(cls, "accepts", ())),
+             "needs": ", ".join(getattr(cls, "needs", ())), "source": getattr(cls, "source", "")}
+            for name, cls in registry.items()]
