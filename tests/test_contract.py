@@ -181,12 +181,12 @@ CASES = [
     _gauss("cekf", lambda model=S2, **k: ContinuousEKF(model, DT, **k), S2, M2, P2, dt=DT, options=(("scheme", "bogus"),)),
     *[_gauss(f"csof-{form}", lambda form=form, model=S2, **k: ContinuousSecondOrderFilter(model, DT, form=form, **k), S2,
              M2, P2, dt=DT, options=(("form", "bogus"), ("innovation", "bogus"))) for form in FORMS],
-    _gauss("qlf", lambda model=S1, **k: QLF(model, DT, **k), S1, M1, P1, dt=DT, missing="raise",
+    _gauss("qlf", lambda model=S1, **k: QLF(model, DT, **k), S1, M1, P1, dt=DT,
            options=(("scheme", "bogus"),)),
-    _gauss("mqlf", lambda model=S1, **k: MQLF(model, DT, **k), S1, M1, P1, dt=DT, missing="raise",
+    _gauss("mqlf", lambda model=S1, **k: MQLF(model, DT, **k), S1, M1, P1, dt=DT,
            options=(("scheme", "bogus"),)),
-    _gauss("dqlf", lambda model=D1, **k: DiscreteQuasilinearFilter(model, **k), D1, M1, P1, missing="raise",
-           options=(("order", "bogus"),)),
+    _gauss("dqlf", lambda model=D1, **k: DiscreteQuasilinearFilter(model, **k), D1, M1, P1,
+           options=(("order", "bogus"), ("start", "bogus"))),
     _gauss("cmf", lambda model=S2, **k: ConditionalMomentFilter(model, DT, points=8, **k), S2, M2, P2, dt=DT,
            options=(("update", "bogus"),)),
     _gauss("cmf-edgeworth4", lambda model=S2, **k: ConditionalMomentFilter(model, DT, closure=EdgeworthClosure(4),
@@ -198,12 +198,12 @@ CASES = [
     _gauss("dcmf", lambda model=D2, **k: DiscreteConditionalMomentFilter(model, points=8, **k), D2, M2, P2,
            options=(("start", "bogus"),)),
     _gauss("linear", lambda **k: OptimalLinearFilter(BIL, DT, **k), SDEModel([x], [-x], [x], Q=1.0, R=1.0), M1,
-           P1, dt=DT, missing="raise", options=(("gains", "bogus"), ("scheme", "bogus"))),
+           P1, dt=DT, options=(("gains", "bogus"), ("scheme", "bogus"))),
     _gauss("linear-tv", lambda **k: OptimalLinearFilter(BIL, DT, gains="time-varying", **k),
-           SDEModel([x], [-x], [x], Q=1.0, R=1.0), M1, P1, dt=DT, missing="raise",
+           SDEModel([x], [-x], [x], Q=1.0, R=1.0), M1, P1, dt=DT,
            options=(("scheme", "bogus"),)),
     _gauss("linear-discrete", lambda **k: DiscreteOptimalLinearFilter(BILD, **k),
-           DiscreteModel([x], [0.9 * x], [x], Q=1.0, R=0.3), M1, P1, missing="raise"),
+           DiscreteModel([x], [0.9 * x], [x], Q=1.0, R=0.3), M1, P1, options=(("start", "bogus"),)),
     _gauss("tensor", lambda **k: TensorFilter(BIL, DT, **k), SDEModel([x], [-x], [x], Q=1.0, R=1.0), M1, P1,
            dt=DT, options=(("inputs", "bogus"), ("scheme", "bogus"))),
     _gauss("updated-innovations", lambda **k: UpdatedInnovationsFilter(BIL, DT, **k),
@@ -590,8 +590,10 @@ def test_missing_step_is_predict_only(case, start):
     close(_take(one, [1, 2], mc), _take(outputs(case.run(d, flt)), [1, 2], mc), tol)
 
 
+# documented: SDE models have no step convention; off-line gains (offline.py) are scheduled for the
+# convention chosen, every component observed, so a missing first measurement keeps start="update"'s gains
 WITH_START = [c for c in GAUSS if c.missing == "nan" and "start" in inspect.signature(c.make().__init__).parameters
-              and not c.name.endswith("-sde")]  # documented: SDE models have no step convention
+              and not c.name.endswith("-sde") and getattr(c.filter(), "family", "") != "off-line gains"]
 
 
 @pytest.mark.parametrize("case", WITH_START, ids=[c.name for c in WITH_START])

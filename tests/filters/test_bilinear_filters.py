@@ -217,7 +217,7 @@ def test_linear_filter_input_errors():
         OptimalLinearFilter(model, 0.01, gains="fast")
     with pytest.raises(ValueError, match="dt"):
         OptimalLinearFilter(model, -1.0)
-    with pytest.raises(ValueError, match="dys"):
+    with pytest.raises(ValueError, match="^ys"):
         OptimalLinearFilter(model, 0.01).run(np.zeros((2, 5, 3)), [0.0], [[1.0]])
     with pytest.raises(ValueError, match="degree"):
         TensorFilter(model, 0.01, degree=4)

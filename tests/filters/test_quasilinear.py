@@ -106,7 +106,7 @@ def test_bad_input(oh_shin):
         QuasilinearFilter(oh_shin, 0.01, closure="edgeworth")
     with pytest.raises(ValueError, match="order"):
         MQLF(oh_shin, 0.01, order=2)
-    with pytest.raises(ValueError, match="dys"):
+    with pytest.raises(ValueError, match="^ys"):
         f.run(np.zeros((2, 5, 2)), [4.0], [[0.05]])
 
 

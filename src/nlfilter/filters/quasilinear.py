@@ -40,7 +40,8 @@ prior pair (x[k], x̂⁻[k]), a polynomial map with time-varying coefficients dr
 
     x[k+1] = f(x) + G(x) w,   x̂⁻[k+1] = a1 (I − Kg b1) x̂⁻ + a1 Kg (h(x) + v) + e − a1 Kg d
 
-(:func:`discrete_gain_error_analysis`, any filter of that form; ``d = b0 − b1 m``, ``e = a0 − a1 m``).
+(:func:`~nlfilter.filters.offline_analysis.discrete_gain_error_analysis`, any filter of that form;
+``d = b0 − b1 m``, ``e = a0 − a1 m``; the joint analyses live in :mod:`.offline_analysis`).
 """
 
 from __future__ import annotations
@@ -58,10 +59,11 @@ from ..moments.expect import PolynomialExpectations, statistical_linearization_p
 from ..moments.ito import (PolynomialMap, PolynomialSDE, discrete_moment_equations, gaussian_noise_moments,
                            moment_equations)
 from ..moments.quadrature import expect_gaussian, gaussian_rule
-from ..moments.solve import MomentSolution, iterate, propagate
-from ..noise import Gaussian
 from ..polynomials import Polynomial, monomials
-from .base import ContinuousFilter, Estimates, GaussianState, _prepare, _Runner, screened, symmetrize
+from .base import ContinuousFilter, symmetrize
+from .offline import ContinuousSchedule, DiscreteSchedule, OfflineGainFilter
+from .offline_analysis import (ErrorAnalysis, _mse, _prior, _symbols, _tabulated,  # noqa: F401
+                               discrete_gain_error_analysis, gain_error_analysis)
 
 __all__ = ["statistical_linearization", "QuasilinearFilter", "DiscreteQuasilinearFilter", "QLF", "MQLF",
            "OfflineGains", "ErrorAnalysis", "gain_error_analysis", "discrete_gain_error_analysis"]
@@ -86,59 +88,6 @@ def _unit(n, i, k=1):
     e = [0] * n
     e[i] = k
     return tuple(e)
-
-
-def _prior(n, m0, P0, *, definite: bool = True):
-    """One prior ``(m0 (n,), P0 (n, n))`` for all paths (the off-line gains depend on it); P0
-    positive definite when ``definite`` (the statistical linearization inverts it)."""
-    given = np.shape(m0)
-    m0 = V.as_float_array("m0", m0).reshape(-1) if np.ndim(m0) else np.full(n, float(m0))
-    if m0.shape != (n,):
-        raise ValueError(f"m0: the off-line gains need one prior mean of shape ({n},) for all paths, "
-                         f"got shape {given}")
-    V.finite("m0", m0)
-    P0 = V.covariance("P0", P0, n)
-    low = float(np.linalg.eigvalsh(P0)[0])
-    if definite and not low > 0:  # a1 = E[f (x − m)ᵀ] K⁻¹ (003 eqs. 4-5) needs K(t0) = P0 invertible
-        raise ValueError(f"P0: the statistical linearization (003 eqs. 4-5) needs a positive definite prior "
-                         f"covariance, got smallest eigenvalue {low:.3g}")
-    return m0, P0
-
-
-def _symbols(name, rows, cols=None):
-    """A SymPy matrix of coefficient symbols ``name_i_j`` (a column ``name_i`` when ``cols`` is None)."""
-    if cols is None:
-        return sp.Matrix(rows, 1, lambda i, j: sp.Symbol(f"{name}_{i}"))
-    return sp.Matrix(rows, cols, lambda i, j: sp.Symbol(f"{name}_{i}_{j}"))
-
-
-def _tabulated(table, shapes):
-    """``values`` for :meth:`MomentEquations.at`: every entry ``name_i(_j)`` of the arrays
-    ``table(t) -> {name: array}`` (``shapes``: {name: shape}) as a callable of t, ``table``
-    evaluated once per t."""
-    memo = {}
-
-    def at(t, name, i):
-        if memo.get("t") != t:
-            memo.clear()
-            memo.update(table(t), t=t)
-        return memo[name][i]
-
-    values = {}
-    for name, shape in shapes.items():
-        for i in np.ndindex(*shape):
-            values["_".join([name, *map(str, i)])] = (lambda t, name=name, i=i: at(t, name, i))
-    return values
-
-
-def _mse(sol, n):
-    """``E(x − x̂)² (T, n) = E x² − 2 E x x̂ + E x̂²`` from the joint moments of ``(x, x̂)`` (2n states)."""
-    mse = np.empty((sol.t.size, n))
-    for i in range(n):
-        xi, hi = _unit(2 * n, i), _unit(2 * n, n + i)
-        mse[:, i] = (sol.moment(_unit(2 * n, i, 2)) - 2 * sol.moment(tuple(a + b for a, b in zip(xi, hi)))
-                     + sol.moment(_unit(2 * n, n + i, 2)))
-    return mse
 
 
 class _Linearizer:
@@ -281,17 +230,31 @@ class OfflineGains:
     dense: object
 
 
-@dataclass
-class ErrorAnalysis:
-    """Off-line accuracy: ``t (T+1,)``, ``mse (T+1, n)`` = E(x − x̂)², the joint moments (discrete:
-    ``t`` = the step indices 0 .. T − 1 of ``run``'s estimates)."""
+class _QLFSchedule(ContinuousSchedule):
+    """The QLF's gains on the stage grid of its scheme, from the dense off-line solution."""
 
-    t: np.ndarray
-    mse: np.ndarray
-    solution: object
+    convention = "ito"
+
+    def __init__(self, flt, g: OfflineGains, t0: float):
+        self.dt, self.substeps, self.scheme = flt.dt, flt.substeps, flt.scheme
+        self.gains = g
+        T = g.t.size - 1
+        h = flt.dt / flt.substeps
+        ts = t0 + 0.5 * h * np.arange(2 * flt.substeps * T + 1)  # every RK4 stage time t_k + j h/2
+        self.F, self.u, self.Kg, self.A, self.b, self.H, self.d, self.Q = flt._tables(g.dense(ts).T)
+        self.S = flt.model.R
+
+    def cov(self, k):
+        return self.gains.P[k]
+
+    def drift(self, i):
+        return self.F[i], self.u[i]
+
+    def coeffs(self, i):
+        return self.A[i], self.b[i], self.H[i], self.d[i], self.Kg[i], self.Q[i], self.S
 
 
-class QuasilinearFilter(ContinuousFilter):
+class QuasilinearFilter(OfflineGainFilter, ContinuousFilter):
     """QLF / MQLF for an :class:`~nlfilter.models.SDEModel` (003 Theorem 4.1, eqs. 16-17).
 
     Parameters
@@ -316,6 +279,11 @@ class QuasilinearFilter(ContinuousFilter):
     """
 
     name = "qlf"
+    family = "off-line gains"
+    source = "seed 003 eqs. 3-8, 11, 16-17 (Theorem 4.1)"
+    accepts = ("sde",)
+    needs = ("sympy",)
+    time = "continuous"
 
     def __init__(self, model, dt, *, closure: Closure | None = None, order: int | None = None,
                  substeps: int = 4, scheme: str = "rk4", rtol: float = 1e-9, atol: float = 1e-12):
@@ -369,58 +337,35 @@ class QuasilinearFilter(ContinuousFilter):
         self._cache = {key: out}
         return out
 
-    def _coeff(self, y):
-        """On-line coefficients F, u, Kg at dense states ``y (..., S + n²)``."""
+    def _tables(self, y):
+        """Coefficients at dense states ``y (..., S + n²)``: ``(F, u, Kg, a1, b, b1, d, σ̄)`` with
+        ``F = a1 − Kg b1``, ``u = b − Kg d``, ``b = a0 − a1 m``, ``d = b0 − b1 m``."""
         lin, n, Rinv = self.lin, self.model.n, self._Rinv
         S = lin.size
         mu, P = y[..., :S], y[..., S:].reshape(*y.shape[:-1], n, n)
-        mean, K, a0, a1, b0, b1, _ = lin.coeffs(mu)
+        mean, K, a0, a1, b0, b1, sig = lin.coeffs(mu)
         Kg = P @ np.swapaxes(b1, -1, -2) @ Rinv
         F = a1 - Kg @ b1
-        u = a0 - np.einsum("...ij,...j->...i", a1, mean) - np.einsum("...ij,...j->...i", Kg,
-                                                                    b0 - np.einsum("...ij,...j->...i", b1, mean))
-        return F, u, Kg
+        b = a0 - np.einsum("...ij,...j->...i", a1, mean)
+        d = b0 - np.einsum("...ij,...j->...i", b1, mean)
+        u = b - np.einsum("...ij,...j->...i", Kg, d)
+        return F, u, Kg, a1, b, b1, d, sig
 
-    # -- on-line -------------------------------------------------------------------------------
-    def run(self, dys, m0, P0, *, t0: float = 0.0, on_divergence: str = "raise") -> Estimates:
-        """Filter a batch of increments ``dys (..., T, m)`` (003 eq. 16); ``covs`` holds P(t)."""
-        model = self.model
-        m0v, P0v = self._prior(m0, P0)
-        dys, state, batch = _prepare("dys", dys, m0v, P0v, model.n, model.m)
-        T = dys.shape[-2]
-        g = self.offline(m0v, P0v, T, t0=t0)
-        h = self.dt / self.substeps
-        # coefficients at every RK4 stage time t_k + j h/2
-        ts = t0 + 0.5 * h * np.arange(2 * self.substeps * T + 1)
-        F, u, Kg = self._coeff(g.dense(ts).T)
-        out = _Runner(batch, T, model.n, on_divergence, self.name)
-        x = state.mean
-        init = GaussianState(state.mean.copy(), state.cov.copy())
-        ev = lambda i, x: np.einsum("ij,...j->...i", F[i], x) + u[i]  # noqa: E731  (the dt terms)
-        for k in range(T):
-            dy = dys[..., k, :]
-            if np.isnan(dy).any():
-                raise ValueError("dys: missing measurements are not supported by the quasilinear filters")
-            i0 = 2 * k * self.substeps
-            Kdy = np.einsum("ij,...j->...i", Kg[i0], dy)  # Itô: the innovation with the gain at t_k
-            for j in range(self.substeps):  # the dt terms (F x̂ + u) by the scheme
-                i0 = 2 * (k * self.substeps + j)
-                k1 = ev(i0, x)
-                if self.scheme == "euler":
-                    x = x + h * k1
-                    continue
-                k2 = ev(i0 + 1, x + 0.5 * h * k1)
-                k3 = ev(i0 + 1, x + 0.5 * h * k2)
-                k4 = ev(i0 + 2, x + h * k3)
-                x = x + h / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
-            x = x + Kdy
-            st = GaussianState(x, np.broadcast_to(g.P[k + 1], (*batch, model.n, model.n)).copy())
-            st = out.record(k, st, init)
-            x = st.mean
-        return out.result()
+    def _coeff(self, y):
+        """On-line coefficients F, u, Kg at dense states ``y (..., S + n²)``."""
+        return self._tables(y)[:3]
 
-    def step(self, state, dy, t):
-        raise NotImplementedError("QuasilinearFilter: use run(); the gains are tabulated off-line for a run")
+    # -- on-line (the affine runner of :mod:`.offline`) -------------------------------------------
+    def schedule(self, m0, P0, batch, steps, t0):
+        """The gain schedule of a run of ``steps`` increments from ``t0`` (:meth:`offline`, then the
+        coefficients at every stage time ``t_k + j h/2`` of the scheme)."""
+        if steps is None:
+            raise ValueError("steps: the QLF's off-line gains are solved for a horizon; pass steps= to init")
+        m0, P0 = self._prior(m0, P0)
+        g = self.offline(m0, P0, max(int(steps), 1), t0=t0)
+        return _QLFSchedule(self, g, t0), m0, P0
+
+    # ``run`` is :meth:`OfflineGainFilter.run` (003 eq. 16); ``covs`` holds P(t) (not the error covariance)
 
     # -- accuracy ------------------------------------------------------------------------------
     def error_analysis(self, m0, P0, steps: int, *, closure: Closure | None = None, order: int | None = None,
@@ -435,151 +380,6 @@ class QuasilinearFilter(ContinuousFilter):
         g = self.offline(m0, P0, steps, t0=t0)
         return gain_error_analysis(self.model, lambda t: self._coeff(g.dense(t)), m0, P0, g.t,
                                    closure=closure, order=order)
-
-
-def _closure_and_order(closure, order):
-    """The error analyses' pair: Edgeworth of ``order`` (default 4) when no closure is given, else
-    ``closure`` with :func:`~nlfilter.moments.closures.kept_order` (its own order by default)."""
-    if closure is None:
-        if order is None:
-            order = 4
-        if isinstance(order, bool) or not isinstance(order, int) or order < 2:
-            raise ValueError(f"order: expected an integer ≥ 2 (the MSE needs second moments), got {order!r}")
-        return EdgeworthClosure(order), order
-    return closure, kept_order(closure, order)
-
-
-def gain_error_analysis(model, coefficients, m0, P0, t, *, xhat0=None, closure: Closure | None = None,
-                        order: int | None = None) -> ErrorAnalysis:
-    """Off-line accuracy of ANY filter with precomputed gains of the form
-    ``dx̂ = [F(t) x̂ + u(t)] dt + Kg(t) dy`` on a polynomial :class:`SDEModel`: the moments of the
-    joint polynomial SDE (x, x̂) (``dx̂ = [F x̂ + u + Kg h(x)] dt + Kg dη``) up to ``order``, closed by
-    ``closure`` (default Edgeworth of that order), give ``E(x − x̂)²`` on the times ``t``. With a
-    closure and no ``order`` the order is the closure's (an ``order`` below it is a ``ValueError``);
-    neither given: Edgeworth of order 4.
-
-    ``coefficients(t) -> (F (n, n), u (n,), Kg (n, m))``; ``x̂(t[0]) = xhat0`` (default m0), ``x(t[0]) ~
-    N(m0, P0)``. For linear models and a Kalman-Bucy gain this is the Riccati solution (exact).
-    """
-    closure, order = _closure_and_order(closure, order)
-    n, mm = model.n, model.m
-    m0, P0 = _prior(n, m0, P0, definite=False)
-    xh0 = m0 if xhat0 is None else V.as_float_array("xhat0", xhat0, shape_tail=(n,)).reshape(n)
-    st = list(model.states)
-    xh = [sp.Symbol(f"xhat_{i}") for i in range(n)]
-    Fs, us, Ks = _symbols("F", n, n), _symbols("u", n), _symbols("Kg", n, mm)
-    Ss = sp.Matrix(n, n, lambda i, j: sp.Symbol(f"S_{min(i, j)}_{max(i, j)}"))
-    G = model.sym["G"]
-    sig = sp.expand(G * sp.Matrix(model.Q.tolist()) * G.T)
-    drift = list(model.sym["f"]) + list(Fs * sp.Matrix(xh) + us + Ks * model.sym["h"])
-    diff = sp.zeros(2 * n, 2 * n)
-    diff[:n, :n] = sig
-    diff[n:, n:] = Ss  # Kg R Kgᵀ: the filter's own noise, independent of β
-    joint = PolynomialSDE.from_sympy(st + xh, drift, diff)
-    idx = monomials(2 * n, order, min_degree=1)
-    eqs = moment_equations(joint, idx)
-    R = model.R
-
-    def table(tt):
-        F, u, Kg = coefficients(tt)
-        return {"F": F, "u": u, "Kg": Kg, "S": Kg @ R @ Kg.T}
-
-    values = _tabulated(table, {"F": (n, n), "u": (n,), "Kg": (n, mm), "S": (n, n)})
-    cov0 = np.zeros((2 * n, 2 * n))
-    cov0[:n, :n] = P0  # x̂(t0) is known exactly
-    mu0 = gaussian_moments(np.concatenate([m0, xh0]), cov0, idx)
-    sol = propagate(eqs, mu0, np.asarray(t, dtype=float), closure=closure, values=values, rtol=1e-8, atol=1e-11)
-    mse = _mse(sol, n)
-    return ErrorAnalysis(sol.t, mse, sol)
-
-
-def discrete_gain_error_analysis(model, coefficients, m0, P0, steps: int, *, xhat0=None,
-                                 closure: Closure | None = None, order: int | None = None,
-                                 noise_moment=None) -> ErrorAnalysis:
-    """Off-line accuracy of ANY discrete filter with precomputed coefficients on a polynomial
-    :class:`~nlfilter.models.DiscreteModel` ``x[k+1] = f(x[k]) + G(x[k]) w[k]``,
-    ``y[k] = h(x[k]) + v[k]`` (the discrete counterpart of :func:`gain_error_analysis`, an
-    extension of the library: seed 003 is continuous). The filter, update then predict
-    (``start="update"``, :meth:`DiscreteQuasilinearFilter.run`)::
-
-        x̂⁺[k]   = x̂⁻[k] + Kg[k] (y[k] − b1[k] x̂⁻[k] − d[k])
-        x̂⁻[k+1] = a1[k] x̂⁺[k] + e[k],          x̂⁻[0] = xhat0 (default m0),  x[0] ~ N(m0, P0)
-
-    With ``M = I − Kg b1`` the prior pair ``z[k] = (x[k], x̂⁻[k])`` is a polynomial map with
-    time-varying coefficients driven by the independent noises ``(w[k], v[k])``::
-
-        x[k+1]   = f(x) + G(x) w
-        x̂⁻[k+1] = a1 M x̂⁻ + a1 Kg h(x) + e − a1 Kg d + a1 Kg v
-
-    whose raw moments up to ``order`` follow from :func:`~nlfilter.moments.ito.discrete_moment_equations`
-    (003 eq. 11 in discrete form), closed by ``closure`` (default Edgeworth of ``order`` 4, as the
-    paper's Fig. 2; :class:`GaussianClosure` is an option; ``order`` defaults to the closure's). The estimate ``x̂⁺[k] = M x̂⁻ + Kg h(x)
-    − Kg d + Kg v`` is one more polynomial map of ``z[k]`` and ``v[k]``: its moments give
-    ``E(x[k] − x̂⁺[k])²`` (per component) at k = 0 .. steps − 1, the steps of ``run``.
-
-    ``coefficients(k) -> (Kg (n, m), b1 (m, n), d (m,), a1 (n, n), e (n,))``. The noises are
-    Gaussian with covariances ``model.Q``, ``model.R`` unless ``noise_moment`` gives
-    ``E[w^α v^β]`` on ``(r + m)``-multi-indices. For a linear Gaussian model every moment set is
-    closed, so the result is exact (the Kalman filter's Riccati P⁺[k] for its gains).
-    ``solution`` holds the moments of ``(x[k], x̂⁺[k])``.
-    """
-    if getattr(model, "kind", None) != "discrete" or getattr(model, "sym", None) is None:
-        raise TypeError(f"model: expected a DiscreteModel stated in SymPy, got {type(model).__name__}")
-    closure, order = _closure_and_order(closure, order)
-    V.positive("steps", steps, integer=True)
-    n, mm, r = model.n, model.m, model.r
-    m0, P0 = _prior(n, m0, P0, definite=False)  # no linearization here: a known x[0] is fine
-    xh0 = m0 if xhat0 is None else V.as_float_array("xhat0", xhat0, shape_tail=(n,)).reshape(n)
-    if noise_moment is None:
-        for nm in ("process_noise", "measurement_noise"):
-            law = getattr(model, nm)
-            if not isinstance(law, Gaussian):
-                raise ValueError(f"model: its {nm} is {type(law).__name__}, not Gaussian; pass noise_moment "
-                                 "(E[w^α v^β]) for the off-line analysis")
-        QR = np.zeros((r + mm, r + mm))
-        QR[:r, :r], QR[r:, r:] = model.Q, model.R
-        noise_moment = gaussian_noise_moments(QR)
-    elif not callable(noise_moment):
-        raise TypeError(f"noise_moment: expected a callable β -> E[w^α v^β], got {type(noise_moment).__name__}")
-    st = list(model.states)
-    xh = sp.Matrix([sp.Symbol(f"xhat_{i}") for i in range(n)])
-    z = st + list(xh)
-    h = sp.Matrix(model.sym["h"])
-    poly = lambda e: Polynomial.from_sympy(e, z)  # noqa: E731
-
-    def pmap(f, G, moment):
-        return PolynomialMap(tuple(poly(e) for e in f), tuple(tuple(poly(G[i, a]) for a in range(G.shape[1]))
-                                                              for i in range(2 * n)), moment, time=model.time,
-                             states=tuple(z))
-
-    idx = monomials(2 * n, order, min_degree=1)
-    # the prior pair, k -> k + 1: F = a1 M, L = a1 Kg, u = e − a1 Kg d
-    Fs, Ls, us = _symbols("F", n, n), _symbols("L", n, mm), _symbols("u", n)
-    Gz = sp.zeros(2 * n, r + mm)
-    Gz[:n, :r], Gz[n:, r:] = model.sym["G"], Ls
-    prior = discrete_moment_equations(pmap(list(model.sym["f"]) + list(Fs * xh + Ls * h + us), Gz, noise_moment),
-                                      idx)
-    # the estimate at k: (x, x̂⁻) -> (x, x̂⁺), x̂⁺ = M x̂⁻ + Kg h(x) + c + Kg v, c = −Kg d
-    Ms, Ks, cs = _symbols("M", n, n), _symbols("Kg", n, mm), _symbols("c", n)
-    Gv = sp.zeros(2 * n, mm)
-    Gv[n:, :] = Ks
-    post = discrete_moment_equations(pmap(st + list(Ms * xh + Ks * h + cs), Gv,
-                                          lambda b: noise_moment((0,) * r + tuple(b))), idx)
-
-    def table(k):
-        Kg, b1, d, a1, e = (np.asarray(c, dtype=float) for c in coefficients(int(k)))
-        M = np.eye(n) - Kg @ b1
-        return {"F": a1 @ M, "L": a1 @ Kg, "u": e - a1 @ Kg @ d, "M": M, "Kg": Kg, "c": -Kg @ d}
-
-    values = _tabulated(table, {"F": (n, n), "L": (n, mm), "u": (n,), "M": (n, n), "Kg": (n, mm), "c": (n,)})
-    cov0 = np.zeros((2 * n, 2 * n))
-    cov0[:n, :n] = P0  # x̂⁻[0] is known exactly
-    mu = iterate(prior, gaussian_moments(np.concatenate([m0, xh0]), cov0, idx), steps - 1,
-                 closure=closure if prior.missing else None, values=values).values
-    nu = closure(idx, mu, post.missing) if post.missing else None
-    out = np.stack([post.rhs(mu[k], None if nu is None else nu[k], k, values) for k in range(steps)])
-    sol = MomentSolution(np.arange(steps, dtype=float), out, post, closure)
-    return ErrorAnalysis(sol.t, _mse(sol, n), sol)
 
 
 def QLF(model, dt, *, order: int | None = None, substeps: int = 4, scheme: str = "rk4", rtol: float = 1e-9,
@@ -600,15 +400,42 @@ def MQLF(model, dt, *, closure: Closure | None = None, order: int | None = None,
     f = QuasilinearFilter(model, dt, closure=EdgeworthClosure(4) if closure is None else closure, order=order,
                           substeps=substeps, scheme=scheme, rtol=rtol, atol=atol)
     f.name = "mqlf"
+    f.needs = ("sympy", "polynomial")  # a closure beyond Gaussian needs the exact polynomial moments
     return f
 
 
-class DiscreteQuasilinearFilter:
+class _DQLFSchedule(DiscreteSchedule):
+    """The discrete QLF's gains: the Kalman recursion (Joseph form) of the statistically
+    linearized model, the coefficients from the prior moments of x[k], extended along k."""
+
+    def __init__(self, flt, m0, P0, start):
+        super().__init__(P0, start)
+        self.lin, self.R, self.name = flt.lin, flt.model.R, flt.name
+        self.mu = flt.lin.init(m0, P0)
+        self.rows = []  # (mean, a0, a1, b0, b1) per step, for error_analysis
+
+    def model(self, k):
+        mean, _, a0, a1, b0, b1, sig = self.lin.coeffs(self.mu, k)
+        self.rows.append((mean, a0, a1, b0, b1))
+        self.mu = self.lin.step(self.mu, k)
+        if not np.all(np.isfinite(self.mu)):
+            raise ClosureDivergedError(f"{self.name}: prior moments blew up at k = {k + 1}", time=k + 1)
+        return a1, a0 - a1 @ mean, b1, b0 - b1 @ mean, sig, self.R
+
+    def gain(self, P, H, S):
+        Kg = P @ H.T @ np.linalg.inv(H @ P @ H.T + S)
+        IKH = np.eye(P.shape[0]) - Kg @ H
+        return Kg, symmetrize(IKH @ P @ IKH.T + Kg @ S @ Kg.T)  # Joseph form
+
+
+class DiscreteQuasilinearFilter(OfflineGainFilter):
     """Discrete-time QLF/MQLF for a :class:`~nlfilter.models.DiscreteModel`: the Kalman filter of
     the statistically linearized model ``x[k+1] ≈ a1 x + a0 − a1 m + G w``,
     ``y ≈ b1 x + b0 − b1 m + v`` with coefficients from the prior moments of ``x[k]`` (discrete
-    moment equations + closure). Gains off-line; step convention ``start="update"`` (``ys[k]``
-    measures ``x[k]``, ``x[0] ~ (m0, P0)``).
+    moment equations + closure). Gains off-line (:mod:`.offline`: ``predict``/``update`` run the
+    affine recursion; NaN components of ``y`` are missing); step convention ``start`` as
+    :class:`~nlfilter.filters.base.DiscreteFilter` (default ``"update"``: ``ys[k]`` measures
+    ``x[k]``, ``x[0] ~ (m0, P0)``).
 
     >>> import sympy as sp; from nlfilter import DiscreteModel
     >>> x = sp.Symbol("x")
@@ -619,42 +446,37 @@ class DiscreteQuasilinearFilter:
     """
 
     name = "qlf"
+    source = "seed 003 eqs. 3-5, 11 in discrete form (the library's extension)"
+    accepts = ("discrete",)
+    needs = ("sympy",)
+    time = "discrete"
 
-    def __init__(self, model, *, closure: Closure | None = None, order: int | None = None):
+    def __init__(self, model, *, closure: Closure | None = None, order: int | None = None, start: str = "update"):
         if getattr(model, "kind", None) != "discrete":
             raise TypeError(f"model: DiscreteQuasilinearFilter expects a DiscreteModel, got {type(model).__name__}")
         self.model = model
         self.closure = GaussianClosure() if closure is None else closure
+        self.start = V.choice("start", start, {"update", "predict"})
         self.lin = _Linearizer(model, self.closure, order, "discrete")
 
+    def schedule(self, m0, P0, batch, steps, t0):
+        m0, P0 = _prior(self.model.n, m0, P0)
+        return _DQLFSchedule(self, m0, P0, self.start), m0, P0
+
     def offline(self, m0, P0, steps: int):
-        """Gains ``K (T, n, m)``, coefficients and P on k = 0..T−1 (update then predict)."""
-        md, n = self.model, self.model.n
-        mu = self.lin.init(m0, P0)
-        P = P0.copy()
-        rows = []
-        for k in range(steps):
-            mean, Kc, a0, a1, b0, b1, sig = self.lin.coeffs(mu, k)
-            S = b1 @ P @ b1.T + md.R
-            Kg = P @ b1.T @ np.linalg.inv(S)
-            IKH = np.eye(n) - Kg @ b1
-            Pu = symmetrize(IKH @ P @ IKH.T + Kg @ md.R @ Kg.T)  # Joseph form
-            rows.append((mean, a0, a1, b0, b1, Kg, Pu))
-            P = symmetrize(a1 @ Pu @ a1.T + sig)
-            mu = self.lin.step(mu, k)
-            if not np.all(np.isfinite(mu)):
-                raise ClosureDivergedError(f"{self.name}: prior moments blew up at k = {k + 1}", time=k + 1)
-        return rows
+        """Rows ``(mean, a0, a1, b0, b1, Kg, P⁺)`` on k = 0..T−1 (update then predict)."""
+        sch = _DQLFSchedule(self, m0, P0, "update")
+        sch.ensure(steps - 1)
+        return [(*sch.rows[k], sch.gains[k], sch.filt[k]) for k in range(steps)]
 
     def error_analysis(self, m0, P0, steps: int, *, closure: Closure | None = None,
                        order: int | None = None) -> ErrorAnalysis:
         """True MSE E(x[k] − x̂⁺[k])² at k = 0 .. steps − 1 (the estimates of :meth:`run` on
-        ``steps`` measurements) from the moments of the joint process (x, x̂), closed by ``closure``
-        (default Edgeworth of ``order`` 4, as 003 Fig. 2 in continuous time; ``order`` defaults to
-        the closure's order). The coefficients of
-        :meth:`offline` (003 eqs. 4-5 on the prior moments, eq. 11 in discrete form) enter
-        :func:`discrete_gain_error_analysis` as ``d = b0 − b1 m``, ``e = a0 − a1 m``. Polynomial
-        models; ``t`` holds the step indices."""
+        ``steps`` measurements, ``start="update"``) from the moments of the joint process (x, x̂),
+        closed by ``closure`` (default Edgeworth of ``order`` 4, as 003 Fig. 2 in continuous time;
+        ``order`` defaults to the closure's order). The coefficients of :meth:`offline` (003 eqs.
+        4-5 on the prior moments, eq. 11 in discrete form) enter :func:`discrete_gain_error_analysis`
+        as ``d = b0 − b1 m``, ``e = a0 − a1 m``. Polynomial models; ``t`` holds the step indices."""
         if not self.lin.polynomial:
             raise NotPolynomialError("model: the off-line accuracy analysis needs polynomial f, G and h")
         m0, P0 = _prior(self.model.n, m0, P0)
@@ -666,27 +488,3 @@ class DiscreteQuasilinearFilter:
             return Kg, b1, b0 - b1 @ mean, a1, a0 - a1 @ mean
 
         return discrete_gain_error_analysis(self.model, coefficients, m0, P0, steps, closure=closure, order=order)
-
-    @screened
-    def run(self, ys, m0, P0, *, on_divergence: str = "raise") -> Estimates:
-        md = self.model
-        m0v, P0v = _prior(md.n, m0, P0)
-        ys, state, batch = _prepare("ys", ys, m0v, P0v, md.n, md.m)
-        T = ys.shape[-2]
-        rows = self.offline(m0v, P0v, T)
-        out = _Runner(batch, T, md.n, on_divergence, self.name)
-        init = GaussianState(state.mean.copy(), state.cov.copy())
-        x = state.mean
-        ein = lambda A, v: np.einsum("ij,...j->...i", A, v)  # noqa: E731
-        for k in range(T):
-            mean, a0, a1, b0, b1, Kg, Pu = rows[k]
-            if k > 0:
-                pm, pa0, pa1 = rows[k - 1][0], rows[k - 1][1], rows[k - 1][2]
-                x = ein(pa1, x) + pa0 - pa1 @ pm
-            y = ys[..., k, :]
-            if np.isnan(y).any():
-                raise ValueError("ys: missing measurements are not supported by the quasilinear filters")
-            x = x + ein(Kg, y - ein(b1, x) - b0 + b1 @ mean)
-            st = out.record(k, GaussianState(x, np.broadcast_to(Pu, (*batch, md.n, md.n)).copy()), init)
-            x = st.mean
-        return out.result()
