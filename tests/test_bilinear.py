@@ -9,7 +9,8 @@ import sympy as sp
 from nlfilter.bilinear import BilinearModel, phase_model
 from nlfilter.errors import MomentsNotClosedError, NotPolynomialError, SingularSystemError
 from nlfilter.models import SDEModel
-from nlfilter.moments.ito import PolynomialSDE, bilinear_lift, closed_hull, moment_equations
+from nlfilter.moments.closed import bilinear_lift, closed_hull
+from nlfilter.moments.ito import PolynomialSDE, moment_equations
 from nlfilter.moments.solve import linear_steady_state, stationary_moments, steady_state
 from nlfilter.polynomials import monomials
 

@@ -9,6 +9,7 @@ import sys
 import pytest
 
 from nlfilter.filters import REGISTRY, get
+from nlfilter.filters.base import Filter
 from nlfilter.filters.registry import accepting, model_kind, table
 
 
@@ -16,6 +17,14 @@ def test_unknown_name_lists_the_choices():
     with pytest.raises(ValueError, match=r"^filter: expected one of \[.*'ekf'.*\], got 'bogus'"):
         get("bogus")
     assert get("ekf") is REGISTRY["ekf"]
+
+
+def test_every_entry_declares_time_and_model_kinds():
+    for name, cls in REGISTRY.items():
+        assert issubclass(cls, Filter), name  # every filter runs on the one loop
+        assert cls.time in ("discrete", "continuous") or name in ("grid", "particle"), name  # (theirs: by model)
+        assert cls.accepts and isinstance(cls.accepts, tuple), name
+        assert cls.family and cls.source, name
 
 
 def test_accepting_selects_by_model_kind():

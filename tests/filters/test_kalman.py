@@ -7,7 +7,8 @@ from hypothesis import strategies as hst
 
 from nlfilter import DiscreteModel, SDEModel
 from nlfilter.errors import DivergenceError
-from nlfilter.filters.base import GaussianState, gaussian_update
+from nlfilter.filters.base import GaussianState
+from nlfilter.filters.linalg import gaussian_update
 from nlfilter.filters.ekf import EKF, ContinuousEKF
 from nlfilter.filters.kalman import KalmanBucy, KalmanFilter, steady_state, steady_state_continuous
 from nlfilter.filters.ukf import UKF

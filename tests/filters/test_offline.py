@@ -6,7 +6,8 @@ import sympy as sp
 from nlfilter import DiscreteModel, SDEModel, simulate
 from nlfilter.bilinear import BilinearModel
 from nlfilter.filters import QLF, DiscreteOptimalLinearFilter, DiscreteQuasilinearFilter, OptimalLinearFilter
-from nlfilter.filters.base import ode_step, symmetrize
+from nlfilter.filters.base import ode_step
+from nlfilter.filters.linalg import symmetrize
 
 x1, x2, x = sp.symbols("x1 x2 x")
 R2 = np.array([[0.2, 0.08], [0.08, 0.1]])

@@ -53,8 +53,7 @@ import numpy as np
 from .. import _validate as V
 from ..errors import DivergenceError
 from .beliefs import GaussianState, where_paths
-from .linalg import (PSD_TOL, _all_ok, _eye, _solve_paths, bad_paths, gaussian_update, measurement_loglik, mm,  # noqa: F401
-                     observed_precision, poison, screened, sqrt_psd, symmetrize)
+from .linalg import _all_ok, bad_paths, symmetrize
 
 _NO_EXTRAS = MappingProxyType({})
 
@@ -90,32 +89,6 @@ class Estimates(NamedTuple):
         keys = parts[0].extras.keys()
         return Estimates(*(np.concatenate([getattr(p, f) for p in parts]) for f in Estimates._fields[:4]),
                          MappingProxyType({k: np.concatenate([p.extras[k] for p in parts]) for k in keys}))
-
-
-def screen_outputs(name: str, values: np.ndarray, diverged=None, step=None, on_divergence: str = "raise"):
-    """Screen estimates ``values (..., T, k)`` computed after a run's own checks (a post-processor
-    of its means, a filter without covariances): a path with a non-finite value that is not yet
-    flagged diverges at its first such step. ``"raise"``: :class:`DivergenceError` naming the step
-    and paths; ``"mark"``: returns ``(values, diverged, step)`` with the path flagged and its values
-    NaN from that step on (never silent)."""
-    V.choice("on_divergence", on_divergence, {"raise", "mark"})
-    batch, T = values.shape[:-2], values.shape[-2]
-    diverged = np.zeros(batch, bool) if diverged is None else diverged
-    step = np.full(batch, -1) if step is None else step
-    fin = np.all(np.isfinite(values), axis=-1)  # (..., T)
-    new = ~np.all(fin, axis=-1) & ~diverged
-    if not new.any():
-        return values, diverged, step
-    first = np.argmin(fin, axis=-1)
-    if on_divergence == "raise":
-        idx = np.flatnonzero(new.ravel())
-        k = int(first[new].min())
-        raise DivergenceError(f"{name}: an estimate became non-finite at step {k} on {idx.size} path(s), first "
-                              f"{idx[:5].tolist()}", step=k, paths=idx, what="mean")
-    diverged = diverged | new
-    step = np.where(new, first, step)
-    after = diverged[..., None] & (np.arange(T) >= step[..., None])  # (..., T)
-    return np.where(after[..., None], np.nan, values), diverged, step
 
 
 def gaussian_prior(m0, P0, n: int, batch: tuple, *, data: str = "ys", one: bool = False,
@@ -434,7 +407,3 @@ class ContinuousFilter(Filter):
         m, P = ode_step(lambda x, s: rhs(x[0], x[1], z, s), tuple(state), t, self.dt, substeps=self.substeps,
                         scheme=self.scheme, finish=lambda x: (x[0], symmetrize(x[1])))
         return GaussianState(m, P)
-
-
-# the legacy bookkeeping, kept while the last families move onto Filter.run
-from ._legacy import _prepare, _Runner  # noqa: E402,F401

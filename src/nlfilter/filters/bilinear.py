@@ -26,25 +26,26 @@ from dataclasses import dataclass, field
 from typing import Callable, NamedTuple, Sequence
 
 import numpy as np
-import scipy.linalg as sla
 
 from .. import _validate as V
 from ..bilinear import BilinearModel
 from ..errors import SingularSystemError
-from ..moments.ito import PolynomialSDE, bilinear_lift, closed_hull
+from ..moments.closed import bilinear_lift, closed_hull
+from ..moments.ito import PolynomialSDE
 from ..moments.solve import stationary_moments
 from ..polynomials import Polynomial, monomials
-from .base import Estimates, Filter, _Runner, gaussian_prior, ode_step, screened, symmetrize
+from .base import Filter, gaussian_prior, ode_step
+from .linalg import symmetrize
 
 
 # the model analysis lives beside BilinearModel (nlfilter.bilinear_analysis); re-exported here
-from ..bilinear_analysis import (WonhamReport, _kron_operator, _NeedX0, augmented_second_moment,  # noqa: E402,F401
+from ..bilinear_analysis import (WonhamReport, augmented_second_moment,  # noqa: E402,F401
                                  state_second_moments, wonham_condition)
 
 
 # ================================================ the optimal linear filters (moved: linear_bilinear)
 from .linear_bilinear import (DiscreteOptimalLinearFilter, LinearSteadyState, OptimalLinearFilter,  # noqa: E402,F401
-                              _affine_step, _pinv_psd, _start_run)
+                              _affine_step, _pinv_psd)
 
 
 # ====================================================================== joint moments (x, ẑ)
@@ -689,7 +690,8 @@ class PseudoObservablesFilter(Filter):
         y0 = 0): this filter refuses a Gaussian prior (m0, P0), which would not give the moments
         of the pseudo-observables."""
         if m0 is not None or P0 is not None:
-            raise ValueError(f"m0: {type(self).__name__} starts from the law of x0 given by x_moment (and y0 = 0); "
+            raise ValueError(f"{'m0' if m0 is not None else 'P0'}: {type(self).__name__} starts from the law of x0 "
+                             "given by x_moment (and y0 = 0); "
                              f"expected m0=None, P0=None, got m0={m0!r}, P0={P0!r}")
         if initial is not None:
             raise ValueError(f"initial: the initial law is x_moment's; expected None, got {type(initial).__name__}")

@@ -25,7 +25,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from .base import ContinuousFilter, GaussianState, mm, observed_precision
+from .base import ContinuousFilter, GaussianState
+from .linalg import mm, observed_precision
 from .gaussian import ContinuousDiscreteGaussianFilter, GaussianFilter, _Iterated
 from .rules import Taylor1
 
@@ -142,6 +143,9 @@ class ContinuousEKF(ContinuousFilter):
     """
 
     name = "ekf"
+    family = "gaussian"
+    source = "seed 004 eqs. 35-37 without the second-order terms (Itô innovation step)"
+    needs = ("f_x", "h_x")
 
     def __init__(self, model, dt, *, scheme="rk4", substeps=1):
         super().__init__(model, dt, scheme=scheme, substeps=substeps)

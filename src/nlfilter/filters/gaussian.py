@@ -31,7 +31,8 @@ from __future__ import annotations
 import numpy as np
 
 from .. import _validate as V
-from .base import ContinuousFilter, DiscreteFilter, GaussianState, gaussian_update, mm, poison
+from .base import ContinuousFilter, DiscreteFilter, GaussianState
+from .linalg import gaussian_update, mm, poison
 
 __all__ = ["GaussianFilter", "ContinuousDiscreteGaussianFilter", "iterated_update"]
 

@@ -11,7 +11,8 @@ from __future__ import annotations
 import numpy as np
 import scipy.linalg as sla
 
-from .base import ContinuousFilter, DiscreteFilter, GaussianState, gaussian_update
+from .base import ContinuousFilter, DiscreteFilter, GaussianState
+from .linalg import gaussian_update
 from .ekf import ContinuousEKF
 
 

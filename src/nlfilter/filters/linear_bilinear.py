@@ -27,14 +27,11 @@ import scipy.linalg as sla
 
 from .. import _validate as V
 from ..bilinear import BilinearModel
+from ..bilinear_analysis import augmented_second_moment, state_second_moments, wonham_condition
 from ..errors import SingularSystemError
-from .base import gaussian_prior, symmetrize
+from .base import gaussian_prior
+from .linalg import symmetrize
 from .offline import ContinuousSchedule, DiscreteSchedule, OfflineGainFilter
-
-
-# the model analysis lives beside BilinearModel (nlfilter.bilinear_analysis); re-exported here
-from ..bilinear_analysis import (WonhamReport, _kron_operator, _NeedX0, augmented_second_moment,  # noqa: E402,F401
-                                 state_second_moments, wonham_condition)
 
 
 class LinearSteadyState(NamedTuple):
@@ -331,5 +328,4 @@ class DiscreteOptimalLinearFilter(OfflineGainFilter):
         return _LinearDiscreteSchedule(self.model, X0, Pa, self.start), z0, Pa
 
 
-__all__ = ["OptimalLinearFilter", "DiscreteOptimalLinearFilter", "LinearSteadyState", "WonhamReport",
-           "wonham_condition", "state_second_moments", "augmented_second_moment"]
+__all__ = ["OptimalLinearFilter", "DiscreteOptimalLinearFilter", "LinearSteadyState"]

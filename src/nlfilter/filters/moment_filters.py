@@ -49,7 +49,8 @@ from ..moments.quadrature import gaussian_rule
 from ..moments.discrete import PolynomialMap, discrete_moment_equations
 from ..moments.ito import PolynomialSDE, moment_equations
 from ..polynomials import Polynomial, monomials
-from .base import ContinuousFilter, DiscreteFilter, GaussianState, ode_step, measurement_loglik, observed_precision, sqrt_psd
+from .base import ContinuousFilter, DiscreteFilter, GaussianState, ode_step
+from .linalg import measurement_loglik, observed_precision, sqrt_psd
 
 __all__ = ["ConditionalMomentFilter", "DiscreteConditionalMomentFilter", "MomentBelief"]
 

@@ -49,7 +49,8 @@ from typing import NamedTuple
 
 import numpy as np
 
-from .base import Filter, ode_step, symmetrize
+from .base import Filter, ode_step
+from .linalg import symmetrize
 
 __all__ = ["OfflineState", "DiscreteSchedule", "ContinuousSchedule", "OfflineGainFilter"]
 

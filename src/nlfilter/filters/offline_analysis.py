@@ -19,7 +19,8 @@ import sympy as sp
 
 from .. import _validate as V
 from ..moments.closures import Closure, EdgeworthClosure, gaussian_moments, kept_order
-from ..moments.ito import PolynomialMap, PolynomialSDE, discrete_moment_equations, gaussian_noise_moments, moment_equations
+from ..moments.discrete import PolynomialMap, discrete_moment_equations, gaussian_noise_moments
+from ..moments.ito import PolynomialSDE, moment_equations
 from ..moments.solve import MomentSolution, iterate, propagate
 from ..noise import Gaussian
 from ..polynomials import Polynomial, monomials

@@ -56,14 +56,14 @@ from .. import _validate as V
 from ..errors import ClosureDivergedError, NotPolynomialError
 from ..moments.closures import Closure, EdgeworthClosure, GaussianClosure, gaussian_moments, kept_order
 from ..moments.expect import PolynomialExpectations, statistical_linearization_polys
-from ..moments.ito import (PolynomialMap, PolynomialSDE, discrete_moment_equations, gaussian_noise_moments,
-                           moment_equations)
+from ..moments.discrete import PolynomialMap, discrete_moment_equations, gaussian_noise_moments
+from ..moments.ito import PolynomialSDE, moment_equations
 from ..moments.quadrature import expect_gaussian, gaussian_rule
 from ..polynomials import Polynomial, monomials
-from .base import ContinuousFilter, symmetrize
+from .base import ContinuousFilter
+from .linalg import symmetrize
 from .offline import ContinuousSchedule, DiscreteSchedule, OfflineGainFilter
-from .offline_analysis import (ErrorAnalysis, _mse, _prior, _symbols, _tabulated,  # noqa: F401
-                               discrete_gain_error_analysis, gain_error_analysis)
+from .offline_analysis import ErrorAnalysis, _prior, discrete_gain_error_analysis, gain_error_analysis
 
 __all__ = ["statistical_linearization", "QuasilinearFilter", "DiscreteQuasilinearFilter", "QLF", "MQLF",
            "OfflineGains", "ErrorAnalysis", "gain_error_analysis", "discrete_gain_error_analysis"]

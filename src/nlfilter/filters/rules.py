@@ -57,7 +57,7 @@ import numpy as np
 
 from .. import _validate as V
 from ..moments.quadrature import gauss_hermite_rule
-from .base import mm, sqrt_psd
+from .linalg import mm, sqrt_psd
 from .second_order import gaussian_quartic, hessian_trace, noise_covariance
 
 __all__ = ["GaussMoments", "Taylor1", "Taylor2", "Unscented", "Cubature", "GaussHermite", "NodeRule",

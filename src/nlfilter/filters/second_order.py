@@ -63,8 +63,8 @@ import numpy as np
 
 from .. import _validate as V
 from ..errors import DivergenceError
-from .base import (ContinuousFilter, DiscreteFilter, GaussianState, bad_paths, gaussian_update,
-                   observed_precision, poison, symmetrize)
+from .base import ContinuousFilter, DiscreteFilter, GaussianState
+from .linalg import bad_paths, gaussian_update, observed_precision, poison, symmetrize
 
 FORMS = ("truncated", "truncated-jazwinski", "modified", "gaussian", "modified-gaussian", "first-order")
 

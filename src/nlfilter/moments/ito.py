@@ -58,14 +58,9 @@ import numpy as np
 import sympy as sp
 
 from ..polynomials import Polynomial, add_exp, as_polynomial, monomials
-# the discrete names, MomentEquations, degree_order and matvec are re-exported (their former home)
-from .discrete import PolynomialMap, discrete_moment_equations, gaussian_noise_moments
-from .equations import (MomentEquations, _assemble, _check_indices, _Groups, _split_poly, _symbols_for,
-                        degree_order, matvec)  # noqa: F401
+from .equations import MomentEquations, _assemble, _check_indices, _Groups, _split_poly, _symbols_for, degree_order
 
-__all__ = ["PolynomialSDE", "PolynomialMap", "MomentEquations", "moment_equations",
-           "discrete_moment_equations", "closed_hull", "is_closed", "generator", "bilinear_lift", "as_polynomial_sde",
-           "gaussian_noise_moments",
+__all__ = ["PolynomialSDE", "MomentEquations", "moment_equations", "generator", "as_polynomial_sde",
            "monomials", "degree_order"]
 
 @dataclass(frozen=True)
@@ -346,11 +341,3 @@ def moment_equations(sde, indices: Sequence[tuple]) -> MomentEquations:
 
 # closed_hull, is_closed, bilinear_lift moved to .closed, which imports this module: they stay
 # importable from here on first access (PEP 562), without an import cycle
-_CLOSED = ("closed_hull", "is_closed", "bilinear_lift")
-
-
-def __getattr__(name):
-    if name in _CLOSED:
-        from . import closed
-        return getattr(closed, name)
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

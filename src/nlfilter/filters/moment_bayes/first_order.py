@@ -30,7 +30,7 @@ from typing import NamedTuple
 import numpy as np
 
 from ...moments.densities import (LegendreDensity, affine_moments, cumulants_to_moments, moments_to_cumulants,
-                                  sum_moments, uniform_moments)
+                                  sum_moments)
 from ._common import MomentFilter, configure_input, input_moments, keep_missing, observed
 
 

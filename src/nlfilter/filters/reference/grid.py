@@ -14,7 +14,8 @@ from scipy import sparse
 
 from ... import _validate as V
 from ...noise import Gaussian
-from ..base import gaussian_prior, measurement_loglik, observed_precision
+from ..base import gaussian_prior
+from ..linalg import measurement_loglik, observed_precision
 from ._common import _ReferenceFilter
 
 

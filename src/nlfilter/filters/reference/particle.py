@@ -12,7 +12,7 @@ from typing import NamedTuple
 import numpy as np
 
 from ... import _validate as V
-from ..base import measurement_loglik, observed_precision
+from ..linalg import measurement_loglik, observed_precision
 from ._common import _ReferenceFilter
 
 
