@@ -28,3 +28,22 @@ def test_docstrings_cite_only_documents_in_the_project():
     missing = {n: p for n, p in cited.items() if not (root / n).exists() and n != "README.md"}
     assert missing == {}
     assert "DESIGN.md" not in cited
+
+
+def test_compare_blocks_run(tmp_path, monkeypatch):
+    """The "One call: compare" blocks run as written on the quickstart's model (sizes cut: 20 steps,
+    4 paths, so that the test stays fast; the code path is the same)."""
+    text = README.read_text()
+    quick = re.search(r"## Quickstart\n\n```python\n(.*?)```", text, re.S).group(1)
+    section = text[text.index("### One call: `compare`"):text.index("## Conventions")]
+    blocks = re.findall(r"```python\n(.*?)```", section, re.S)
+    assert len(blocks) == 2
+    monkeypatch.chdir(tmp_path)
+    ns = {}
+    exec(compile(quick.replace("500, paths=200", "20, paths=4"), "README-quickstart", "exec"), ns)
+    for i, code in enumerate(blocks):
+        code = code.replace("200, paths=100", "20, paths=4")
+        exec(compile(code, f"README-compare-{i}", "exec"), ns)
+    res = ns["res"]
+    assert {r.filter for r in res.rows} == {"ekf", "ckf", "second-order", "optimal"}
+    assert (tmp_path / "compare.png").stat().st_size > 5000
