@@ -2,8 +2,8 @@
 
 Filters (row ``filter``): ``ekf``, ``ukf``, ``truncated`` (Henriksen's correct form),
 ``truncated-jazwinski`` (pre-correction), ``gaussian``, ``modified`` (Jazwinski's C = 0 form) and
-``optimal`` (grid filter for the scalar problems, a regularized particle filter for the falling
-body). Problems (row param ``problem``), from :mod:`nlfilter.problems`:
+``optimal`` (grid filter for the scalar problems, the resample-move particle filter
+:class:`~nlfilter.filters.reference.ResampleMoveParticleFilter` for the falling body). Problems (row param ``problem``), from :mod:`nlfilter.problems`:
 
 * ``quadratic`` — scalar discrete, strong quadratic measurement: how often does each form's
   covariance lose positive definiteness (the observation of Andrade Netto et al. that 004 answers);
