@@ -32,6 +32,7 @@ from nlfilter.filters import (ContinuousDiscreteCKF, ContinuousDiscreteEKF, Cont
                               ContinuousDiscreteGHKF, ContinuousDiscreteIEKF, ContinuousDiscreteUKF, GaussianFilter,
                               IteratedEKF)
 from nlfilter.filters.rules import Taylor2
+from nlfilter.filters.reference import ResampleMoveParticleFilter
 from nlfilter.bounded import BoundedNoiseModel
 from nlfilter.filters.moment_bayes import ScaledNoiseZeroOrderFilter
 from nlfilter.filters.bilinear import PseudoObservablesFilter, UpdatedInnovationsFilter
@@ -60,6 +61,7 @@ FIRST_ONLY = {LIN: DiscreteModel.linear(F2, [[1.0, 0.0]], np.diag([0.1, 0.2]), R
               SLIN: SDEModel([x1, x2], SLIN.sym["f"], [x1], Q=np.eye(2) * 0.3, R=RC[:1, :1]),
               S2: SDEModel([x1, x2], S2.sym["f"], [x1 + 0.1 * x2**2], Q=np.eye(2) * 0.3, R=RC[:1, :1])}
 S1 = SDEModel([x], [-x**3], [x], Q=0.5, R=0.1)
+S2_DET = SDEModel([x1, x2], S2.sym["f"], S2.sym["h"], Q=np.zeros((2, 2)), R=RC)  # no process noise (resample-move)
 BIL = BilinearModel([[-1.0]], [[1.0]], G=[[[0.3]]], B=[[1.0]], R=[[1.0]])
 BILD = BilinearModel([[0.9]], [[1.0]], G=[[[0.3]]], B=[[1.0]], M=[[[0.2]]], R=[[0.3]], discrete=True)
 M2, P2 = np.array([0.3, -0.2]), np.array([[0.5, 0.1], [0.1, 0.4]])
@@ -246,6 +248,9 @@ CASES = [
            options=(("start", "bogus"),)),
     _gauss("particle-sde", lambda model=S2, **k: ParticleFilter(model, 200, dt=DT, **k), S2, M2, P2, dt=DT,
            run_kw={"rng": 5}, random=True),
+    _gauss("resample-move", lambda model=S2_DET, **k: ResampleMoveParticleFilter(model, 200, dt=DT, **k),
+           euler_discretization(S2, DT), M2, P2, run_kw={"rng": 5}, random=True,
+           options=(("start", "bogus"), ("moves", -1), ("scale", 0.0)), extras=("accepted", "proposed")),
     _phase_row("pll", lambda **k: PLL(PHASE_MODEL, DT, **k), (("scheme", "bogus"),)),
     _phase_row("lqf", lambda **k: LinearQuadratureFilter(PHASE_MODEL, DT, **k), (("scheme", "bogus"),)),
     _phase_row("phase-tensor", lambda **k: PhaseTensorFilter(PHASE_MODEL, DT, **k), (("scheme", "bogus"),)),
@@ -428,7 +433,7 @@ def test_unknown_options_are_refused_naming_the_option(case):
     assert options, "every filter has at least one checked option"
 
 
-NEEDS_DENSITY = {"qlf", "mqlf", "dqlf", "grid", "grid-2d", "grid-sde", "grid-2d-sde"}  # invert P0 / need a prior density
+NEEDS_DENSITY = {"qlf", "mqlf", "dqlf", "grid", "grid-2d", "grid-sde", "grid-2d-sde", "resample-move"}  # invert P0 / need a prior density
 
 
 @pytest.mark.parametrize("case", GAUSS, ids=[c.name for c in GAUSS])
@@ -447,7 +452,7 @@ def test_singular_psd_prior(case):
 
 
 ONE_PRIOR = {"qlf", "mqlf", "dqlf", "linear", "linear-tv", "linear-discrete", "grid", "grid-2d",
-             "grid-sde", "grid-2d-sde", "particle", "particle-sde"}  # off-line gains / one prior for all paths
+             "grid-sde", "grid-2d-sde", "particle", "particle-sde", "resample-move"}  # off-line gains / one prior for all paths
 
 
 @pytest.mark.parametrize("case", GAUSS, ids=[c.name for c in GAUSS])
@@ -651,7 +656,7 @@ def test_missing_first_measurement_is_the_predict_convention(case):
     a = outputs(case.run(e, case.filter(start="update")))
     b = outputs(case.run(d[:, 1:], case.filter(start="predict")))
     close(_take(a, (slice(None), slice(1, None)), ("means", "covs")), b, keys=("means", "covs"))
-    if not case.name.startswith(("grid", "particle")):  # their step 0 is the prior's grid/sample moments
+    if not case.name.startswith(("grid", "particle", "resample")):  # their step 0 is the prior's grid/sample moments
         np.testing.assert_array_equal(a["means"][:, 0], np.broadcast_to(case.prior["m0"], (3, 2)))
         np.testing.assert_array_equal(a["covs"][:, 0], np.broadcast_to(case.prior["P0"], (3, 2, 2)))
 

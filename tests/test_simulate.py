@@ -45,3 +45,71 @@ def test_bad_arguments():
         simulate(SDEModel([x], [-x], [x], Q=1.0, R=1.0), 3, m0=0.0, P0=1.0)
     with pytest.raises(TypeError, match="rng"):
         simulate(md, 3, m0=0.0, P0=1.0, rng="seed")
+
+
+# -- the problem-specific simulators (moved from the experiments) ---------------------------------
+def test_simulate_ou_shapes_seed_and_stationary_law():
+    """Exact OU transition: x stays in its stationary law N(0, q/(2 rate)) and has lag-1
+    autocorrelation exp(−rate dt); both within 4 standard errors over 4000 paths."""
+    from nlfilter.simulate import simulate_ou
+    q, r, dt, rate, paths = 2.0, 1.0, 0.05, 1.5, 4000
+    a = simulate_ou(q, r, dt, 20, paths, np.random.default_rng(4), rate=rate)
+    b = simulate_ou(q, r, dt, 20, paths, np.random.default_rng(4), rate=rate)
+    assert a.xs.shape == (paths, 20, 1) and a.ys.shape == (paths, 20, 1) and a.x0.shape == (paths, 1)
+    np.testing.assert_allclose(a.t, dt * np.arange(1, 21))
+    for u, v in zip(a, b):
+        np.testing.assert_array_equal(u, v)
+    var = q / (2 * rate)
+    x = a.xs[:, -1, 0]
+    assert abs(x.var(ddof=1) - var) < 4 * var * np.sqrt(2 / (paths - 1))
+    rho = np.corrcoef(a.xs[:, -2, 0], a.xs[:, -1, 0])[0, 1]
+    assert abs(rho - np.exp(-rate * dt)) < 4 * (1 - rho**2) / np.sqrt(paths)
+    # h(x) = x: dy − (trapezoidal ∫ x dt) is the measurement noise, variance r dt
+    c = simulate_ou(q, r, dt, 5, paths, np.random.default_rng(5), h=lambda x: x, substeps=1)
+    xprev = np.concatenate([c.x0, c.xs[:, :-1, 0]], axis=1)
+    v = c.ys[..., 0] - 0.5 * dt * (xprev + c.xs[..., 0])
+    assert abs(v.var(ddof=1) / (r * dt) - 1) < 4 * np.sqrt(2 / (v.size - 1))
+    with pytest.raises(ValueError, match=r"^q\b"):
+        simulate_ou(-1.0, r, dt, 5, 2, 0)
+
+
+def test_simulate_continuous_discrete_flow_noise_and_measurements():
+    """RK4 flow of dx = −x dt (relative error < 1e-7 at 20 substeps per 0.5), discrete measurements y = x + v with
+    Var v = R (4 standard errors), Euler–Maruyama noise per interval: stationary variance
+    q dt / (1 − e^{−2 dt}) (4 standard errors)."""
+    from nlfilter.simulate import simulate_continuous_discrete
+    x = sp.Symbol("x")
+    det = SDEModel([x], [-x], [x], Q=0.0, R=0.3)
+    s = simulate_continuous_discrete(det, 10, paths=3000, rng=2, x0=[2.0], dt=0.5)
+    s2 = simulate_continuous_discrete(det, 10, paths=3000, rng=2, x0=[2.0], dt=0.5)
+    assert s.xs.shape == (3000, 10, 1) and s.ys.shape == (3000, 10, 1)
+    np.testing.assert_array_equal(s.ys, s2.ys)
+    np.testing.assert_allclose(s.t, 0.5 * np.arange(1, 11))
+    np.testing.assert_allclose(s.xs[0, :, 0], 2.0 * np.exp(-s.t), rtol=1e-7)  # RK4, h = 0.025: ~2e-8
+    v = (s.ys - s.xs).ravel()
+    assert abs(v.var(ddof=1) / 0.3 - 1) < 4 * np.sqrt(2 / (v.size - 1))
+    q, dt, paths = 0.8, 0.2, 4000
+    noisy = SDEModel([x], [-x], [x], Q=q, R=0.3)
+    n = simulate_continuous_discrete(noisy, 60, paths=paths, rng=3, m0=0.0, P0=1.0, dt=dt)
+    var = q * dt / (1 - np.exp(-2 * dt))
+    assert abs(n.xs[:, -1, 0].var(ddof=1) - var) < 4 * var * np.sqrt(2 / (paths - 1))
+    with pytest.raises(TypeError, match=r"^model\b"):
+        simulate_continuous_discrete(DiscreteModel([x], [x], [x], Q=1.0, R=1.0), 3, dt=1.0, x0=[0.0])
+
+
+def test_bounded_noise_model_simulate_burn_in_and_stationary_variance():
+    """x+ = h x + w, w ~ U(−1, 1): after a burn-in of 300 the variance is Var w / (1 − h²) (4 s.e.);
+    the measurement noise is U(−1, 1) (variance 1/3, 4 s.e.); burn = 0 starts at 0."""
+    from nlfilter.bounded import BoundedNoiseModel
+    h, paths = 0.6, 4000
+    md = BoundedNoiseModel.first_order(h, 1.0, w_law=st.uniform(-1, 2))
+    xs, ys = md.simulate(5, paths, 7, burn=300)
+    xs2, ys2 = md.simulate(5, paths, 7, burn=300)
+    assert xs.shape == (paths, 5, 1) and ys.shape == (paths, 5, 1)
+    np.testing.assert_array_equal(ys, ys2)
+    var = (1 / 3) / (1 - h * h)
+    assert abs(xs[:, -1, 0].var(ddof=1) - var) < 4 * var * np.sqrt(2 / (paths - 1))  # kurtosis < 3: conservative
+    v = (ys - xs).ravel()
+    assert np.all(np.abs(v) <= 1.0) and abs(v.var(ddof=1) * 3 - 1) < 4 * np.sqrt(0.8 / (v.size - 1))  # Var(3 s²) = 9 (μ4 − σ⁴) / n
+    x0s, _ = md.simulate(3, 4, 1)
+    np.testing.assert_array_equal(x0s[:, 0], 0.0)

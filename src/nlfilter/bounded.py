@@ -50,17 +50,23 @@ class BoundedNoiseModel:
             raise ValueError(f"model: h is the coefficient of a first-order model, this one has n = {self.n}")
         return float(self.A[0, 0])
 
-    def simulate(self, steps: int, paths: int, rng, x0=None):
-        """``(xs (paths, steps, n), ys (paths, steps, 1))`` drawing ``w`` from ``w_law`` (needed)
-        and ``v`` uniform; ``x0 (paths, n)`` default 0 (discard a burn-in for stationarity)."""
+    def simulate(self, steps: int, paths: int, rng, x0=None, *, burn: int = 0):
+        """``(xs (paths, steps, n), ys (paths, steps, 1))``: ``w`` drawn from ``w_law`` (needed),
+        ``v`` uniform; the state starts at ``x0 (paths, n)`` (default 0) and runs ``burn`` steps
+        before the first recorded one (a burn-in from 0 to the stationary law; the experiments use
+        300). Draws: all inputs ``w (paths, burn + steps)`` at once, then all measurement noises."""
         if self.w_law is None:
             raise ValueError("w_law: simulating needs the input law, got None")
+        V.positive("steps", steps, integer=True)
+        V.positive("paths", paths, integer=True)
+        V.positive("burn", burn, integer=True, strict=False)
         rng = np.random.default_rng(rng)
+        w = self.w_law.rvs(size=(paths, burn + steps), random_state=rng)
         x = np.zeros((paths, self.n)) if x0 is None else np.broadcast_to(x0, (paths, self.n)).astype(float)
-        xs = np.empty((paths, steps, self.n))
-        for k in range(steps):
-            if k > 0:
-                x = x @ self.A.T + self.w_law.rvs(size=paths, random_state=rng)[:, None] * self.b
+        xs = np.empty((paths, burn + steps, self.n))
+        for k in range(burn + steps):
             xs[:, k] = x
+            x = x @ self.A.T + w[:, k, None] * self.b
+        xs = xs[:, burn:]
         ys = xs @ self.c + rng.uniform(-self.noise_halfwidth, self.noise_halfwidth, (paths, steps))
         return xs, ys[..., None]

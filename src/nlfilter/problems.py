@@ -13,6 +13,9 @@ Seed 004 problems (``nlfilter reproduce second-order``):
 * :func:`falling_body` — the falling body / re-entry problem of Athans, Wishner and Bertolini
   (1968): continuous dynamics, discrete range measurements.
 
+Seed 001 problem: :func:`cubic_sensor` (Vallot's cubic sensor; ``nlfilter reproduce cubic-sensor``
+and ``cubic-sensor-closures``).
+
 >>> p = quadratic()
 >>> p.model.n, p.model.m, p.model.kind
 (1, 1, 'discrete')
@@ -107,6 +110,24 @@ def falling_body(*, gamma: float = 5e-5, M: float = 1e5, Z: float = 1e5, r: floa
                    dt, steps, "falling-body")
 
 
+def cubic_sensor(q: float = 2.0, r: float = 1.0, *, dt: float = 0.01, steps: int = 2000) -> Problem:
+    """The cubic sensor of seed 001 ch. 5 (Vallot 1981, 001 eqs. 5.1-5.4): ``dx = −x dt + dw``
+    (``E dw² = q dt``), ``dy = x³ dt + dv`` (``E dv² = r dt``), started in the stationary law
+    ``x(0) ~ N(0, q/2)`` (the prior). Simulate it exactly with :func:`nlfilter.simulate.simulate_ou`.
+
+    >>> p = cubic_sensor(2.0, 1.0)
+    >>> p.model.kind, float(p.P0[0, 0])
+    ('sde', 1.0)
+    """
+    V.positive("q", q)
+    V.positive("r", r)
+    V.positive("dt", dt)
+    V.positive("steps", steps, integer=True)
+    x = sp.Symbol("x")
+    model = SDEModel([x], [-x], [x**3], Q=float(q), R=float(r), name="cubic-sensor")
+    return Problem(model, np.zeros(1), np.array([[q / 2]]), None, dt, steps, "cubic-sensor")
+
+
 def euler_discretization(model: SDEModel, dt: float) -> DiscreteModel:
     """The Euler–Maruyama discretization of an Itô :class:`SDEModel` on the measurement grid, as a
     :class:`DiscreteModel`: ``x[k+1] = x + f dt + G √dt w``, ``y_k = dy_k/dt = h(x_k) + v_k`` with
@@ -126,4 +147,4 @@ def euler_discretization(model: SDEModel, dt: float) -> DiscreteModel:
                          time=model.time, name=f"{model.name} (Euler, dt={dt})")
 
 
-__all__ = ["Problem", "quadratic", "state_noise", "falling_body", "euler_discretization"]
+__all__ = ["Problem", "quadratic", "state_noise", "falling_body", "cubic_sensor", "euler_discretization"]

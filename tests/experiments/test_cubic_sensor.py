@@ -5,7 +5,14 @@ import numpy as np
 import pytest
 
 from nlfilter.experiments import get
-from nlfilter.experiments.cubic_sensor import simulate_cubic, stationary_lift_moments, cubic_model
+from nlfilter.experiments.cubic_sensor import stationary_lift_moments, cubic_model
+from nlfilter.simulate import simulate_ou
+
+
+def simulate_cubic(q, r, dt, steps, paths, rng):
+    """``(xs (paths, steps), dys (paths, steps, 1))`` of the stationary cubic sensor."""
+    sim = simulate_ou(q, r, dt, steps, paths, rng)
+    return sim.xs[..., 0], sim.ys
 from nlfilter.bilinear import BilinearModel
 from nlfilter.filters.bilinear import TensorFilter
 

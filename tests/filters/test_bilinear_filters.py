@@ -1,6 +1,8 @@
 """Optimal linear filter for bilinear systems, post-processors, updated innovations (seed 001)."""
 
 import numpy as np
+
+from nlfilter.simulate import simulate_ou
 import pytest
 import scipy.linalg as sla
 import sympy as sp
@@ -179,12 +181,13 @@ def test_multistage_never_worse_and_gains_from_moments():
 def test_tensor_filter_offline_mse_matches_monte_carlo():
     """Cubic sensor, q = 2, r = 1: off-line MSE of x for the linear and the tensor filter vs Monte
     Carlo of the same filters (3 standard errors)."""
-    from nlfilter.experiments.cubic_sensor import simulate_cubic, stationary_lift_moments
+    from nlfilter.experiments.cubic_sensor import stationary_lift_moments
     q, r, dt = 2.0, 1.0, 0.01
     lift = _cubic(q, r)
     tf = TensorFilter(lift, dt, targets=[0, 2])
     fits = tf.fit()
-    xs, dys = simulate_cubic(q, r, dt, 2500, 60, np.random.default_rng(11))
+    sim = simulate_ou(q, r, dt, 2500, 60, np.random.default_rng(11))
+    xs, dys = sim.xs[..., 0], sim.ys
     m0, P0 = stationary_lift_moments(q)
     zhat = tf.linear.run(dys, m0, P0, return_augmented=True).means
     for est, ref in ((zhat[..., 0], fits[0].mse_linear), (tf.post_process(zhat)[..., 0], fits[0].mse)):
@@ -195,8 +198,9 @@ def test_tensor_filter_offline_mse_matches_monte_carlo():
 
 def test_updated_innovations_runs_and_marks_divergence():
     lift = _cubic(1.0, 1.0)
-    from nlfilter.experiments.cubic_sensor import simulate_cubic, stationary_lift_moments
-    xs, dys = simulate_cubic(1.0, 1.0, 0.01, 300, 5, np.random.default_rng(3))
+    from nlfilter.experiments.cubic_sensor import stationary_lift_moments
+    sim = simulate_ou(1.0, 1.0, 0.01, 300, 5, np.random.default_rng(3))
+    xs, dys = sim.xs[..., 0], sim.ys
     est = UpdatedInnovationsFilter(lift, 0.01, targets=[0, 2]).run(dys, *stationary_lift_moments(1.0), on_divergence="mark")
     assert est.means.shape == (5, 300, 2) and np.all(np.isfinite(est.means))
     assert ((est.means[..., 0] - xs) ** 2).mean() < 1.0  # prior variance q/2 = 0.5 plus margin

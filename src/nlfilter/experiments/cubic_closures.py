@@ -20,11 +20,11 @@ its tensor filter and the Bobrovsky-Zakai bound; they are quoted in the notes fo
 from __future__ import annotations
 
 import numpy as np
-import sympy as sp
 from tqdm.auto import tqdm
 
 from .. import _validate as V
 from .. import evaluate as ev
+from .. import problems as pb
 from ..filters.ekf import ContinuousEKF
 from ..filters.moment_filters import ConditionalMomentFilter
 from ..filters.reference import GridFilter
@@ -42,9 +42,8 @@ THESIS = {(2.0, 1.0): {"linear": 0.540, "tensor": 0.522, "bz_bound": 0.238},
 
 
 def model(q: float, r: float) -> SDEModel:
-    """001 eqs. 5.1-5.4."""
-    x = sp.Symbol("x")
-    return SDEModel([x], [-x], [x**3], Q=q, R=r, name="cubic-sensor")
+    """001 eqs. 5.1-5.4 (:func:`nlfilter.problems.cubic_sensor`)."""
+    return pb.cubic_sensor(q, r).model
 
 
 @experiment("cubic-sensor-closures", title="Conditional-moment filters (Gaussian, Edgeworth-4 closures) vs "

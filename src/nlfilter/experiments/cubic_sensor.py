@@ -25,13 +25,15 @@ from the moments of the joint process (x, x̂) (:meth:`QuasilinearFilter.error_a
 from __future__ import annotations
 
 import numpy as np
-import sympy as sp
 from tqdm import tqdm
 
 from . import experiment
+from .. import evaluate as ev
+from .. import problems as pb
 from ..bilinear import BilinearModel
 from ..errors import DivergenceError, SingularSystemError
 from ..filters.bilinear import (OptimalLinearFilter, TensorFilter, UpdatedInnovationsFilter, multistage)
+from ..filters.base import Estimates
 from ..filters.ekf import ContinuousEKF
 from ..filters.moment_filters import ConditionalMomentFilter
 from ..filters.quasilinear import MQLF, QLF
@@ -40,6 +42,7 @@ from ..filters.second_order import ContinuousSecondOrderFilter
 from ..models import SDEModel
 from ..moments.closures import GaussianClosure
 from ..results import Result
+from ..simulate import simulate_ou
 
 PAPER = {  # seed 001 Tables 5.1 (q=2, r=1) and 5.2 (q=r=1)
     (2.0, 1.0): {("linear", "mse_x"): 0.540, ("linear", "mse_x3"): 5.63, ("tensor", "mse_x"): 0.522,
@@ -50,9 +53,9 @@ PAPER = {  # seed 001 Tables 5.1 (q=2, r=1) and 5.2 (q=r=1)
 
 
 def cubic_model(q: float, r: float) -> SDEModel:
-    """``dx = −x dt + dw`` (``E dw² = q dt``), ``dy = x³ dt + dv`` (``E dv² = r dt``) (001 eqs. 5.1-5.4)."""
-    x = sp.Symbol("x")
-    return SDEModel([x], [-x], [x ** 3], Q=float(q), R=float(r), name="cubic sensor")
+    """``dx = −x dt + dw`` (``E dw² = q dt``), ``dy = x³ dt + dv`` (``E dv² = r dt``) (001 eqs. 5.1-5.4;
+    :func:`nlfilter.problems.cubic_sensor`)."""
+    return pb.cubic_sensor(q, r).model
 
 
 def bz_bound(q: float, r: float) -> float:
@@ -86,35 +89,21 @@ def stationary_lift_moments(q: float):
     return m0, P0
 
 
-def simulate_cubic(q: float, r: float, dt: float, steps: int, paths: int, rng, substeps: int = 4):
-    """Stationary paths ``xs (paths, steps)`` at ``t_k = k dt`` (k = 1..steps) and increments
-    ``dys (paths, steps, 1)``: x by its exact Ornstein-Uhlenbeck transition on ``substeps``
-    sub-intervals, ``∫ x³ dt`` by the trapezoidal rule on them, ``dv ~ N(0, r dt)``."""
-    h = dt / substeps
-    a = np.exp(-h)
-    sd = np.sqrt(q / 2 * (1 - a * a))
-    x = rng.normal(0.0, np.sqrt(q / 2), size=paths)
-    xs = np.empty((paths, steps))
-    dys = np.empty((paths, steps, 1))
-    for k in range(steps):
-        acc = np.zeros(paths)
-        for _ in range(substeps):
-            xn = a * x + sd * rng.standard_normal(paths)
-            acc += 0.5 * h * (x ** 3 + xn ** 3)
-            x = xn
-        xs[:, k] = x
-        dys[:, k, 0] = acc + np.sqrt(r * dt) * rng.standard_normal(paths)
-    return xs, dys
-
-
-def _mc(err2: np.ndarray, burn: int):
-    """Per-path time averages after ``burn`` steps -> (mean, standard error across paths, n ok)."""
-    seg = err2[:, burn:]
-    ok = np.all(np.isfinite(seg), axis=1)  # diverged paths (NaN after divergence) are excluded
-    v = seg[ok].mean(axis=1)
-    if v.size < 2:
-        return float("nan"), None, int(ok.sum())
-    return float(v.mean()), float(v.std(ddof=1) / np.sqrt(v.size)), int(ok.sum())
+def _mc(est, truth, burn: int, ref=None):
+    """MSE of ``est (paths, T)`` against ``truth`` over the steps after ``burn`` (or, with ``ref``, the
+    paired difference to it) by :mod:`nlfilter.evaluate`, a path counting as diverged when its
+    squared error is not finite in the window -> (mean, standard error, paths used)."""
+    w = slice(burn, None)
+    e2 = (est - truth) ** 2 if ref is None else (est - truth) ** 2 - (ref - truth) ** 2
+    ok = np.all(np.isfinite(e2[:, w]), axis=1)  # diverged paths (NaN after divergence) are excluded
+    a = Estimates(est[..., None], None, ~ok, None)
+    if ref is None:
+        s = ev.mse(a, truth[..., None], window=w)
+    else:
+        s = ev.paired_difference(a, Estimates(ref[..., None], None, ~ok, None), truth[..., None], window=w)
+    if s.paths < 2:
+        return float("nan"), None, s.paths
+    return s.value, s.stderr, s.paths
 
 
 def _pairs(params):
@@ -249,7 +238,8 @@ def _monte_carlo(res, model, lift, tf, q, r, params, quick, runs, seedseq, progr
     nb = int(round(burn / dt))
     paths = runs or (6 if quick else 200)
     rng = np.random.default_rng(seedseq)
-    xs, dys = simulate_cubic(q, r, dt, steps, paths, rng)
+    sim = simulate_ou(q, r, dt, steps, paths, rng)  # exact OU transition, trapezoidal ∫ x³ dt
+    xs, dys = sim.xs[..., 0], sim.ys
     m0, P0 = stationary_lift_moments(q)
     truth = {"x": xs, "x3": xs ** 3}
     ests = {}
@@ -281,20 +271,19 @@ def _monte_carlo(res, model, lift, tf, q, r, params, quick, runs, seedseq, progr
                          "the second-order correction 3Pm vanishes at m = 0): their MSE is the prior variance q/2; "
                          "rows '@m0=σ' start them one prior standard deviation away")
     for name, (ex, ex3) in ests.items():
-        v, se, n = _mc((ex - truth["x"]) ** 2, nb)
+        v, se, n = _mc(ex, truth["x"], nb)
         if n < 2:
             res.notes.append(f"{name} (q={q:g}, r={r:g}): fewer than 2 paths without divergence; no MSE")
             continue
         res.add(name, "mse_x_mc", v, stderr=se, **row)
         if ex3 is not None:
-            v3, se3, _ = _mc((ex3 - truth["x3"]) ** 2, nb)
+            v3, se3, _ = _mc(ex3, truth["x3"], nb)
             res.add(name, "mse_x3_mc", v3, stderr=se3, **row)
     if "optimal" in ests:  # gap to the optimal filter, paired on common noise
-        eo = (ests["optimal"][0] - truth["x"]) ** 2
         for name, (ex, _) in ests.items():
             if name == "optimal":
                 continue
-            v, se, n = _mc((ex - truth["x"]) ** 2 - eo, nb)
+            v, se, n = _mc(ex, truth["x"], nb, ref=ests["optimal"][0])
             if n >= 2:
                 res.add(name, "excess_mse_x_mc", v, stderr=se, **row)
     res.notes.append(f"Monte Carlo q={q:g}, r={r:g}: {paths} stationary paths, T={T:g}, first {burn:g} discarded, "

@@ -47,17 +47,7 @@ def raw_moments(law, N: int) -> np.ndarray:
     return np.array([law.moment(i) for i in range(1, N + 1)])
 
 
-def simulate_first_order(rng, law, h, R, T, *, burn: int = 300, noise_halfwidth: float = 1.0):
-    """Paths of ``x_{k+1} = h x_k + w_k`` in steady state (burn-in from 0) and ``z = x + v``."""
-    w = law.rvs(size=(R, burn + T), random_state=rng)
-    x = np.zeros(R)
-    xs = np.empty((R, burn + T))
-    for k in range(burn + T):
-        xs[:, k] = x
-        x = h * x + w[:, k]
-    xs = xs[:, burn:]
-    zs = xs + rng.uniform(-noise_halfwidth, noise_halfwidth, xs.shape)
-    return xs, zs
+BURN = 300  # burn-in of the simulations (BoundedNoiseModel.simulate): steps from 0 to stationarity
 
 
 def kalman_first_order(zs, h, law, noise_halfwidth=1.0):
@@ -126,8 +116,10 @@ def run_first_order(params, *, quick, runs, seed, progress):
     for law_name, child in zip(laws, np.random.SeedSequence(seed).spawn(len(laws))):
         law = input_law(law_name, wb)
         rng = np.random.default_rng(child)
-        xs, zs = simulate_first_order(rng, law, h, R, T)
-        grid = BoundedGridFilter1D(BoundedNoiseModel.first_order(h, wb, w_law=law), G=G)
+        truth = BoundedNoiseModel.first_order(h, wb, w_law=law)
+        xs, zs = truth.simulate(T, R, rng, burn=BURN)  # stationary: 300 steps of burn-in from 0
+        xs, zs = xs[..., 0], zs[..., 0]
+        grid = BoundedGridFilter1D(truth, G=G)
         est = {"optimal": grid.run(zs[..., None]).means[..., 0],
                "kalman": kalman_first_order(zs, h, law)}
         fb = {}
@@ -165,19 +157,6 @@ def _figure(res, laws, Ns, what, optimal):
 
 # ------------------------------------------------------------------ second-order system
 
-def simulate_second_order(rng, law, A, b, c, R, T, *, burn: int = 300, noise_halfwidth: float = 1.0):
-    """Paths of ``x_{k+1} = A x_k + b w_k`` (steady state) and ``z = c.x + v``."""
-    w = law.rvs(size=(R, burn + T), random_state=rng)
-    x = np.zeros((R, 2))
-    xs = np.empty((R, burn + T, 2))
-    for k in range(burn + T):
-        xs[:, k] = x
-        x = x @ A.T + w[:, k, None] * b
-    xs = xs[:, burn:]
-    zs = xs @ c + rng.uniform(-noise_halfwidth, noise_halfwidth, (R, T))
-    return xs, zs
-
-
 def kalman_second_order(zs, A, b, c, law, noise_halfwidth=1.0):
     """Kalman filter knowing the input's true mean and variance (centred variables)."""
     import scipy.linalg as sla
@@ -212,7 +191,9 @@ def run_second_order(params, *, quick, runs, seed, progress):
     for law_name, child in zip(laws, np.random.SeedSequence(seed).spawn(len(laws))):
         law = input_law(law_name, wb)
         rng = np.random.default_rng(child)
-        xs, zs = simulate_second_order(rng, law, A, b, c, R, T)
+        truth = BoundedNoiseModel(A, b, c, wb, w_law=law)
+        xs, zs = truth.simulate(T, R, rng, burn=BURN)  # stationary: 300 steps of burn-in from 0
+        zs = zs[..., 0]
 
         def x0_sampler(r, shape, law=law):
             x = np.zeros((*shape, 2))
@@ -220,7 +201,7 @@ def run_second_order(params, *, quick, runs, seed, progress):
                 x = x @ A.T + law.rvs(size=shape, random_state=r)[..., None] * b
             return x
 
-        est = {"optimal": BoundedParticleFilter(BoundedNoiseModel(A, b, c, wb, w_law=law), particles=P).run(
+        est = {"optimal": BoundedParticleFilter(truth, particles=P).run(
                    zs[..., None], initial=x0_sampler, rng=rng).means,
                "kalman": kalman_second_order(zs, A, b, c, law)}
         fb = {}

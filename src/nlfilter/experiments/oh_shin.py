@@ -85,10 +85,11 @@ def run(params, *, quick, runs, seed, progress):
     ok = {k: ~np.asarray(e.diverged) for k, e in ests.items()}
 
     def at_end(name, other=None):
-        d = e2[name][:, -1] - (0.0 if other is None else e2[other][:, -1])
-        mask = ok[name] & (ok[other] if other else True)
-        d = d[mask]
-        return float(d.mean()), float(d.std(ddof=1) / np.sqrt(d.size)), int((~mask).sum())
+        """MSE at t_end (or its paired difference to ``other``), non-diverged paths: (value, se, diverged)."""
+        last = slice(-1, None)
+        s = (ev.mse(ests[name], sim.xs, window=last) if other is None
+             else ev.paired_difference(ests[name], ests[other], sim.xs, window=last))
+        return s.value, s.stderr, s.diverged
 
     off = {}
     for name in ("qlf", "mqlf"):

@@ -2,8 +2,8 @@
 
 Filters (row ``filter``): ``ekf``, ``ukf``, ``truncated`` (Henriksen's correct form),
 ``truncated-jazwinski`` (pre-correction), ``gaussian``, ``modified`` (Jazwinski's C = 0 form) and
-``optimal`` (grid filter for the scalar problems, a regularized particle filter for the falling
-body). Problems (row param ``problem``), from :mod:`nlfilter.problems`:
+``optimal`` (grid filter for the scalar problems, the resample-move particle filter
+:class:`~nlfilter.filters.reference.ResampleMoveParticleFilter` for the falling body). Problems (row param ``problem``), from :mod:`nlfilter.problems`:
 
 * ``quadratic`` — scalar discrete, strong quadratic measurement: how often does each form's
   covariance lose positive definiteness (the observation of Andrade Netto et al. that 004 answers);
@@ -28,16 +28,15 @@ from tqdm.auto import tqdm
 
 from .. import evaluate as ev
 from .. import problems as pb
-from ..errors import DivergenceError
-from ..filters.base import Estimates, GaussianState
+from ..filters.base import Estimates, GaussianState, ode_step
 from ..filters.ekf import EKF
-from ..filters.reference import GridFilter, ParticleFilter
+from ..filters.reference import GridFilter, ResampleMoveParticleFilter
 from ..filters.second_order import (ContinuousDiscreteSecondOrderFilter, ContinuousSecondOrderFilter,
                                     SecondOrderFilter)
 from ..filters.ukf import UKF
 from ..models import DiscreteModel
 from ..results import Result
-from ..simulate import simulate
+from ..simulate import simulate, simulate_continuous_discrete
 from . import experiment
 
 PROBLEMS = ("quadratic", "state-noise", "falling-body")
@@ -172,19 +171,22 @@ def _falling_body(res, params, nruns, rng, quick, progress):
     prob = pb.falling_body(r=params["fb_r"])
     steps = _steps(params, "falling-body", quick, prob.steps)
     md, dt, sub = prob.model, prob.dt, params["fb_substeps"]
-    xs, ys = _simulate_falling_body(prob, steps, nruns, sub, rng)
+    sim = simulate_continuous_discrete(md, steps, paths=nruns, rng=rng, x0=prob.x0, dt=dt, substeps=sub)
+    xs, ys = sim.xs, sim.ys
     mk = lambda form: ContinuousDiscreteSecondOrderFilter(md, dt, form=form, substeps=sub,  # noqa: E731
                                                           start="predict")
     filters = {"ekf": mk("first-order"), **{f: mk(f) for f in FORMS}}
     ests = {k: _run(flt, ys, prob.m0, prob.P0) for k, flt in
             tqdm(filters.items(), disable=not progress, desc="falling-body", leave=False)}
-    flow = _flow(md, dt, sub)
-    ukf_model = DiscreteModel.from_functions(3, 1, lambda x, k=0: flow(x, k * dt), md.h, Q=np.zeros((3, 3)),
+    flow = lambda x, k=0: ode_step(md.f, x, k * dt, dt, substeps=sub, scheme="rk4")  # noqa: E731  RK4 flow map
+    ukf_model = DiscreteModel.from_functions(3, 1, flow, md.h, Q=np.zeros((3, 3)),
                                              R=md.R, name="falling-body flow map")
     ests["ukf"] = _run(UKF(ukf_model, start="predict"), ys, prob.m0, prob.P0)
     npf = min(nruns, QUICK["fb_pf_runs"] if quick else params["fb_pf_runs"])
     particles = QUICK["fb_particles"] if quick else params["fb_particles"]
-    pf, acc = _resample_move_pf(prob, ys[:npf], particles, sub, rng, progress)
+    pf = ResampleMoveParticleFilter(md, particles, dt=dt, substeps=sub, moves=2, scale=1.0, start="predict").run(
+        ys[:npf], prob.m0, prob.P0, rng=rng, on_divergence="mark", progress=progress)
+    acc = pf.extras["accepted"][:, -1].sum() / max(pf.extras["proposed"][:, -1].sum(), 1)
     ests["optimal"] = pf
     _report(res, "falling-body", ests, xs, pf, slice(0, npf), late=True)
     res.notes.append(f"falling-body: Athans et al. (1968) as restated by Julier & Uhlmann: x0 = {prob.x0.tolist()}, "
@@ -201,164 +203,23 @@ def _falling_body(res, params, nruns, rng, quick, progress):
 
 # -- helpers --------------------------------------------------------------------------------------
 def _run(flt, ys, m0, P0):
-    if isinstance(flt, UKF):
-        return _robust_ukf_run(flt, ys, m0, P0)
     return flt.run(ys, m0, P0, on_divergence="mark")
-
-
-def _robust_ukf_run(flt, ys, m0, P0):
-    """The UKF raises on a failed Cholesky factorization even with ``on_divergence="mark"``: then
-    run path by path and mark the failing ones (a diverged path, as for the other filters)."""
-    try:
-        return flt.run(ys, m0, P0, on_divergence="mark")
-    except DivergenceError:
-        parts = []
-        for i in range(ys.shape[0]):
-            try:
-                parts.append(flt.run(ys[i:i + 1], m0, P0, on_divergence="mark"))
-            except DivergenceError:
-                T, n = ys.shape[1], len(np.atleast_1d(m0))
-                parts.append(Estimates(np.full((1, T, n), np.nan), np.full((1, T, n, n), np.nan),
-                                       np.ones(1, bool), np.zeros(1, int)))
-        return Estimates.concatenate(parts)
 
 
 def _ukf_on_euler(md, dt, dys, m0, P0):
     """UKF on the Euler discretization, filtered at t_k with dy over [t_k, t_k+1], then predicted
     to t_k+1 (where ``Simulation.xs`` and the continuous filters are)."""
     flt = UKF(pb.euler_discretization(md, dt))
-    est = _robust_ukf_run(flt, dys / dt, m0, P0)
+    est = flt.run(dys / dt, m0, P0, on_divergence="mark")
     d = est.diverged
     safe = GaussianState(np.where(d[:, None, None], 0.0, est.means),
                          np.where(d[:, None, None, None], np.eye(md.n), est.covs))
-    try:
-        pred = flt.predict(safe, 0)
-    except DivergenceError:  # a filtered covariance that is not PD: mark those paths
-        ok = np.all(np.linalg.eigvalsh(safe.cov) > 0, axis=(-1,)).all(axis=-1)
-        d = d | ~ok
-        safe = GaussianState(safe.mean, np.where(d[:, None, None, None], np.eye(md.n), safe.cov))
-        pred = flt.predict(safe, 0)
+    with np.errstate(invalid="ignore", over="ignore"):
+        pred = flt.predict(safe, 0)  # poisons (NaN) the paths whose sigma points fail
+    d = d | ~np.all(np.isfinite(pred.mean), axis=(-1, -2)) | ~np.all(np.isfinite(pred.cov), axis=(-1, -2, -3))
     means = np.where(d[:, None, None], np.nan, pred.mean)
     covs = np.where(d[:, None, None, None], np.nan, pred.cov)
     return Estimates(means, covs, d, np.where(d, np.maximum(est.diverged_step, 0), -1))
-
-
-def _flow(md, dt, substeps):
-    """RK4 flow map of dx/dt = f(x, t) over one measurement interval (batched)."""
-    h = dt / substeps
-
-    def flow(x, t0=0.0):
-        for j in range(substeps):
-            s = t0 + j * h
-            k1 = md.f(x, s)
-            k2 = md.f(x + 0.5 * h * k1, s + 0.5 * h)
-            k3 = md.f(x + 0.5 * h * k2, s + 0.5 * h)
-            k4 = md.f(x + h * k3, s + h)
-            x = x + h / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
-        return x
-
-    return flow
-
-
-def _simulate_falling_body(prob, steps, paths, substeps, rng):
-    """Truth from ``x0`` (RK4, plus Euler–Maruyama process noise if Q ≠ 0) and range measurements
-    ``y_k = h(x(k dt)) + v_k``, k = 1..steps: ``xs, ys (paths, steps, ·)``."""
-    md, dt = prob.model, prob.dt
-    flow = _flow(md, dt, substeps)
-    x = np.broadcast_to(prob.x0, (paths, md.n)).copy()
-    xs = np.empty((paths, steps, md.n))
-    noisy = np.any(md.Q != 0)
-    L = np.linalg.cholesky(md.R)
-    for k in range(steps):
-        x = flow(x, k * dt)
-        if noisy:
-            x = x + np.einsum("pia,pa->pi", md.G(x, k * dt), rng.multivariate_normal(
-                np.zeros(md.r), md.Q * dt, size=paths))
-        xs[:, k] = x
-    ys = md.h(xs, 0.0) + rng.standard_normal((paths, steps, md.m)) @ L.T
-    return xs, ys
-
-
-def _resample_move_pf(prob, ys, particles, substeps, rng, progress, moves=2, scale=1.0):
-    """Particle filter for deterministic continuous dynamics and discrete measurements, with
-    resample-move (Gilks & Berzuini 2001): after each resampling, ``moves`` random-walk
-    Metropolis–Hastings sweeps on the initial state x0, whose posterior given y_1..y_k is exact
-    (``p(x0) Π_j N(y_j; h(Φ_j(x0)), R)``, Φ_j the RK4 flow), so the moves restore the diversity that
-    noise-free dynamics cannot, without changing the target. Proposal ``x0' = x0 + scale · L z``
-    with ``L Lᵀ`` the cloud's covariance. A move at step k re-integrates the proposal over k
-    intervals; resampling is frequent only in the first seconds, so this stays affordable.
-
-    Returns ``(Estimates, acceptance rate)``."""
-    md, dt = prob.model, prob.dt
-    if np.any(md.Q != 0):
-        raise ValueError("falling body: the resample-move reference assumes no process noise (q = 0)")
-    flow = _flow(md, dt, substeps)
-    B, T = ys.shape[:2]
-    n = md.n
-    P0inv = np.linalg.inv(prob.P0)
-    D = np.sqrt(np.diag(prob.P0))
-    Rinv = np.linalg.inv(md.R)
-
-    def logprior(z):
-        d = z - prob.m0
-        return -0.5 * np.einsum("...i,ij,...j->...", d, P0inv, d)
-
-    def loglik(x, k, rows):
-        r = ys[rows, k, None, :] - md.h(x, 0.0)
-        ll = -0.5 * np.einsum("bpi,ij,bpj->bp", r, Rinv, r)
-        return np.where(np.all(np.isfinite(x), axis=-1) & np.isfinite(ll), ll, -np.inf)
-
-    x0 = prob.m0 + rng.standard_normal((B, particles, n)) * D
-    x = x0.copy()
-    cum = np.zeros((B, particles))  # log-likelihood of y_0..y_k along each particle's own path
-    logw = np.zeros((B, particles))
-    means, covs = np.empty((B, T, n)), np.empty((B, T, n, n))
-    diverged, step = np.zeros(B, bool), np.full(B, -1)
-    accepted = proposed = 0
-    allrows = np.arange(B)
-    with np.errstate(over="ignore", invalid="ignore"):  # blown-up trajectories get zero weight
-        for k in tqdm(range(T), disable=not progress, desc="particle", leave=False):
-            x = flow(x, k * dt)
-            ll = loglik(x, k, allrows)
-            x = np.where(np.isfinite(ll)[..., None], x, prob.m0)
-            cum = cum + ll
-            logw = logw + ll
-            gone = ~np.any(np.isfinite(logw), axis=1) & ~diverged
-            diverged |= gone
-            step[gone] = k
-            logw[diverged] = 0.0
-            w = np.exp(logw - logw.max(axis=1, keepdims=True))
-            w /= w.sum(axis=1, keepdims=True)
-            mu = np.einsum("bp,bpi->bi", w, x)
-            d = x - mu[:, None, :]
-            means[:, k], covs[:, k] = mu, np.einsum("bp,bpi,bpj->bij", w, d, d)
-            res = (1.0 / np.sum(w**2, axis=1) < 0.5 * particles) & ~diverged
-            if not res.any():
-                continue
-            rows = np.flatnonzero(res)
-            idx = ParticleFilter._systematic(w[rows], rng)
-            take = lambda a: np.take_along_axis(a[rows], idx[..., None] if a.ndim == 3 else idx, axis=1)  # noqa: E731
-            z0, zk, zc = take(x0), take(x), take(cum)
-            logw[rows] = 0.0
-            for _ in range(moves):
-                c = z0 - z0.mean(axis=1, keepdims=True)
-                C = np.einsum("bpi,bpj->bij", c, c) / particles / np.outer(D, D)  # in prior-scaled units
-                L = np.linalg.cholesky(C + 1e-12 * np.eye(n)) * D[:, None]
-                prop = z0 + scale * rng.standard_normal(z0.shape) @ np.swapaxes(L, -1, -2)
-                xt, llp = prop.copy(), np.zeros(z0.shape[:2])
-                for j in range(k + 1):
-                    xt = flow(xt, j * dt)
-                    llp = llp + loglik(xt, j, rows)
-                log_a = logprior(prop) + llp - logprior(z0) - zc
-                acc = np.log(rng.random(llp.shape)) < log_a
-                accepted += int(acc.sum())
-                proposed += acc.size
-                z0 = np.where(acc[..., None], prop, z0)
-                zk = np.where(acc[..., None], xt, zk)
-                zc = np.where(acc, llp, zc)
-            x0[rows], x[rows], cum[rows] = z0, zk, zc
-    means[diverged], covs[diverged] = np.nan, np.nan
-    return Estimates(means, covs, diverged, step), accepted / max(proposed, 1)
 
 
 def _report(res, problem, ests, xs, ref, ref_paths, late=False):

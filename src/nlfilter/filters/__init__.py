@@ -18,7 +18,7 @@ bilinear                  OptimalLinearFilter, DiscreteOptimalLinearFilter, Tens
 phase                     PLL, LinearQuadratureFilter, PhaseTensorFilter, CircleGridFilter (001)
 moment_bayes              ZeroOrderMomentFilter, FirstOrderMomentFilter, SecondOrderMomentFilter (000)
 reference.bounded         BoundedGridFilter1D, BoundedParticleFilter: the yardsticks of moment_bayes
-reference                 GridFilter, ParticleFilter: the near-optimal yardsticks
+reference                 GridFilter, ParticleFilter, ResampleMoveParticleFilter: the near-optimal yardsticks
 ========================  ==================================================================
 """
 
@@ -34,7 +34,7 @@ from .moment_bayes import (FirstOrderMomentFilter, ScaledNoiseZeroOrderFilter, S
 from .moment_filters import ConditionalMomentFilter, DiscreteConditionalMomentFilter
 from .phase import PLL, CircleGridFilter, LinearQuadratureFilter, PhaseTensorFilter
 from .quasilinear import MQLF, QLF, DiscreteQuasilinearFilter, QuasilinearFilter
-from .reference import GridFilter, ParticleFilter
+from .reference import GridFilter, ParticleFilter, ResampleMoveParticleFilter
 from .reference.bounded import BoundedGridFilter1D, BoundedParticleFilter
 from .second_order import (FORMS, ContinuousDiscreteSecondOrderFilter, ContinuousSecondOrderFilter,
                            SecondOrderFilter)
@@ -62,6 +62,7 @@ REGISTRY = {
     "second-order-moment": SecondOrderMomentFilter, "scaled-noise-zero-order-moment": ScaledNoiseZeroOrderFilter,
     "bounded-grid": BoundedGridFilter1D, "bounded-particle": BoundedParticleFilter,
     "grid": GridFilter, "particle": ParticleFilter,
+    "resample-move": ResampleMoveParticleFilter,
 }
 
 
@@ -78,6 +79,6 @@ __all__ = ["REGISTRY", "get", "GaussianState", "Estimates", "DiscreteFilter", "C
            "PseudoObservablesFilter", "PLL",
            "LinearQuadratureFilter", "PhaseTensorFilter", "CircleGridFilter", "ZeroOrderMomentFilter",
            "FirstOrderMomentFilter", "SecondOrderMomentFilter", "ScaledNoiseZeroOrderFilter", "GridFilter",
-           "ParticleFilter", "BoundedGridFilter1D", "BoundedParticleFilter",
+           "ParticleFilter", "BoundedGridFilter1D", "BoundedParticleFilter", "ResampleMoveParticleFilter",
            "CKF", "GHKF", "IteratedEKF", "ContinuousDiscreteEKF", "ContinuousDiscreteIEKF", "ContinuousDiscreteUKF",
            "ContinuousDiscreteCKF", "ContinuousDiscreteGHKF", "GaussianFilter", "ContinuousDiscreteGaussianFilter"]

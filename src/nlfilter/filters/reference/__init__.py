@@ -9,6 +9,7 @@ module         contents
 =============  ==========================================================================
 grid           :class:`GridFilter` over a :class:`GridBelief` (probability vectors on a grid)
 particle       :class:`ParticleFilter` over a :class:`ParticleBelief` (weighted particles)
+resample_move  :class:`ResampleMoveParticleFilter`: noise-free continuous dynamics, moves on x0
 _common        what both share: the time-step check, the registry attributes
 =============  ==========================================================================
 
@@ -45,5 +46,7 @@ likelihood everywhere, e.g. bounded noise and a too-narrow grid) as a divergence
 from .bounded import BoundedGridFilter1D, BoundedParticleFilter
 from .grid import GridBelief, GridFilter
 from .particle import ParticleBelief, ParticleFilter
+from .resample_move import ResampleMoveBelief, ResampleMoveParticleFilter
 
-__all__ = ["GridFilter", "GridBelief", "ParticleFilter", "ParticleBelief", "BoundedGridFilter1D", "BoundedParticleFilter"]
+__all__ = ["GridFilter", "GridBelief", "ParticleFilter", "ParticleBelief", "BoundedGridFilter1D", "BoundedParticleFilter",
+           "ResampleMoveParticleFilter", "ResampleMoveBelief"]

@@ -192,5 +192,3 @@ class ParticleFilter(_ReferenceFilter):
         hR = np.einsum("...pa,...ab->...pb", hx, Rinv)
         yo = np.where(obs, y, 0.0)
         return np.einsum("...a,...pa->...p", yo, hR) - 0.5 * self.dt * np.einsum("...pa,...pa->...p", hR, hx)
-
-    _systematic = staticmethod(systematic_resample)  # the name the experiments use
