@@ -98,7 +98,7 @@ class FirstOrderMomentFilter(MomentFilter):
     the (known or initially guessed) input moments on the stationary interval ``|x| <= w_b/(1-|h|)``.
 
     >>> import numpy as np
-    >>> from nlfilter.bounded import BoundedNoiseModel
+    >>> from nlfilter.bounded import BoundedNoiseModel; from nlfilter.moments.densities import uniform_moments
     >>> f = FirstOrderMomentFilter(BoundedNoiseModel.first_order(0.5, 1.0), 4, w_moments=uniform_moments(4))
     >>> r = f.run(np.array([[0.3], [-0.2], [0.9]]))
     >>> r.means.shape, bool(np.all(np.abs(r.means) <= 2.0))

@@ -27,7 +27,8 @@ from typing import NamedTuple
 import numpy as np
 
 from ... import _validate as V
-from ..base import Filter, ode_step, observed_precision
+from ..base import Filter, ode_step
+from ..linalg import observed_precision
 from .particle import systematic_resample
 
 
