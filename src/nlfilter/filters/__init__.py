@@ -1,4 +1,5 @@
-"""Every filter of nlfilter, one protocol (:mod:`nlfilter.filters.base`).
+"""Every filter of nlfilter, one protocol (:mod:`nlfilter.filters.base`), one registry
+(:data:`REGISTRY`: name -> class; ``nlfilter list --filters``).
 
 ========================  ==================================================================
 module                    filters
@@ -14,9 +15,11 @@ offline                   the off-line-gain runner (schedule + affine recursion)
 quasilinear               QLF, MQLF, QuasilinearFilter, DiscreteQuasilinearFilter (seed 003)
 linear_bilinear           OptimalLinearFilter, DiscreteOptimalLinearFilter (001; re-exported by bilinear)
 moment_filters            ConditionalMomentFilter, DiscreteConditionalMomentFilter
-bilinear                  OptimalLinearFilter, DiscreteOptimalLinearFilter, TensorFilter ... (001)
+bilinear                  TensorFilter, UpdatedInnovationsFilter (001 §3.3)
+pseudo_observables        PseudoObservablesFilter (001 §3.2)
 phase                     PLL, LinearQuadratureFilter, PhaseTensorFilter, CircleGridFilter (001)
-moment_bayes              ZeroOrderMomentFilter, FirstOrderMomentFilter, SecondOrderMomentFilter (000)
+moment_bayes              ZeroOrderMomentFilter, FirstOrderMomentFilter, SecondOrderMomentFilter,
+                          ScaledNoiseZeroOrderFilter (000)
 reference.bounded         BoundedGridFilter1D, BoundedParticleFilter: the yardsticks of moment_bayes
 reference                 GridFilter, ParticleFilter, ResampleMoveParticleFilter: the near-optimal yardsticks
 ========================  ==================================================================
