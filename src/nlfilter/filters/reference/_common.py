@@ -33,6 +33,7 @@ class _ReferenceFilter(Filter):
 
     family = "reference"
     accepts = ("discrete", "sde")
+    time = "by model"  # each instance: "discrete" on a DiscreteModel, "continuous" on an SDEModel
     screen_predict = False  # a density or particle cloud pushed forward: a failure shows after the update
 
     def _setup(self, model, dt, start, who):
