@@ -106,3 +106,20 @@ class MomentFilter(Filter):
         acc = np.where(obs[:, None], acc + zl[:, None] ** self._powers, acc)
         count = count + obs
         return acc, count, obs & (count % self.window == 0)
+
+    def _refresh_input(self, belief, z, obs):
+        """The adaptive input step of 000's Fig. 7, before x_k is estimated: learn ``z_k`` (clipped
+        with ``outside="clip"``) and refresh the input moments of the paths whose window is complete.
+        Returns ``(mw, acc, count, redo)``: ``redo`` the paths whose prediction into step k must be
+        redone with the refreshed moments (None when there are none)."""
+        mw, acc, count = belief.mw, belief.acc, belief.count
+        if not self.adaptive:
+            return mw, acc, count, None
+        zl = np.clip(z, -self.z_bound, self.z_bound) if self.outside == "clip" else z
+        acc, count, due = self._learn(acc, count, zl, obs)
+        if not due.any():
+            return mw, acc, count, None
+        mw = np.where(due[:, None], input_moments(self.N, self.S, self.mv, self.initial_w_moments,
+                                                  self.n0, acc, np.maximum(count, 1)), mw)
+        redo = due & belief.predicted
+        return mw, acc, count, (redo if redo.any() else None)

@@ -31,7 +31,7 @@ import numpy as np
 
 from ...moments.densities import (LegendreDensity, affine_moments, cumulants_to_moments, moments_to_cumulants,
                                   sum_moments)
-from ._common import MomentFilter, configure_input, input_moments, keep_missing, observed
+from ._common import MomentFilter, configure_input, keep_missing, observed
 
 
 class IntervalBelief(NamedTuple):
@@ -200,16 +200,10 @@ class FirstOrderMomentFilter(MomentFilter):
     def update(self, belief, y, k):
         z, obs = observed(y)
         z = np.where(obs, z, 0.5 * (belief.lo + belief.hi))  # a consistent value on missing paths
-        m, mw, acc, count = belief.m, belief.mw, belief.acc, belief.count
-        if self.adaptive:  # learn z_k and refresh before estimating x_k, as 000's Fig. 7
-            zl = np.clip(z, -self.z_bound, self.z_bound) if self.outside == "clip" else z
-            acc, count, due = self._learn(acc, count, zl, obs)
-            if due.any():
-                mw = np.where(due[:, None], input_moments(self.N, self.S, self.mv, self.initial_w_moments,
-                                                          self.n0, acc, np.maximum(count, 1)), mw)
-                redo = due & belief.predicted
-                if redo.any():
-                    m = np.where(redo[:, None], sum_moments(belief.hm, mw), m)
+        m = belief.m
+        mw, acc, count, redo = self._refresh_input(belief, z, obs)
+        if redo is not None:
+            m = np.where(redo[:, None], sum_moments(belief.hm, mw), m)
         post, lo, hi, fb = self.update_moments(m, belief.lo, belief.hi, z)
         new = IntervalBelief(post, lo, hi, fb, mw, acc, count, belief.hm, np.zeros_like(belief.predicted))
         return keep_missing(obs, new, belief._replace(m=m, mw=mw, acc=acc, count=count))

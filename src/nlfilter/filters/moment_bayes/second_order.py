@@ -31,7 +31,7 @@ from ... import _validate as V
 from ...moments.densities import LegendreDensity2D, pdf_batched_2d
 from ...moments.polygons import clip_halfplane, pad_polygons, polygon_quadrature, trim_polygon
 from ..beliefs import where_paths
-from ._common import MomentFilter, configure_input, impulse_power_sums, input_moments, observed
+from ._common import MomentFilter, configure_input, impulse_power_sums, observed
 from .first_order import _raw_model
 
 
@@ -386,16 +386,10 @@ class SecondOrderMomentFilter(MomentFilter):
             inner = (np.mean(belief.verts, axis=-2) if self.bounding == "polygon"
                      else 0.5 * (belief.lo + belief.hi))
             z = np.where(obs, z, inner @ self.cv)
-        M, mw, acc, count = belief.M, belief.mw, belief.acc, belief.count
-        if self.adaptive:  # learn z_k and refresh before estimating x_k, as 000's Fig. 7
-            zl = np.clip(z, -self.z_bound, self.z_bound) if self.outside == "clip" else z
-            acc, count, due = self._learn(acc, count, zl, obs)
-            if due.any():
-                mw = np.where(due[:, None], input_moments(self.N, self.S, self.mv, self.initial_w_moments,
-                                                          self.n0, acc, np.maximum(count, 1)), mw)
-                redo = due & belief.predicted
-                if redo.any():
-                    M = np.where(redo[:, None, None], linear_map_moments(belief.prev, self.A, self.b, mw, self._C), M)
+        M = belief.M
+        mw, acc, count, redo = self._refresh_input(belief, z, obs)
+        if redo is not None:
+            M = np.where(redo[:, None, None], linear_map_moments(belief.prev, self.A, self.b, mw, self._C), M)
         if self.bounding == "box":
             post, lo, hi, fb = self.update_box(M, belief.lo, belief.hi, z)
             verts = belief.verts
