@@ -136,7 +136,7 @@ def test_joint_analysis_reproduces_joint_process_on_a_bilinear_model():
     F = aug.F[:n, :n] - K @ aug.H[:, :n]
     u = aug.F[:n, n] - K @ aug.H[:, n]
     s2 = 1.0 / (2.0 - 0.09)  # stationary variance c²/−(2a + b²)
-    ea = gain_error_analysis(sde, lambda t: (F, u, K), [0.0], [[s2]], np.linspace(0.0, 15.0, 31),
+    ea = gain_error_analysis(sde, lambda t: (F, u, K), [0.0], [[s2]], 30, dt=0.5,
                              closure=GaussianClosure(), order=2)
     fit = TensorFilter(bil, 0.01, degree=3).fit()[0]  # joint_process + its stationary moments
     np.testing.assert_allclose(ea.mse[-1, 0], fit.mse_linear, rtol=1e-6)
