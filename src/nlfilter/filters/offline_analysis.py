@@ -5,6 +5,8 @@ other schedule of gains (e.g. the optimal linear filter of a bilinear system wri
 :class:`~nlfilter.models.SDEModel`: see tests/filters/test_offline.py, which checks it against the
 stationary moments of :func:`~nlfilter.filters.bilinear.joint_process`).
 
+:func:`joint_sde` builds the joint SDE of a signal and an affine filter (here, and for the bilinear
+post-processors' :func:`~nlfilter.filters.post_processors.joint_process`, seed 001 §3.3).
 One function, :func:`gain_error_analysis`, for both time kinds (the model's), with ``run``'s
 length convention: T rows, row k ↔ ``Estimates.means[..., k, :]`` (continuous: the state at
 ``t0 + (k + 1) dt``; discrete: the state measured by ``ys[k]``); the prior row (the MSE of the
@@ -21,12 +23,12 @@ import sympy as sp
 from .. import _validate as V
 from ..moments.closures import Closure, EdgeworthClosure, gaussian_moments, kept_order
 from ..moments.discrete import PolynomialMap, discrete_moment_equations, gaussian_noise_moments
-from ..moments.ito import PolynomialSDE, moment_equations
+from ..moments.ito import PolynomialSDE, _symbolic, moment_equations
 from ..moments.solve import MomentSolution, iterate, propagate
 from ..noise import Gaussian
 from ..polynomials import Polynomial, monomials
 
-__all__ = ["ErrorAnalysis", "gain_error_analysis"]
+__all__ = ["ErrorAnalysis", "gain_error_analysis", "joint_sde"]
 
 
 def _unit(n, i, k=1):
@@ -104,6 +106,57 @@ class ErrorAnalysis:
     mse: np.ndarray
     prior: np.ndarray
     solution: object
+
+
+def _is_num_zero(c) -> bool:
+    return not isinstance(c, sp.Basic) and float(c) == 0.0
+
+
+def joint_sde(base: PolynomialSDE, xhat, F, u, Kg, innovation, noise, noise_cov=None, *, names=None,
+              tol: float = 0.0) -> PolynomialSDE:
+    """The joint Itô SDE of a signal and an affine filter of its measurements, the one builder of
+    the off-line analyses (seed 003 Fig. 2: the QLF's (x, x̂); seed 001 §3.3, eq. 3.30: a bilinear
+    system and its linear filter, :func:`~nlfilter.filters.post_processors.joint_process`)::
+
+        dx   = f(x) dt + G(x) dβ                                        (``base``, with noise columns)
+        dx̂_j = [Σ_k F_jk x̂_k + u_j + Σ_i Kg_ji ι_i] dt + Σ_l N_jl dw_l,  E dw dwᵀ = noise_cov dt
+
+    in the variables (base variables, then one per row of ``F``), w independent of β.
+    ``xhat``: the K estimate coordinates x̂_k as polynomials in the joint variables (a variable, or a
+    constant for a deterministic coordinate); ``F (J, K)``, ``u (J,)`` (or None), ``Kg (J, m)``:
+    numbers or SymPy symbols (coefficients tabulated over time); ``innovation``: the m polynomials
+    ι_i whose Kg-combination drives x̂ (h(x) for ``Kg dy``; H (z(x) − ẑ) in innovation form);
+    ``noise (J, r_e)``: the polynomial columns N of the estimate's noise, ``noise_cov`` their
+    covariance (default I). Numeric zero coefficients are skipped; ``tol`` cleans each drift row."""
+    nb = base.n
+    J = len(F)
+    nv = nb + J
+    if base.noise is None:
+        raise ValueError("base: the joint SDE needs the signal's noise columns (PolynomialSDE.from_noise)")
+    zero = Polynomial({}, nv)
+    drift = [p.pad(nv) for p in base.drift]
+    for j in range(J):
+        acc = zero
+        for k, xk in enumerate(xhat):
+            if not _is_num_zero(F[j][k]):
+                acc = acc + xk * F[j][k]
+        if u is not None and not _is_num_zero(u[j]):
+            acc = acc + u[j]
+        for i, io in enumerate(innovation):
+            if not _is_num_zero(Kg[j][i]):
+                acc = acc + io * Kg[j][i]
+        drift.append(acc.clean(tol))
+    rb, re = base.r, len(noise[0]) if J else 0
+    G = [[base.noise[i][a].pad(nv) for a in range(rb)] + [zero] * re for i in range(nb)]
+    G += [[zero] * rb + [noise[j][l] for l in range(re)] for j in range(J)]
+    Qb = base.noise_cov
+    Qe = np.eye(re) if noise_cov is None else noise_cov
+    if isinstance(Qe, sp.MatrixBase) or _symbolic(Qe):
+        Q = sp.diag(sp.Matrix(np.asarray(Qb).tolist()), sp.Matrix(Qe))
+    else:
+        Q = np.zeros((rb + re, rb + re))
+        Q[:rb, :rb], Q[rb:, rb:] = Qb, Qe
+    return PolynomialSDE.from_noise(drift, G, Q, time=base.time, names=names)
 
 
 def _closure_and_order(closure, order):
@@ -187,21 +240,22 @@ def gain_error_analysis(model, coefficients, m0, P0, steps: int, *, dt: float | 
 
 
 def _continuous(model, coefficients, mu0, idx, t, closure) -> MomentSolution:
-    """The joint SDE of ``x`` and ``dx̂ = [F x̂ + u + Kg h(x)] dt + Kg dη`` (coefficients as
-    symbols ``F_i_j``, ``u_i``, ``Kg_i_j``, ``S_i_j`` = Kg R Kgᵀ, tabulated from ``coefficients``),
-    its moments over ``t`` (003 eq. 11); the T rows after ``t[0]``."""
+    """The joint SDE (:func:`joint_sde`) of ``x`` and ``dx̂ = [F x̂ + u + Kg h(x)] dt + Kg dη``
+    (coefficients as symbols ``F_i_j``, ``u_i``, ``Kg_i_j``, and ``S_i_j`` = Kg R Kgᵀ the covariance
+    of the noise ``Kg dη``, tabulated from ``coefficients``), its moments over ``t`` (003 eq. 11);
+    the T rows after ``t[0]``."""
     n, mm = model.n, model.m
     st = list(model.states)
-    xh = [sp.Symbol(f"xhat_{i}") for i in range(n)]
+    base = PolynomialSDE.from_sympy(st, model.sym["f"], G=model.sym["G"], Q=model.Q, time=model.time)
+    nv = 2 * n
+    xhat = [Polynomial.variable(n + i, nv) for i in range(n)]
+    h = [Polynomial.from_sympy(e, st, name=f"h[{i}]").pad(nv) for i, e in enumerate(model.sym["h"])]
     Fs, us, Ks = _symbols("F", n, n), _symbols("u", n), _symbols("Kg", n, mm)
-    Ss = sp.Matrix(n, n, lambda i, j: sp.Symbol(f"S_{min(i, j)}_{max(i, j)}"))
-    G = model.sym["G"]
-    sig = sp.expand(G * sp.Matrix(model.Q.tolist()) * G.T)
-    drift = list(model.sym["f"]) + list(Fs * sp.Matrix(xh) + us + Ks * model.sym["h"])
-    diff = sp.zeros(2 * n, 2 * n)
-    diff[:n, :n] = sig
-    diff[n:, n:] = Ss  # Kg R Kgᵀ: the filter's own noise, independent of β
-    eqs = moment_equations(PolynomialSDE.from_sympy(st + xh, drift, diff), idx)
+    Ss = sp.Matrix(n, n, lambda i, j: sp.Symbol(f"S_{min(i, j)}_{max(i, j)}"))  # Kg R Kgᵀ
+    unit = [[Polynomial.constant(float(i == j), nv) for j in range(n)] for i in range(n)]
+    joint = joint_sde(base, xhat, Fs.tolist(), list(us), Ks.tolist(), h, unit, Ss,
+                      names=[*map(str, st), *(f"xhat_{i}" for i in range(n))])
+    eqs = moment_equations(joint, idx)
     R = model.R
 
     def table(tt):
