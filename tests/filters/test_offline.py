@@ -1,6 +1,7 @@
 """The off-line-gain runner (filters/offline.py): missing data and the covariance it reports."""
 
 import numpy as np
+import pytest
 import sympy as sp
 
 from nlfilter import DiscreteModel, SDEModel, simulate
@@ -136,8 +137,33 @@ def test_joint_analysis_reproduces_joint_process_on_a_bilinear_model():
     F = aug.F[:n, :n] - K @ aug.H[:, :n]
     u = aug.F[:n, n] - K @ aug.H[:, n]
     s2 = 1.0 / (2.0 - 0.09)  # stationary variance c²/−(2a + b²)
-    ea = gain_error_analysis(sde, lambda t: (F, u, K), [0.0], [[s2]], np.linspace(0.0, 15.0, 31),
+    ea = gain_error_analysis(sde, lambda t: (F, u, K), [0.0], [[s2]], 30, dt=0.5,
                              closure=GaussianClosure(), order=2)
     fit = TensorFilter(bil, 0.01, degree=3).fit()[0]  # joint_process + its stationary moments
     np.testing.assert_allclose(ea.mse[-1, 0], fit.mse_linear, rtol=1e-6)
     np.testing.assert_allclose(fit.mse_linear, ss.P[0, 0], rtol=1e-9)
+
+
+def test_joint_analysis_one_length_convention_for_both_time_kinds():
+    """issue 10 item 4: both time kinds report run's T rows (continuous: t0 + (k + 1) dt; discrete:
+    k = 0 .. T − 1) and the prior's MSE diag P0 + (m0 − xhat0)² in the separate field ``prior``."""
+    from nlfilter.filters.offline_analysis import gain_error_analysis
+    sde = SDEModel([x], [-x], [x], Q=1.0, R=1.0)
+    ec = gain_error_analysis(sde, lambda t: (np.array([[-1.5]]), np.zeros(1), np.array([[0.5]])), [1.0], [[0.4]],
+                             7, dt=0.25, t0=1.0, xhat0=[1.5], order=2)
+    assert ec.mse.shape == (7, 1) and ec.solution.t.shape == (7,)
+    np.testing.assert_allclose(ec.t, 1.0 + 0.25 * np.arange(1, 8), rtol=1e-15)
+    dm = DiscreteModel([x], [0.8 * x], [x], Q=0.2, R=0.4)
+    coef = lambda k: (np.array([[0.3]]), np.eye(1), np.zeros(1), np.array([[0.8]]), np.zeros(1))  # noqa: E731
+    ed = gain_error_analysis(dm, coef, [1.0], [[0.4]], 7, xhat0=[1.5], order=2)
+    assert ed.mse.shape == (7, 1)
+    np.testing.assert_array_equal(ed.t, np.arange(7))
+    for ea in (ec, ed):
+        np.testing.assert_allclose(ea.prior, [0.4 + 0.25], rtol=1e-12)
+    with pytest.raises(ValueError, match="dt"):
+        gain_error_analysis(sde, lambda t: (np.eye(1), np.zeros(1), np.eye(1)), [1.0], [[0.4]], 7)
+    with pytest.raises(ValueError, match="dt, t0"):
+        gain_error_analysis(dm, coef, [1.0], [[0.4]], 7, dt=0.1)
+    with pytest.raises(ValueError, match="noise_moment"):
+        gain_error_analysis(sde, lambda t: (np.eye(1), np.zeros(1), np.eye(1)), [1.0], [[0.4]], 7, dt=0.1,
+                            noise_moment=lambda b: 0.0)

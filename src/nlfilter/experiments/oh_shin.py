@@ -150,7 +150,7 @@ def run(params, *, quick, runs, seed, progress):
             bands[f"{name} (MC)"] = (np.concatenate([[p["D0"]], mse_t - 2 * se_t]),
                                      np.concatenate([[p["D0"]], mse_t + 2 * se_t]))
     for name in off:
-        lines[f"{name} (off-line)"] = off[name].mse[:, 0]
+        lines[f"{name} (off-line)"] = np.concatenate([off[name].prior[:1], off[name].mse[:, 0]])  # t = 0 first
     styles = {f"{n} (off-line)": "--" for n in off}
     res.series["MSE E(x − x̂)² over t (003 Fig. 2)"] = {
         "x": t, "lines": lines, "styles": styles, "bands": bands, "xlabel": "t", "ylabel": "mean square error",
@@ -161,7 +161,8 @@ def run(params, *, quick, runs, seed, progress):
     dm, ds = d.mean(axis=0), d.std(axis=0, ddof=1) / np.sqrt(d.shape[0])
     dm, ds = np.concatenate([[0.0], dm]), np.concatenate([[0.0], ds])
     res.series["MQLF − QLF, paired on common noise, against the paper's difference at t = 1"] = {
-        "x": t, "lines": {"mqlf − qlf (MC)": dm, "mqlf − qlf (off-line)": off["mqlf"].mse[:, 0] - off["qlf"].mse[:, 0]},
+        "x": t, "lines": {"mqlf − qlf (MC)": dm, "mqlf − qlf (off-line)": np.concatenate(
+            [off["mqlf"].prior[:1] - off["qlf"].prior[:1], off["mqlf"].mse[:, 0] - off["qlf"].mse[:, 0]])},
         "styles": {"mqlf − qlf (off-line)": "--"}, "bands": {"mqlf − qlf (MC)": (dm - 2 * ds, dm + 2 * ds)},
         "paper": {"mqlf − qlf": (p["t_end"], paper_diff)}, "xlabel": "t", "ylabel": "difference of mean square errors"}
     return res

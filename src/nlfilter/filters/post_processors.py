@@ -3,7 +3,8 @@ post-processors fitted on them (seed 001 §3.3, Fig. 3.2, eqs. 3.29-3.35).
 
 Post-processor: ``x̂ = Σ_k α_k φ_k(ẑ)`` with ``φ_k`` odd monomials of the linear estimate
 (``α x̂ + β x̂³`` is eqs. 3.29-3.35); the gains solve the normal equations ``E[φ φᵀ] α = E[x φ]``
-whose moments are the steady-state moments of the joint process ``(x, ẑ)`` — exact, from the
+whose moments are the steady-state moments of the joint process ``(x, ẑ)`` (built by
+:func:`~nlfilter.filters.offline_analysis.joint_sde`, as the QLF's error analysis) — exact, from the
 closed moment system of the joint SDE (:func:`nlfilter.moments.solve.stationary_moments`,
 conservation laws imposed on the circle). :class:`~nlfilter.filters.bilinear.TensorFilter` runs them.
 """
@@ -21,6 +22,7 @@ from ..moments.ito import PolynomialSDE
 from ..moments.solve import stationary_moments
 from ..polynomials import Polynomial, monomials
 from .linalg import symmetrize
+from .offline_analysis import joint_sde
 
 
 
@@ -64,9 +66,12 @@ class JointProcess:
 
 def joint_process(model: BilinearModel, K: np.ndarray, *, tol: float = 1e-12) -> JointProcess:
     """Joint SDE of ``(base variables, random linear estimates)`` for a constant gain ``K``
-    (augmented ``(N, m)``). Estimate coordinates with a zero gain row whose drift involves only
-    such coordinates and the constant are deterministic: in steady state they equal their mean
-    and are substituted as constants (this is why 001 eq. 5.7 carries x̂ and x̂³ but not x̂²)."""
+    (augmented ``(N, m)``): the linear filter in innovation form (001 §3.3, eq. 3.30)
+    ``dẑ = [F ẑ + K H (z(x) − ẑ)] dt + K Σ_l M_l z(x) dw_l`` beside the base SDE, built by the one
+    joint builder of the off-line analyses, :func:`~nlfilter.filters.offline_analysis.joint_sde`.
+    Estimate coordinates with a zero gain row whose drift involves only such coordinates and the
+    constant are deterministic: in steady state they equal their mean and are substituted as
+    constants (this is why 001 eq. 5.7 carries x̂ and x̂³ but not x̂²)."""
     aug = model.augmented(0)
     F, H, Ms = aug.F, aug.H, aug.M
     N, ci = model.N, model.constant_index
@@ -109,10 +114,7 @@ def joint_process(model: BilinearModel, K: np.ndarray, *, tol: float = 1e-12) ->
         return Polynomial.variable(nb + est.index(k), nv)
 
     zx = [p.pad(nv) for p in cp]
-    drift = [p.pad(nv) for p in base.drift]
-    q_proc = base.r
     r_meas = Ms.shape[0]
-    diff = [[base.noise[i][a].pad(nv) for a in range(q_proc)] + [zero] * r_meas for i in range(nb)]
     innov = [zero] * model.m  # H (z(x) − ẑ)
     for i in range(model.m):
         acc = zero
@@ -131,25 +133,20 @@ def joint_process(model: BilinearModel, K: np.ndarray, *, tol: float = 1e-12) ->
                     acc = acc + zx[k] * float(Ms[l, i, k])
             rows.append(acc)
         meas_noise.append(rows)
+    noise = []  # the estimate's noise columns K M_l z(x)
     for j in est:
-        acc = zero
-        for k in range(N):
-            if F[j, k] != 0:
-                acc = acc + zhat(k) * float(F[j, k])
-        for i in range(model.m):
-            if K[j, i] != 0:
-                acc = acc + innov[i] * float(K[j, i])
-        drift.append(acc.clean(1e-15))
-        row = [zero] * q_proc
+        row = []
         for l in range(r_meas):
             acc = zero
             for i in range(model.m):
                 if K[j, i] != 0 and meas_noise[l][i].terms:
                     acc = acc + meas_noise[l][i] * float(K[j, i])
             row.append(acc.clean(1e-15))
-        diff.append(row)
+        noise.append(row)
+    # 001 eq. 3.30: dẑ = [F ẑ + K H (z(x) − ẑ)] dt + K Σ_l M_l z(x) dw_l, the one joint builder
     names = list(base.names) + [f"hat({model.names[k]})" for k in est]
-    sde = PolynomialSDE.from_noise(drift, diff, np.eye(q_proc + r_meas), names=names)
+    sde = joint_sde(base, [zhat(k) for k in range(N)], [[float(F[j, k]) for k in range(N)] for j in est], None,
+                    [[float(K[j, i]) for i in range(model.m)] for j in est], innov, noise, names=names, tol=1e-15)
     return JointProcess(sde, nb, est, fixed, cp, K)
 
 

@@ -40,7 +40,7 @@ prior pair (x[k], x̂⁻[k]), a polynomial map with time-varying coefficients dr
 
     x[k+1] = f(x) + G(x) w,   x̂⁻[k+1] = a1 (I − Kg b1) x̂⁻ + a1 Kg (h(x) + v) + e − a1 Kg d
 
-(:func:`~nlfilter.filters.offline_analysis.discrete_gain_error_analysis`, any filter of that form;
+(:func:`~nlfilter.filters.offline_analysis.gain_error_analysis`, any filter of that form;
 ``d = b0 − b1 m``, ``e = a0 − a1 m``; the joint analyses live in :mod:`.offline_analysis`).
 """
 
@@ -63,10 +63,10 @@ from ..polynomials import Polynomial, monomials
 from .base import ContinuousFilter
 from .linalg import symmetrize
 from .offline import ContinuousSchedule, DiscreteSchedule, OfflineGainFilter
-from .offline_analysis import ErrorAnalysis, _prior, discrete_gain_error_analysis, gain_error_analysis
+from .offline_analysis import ErrorAnalysis, _prior, gain_error_analysis
 
 __all__ = ["statistical_linearization", "QuasilinearFilter", "DiscreteQuasilinearFilter", "QLF", "MQLF",
-           "OfflineGains", "ErrorAnalysis", "gain_error_analysis", "discrete_gain_error_analysis"]
+           "OfflineGains", "ErrorAnalysis", "gain_error_analysis"]
 
 
 def statistical_linearization(mean, cov, Ef, Efx):
@@ -370,16 +370,18 @@ class QuasilinearFilter(OfflineGainFilter, ContinuousFilter):
     # -- accuracy ------------------------------------------------------------------------------
     def error_analysis(self, m0, P0, steps: int, *, closure: Closure | None = None, order: int | None = None,
                        t0: float = 0.0) -> ErrorAnalysis:
-        """True MSE E(x − x̂)² on the grid, from the moments of the joint process (x, x̂) (003 Fig. 2),
-        closed by ``closure`` (default Edgeworth of ``order`` 4 as in the paper); ``order``
-        defaults to the closure's order (:func:`~nlfilter.moments.closures.kept_order`).
-        Polynomial models."""
+        """True MSE E(x − x̂)² at ``t0 + (k + 1) dt``, k = 0 .. steps − 1 (the rows of :meth:`run`'s
+        estimates; the prior's in ``.prior``), from the moments of the joint process (x, x̂) (003
+        Fig. 2, eq. 11) with the off-line coefficients of eqs. 4-8, 16, through
+        :func:`~nlfilter.filters.offline_analysis.gain_error_analysis`; closed by ``closure``
+        (default Edgeworth of ``order`` 4 as in the paper); ``order`` defaults to the closure's
+        order (:func:`~nlfilter.moments.closures.kept_order`). Polynomial models."""
         if not self.lin.polynomial:
             raise NotPolynomialError("model: the off-line accuracy analysis needs polynomial f, GQGᵀ and h")
         m0, P0 = self._prior(m0, P0)
         g = self.offline(m0, P0, steps, t0=t0)
-        return gain_error_analysis(self.model, lambda t: self._coeff(g.dense(t)), m0, P0, g.t,
-                                   closure=closure, order=order)
+        return gain_error_analysis(self.model, lambda t: self._coeff(g.dense(t)), m0, P0, steps, dt=self.dt,
+                                   t0=t0, closure=closure, order=order)
 
 
 def QLF(model, dt, *, order: int | None = None, substeps: int = 4, scheme: str = "rk4", rtol: float = 1e-9,
@@ -475,8 +477,9 @@ class DiscreteQuasilinearFilter(OfflineGainFilter):
         ``steps`` measurements, ``start="update"``) from the moments of the joint process (x, x̂),
         closed by ``closure`` (default Edgeworth of ``order`` 4, as 003 Fig. 2 in continuous time;
         ``order`` defaults to the closure's order). The coefficients of :meth:`offline` (003 eqs.
-        4-5 on the prior moments, eq. 11 in discrete form) enter :func:`discrete_gain_error_analysis`
-        as ``d = b0 − b1 m``, ``e = a0 − a1 m``. Polynomial models; ``t`` holds the step indices."""
+        4-5 on the prior moments, eq. 11 in discrete form) enter
+        :func:`~nlfilter.filters.offline_analysis.gain_error_analysis` as ``d = b0 − b1 m``,
+        ``e = a0 − a1 m``. Polynomial models; ``t`` holds the step indices, ``.prior`` the prior's MSE."""
         if not self.lin.polynomial:
             raise NotPolynomialError("model: the off-line accuracy analysis needs polynomial f, G and h")
         m0, P0 = _prior(self.model.n, m0, P0)
@@ -487,4 +490,4 @@ class DiscreteQuasilinearFilter(OfflineGainFilter):
             mean, a0, a1, b0, b1, Kg, _ = rows[k]
             return Kg, b1, b0 - b1 @ mean, a1, a0 - a1 @ mean
 
-        return discrete_gain_error_analysis(self.model, coefficients, m0, P0, steps, closure=closure, order=order)
+        return gain_error_analysis(self.model, coefficients, m0, P0, steps, closure=closure, order=order)
