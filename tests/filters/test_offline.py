@@ -141,3 +141,13 @@ def test_joint_analysis_reproduces_joint_process_on_a_bilinear_model():
     fit = TensorFilter(bil, 0.01, degree=3).fit()[0]  # joint_process + its stationary moments
     np.testing.assert_allclose(ea.mse[-1, 0], fit.mse_linear, rtol=1e-6)
     np.testing.assert_allclose(fit.mse_linear, ss.P[0, 0], rtol=1e-9)
+
+
+def test_every_off_line_gain_filter_runs_on_the_one_runner():
+    """One affine recursion in the code base: every registered filter of the family "off-line
+    gains" is an OfflineGainFilter, except the PLL (its loop is nonlinear in θ̂, 001 eq. 4.8)."""
+    from nlfilter.filters import REGISTRY
+    from nlfilter.filters.offline import OfflineGainFilter
+    off = {n for n, c in REGISTRY.items() if c.family == "off-line gains"}
+    assert {"tensor", "updated-innovations", "pseudo-observables", "lqf", "phase-tensor"} <= off
+    assert {n for n in off if not issubclass(REGISTRY[n], OfflineGainFilter)} == {"pll"}
