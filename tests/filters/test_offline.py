@@ -167,3 +167,13 @@ def test_joint_analysis_one_length_convention_for_both_time_kinds():
     with pytest.raises(ValueError, match="noise_moment"):
         gain_error_analysis(sde, lambda t: (np.eye(1), np.zeros(1), np.eye(1)), [1.0], [[0.4]], 7, dt=0.1,
                             noise_moment=lambda b: 0.0)
+
+
+def test_every_off_line_gain_filter_runs_on_the_one_runner():
+    """One affine recursion in the code base: every registered filter of the family "off-line
+    gains" is an OfflineGainFilter, except the PLL (its loop is nonlinear in θ̂, 001 eq. 4.8)."""
+    from nlfilter.filters import REGISTRY
+    from nlfilter.filters.offline import OfflineGainFilter
+    off = {n for n, c in REGISTRY.items() if c.family == "off-line gains"}
+    assert {"tensor", "updated-innovations", "pseudo-observables", "lqf", "phase-tensor"} <= off
+    assert {n for n in off if not issubclass(REGISTRY[n], OfflineGainFilter)} == {"pll"}

@@ -146,6 +146,24 @@ def test_quadrature_filters_missing_increments_only_predict():
     assert np.all(pll.extras["theta"] == np.arctan2(0.3, 0.5)) and np.isnan(pll.covs).all()
 
 
+def test_lqf_is_the_steady_optimal_linear_filter_on_the_one_runner():
+    """The LQF and the steady OptimalLinearFilter of the phase model (X0 on the circle) run the same
+    affine recursion of the off-line-gain runner: equal means and covariances, with missing
+    components too (a path's own covariance after a gap: larger than the steady one)."""
+    from nlfilter.filters.bilinear import OptimalLinearFilter
+    from nlfilter.filters.phase import X0_CIRCLE
+    model, dt = phase_model(1.0, 0.5), 0.01
+    dz = _dz(T=30)
+    dz[0, 5, 1] = np.nan
+    dz[1, 8:15] = np.nan
+    m0, P0 = np.array([0.1, 0.2]), 0.4 * np.eye(2)
+    a = LinearQuadratureFilter(model, dt).run(dz, m0, P0)
+    b = OptimalLinearFilter(model, dt, X0=X0_CIRCLE).run(dz, m0, P0)
+    np.testing.assert_array_equal(a.means, b.means)
+    np.testing.assert_array_equal(a.covs, b.covs)
+    assert a.covs[1, 14, 0, 0] > a.covs[2, 14, 0, 0] and np.array_equal(a.covs[2], a.covs[2, :1].repeat(30, 0))
+
+
 def test_phase_filters_mark_a_diverged_path():
     """An overflowing increment on one path: marked (NaN from its step, θ̂ too), the others as clean."""
     dz = _dz(T=10)

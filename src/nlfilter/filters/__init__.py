@@ -11,7 +11,8 @@ gaussian, rules           GaussianFilter, ContinuousDiscreteGaussianFilter over 
                           (Taylor1, Unscented, Cubature, GaussHermite)
 second_order              SecondOrderFilter, ContinuousSecondOrderFilter,
                           ContinuousDiscreteSecondOrderFilter (seed 004; ``form=`` FORMS)
-offline                   the off-line-gain runner (schedule + affine recursion) of the two below
+offline                   the off-line-gain runner (schedule + affine recursion) of every off-line-gain
+                          filter below but the PLL
 quasilinear               QLF, MQLF, QuasilinearFilter, DiscreteQuasilinearFilter (seed 003)
 linear_bilinear           OptimalLinearFilter, DiscreteOptimalLinearFilter (001; re-exported by bilinear)
 moment_filters            ConditionalMomentFilter, DiscreteConditionalMomentFilter

@@ -23,14 +23,14 @@ estimate (``α x̂ + β x̂³`` is eqs. 3.29-3.35); the gains solve the normal e
 
 from __future__ import annotations
 
-from typing import Callable, NamedTuple
+from typing import Callable
 
 import numpy as np
 
 from .. import _validate as V
 from ..bilinear import BilinearModel
 from ..moments.solve import stationary_moments
-from .base import Filter, gaussian_prior, ode_step
+from .base import gaussian_prior, ode_step
 # the joint analysis and post-processor fits, and the pseudo-observables filter, have modules of their own
 from .post_processors import (JointProcess, PostProcessorFit, fit_post_processor, joint_process,  # noqa: F401
                               multistage, odd_features)
@@ -44,28 +44,23 @@ from ..bilinear_analysis import (WonhamReport, augmented_second_moment,  # noqa:
 
 # ================================================ the optimal linear filters (moved: linear_bilinear)
 from .linear_bilinear import (DiscreteOptimalLinearFilter, LinearSteadyState, OptimalLinearFilter,  # noqa: E402,F401
-                              _affine_step)
+                              _LinearSchedule)
+from .offline import OfflineGainFilter, OfflineState  # noqa: E402
 
 
-class AugmentedEstimate(NamedTuple):
-    """Belief of the steady-gain filters of this module: the linear filter's estimate ``z (B, N)``
-    of the augmented state ``z = (x, 1)`` (the constant coordinate included)."""
-
-    z: np.ndarray
-
-
-class _SteadyLinearRecursion(Filter):
+class _SteadyLinearRecursion(OfflineGainFilter):
     """The optimal linear filter's steady-gain recursion ``dẑ = F ẑ dt + K (dy − H ẑ dt)``
-    (001 eqs. 2.31-2.32, gains of eq. 2.54) over an :class:`AugmentedEstimate`, as a
-    continuous-time :class:`~nlfilter.filters.base.Filter`: one RK4 (or Euler) step with
-    ``dy/dt`` held constant is the affine map ``ẑ ↦ Φ ẑ + Γ dy/dt``, computed once.
+    (001 eqs. 2.31-2.32, gains of eq. 2.54) on the off-line-gain runner of :mod:`.offline`: its
+    schedule is the steady one of :class:`OptimalLinearFilter` (convention ``"held"``: one RK4 or
+    Euler step with ``dy/dt`` held constant is the affine map ``ẑ ↦ Φ ẑ + Γ dy/dt``, computed once
+    per run and missing pattern).
 
     Missing data: a NaN component of ``dy`` contributes no innovation (its gain column is
-    dropped for that step; the off-line gains are not re-optimised). Prior: ``ẑ0 = (m0, 1)``,
-    per path allowed; the gains are the steady state's from t = 0 and do not depend on the prior,
-    so ``P0`` is checked but does not enter."""
+    dropped for that step; the off-line gains are not re-optimised), and the path's covariance is
+    that of the recursion actually run (:mod:`.offline`). Prior: ``ẑ0 = (m0, 1)``, per path
+    allowed; the gains are the steady state's from t = 0 and do not depend on the prior, so
+    ``P0`` is checked but does not enter."""
 
-    family = "off-line gains"
     accepts = ("bilinear", "phase")
     needs = ("time-invariant model", "finite steady state (Wonham condition)")
     time = "continuous"
@@ -73,48 +68,14 @@ class _SteadyLinearRecursion(Filter):
     def _linear(self, model, dt, scheme, X0):
         self.linear = OptimalLinearFilter(model, dt, gains="steady", X0=X0, scheme=scheme)
         self.model, self.dt = model, self.linear.dt
-        self._maps = {}
 
-    @property
-    def data_dim(self) -> int:
-        return self.model.m
-
-    def init(self, m0, P0, batch, *, initial=None, rng=None):
-        """``ẑ0 = (m0, 1)`` on every path (``m0`` common or per path); ``P0`` checked only."""
-        if initial is not None:
-            raise ValueError(f"initial: {type(self).__name__} starts from the prior mean m0 (ẑ0 = (m0, 1)); "
-                             f"expected None, got {type(initial).__name__}")
+    def schedule(self, m0, P0, batch, steps, t0):
+        """The steady schedule (from ``t0``), ``ẑ0 = (m0, 1)`` on every path (``m0`` common or per
+        path; ``P0`` checked only) and the steady error covariance."""
         g = gaussian_prior(m0, P0, self.model.n, batch)
         z = g.mean if self.model.N == self.model.n else np.concatenate([g.mean, np.ones((len(g.mean), 1))], axis=1)
-        return AugmentedEstimate(z)
-
-    def _affine(self, observed: tuple):
-        """``(Φ, Γ)`` of one step with the components ``observed`` (a tuple of bools) measured."""
-        maps = self._maps.get(observed)
-        if maps is None:
-            K = self.linear.steady_state().K
-            if not all(observed):
-                K = K * np.asarray(observed, float)  # no innovation from a missing component
-            a = self.model.augmented(0)
-            A = a.F - K @ a.H
-            maps = self._maps[observed] = _affine_step(A, A, A, K, K, K, self.dt, self.linear.scheme)
-        return maps
-
-    def step(self, belief, dy, t):
-        """``ẑ`` at ``t + dt`` after the increment ``dy (B, m)`` (NaN components: no innovation)."""
-        z = belief.z
-        miss = np.isnan(dy)
-        if not miss.any():
-            Phi, Gam = self._affine((True,) * dy.shape[-1])
-            return AugmentedEstimate(z @ Phi.T + (dy / self.dt) @ Gam.T)
-        y = np.where(miss, 0.0, dy) / self.dt
-        out = np.empty_like(z)
-        patterns, which = np.unique(~miss, axis=0, return_inverse=True)
-        for j, obs in enumerate(patterns):  # one affine map per missing pattern (not per path)
-            sel = which.ravel() == j
-            Phi, Gam = self._affine(tuple(bool(o) for o in obs))
-            out[sel] = z[sel] @ Phi.T + y[sel] @ Gam.T
-        return AugmentedEstimate(out)
+        ss = self.linear.steady_state()
+        return _LinearSchedule(self.linear, t0, steady=ss), z, ss.P
 
 
 class TensorFilter(_SteadyLinearRecursion):
@@ -131,11 +92,11 @@ class TensorFilter(_SteadyLinearRecursion):
         or "cross" (odd monomials of all random estimates, with cross terms)
     initial : callable ``base monomial -> E[.]`` at t = 0 (needed on conservative state spaces)
 
-    ``run(ys, m0, P0)`` (``ys`` the increments ``dy``): the belief is the linear filter's augmented
-    estimate ``ẑ`` (:class:`_SteadyLinearRecursion`: prior ``ẑ0 = (m0, 1)``, missing components
-    give no innovation); the post-processor is the map from ``ẑ`` to the reported estimate,
-    applied at every step (``summary``) so that the run loop screens its overflow too (``x̂³``
-    of a huge but finite ``ẑ``). ``means`` are the targets' estimates ``(..., T, len(targets))``;
+    ``run(ys, m0, P0)`` (``ys`` the increments ``dy``): the linear filter's augmented estimate
+    ``ẑ`` follows the affine runner of :mod:`.offline` (:class:`_SteadyLinearRecursion`: prior
+    ``ẑ0 = (m0, 1)``, missing components give no innovation); the post-processor is the runner's
+    output map from ``ẑ`` to the reported estimate, applied at every step (``summary``) so that the
+    run loop screens its overflow too (``x̂³`` of a huge but finite ``ẑ``). ``means`` are the targets' estimates ``(..., T, len(targets))``;
     ``covs`` the off-line steady-state error covariance of the post-processed estimates
     (:meth:`error_covariance`), the same at every step.
     """
@@ -224,7 +185,6 @@ class TensorFilter(_SteadyLinearRecursion):
         other.linear = OptimalLinearFilter(self.model, dt, gains="steady", X0=self.linear.X0, scheme=self.linear.scheme)
         other.linear._steady = self.linear._steady
         other.dt = float(dt)
-        other._maps = {}  # the step maps depend on dt
         return other
 
     def post_process(self, zhat: np.ndarray) -> np.ndarray:
@@ -236,14 +196,15 @@ class TensorFilter(_SteadyLinearRecursion):
             vals[..., jp.nb + i] = zhat[..., k]
         return np.stack([out(vals) for out in self._outputs], axis=-1)
 
-    def init(self, m0, P0, batch, *, initial=None, rng=None):
+    def init(self, m0, P0, batch, *, initial=None, rng=None, **kw):
         self.fit()
-        return super().init(m0, P0, batch, initial=initial, rng=rng)
+        return super().init(m0, P0, batch, initial=initial, rng=rng, **kw)
 
     def summary(self, belief):
-        """``(ψ(ẑ) (B, len(targets)), the off-line error covariance)``."""
+        """The post-processor as the runner's output map: ``(ψ(ẑ) (B, len(targets)), the off-line
+        steady error covariance of ψ)`` (the same on every path, missing data or not)."""
         cov = self.error_covariance()
-        return self.post_process(belief.z), np.broadcast_to(cov, (len(belief.z), *cov.shape))
+        return self.post_process(belief.mean), np.broadcast_to(cov, (len(belief.mean), *cov.shape))
 
 
 # ====================================================================== updated innovations
@@ -256,7 +217,8 @@ class UpdatedInnovationsFilter(TensorFilter):
     Gains ``K`` and post-processor gains are those of :class:`TensorFilter` (off-line). The
     recursion is nonlinear, so its error has no closed moment system: it is evaluated by
     simulation, and ``covs`` are NaN on every path (no error covariance; a path whose estimate
-    overflows is raised or marked in ``diverged``). Integration: explicit RK4 (or Euler) with
+    overflows is raised or marked in ``diverged``). The belief and gains are the off-line-gain
+    runner's (:mod:`.offline`); the step is its own. Integration: explicit RK4 (or Euler) with
     ``dy/dt`` held constant over a step; a missing component of ``dy`` gives no innovation
     (skipped in the recursion). Prior as :class:`TensorFilter`: ``ẑ0 = (m0, 1)``.
     """
@@ -272,9 +234,11 @@ class UpdatedInnovationsFilter(TensorFilter):
         return other
 
     def step(self, belief, dy, t):
-        """``ẑ`` at ``t + dt`` after ``dy (B, m)``: RK4 (or Euler) of the updated-innovations SDE."""
+        """``ẑ`` at ``t + dt`` after ``dy (B, m)``: RK4 (or Euler) of the updated-innovations SDE
+        (nonlinear in ẑ: not the runner's affine step; its gains are the runner's schedule)."""
+        sch = belief.schedule
         aug = self.model.augmented(0)
-        F, H, K = aug.F, aug.H, self.linear.steady_state().K
+        F, H, K = aug.F, aug.H, sch.steady.K
         tg = self.targets
         miss = np.isnan(dy)
         y = (np.where(miss, 0.0, dy) if miss.any() else dy) / self.dt
@@ -287,11 +251,12 @@ class UpdatedInnovationsFilter(TensorFilter):
                 innov = np.where(miss, 0.0, innov)  # a missing component: no innovation
             return z @ F.T + innov @ K.T
 
-        return AugmentedEstimate(ode_step(lambda z, s: rhs(z), belief.z, t, self.dt, scheme=self.linear.scheme))
+        z = ode_step(lambda z, s: rhs(z), belief.mean, t, self.dt, scheme=self.linear.scheme)
+        return OfflineState(z, belief.cov, belief.own, (belief.pos[0] + 1, "predicted"), sch)
 
     def summary(self, belief):
         """``(ψ(ẑ), None)``: no error covariance for this nonlinear recursion (``covs`` NaN)."""
-        return self.post_process(belief.z), None
+        return self.post_process(belief.mean), None
 
 __all__ = ["PseudoObservablesFilter", "OptimalLinearFilter", "DiscreteOptimalLinearFilter", "LinearSteadyState", "WonhamReport",
            "wonham_condition", "state_second_moments", "augmented_second_moment", "JointProcess",

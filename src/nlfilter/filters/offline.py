@@ -1,9 +1,16 @@
 """Off-line gains: one affine runner for every filter whose gains are computed before the data.
 
-The quasilinear filters (seed 003) and the optimal linear filters of bilinear systems (seed 001)
-share one structure: everything but the estimate — the linearized (or exact) affine model, the
-gains, the covariance — depends on the prior only, so it is computed once, off-line, as a *gain
-schedule*; on-line the estimate follows one affine recursion for the whole batch.
+The quasilinear filters (seed 003), the optimal linear filters of bilinear systems (seed 001,
+time-varying or steady, continuous or discrete), the tensor (post-processor) filters, the
+pseudo-observables filter (001 §3.2) and the linear quadrature and phase tensor filters (001
+ch. 4) share one structure: everything but the estimate — the linearized (or exact) affine model,
+the gains, the covariance — depends on the prior only (or on nothing: the steady gains), so it is
+computed once, off-line, as a *gain schedule*; on-line the estimate follows one affine recursion
+for the whole batch. What a filter reports is its output map of that estimate (``summary``: the
+post-processor of the tensor filters; ``output``: ``atan2`` of the phase filters). A steady
+schedule does not depend on the prior, so its filters take a prior mean per path. The updated-
+innovations filter (001 Fig. 3.4) uses the schedule with its own, nonlinear, step; the PLL (001
+eq. 4.8) is not here: its innovation ``cos θ̂ dz₁ − sin θ̂ dz₂`` is nonlinear in the estimate.
 
 Belief (:class:`OfflineState`): the mean ``(B, N)`` of the recursion (augmented coordinates for
 the bilinear filters; :meth:`Filter.summary` reports the first ``state_dim``), the covariance
@@ -25,7 +32,10 @@ nothing (its column of K is dropped, in the drift term too). Two conventions, as
 published and validated: ``"ito"`` (the quasilinear filters: the dt terms by the scheme, the
 innovation ``K(t_k) dy`` added as an Itô increment with the gain at the step's start) and
 ``"held"`` (the bilinear linear filter: ``dy/dt`` held constant over the step inside the scheme,
-applied as the exact affine map ``m ↦ Φ m + Γ dy/dt`` of that scheme step).
+applied as the exact affine map ``m ↦ Φ m + Γ dy/dt`` of that scheme step). Under ``"held"`` the
+schedule may drive the recursion by an input map ``u = drive(carried, dy)`` instead of ``dy``
+(the pseudo-observables' increments ``d(y_i^p)``, 001 eq. 3.16, from the running ``y`` the belief
+carries); the missing components of ``u`` then drop their gain columns.
 
 Covariance reported (missing data). The schedule's covariance is that of the recursion *with
 every component observed*. A path whose measurement misses a component (or a whole step) gets
@@ -38,7 +48,8 @@ the affine recursion actually run on that path, under the same (linearized) mode
   step with the same scheme and substeps.
 
 For a path with every component observed these are the schedule's own equations, so its
-covariance stays the schedule's (reported bit for bit). For the quasilinear filters P is the
+covariance stays the schedule's (reported bit for bit). A schedule with ``own_cov = False`` (the
+pseudo-observables') reports its own covariance on every path. For the quasilinear filters P is the
 covariance of the statistically linearized model, not the true error covariance (seed 003,
 below eq. 8), with or without missing data; the true error comes from ``error_analysis``.
 """
@@ -57,14 +68,16 @@ __all__ = ["OfflineState", "DiscreteSchedule", "ContinuousSchedule", "OfflineGai
 
 class OfflineState(NamedTuple):
     """Belief of an off-line-gain filter: ``mean (B, N)``, ``cov (B, N, N)`` (the schedule's, or
-    the path's own after a missing component), ``own (B,)``, the shared step position ``pos`` and
-    the shared ``schedule``."""
+    the path's own after a missing component), ``own (B,)``, the shared step position ``pos``, the
+    shared ``schedule``, and ``carried (B, ...)`` per path what the schedule's input map carries
+    from step to step (the pseudo-observables' running observation ``y``; None for the others)."""
 
     mean: np.ndarray
     cov: np.ndarray
     own: np.ndarray
     pos: tuple
     schedule: object
+    carried: object = None
     _shared = ("pos", "schedule")
 
 
@@ -118,12 +131,26 @@ class ContinuousSchedule:
     index ``2 k substeps + i``). Subclasses give ``coeffs(i) -> (A, b, H, d, K, Q, S)``,
     ``cov(k)`` (the schedule's covariance at ``t_k``) and, by convention:
     ``"ito"``: ``drift(i) -> (A − K H, b − K d)`` with every component observed;
-    ``"held"``: ``step_map(k, obs) -> (Φ, Γ)`` (``obs (m,)`` bool or None for all observed)."""
+    ``"held"``: ``step_map(k, obs) -> (Φ, Γ)`` (``obs`` bool over the components of the input, or
+    None for all observed).
+
+    Input map (``"held"``): the recursion is driven by ``u = drive(carried, dy)`` (NaN: an
+    unobserved component of u; default ``u = dy``), and the belief's ``carried`` goes on as
+    ``carry(carried, dy, mean)`` with the new mean (default: unchanged) — the pseudo-observables'
+    increments ``d(y_i^p)`` formed from the running ``y``. ``own_cov = False``: every path reports
+    the schedule's covariance, missing components or not (``coeffs`` then need not exist)."""
 
     convention = "ito"
     substeps = 1
     scheme = "rk4"
     dt = 1.0
+    own_cov = True
+
+    def drive(self, carried, dy):
+        return dy
+
+    def carry(self, carried, dy, mean):
+        return carried
 
     def cov(self, k):  # pragma: no cover - abstract
         raise NotImplementedError
@@ -150,9 +177,10 @@ def _patterns(obs):
 class OfflineGainFilter(Filter):
     """Base of the filters with precomputed gains: the one affine runner (module docstring).
 
-    Subclasses give ``schedule(m0, P0, batch, steps, t0) -> (schedule, mean0 (N,), cov0 (N, N))``
-    (the prior checked, in the recursion's coordinates), and set ``time``. ``family`` is
-    ``"off-line gains"``; the prior is one for all paths (the gains depend on it)."""
+    Subclasses give ``schedule(m0, P0, batch, steps, t0) -> (schedule, mean0, cov0 (N, N)[, carried0])``
+    (the prior checked, in the recursion's coordinates; ``mean0 (N,)``, or ``(B, N)`` per path
+    where the gains do not depend on the prior — the steady-gain filters; ``carried0 (B, ...)``
+    the start of the schedule's input map), and set ``time``. ``family`` is ``"off-line gains"``."""
 
     family = "off-line gains"
     _horizon = None  # (steps, t0) of the current run: the continuous schedules are solved for it
@@ -175,12 +203,13 @@ class OfflineGainFilter(Filter):
         hz = self._horizon or (None, 0.0)
         steps = hz[0] if steps is None else steps
         t0 = hz[1] if t0 is None else t0
-        sch, z0, C0 = self.schedule(m0, P0, batch, steps, float(t0))
+        out = self.schedule(m0, P0, batch, steps, float(t0))
+        sch, z0, C0 = out[:3]
         B = int(np.prod(batch))
         N = z0.shape[-1]
         stage = "filtered" if self.time == "discrete" and self.start == "predict" else "predicted"
         return OfflineState(np.broadcast_to(z0, (B, N)).copy(), np.broadcast_to(C0, (B, N, N)),
-                            np.zeros(B, bool), (0, stage), sch)
+                            np.zeros(B, bool), (0, stage), sch, out[3] if len(out) > 3 else None)
 
     def summary(self, belief):
         r = self.state_dim
@@ -236,19 +265,26 @@ class OfflineGainFilter(Filter):
         k = belief.pos[0]
         h = sch.dt / sch.substeps
         dy = np.asarray(dy, dtype=float)
-        obs = ~np.isnan(dy)
+        carried = belief.carried
+        held = sch.convention == "held"
+        if held:  # the input map: u from dy (and what the belief carries)
+            u = sch.drive(carried, dy)
+            obs = ~np.isnan(u)
+        else:
+            u, obs = dy, ~np.isnan(dy)
         full = obs.all(axis=-1)
-        dyz = np.where(obs, dy, 0.0)
+        dyz = np.where(obs, u, 0.0)
         x = belief.mean
         base = 2 * k * sch.substeps
 
         def idx(s):
             return base + int(round((s - t) / (0.5 * h)))
-        if sch.convention == "held":
+        if held:  # dy/dt held constant: the scheme's step is the affine map m ↦ Φ m + Γ u/dt
             new = np.empty_like(x)
             for o, paths in _patterns(obs):
                 Phi, Gam = sch.step_map(k, None if o.all() else o)
                 new[paths] = x[paths] @ Phi.T + (dyz[paths] / sch.dt) @ Gam.T
+            carried = sch.carry(carried, dy, new)
         else:
             ein = lambda A, v: np.einsum("ij,...j->...i", A, v)  # noqa: E731
             Kdy = ein(sch.coeffs(base)[4], dyz)  # Itô: the innovation with the gain at t_k
@@ -265,7 +301,7 @@ class OfflineGainFilter(Filter):
                         return ein(A - Ko @ H, v) + (b - Ko @ d)
                 new[paths] = ode_step(rhs, x[paths], t, sch.dt, substeps=sch.substeps, scheme=sch.scheme)
             new = new + Kdy
-        own = belief.own | ~full
+        own = belief.own | ~full if sch.own_cov else belief.own
 
         def own_cov():
             P = belief.cov
@@ -279,4 +315,4 @@ class OfflineGainFilter(Filter):
             return ode_step(rhs, np.array(P), t, sch.dt, substeps=sch.substeps, scheme=sch.scheme,
                             finish=symmetrize)
         cov = self._mix(own, own_cov, sch.cov(k + 1))
-        return OfflineState(new, cov, own, (k + 1, "predicted"), sch)
+        return OfflineState(new, cov, own, (k + 1, "predicted"), sch, carried)

@@ -97,7 +97,9 @@ class PLL(Filter):
     Prior: ``θ̂0 = atan2(m0₁, m0₂)`` (the direction of the prior mean of x = (sin θ, cos θ); per
     path allowed; ``m0 = 0`` gives θ̂0 = 0); ``P0`` is checked but not used. ``means`` are
     ``(sin θ̂, cos θ̂)``, ``covs`` NaN (the loop carries no covariance), ``extras["theta"]`` the
-    unwrapped loop phase θ̂. A missing component of ``dz`` drops its term of ``dz_I``.
+    unwrapped loop phase θ̂. A missing component of ``dz`` drops its term of ``dz_I``. Its gain is
+    fixed, but not on the off-line-gain runner of :mod:`.offline`: the loop's innovation
+    ``cos θ̂ dz₁ − sin θ̂ dz₂`` is nonlinear in the estimate (no affine map ``θ̂ ↦ Φ θ̂ + Γ dz``).
 
     >>> pll = PLL(phase_model(1.0, 0.5), 0.01)
     >>> float(pll.run(np.zeros((1, 3, 2)), [0.0, 1.0], np.eye(2)).extras["theta"][0, -1])
@@ -142,7 +144,9 @@ class LinearQuadratureFilter(_SteadyLinearRecursion):
     of the bilinear phase model in steady state, ``θ̂ = atan2(x̂₁, x̂₂)`` (the output map). The gain
     is computed by :class:`~nlfilter.filters.bilinear.OptimalLinearFilter` from eq. 2.54 (equal to
     eq. 4.18). Prior: ``x̂0 = m0`` (per path allowed; ``m0 = 0``: no phase information); ``P0``
-    checked only (steady gains from t = 0). ``covs``: the steady error covariance of x̂."""
+    checked only (steady gains from t = 0). ``covs``: the steady error covariance of x̂ (a path
+    with a missing component: that of the recursion it ran, :mod:`.offline`). The recursion is the
+    off-line-gain runner's (steady schedule, ``dy/dt`` held); ``atan2`` is its output map."""
 
     name = "lqf"
     source = "seed 001 §4.2, eqs. 4.17-4.19 (2.31-2.54)"
@@ -151,16 +155,10 @@ class LinearQuadratureFilter(_SteadyLinearRecursion):
     def __init__(self, model: PhaseModel, dt: float, *, scheme: str = "rk4"):
         self._linear(_phase_model(model), dt, scheme, X0_CIRCLE)
         self.q, self.r = model.q, model.r
-        self._P = None
 
     @property
     def state_dim(self) -> int:
         return 2
-
-    def summary(self, belief):
-        if self._P is None:
-            self._P = self.linear.steady_state().P[:2, :2]
-        return belief.z[:, :2], np.broadcast_to(self._P, (len(belief.z), 2, 2))
 
     def output(self, est):
         return _with_theta(est)

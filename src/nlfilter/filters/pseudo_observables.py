@@ -1,10 +1,10 @@
 """The pseudo-observables filter of seed 001 §3.2 (eq. 3.14): the optimal linear filter using the
-tensored observables ``y, y^p, ...``, ``x̂ = P[x | H^y ⊕ H^{y³} ⊕ ...]``, on the protocol.
+tensored observables ``y, y^p, ...``, ``x̂ = P[x | H^y ⊕ H^{y³} ⊕ ...]``, on the off-line-gain
+runner of :mod:`.offline` (its time-varying gain schedule, convention ``"held"``, the
+pseudo-observables' increments as the schedule's input map).
 """
 
 from __future__ import annotations
-
-from typing import NamedTuple
 
 import numpy as np
 
@@ -13,13 +13,55 @@ from ..bilinear import BilinearModel
 from ..moments.closed import bilinear_lift, closed_hull
 from ..moments.ito import PolynomialSDE
 from ..polynomials import Polynomial
-from .base import Filter
 from .linalg import symmetrize
 from .linear_bilinear import _affine_step, _pinv_psd
+from .offline import ContinuousSchedule, OfflineGainFilter
+
+
+class _PseudoSchedule(ContinuousSchedule):
+    """The gains of :class:`PseudoObservablesFilter` (its :meth:`~PseudoObservablesFilter.covariance_path`,
+    extended lazily), its input map (the increments ``d(y_i^p)`` from the running ``y``) and the
+    affine step maps (``dy/dt`` held, 001 §4.3). Every path reports the schedule's covariance
+    (``own_cov = False``): after a gap the higher powers' increments are formed from an estimated
+    ``y``, so the affine recursion's own covariance would not be the error's either."""
+
+    convention = "held"
+    own_cov = False
+
+    def __init__(self, flt):
+        self.flt, self.dt, self.scheme = flt, flt.dt, flt.scheme
+        self.comp = np.array([i for i, _ in flt.obs_meta])
+        self.iy = [flt.index[tuple(int(j == flt.nb + i) for j in range(flt.nb + flt.m))] for i in range(flt.m)]
+
+    def cov(self, k):
+        return self.flt._schedule(max(k - 1, 0))[0][2 * k]
+
+    def step_map(self, k, obs):
+        flt = self.flt
+        Ks = flt._schedule(k)[1]
+        K0, K1, K2 = Ks[2 * k], Ks[2 * k + 1], Ks[2 * k + 2]
+        if obs is not None:  # the observables of a missing component: no innovation
+            K0, K1, K2 = K0 * obs, K1 * obs, K2 * obs
+        A, H = flt.A, flt.H
+        return _affine_step(A - K0 @ H, A - K1 @ H, A - K2 @ H, K0, K1, K2, self.dt, self.scheme)
+
+    def drive(self, y, dy):
+        """``d(y_i^p) = (y_i + dy_i)^p − y_i^p`` (NaN where ``dy_i`` is missing)."""
+        miss = np.isnan(dy)
+        y_new = y + (np.where(miss, 0.0, dy) if miss.any() else dy)
+        dY = np.stack([y_new[..., i] ** p - y[..., i] ** p for i, p in self.flt.obs_meta], axis=-1)
+        return np.where(miss[:, self.comp], np.nan, dY) if miss.any() else dY
+
+    def carry(self, y, dy, z):
+        """The running ``y``; an unobserved ``y_i`` goes on from its estimate (a coordinate of z)."""
+        miss = np.isnan(dy)
+        if not miss.any():
+            return y + dy
+        return np.where(miss, z[:, self.iy], y + np.where(miss, 0.0, dy))
 
 
 
-class PseudoObservablesFilter(Filter):
+class PseudoObservablesFilter(OfflineGainFilter):
     """Optimal linear filter using tensored observables ``y, y^p, ...`` (001 §3.2, eq. 3.14):
     ``x̂ = P[x | H^y ⊕ H^{y³} ⊕ ...]``.
 
@@ -44,9 +86,10 @@ class PseudoObservablesFilter(Filter):
     powers : the powers of each measurement component used as observables (``(1, 3)``: y and y³)
     dt : measurement step;  x_moment : callable ``base monomial -> E[x0^α]`` (initial law of x)
 
-    ``run(ys)`` (``ys`` the increments ``dy``, y0 = 0): a continuous-time
-    :class:`~nlfilter.filters.base.Filter` over a :class:`PseudoObservablesState`; ``means`` the
-    estimates of the base variables, ``covs`` the off-line error covariance of the gain schedule.
+    ``run(ys)`` (``ys`` the increments ``dy``, y0 = 0): the off-line-gain runner of :mod:`.offline`
+    over an :class:`~nlfilter.filters.offline.OfflineState` (``carried``: the running ``y``);
+    ``means`` the estimates of the base variables, ``covs`` the off-line error covariance of the
+    gain schedule (on every path, missing data or not).
     The prior is the law of x0 whose moments ``x_moment`` gives (every moment enters the
     pseudo-observables' gains), so ``m0``/``P0`` must be None (refused naming ``m0``). A missing
     increment component: its observables give no innovation (see :meth:`step`).
@@ -190,67 +233,28 @@ class PseudoObservablesFilter(Filter):
             self._path = self.covariance_path(T_)
         return self._path[1], self._path[2]
 
-    def init(self, m0=None, P0=None, batch=(), *, initial=None, rng=None):
+    def schedule(self, m0, P0, batch, steps, t0):
         """The start ``ẑ0`` of :meth:`initial_moments` (x0 from ``x_moment``, all its moments, and
         y0 = 0): this filter refuses a Gaussian prior (m0, P0), which would not give the moments
-        of the pseudo-observables."""
+        of the pseudo-observables. The gains are a schedule from the model's t = 0."""
         if m0 is not None or P0 is not None:
             raise ValueError(f"{'m0' if m0 is not None else 'P0'}: {type(self).__name__} starts from the law of x0 "
                              "given by x_moment (and y0 = 0); "
                              f"expected m0=None, P0=None, got m0={m0!r}, P0={P0!r}")
-        if initial is not None:
-            raise ValueError(f"initial: the initial law is x_moment's; expected None, got {type(initial).__name__}")
         B = int(np.prod(batch))
         z0, _ = self.initial_moments()
-        return PseudoObservablesState(np.broadcast_to(z0, (B, len(z0))).copy(), np.zeros((B, self.m)), 0)
+        sch = _PseudoSchedule(self)
+        return sch, z0, sch.cov(0), np.zeros((B, self.m))
 
-    def step(self, belief, dy, t):
-        """One increment ``dy (B, m)``: the pseudo-observables' increments ``d(y_i^p)`` are formed
-        from the running ``y``. A missing component ``i``: its observables give no innovation at
-        that step, and ``y_i`` goes on from its estimate ``ŷ_i`` (y is a coordinate of the lift;
-        exact for the power 1, an approximation for the higher powers after a gap)."""
-        k = belief.k
-        Ps, Ks = self._schedule(k)
-        miss = np.isnan(dy)
-        A, H, h = self.A, self.H, self.dt
-        y_new = belief.y + (np.where(miss, 0.0, dy) if miss.any() else dy)
-        dY = np.stack([y_new[..., i] ** p - belief.y[..., i] ** p for i, p in self.obs_meta], axis=-1)
-        K0, K1, K2 = Ks[2 * k], Ks[2 * k + 1], Ks[2 * k + 2]
-        if not miss.any():
-            Phi, Gam = _affine_step(A - K0 @ H, A - K1 @ H, A - K2 @ H, K0, K1, K2, h, self.scheme)
-            z = belief.z @ Phi.T + (dY / h) @ Gam.T
-            return PseudoObservablesState(z, y_new, k + 1)
-        z = np.empty_like(belief.z)
-        comp = np.array([i for i, _ in self.obs_meta])
-        patterns, which = np.unique(~miss, axis=0, return_inverse=True)
-        for j, obs in enumerate(patterns):
-            sel = which.ravel() == j
-            keep = obs[comp].astype(float)  # the observables of a missing component: no innovation
-            k0, k1, k2 = K0 * keep, K1 * keep, K2 * keep
-            Phi, Gam = _affine_step(A - k0 @ H, A - k1 @ H, A - k2 @ H, k0, k1, k2, h, self.scheme)
-            z[sel] = belief.z[sel] @ Phi.T + (np.where(keep > 0, dY[sel], 0.0) / h) @ Gam.T
-        iy = [self.index[tuple(int(j == self.nb + i) for j in range(self.nb + self.m))] for i in range(self.m)]
-        y_new = np.where(miss, z[:, iy], y_new)  # an unobserved y_i goes on from its estimate
-        return PseudoObservablesState(z, y_new, k + 1)
+    def init(self, m0=None, P0=None, batch=(), *, initial=None, rng=None, **kw):
+        if initial is not None:
+            raise ValueError(f"initial: the initial law is x_moment's; expected None, got {type(initial).__name__}")
+        return super().init(m0, P0, batch, **kw)
 
     def summary(self, belief):
         """``(x̂ (B, n_base), the off-line error covariance at that step)``."""
-        Ps, _ = self._schedule(max(belief.k - 1, 0))
         ix = self._ix
-        Pk = Ps[2 * belief.k][np.ix_(ix, ix)]
-        return belief.z[:, ix], np.broadcast_to(Pk, (len(belief.z), self.nb, self.nb))
+        return belief.mean[:, ix], belief.cov[(slice(None), *np.ix_(ix, ix))]
 
 
-class PseudoObservablesState(NamedTuple):
-    """Belief of :class:`PseudoObservablesFilter`: the estimate ``z (B, N)`` of the lifted state,
-    the running observation ``y (B, m)`` (y0 = 0), and the step count ``k`` (shared by the paths:
-    the gains are a schedule from t = 0)."""
-
-    z: np.ndarray
-    y: np.ndarray
-    k: int
-
-    _shared = ("k",)
-
-
-__all__ = ["PseudoObservablesFilter", "PseudoObservablesState"]
+__all__ = ["PseudoObservablesFilter"]
