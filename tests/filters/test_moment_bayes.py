@@ -409,3 +409,25 @@ def test_filter_objects_are_not_changed_by_run():
     np.testing.assert_array_equal(a.means, b.means)
     np.testing.assert_array_equal(a.extras["w_moments"], b.extras["w_moments"])
     assert vars(f).keys() == before.keys() and all(vars(f)[k] is before[k] for k in before)
+
+
+def test_scaled_noise_filter_clips_an_impossible_measurement():
+    """Regression (documented "impossible measurements are clipped"): an outlier of 1e150 overflowed
+    the adaptive learner's sample moments (z⁴ = inf) and raised a ValueError naming the internal
+    ``m``, 1.7e308 diverged; now z is clipped to the possible range ``[min x − (1 + beta x) c,
+    max x + (1 + beta x) c]``: the estimate is the bound of the support, nothing diverges, the
+    learnt moments stay finite and the other path is untouched."""
+    f = ScaledNoiseZeroOrderFilter(4, 0.3, adaptive=True, window=2)
+    rng = np.random.default_rng(3)
+    x = rng.uniform(-1.0, 1.0, (2, 6))
+    z = x + (1 + 0.3 * x) * rng.uniform(-1.0, 1.0, (2, 6))
+    clean = f.run(_z(z))
+    for big in (1e150, -1e150, 1.7e308):
+        e = z.copy()
+        e[1, 2] = big
+        res = f.run(_z(e))
+        assert not res.diverged.any() and np.isfinite(res.extras["moments"]).all()
+        np.testing.assert_allclose(res.means[1, 2, 0], np.sign(big), rtol=0, atol=1e-12)
+        np.testing.assert_array_equal(res.means[0], clean.means[0])
+        np.testing.assert_array_equal(res.extras["moments"][0], clean.extras["moments"][0])
+

@@ -89,6 +89,7 @@ class MomentFilter(Filter):
     accepts = ("bounded",)
     needs = ("linear dynamics", "bounded input", "uniform measurement noise")
     time = "discrete"
+    own_prior = True
 
     @property
     def data_dim(self) -> int:

@@ -303,7 +303,9 @@ class ScaledNoiseZeroOrderFilter(ZeroOrderMomentFilter):
     ``(l, u) = (max(x_min, (z - c)/(1 + beta c)), min(x_max, (z + c)/(1 - beta c)))``, so eq. 3.5 becomes
     ``x_hat = int x f(x)/(1 + beta x) / int f(x)/(1 + beta x)`` over (l, u), f the polynomial prior
     (Gauss–Legendre with ``nodes`` points: the integrand is smooth on (l, u)). Fallback: eq. 3.16.
-    Impossible measurements are clipped; ``extras["invalid"]`` is always False (no moment test).
+    Impossible measurements are clipped to the possible range ``[min (x − (1 + beta x) c), max (x + (1 +
+    beta x) c)]`` over the support (an outlier's estimate is then a bound of the support, and the
+    learner's sample moments cannot overflow); ``extras["invalid"]`` is always False (no moment test).
 
     Adaptive moments: ``E[z^i] = sum_j C(i,j) E[x^{i-j} (1 + beta x)^j] m_v^(j)`` is triangular in
     the moments of x (the analogue of eq. 3.13) and is solved sequentially (analogue of eq. 3.14).
@@ -334,6 +336,9 @@ class ScaledNoiseZeroOrderFilter(ZeroOrderMomentFilter):
                 for k in range(j + 1):
                     T[i, i - j + k] += math.comb(i, j) * mv[j] * math.comb(j, k) * self.beta ** k
         self._T = T
+        ends = np.array([self.x_min, self.x_max])  # z is monotone in v (1 + beta x > 0): corners
+        self._z_range = (float(np.min(ends - (1 + self.beta * ends) * self.c)),
+                         float(np.max(ends + (1 + self.beta * ends) * self.c)))
 
     @property
     def base(self):  # the additive filter's options (kept for callers of the former composition)
@@ -341,6 +346,7 @@ class ScaledNoiseZeroOrderFilter(ZeroOrderMomentFilter):
 
     def interval(self, z):
         c = self.c
+        z = np.clip(z, *self._z_range)  # an impossible measurement: the nearest possible one
         l = np.maximum(self.x_min, (z - c) / (1 + self.beta * c))
         u = np.minimum(self.x_max, (z + c) / (1 - self.beta * c))
         return l, np.maximum(u, l)
@@ -382,7 +388,7 @@ class ScaledNoiseZeroOrderFilter(ZeroOrderMomentFilter):
         return w0 * self.initial_moments + (1 - w0) * mx
 
     def _learning_data(self, z):
-        return z  # as 000's flow chart: the raw measurements
+        return np.clip(z, *self._z_range)  # 000's flow chart: the measurements (every possible one as it is)
 
     def extras(self, belief):
         return {**super().extras(belief), "invalid": np.zeros_like(belief.invalid)}

@@ -32,6 +32,7 @@ class _BoundedReference(Filter):
     family = "reference"
     accepts = ("bounded",)
     time = "discrete"
+    own_prior = True  # the grid's stationary law / the sampler ``initial``: m0 = P0 = None
 
     @property
     def data_dim(self) -> int:
