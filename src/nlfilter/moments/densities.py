@@ -33,6 +33,7 @@ Moment arrays are ``(..., N)`` holding ``m_1 .. m_N`` (``m_0 = 1`` implied), bat
 
 from __future__ import annotations
 
+import functools
 import math
 
 import numpy as np
@@ -90,13 +91,16 @@ def _legmulx(c: np.ndarray) -> np.ndarray:
     return out
 
 
+@functools.lru_cache(maxsize=None)
 def _poly_to_leg_matrix(K: int) -> np.ndarray:
-    """``L`` (K+1, K+1) with ``P_i(t) = sum_k L[i, k] t^k`` (exact rationals rounded once)."""
+    """``L`` (K+1, K+1) with ``P_i(t) = sum_k L[i, k] t^k`` (exact rationals rounded once; computed
+    once per K and shared, read-only)."""
     L = np.zeros((K + 1, K + 1))
     for i in range(K + 1):
         e = np.zeros(i + 1)
         e[i] = 1.0
         L[i, : i + 1] = npleg.leg2poly(e)
+    L.flags.writeable = False
     return L
 
 

@@ -27,8 +27,8 @@ from typing import NamedTuple
 import numpy as np
 
 from ... import _validate as V
-from ...moments.densities import (LegendreDensity, difference_moments, is_moment_sequence, pdf_batched_1d,
-                                  uniform_moments)
+from ...moments.densities import (LegendreDensity, _legmulx, difference_moments, is_moment_sequence,
+                                  legendre_values, pdf_batched_1d, uniform_moments)
 from ._common import MomentFilter, MomentFilterWarning, check_N, keep_missing, observed
 
 
@@ -86,12 +86,40 @@ def zero_order_estimate(z, density: LegendreDensity, *, x_min=-1.0, x_max=1.0, n
     """
     z = np.asarray(z, dtype=float)
     l, u = _interval(z, x_min, x_max, noise_halfwidth, outside)
-    de = density.integral(l, u, 0)  # 000 Fig. 7 step 8
-    nu = density.integral(l, u, 1)  # step 10
+    a, c = density.alpha, density.center
+    return _estimate_on(l, u, density.coef, _times_x(density.coef, a, c), a, c, eps)[:2]
+
+
+def _times_x(coef, alpha, center):
+    """Legendre series (in t) of ``x g(t)``, ``x = c + t / alpha`` (as ``LegendreDensity.integral(.., 1)``)."""
+    center, alpha = np.asarray(center), np.asarray(alpha)
+    return center[..., None] * np.concatenate([coef, np.zeros((*coef.shape[:-1], 1))], axis=-1) \
+        + _legmulx(coef) / alpha[..., None]
+
+
+def _antiderivative(s, P):
+    """``legendre_antiderivative(s, t)`` from ``P = legendre_values(t, K')``, ``K' >= deg s + 1``."""
+    K = s.shape[-1] - 1
+    F = s[..., 0] * (P[..., 1] + 1.0)
+    if K >= 1:
+        i = np.arange(1, K + 1)
+        F = F + np.sum(s[..., 1:] * (P[..., 2:K + 2] - P[..., :K]) / (2 * i + 1), axis=-1)
+    return F
+
+
+def _estimate_on(l, u, s0, s1, alpha, center, eps):
+    """Eq. 3.7 on ``(l, u)`` with the series ``s0`` of the prior and ``s1`` of ``x`` times it: both
+    ends and both integrals from one table of Legendre values (000 Fig. 7 steps 8-13, eq. 3.16).
+    Returns ``(x_hat, fallback, l, u)``."""
+    t = np.clip(alpha * (np.stack([l, u]) - center), -1.0, 1.0)
+    P = legendre_values(t, s1.shape[-1])
+    F0, F1 = _antiderivative(s0, P), _antiderivative(s1, P)
+    de = F0[1] - F0[0]  # 000 Fig. 7 step 8
+    nu = F1[1] - F1[0]  # step 10
     with np.errstate(divide="ignore", invalid="ignore"):
         xh = nu / de  # 000 eq. 3.7 (the common factor 1/2 of eq. 3.3 cancels)
     fb = ~(de >= eps) | ~((xh > l) & (xh < u))  # steps 9 and 12
-    return np.where(fb, 0.5 * (l + u), xh), fb  # eq. 3.16
+    return np.where(fb, 0.5 * (l + u), xh), fb, l, u  # eq. 3.16
 
 
 def power_density_estimate(z, J: int):
@@ -181,6 +209,12 @@ class ZeroOrderMomentFilter(MomentFilter):
         self.invalid_moments = V.choice("invalid_moments", invalid_moments, {"warn", "ignore"})
         self._powers = np.arange(1, self.N + 1)
         self._density = None if self.moments is None or self.moments.ndim > 1 else self.density()
+        # what a step needs and the data do not change: the scaling t = alpha (x - center) of the
+        # support and, with known moments, the series of the prior and of x times it
+        self._alpha, self._center = 2.0 / (x_max - x_min), 0.5 * (x_max + x_min)
+        if self._density is not None:
+            self._s0 = self._density.coef
+            self._s1 = _times_x(self._s0, self._alpha, self._center)
 
     @property
     def state_dim(self) -> int:
@@ -261,20 +295,23 @@ class ZeroOrderMomentFilter(MomentFilter):
                 m = np.where(due[:, None], new, m)
                 valid = np.where(due, is_moment_sequence(m, self.x_min, self.x_max), valid)
                 coef = np.where(due[:, None], self.density(m).coef, coef)
-        xh, fb = self._estimate(z, coef)
+        xh, fb, lu = self._estimate(z, coef)
         if self.invalid_moments == "warn":
-            l, u = _interval(z, self.x_min, self.x_max, self.c, self.outside)
+            l, u = lu
             xh = np.where(valid, xh, 0.5 * (l + u))
             fb = fb | ~valid
         new = ZeroOrderBelief(xh[:, None], fb, ~valid, m, valid, coef, acc, part, count)
         return keep_missing(obs, new, belief)
 
     def _estimate(self, z, coef):
-        if not coef.shape[1]:
-            return self.estimate(z)
-        d = LegendreDensity(coef, self.x_min, self.x_max)
-        return zero_order_estimate(z, d, x_min=self.x_min, x_max=self.x_max,
-                                   noise_halfwidth=self.c, eps=self.eps, outside=self.outside)
+        """``(x_hat, fallback, (l, u))`` of one step (a subclass may give None for ``(l, u)`` when it never
+        warns): the precomputed series with the known moments,
+        else those of the belief's ``coef (B, N+1)``."""
+        l, u = _interval(z, self.x_min, self.x_max, self.c, self.outside)
+        s0 = self._s0 if not coef.shape[1] else coef
+        s1 = self._s1 if not coef.shape[1] else _times_x(coef, self._alpha, self._center)
+        xh, fb, l, u = _estimate_on(l, u, s0, s1, self._alpha, self._center, self.eps)
+        return xh, fb, (l, u)
 
     def summary(self, belief):
         return belief.mean, None
@@ -358,8 +395,8 @@ class ScaledNoiseZeroOrderFilter(ZeroOrderMomentFilter):
 
     def _estimate(self, z, coef):
         if not coef.shape[1]:
-            return self.estimate(z)
-        return self._estimate_sn(z, density=LegendreDensity(coef, self.x_min, self.x_max))
+            return (*self.estimate(z), None)
+        return (*self._estimate_sn(z, density=LegendreDensity(coef, self.x_min, self.x_max)), None)
 
     def _estimate_sn(self, z, moments=None, density=None):
         d = density if density is not None else (
