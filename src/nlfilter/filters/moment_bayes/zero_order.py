@@ -36,7 +36,8 @@ class ZeroOrderBelief(NamedTuple):
     """Per path: ``mean (B, 1)`` the estimate of x_k; ``fallback``/``invalid (B,)`` flags;
     ``moments (B, N)`` the moments of x in use (adaptive; per-path known ones; else ``(B, 0)``),
     ``valid (B,)`` whether they are a moment sequence, ``coef (B, N+1)`` the Legendre coefficients
-    of their polynomial prior (``(B, 0)`` with the known moments); the learner's power sums
+    of their polynomial prior (``(B, 0)`` with the known moments) and ``coef_x (B, N+2)`` the series of
+    x times it (refreshed with ``coef``; ``(B, 0)`` with the known moments); the learner's power sums
     ``acc (B, N)`` (completed windows) and ``part (B, N)`` (current window), ``count (B,)``
     samples learnt."""
 
@@ -46,6 +47,7 @@ class ZeroOrderBelief(NamedTuple):
     moments: np.ndarray
     valid: np.ndarray
     coef: np.ndarray
+    coef_x: np.ndarray
     acc: np.ndarray
     part: np.ndarray
     count: np.ndarray
@@ -268,7 +270,9 @@ class ZeroOrderMomentFilter(MomentFilter):
         zero = np.zeros((B, self.N))
         mean = self._prior_mean(m, B)
         coef = self.density(m).coef.copy() if m.shape[1] else np.zeros((B, 0))
-        return ZeroOrderBelief(mean, np.zeros(B, bool), ~valid, m, valid, coef, zero, zero.copy(), np.zeros(B, int))
+        coef_x = _times_x(coef, self._alpha, self._center) if m.shape[1] else np.zeros((B, 0))
+        return ZeroOrderBelief(mean, np.zeros(B, bool), ~valid, m, valid, coef, coef_x, zero, zero.copy(),
+                               np.zeros(B, int))
 
     def _prior_mean(self, m, B):
         mom = m if m.shape[1] else np.broadcast_to(self.moments, (B, self.N))
@@ -281,11 +285,14 @@ class ZeroOrderMomentFilter(MomentFilter):
 
     def update(self, belief, y, k):
         z, obs = observed(y)
-        z = np.where(obs, z, 0.5 * (self.x_min + self.x_max))  # a possible value on missing paths
-        m, valid, coef = belief.moments, belief.valid, belief.coef
+        if not obs.all():
+            z = np.where(obs, z, 0.5 * (self.x_min + self.x_max))  # a possible value on missing paths
+        m, valid, coef, coef_x = belief.moments, belief.valid, belief.coef, belief.coef_x
         acc, part, count = belief.acc, belief.part, belief.count
         if self.adaptive:  # 000 Fig. 7 steps 4-6: accumulate, refresh if due, then estimate
-            part = np.where(obs[:, None], part + self._learning_data(z)[:, None] ** self._powers, part)
+            part = part + self._learning_data(z)[:, None] ** self._powers
+            if not obs.all():
+                part = np.where(obs[:, None], part, belief.part)
             count = count + obs
             due = obs & (count % self.window == 0)
             if due.any():
@@ -294,23 +301,24 @@ class ZeroOrderMomentFilter(MomentFilter):
                 new = self.recover_moments(acc / np.maximum(count, 1)[:, None], count)  # eqs. 2.27, 3.14, 3.15
                 m = np.where(due[:, None], new, m)
                 valid = np.where(due, is_moment_sequence(m, self.x_min, self.x_max), valid)
-                coef = np.where(due[:, None], self.density(m).coef, coef)
-        xh, fb, lu = self._estimate(z, coef)
+                new = self.density(m).coef
+                coef = np.where(due[:, None], new, coef)
+                coef_x = np.where(due[:, None], _times_x(new, self._alpha, self._center), coef_x)
+        xh, fb, lu = self._estimate(z, coef, coef_x)
         if self.invalid_moments == "warn":
             l, u = lu
             xh = np.where(valid, xh, 0.5 * (l + u))
             fb = fb | ~valid
-        new = ZeroOrderBelief(xh[:, None], fb, ~valid, m, valid, coef, acc, part, count)
+        new = ZeroOrderBelief(xh[:, None], fb, ~valid, m, valid, coef, coef_x, acc, part, count)
         return keep_missing(obs, new, belief)
 
-    def _estimate(self, z, coef):
+    def _estimate(self, z, coef, coef_x):
         """``(x_hat, fallback, (l, u))`` of one step (a subclass may give None for ``(l, u)`` when it never
-        warns): the precomputed series with the known moments,
-        else those of the belief's ``coef (B, N+1)``."""
+        warns): the series precomputed with the known moments, else the belief's ``coef``, ``coef_x``."""
         l, u = _interval(z, self.x_min, self.x_max, self.c, self.outside)
-        s0 = self._s0 if not coef.shape[1] else coef
-        s1 = self._s1 if not coef.shape[1] else _times_x(coef, self._alpha, self._center)
-        xh, fb, l, u = _estimate_on(l, u, s0, s1, self._alpha, self._center, self.eps)
+        known = not coef.shape[1]
+        xh, fb, l, u = _estimate_on(l, u, self._s0 if known else coef, self._s1 if known else coef_x,
+                                    self._alpha, self._center, self.eps)
         return xh, fb, (l, u)
 
     def summary(self, belief):
@@ -393,7 +401,7 @@ class ScaledNoiseZeroOrderFilter(ZeroOrderMomentFilter):
                     np.concatenate([p[1] for p in parts]).reshape(z.shape))
         return self._estimate_sn(z, moments)
 
-    def _estimate(self, z, coef):
+    def _estimate(self, z, coef, coef_x):
         if not coef.shape[1]:
             return (*self.estimate(z), None)
         return (*self._estimate_sn(z, density=LegendreDensity(coef, self.x_min, self.x_max)), None)
