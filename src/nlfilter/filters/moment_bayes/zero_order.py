@@ -27,8 +27,9 @@ from typing import NamedTuple
 import numpy as np
 
 from ... import _validate as V
-from ...moments.densities import (LegendreDensity, _legmulx, difference_moments, is_moment_sequence,
-                                  legendre_values, pdf_batched_1d, uniform_moments)
+from ...moments.densities import (LegendreDensity, difference_moments, is_moment_sequence,
+                                  legendre_antiderivative, legendre_values, pdf_batched_1d, series_times_x,
+                                  uniform_moments)
 from ._common import MomentFilter, MomentFilterWarning, check_N, keep_missing, observed
 
 
@@ -89,24 +90,7 @@ def zero_order_estimate(z, density: LegendreDensity, *, x_min=-1.0, x_max=1.0, n
     z = np.asarray(z, dtype=float)
     l, u = _interval(z, x_min, x_max, noise_halfwidth, outside)
     a, c = density.alpha, density.center
-    return _estimate_on(l, u, density.coef, _times_x(density.coef, a, c), a, c, eps)[:2]
-
-
-def _times_x(coef, alpha, center):
-    """Legendre series (in t) of ``x g(t)``, ``x = c + t / alpha`` (as ``LegendreDensity.integral(.., 1)``)."""
-    center, alpha = np.asarray(center), np.asarray(alpha)
-    return center[..., None] * np.concatenate([coef, np.zeros((*coef.shape[:-1], 1))], axis=-1) \
-        + _legmulx(coef) / alpha[..., None]
-
-
-def _antiderivative(s, P):
-    """``legendre_antiderivative(s, t)`` from ``P = legendre_values(t, K')``, ``K' >= deg s + 1``."""
-    K = s.shape[-1] - 1
-    F = s[..., 0] * (P[..., 1] + 1.0)
-    if K >= 1:
-        i = np.arange(1, K + 1)
-        F = F + np.sum(s[..., 1:] * (P[..., 2:K + 2] - P[..., :K]) / (2 * i + 1), axis=-1)
-    return F
+    return _estimate_on(l, u, density.coef, series_times_x(density.coef, a, c), a, c, eps)[:2]
 
 
 def _estimate_on(l, u, s0, s1, alpha, center, eps):
@@ -115,7 +99,7 @@ def _estimate_on(l, u, s0, s1, alpha, center, eps):
     Returns ``(x_hat, fallback, l, u)``."""
     t = np.clip(alpha * (np.stack([l, u]) - center), -1.0, 1.0)
     P = legendre_values(t, s1.shape[-1])
-    F0, F1 = _antiderivative(s0, P), _antiderivative(s1, P)
+    F0, F1 = legendre_antiderivative(s0, t, values=P), legendre_antiderivative(s1, t, values=P)
     de = F0[1] - F0[0]  # 000 Fig. 7 step 8
     nu = F1[1] - F1[0]  # step 10
     with np.errstate(divide="ignore", invalid="ignore"):
@@ -216,7 +200,7 @@ class ZeroOrderMomentFilter(MomentFilter):
         self._alpha, self._center = 2.0 / (x_max - x_min), 0.5 * (x_max + x_min)
         if self._density is not None:
             self._s0 = self._density.coef
-            self._s1 = _times_x(self._s0, self._alpha, self._center)
+            self._s1 = series_times_x(self._s0, self._alpha, self._center)
 
     @property
     def state_dim(self) -> int:
@@ -270,7 +254,7 @@ class ZeroOrderMomentFilter(MomentFilter):
         zero = np.zeros((B, self.N))
         mean = self._prior_mean(m, B)
         coef = self.density(m).coef.copy() if m.shape[1] else np.zeros((B, 0))
-        coef_x = _times_x(coef, self._alpha, self._center) if m.shape[1] else np.zeros((B, 0))
+        coef_x = series_times_x(coef, self._alpha, self._center) if m.shape[1] else np.zeros((B, 0))
         return ZeroOrderBelief(mean, np.zeros(B, bool), ~valid, m, valid, coef, coef_x, zero, zero.copy(),
                                np.zeros(B, int))
 
@@ -303,7 +287,7 @@ class ZeroOrderMomentFilter(MomentFilter):
                 valid = np.where(due, is_moment_sequence(m, self.x_min, self.x_max), valid)
                 new = self.density(m).coef
                 coef = np.where(due[:, None], new, coef)
-                coef_x = np.where(due[:, None], _times_x(new, self._alpha, self._center), coef_x)
+                coef_x = np.where(due[:, None], series_times_x(new, self._alpha, self._center), coef_x)
         xh, fb, lu = self._estimate(z, coef, coef_x)
         if self.invalid_moments == "warn":
             l, u = lu
