@@ -70,3 +70,74 @@ class BoundedNoiseModel:
         xs = xs[:, burn:]
         ys = xs @ self.c + rng.uniform(-self.noise_halfwidth, self.noise_halfwidth, (paths, steps))
         return xs, ys[..., None]
+
+
+class ZeroOrderModel:
+    """The zero-order problem of seed 000, Chapter III: ``x_k`` i.i.d. with density
+    ``(J+1)/2 x^J`` on (−1, 1) (J even, 000 eq. 3.18), ``z_k = x_k + (1 + beta x_k) v_k``,
+    ``v_k ~ U(−c, c)`` (000 assumption 3: c = 1; ``beta = 0`` is the additive ``z = x + v`` of
+    eq. 3.1, ``beta ≠ 0`` the non-additive form ``z = h(x, v)`` of eq. 1.2).
+
+    ``copula_r`` (``None``: x and v independent) couples ``(x_k, v_k)`` by a Gaussian copula of
+    correlation r, each keeping its law: ``x = F^{-1}(Φ(g1))``, ``v = c (2 Φ(g2) − 1)``,
+    ``corr(g1, g2) = r`` (the robustness study of 000's abstract: input/noise correlation).
+
+    >>> m = ZeroOrderModel(10)
+    >>> xs, zs = m.simulate(5, 3, 0)
+    >>> xs.shape, zs.shape, bool(np.all(np.abs(zs - xs) <= 1))
+    ((3, 5, 1), (3, 5, 1), True)
+    """
+
+    kind = "zero-order"
+    n = 1
+    m = 1
+
+    def __init__(self, J: int, *, beta: float = 0.0, copula_r: float | None = None,
+                 noise_halfwidth: float = 1.0):
+        if isinstance(J, bool) or not isinstance(J, (int, np.integer)) or J < 0 or J % 2:
+            raise ValueError(f"J: expected a non-negative even integer, got {J!r}")
+        self.J = int(J)
+        self.noise_halfwidth = float(V.positive("noise_halfwidth", noise_halfwidth))
+        self.beta = float(beta)
+        if not (1 - abs(self.beta) > 0):
+            raise ValueError(f"beta: expected |beta| < 1 (1 + beta x > 0 on (-1, 1)), got {beta!r}")
+        if copula_r is not None and not 0 <= float(copula_r) < 1:
+            raise ValueError(f"copula_r: expected a copula correlation 0 <= r < 1 (or None), got {copula_r!r}")
+        self.copula_r = None if copula_r is None else float(copula_r)
+
+    def sample_x(self, rng, shape):
+        """Samples of ``(J+1)/2 x^J`` on (−1, 1): ``|x| = U^{1/(J+1)}``, random sign (draws: U, then the signs)."""
+        u = rng.random(shape)
+        s = rng.random(shape) < 0.5
+        return np.where(s, -1.0, 1.0) * u ** (1.0 / (self.J + 1))
+
+    def sample_pair(self, rng, shape):
+        """``(x, v)`` of the given shape: independent (draws: x as :meth:`sample_x`, then v), or
+        through the Gaussian copula (draws: g1, then the independent normal part of g2)."""
+        c = self.noise_halfwidth
+        if self.copula_r is None:
+            x = self.sample_x(rng, shape)
+            return x, rng.uniform(-c, c, shape)
+        from scipy.special import ndtr
+        r = self.copula_r
+        g1 = rng.standard_normal(shape)
+        g2 = r * g1 + np.sqrt(1.0 - r * r) * rng.standard_normal(shape)
+        u1 = ndtr(g1)
+        x = np.sign(2 * u1 - 1) * np.abs(2 * u1 - 1) ** (1.0 / (self.J + 1))  # F(x) = (1 + x^{J+1})/2
+        v = 2.0 * ndtr(g2) - 1.0
+        return x, (v if c == 1.0 else c * v)
+
+    def measure(self, x, v):
+        """``z = x + (1 + beta x) v`` (``x + v`` when beta = 0)."""
+        return x + v if self.beta == 0.0 else x + (1 + self.beta * x) * v
+
+    def simulate(self, steps: int, paths: int, rng, *, noise: bool = False):
+        """``(xs (paths, steps, 1), zs (paths, steps, 1))``, and the noises ``vs (paths, steps)``
+        with ``noise=True``; draws as :meth:`sample_pair` on ``(paths, steps)`` (one sample per
+        path with ``steps = 1``: an i.i.d. Monte Carlo)."""
+        V.positive("steps", steps, integer=True)
+        V.positive("paths", paths, integer=True)
+        rng = np.random.default_rng(rng)
+        x, v = self.sample_pair(rng, (paths, steps))
+        out = (x[..., None], self.measure(x, v)[..., None])
+        return (*out, v) if noise else out

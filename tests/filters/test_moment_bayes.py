@@ -431,3 +431,22 @@ def test_scaled_noise_filter_clips_an_impossible_measurement():
         np.testing.assert_array_equal(res.means[0], clean.means[0])
         np.testing.assert_array_equal(res.extras["moments"][0], clean.extras["moments"][0])
 
+
+
+def test_zero_order_estimate_equals_the_ratio_of_integrals_bit_for_bit():
+    # 000 eq. 3.7 from one table of Legendre values = int x f / int f by LegendreDensity.integral
+    from nlfilter.filters.moment_bayes.zero_order import _interval, zero_order_estimate
+    from nlfilter.moments.densities import LegendreDensity, power_density_moments
+    rng = np.random.default_rng(3)
+    for N in (2, 7, 12):
+        m = power_density_moments(N, 6) + 0.01 * rng.standard_normal((40, N))
+        d = LegendreDensity.from_moments(m)
+        z = rng.uniform(-2, 2, 40)
+        l, u = _interval(z, -1.0, 1.0, 1.0, "raise")
+        de, nu = d.integral(l, u, 0), d.integral(l, u, 1)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            xh = nu / de
+        fb = ~(de >= 1e-6) | ~((xh > l) & (xh < u))
+        got, gfb = zero_order_estimate(z, d)
+        np.testing.assert_array_equal(gfb, fb)
+        np.testing.assert_array_equal(got, np.where(fb, 0.5 * (l + u), xh))

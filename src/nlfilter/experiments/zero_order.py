@@ -18,6 +18,8 @@ import numpy as np
 from tqdm import tqdm
 
 from . import experiment
+from .. import evaluate as ev
+from ..bounded import ZeroOrderModel
 from ..filters.moment_bayes import MomentFilterWarning, ZeroOrderMomentFilter, power_density_estimate
 from ..moments.densities import power_density_moments
 from ..results import Result
@@ -106,15 +108,8 @@ def exact_mse(estimate, J: int, *, switch=None, nodes: int = 100):
 
 
 def sample_power_density(rng, J: int, shape):
-    """Samples of ``(J+1)/2 x^J`` on (-1, 1): ``|x| = U^{1/(J+1)}``, random sign."""
-    u = rng.random(shape)
-    s = rng.random(shape) < 0.5
-    return np.where(s, -1.0, 1.0) * u ** (1.0 / (J + 1))
-
-
-def _means(flt, z):
-    """The estimates ``(..., T)`` of a zero-order filter on the measurements ``z (..., T)``."""
-    return flt.run(z[..., None]).means[..., 0]
+    """Samples of ``(J+1)/2 x^J`` on (-1, 1) (:meth:`nlfilter.bounded.ZeroOrderModel.sample_x`)."""
+    return ZeroOrderModel(J).sample_x(rng, shape)
 
 
 def _estimators(J, Ns, eps):
@@ -153,25 +148,26 @@ def run_table1(params, *, quick, runs, seed, progress):
         for name in ests:
             if name != "optimal":
                 res.add(name, "mse_gap", det[name] - det["optimal"], J=J)
-        # Monte Carlo check with common random numbers across estimators
+        # Monte Carlo check with common random numbers across estimators: i.i.d. samples (one per
+        # path) drawn in chunks of 200 000 (the draw order of the seed), the MSE through evaluate
+        model = ZeroOrderModel(J)
         rng = np.random.default_rng(child)
         chunk = 200_000
-        sums = {k: np.zeros(2) for k in ests}
+        xs, est = [], {k: [] for k in ests}
         done = 0
         with tqdm(total=n_mc, disable=not progress, desc=f"J={J}") as bar:
             while done < n_mc:
                 n = min(chunk, n_mc - done)
-                x = sample_power_density(rng, J, n)
-                z = x + rng.uniform(-1.0, 1.0, n)
-                for name, (est, _) in ests.items():
-                    e2 = (x - est(z)) ** 2
-                    sums[name] += (e2.sum(), (e2 ** 2).sum())
+                x, z = model.simulate(1, n, rng)
+                xs.append(x)
+                for name, (f, _) in ests.items():
+                    est[name].append(f(z))
                 done += n
                 bar.update(n)
-        for name, (s1, s2) in sums.items():
-            mean = s1 / n_mc
-            se = np.sqrt(max(s2 / n_mc - mean ** 2, 0.0) / (n_mc - 1))
-            res.add(name, "mse_mc", mean, stderr=se, paper=paper_value(J, name), J=J)
+        xs = np.concatenate(xs)
+        for name, e in est.items():
+            sm = ev.mse(np.concatenate(e), xs)
+            res.add(name, "mse_mc", sm.value, stderr=sm.stderr, paper=paper_value(J, name), J=J)
     names = ["optimal"] + [f"moment{N}" for N in Ns] + ["linear"]
     Js = sorted(set(Js))  # the figure's x axis
     res.series["Table 1 (Fig. 8): ensemble MSE vs J, exact quadrature"] = {
@@ -203,11 +199,11 @@ def run_table1(params, *, quick, runs, seed, progress):
 
 # ------------------------------------------------------------------ Fig. 10
 
-def adaptive_curves(J, Ns, *, n_max, runs, n0, window, eps, invalid_moments, rng, progress=False):
-    """Time-averaged squared errors (eq. 3.17) per run: dict name -> (runs, n_max) cumulative means."""
-    x = sample_power_density(rng, J, (runs, n_max))
-    z = x + rng.uniform(-1.0, 1.0, (runs, n_max))
-    k = np.arange(1, n_max + 1)
+def adaptive_estimates(J, Ns, *, n_max, runs, n0, window, eps, invalid_moments, rng, progress=False):
+    """``(xs (runs, n_max, 1), estimates {name: (runs, n_max, 1)}, fallback rates {name: (fallback, invalid)})``
+    of the adaptive filters of Fig. 7, the linear filter with the exact second moment of x and the
+    optimal estimator (eq. 3.20) on one simulation of :class:`~nlfilter.bounded.ZeroOrderModel`."""
+    xs, zs = ZeroOrderModel(J).simulate(n_max, runs, rng)
     out = {}
     fb_rate = {}
     for N in tqdm(Ns, disable=not progress, desc=f"J={J}"):
@@ -215,18 +211,19 @@ def adaptive_curves(J, Ns, *, n_max, runs, n0, window, eps, invalid_moments, rng
                                   invalid_moments=invalid_moments)
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", MomentFilterWarning)
-            r = f.run(z[..., None])
-        out[f"moment{N}"] = np.cumsum((x - r.means[..., 0]) ** 2, axis=-1) / k
+            r = f.run(zs)
+        out[f"moment{N}"] = r.means
         fb_rate[f"moment{N}"] = (float(np.mean(r.extras["fallback"])), float(np.mean(r.extras["invalid"])))
     # linear filter with the exact second moment of x (000: "second moment known exactly")
-    out["linear"] = np.cumsum((x - linear_gain(J) * z) ** 2, axis=-1) / k
-    out["optimal"] = np.cumsum((x - power_density_estimate(z, J)) ** 2, axis=-1) / k
-    return out, fb_rate
+    out["linear"] = linear_gain(J) * zs
+    out["optimal"] = power_density_estimate(zs, J)
+    return xs, out, fb_rate
 
 
-def _paired(curves, a, b, idx):
-    d = curves[a][:, idx] - curves[b][:, idx]
-    return float(d.mean()), float(d.std(ddof=1) / np.sqrt(d.shape[0]))
+def _paired(est, xs, a, b, n=None):
+    """MSE(a) − MSE(b) over the first ``n`` samples (all by default), paired across runs."""
+    s = ev.paired_difference(est[a], est[b], xs, window=slice(0, n))
+    return s.value, s.stderr
 
 
 @experiment("zero-order-adaptive", title="Zero-order adaptive moment filter: time-averaged MSE vs n",
@@ -244,22 +241,24 @@ def run_fig10(params, *, quick, runs, seed, progress):
                  "seed 000, Fig. 10", params)
     grid = np.unique(np.linspace(params["window"], n_max, 60).astype(int))
     for J, child in zip(Js, np.random.SeedSequence(seed).spawn(len(Js))):
-        curves, fbr = adaptive_curves(J, Ns, n_max=n_max, runs=R, n0=params["n0"], window=params["window"],
-                                      eps=params["eps"], invalid_moments=params["invalid_moments"],
-                                      rng=np.random.default_rng(child), progress=progress)
+        xs, est, fbr = adaptive_estimates(J, Ns, n_max=n_max, runs=R, n0=params["n0"], window=params["window"],
+                                          eps=params["eps"], invalid_moments=params["invalid_moments"],
+                                          rng=np.random.default_rng(child), progress=progress)
         qn = f"mse_n{n_max}"
-        for name, c in curves.items():
-            last = c[:, -1]
-            res.add(name, qn, last.mean(), stderr=last.std(ddof=1) / np.sqrt(R), J=J)
-        for name, c in curves.items():
+        for name, e in est.items():
+            sm = ev.mse(e, xs)
+            res.add(name, qn, sm.value, stderr=sm.stderr, J=J)
+        for name in est:
             if name != "optimal":
-                m, s = _paired(curves, name, "optimal", -1)
+                m, s = _paired(est, xs, name, "optimal")
                 res.add(name, f"gap_n{n_max}", m, stderr=s, J=J)
         for name, (fb, inv) in fbr.items():
             res.notes.append(f"J={J} {name}: eq. 3.16 used in {100 * fb:.2f}% of steps "
                              f"(moments not a moment sequence in {100 * inv:.2f}%)")
-        mean = {nm: c[:, grid - 1].mean(axis=0) for nm, c in curves.items()}
-        se = {nm: c[:, grid - 1].std(axis=0, ddof=1) / np.sqrt(R) for nm, c in curves.items()}
+        # the curves of eq. 3.17 (cumulative time averages) at the grid points
+        curves = {nm: np.cumsum(ev.squared_errors(e, xs, 0), axis=-1)[:, grid - 1] / grid for nm, e in est.items()}
+        mean = {nm: c.mean(axis=0) for nm, c in curves.items()}
+        se = {nm: c.std(axis=0, ddof=1) / np.sqrt(R) for nm, c in curves.items()}
         panel = {"x": grid, "lines": mean, "bands": {nm: (mean[nm] - 2 * se[nm], mean[nm] + 2 * se[nm]) for nm in mean},
                  "styles": {"linear": "--"}, "xlabel": "n (samples)",
                  "ylabel": "time-averaged squared error (eq. 3.17)",
@@ -282,11 +281,12 @@ def run_fig10(params, *, quick, runs, seed, progress):
                        (f"J=0, n={n_max}: e4 > e_linear", "moment4", "linear", -1, +1),
                        (f"J=0, n={n_max}: e2 = e_linear (eq. 3.27)", "moment2", "linear", -1, 0)]
         if J == 10 and {4, 6} <= Nset:
-            frac = float(np.mean(curves["moment6"][:, -1] < curves["moment4"][:, -1]))
+            per_run = {nm: ev.squared_errors(est[nm], xs, 0).mean(axis=-1) for nm in ("moment4", "moment6")}
+            frac = float(np.mean(per_run["moment6"] < per_run["moment4"]))
             res.notes.append(f"J=10: fraction of single runs with e6 < e4 at n={n_max}: {frac:.3f} "
                              "(000's Fig. 10 shows one run)")
         for text, a, b, idx, sign in claims:
-            m, s = _paired(curves, a, b, idx)
+            m, s = _paired(est, xs, a, b, None if idx == -1 else idx + 1)
             res.add(f"{a}-{b}", "paired_diff", m, stderr=s, J=J, n=(n_max if idx == -1 else idx + 1))
             if sign > 0:
                 verdict = "holds" if m > 2 * s else ("reversed" if m < -2 * s else "not resolved")
@@ -300,13 +300,8 @@ def run_fig10(params, *, quick, runs, seed, progress):
 
 def correlated_pair(rng, J: int, r: float, shape):
     """``(x, v)`` with x ~ (J+1)/2 x^J and v ~ U(-1, 1) exactly, coupled by a Gaussian copula of
-    correlation ``r``: ``x = F^{-1}(Phi(g1))``, ``v = 2 Phi(g2) - 1``, ``corr(g1, g2) = r``."""
-    from scipy.special import ndtr
-    g1 = rng.standard_normal(shape)
-    g2 = r * g1 + np.sqrt(1.0 - r * r) * rng.standard_normal(shape)
-    u1 = ndtr(g1)
-    x = np.sign(2 * u1 - 1) * np.abs(2 * u1 - 1) ** (1.0 / (J + 1))  # F(x) = (1 + x^{J+1})/2
-    return x, 2.0 * ndtr(g2) - 1.0
+    correlation ``r`` (:meth:`nlfilter.bounded.ZeroOrderModel.sample_pair` with ``copula_r = r``)."""
+    return ZeroOrderModel(J, copula_r=r).sample_pair(rng, shape)
 
 
 def copula_corr(J: int, r: float, n: int = 400_000, seed: int = 0) -> float:
@@ -355,47 +350,34 @@ def run_robustness(params, *, quick, runs, seed, progress):
         r = float(r)
         if not 0 <= r < 1:
             raise ValueError(f"r: expected a copula correlation 0 <= r < 1, got {r}")
-        rng = np.random.default_rng(child)
-        x, v = correlated_pair(rng, J, r, (R, n))
-        z = x + v
+        xs, zs, v = ZeroOrderModel(J, copula_r=r).simulate(n, R, np.random.default_rng(child), noise=True)
+        z = zs[..., 0]
         rho = copula_corr(J, r)
-        est = {"optimal": np.concatenate([correlated_optimal(zc, J, r) for zc in np.array_split(z, max(1, R // 20))])}
-        exv = float(np.mean(x * v))  # E[xv] (the linear filter is given the true second moments)
-        est["linear"] = (m2x + exv) / (m2x + 2 * exv + 1 / 3) * z
+        est = {"optimal": np.concatenate([correlated_optimal(zc, J, r) for zc in np.array_split(z, max(1, R // 20))])[..., None]}
+        exv = float(np.mean(xs[..., 0] * v))  # E[xv] (the linear filter is given the true second moments)
+        est["linear"] = (m2x + exv) / (m2x + 2 * exv + 1 / 3) * zs
         for N in tqdm(Ns, disable=not progress, desc=f"r={r}"):
-            est[f"moment{N}"] = _means(ZeroOrderMomentFilter(N, adaptive=True, invalid_moments="ignore", **kw), z)
-            est[f"moment{N}-known"] = _means(ZeroOrderMomentFilter(N, moments=power_density_moments(N, J),
-                                                                   invalid_moments="ignore"), z)
-        errs = {name: np.cumsum((x - e) ** 2, axis=-1)[:, -1] / n for name, e in est.items()}
-        for name, e in errs.items():
-            res.add(name, f"mse_n{n}", e.mean(), stderr=e.std(ddof=1) / np.sqrt(R), case="correlated", r=r)
-            if name != "optimal":
-                d = e - errs["optimal"]
-                res.add(name, f"gap_n{n}", d.mean(), stderr=d.std(ddof=1) / np.sqrt(R), case="correlated", r=r)
+            est[f"moment{N}"] = ZeroOrderMomentFilter(N, adaptive=True, invalid_moments="ignore", **kw).run(zs).means
+            est[f"moment{N}-known"] = ZeroOrderMomentFilter(N, moments=power_density_moments(N, J),
+                                                            invalid_moments="ignore").run(zs).means
+        best = _rows(res, est, xs, n, case="correlated", r=r)
         res.notes.append(f"correlated r={r}: corr(x, v) = {rho:.3f}; best adaptive N = "
-                         + str(min(Ns, key=lambda N: errs[f"moment{N}"].mean())))
+                         + str(min(Ns, key=lambda N: best[f"moment{N}"])))
     # --- non-additive measurement z = x + (1 + beta x) v
     for beta, child in zip(params["beta"], ss.spawn(len(params["beta"]) + 100)[100:]):
         beta = float(beta)
         if not 0 <= beta < 1:
             raise ValueError(f"beta: expected 0 <= beta < 1, got {beta}")
-        rng = np.random.default_rng(child)
-        x = sample_power_density(rng, J, (R, n))
-        z = x + (1 + beta * x) * rng.uniform(-1.0, 1.0, (R, n))
+        xs, zs = ZeroOrderModel(J, beta=beta).simulate(n, R, np.random.default_rng(child))
         # exact optimum: the same estimator with the true density (a degree-J polynomial, N = J)
-        est = {"optimal": _means(ScaledNoiseZeroOrderFilter(max(J, 1), beta, moments=power_density_moments(max(J, 1), J),
-                                                            nodes=96), z)}
-        est["linear"] = m2x / (m2x + (1 + beta ** 2 * m2x) / 3) * z
+        est = {"optimal": ScaledNoiseZeroOrderFilter(max(J, 1), beta, moments=power_density_moments(max(J, 1), J),
+                                                     nodes=96).run(zs).means}
+        est["linear"] = m2x / (m2x + (1 + beta ** 2 * m2x) / 3) * zs
         for N in tqdm(Ns, disable=not progress, desc=f"beta={beta}"):
-            est[f"moment{N}"] = _means(ScaledNoiseZeroOrderFilter(N, beta, adaptive=True, **kw), z)
-            est[f"moment{N}-additive"] = _means(ZeroOrderMomentFilter(N, adaptive=True, outside="clip",
-                                                                      invalid_moments="ignore", **kw), z)
-        errs = {name: np.mean((x - e) ** 2, axis=-1) for name, e in est.items()}
-        for name, e in errs.items():
-            res.add(name, f"mse_n{n}", e.mean(), stderr=e.std(ddof=1) / np.sqrt(R), case="scaled-noise", beta=beta)
-            if name != "optimal":
-                d = e - errs["optimal"]
-                res.add(name, f"gap_n{n}", d.mean(), stderr=d.std(ddof=1) / np.sqrt(R), case="scaled-noise", beta=beta)
+            est[f"moment{N}"] = ScaledNoiseZeroOrderFilter(N, beta, adaptive=True, **kw).run(zs).means
+            est[f"moment{N}-additive"] = ZeroOrderMomentFilter(N, adaptive=True, outside="clip",
+                                                               invalid_moments="ignore", **kw).run(zs).means
+        _rows(res, est, xs, n, case="scaled-noise", beta=beta)
     _robustness_figure(res, params, Ns, n, R)
     res.notes.append("correlated: x and v keep their laws, coupled by a Gaussian copula of correlation r.  "
                      "moment{N} = adaptive filter of Fig. 7 "
@@ -404,6 +386,19 @@ def run_robustness(params, *, quick, runs, seed, progress):
                      "non-additive likelihood (eqs. 1.10-1.11), -additive = the additive filter of Fig. 7 "
                      "used regardless (impossible z clipped).")
     return res
+
+
+def _rows(res, est, xs, n, **key):
+    """The rows ``mse_n{n}`` and ``gap_n{n}`` (paired against the optimum) of one case; returns the MSEs."""
+    out = {}
+    for name, e in est.items():
+        sm = ev.mse(e, xs)
+        out[name] = sm.value
+        res.add(name, f"mse_n{n}", sm.value, stderr=sm.stderr, **key)
+        if name != "optimal":
+            d = ev.paired_difference(e, est["optimal"], xs)
+            res.add(name, f"gap_n{n}", d.value, stderr=d.stderr, **key)
+    return out
 
 
 def _robustness_figure(res, params, Ns, n, R):

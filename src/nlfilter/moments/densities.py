@@ -33,6 +33,7 @@ Moment arrays are ``(..., N)`` holding ``m_1 .. m_N`` (``m_0 = 1`` implied), bat
 
 from __future__ import annotations
 
+import functools
 import math
 
 import numpy as np
@@ -43,7 +44,7 @@ from .. import _validate as V
 __all__ = ["LegendreDensity", "LegendreDensity2D", "legendre_values", "legendre_antiderivative",
            "sum_moments", "difference_moments", "affine_moments", "uniform_moments",
            "power_density_moments", "moments_to_cumulants", "cumulants_to_moments",
-           "is_moment_sequence", "MAX_DEGREE"]
+           "is_moment_sequence", "series_times_x", "MAX_DEGREE"]
 
 #: Highest degree accepted (the experiments use N <= 12; the Legendre basis itself is stable far
 #: beyond, but moments estimated from data carry no information at such orders).
@@ -64,18 +65,20 @@ def legendre_values(t, K: int) -> np.ndarray:
     return out
 
 
-def legendre_antiderivative(c, t) -> np.ndarray:
+def legendre_antiderivative(c, t, *, values=None) -> np.ndarray:
     """``F(t) = int_{-1}^t sum_i c_i P_i(s) ds`` for a batch of series ``c`` (..., K+1).
 
     Uses ``int P_0 = t + 1`` and ``int_{-1}^t P_i = (P_{i+1}(t) - P_{i-1}(t))/(2i+1)`` (i >= 1).
+    ``values``: ``legendre_values(t, K')`` with ``K' >= K + 1``, when already computed (one table
+    serves several series at the same points).
     """
     c = np.asarray(c, dtype=float)
     K = c.shape[-1] - 1
-    P = legendre_values(t, K + 1)
+    P = legendre_values(t, K + 1) if values is None else values
     F = c[..., 0] * (P[..., 1] + 1.0)
     if K >= 1:
         i = np.arange(1, K + 1)
-        F = F + np.sum(c[..., 1:] * (P[..., 2:] - P[..., :-2]) / (2 * i + 1), axis=-1)
+        F = F + np.sum(c[..., 1:] * (P[..., 2:K + 2] - P[..., :K]) / (2 * i + 1), axis=-1)
     return F
 
 
@@ -90,13 +93,23 @@ def _legmulx(c: np.ndarray) -> np.ndarray:
     return out
 
 
+def series_times_x(c, alpha, center) -> np.ndarray:
+    """Legendre series (in t) of ``x g(t)`` from that of ``g`` (last axis), ``x = center + t / alpha``
+    (``alpha``, ``center`` broadcast over the batch)."""
+    center, alpha = np.asarray(center, dtype=float), np.asarray(alpha, dtype=float)
+    return center[..., None] * np.concatenate([c, np.zeros((*c.shape[:-1], 1))], axis=-1) + _legmulx(c) / alpha[..., None]
+
+
+@functools.lru_cache(maxsize=None)
 def _poly_to_leg_matrix(K: int) -> np.ndarray:
-    """``L`` (K+1, K+1) with ``P_i(t) = sum_k L[i, k] t^k`` (exact rationals rounded once)."""
+    """``L`` (K+1, K+1) with ``P_i(t) = sum_k L[i, k] t^k`` (exact rationals rounded once; computed
+    once per K and shared, read-only)."""
     L = np.zeros((K + 1, K + 1))
     for i in range(K + 1):
         e = np.zeros(i + 1)
         e[i] = 1.0
         L[i, : i + 1] = npleg.leg2poly(e)
+    L.flags.writeable = False
     return L
 
 
@@ -301,11 +314,9 @@ class LegendreDensity:
 
     def _series_times_x_power(self, p: int) -> np.ndarray:
         """Legendre series (in t) of ``x^p g(t)``, with ``x = c + t / alpha``."""
-        c = self.coef
-        out = c
+        out = self.coef
         for _ in range(p):
-            out = self.center[..., None] * np.concatenate(
-                [out, np.zeros((*out.shape[:-1], 1))], axis=-1) + _legmulx(out) / self.alpha[..., None]
+            out = series_times_x(out, self.alpha, self.center)
         return out
 
     def integral(self, l, u, power: int = 0) -> np.ndarray:

@@ -27,7 +27,8 @@ from typing import NamedTuple
 import numpy as np
 
 from ... import _validate as V
-from ...moments.densities import (LegendreDensity, difference_moments, is_moment_sequence, pdf_batched_1d,
+from ...moments.densities import (LegendreDensity, difference_moments, is_moment_sequence,
+                                  legendre_antiderivative, legendre_values, pdf_batched_1d, series_times_x,
                                   uniform_moments)
 from ._common import MomentFilter, MomentFilterWarning, check_N, keep_missing, observed
 
@@ -36,7 +37,8 @@ class ZeroOrderBelief(NamedTuple):
     """Per path: ``mean (B, 1)`` the estimate of x_k; ``fallback``/``invalid (B,)`` flags;
     ``moments (B, N)`` the moments of x in use (adaptive; per-path known ones; else ``(B, 0)``),
     ``valid (B,)`` whether they are a moment sequence, ``coef (B, N+1)`` the Legendre coefficients
-    of their polynomial prior (``(B, 0)`` with the known moments); the learner's power sums
+    of their polynomial prior (``(B, 0)`` with the known moments) and ``coef_x (B, N+2)`` the series of
+    x times it (refreshed with ``coef``; ``(B, 0)`` with the known moments); the learner's power sums
     ``acc (B, N)`` (completed windows) and ``part (B, N)`` (current window), ``count (B,)``
     samples learnt."""
 
@@ -46,6 +48,7 @@ class ZeroOrderBelief(NamedTuple):
     moments: np.ndarray
     valid: np.ndarray
     coef: np.ndarray
+    coef_x: np.ndarray
     acc: np.ndarray
     part: np.ndarray
     count: np.ndarray
@@ -86,12 +89,23 @@ def zero_order_estimate(z, density: LegendreDensity, *, x_min=-1.0, x_max=1.0, n
     """
     z = np.asarray(z, dtype=float)
     l, u = _interval(z, x_min, x_max, noise_halfwidth, outside)
-    de = density.integral(l, u, 0)  # 000 Fig. 7 step 8
-    nu = density.integral(l, u, 1)  # step 10
+    a, c = density.alpha, density.center
+    return _estimate_on(l, u, density.coef, series_times_x(density.coef, a, c), a, c, eps)[:2]
+
+
+def _estimate_on(l, u, s0, s1, alpha, center, eps):
+    """Eq. 3.7 on ``(l, u)`` with the series ``s0`` of the prior and ``s1`` of ``x`` times it: both
+    ends and both integrals from one table of Legendre values (000 Fig. 7 steps 8-13, eq. 3.16).
+    Returns ``(x_hat, fallback, l, u)``."""
+    t = np.clip(alpha * (np.stack([l, u]) - center), -1.0, 1.0)
+    P = legendre_values(t, s1.shape[-1])
+    F0, F1 = legendre_antiderivative(s0, t, values=P), legendre_antiderivative(s1, t, values=P)
+    de = F0[1] - F0[0]  # 000 Fig. 7 step 8
+    nu = F1[1] - F1[0]  # step 10
     with np.errstate(divide="ignore", invalid="ignore"):
         xh = nu / de  # 000 eq. 3.7 (the common factor 1/2 of eq. 3.3 cancels)
     fb = ~(de >= eps) | ~((xh > l) & (xh < u))  # steps 9 and 12
-    return np.where(fb, 0.5 * (l + u), xh), fb  # eq. 3.16
+    return np.where(fb, 0.5 * (l + u), xh), fb, l, u  # eq. 3.16
 
 
 def power_density_estimate(z, J: int):
@@ -181,6 +195,12 @@ class ZeroOrderMomentFilter(MomentFilter):
         self.invalid_moments = V.choice("invalid_moments", invalid_moments, {"warn", "ignore"})
         self._powers = np.arange(1, self.N + 1)
         self._density = None if self.moments is None or self.moments.ndim > 1 else self.density()
+        # what a step needs and the data do not change: the scaling t = alpha (x - center) of the
+        # support and, with known moments, the series of the prior and of x times it
+        self._alpha, self._center = 2.0 / (x_max - x_min), 0.5 * (x_max + x_min)
+        if self._density is not None:
+            self._s0 = self._density.coef
+            self._s1 = series_times_x(self._s0, self._alpha, self._center)
 
     @property
     def state_dim(self) -> int:
@@ -234,7 +254,9 @@ class ZeroOrderMomentFilter(MomentFilter):
         zero = np.zeros((B, self.N))
         mean = self._prior_mean(m, B)
         coef = self.density(m).coef.copy() if m.shape[1] else np.zeros((B, 0))
-        return ZeroOrderBelief(mean, np.zeros(B, bool), ~valid, m, valid, coef, zero, zero.copy(), np.zeros(B, int))
+        coef_x = series_times_x(coef, self._alpha, self._center) if m.shape[1] else np.zeros((B, 0))
+        return ZeroOrderBelief(mean, np.zeros(B, bool), ~valid, m, valid, coef, coef_x, zero, zero.copy(),
+                               np.zeros(B, int))
 
     def _prior_mean(self, m, B):
         mom = m if m.shape[1] else np.broadcast_to(self.moments, (B, self.N))
@@ -247,11 +269,14 @@ class ZeroOrderMomentFilter(MomentFilter):
 
     def update(self, belief, y, k):
         z, obs = observed(y)
-        z = np.where(obs, z, 0.5 * (self.x_min + self.x_max))  # a possible value on missing paths
-        m, valid, coef = belief.moments, belief.valid, belief.coef
+        if not obs.all():
+            z = np.where(obs, z, 0.5 * (self.x_min + self.x_max))  # a possible value on missing paths
+        m, valid, coef, coef_x = belief.moments, belief.valid, belief.coef, belief.coef_x
         acc, part, count = belief.acc, belief.part, belief.count
         if self.adaptive:  # 000 Fig. 7 steps 4-6: accumulate, refresh if due, then estimate
-            part = np.where(obs[:, None], part + self._learning_data(z)[:, None] ** self._powers, part)
+            part = part + self._learning_data(z)[:, None] ** self._powers
+            if not obs.all():
+                part = np.where(obs[:, None], part, belief.part)
             count = count + obs
             due = obs & (count % self.window == 0)
             if due.any():
@@ -260,21 +285,25 @@ class ZeroOrderMomentFilter(MomentFilter):
                 new = self.recover_moments(acc / np.maximum(count, 1)[:, None], count)  # eqs. 2.27, 3.14, 3.15
                 m = np.where(due[:, None], new, m)
                 valid = np.where(due, is_moment_sequence(m, self.x_min, self.x_max), valid)
-                coef = np.where(due[:, None], self.density(m).coef, coef)
-        xh, fb = self._estimate(z, coef)
+                new = self.density(m).coef
+                coef = np.where(due[:, None], new, coef)
+                coef_x = np.where(due[:, None], series_times_x(new, self._alpha, self._center), coef_x)
+        xh, fb, lu = self._estimate(z, coef, coef_x)
         if self.invalid_moments == "warn":
-            l, u = _interval(z, self.x_min, self.x_max, self.c, self.outside)
+            l, u = lu
             xh = np.where(valid, xh, 0.5 * (l + u))
             fb = fb | ~valid
-        new = ZeroOrderBelief(xh[:, None], fb, ~valid, m, valid, coef, acc, part, count)
+        new = ZeroOrderBelief(xh[:, None], fb, ~valid, m, valid, coef, coef_x, acc, part, count)
         return keep_missing(obs, new, belief)
 
-    def _estimate(self, z, coef):
-        if not coef.shape[1]:
-            return self.estimate(z)
-        d = LegendreDensity(coef, self.x_min, self.x_max)
-        return zero_order_estimate(z, d, x_min=self.x_min, x_max=self.x_max,
-                                   noise_halfwidth=self.c, eps=self.eps, outside=self.outside)
+    def _estimate(self, z, coef, coef_x):
+        """``(x_hat, fallback, (l, u))`` of one step (a subclass may give None for ``(l, u)`` when it never
+        warns): the series precomputed with the known moments, else the belief's ``coef``, ``coef_x``."""
+        l, u = _interval(z, self.x_min, self.x_max, self.c, self.outside)
+        known = not coef.shape[1]
+        xh, fb, l, u = _estimate_on(l, u, self._s0 if known else coef, self._s1 if known else coef_x,
+                                    self._alpha, self._center, self.eps)
+        return xh, fb, (l, u)
 
     def summary(self, belief):
         return belief.mean, None
@@ -362,10 +391,10 @@ class ScaledNoiseZeroOrderFilter(ZeroOrderMomentFilter):
                     np.concatenate([p[1] for p in parts]).reshape(z.shape))
         return self._estimate_sn(z, moments)
 
-    def _estimate(self, z, coef):
+    def _estimate(self, z, coef, coef_x):
         if not coef.shape[1]:
-            return self.estimate(z)
-        return self._estimate_sn(z, density=LegendreDensity(coef, self.x_min, self.x_max))
+            return (*self.estimate(z), None)
+        return (*self._estimate_sn(z, density=LegendreDensity(coef, self.x_min, self.x_max)), None)
 
     def _estimate_sn(self, z, moments=None, density=None):
         d = density if density is not None else (
