@@ -32,7 +32,7 @@ import numpy as np
 
 from .. import _validate as V
 from .base import ContinuousFilter, DiscreteFilter, GaussianState
-from .linalg import gaussian_update, mm, poison
+from .linalg import gaussian_update, mm, poison, symmetrize
 
 __all__ = ["GaussianFilter", "ContinuousDiscreteGaussianFilter", "iterated_update"]
 
@@ -70,7 +70,7 @@ class GaussianFilter(DiscreteFilter):
         super().__init__(model, start=start)
         self._set_rule(rule)
 
-    def _set_rule(self, rule):
+    def _set_rule(self, rule, by=None):
         if not callable(getattr(rule, "moments", None)):
             raise TypeError(f"rule: expected a moment rule (Taylor1, Taylor2, Unscented, Cubature, GaussHermite), "
                             f"got {type(rule).__name__}")
@@ -78,25 +78,69 @@ class GaussianFilter(DiscreteFilter):
         if check is not None:
             check(self.model.n)
         self.rule = rule
-        self.model.require("f", "h", "G", *rule.needs(self.model), by=type(self).__name__)
+        self.model.require("f", "h", "G", *rule.needs(self.model), by=by or type(self).__name__)
 
     def _time(self, k):
         return k
 
-    def predict(self, state, k):
+    def _predict(self, state, k):
+        """``m⁻ = E[f]``, ``P⁻ = Cov[f] + E[G Q Gᵀ]`` (+ the rule's fourth-moment term, added last;
+        symmetrized for a rule that asks), poisoned where the rule's nodes failed."""
         md = self.model
-        mo = self.rule.moments(state, md.f, self._time(k), jac=md.f_x, hess=md.f_xx, cross=False, noise_of=md)
-        new = GaussianState(mo.mean, mo.cov + mo.noise)  # m⁻ = E[f], P⁻ = Cov[f] + E[G Q Gᵀ]
+        mo = self.rule.moments(state, md.f, self._time(k), jac=md.f_x, hess=md.f_xx, cross=False, noise_of=md,
+                               role="dynamics")
+        P = mo.cov + mo.noise  # P⁻ = Cov[f] + E[G Q Gᵀ]
+        if mo.quartic is not None:
+            P = P + mo.quartic
+        if getattr(self.rule, "symmetrize", False):
+            P = symmetrize(P)
+        new = GaussianState(mo.mean, P)
         return new if mo.bad is None else poison(new, mo.bad)
 
-    def update(self, state, y, k):
+    def predict(self, state, k):
+        return self._predict(state, k)
+
+    def _update(self, state, y, t, R=None):
+        """``(updated belief, failed paths or None)`` at time ``t``; ``R`` defaults to the model's.
+
+        ``S = Cov[h] + R`` (+ the rule's fourth-moment term); a rule with ``screen`` has S checked
+        for positive definiteness (failed paths get a harmless S and are reported); a rule's forcing
+        tensor adds ``Σ_k M_k [S⁻¹(y − ŷ)]_k`` to the covariance (the discrete C tensor of seed 004
+        eq. 17, see :mod:`nlfilter.filters.second_order`)."""
         md = self.model
-        mo = self.rule.moments(state, md.h, self._time(k), jac=md.h_x, hess=md.h_xx)
-        S = mo.cov + md.R
-        if mo.jac is not None:  # Joseph form with the linearization
-            return gaussian_update(state, y, mo.mean, S, mo.cross, H=mo.jac, R=md.R)
-        new = gaussian_update(state, y, mo.mean, S, mo.cross)
-        return new if mo.bad is None else poison(new, mo.bad)
+        R = md.R if R is None else R
+        mo = self.rule.moments(state, md.h, t, jac=md.h_x, hess=md.h_xx, role="measurement")
+        S = mo.cov + R
+        if mo.quartic is not None:
+            S = S + mo.quartic
+        bad = mo.bad
+        if getattr(self.rule, "screen", False):
+            nd = _pd_mask(S)
+            if nd.any():  # keep the algebra finite; these paths are reported as diverged
+                S = np.where(nd[..., None, None], np.eye(S.shape[-1]) * np.abs(S).max(initial=1.0) + R, S)
+            bad = nd if bad is None else bad | nd
+        if mo.jac is not None:  # S = H P Hᵀ + R exactly: Joseph form with the linearization
+            new = gaussian_update(state, y, mo.mean, S, mo.cross, H=mo.jac, R=R)
+        else:
+            new = gaussian_update(state, y, mo.mean, S, mo.cross)
+        if mo.forcing is not None:  # P⁺ += Σ_k M_k [S⁻¹(y − ŷ)]_k
+            miss = np.isnan(y)
+            e = np.where(miss, 0.0, y - mo.mean)
+            Sm = np.where(miss[..., :, None] | miss[..., None, :], np.eye(S.shape[-1]), S)
+            u = np.linalg.solve(Sm, e[..., None])[..., 0]
+            new = GaussianState(new.mean, symmetrize(new.cov + np.einsum("...ijk,...k->...ij", mo.forcing, u)))
+        return new, bad
+
+    def update(self, state, y, k):
+        new, bad = self._update(state, y, self._time(k))
+        return new if bad is None else poison(new, bad)
+
+
+def _pd_mask(S):
+    """Boolean ``(...)``: innovation covariances that are not positive definite."""
+    if S.shape[-1] == 1:
+        return ~(S[..., 0, 0] > 0)
+    return ~np.all(np.linalg.eigvalsh(symmetrize(S)) > 0, axis=-1)
 
 
 class ContinuousDiscreteGaussianFilter(GaussianFilter):
@@ -141,12 +185,13 @@ class ContinuousDiscreteGaussianFilter(GaussianFilter):
 
     def _rhs(self, m, P, z, s):
         md = self.model
-        mo = self.rule.moments(GaussianState(m, P), md.f, s, jac=md.f_x, hess=md.f_xx, cov=False, noise_of=md)
+        mo = self.rule.moments(GaussianState(m, P), md.f, s, jac=md.f_x, hess=md.f_xx, cov=False, noise_of=md,
+                               role="dynamics")
         dP = mo.cross + np.swapaxes(mo.cross, -1, -2) + mo.noise  # Cov[x, f] + Cov[f, x] + E[G Q Gᵀ]
         dm = mo.mean if mo.bad is None else np.where(mo.bad[..., None], np.nan, mo.mean)  # poisoned paths
         return dm, dP
 
-    def predict(self, state, k):
+    def _predict(self, state, k):
         """The belief at ``t_{k+1}`` from the belief at ``t_k = t0 + k dt`` (no measurement)."""
         return ContinuousFilter.integrate(self, self._rhs, GaussianState(*state), None, self._time(k))
 
