@@ -134,6 +134,15 @@ class Taylor1:
     with ``J = g_x(m)``; ``E[G Q Gᵀ] = G(m) Q G(m)ᵀ``. Exact when g is affine (and G constant)."""
 
     name = "taylor1"
+    second = False  # no second-order terms (for the continuous skeleton)
+
+    def noise(self, model, m, P, t):
+        """``E[G Q Gᵀ] ≈ G(m) Q G(m)ᵀ``."""
+        return model.GQGT(m, t)
+
+    def forcing(self, P, A):
+        """No forcing tensor (first order)."""
+        return None
 
     def needs(self, model):
         """The model's derivatives this rule evaluates."""

@@ -64,8 +64,8 @@ import numpy as np
 from .. import _validate as V
 from ..errors import DivergenceError
 from .base import ContinuousFilter, DiscreteFilter, GaussianState
-from .gaussian import ContinuousDiscreteGaussianFilter, GaussianFilter
-from .linalg import bad_paths, observed_precision, poison, symmetrize
+from .gaussian import ContinuousDiscreteGaussianFilter, ContinuousGaussianFilter, GaussianFilter
+from .linalg import bad_paths
 from .rules import FORMS, Taylor2, gaussian_quartic, hessian_trace, noise_covariance, quarter_outer
 
 
@@ -190,9 +190,10 @@ class ContinuousDiscreteSecondOrderFilter(_DiscreteFamily, ContinuousDiscreteGau
         self._set_rule(self._form(form), by=f"ContinuousDiscreteSecondOrderFilter(form={form!r})")
 
 
-class ContinuousSecondOrderFilter(_Family, ContinuousFilter):
+class ContinuousSecondOrderFilter(_Family, ContinuousGaussianFilter):
     """Second-order filter for an Itô :class:`~nlfilter.models.SDEModel` observed through increments
-    ``dy`` (004 eqs. 35-37)::
+    ``dy`` (004 eqs. 35-37): the :class:`~nlfilter.filters.gaussian.ContinuousGaussianFilter`
+    skeleton with the rule :class:`Taylor2(form) <nlfilter.filters.rules.Taylor2>`::
 
         dm = [f + ½(X f_xx)] dt + K {dy − [h + ½(X h_xx)] dt},     K = X Hᵀ W⁻¹
         dX = [F X + X Fᵀ + G V Gᵀ + (X V G_x²) + ½(X V G_xx G) + ½(·)ᵀ − K W Kᵀ] dt
@@ -225,73 +226,19 @@ class ContinuousSecondOrderFilter(_Family, ContinuousFilter):
         self.innovation = V.choice("innovation", innovation, {"ito", "update"})
         self._form(form)
         # 004 sec. 3: no −¼ term exists in continuous time, "modified" is the truncated filter
-        self.rule = Taylor2("truncated" if form == "modified" else form)
-        model.require("f", "h", "G", *self.rule.needs(model), by=f"ContinuousSecondOrderFilter(form={form!r})")
-        self._second = self.rule.second
-        self._Winv = np.linalg.inv(model.R)
-
-    def _gain_parts(self, m, X, s, obs, Winv):
-        """Gain, X Hᵀ, ĥ and the forcing tensor M W⁻¹; ``Winv``: the precision of the observed
-        components (:func:`~nlfilter.filters.base.observed_precision`; missing ones do not update)."""
-        md = self.model
-        H = md.h_x(m, s) * obs[..., :, None]
-        PHt = X @ np.swapaxes(H, -1, -2)
-        K = PHt @ Winv  # 004 eq. 37
-        hhat = md.h(m, s)
-        M = None
-        if self._second:
-            h_xx = md.h_xx(m, s)
-            hhat = hhat + 0.5 * hessian_trace(X, h_xx)  # 004 eq. 35
-            M = self.rule.forcing(X, h_xx)
-            if M is not None:
-                M = np.einsum("...ijk,...kl->...ijl", M * obs[..., None, None, :], Winv)  # M W⁻¹
-        return K, PHt, hhat * obs, M
-
-    def _rhs_factory(self, obs, Winv):
-        md = self.model
-
-        def rhs(m, X, z, s):
-            F = md.f_x(m, s)
-            K, PHt, hhat, M = self._gain_parts(m, X, s, obs, Winv)
-            dm = md.f(m, s) - np.einsum("...ij,...j->...i", K, hhat)
-            if self._second:
-                dm = dm + 0.5 * hessian_trace(X, md.f_xx(m, s))
-            FX = F @ X
-            dX = FX + np.swapaxes(FX, -1, -2) + self.rule.noise(md, m, X, s) - K @ np.swapaxes(PHt, -1, -2)
-            if M is not None:
-                dX = dX - np.einsum("...ijk,...k->...ij", M, hhat)  # forcing term, its dt part
-            return dm, dX
-
-        return rhs
-
-    def _step(self, state, dy, t):
-        """``(state at t + dt, bad paths)``."""
-        dy = np.asarray(dy, dtype=float)
-        obs = ~np.isnan(dy)
-        if self.innovation == "update":
-            new, bad = GaussianFilter._update(self, state, dy / self.dt, t, R=self.model.R / self.dt)  # the discrete update of the form
-            new = poison(new, bad)
-            none = np.zeros_like(obs)
-            return self.integrate(self._rhs_factory(none, np.zeros_like(self._Winv)), new, None, t), bad
-        dy0 = np.where(obs, dy, 0.0)
-        m, X = state
-        Winv = observed_precision(self.model.R, self._Winv, obs)
-        K, _, _, M = self._gain_parts(m, X, t, obs, Winv)  # Itô: gain at the start of the step
-        new = self.integrate(self._rhs_factory(obs, Winv), GaussianState(m, X), None, t)
-        mean = new.mean + np.einsum("...ij,...j->...i", K, dy0)
-        cov = new.cov
-        if M is not None:
-            cov = symmetrize(cov + np.einsum("...ijk,...k->...ij", M, dy0))
-        return GaussianState(mean, cov), np.zeros(obs.shape[:-1], bool)
-
-    def step(self, state, dy, t):
-        """The belief at ``t + dt`` from the belief at ``t`` and the increment ``dy (..., m)``."""
-        with np.errstate(over="ignore", invalid="ignore"):
-            new, bad = self._step(GaussianState(*state), dy, t)
-        return self._checked(new, bad, "covariance", t)
+        self._set_rule(Taylor2("truncated" if form == "modified" else form),
+                       by=f"ContinuousSecondOrderFilter(form={form!r})")
 
     def _step_unchecked(self, state, dy, t):
-        return self._step(GaussianState(*state), dy, t)
+        new, bad = self._step(GaussianState(*state), np.asarray(dy, dtype=float), t)
+        return new, np.zeros(np.shape(dy)[:-1], bool) if bad is None else bad
+
+    def step(self, state, dy, t):
+        """The belief at ``t + dt`` from the belief at ``t`` and the increment ``dy (..., m)``;
+        raises :class:`~nlfilter.errors.DivergenceError` on a failed path."""
+        with np.errstate(over="ignore", invalid="ignore"):
+            new, bad = self._step_unchecked(state, dy, t)
+        return self._checked(new, bad, "covariance", t)
 
 
 __all__ = ["FORMS", "SecondOrderFilter", "ContinuousSecondOrderFilter",
