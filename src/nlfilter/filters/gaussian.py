@@ -22,6 +22,15 @@ with the expectations taken by the rule, integrated by RK4 or Euler with ``subst
 interval (as :class:`~nlfilter.filters.second_order.ContinuousDiscreteSecondOrderFilter`); the same
 discrete update at the measurements. With Taylor-1, ``Cov[x, f] = P Fᵀ``: the continuous-discrete EKF.
 
+Continuous time (increments ``dy``, the Itô filter of seed 004 eqs. 35-37): :class:`ContinuousGaussianFilter`
+over a Taylor rule (Taylor-1: :class:`~nlfilter.filters.ekf.ContinuousEKF`; Taylor-2 in a form of
+seed 004: :class:`~nlfilter.filters.second_order.ContinuousSecondOrderFilter`).
+
+Seed 004's second-order filters are these skeletons with the rule ``Taylor2(form)``: its
+fourth-moment term is added last (``quartic``), the predicted covariance symmetrized, the innovation
+covariance screened for positive definiteness (``screen``), and the forcing tensor of the forms
+that have one added to the updated covariance.
+
 The iterated update (:func:`iterated_update`, Bell & Cathey 1993) is the Gauss–Newton
 maximization of the posterior density in place of the single Taylor-1 update.
 """

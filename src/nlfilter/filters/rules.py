@@ -9,8 +9,11 @@ A rule is a small frozen object. Given a batch of Gaussian beliefs ``x ~ N(m, P)
     jac   = the linearization g_x(m) (..., p, n)   (Taylor rules only, else None)
     bad   = paths whose P has no square root (..., ) bool, or None
     noise = E[G(x) Q G(x)ᵀ] (..., n, n) of ``model`` when asked for (``noise_of=model``), else None
+    quartic = the fourth-moment part of Cov[g], kept apart (Taylor-2 under the skeleton), else None
+    forcing = the covariance forcing tensor M (..., n, n, p) of seed 004 eq. 33 (Taylor-2), else None
 
-(the noise term uses the same nodes as the moments of ``g``). The filters of
+(the noise term uses the same nodes as the moments of ``g``). The skeleton says which function it
+asks about (``role="dynamics"`` for f, ``"measurement"`` for h): the forms of seed 004 differ there. The filters of
 :mod:`nlfilter.filters.gaussian` are one predict/update skeleton over a rule, as in dynamax's
 generalized Gaussian filter (its ``EKFIntegrals``, ``UKFIntegrals``, ``GHKFIntegrals``):
 
@@ -19,8 +22,10 @@ rule                   approximation
 =====================  ===========================================================================
 :class:`Taylor1`       ``g(x) ≈ g(m) + J (x − m)``, ``J = g_x(m)``: E[g] = g(m), Cov[x, g] = P Jᵀ,
                        Cov[g] = J P Jᵀ (the EKF; exact on linear g)
-:class:`Taylor2`       second-order expansion with Gaussian fourth moments (the Gaussian
-                       second-order filter; exact on quadratic g)
+:class:`Taylor2`       second-order expansion in the forms of seed 004 (``form``: truncated,
+                       truncated-jazwinski, modified, gaussian, modified-gaussian (default:
+                       Gaussian fourth moments, exact on quadratic g), first-order), with the −¼
+                       terms and the forcing tensor C of 004 eq. 33 as each form has them
 :class:`Unscented`     scaled sigma points of van der Merwe (2n + 1 points), ``(alpha, beta, kappa)``
 :class:`Cubature`      the third-degree spherical-radial rule of Arasaratnam & Haykin (2009):
                        2n points ``m ± √n L e_i`` (``P = L Lᵀ``), equal weights ``1/(2n)``

@@ -28,6 +28,11 @@ form                     what it is
                          given here so that the continuous-discrete EKF exists too).
 =======================  =====================================================================
 
+All three are configurations of the skeletons of :mod:`nlfilter.filters.gaussian` (discrete,
+continuous-discrete, continuous Itô) with the moment rule :class:`~nlfilter.filters.rules.Taylor2`
+parametrised by ``form`` (which fourth-moment terms, the −¼ terms, the forcing term C); the
+contractions below live in :mod:`nlfilter.filters.rules` and are re-exported here.
+
 Notation (004): X the error covariance, V = ``model.Q``, W = ``model.R``; a state batch is
 ``(..., n)``, a covariance batch ``(..., n, n)``. The contractions (004 eqs. 9, 13, 14, 23):
 
