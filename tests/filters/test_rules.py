@@ -399,3 +399,31 @@ def test_taylor2_and_gauss_hermite_are_exact_on_a_quadratic():
         np.testing.assert_allclose(mo.mean, [E], atol=1e-13)
         np.testing.assert_allclose(mo.cov, [[V]], atol=1e-13)
         np.testing.assert_allclose(mo.cross[:, 0], C, atol=1e-13)
+
+
+# -- seed 004's forms as Taylor2(form), and the continuous (Itô) skeleton --------------------------------
+def test_every_second_order_form_is_the_skeleton_with_its_taylor2_rule(nonlinear3):
+    """SecondOrderFilter(form) is GaussianFilter(Taylor2(form)) to the last bit (its checks aside),
+    PSD losses included; the continuous filters are ContinuousGaussianFilter over Taylor-1/Taylor-2."""
+    from nlfilter.filters import ContinuousEKF, ContinuousSecondOrderFilter, SecondOrderFilter
+    from nlfilter.filters.gaussian import ContinuousGaussianFilter
+    from nlfilter.filters.rules import FORMS, Taylor2
+    ys = simulate(nonlinear3, 25, paths=4, rng=9, m0=M0, P0=P0).ys
+    ys[1, 3, 0] = np.nan
+    for form in FORMS:
+        a = GaussianFilter(nonlinear3, Taylor2(form)).run(ys, M0, P0, on_divergence="mark")
+        b = SecondOrderFilter(nonlinear3, form=form).run(ys, M0, P0, on_divergence="mark")
+        for f in ("means", "covs", "diverged_step"):
+            np.testing.assert_array_equal(getattr(a, f), getattr(b, f))
+    dys = 0.1 * _cd_data(S2G, 15, 3, 2)
+    m0, P0_ = np.array([0.3, -0.2]), np.eye(2) * 0.2
+    for form in ("truncated", "gaussian", "truncated-jazwinski"):
+        a = ContinuousGaussianFilter(S2G, 0.01, Taylor2(form), substeps=2).run(dys, m0, P0_, on_divergence="mark")
+        b = ContinuousSecondOrderFilter(S2G, 0.01, form=form, substeps=2).run(dys, m0, P0_, on_divergence="mark")
+        np.testing.assert_array_equal(a.means, b.means)
+    a = ContinuousGaussianFilter(S2G, 0.01, Taylor1()).run(dys, m0, P0_)
+    np.testing.assert_array_equal(a.means, ContinuousEKF(S2G, 0.01).run(dys, m0, P0_).means)
+    with pytest.raises(TypeError, match="rule"):
+        ContinuousGaussianFilter(S2G, 0.01, Cubature())
+    with pytest.raises(ValueError, match="form: expected one of"):
+        Taylor2("second")

@@ -26,8 +26,7 @@ from __future__ import annotations
 import numpy as np
 
 from .base import ContinuousFilter, GaussianState
-from .linalg import mm, observed_precision
-from .gaussian import ContinuousDiscreteGaussianFilter, GaussianFilter, _Iterated
+from .gaussian import ContinuousDiscreteGaussianFilter, ContinuousGaussianFilter, GaussianFilter, _Iterated
 from .rules import Taylor1
 
 
@@ -131,8 +130,10 @@ class ContinuousDiscreteIEKF(_Iterated, ContinuousDiscreteEKF):
         self._set_iterations(iterations, tol)
 
 
-class ContinuousEKF(ContinuousFilter):
-    """Continuous-time EKF (Kalman–Bucy on the linearization) for an :class:`SDEModel`.
+class ContinuousEKF(ContinuousGaussianFilter):
+    """Continuous-time EKF (Kalman–Bucy on the linearization) for an :class:`SDEModel`: the
+    :class:`~nlfilter.filters.gaussian.ContinuousGaussianFilter` skeleton (Itô step) with the
+    :class:`~nlfilter.filters.rules.Taylor1` rule (equations in the module docstring).
 
     Parameters
     ----------
@@ -148,31 +149,6 @@ class ContinuousEKF(ContinuousFilter):
     needs = ("f_x", "h_x")
 
     def __init__(self, model, dt, *, scheme="rk4", substeps=1):
-        super().__init__(model, dt, scheme=scheme, substeps=substeps)
-        model.require("f", "f_x", "h", "h_x", "G", by="ContinuousEKF")
-        self._Rinv = np.linalg.inv(model.R)
-
-    def step(self, state, dy, t):
-        """Itô step: the ``dt`` terms integrated by ``scheme``, the innovation ``K dy`` added with
-        the gain at the start of the step. (Holding ``dy/dt`` constant inside RK4 stages would
-        converge to the Stratonovich reading whenever the gain depends on the state.)"""
-        md = self.model
-        obs = ~np.isnan(dy)
-        dy0 = np.where(obs, dy, 0.0)
-        Rinv = observed_precision(md.R, self._Rinv, obs)  # missing components do not update
-
-        def gain(m, P, s):
-            H = md.h_x(m, s) * obs[..., :, None]
-            PHt = mm(P, np.swapaxes(H, -1, -2))
-            return mm(PHt, Rinv), PHt
-
-        def rhs(m, P, z, s):
-            K, PHt = gain(m, P, s)
-            dm = md.f(m, s) - np.einsum("...ij,...j->...i", K, md.h(m, s) * obs)
-            FP = mm(md.f_x(m, s), P)
-            dP = FP + np.swapaxes(FP, -1, -2) + md.GQGT(m, s) - mm(K, np.swapaxes(PHt, -1, -2))
-            return dm, dP
-
-        K0, _ = gain(state.mean, state.cov, t)
-        new = self.integrate(rhs, state, None, t)
-        return GaussianState(new.mean + np.einsum("...ij,...j->...i", K0, dy0), new.cov)
+        ContinuousFilter.__init__(self, model, dt, scheme=scheme, substeps=substeps)
+        self.innovation = "ito"
+        self._set_rule(Taylor1(), by="ContinuousEKF")

@@ -22,6 +22,15 @@ with the expectations taken by the rule, integrated by RK4 or Euler with ``subst
 interval (as :class:`~nlfilter.filters.second_order.ContinuousDiscreteSecondOrderFilter`); the same
 discrete update at the measurements. With Taylor-1, ``Cov[x, f] = P Fᵀ``: the continuous-discrete EKF.
 
+Continuous time (increments ``dy``, the Itô filter of seed 004 eqs. 35-37): :class:`ContinuousGaussianFilter`
+over a Taylor rule (Taylor-1: :class:`~nlfilter.filters.ekf.ContinuousEKF`; Taylor-2 in a form of
+seed 004: :class:`~nlfilter.filters.second_order.ContinuousSecondOrderFilter`).
+
+Seed 004's second-order filters are these skeletons with the rule ``Taylor2(form)``: its
+fourth-moment term is added last (``quartic``), the predicted covariance symmetrized, the innovation
+covariance screened for positive definiteness (``screen``), and the forcing tensor of the forms
+that have one added to the updated covariance.
+
 The iterated update (:func:`iterated_update`, Bell & Cathey 1993) is the Gauss–Newton
 maximization of the posterior density in place of the single Taylor-1 update.
 """
@@ -32,9 +41,10 @@ import numpy as np
 
 from .. import _validate as V
 from .base import ContinuousFilter, DiscreteFilter, GaussianState
-from .linalg import gaussian_update, mm, poison
+from .rules import hessian_trace
+from .linalg import gaussian_update, mm, observed_precision, poison, symmetrize
 
-__all__ = ["GaussianFilter", "ContinuousDiscreteGaussianFilter", "iterated_update"]
+__all__ = ["GaussianFilter", "ContinuousDiscreteGaussianFilter", "ContinuousGaussianFilter", "iterated_update"]
 
 
 class GaussianFilter(DiscreteFilter):
@@ -70,7 +80,7 @@ class GaussianFilter(DiscreteFilter):
         super().__init__(model, start=start)
         self._set_rule(rule)
 
-    def _set_rule(self, rule):
+    def _set_rule(self, rule, by=None):
         if not callable(getattr(rule, "moments", None)):
             raise TypeError(f"rule: expected a moment rule (Taylor1, Taylor2, Unscented, Cubature, GaussHermite), "
                             f"got {type(rule).__name__}")
@@ -78,25 +88,69 @@ class GaussianFilter(DiscreteFilter):
         if check is not None:
             check(self.model.n)
         self.rule = rule
-        self.model.require("f", "h", "G", *rule.needs(self.model), by=type(self).__name__)
+        self.model.require("f", "h", "G", *rule.needs(self.model), by=by or type(self).__name__)
 
     def _time(self, k):
         return k
 
-    def predict(self, state, k):
+    def _predict(self, state, k):
+        """``m⁻ = E[f]``, ``P⁻ = Cov[f] + E[G Q Gᵀ]`` (+ the rule's fourth-moment term, added last;
+        symmetrized for a rule that asks), poisoned where the rule's nodes failed."""
         md = self.model
-        mo = self.rule.moments(state, md.f, self._time(k), jac=md.f_x, hess=md.f_xx, cross=False, noise_of=md)
-        new = GaussianState(mo.mean, mo.cov + mo.noise)  # m⁻ = E[f], P⁻ = Cov[f] + E[G Q Gᵀ]
+        mo = self.rule.moments(state, md.f, self._time(k), jac=md.f_x, hess=md.f_xx, cross=False, noise_of=md,
+                               role="dynamics")
+        P = mo.cov + mo.noise  # P⁻ = Cov[f] + E[G Q Gᵀ]
+        if mo.quartic is not None:
+            P = P + mo.quartic
+        if getattr(self.rule, "symmetrize", False):
+            P = symmetrize(P)
+        new = GaussianState(mo.mean, P)
         return new if mo.bad is None else poison(new, mo.bad)
 
-    def update(self, state, y, k):
+    def predict(self, state, k):
+        return self._predict(state, k)
+
+    def _update(self, state, y, t, R=None):
+        """``(updated belief, failed paths or None)`` at time ``t``; ``R`` defaults to the model's.
+
+        ``S = Cov[h] + R`` (+ the rule's fourth-moment term); a rule with ``screen`` has S checked
+        for positive definiteness (failed paths get a harmless S and are reported); a rule's forcing
+        tensor adds ``Σ_k M_k [S⁻¹(y − ŷ)]_k`` to the covariance (the discrete C tensor of seed 004
+        eq. 17, see :mod:`nlfilter.filters.second_order`)."""
         md = self.model
-        mo = self.rule.moments(state, md.h, self._time(k), jac=md.h_x, hess=md.h_xx)
-        S = mo.cov + md.R
-        if mo.jac is not None:  # Joseph form with the linearization
-            return gaussian_update(state, y, mo.mean, S, mo.cross, H=mo.jac, R=md.R)
-        new = gaussian_update(state, y, mo.mean, S, mo.cross)
-        return new if mo.bad is None else poison(new, mo.bad)
+        R = md.R if R is None else R
+        mo = self.rule.moments(state, md.h, t, jac=md.h_x, hess=md.h_xx, role="measurement")
+        S = mo.cov + R
+        if mo.quartic is not None:
+            S = S + mo.quartic
+        bad = mo.bad
+        if getattr(self.rule, "screen", False):
+            nd = _pd_mask(S)
+            if nd.any():  # keep the algebra finite; these paths are reported as diverged
+                S = np.where(nd[..., None, None], np.eye(S.shape[-1]) * np.abs(S).max(initial=1.0) + R, S)
+            bad = nd if bad is None else bad | nd
+        if mo.jac is not None:  # S = H P Hᵀ + R exactly: Joseph form with the linearization
+            new = gaussian_update(state, y, mo.mean, S, mo.cross, H=mo.jac, R=R)
+        else:
+            new = gaussian_update(state, y, mo.mean, S, mo.cross)
+        if mo.forcing is not None:  # P⁺ += Σ_k M_k [S⁻¹(y − ŷ)]_k
+            miss = np.isnan(y)
+            e = np.where(miss, 0.0, y - mo.mean)
+            Sm = np.where(miss[..., :, None] | miss[..., None, :], np.eye(S.shape[-1]), S)
+            u = np.linalg.solve(Sm, e[..., None])[..., 0]
+            new = GaussianState(new.mean, symmetrize(new.cov + np.einsum("...ijk,...k->...ij", mo.forcing, u)))
+        return new, bad
+
+    def update(self, state, y, k):
+        new, bad = self._update(state, y, self._time(k))
+        return new if bad is None else poison(new, bad)
+
+
+def _pd_mask(S):
+    """Boolean ``(...)``: innovation covariances that are not positive definite."""
+    if S.shape[-1] == 1:
+        return ~(S[..., 0, 0] > 0)
+    return ~np.all(np.linalg.eigvalsh(symmetrize(S)) > 0, axis=-1)
 
 
 class ContinuousDiscreteGaussianFilter(GaussianFilter):
@@ -141,14 +195,125 @@ class ContinuousDiscreteGaussianFilter(GaussianFilter):
 
     def _rhs(self, m, P, z, s):
         md = self.model
-        mo = self.rule.moments(GaussianState(m, P), md.f, s, jac=md.f_x, hess=md.f_xx, cov=False, noise_of=md)
+        mo = self.rule.moments(GaussianState(m, P), md.f, s, jac=md.f_x, hess=md.f_xx, cov=False, noise_of=md,
+                               role="dynamics")
         dP = mo.cross + np.swapaxes(mo.cross, -1, -2) + mo.noise  # Cov[x, f] + Cov[f, x] + E[G Q Gᵀ]
         dm = mo.mean if mo.bad is None else np.where(mo.bad[..., None], np.nan, mo.mean)  # poisoned paths
         return dm, dP
 
-    def predict(self, state, k):
+    def _predict(self, state, k):
         """The belief at ``t_{k+1}`` from the belief at ``t_k = t0 + k dt`` (no measurement)."""
         return ContinuousFilter.integrate(self, self._rhs, GaussianState(*state), None, self._time(k))
+
+
+class ContinuousGaussianFilter(ContinuousFilter):
+    """Continuous-time (Itô) skeleton over a Taylor rule, for an :class:`~nlfilter.models.SDEModel`
+    observed through increments ``dy`` (seed 004 eqs. 35-37; with Taylor-1 the continuous EKF)::
+
+        dm = [f + ½(P f_xx)] dt + K {dy − ĥ dt},   ĥ = h + ½(P h_xx),   K = P Hᵀ R⁻¹
+        dP = [F P + P Fᵀ + E[G Q Gᵀ] − K R Kᵀ] dt  [+ Σ_k M_k [R⁻¹(dy − ĥ dt)]_k, the rule's forcing]
+
+    (the ½ terms and the forcing only for a second-order rule). ``rule``: :class:`~nlfilter.filters.rules.Taylor1`
+    or :class:`~nlfilter.filters.rules.Taylor2` (``form``); it gives ``E[G Q Gᵀ]`` (``noise``) and the
+    forcing tensor. Node rules are refused: their E[f] does not split into f and ½(P f_xx) as
+    these equations are integrated.
+
+    One step, ``innovation="ito"`` (default): the ``dt`` terms are integrated by ``scheme`` (Euler or
+    RK4, ``substeps`` per step), then the ``dy`` terms are added as an Itô increment with the gain at
+    the start of the step (with Euler: the Euler–Maruyama step; holding ``dy/dt`` constant inside RK4
+    stages would converge to the Stratonovich reading whenever the gain depends on the state).
+    ``innovation="update"``: the increment is first absorbed by the discrete update of the rule
+    (:meth:`GaussianFilter._update` with ``y = dy/dt``, ``R = R/dt``), then the moments are propagated
+    over ``dt`` without measurement terms. Missing components of ``dy`` do not update.
+
+    >>> import sympy as sp; from nlfilter import SDEModel
+    >>> from nlfilter.filters.rules import Taylor1
+    >>> x = sp.Symbol("x")
+    >>> model = SDEModel([x], [-x], [x], Q=1.0, R=1.0)
+    >>> s = ContinuousGaussianFilter(model, 0.01, Taylor1(), scheme="euler").step(
+    ...     GaussianState(np.array([0.0]), np.array([[1.0]])), np.array([0.1]), 0.0)
+    >>> round(float(s.mean[0]), 6), round(float(s.cov[0, 0]), 6)   # K dy; P + (−2P + 1 − P²) dt
+    (0.1, 0.98)
+    """
+
+    name = "continuous-gaussian"
+    family = "gaussian"
+    source = "seed 004 eqs. 35-37 (Henriksen 1979); Jazwinski 1970, ch. 9"
+
+    def __init__(self, model, dt, rule, *, scheme: str = "rk4", substeps: int = 1, innovation: str = "ito"):
+        super().__init__(model, dt, scheme=scheme, substeps=substeps)
+        self.innovation = V.choice("innovation", innovation, {"ito", "update"})
+        self._set_rule(rule)
+
+    def _set_rule(self, rule, by=None):
+        if not (callable(getattr(rule, "noise", None)) and callable(getattr(rule, "forcing", None))):
+            raise TypeError(f"rule: {type(self).__name__} expects a Taylor rule (Taylor1, Taylor2), "
+                            f"got {type(rule).__name__}")
+        self.rule = rule
+        self.model.require("f", "h", "G", *rule.needs(self.model), by=by or type(self).__name__)
+        self._second = rule.second
+        self._Rinv = np.linalg.inv(self.model.R)
+
+    def _gain_parts(self, m, P, s, obs, Rinv):
+        """Gain, P Hᵀ, ĥ and the forcing tensor M R⁻¹; ``Rinv``: the precision of the observed
+        components (:func:`~nlfilter.filters.linalg.observed_precision`; missing ones do not update)."""
+        md = self.model
+        H = md.h_x(m, s) * obs[..., :, None]
+        PHt = mm(P, np.swapaxes(H, -1, -2))
+        K = mm(PHt, Rinv)  # 004 eq. 37
+        hhat = md.h(m, s)
+        M = None
+        if self._second:
+            h_xx = md.h_xx(m, s)
+            hhat = hhat + 0.5 * hessian_trace(P, h_xx)  # 004 eq. 35
+            M = self.rule.forcing(P, h_xx)
+            if M is not None:
+                M = np.einsum("...ijk,...kl->...ijl", M * obs[..., None, None, :], Rinv)  # M R⁻¹
+        return K, PHt, hhat * obs, M
+
+    def _rhs_factory(self, obs, Rinv):
+        md = self.model
+
+        def rhs(m, P, z, s):
+            F = md.f_x(m, s)
+            K, PHt, hhat, M = self._gain_parts(m, P, s, obs, Rinv)
+            dm = md.f(m, s) - np.einsum("...ij,...j->...i", K, hhat)
+            if self._second:
+                dm = dm + 0.5 * hessian_trace(P, md.f_xx(m, s))  # 004 eq. 35, drift part
+            FP = mm(F, P)
+            dP = FP + np.swapaxes(FP, -1, -2) + self.rule.noise(md, m, P, s) - mm(K, np.swapaxes(PHt, -1, -2))
+            if M is not None:
+                dP = dP - np.einsum("...ijk,...k->...ij", M, hhat)  # forcing term, its dt part
+            return dm, dP
+
+        return rhs
+
+    def _step(self, state, dy, t):
+        """``(state at t + dt, bad paths or None)``."""
+        obs = ~np.isnan(dy)
+        if self.innovation == "update":
+            new, bad = GaussianFilter._update(self, state, dy / self.dt, t, R=self.model.R / self.dt)
+            new = new if bad is None else poison(new, bad)
+            none = np.zeros_like(obs)
+            return self.integrate(self._rhs_factory(none, np.zeros_like(self._Rinv)), new, None, t), bad
+        dy0 = np.where(obs, dy, 0.0)
+        m, P = state
+        Rinv = observed_precision(self.model.R, self._Rinv, obs)
+        K, _, _, M = self._gain_parts(m, P, t, obs, Rinv)  # Itô: gain at the start of the step
+        new = self.integrate(self._rhs_factory(obs, Rinv), GaussianState(m, P), None, t)
+        mean = new.mean + np.einsum("...ij,...j->...i", K, dy0)
+        cov = new.cov
+        if M is not None:
+            cov = symmetrize(cov + np.einsum("...ijk,...k->...ij", M, dy0))
+        return GaussianState(mean, cov), None
+
+    def step(self, state, dy, t):
+        """The belief at ``t + dt`` from the belief at ``t`` and the increment ``dy (..., m)``."""
+        new, bad = self._step(GaussianState(*state), np.asarray(dy, dtype=float), t)
+        return new if bad is None else poison(new, bad)
+
+    def _step_unchecked(self, state, dy, t):
+        return self._step(state, dy, t)
 
 
 def iterated_update(model, state, y, t, iterations: int, tol: float) -> GaussianState:

@@ -9,8 +9,11 @@ A rule is a small frozen object. Given a batch of Gaussian beliefs ``x ~ N(m, P)
     jac   = the linearization g_x(m) (..., p, n)   (Taylor rules only, else None)
     bad   = paths whose P has no square root (..., ) bool, or None
     noise = E[G(x) Q G(x)ᵀ] (..., n, n) of ``model`` when asked for (``noise_of=model``), else None
+    quartic = the fourth-moment part of Cov[g], kept apart (Taylor-2 under the skeleton), else None
+    forcing = the covariance forcing tensor M (..., n, n, p) of seed 004 eq. 33 (Taylor-2), else None
 
-(the noise term uses the same nodes as the moments of ``g``). The filters of
+(the noise term uses the same nodes as the moments of ``g``). The skeleton says which function it
+asks about (``role="dynamics"`` for f, ``"measurement"`` for h): the forms of seed 004 differ there. The filters of
 :mod:`nlfilter.filters.gaussian` are one predict/update skeleton over a rule, as in dynamax's
 generalized Gaussian filter (its ``EKFIntegrals``, ``UKFIntegrals``, ``GHKFIntegrals``):
 
@@ -19,8 +22,10 @@ rule                   approximation
 =====================  ===========================================================================
 :class:`Taylor1`       ``g(x) ≈ g(m) + J (x − m)``, ``J = g_x(m)``: E[g] = g(m), Cov[x, g] = P Jᵀ,
                        Cov[g] = J P Jᵀ (the EKF; exact on linear g)
-:class:`Taylor2`       second-order expansion with Gaussian fourth moments (the Gaussian
-                       second-order filter; exact on quadratic g)
+:class:`Taylor2`       second-order expansion in the forms of seed 004 (``form``: truncated,
+                       truncated-jazwinski, modified, gaussian, modified-gaussian (default:
+                       Gaussian fourth moments, exact on quadratic g), first-order), with the −¼
+                       terms and the forcing tensor C of 004 eq. 33 as each form has them
 :class:`Unscented`     scaled sigma points of van der Merwe (2n + 1 points), ``(alpha, beta, kappa)``
 :class:`Cubature`      the third-degree spherical-radial rule of Arasaratnam & Haykin (2009):
                        2n points ``m ± √n L e_i`` (``P = L Lᵀ``), equal weights ``1/(2n)``
@@ -58,13 +63,61 @@ import numpy as np
 from .. import _validate as V
 from ..moments.quadrature import gauss_hermite_rule
 from .linalg import mm, sqrt_psd
-from .second_order import gaussian_quartic, hessian_trace, noise_covariance
 
-__all__ = ["GaussMoments", "Taylor1", "Taylor2", "Unscented", "Cubature", "GaussHermite", "NodeRule",
-           "sigma_points"]
+__all__ = ["GaussMoments", "Taylor1", "Taylor2", "FORMS", "Unscented", "Cubature", "GaussHermite", "NodeRule",
+           "sigma_points", "hessian_trace", "quarter_outer", "gaussian_quartic", "noise_covariance"]
 
 
 MAX_NODES = 100_000  # Gauss–Hermite tensor grids larger than this are refused (order**n nodes)
+
+
+# ---------------------------------------------------------------------------------------------
+# seed 004's contractions (Henriksen 1979), shared by the Taylor-2 rule and the continuous filter
+# ---------------------------------------------------------------------------------------------
+def hessian_trace(X: np.ndarray, A: np.ndarray) -> np.ndarray:
+    """``(X A)_i = Σ_jl X_jl A_ijl`` (004 eqs. 9, 23, 30-31): ``X (..., n, n)``, ``A (..., p, n, n)``
+    → ``(..., p)``.
+
+    >>> hessian_trace(np.eye(2), np.arange(8.0).reshape(2, 2, 2)).tolist()
+    [3.0, 11.0]
+    """
+    return np.einsum("...jl,...ijl->...i", X, A)  # i: output component, j,l: summed state indices
+
+
+def quarter_outer(X: np.ndarray, A: np.ndarray) -> np.ndarray:
+    """``¼ (X A)(X A)ᵀ`` (004 eq. 11, last term), ``(..., p, p)``."""
+    t = hessian_trace(X, A)
+    return 0.25 * t[..., :, None] * t[..., None, :]
+
+
+def gaussian_quartic(X: np.ndarray, A: np.ndarray) -> np.ndarray:
+    """``½ tr(A_i X A_j X)``: ``Cov[½δᵀA_iδ, ½δᵀA_jδ]`` for ``δ ~ N(0, X)``, ``(..., p, p)``."""
+    AX = np.einsum("...iab,...bc->...iac", A, X)  # (A_i X)_ac: i component, a,b,c state indices
+    return 0.5 * np.einsum("...iac,...jca->...ij", AX, AX)  # tr((A_i X)(A_j X)) over a, c
+
+
+def noise_covariance(X, V, G, G_x=None, G_xx=None, *, gaussian: bool = False) -> np.ndarray:
+    """Second-order approximation of ``E[G(x) V G(x)ᵀ]`` for ``x ~ (m, X)`` (004 eqs. 13, 14, 19).
+
+    ``G (..., n, r)``, ``G_x (..., n, r, n)``, ``G_xx (..., n, r, n, n)`` at the mean; ``V (r, r)``.
+    Returns ``G V Gᵀ + (X V G_x²) + ½(X V G_xx G) + ½(X V G_xx G)ᵀ``; with ``gaussian=True`` also the
+    fourth-moment term ``¼ E[(G_xx δδ) V (G_xx δδ)ᵀ]`` of a Gaussian ``δ`` (exact for quadratic G).
+    ``G_x``/``G_xx`` may be ``None`` (constant G).
+    """
+    out = np.einsum("...ia,ab,...qb->...iq", G, V, G)  # G V Gᵀ: i,q states, a,b noise indices
+    if G_x is not None:
+        GxX = np.einsum("...iap,...pt->...iat", G_x, X)  # Σ_p ∂G_ia/∂x_p X_pt
+        out = out + np.einsum("...iat,ab,...qbt->...iq", GxX, V, G_x)  # 004 eq. 13: (X V G_x²)_iq
+    if G_xx is not None:
+        XGxx = np.einsum("...iapt,...pt->...ia", G_xx, X)  # Σ_pt X_pt ∂²G_ia/∂x_p∂x_t
+        half = 0.5 * np.einsum("...ia,ab,...qb->...iq", XGxx, V, G)  # 004 eq. 14: ½(X V G_xx G)_iq
+        out = out + half + np.swapaxes(half, -1, -2)
+        if gaussian:  # ¼ E[δδ:G_xx V G_xxᵀ:δδ] = ¼ (XG_xx)V(XG_xx)ᵀ + ½ Σ_ab V_ab tr(G_xx,ia X G_xx,qb X)
+            GxxX = np.einsum("...iapt,...tu->...iapu", G_xx, X)  # (G_xx,ia X)_pu
+            out = out + 0.25 * np.einsum("...ia,ab,...qb->...iq", XGxx, V, XGxx) + 0.5 * np.einsum(
+                "...iapu,ab,...qbup->...iq", GxxX, V, GxxX)  # trace over p, u
+    return out
+
 
 
 class GaussMoments(NamedTuple):
@@ -76,6 +129,8 @@ class GaussMoments(NamedTuple):
     jac: np.ndarray | None = None
     bad: np.ndarray | None = None
     noise: np.ndarray | None = None
+    quartic: np.ndarray | None = None
+    forcing: np.ndarray | None = None
 
 
 @dataclass(frozen=True)
@@ -84,13 +139,22 @@ class Taylor1:
     with ``J = g_x(m)``; ``E[G Q Gᵀ] = G(m) Q G(m)ᵀ``. Exact when g is affine (and G constant)."""
 
     name = "taylor1"
+    second = False  # no second-order terms (for the continuous skeleton)
+
+    def noise(self, model, m, P, t):
+        """``E[G Q Gᵀ] ≈ G(m) Q G(m)ᵀ``."""
+        return model.GQGT(m, t)
+
+    def forcing(self, P, A):
+        """No forcing tensor (first order)."""
+        return None
 
     def needs(self, model):
         """The model's derivatives this rule evaluates."""
         return ("f_x", "h_x")
 
-    def moments(self, state, g, t, *, jac, hess=None, cross: bool = True, cov: bool = True, noise_of=None
-                ) -> GaussMoments:
+    def moments(self, state, g, t, *, jac, hess=None, cross: bool = True, cov: bool = True, noise_of=None,
+                role=None) -> GaussMoments:
         """``jac``: the Jacobian ``g_x(X, t) -> (..., p, n)``; ``cross``/``cov``: whether
         Cov[x, g] / Cov[g] are wanted (else None); ``noise_of``: a model whose ``E[G Q Gᵀ]`` to add."""
         m, P = state
@@ -103,37 +167,115 @@ class Taylor1:
         return GaussMoments(g(m, t), None, S, J, None, Q)
 
 
+FORMS = ("truncated", "truncated-jazwinski", "modified", "gaussian", "modified-gaussian", "first-order")
+
+# per form of seed 004 (see :mod:`nlfilter.filters.second_order`): the fourth-moment term of Cov[f]
+# (the prediction), of Cov[h] (the innovation covariance), the forcing (C tensor) kind, and whether
+# the Gaussian fourth-moment term of E[G V Gᵀ] is kept
+_SPEC = {
+    "truncated": ("none", "none", "none", False),
+    "truncated-jazwinski": ("-quarter", "-quarter", "truncated", False),
+    "modified": ("none", "-quarter", "none", False),
+    "gaussian": ("gaussian", "gaussian", "gaussian", True),
+    "modified-gaussian": ("gaussian", "gaussian", "none", True),
+    "first-order": ("none", "none", "none", False),
+}
+
+
 @dataclass(frozen=True)
 class Taylor2:
-    """Gaussian second-order rule: ``g`` expanded to second order about ``m``, moments of a Gaussian::
+    """Second-order Taylor rule in the forms of seed 004 (Henriksen 1979): ``g`` expanded to second
+    order about ``m``, third central moments neglected::
 
-        E[g] = g(m) + ½ (P g_xx),   Cov[x, g] = P Jᵀ,
-        Cov[g]_ij = (J P Jᵀ)_ij + ½ tr(g_xx⁽ⁱ⁾ P g_xx⁽ʲ⁾ P)
+        E[g] = g(m) + ½ (P g_xx)                       (004 eqs. 18, 20)
+        Cov[x, g] = P Jᵀ,   Cov[g] = J P Jᵀ + [fourth-moment term of the form]
+        E[G Q Gᵀ] = G Q Gᵀ + (P Q G_x²) + ½(P Q G_xx G) + ½(·)ᵀ  [+ Gaussian fourth moments]   (eqs. 13-14, 19)
 
-    (``(P g_xx)_i = Σ_jl P_jl ∂²g_i/∂x_j∂x_l``; third moments vanish, fourth are Gaussian) and
-    ``E[G Q Gᵀ]`` to second order with its Gaussian fourth-moment term (seed 004 eqs. 13-14). Exact
-    for quadratic g. Over the skeleton it is the Gaussian second-order filter without the C tensor,
-    ``SecondOrderFilter(form="modified-gaussian")`` (Jazwinski 1970, ch. 9; seed 004).
+    (``(P g_xx)_i = Σ_jl P_jl ∂²g_i/∂x_j∂x_l``). ``form`` (one of :data:`FORMS`) chooses the
+    fourth-moment term, for the dynamics (``role="dynamics"``) and the measurement
+    (``role="measurement"``) separately: none (``"truncated"``, 004 eqs. 18-23), −¼(P g_xx)(P g_xx)ᵀ
+    (Jazwinski's, 004 eq. 11 and after eq. 23), or ½ tr(g_xx⁽ⁱ⁾ P g_xx⁽ʲ⁾ P) (Gaussian fourth moments);
+    and the forcing tensor ``M (..., n, n, p)`` of the covariance update (004 eq. 33; ``forcing``).
+    ``"first-order"`` drops every second-order term (the EKF's arithmetic).
+
+    The default ``"modified-gaussian"`` is the Gaussian second-order filter without the C tensor
+    (Jazwinski 1970, ch. 9): exact for quadratic g. Standalone (``role=None``), ``cov`` is the whole
+    Cov[g]; for the skeleton (``role`` given) the fourth-moment term comes apart in ``quartic`` and is
+    added last, and ``jac`` is returned only where ``S = H P Hᵀ + R`` exactly (no measurement
+    term: the update may then use the Joseph form, 004 eq. 21). Over the skeletons of
+    :mod:`nlfilter.filters.gaussian` this rule *is* :class:`~nlfilter.filters.second_order.SecondOrderFilter`
+    and :class:`~nlfilter.filters.second_order.ContinuousDiscreteSecondOrderFilter`.
     ``hess``: the Hessian ``g_xx(X, t) -> (..., p, n, n)``."""
 
+    form: str = "modified-gaussian"
     name = "taylor2"
+    symmetrize = True  # the skeleton symmetrizes the predicted covariance (as 004's filters do)
+    screen = True  # the skeleton screens the innovation covariance for positive definiteness
+
+    def __post_init__(self):
+        object.__setattr__(self, "form", V.choice("form", self.form, set(FORMS)))
+
+    @property
+    def second(self) -> bool:
+        return self.form != "first-order"
 
     def needs(self, model):
-        return ("f_x", "f_xx", "h_x", "h_xx") + (() if model.G_constant else ("G_x", "G_xx"))
+        if not self.second:
+            return ("f_x", "h_x")
+        return ("f_x", "h_x", "f_xx", "h_xx") + (() if model.G_constant else ("G_x", "G_xx"))
 
-    def moments(self, state, g, t, *, jac, hess, cross: bool = True, cov: bool = True, noise_of=None
-                ) -> GaussMoments:
+    def noise(self, model, m, P, t):
+        """``E[G(x) V G(x)ᵀ]`` to second order (004 eqs. 13-14, 19; :func:`noise_covariance`)."""
+        G = model.G(m, t)
+        if model.G_constant or not self.second:
+            return np.einsum("...ia,ab,...qb->...iq", G, model.Q, G)
+        return noise_covariance(P, model.Q, G, model.G_x(m, t), model.G_xx(m, t), gaussian=_SPEC[self.form][3])
+
+    def forcing(self, P, A):
+        """The covariance forcing tensor ``M (..., n, n, p)`` with ``dP = Σ_k M_ijk [·]_k``, or None.
+
+        truncated-Jazwinski (004 eq. 33, the retained term): ``M_ijk = −½ P_ij (P h_xx)_k``;
+        Gaussian (fourth moments of a Gaussian in eq. 33): ``M_ijk = (P h_xx⁽ᵏ⁾ P)_ij``."""
+        kind = _SPEC[self.form][2]
+        if kind == "truncated":
+            return -0.5 * P[..., :, :, None] * hessian_trace(P, A)[..., None, None, :]
+        if kind == "gaussian":
+            return np.einsum("...ia,...kab,...bj->...ijk", P, A, P)  # (P h_xx^(k) P)_ij
+        return None
+
+    def moments(self, state, g, t, *, jac, hess=None, cross: bool = True, cov: bool = True, noise_of=None,
+                role=None) -> GaussMoments:
         m, P = state
-        J, A = jac(m, t), hess(m, t)
-        mean = g(m, t) + 0.5 * hessian_trace(P, A)  # 004 eqs. 18, 20
-        C = P @ np.swapaxes(J, -1, -2) if (cross or cov) else None  # Cov[x, g] = P Jᵀ
-        S = J @ C + gaussian_quartic(P, A) if cov else None
-        Q = None
-        if noise_of is not None:
-            md = noise_of
-            Q = noise_covariance(P, md.Q, md.G(m, t), None if md.G_constant else md.G_x(m, t),
-                                 None if md.G_constant else md.G_xx(m, t), gaussian=True)
-        return GaussMoments(mean, C if cross else None, S, None, None, Q)
+        J = jac(m, t)
+        mean = g(m, t)
+        A = None
+        if self.second:
+            A = hess(m, t)
+            mean = mean + 0.5 * hessian_trace(P, A)  # 004 eqs. 18, 20
+        spec = _SPEC[self.form]
+        kind = spec[0] if role == "dynamics" else spec[1] if role == "measurement" else "gaussian"
+        quartic = None
+        if A is not None and cov:
+            if kind == "-quarter":
+                quartic = -quarter_outer(P, A)  # 004 eq. 11 / after eq. 23 (pre-correction)
+            elif kind == "gaussian":
+                quartic = gaussian_quartic(P, A)
+        Jt = np.swapaxes(J, -1, -2)
+        C = S = None
+        if role == "dynamics" and not cov:  # the drift of dP/dt: Cov[x, f] = (F P)ᵀ
+            C = np.swapaxes(J @ P, -1, -2) if cross else None
+        elif role == "dynamics":
+            S = J @ P @ Jt  # 004 eq. 19: F X Fᵀ
+            C = P @ Jt if cross else None
+        elif cross or cov:
+            C = P @ Jt  # Cov[x, g] = P Jᵀ (third moments neglected)
+            S = J @ C if cov else None
+        if role is None and quartic is not None:
+            S, quartic = S + quartic, None
+        Q = None if noise_of is None else self.noise(noise_of, m, P, t)
+        forcing = self.forcing(P, A) if role == "measurement" and A is not None else None
+        jac_out = J if role == "measurement" and spec[1] == "none" else None
+        return GaussMoments(mean, C if cross else None, S, jac_out, None, Q, quartic, forcing)
 
 
 class NodeRule:
@@ -146,8 +288,8 @@ class NodeRule:
         return ()
 
     def moments(self, state, g, t, *, jac=None, hess=None, cross: bool = True, cov: bool = True,
-                noise_of=None) -> GaussMoments:
-        """As :meth:`Taylor1.moments` (``jac``, ``hess`` are not used)."""
+                noise_of=None, role=None) -> GaussMoments:
+        """As :meth:`Taylor1.moments` (``jac``, ``hess``, ``role`` are not used)."""
         m, P = state
         X, w, wc, bad = self.nodes(m, P)
         GX = g(X, t)

@@ -28,6 +28,11 @@ form                     what it is
                          given here so that the continuous-discrete EKF exists too).
 =======================  =====================================================================
 
+All three are configurations of the skeletons of :mod:`nlfilter.filters.gaussian` (discrete,
+continuous-discrete, continuous Itô) with the moment rule :class:`~nlfilter.filters.rules.Taylor2`
+parametrised by ``form`` (which fourth-moment terms, the −¼ terms, the forcing term C); the
+contractions below live in :mod:`nlfilter.filters.rules` and are re-exported here.
+
 Notation (004): X the error covariance, V = ``model.Q``, W = ``model.R``; a state batch is
 ``(..., n)``, a covariance batch ``(..., n, n)``. The contractions (004 eqs. 9, 13, 14, 23):
 
@@ -64,146 +69,26 @@ import numpy as np
 from .. import _validate as V
 from ..errors import DivergenceError
 from .base import ContinuousFilter, DiscreteFilter, GaussianState
-from .linalg import bad_paths, gaussian_update, observed_precision, poison, symmetrize
-
-FORMS = ("truncated", "truncated-jazwinski", "modified", "gaussian", "modified-gaussian", "first-order")
-
-# per form: quadratic term of the predicted covariance, of the innovation covariance, the forcing
-# (C tensor) kind, and whether the Gaussian fourth-moment term of E[G V Gᵀ] is kept
-_SPEC = {
-    "truncated": ("none", "none", "none", False),
-    "truncated-jazwinski": ("-quarter", "-quarter", "truncated", False),
-    "modified": ("none", "-quarter", "none", False),
-    "gaussian": ("gaussian", "gaussian", "gaussian", True),
-    "modified-gaussian": ("gaussian", "gaussian", "none", True),
-    "first-order": ("none", "none", "none", False),
-}
-
-
-# ---------------------------------------------------------------------------------------------
-# contraction helpers (shared by all forms and time settings)
-# ---------------------------------------------------------------------------------------------
-def hessian_trace(X: np.ndarray, A: np.ndarray) -> np.ndarray:
-    """``(X A)_i = Σ_jl X_jl A_ijl`` (004 eqs. 9, 23, 30-31): ``X (..., n, n)``, ``A (..., p, n, n)``
-    → ``(..., p)``.
-
-    >>> hessian_trace(np.eye(2), np.arange(8.0).reshape(2, 2, 2)).tolist()
-    [3.0, 11.0]
-    """
-    return np.einsum("...jl,...ijl->...i", X, A)  # i: output component, j,l: summed state indices
-
-
-def quarter_outer(X: np.ndarray, A: np.ndarray) -> np.ndarray:
-    """``¼ (X A)(X A)ᵀ`` (004 eq. 11, last term), ``(..., p, p)``."""
-    t = hessian_trace(X, A)
-    return 0.25 * t[..., :, None] * t[..., None, :]
-
-
-def gaussian_quartic(X: np.ndarray, A: np.ndarray) -> np.ndarray:
-    """``½ tr(A_i X A_j X)``: ``Cov[½δᵀA_iδ, ½δᵀA_jδ]`` for ``δ ~ N(0, X)``, ``(..., p, p)``."""
-    AX = np.einsum("...iab,...bc->...iac", A, X)  # (A_i X)_ac: i component, a,b,c state indices
-    return 0.5 * np.einsum("...iac,...jca->...ij", AX, AX)  # tr((A_i X)(A_j X)) over a, c
-
-
-def noise_covariance(X, V, G, G_x=None, G_xx=None, *, gaussian: bool = False) -> np.ndarray:
-    """Second-order approximation of ``E[G(x) V G(x)ᵀ]`` for ``x ~ (m, X)`` (004 eqs. 13, 14, 19).
-
-    ``G (..., n, r)``, ``G_x (..., n, r, n)``, ``G_xx (..., n, r, n, n)`` at the mean; ``V (r, r)``.
-    Returns ``G V Gᵀ + (X V G_x²) + ½(X V G_xx G) + ½(X V G_xx G)ᵀ``; with ``gaussian=True`` also the
-    fourth-moment term ``¼ E[(G_xx δδ) V (G_xx δδ)ᵀ]`` of a Gaussian ``δ`` (exact for quadratic G).
-    ``G_x``/``G_xx`` may be ``None`` (constant G).
-    """
-    out = np.einsum("...ia,ab,...qb->...iq", G, V, G)  # G V Gᵀ: i,q states, a,b noise indices
-    if G_x is not None:
-        GxX = np.einsum("...iap,...pt->...iat", G_x, X)  # Σ_p ∂G_ia/∂x_p X_pt
-        out = out + np.einsum("...iat,ab,...qbt->...iq", GxX, V, G_x)  # 004 eq. 13: (X V G_x²)_iq
-    if G_xx is not None:
-        XGxx = np.einsum("...iapt,...pt->...ia", G_xx, X)  # Σ_pt X_pt ∂²G_ia/∂x_p∂x_t
-        half = 0.5 * np.einsum("...ia,ab,...qb->...iq", XGxx, V, G)  # 004 eq. 14: ½(X V G_xx G)_iq
-        out = out + half + np.swapaxes(half, -1, -2)
-        if gaussian:  # ¼ E[δδ:G_xx V G_xxᵀ:δδ] = ¼ (XG_xx)V(XG_xx)ᵀ + ½ Σ_ab V_ab tr(G_xx,ia X G_xx,qb X)
-            GxxX = np.einsum("...iapt,...tu->...iapu", G_xx, X)  # (G_xx,ia X)_pu
-            out = out + 0.25 * np.einsum("...ia,ab,...qb->...iq", XGxx, V, XGxx) + 0.5 * np.einsum(
-                "...iapu,ab,...qbup->...iq", GxxX, V, GxxX)  # trace over p, u
-    return out
+from .gaussian import ContinuousDiscreteGaussianFilter, ContinuousGaussianFilter, GaussianFilter
+from .linalg import bad_paths
+from .rules import FORMS, Taylor2, gaussian_quartic, hessian_trace, noise_covariance, quarter_outer
 
 
 def _forcing(form, X, h_xx):
-    """The covariance forcing tensor ``M (..., n, n, m)`` with ``dX = Σ_k M_ijk [·]_k``, or None.
-
-    truncated-Jazwinski (004 eq. 33, the retained term): ``M_ijk = −½ X_ij (X h_xx)_k``;
-    Gaussian (fourth moments of a Gaussian in eq. 33): ``M_ijk = (X h_xx⁽ᵏ⁾ X)_ij``.
-    """
-    kind = _SPEC[form][2]
-    if kind == "truncated":
-        return -0.5 * X[..., :, :, None] * hessian_trace(X, h_xx)[..., None, None, :]
-    if kind == "gaussian":
-        return np.einsum("...ia,...kab,...bj->...ijk", X, h_xx, X)  # (X h_xx^(k) X)_ij
-    return None
-
-
-def _pd_mask(S):
-    """Boolean ``(...)``: innovation covariances that are not positive definite."""
-    if S.shape[-1] == 1:
-        return ~(S[..., 0, 0] > 0)
-    return ~np.all(np.linalg.eigvalsh(symmetrize(S)) > 0, axis=-1)
+    """The covariance forcing tensor of ``form`` (:meth:`~nlfilter.filters.rules.Taylor2.forcing`)."""
+    return Taylor2(form).forcing(X, h_xx)
 
 
 class _Family:
+    """Configuration shared by the three time settings: the form, its Taylor-2 rule, the checks."""
+
     family = "second-order"
     needs = ("f_x", "f_xx", "h_x", "h_xx")
-    """Configuration shared by the three time settings: the form and the model's derivatives."""
 
-    def _configure(self, model, form, who):
+    def _form(self, form):
         self.form = V.choice("form", form, set(FORMS))
         self.name = "ekf" if form == "first-order" else form
-        need = ["f", "f_x", "h", "h_x", "G"]
-        if form != "first-order":
-            need += ["f_xx", "h_xx"]
-            if not model.G_constant:
-                need += ["G_x", "G_xx"]
-        model.require(*need, by=f"{who}(form={form!r})")
-        self._second = form != "first-order"
-        self._pred, self._innov, _, self._gauss4 = _SPEC[form]
-
-    # -- prediction pieces ---------------------------------------------------------------------
-    def _noise(self, m, X, t, V):
-        md = self.model
-        G = md.G(m, t)
-        if md.G_constant or not self._second:
-            return np.einsum("...ia,ab,...qb->...iq", G, V, G)
-        return noise_covariance(X, V, G, md.G_x(m, t), md.G_xx(m, t), gaussian=self._gauss4)
-
-    # -- discrete update (004 eqs. 20-23 and the other forms) ------------------------------------
-    def _update(self, state, y, t, R=None):
-        md = self.model
-        R = md.R if R is None else R
-        m, X = state
-        H = md.h_x(m, t)
-        C = X @ np.swapaxes(H, -1, -2)  # Cov[x, h] = X Hᵀ (third moments neglected / zero)
-        S = H @ C + R
-        y_pred = md.h(m, t)
-        M = None
-        if self._second:
-            h_xx = md.h_xx(m, t)
-            y_pred = y_pred + 0.5 * hessian_trace(X, h_xx)  # 004 eq. 20: ĥ = h + ½(X h_xx)
-            if self._innov == "-quarter":
-                S = S - quarter_outer(X, h_xx)  # Jazwinski's term inside the gain's inverse (004 after eq. 23)
-            elif self._innov == "gaussian":
-                S = S + gaussian_quartic(X, h_xx)
-            M = _forcing(self.form, X, h_xx)
-        bad = _pd_mask(S)
-        if bad.any():  # keep the algebra finite; these paths are reported as diverged
-            S = np.where(bad[..., None, None], np.eye(S.shape[-1]) * np.abs(S).max(initial=1.0) + R, S)
-        joseph = self._innov == "none"  # S = H X Hᵀ + W exactly: Joseph form = (I − K H) X (004 eq. 21)
-        new = gaussian_update(state, y, y_pred, S, C, H=H if joseph else None, R=R if joseph else None)
-        if M is not None:  # X⁺ += Σ_k M_k [S⁻¹(y − ŷ)]_k (the discrete C tensor, see module docstring)
-            miss = np.isnan(y)
-            e = np.where(miss, 0.0, y - y_pred)
-            Sm = np.where(miss[..., :, None] | miss[..., None, :], np.eye(S.shape[-1]), S)
-            u = np.linalg.solve(Sm, e[..., None])[..., 0]
-            new = GaussianState(new.mean, symmetrize(new.cov + np.einsum("...ijk,...k->...ij", M, u)))
-        return new, bad
+        return Taylor2(form)
 
     def _checked(self, state, bad, what, t):
         bad = bad | bad_paths(state.mean, state.cov)
@@ -215,26 +100,29 @@ class _Family:
         return state
 
 
-class _DiscreteFamily(_Family, DiscreteFilter):
-    """Discrete-time step functions shared by the discrete and continuous-discrete filters:
-    ``predict``/``update`` raise on a failed path; ``run`` uses the unchecked forms and marks."""
+class _DiscreteFamily(_Family):
+    """Discrete-time step functions of the discrete and continuous-discrete filters (over the
+    skeletons of :mod:`nlfilter.filters.gaussian`): ``predict``/``update`` raise on a failed path;
+    ``run`` uses the unchecked forms and marks."""
 
     def predict(self, state, k):
         return self._checked(self._predict(GaussianState(*state), k), False, "predicted covariance", k)
 
     def update(self, state, y, k):
-        new, bad = self._update(GaussianState(*state), np.asarray(y, dtype=float), k)
+        new, bad = self._update(GaussianState(*state), np.asarray(y, dtype=float), self._time(k))
         return self._checked(new, bad, "updated (or innovation) covariance", k)
 
     def _predict_unchecked(self, state, k):
         return self._predict(GaussianState(*state), k), None
 
     def _update_unchecked(self, state, y, k):
-        return self._update(GaussianState(*state), y, k)
+        return self._update(GaussianState(*state), y, self._time(k))
 
 
-class SecondOrderFilter(_DiscreteFamily):
-    """Second-order filter for a :class:`~nlfilter.models.DiscreteModel` (batched).
+class SecondOrderFilter(_DiscreteFamily, GaussianFilter):
+    """Second-order filter for a :class:`~nlfilter.models.DiscreteModel` (batched): the
+    :class:`~nlfilter.filters.gaussian.GaussianFilter` skeleton with the rule
+    :class:`Taylor2(form) <nlfilter.filters.rules.Taylor2>`.
 
     ``x[k+1] = f(x[k]) + G(x[k]) v[k]``, ``y[k] = h(x[k]) + w[k]`` (004 eqs. 1-2).
 
@@ -263,28 +151,14 @@ class SecondOrderFilter(_DiscreteFamily):
 
     def __init__(self, model, *, form: str = "truncated", start: str = "update"):
         DiscreteFilter.__init__(self, model, start=start)
-        self._configure(model, form, "SecondOrderFilter")
-
-    def _predict(self, state, k):
-        md = self.model
-        m, X = state
-        F = md.f_x(m, k)
-        cov = F @ X @ np.swapaxes(F, -1, -2) + self._noise(m, X, k, md.Q)  # 004 eq. 19
-        mean = md.f(m, k)
-        if self._second:
-            f_xx = md.f_xx(m, k)
-            mean = mean + 0.5 * hessian_trace(X, f_xx)  # 004 eq. 18
-            if self._pred == "-quarter":
-                cov = cov - quarter_outer(X, f_xx)  # 004 eq. 11, last term (pre-correction)
-            elif self._pred == "gaussian":
-                cov = cov + gaussian_quartic(X, f_xx)
-        return GaussianState(mean, symmetrize(cov))
+        self._set_rule(self._form(form), by=f"SecondOrderFilter(form={form!r})")
 
 
-
-class ContinuousDiscreteSecondOrderFilter(_DiscreteFamily):
+class ContinuousDiscreteSecondOrderFilter(_DiscreteFamily, ContinuousDiscreteGaussianFilter):
     """Continuous dynamics, discrete measurements: the moment ODEs of 004 eqs. 35-36 without their
-    measurement terms between measurements, the discrete update of 004 eqs. 20-22 at them.
+    measurement terms between measurements, the discrete update of 004 eqs. 20-22 at them (the
+    :class:`~nlfilter.filters.gaussian.ContinuousDiscreteGaussianFilter` skeleton with the rule
+    :class:`Taylor2(form) <nlfilter.filters.rules.Taylor2>`).
 
     The model is an :class:`~nlfilter.models.SDEModel` whose ``h`` and ``R`` are read as the
     *discrete* measurement ``y_k = h(x(t_k)) + w_k``, ``w_k ~ (0, R)``, ``t_k = t0 + k dt``.
@@ -318,30 +192,13 @@ class ContinuousDiscreteSecondOrderFilter(_DiscreteFamily):
         self.scheme = V.choice("scheme", scheme, {"rk4", "euler"})
         self.substeps = V.positive("substeps", substeps, integer=True)
         self.t0 = float(t0)
-        self._configure(model, form, "ContinuousDiscreteSecondOrderFilter")
-
-    def _rhs(self, m, X, z, s):
-        md = self.model
-        F = md.f_x(m, s)
-        FX = F @ X
-        dX = FX + np.swapaxes(FX, -1, -2) + self._noise(m, X, s, md.Q)
-        dm = md.f(m, s)
-        if self._second:
-            dm = dm + 0.5 * hessian_trace(X, md.f_xx(m, s))  # 004 eq. 35, drift part
-        return dm, dX
-
-    def _predict(self, state, k):
-        return ContinuousFilter.integrate(self, self._rhs, GaussianState(*state), None,
-                                          self.t0 + k * self.dt)
-
-    def _update(self, state, y, k):
-        return _Family._update(self, state, y, self.t0 + k * self.dt)
+        self._set_rule(self._form(form), by=f"ContinuousDiscreteSecondOrderFilter(form={form!r})")
 
 
-
-class ContinuousSecondOrderFilter(_Family, ContinuousFilter):
+class ContinuousSecondOrderFilter(_Family, ContinuousGaussianFilter):
     """Second-order filter for an Itô :class:`~nlfilter.models.SDEModel` observed through increments
-    ``dy`` (004 eqs. 35-37)::
+    ``dy`` (004 eqs. 35-37): the :class:`~nlfilter.filters.gaussian.ContinuousGaussianFilter`
+    skeleton with the rule :class:`Taylor2(form) <nlfilter.filters.rules.Taylor2>`::
 
         dm = [f + ½(X f_xx)] dt + K {dy − [h + ½(X h_xx)] dt},     K = X Hᵀ W⁻¹
         dX = [F X + X Fᵀ + G V Gᵀ + (X V G_x²) + ½(X V G_xx G) + ½(·)ᵀ − K W Kᵀ] dt
@@ -372,73 +229,21 @@ class ContinuousSecondOrderFilter(_Family, ContinuousFilter):
                  innovation: str = "ito"):
         ContinuousFilter.__init__(self, model, dt, scheme=scheme, substeps=substeps)
         self.innovation = V.choice("innovation", innovation, {"ito", "update"})
-        self._configure(model, form, "ContinuousSecondOrderFilter")
-        if form == "modified":
-            self._innov = "none"  # 004 sec. 3: no −¼ term exists in continuous time
-        self._Winv = np.linalg.inv(model.R)
-
-    def _gain_parts(self, m, X, s, obs, Winv):
-        """Gain, X Hᵀ, ĥ and the forcing tensor M W⁻¹; ``Winv``: the precision of the observed
-        components (:func:`~nlfilter.filters.base.observed_precision`; missing ones do not update)."""
-        md = self.model
-        H = md.h_x(m, s) * obs[..., :, None]
-        PHt = X @ np.swapaxes(H, -1, -2)
-        K = PHt @ Winv  # 004 eq. 37
-        hhat = md.h(m, s)
-        M = None
-        if self._second:
-            h_xx = md.h_xx(m, s)
-            hhat = hhat + 0.5 * hessian_trace(X, h_xx)  # 004 eq. 35
-            M = _forcing(self.form, X, h_xx)
-            if M is not None:
-                M = np.einsum("...ijk,...kl->...ijl", M * obs[..., None, None, :], Winv)  # M W⁻¹
-        return K, PHt, hhat * obs, M
-
-    def _rhs_factory(self, obs, Winv):
-        md = self.model
-
-        def rhs(m, X, z, s):
-            F = md.f_x(m, s)
-            K, PHt, hhat, M = self._gain_parts(m, X, s, obs, Winv)
-            dm = md.f(m, s) - np.einsum("...ij,...j->...i", K, hhat)
-            if self._second:
-                dm = dm + 0.5 * hessian_trace(X, md.f_xx(m, s))
-            FX = F @ X
-            dX = FX + np.swapaxes(FX, -1, -2) + self._noise(m, X, s, md.Q) - K @ np.swapaxes(PHt, -1, -2)
-            if M is not None:
-                dX = dX - np.einsum("...ijk,...k->...ij", M, hhat)  # forcing term, its dt part
-            return dm, dX
-
-        return rhs
-
-    def _step(self, state, dy, t):
-        """``(state at t + dt, bad paths)``."""
-        dy = np.asarray(dy, dtype=float)
-        obs = ~np.isnan(dy)
-        if self.innovation == "update":
-            new, bad = self._update(state, dy / self.dt, t, R=self.model.R / self.dt)
-            new = poison(new, bad)
-            none = np.zeros_like(obs)
-            return self.integrate(self._rhs_factory(none, np.zeros_like(self._Winv)), new, None, t), bad
-        dy0 = np.where(obs, dy, 0.0)
-        m, X = state
-        Winv = observed_precision(self.model.R, self._Winv, obs)
-        K, _, _, M = self._gain_parts(m, X, t, obs, Winv)  # Itô: gain at the start of the step
-        new = self.integrate(self._rhs_factory(obs, Winv), GaussianState(m, X), None, t)
-        mean = new.mean + np.einsum("...ij,...j->...i", K, dy0)
-        cov = new.cov
-        if M is not None:
-            cov = symmetrize(cov + np.einsum("...ijk,...k->...ij", M, dy0))
-        return GaussianState(mean, cov), np.zeros(obs.shape[:-1], bool)
-
-    def step(self, state, dy, t):
-        """The belief at ``t + dt`` from the belief at ``t`` and the increment ``dy (..., m)``."""
-        with np.errstate(over="ignore", invalid="ignore"):
-            new, bad = self._step(GaussianState(*state), dy, t)
-        return self._checked(new, bad, "covariance", t)
+        self._form(form)
+        # 004 sec. 3: no −¼ term exists in continuous time, "modified" is the truncated filter
+        self._set_rule(Taylor2("truncated" if form == "modified" else form),
+                       by=f"ContinuousSecondOrderFilter(form={form!r})")
 
     def _step_unchecked(self, state, dy, t):
-        return self._step(GaussianState(*state), dy, t)
+        new, bad = self._step(GaussianState(*state), np.asarray(dy, dtype=float), t)
+        return new, np.zeros(np.shape(dy)[:-1], bool) if bad is None else bad
+
+    def step(self, state, dy, t):
+        """The belief at ``t + dt`` from the belief at ``t`` and the increment ``dy (..., m)``;
+        raises :class:`~nlfilter.errors.DivergenceError` on a failed path."""
+        with np.errstate(over="ignore", invalid="ignore"):
+            new, bad = self._step_unchecked(state, dy, t)
+        return self._checked(new, bad, "covariance", t)
 
 
 __all__ = ["FORMS", "SecondOrderFilter", "ContinuousSecondOrderFilter",
