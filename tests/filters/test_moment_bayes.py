@@ -450,3 +450,31 @@ def test_zero_order_estimate_equals_the_ratio_of_integrals_bit_for_bit():
         got, gfb = zero_order_estimate(z, d)
         np.testing.assert_array_equal(gfb, fb)
         np.testing.assert_array_equal(got, np.where(fb, 0.5 * (l + u), xh))
+
+
+def test_zero_order_filters_take_the_zero_order_model():
+    """issue 10 item 2: the zero-order filters take the problem's model (support, noise half-width,
+    beta and — with known moments — the exact moments of x, E x^i = (J+1)/(J+1+i) for even i, from
+    it) and give the raw form's numbers; inconsistent arguments are refused naming them."""
+    from nlfilter.bounded import ZeroOrderModel
+    from nlfilter.filters.moment_bayes import ScaledNoiseZeroOrderFilter, ZeroOrderMomentFilter
+    md = ZeroOrderModel(4)
+    xs, zs = md.simulate(30, 3, 1)
+    i = np.arange(1, 5)
+    exact = np.where(i % 2 == 0, 5 / (5 + i), 0.0)
+    a = ZeroOrderMomentFilter(md, 4).run(zs)
+    b = ZeroOrderMomentFilter(4, moments=exact).run(zs)
+    np.testing.assert_array_equal(a.means, b.means)
+    sm = ZeroOrderModel(4, beta=0.3)
+    _, zs2 = sm.simulate(30, 3, 2)
+    c = ScaledNoiseZeroOrderFilter(sm, 4, adaptive=True, window=5).run(zs2)
+    d = ScaledNoiseZeroOrderFilter(4, 0.3, adaptive=True, window=5).run(zs2)
+    np.testing.assert_array_equal(c.means, d.means)
+    with pytest.raises(ValueError, match=r"^model: beta"):
+        ZeroOrderMomentFilter(sm, 4)
+    with pytest.raises(ValueError, match=r"^support: given by the model"):
+        ZeroOrderMomentFilter(md, 4, support=(-2, 2))
+    with pytest.raises(TypeError, match=r"^N: expected"):
+        ZeroOrderMomentFilter(md)
+    with pytest.raises(TypeError, match=r"^N: given twice"):
+        ZeroOrderMomentFilter(4, 4)

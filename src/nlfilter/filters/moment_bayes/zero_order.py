@@ -30,6 +30,7 @@ from ... import _validate as V
 from ...moments.densities import (LegendreDensity, difference_moments, is_moment_sequence,
                                   legendre_antiderivative, legendre_values, pdf_batched_1d, series_times_x,
                                   uniform_moments)
+from ...bounded import ZeroOrderModel
 from ._common import MomentFilter, MomentFilterWarning, check_N, keep_missing, observed
 
 
@@ -121,6 +122,29 @@ def power_density_estimate(z, J: int):
     return np.where(u - l > 0, x, 0.5 * (l + u))
 
 
+def _from_model(flt, model, N, support, noise_halfwidth, moments, adaptive):
+    """The constructor's two forms: ``(ZeroOrderModel, N)`` — support (−1, 1), the noise half-width
+    and (known-moment mode, ``moments=None``) the exact moments of x from the model — or the raw
+    ``(N, support=..., noise_halfwidth=...)``. Returns ``(model, N, support, noise_halfwidth, moments)``."""
+    if isinstance(model, ZeroOrderModel):
+        if N is None:
+            raise TypeError("N: expected the highest moment used, (model, N), got None")
+        for name, v in (("support", support), ("noise_halfwidth", noise_halfwidth)):
+            if v is not None:
+                raise ValueError(f"{name}: given by the model ({model!r}); expected None, got {v!r}")
+        if model.beta != 0 and not isinstance(flt, ScaledNoiseZeroOrderFilter):
+            raise ValueError(f"model: beta = {model.beta} is the non-additive problem; use ScaledNoiseZeroOrderFilter")
+        if moments is None and not adaptive:
+            i = np.arange(1, int(N) + 1) if isinstance(N, (int, np.integer)) else None
+            if i is not None:  # x ~ (J+1)/2 x^J on (−1, 1): E x^i = (J+1)/(J+1+i), i even; 0 odd
+                moments = np.where(i % 2 == 0, (model.J + 1) / (model.J + 1 + i), 0.0)
+        return model, N, (-1.0, 1.0), model.noise_halfwidth, moments
+    if N is not None:
+        raise TypeError(f"N: given twice (the raw form is ({type(flt).__name__}(N, ...)), got N={N!r}")
+    return None, model, ((-1.0, 1.0) if support is None else support), \
+        (1.0 if noise_halfwidth is None else noise_halfwidth), moments
+
+
 class ZeroOrderMomentFilter(MomentFilter):
     """Method-of-moments estimator for ``z = x + v`` (000 Chapter III, Fig. 7).
 
@@ -164,9 +188,13 @@ class ZeroOrderMomentFilter(MomentFilter):
     source = "seed 000 eqs. 2.27-2.29, 3.3-3.16, Fig. 7"
     needs = ("bounded support of x", "uniform measurement noise")
 
-    def __init__(self, N: int, *, support=(-1.0, 1.0), noise_halfwidth: float = 1.0, moments=None,
-                 adaptive: bool = False, initial_moments=None, n0: float = 100.0, window: int = 20,
-                 eps: float = 1e-6, outside: str = "raise", invalid_moments: str = "warn"):
+    accepts = ("zero-order",)
+
+    def __init__(self, model, N: int | None = None, *, support=None, noise_halfwidth: float | None = None,
+                 moments=None, adaptive: bool = False, initial_moments=None, n0: float = 100.0,
+                 window: int = 20, eps: float = 1e-6, outside: str = "raise", invalid_moments: str = "warn"):
+        model, N, support, noise_halfwidth, moments = _from_model(self, model, N, support, noise_halfwidth,
+                                                                  moments, adaptive)
         self.N = check_N(N)
         try:
             x_min, x_max = (float(s) for s in support)
@@ -344,10 +372,19 @@ class ScaledNoiseZeroOrderFilter(ZeroOrderMomentFilter):
     name = "scaled-noise-zero-order-moment"
     source = "seed 000 eqs. 1.2, 1.10-1.11, 3.5, 3.16 (non-additive form)"
 
-    def __init__(self, N: int, beta: float, *, support=(-1.0, 1.0), noise_halfwidth: float = 1.0,
-                 moments=None, adaptive: bool = False, initial_moments=None, n0: float = 100.0,
-                 window: int = 20, eps: float = 1e-6, nodes: int = 48):
-        super().__init__(N, support=support, noise_halfwidth=noise_halfwidth, moments=moments,
+    def __init__(self, model, beta: float | None = None, *, N: int | None = None, support=None,
+                 noise_halfwidth: float | None = None, moments=None, adaptive: bool = False,
+                 initial_moments=None, n0: float = 100.0, window: int = 20, eps: float = 1e-6, nodes: int = 48):
+        if isinstance(model, ZeroOrderModel):  # (model, N): beta is the model's
+            if beta is not None and N is not None:
+                raise TypeError(f"beta: the model gives beta = {model.beta}; expected (model, N), got beta={beta!r}")
+            N, beta = (beta if N is None else N), model.beta
+        elif N is not None:
+            raise TypeError(f"N: given twice (the raw form is ScaledNoiseZeroOrderFilter(N, beta)), got N={N!r}")
+        elif beta is None:
+            raise TypeError("beta: expected the noise-scale coefficient of z = x + (1 + beta x) v, got None")
+        super().__init__(model, N if isinstance(model, ZeroOrderModel) else None, support=support,
+                         noise_halfwidth=noise_halfwidth, moments=moments,
                          adaptive=adaptive, initial_moments=initial_moments, n0=n0,
                          window=window, eps=eps, outside="clip", invalid_moments="ignore")
         self.beta = float(beta)
