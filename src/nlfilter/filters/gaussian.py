@@ -179,7 +179,7 @@ class ContinuousDiscreteGaussianFilter(GaussianFilter):
     accepts = ("sde",)
 
     def __init__(self, model, dt: float, rule, *, scheme: str = "rk4", substeps: int = 1,
-                 start: str = "update", t0: float = 0.0):
+                 start: str = "update", t0: float = 0.0, by: str | None = None):
         if getattr(model, "kind", None) != "sde":
             raise TypeError(f"model: {type(self).__name__} expects an SDEModel, got {type(model).__name__}")
         self.model = model
@@ -188,7 +188,7 @@ class ContinuousDiscreteGaussianFilter(GaussianFilter):
         self.scheme = V.choice("scheme", scheme, {"rk4", "euler"})
         self.substeps = V.positive("substeps", substeps, integer=True)
         self.t0 = float(t0)
-        self._set_rule(rule)
+        self._set_rule(rule, by=by)
 
     def _time(self, k):
         return self.t0 + k * self.dt

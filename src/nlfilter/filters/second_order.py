@@ -183,16 +183,10 @@ class ContinuousDiscreteSecondOrderFilter(_DiscreteFamily, ContinuousDiscreteGau
 
     def __init__(self, model, dt: float, *, form: str = "truncated", scheme: str = "rk4",
                  substeps: int = 1, start: str = "update", t0: float = 0.0):
-        if getattr(model, "kind", None) != "sde":
-            raise TypeError(f"model: ContinuousDiscreteSecondOrderFilter expects an SDEModel, "
-                            f"got {type(model).__name__}")
-        self.model = model
-        self.start = V.choice("start", start, {"update", "predict"})
-        self.dt = float(V.positive("dt", dt))
-        self.scheme = V.choice("scheme", scheme, {"rk4", "euler"})
-        self.substeps = V.positive("substeps", substeps, integer=True)
-        self.t0 = float(t0)
-        self._set_rule(self._form(form), by=f"ContinuousDiscreteSecondOrderFilter(form={form!r})")
+        # the continuous-discrete skeleton with Taylor2(form)
+        ContinuousDiscreteGaussianFilter.__init__(self, model, dt, self._form(form), scheme=scheme,
+                                                  substeps=substeps, start=start, t0=t0,
+                                                  by=f"ContinuousDiscreteSecondOrderFilter(form={form!r})")
 
 
 class ContinuousSecondOrderFilter(_Family, ContinuousGaussianFilter):
