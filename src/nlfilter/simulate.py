@@ -48,6 +48,16 @@ def initial_states(n, paths, rng, *, m0=None, P0=None, x0=None, initial: NoiseLa
     return m0 + Gaussian(V.covariance("P0", P0, n)).sample(rng, (paths,))
 
 
+def _start(model, steps, paths, rng, m0, P0, x0, initial):
+    """Checked sizes, the generator, the initial states (drawn first from it) and their copy, and
+    the state buffer ``(paths, steps, n)`` of a simulation."""
+    V.positive("steps", steps, integer=True)
+    V.positive("paths", paths, integer=True)
+    rng = V.rng(rng)
+    x = initial_states(model.n, paths, rng, m0=m0, P0=P0, x0=x0, initial=initial)
+    return rng, x, x.copy(), np.empty((paths, steps, model.n))
+
+
 def simulate(model, steps: int, *, paths: int = 1, rng=None, m0=None, P0=None, x0=None,
              initial: NoiseLaw | None = None, start: str = "update", dt: float | None = None,
              substeps: int = 10, t0: float = 0.0) -> Simulation:
@@ -71,13 +81,8 @@ def simulate(model, steps: int, *, paths: int = 1, rng=None, m0=None, P0=None, x
     >>> sim.xs.shape, sim.ys.shape, sim.t.round(2).tolist()
     ((3, 5, 1), (3, 5, 1), [0.1, 0.2, 0.3, 0.4, 0.5])
     """
-    V.positive("steps", steps, integer=True)
-    V.positive("paths", paths, integer=True)
-    rng = V.rng(rng)
-    n, m = model.n, model.m
-    x = initial_states(n, paths, rng, m0=m0, P0=P0, x0=x0, initial=initial)
-    x_init = x.copy()
-    xs = np.empty((paths, steps, n))
+    rng, x, x_init, xs = _start(model, steps, paths, rng, m0, P0, x0, initial)
+    m = model.m
     ys = np.empty((paths, steps, m))
     if model.kind == "discrete":
         if dt is not None:
@@ -207,15 +212,10 @@ def simulate_continuous_discrete(model, steps: int, *, paths: int = 1, rng=None,
 
     if getattr(model, "kind", None) != "sde":
         raise TypeError(f"model: expected an SDEModel (continuous dynamics), got {type(model).__name__}")
-    V.positive("steps", steps, integer=True)
-    V.positive("paths", paths, integer=True)
     dt = float(V.positive("dt", dt))
     V.positive("substeps", substeps, integer=True)
-    rng = V.rng(rng)
-    n, m = model.n, model.m
-    x = initial_states(n, paths, rng, m0=m0, P0=P0, x0=x0, initial=initial)
-    x_init = x.copy()
-    xs = np.empty((paths, steps, n))
+    rng, x, x_init, xs = _start(model, steps, paths, rng, m0, P0, x0, initial)
+    m = model.m
     noisy = np.any(model.Q != 0)
     for k in range(steps):
         tk = t0 + k * dt

@@ -1,24 +1,9 @@
-"""Filters for bilinear systems (seed 001, Vallot 1981): the optimal linear filter, nonlinear
-post-processors of its estimate (the "tensor filter"), multi-stage post-processing, the
-updated-innovations filter (the pseudo-observables filter: :mod:`.pseudo_observables`; the joint
-moments and post-processor fits: :mod:`.post_processors`).
-
-Optimal linear filter (001 eqs. 2.31-2.47), in the augmented coordinates ``z = (x, 1)`` of
-:meth:`~nlfilter.bilinear.BilinearModel.augmented`::
-
-    dẑ = F ẑ dt + K (dy − H ẑ dt),      K = P Hᵀ Σ_v⁻¹                         (2.31, 2.32)
-    Σ_v = Σ_j M_j X M_jᵀ                                                        (2.47)
-    dX/dt = F X + X Fᵀ + Σ_i G_i X G_iᵀ                                         (2.37)
-    dP/dt = F P + P Fᵀ + Σ_i G_i X G_iᵀ − K Σ_v Kᵀ                              (2.43)
-
-Its gains do not depend on the data: they are computed once, off-line (time-varying along the
-measurement grid, or the steady state of the algebraic equations (2.54) solved directly).
-
-Post-processor (001 §3.3): ``x̂ = Σ_k α_k φ_k(ẑ)`` with ``φ_k`` odd monomials of the linear
-estimate (``α x̂ + β x̂³`` is eqs. 3.29-3.35); the gains solve the normal equations
-``E[φ φᵀ] α = E[x φ]`` whose moments are the steady-state moments of the joint process
-``(x, ẑ)`` — exact, from the closed moment system of the joint SDE
-(:func:`nlfilter.moments.solve.stationary_moments`, conservation laws imposed on the circle).
+"""Filters for bilinear systems (seed 001, Vallot 1981) that post-process the optimal linear filter
+(:mod:`.linear_bilinear`, 001 eqs. 2.31-2.47): the "tensor filter" ``x̂ = Σ_k α_k φ_k(ẑ)``, odd
+monomials of the linear estimate with gains from the exact joint (x, ẑ) moments (001 §3.3,
+eqs. 3.29-3.35; fits and multi-stage in :mod:`.post_processors`), and the updated-innovations
+filter (001 §3.4). Both run on the off-line-gain runner's steady schedule (:mod:`.offline`). The
+pseudo-observables filter is in :mod:`.pseudo_observables`; all are re-exported here.
 """
 
 from __future__ import annotations
