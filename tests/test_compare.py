@@ -46,7 +46,8 @@ def test_linear_gaussian_kf_ekf_grid_riccati(linear):
     assert abs(nees.value - 1.0) < 3 * nees.stderr
     assert _row(linear, "kf", "divergence_rate").value == 0.0
     p = linear.params
-    assert (p["steps"], p["paths"], p["window"], p["seed"], p["reference"]) == (200, 400, 0.5, 0, "grid")
+    assert (p["steps"], p["paths"], p["window"], p["seed"], p["reference"]["kind"]) == (200, 400, 0.5, 0, "grid")
+    assert p["reference"]["certified"] is True and p["reference"]["label"] == "optimal"
     assert {"kf", "ekf", "optimal"} <= set(next(iter(linear.series.values()))["lines"])
 
 
@@ -62,7 +63,7 @@ def test_sde_continuous_ekf():
     md = SDEModel([x], [-x], [x], Q=1.0, R=0.5)
     dt = 0.05
     res = compare(md, {"cekf": ContinuousEKF(md, dt)}, 100, paths=200, m0=0.0, P0=0.5, rng=0, dt=dt)
-    assert res.params["reference"] == "grid" and res.params["dt"] == dt
+    assert res.params["reference"]["kind"] == "grid" and res.params["dt"] == dt
     m = _row(res, "cekf", "mse", component=0)
     opt = _row(res, "optimal", "mse", component=0)
     # linear SDE: the Kalman–Bucy filter is optimal; its steady variance solves 2aP + q − P²/r = 0,
@@ -92,14 +93,15 @@ def test_particle_reference_for_three_states():
     md = DiscreteModel.linear(F, np.eye(3), 0.1 * np.eye(3), 0.5 * np.eye(3))
     run = lambda: compare(md, {"kf": KalmanFilter(md)}, 15, paths=10, m0=np.zeros(3), P0=np.eye(3), rng=3)
     a, b = run(), run()
-    assert a.params["reference"] == "particle" and len(a.series) == 3
+    assert a.params["reference"]["kind"] == "particle" and len(a.series) == 3
     assert [r.to_dict() for r in a.rows] == [r.to_dict() for r in b.rows]  # the particles are seeded
 
 
 def test_given_and_no_reference():
     grid = GridFilter(LIN, (-5.0, 5.0), 201)
     res = compare(LIN, {"kf": KalmanFilter(LIN)}, 40, paths=30, m0=0.0, P0=0.5, rng=0, reference=grid)
-    assert res.params["reference"] == "GridFilter" and _row(res, "optimal", "mse", component=0)
+    ref = res.params["reference"]
+    assert (ref["kind"], ref["size"], ref["certified"]) == ("grid", [201], True) and _row(res, "optimal", "mse", component=0)
     again = compare(LIN, {"kf": KalmanFilter(LIN)}, 40, paths=30, m0=0.0, P0=0.5, rng=0, reference=grid,
                     progress=True)
     assert [r.to_dict() for r in again.rows] == [r.to_dict() for r in res.rows]

@@ -6,18 +6,17 @@ the differences between filters are not blurred by different noise: ``gap_to_opt
 paired difference of squared errors on the same paths, whose standard error is much smaller
 than that of either MSE.
 
-Automatic reference (``reference="auto"``)
-------------------------------------------
-* ``n ≤ 2``: a :class:`~nlfilter.filters.reference.GridFilter`. Per axis ``i`` let ``s_i`` be
-  the smaller of the prior standard deviation ``√P0_ii`` and the root-mean-square standard
-  deviation of the noise over one measurement step (``G Q Gᵀ``, times ``dt`` for an SDE, over
-  the simulated states), and ``S_i`` the larger. The bounds are the range of the simulated
-  states and of ``m0`` widened by ``4 S_i`` on each side; the spacing is at most ``s_i / 4``
-  (a quarter of the narrowest noise the kernel must resolve), with at least 101 points (1-D)
-  or 21 per axis (2-D) and at most :data:`GRID_MAX` points per axis (the cap bounds time and
-  memory; pass your own ``GridFilter`` for a finer grid).
-* ``n > 2``: a :class:`~nlfilter.filters.reference.ParticleFilter` with :data:`PARTICLES`
-  particles, seeded from its own spawned stream (the simulation's numbers do not move).
+The reference (``reference="auto"``)
+------------------------------------
+:func:`nlfilter.yardstick.certified_reference`: a grid filter for ``n ≤ 2`` whose resolution is
+chosen from the model's process-noise and posterior scales, else (or when that grid is too large)
+a particle filter; it is rerun at a finer resolution on a subset of paths, and only a reference
+whose measured error is within ``rtol`` of its MSE is named ``"optimal"`` — otherwise the finer
+one replaces it, up to ``max_particles``, and a reference that never passes is named
+``"reference (not converged)"`` with a :class:`~nlfilter.errors.ReferenceWarning`. Its
+certificate is ``Result.params["reference"]``, and its error is added (in quadrature) to the
+standard error of every ``gap_to_optimal``. A ``GridFilter`` or ``ParticleFilter`` given as
+``reference`` is checked the same way (one refinement); any other reference is taken as given.
 
 Any filter that draws (``random = True``: a particle filter in ``filters``) gets a stream of its
 own, keyed by its name: runs are reproducible from ``rng`` and do not depend on the other filters.
@@ -36,15 +35,12 @@ from .evaluate import _window, mse, mse_per_step, nees, paired_difference, strea
 from .filters import REGISTRY
 from .filters.base import Estimates
 from .moments.closures import gaussian_moments
-from .filters.reference import GridFilter, ParticleFilter
 from .filters.registry import accepting, model_kind
 from .results import Result
 from .simulate import simulate
+from .errors import DivergenceError
 
-PARTICLES = 2000
-GRID_MAX = {1: 801, 2: 61}
-GRID_MIN = {1: 101, 2: 21}
-OPTIMAL = "optimal"
+from .yardstick import MAX_PARTICLES, OPTIMAL, certified_reference, check_given_reference
 
 
 def _streams(rng):
@@ -137,31 +133,6 @@ def _check_filters(filters, model, dt, start, reference):
         _check_filter(f"filters[{name!r}]", flt, model, dt, start)
 
 
-def _grid(model, sim, m0, P0, dt, start):
-    """The automatic grid reference (rule in the module docstring) and its bounds and sizes."""
-    n = model.n
-    xs = sim.xs.reshape(-1, n)
-    g = model.GQGT(xs)
-    var = np.diagonal(g, axis1=-2, axis2=-1)  # (states, n)
-    noise = np.sqrt(np.mean(var, axis=0) * (dt if model.kind == "sde" else 1.0))
-    prior = np.sqrt(np.diag(P0))
-    small = np.minimum(noise, prior)
-    small = np.where(small > 0, small, np.maximum(noise, prior))
-    big = np.maximum(noise, prior)
-    if not np.all(small > 0):
-        raise ValueError("reference: the automatic grid needs a positive prior or noise variance per state; "
-                         "pass a GridFilter or ParticleFilter as reference")
-    lo = np.minimum(xs.min(axis=0), m0) - 4 * big
-    hi = np.maximum(xs.max(axis=0), m0) + 4 * big
-    sizes = np.clip(np.ceil((hi - lo) / (small / 4)).astype(int) + 1, GRID_MIN[n], GRID_MAX[n])
-    bounds = [(float(a), float(b)) for a, b in zip(lo, hi)]
-    if n == 2 and model.kind == "sde" and np.any(np.abs(g[..., 0, 1]) > 1e-12 * (np.sum(var, axis=-1) + 1e-300)):
-        return None, bounds, sizes  # the 2-D SDE grid needs a diagonal diffusion: particles instead
-    kw = {"dt": dt} if model.kind == "sde" else {"start": start}
-    flt = GridFilter(model, bounds[0] if n == 1 else bounds, [int(s) for s in sizes] if n > 1 else int(sizes[0]), **kw)
-    return flt, bounds, sizes
-
-
 def _lifted_prior(lift, m0, P0):
     """The prior of a bilinear model's state (for a lift, the monomials ``coords`` of the base
     state) under the base prior N(m0, P0): exact Gaussian moments; and the columns of its state
@@ -184,7 +155,8 @@ def _component_names(model):
 
 
 def compare(model, filters, steps, *, paths=200, m0, P0, rng=0, reference="auto", window=0.5, dt=None,
-            substeps=10, start="update", progress=False, on_divergence="mark") -> Result:
+            substeps=10, start="update", progress=False, on_divergence="mark", rtol=0.02, certify_paths=64,
+            max_particles=MAX_PARTICLES, full_output=False):
     """Run every filter and a near-optimal reference on one shared simulation; a :class:`Result`.
 
     Parameters
@@ -203,8 +175,15 @@ def compare(model, filters, steps, *, paths=200, m0, P0, rng=0, reference="auto"
     m0, P0 : the prior: true initial states are drawn from N(m0, P0); every filter starts there
     rng : an integer seed or a ``numpy.random.Generator`` (the simulation's; filters that draw
         random numbers get spawned streams of their own)
-    reference : ``"auto"`` (see the module docstring), a filter instance, or ``None`` (no
-        reference, no ``gap_to_optimal`` rows); it is named ``"optimal"`` in rows and figure
+    reference : ``"auto"`` (a certified reference, see the module docstring), a filter instance,
+        or ``None`` (no reference, no ``gap_to_optimal`` rows); it is named ``"optimal"`` in rows
+        and figure when certified (or not checkable), else ``"reference (not converged)"``, and
+        its ``gap_*`` rows are then ``gap_to_reference``
+    rtol, certify_paths, max_particles : the reference's certificate: the largest error bound
+        ``|Δ| + 2 se`` of its MSE relative to the MSE, the paths of its refinement run, and the
+        most particles the automatic reference may use (:mod:`nlfilter.yardstick`)
+    full_output : also return the :class:`~nlfilter.simulate.Simulation` and the dict
+        name -> :class:`~nlfilter.filters.base.Estimates` the numbers were computed from
     window : what :func:`~nlfilter.evaluate.mse` averages over (``0.5``: the second half)
     dt, substeps : SDE models only: measurement step (required) and Euler–Maruyama substeps of
         the simulation (and of an automatic particle reference)
@@ -215,8 +194,17 @@ def compare(model, filters, steps, *, paths=200, m0, P0, rng=0, reference="auto"
 
     Rows (``Result.get(name, quantity, component=i)``): per filter and component ``i``: ``mse``
     (window average ± stderr) and ``gap_to_optimal`` (MSE minus the reference's on the same
-    paths ± stderr); per filter: ``nees`` (when its covariances are finite) and
-    ``divergence_rate``. ``series``: one panel per component, MSE per step with ± 2 s.e. bands.
+    paths; its stderr is the paired one and the reference's own error in quadrature); per
+    filter: ``nees`` (only for filters whose ``covs`` are their posterior covariance:
+    ``covariance == "posterior"``), ``offline_mse`` per component instead for the off-line-gain
+    filters (the mean over the window of the diagonal of their off-line error covariance: the
+    MSE they predict), and ``divergence_rate``; for the reference: ``reference_error`` per
+    component (``Δ ± se`` of its refinement), ``edge_mass`` (grids) or ``ess_min`` (particles).
+    A filter that fails with a numerical error is listed in ``params["failed"]`` (divergence
+    rate 1), a NEES that is undefined (a singular covariance) in a note: ``compare`` does not
+    stop on them. ``series``: one panel per component, MSE per step with ± 2 s.e. bands.
+
+    Returns the :class:`Result`, or ``(result, simulation, estimates)`` with ``full_output``.
 
     >>> import sympy as sp; from nlfilter import DiscreteModel; from nlfilter.filters import EKF, UKF
     >>> x = sp.Symbol("x")
@@ -225,7 +213,9 @@ def compare(model, filters, steps, *, paths=200, m0, P0, rng=0, reference="auto"
     >>> round(res.get("ekf", "mse", component=0).value - res.get("ukf", "mse", component=0).value, 12)
     0.0
     >>> sorted({r.quantity for r in res.rows})
-    ['divergence_rate', 'gap_to_optimal', 'mse', 'nees']
+    ['divergence_rate', 'edge_mass', 'gap_to_optimal', 'mse', 'nees', 'reference_error']
+    >>> res.params["reference"]["label"], res.params["reference"]["kind"]
+    ('optimal', 'grid')
     """
     given = model
     if model_kind(model) in ("bilinear", "bilinear-discrete"):
@@ -248,6 +238,9 @@ def compare(model, filters, steps, *, paths=200, m0, P0, rng=0, reference="auto"
     V.choice("start", start, {"update", "predict"})
     V.choice("on_divergence", on_divergence, {"raise", "mark"})
     _window(steps, window)  # raises TypeError naming window
+    V.positive("rtol", rtol)
+    V.positive("certify_paths", certify_paths, integer=True)
+    V.positive("max_particles", max_particles, integer=True)
     if isinstance(reference, str) and reference != "auto":
         raise ValueError(f"reference: expected 'auto', None or a filter instance, got {reference!r}")
     if not (reference is None or isinstance(reference, str)):
@@ -268,59 +261,102 @@ def compare(model, filters, steps, *, paths=200, m0, P0, rng=0, reference="auto"
               "P0": P0m.tolist()}
     if kind == "sde":
         params.update(dt=dt, substeps=substeps)
-    runs = dict(filters)
-    ref = reference
-    if reference == "auto":
-        ref = None
-        if model.n <= 2:
-            ref, bounds, sizes = _grid(model, sim, m0v, P0m, dt, start)
-            if ref is not None:
-                params.update(reference="grid", grid_bounds=bounds, grid_size=[int(s) for s in sizes])
-        if ref is None:
-            ref = ParticleFilter(model, PARTICLES, **({"dt": dt, "substeps": substeps} if kind == "sde"
-                                                      else {"start": start}))
-            params.update(reference="particle", particles=PARTICLES)
-    elif reference is not None:
-        params["reference"] = type(reference).__name__
-    else:
-        params["reference"] = None
-    if ref is not None:
-        runs[OPTIMAL] = ref
+
+    def run(name, flt, ys, key=None):
+        """One filter's estimates on ``ys`` (its own random stream keyed by ``key or name``); a
+        numerical failure names the filter."""
+        kw = {"rng": _run_rng(root, key or name)} if getattr(flt, "random", False) else {}
+        try:
+            if getattr(flt, "own_prior", False):  # it starts from a prior of its own
+                return flt.run(ys, on_divergence=on_divergence, **kw)
+            if given is not model and getattr(flt, "model", None) is given:  # a filter of the bilinear model
+                lm0, lP0, cols = _lifted_prior(given, m0v, P0m)
+                e = flt.run(ys, lm0, lP0, on_divergence=on_divergence, **kw)
+                if e.means.shape[-1] != len(cols):  # the whole lifted state: read the base coordinates
+                    e = Estimates(e.means[..., cols], e.covs[..., cols, :][..., :, cols], e.diverged,
+                                  e.diverged_step, e.extras)
+                return e
+            return flt.run(ys, m0v, P0m, on_divergence=on_divergence, **kw)
+        except (DivergenceError, np.linalg.LinAlgError, FloatingPointError, OverflowError) as exc:
+            exc.add_note(f"compare: while running filter {name!r} ({type(flt).__name__})")
+            raise
 
     from tqdm.auto import tqdm
-    est = {}
-    for name, flt in tqdm(runs.items(), disable=not progress, desc="compare"):
-        kw = {"rng": _run_rng(root, name)} if getattr(flt, "random", False) else {}
-        if getattr(flt, "own_prior", False):  # it starts from a prior of its own
-            est[name] = flt.run(sim.ys, on_divergence=on_divergence, **kw)
-        elif given is not model and getattr(flt, "model", None) is given:  # a filter of the bilinear model
-            lm0, lP0, cols = _lifted_prior(given, m0v, P0m)
-            e = flt.run(sim.ys, lm0, lP0, on_divergence=on_divergence, **kw)
-            if e.means.shape[-1] != len(cols):  # the whole lifted state: read the base coordinates
-                e = Estimates(e.means[..., cols], e.covs[..., cols, :][..., :, cols], e.diverged,
-                              e.diverged_step, e.extras)
-            est[name] = e
+    est, failed = {}, {}
+    for name, flt in tqdm(filters.items(), disable=not progress, desc="compare"):
+        try:
+            est[name] = run(name, flt, sim.ys)
+        except (np.linalg.LinAlgError, FloatingPointError, OverflowError) as exc:
+            if on_divergence == "raise" or isinstance(exc, DivergenceError):
+                raise
+            failed[name] = f"{type(exc).__name__}: {str(exc).splitlines()[0] if str(exc) else ''}"
+
+    cert = None
+    if reference is not None:
+        ref_run = lambda flt, ys, tag: run(OPTIMAL, flt, ys, key=OPTIMAL if tag.startswith("reference") else tag)  # noqa: E731
+        if reference == "auto":
+            ref_est, cert = certified_reference(model, sim, m0v, P0m, run=ref_run, judged=est, dt=dt, start=start,
+                                                substeps=substeps, window=window, rtol=rtol,
+                                                certify_paths=certify_paths, max_particles=max_particles)
         else:
-            est[name] = flt.run(sim.ys, m0v, P0m, on_divergence=on_divergence, **kw)
+            ref_est = run(OPTIMAL, reference, sim.ys)
+            cert = check_given_reference(reference, ref_est, model, sim, run=ref_run, judged=est, window=window, rtol=rtol,
+                                         certify_paths=certify_paths)
+        params["reference"] = cert.to_dict()
+    else:
+        params["reference"] = None
+    ref_name = cert.label if cert is not None else None
+    gap = "gap_to_optimal" if cert is None or cert.certified is not False else "gap_to_reference"
+    if cert is not None:
+        est[ref_name] = ref_est
 
     if skipped:
         params["skipped"] = skipped
+    if failed:
+        params["failed"] = failed
     what = getattr(model, "name", "") or repr(model)
     res = Result("compare", f"{len(filters)} filter(s) against the optimal reference on {what}",
                  "nlfilter.compare: Monte Carlo on common random numbers", params)
     comps = _component_names(model)
+    every = dict(filters, **({ref_name: None} if cert is not None else {}))
     for name, e in est.items():
+        if not np.any(~np.asarray(e.diverged, bool)):
+            res.add(name, "divergence_rate", 1.0)
+            res.notes.append(f"{name}: every path diverged (first at step {int(np.min(e.diverged_step))}): no MSE")
+            continue
         for i in range(model.n):
-            s = mse(e, sim.xs, component=i, window=window)
-            res.add(name, "mse", s.value, s.stderr, component=i)
-            if ref is not None and name != OPTIMAL:
-                d = paired_difference(e, est[OPTIMAL], sim.xs, component=i, window=window)
-                res.add(name, "gap_to_optimal", d.value, d.stderr, component=i)
+            s_ = mse(e, sim.xs, component=i, window=window)
+            res.add(name, "mse", s_.value, s_.stderr, component=i)
+            if cert is not None and name != ref_name and np.any(~(np.asarray(e.diverged, bool)
+                                                                   | np.asarray(est[ref_name].diverged, bool))):
+                d = paired_difference(e, est[ref_name], sim.xs, component=i, window=window)
+                res.add(name, gap, d.value, math.hypot(d.stderr, cert.reference_error(i)), component=i)
+        flt = every.get(name)
+        covariance = getattr(flt, "covariance", "posterior") if flt is not None else "posterior"
         ok = ~np.asarray(e.diverged, bool)
-        if ok.any() and np.all(np.isfinite(e.covs[ok])):
-            s = nees(e, sim.xs, window=window)
-            res.add(name, "nees", s.value, s.stderr)
+        if covariance == "posterior" and ok.any() and np.all(np.isfinite(e.covs[ok])):
+            try:
+                s_ = nees(e, sim.xs, window=window, label=name)
+                res.add(name, "nees", s_.value, s_.stderr)
+            except ValueError as exc:
+                res.notes.append(f"nees of {name} not computed: {exc}")
+        elif covariance == "off-line" and ok.any():
+            w = _window(steps, window)
+            for i in range(model.n):
+                v = np.diagonal(e.covs[ok][..., w, :, :], axis1=-2, axis2=-1)[..., i]
+                if np.all(np.isfinite(v)):
+                    res.add(name, "offline_mse", float(np.mean(v)), component=i)
         res.add(name, "divergence_rate", float(np.mean(e.diverged)))
+    for name in failed:
+        res.add(name, "divergence_rate", 1.0)
+    if cert is not None:
+        for i, (d, se) in enumerate(cert.error):
+            res.add(ref_name, "reference_error", d, se, component=i)
+        diag = cert.rungs[-1] if cert.rungs else {}
+        if "edge_mass_max" in diag:
+            res.add(ref_name, "edge_mass", diag["edge_mass_max"])
+        if "ess_min" in diag:
+            res.add(ref_name, "ess_min", diag["ess_min"])
     for i, c in enumerate(comps):
         lines, bands = {}, {}
         for name, e in est.items():
@@ -333,6 +369,27 @@ def compare(model, filters, steps, *, paths=200, m0, P0, rng=0, reference="auto"
             "xlabel": "t" if kind == "sde" else "step k"}
     if skipped:
         res.notes.append("not run (the model lacks what they need): " + "; ".join(f"{k}: {v}" for k, v in skipped.items()))
-    res.notes.append(f"window {window!r} of {steps} steps, {paths} paths; gap_to_optimal = MSE − MSE(optimal) "
-                     f"on the same paths; NEES ≈ {model.n} for a consistent filter")
-    return res
+    if failed:
+        res.notes.append("failed (numerical error): " + "; ".join(f"{k}: {v}" for k, v in failed.items()))
+    if cert is not None:
+        res.notes.append(_certificate_note(cert))
+    res.notes.append(f"window {window!r} of {steps} steps, {paths} paths; {gap} = MSE − MSE({ref_name}) "
+                     f"on the same paths, ± its paired s.e. and the reference's error; NEES ≈ {model.n} for a "
+                     f"consistent filter (posterior covariances only; offline_mse: the off-line error "
+                     f"variance an off-line-gain filter predicts)" if cert is not None else
+                     f"window {window!r} of {steps} steps, {paths} paths; no reference")
+    return (res, sim, est) if full_output else res
+
+
+def _certificate_note(cert) -> str:
+    """One line: what the reference is and how far from converged."""
+    size = "×".join(map(str, cert.size)) + " grid" if cert.kind == "grid" else (
+        f"{cert.size} particles" if cert.kind == "particle" else cert.kind)
+    if cert.certified is None:
+        return f"reference: {size}, given by the caller (not checked)"
+    err = ", ".join(f"{d:+.2g} ± {se:.2g}" for d, se in cert.error)
+    verdict = "certified" if cert.certified else "NOT converged"
+    tol = ", ".join(f"{t:.2g}" for t in (cert.rungs[-1].get("tolerance", []) if cert.rungs else []))
+    return (f"reference: {size}, {verdict}: a finer reference on {cert.paths} paths changed its MSE by {err} "
+            f"(tolerance {tol or '?'}: rtol = {cert.rtol:g} of its MSE or the gaps' smallest s.e.; "
+            f"{len(cert.rungs)} rung(s), {cert.seconds:.1f} s)")

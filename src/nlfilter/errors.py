@@ -62,3 +62,9 @@ class SingularSystemError(NLFilterError, np.linalg.LinAlgError):
 class MomentsNotClosedError(NLFilterError, ValueError):
     """The monomials reachable from the requested ones by the Itô generator exceed the size cap:
     the moment hierarchy does not close (a drift of degree > 1 raises the degree)."""
+
+
+class ReferenceWarning(UserWarning):
+    """A comparison's reference filter is not converged (its refinement moved its MSE by more
+    than the tolerance, its grid bounds cut the density off, or paths diverged): its rows are
+    labelled ``"reference (not converged)"`` (:mod:`nlfilter.yardstick`)."""

@@ -88,16 +88,42 @@ def mse_per_step(est, xs, *, component: int = 0):
     return e2.mean(axis=0), e2.std(axis=0, ddof=1) / np.sqrt(e2.shape[0])
 
 
-def nees(est, xs, *, window=None) -> Summary:
-    """Average normalized estimation error squared ``eᵀ P⁻¹ e`` (≈ n for a consistent filter)."""
+def nees(est, xs, *, window=None, label: str = "estimates") -> Summary:
+    """Average normalized estimation error squared ``eᵀ P⁻¹ e`` (≈ n for a consistent filter).
+
+    Meaningful only where ``est.covs`` is the filter's own error covariance (a filter's
+    ``covariance == "posterior"``). A covariance in the window that is not finite and positive
+    definite on a path that did not diverge makes NEES undefined: a ``ValueError`` names
+    ``label``, the path and the step (never a bare ``LinAlgError``).
+
+    >>> from nlfilter.filters.base import Estimates
+    >>> e = Estimates(np.zeros((2, 3, 1)), np.ones((2, 3, 1, 1)), np.zeros(2, bool), np.full(2, -1))
+    >>> nees(e, np.ones((2, 3, 1))).value
+    1.0
+    >>> e.covs[1, 2] = 0.0
+    >>> nees(e, np.ones((2, 3, 1)), label="ukf")
+    Traceback (most recent call last):
+    ...
+    ValueError: ukf: NEES undefined: the covariance at path 1, step 2 is not positive definite (smallest eigenvalue 0)
+    """
     means, xs, ok = _means_and_mask(est, xs)
-    covs = est.covs
-    e = xs - means
-    safe = np.where(ok[..., None, None, None], covs, np.eye(covs.shape[-1]))
-    sol = np.linalg.solve(safe, np.where(ok[..., None, None], e, 0.0)[..., None])[..., 0]
-    q = np.einsum("...i,...i->...", e, sol)
-    w = _window(q.shape[-1], window)
-    return _summary(np.reshape(np.mean(q[..., w], axis=-1), -1), np.reshape(ok, -1))
+    covs = np.asarray(est.covs, dtype=float)
+    w = _window(means.shape[-2], window)
+    e = (xs - means)[..., w, :]
+    P = covs[..., w, :, :]
+    okP = np.broadcast_to(ok[..., None], P.shape[:-2])
+    safe = np.where(okP[..., None, None] & np.isfinite(P).all(axis=(-1, -2))[..., None, None], P, np.eye(P.shape[-1]))
+    lam = np.linalg.eigvalsh(0.5 * (safe + np.swapaxes(safe, -1, -2)))
+    bad = okP & ~(np.isfinite(P).all(axis=(-1, -2)) & (lam[..., 0] > 0))
+    if bad.any():
+        where = np.argwhere(bad)[0]
+        step = int(where[-1]) + (w.start or 0) % max(means.shape[-2], 1)
+        path = ", ".join(str(int(i)) for i in where[:-1]) or "0"
+        raise ValueError(f"{label}: NEES undefined: the covariance at path {path}, step {step} is not positive "
+                         f"definite (smallest eigenvalue {lam[tuple(where)][0]:.3g})")
+    sol = np.linalg.solve(safe, np.where(okP[..., None], e, 0.0)[..., None])[..., 0]
+    q = np.einsum("...i,...i->...", np.where(okP[..., None], e, 0.0), sol)
+    return _summary(np.reshape(np.mean(q, axis=-1), -1), np.reshape(ok, -1))
 
 
 def paired_difference(est_a, est_b, xs, *, component: int = 0, window=None) -> Summary:

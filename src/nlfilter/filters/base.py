@@ -195,7 +195,9 @@ class Filter:
     Subclasses set the class attributes the registry (:data:`nlfilter.filters.REGISTRY`) reads —
     ``family``, ``source`` (seed and equations), ``accepts`` (model kinds), ``needs`` (what the
     model must offer), ``time`` (``"discrete"``: predict/update on ``ys``; ``"continuous"``:
-    ``step`` on increments), ``random`` (draws: takes ``rng``) — and the belief functions."""
+    ``step`` on increments), ``random`` (draws: takes ``rng``), ``covariance`` (what ``covs`` is:
+    ``"posterior"``, ``"off-line"``, ``"model"`` or ``"none"``; ``compare`` reports NEES only for
+    ``"posterior"``) — and the belief functions."""
 
     name = "filter"
     family = ""
@@ -209,6 +211,11 @@ class Filter:
     # (a density pushed through a kernel) skips that check: a failure shows after the update, same step
     screen_predict = True
     start = "update"
+    # what ``Estimates.covs`` is: "posterior" (the filter's own conditional covariance: what NEES
+    # tests), "off-line" (the off-line error covariance of the estimator, the same law for every
+    # path: its predicted MSE), "model" (a covariance of the filter's model, not of its error),
+    # "none" (NaN)
+    covariance = "posterior"
 
     @classmethod
     def for_model(cls, model, *, dt: float | None = None, start: str = "update"):

@@ -208,6 +208,8 @@ class UpdatedInnovationsFilter(TensorFilter):
     (skipped in the recursion). Prior as :class:`TensorFilter`: ``ẑ0 = (m0, 1)``.
     """
 
+    covariance = "none"
+
     name = "updated-innovations"
     source = "seed 001 §3.4, Fig. 3.4"
 

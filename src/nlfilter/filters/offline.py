@@ -175,6 +175,7 @@ def _patterns(obs):
 
 
 class OfflineGainFilter(Filter):
+    covariance = "off-line"
     """Base of the filters with precomputed gains: the one affine runner (module docstring).
 
     Subclasses give ``schedule(m0, P0, batch, steps, t0) -> (schedule, mean0, cov0 (N, N)[, carried0])``

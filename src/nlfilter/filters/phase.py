@@ -106,6 +106,8 @@ class PLL(Filter):
     0.0
     """
 
+    covariance = "none"
+
     name = "pll"
     family = "off-line gains"
     source = "seed 001 §4.1, eqs. 4.6-4.10"

@@ -278,6 +278,8 @@ class QuasilinearFilter(OfflineGainFilter, ContinuousFilter):
     0.4142
     """
 
+    covariance = "model"  # P(t) of the statistically linearized model (003, below eq. 8)
+
     name = "qlf"
     family = "off-line gains"
     source = "seed 003 eqs. 3-8, 11, 16-17 (Theorem 4.1)"
@@ -446,6 +448,8 @@ class DiscreteQuasilinearFilter(OfflineGainFilter):
     >>> est.means[0, :, 0].round(6).tolist()       # Kalman filter: 0.5, then 0.25 / 2.125
     [0.5, 0.117647]
     """
+
+    covariance = "model"  # P(t) of the statistically linearized model (003, below eq. 8)
 
     name = "qlf"
     source = "seed 003 eqs. 3-5, 11 in discrete form (the library's extension)"

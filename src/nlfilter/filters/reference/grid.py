@@ -64,6 +64,9 @@ class GridFilter(_ReferenceFilter):
     size : points per axis (int, or one per axis)
     dt : SDE models: the measurement step
     start : discrete models: step convention (see :mod:`nlfilter.filters.base`)
+
+    ``Estimates.extras["edge_mass"] (..., T)``: the posterior mass on the outermost grid points
+    at each step (:meth:`edge_mass`): when it is not small, the bounds cut the density off.
     """
 
     name = "grid"
@@ -192,6 +195,18 @@ class GridFilter(_ReferenceFilter):
     def summary(self, belief: GridBelief):
         """Mean and covariance of the grid density."""
         return _moments(belief.p, self.X)
+
+    def edge_mass(self, p) -> np.ndarray:
+        """The probability ``(B,)`` on the grid's outermost points (any axis at its first or last
+        point): mass the bounds may be cutting off. Near 0 when the bounds hold the density;
+        ``compare`` checks it at every step (its reference certificate)."""
+        q = p.reshape(p.shape[0], *(len(a) for a in self.axes))
+        inner = q[(slice(None), *(slice(1, -1) for _ in self.axes))]
+        return 1.0 - inner.reshape(p.shape[0], -1).sum(axis=-1)
+
+    def extras(self, belief: GridBelief):
+        """``edge_mass (B,)`` per step (:meth:`edge_mass`)."""
+        return {"edge_mass": self.edge_mass(belief.p)}
 
     def _update_unchecked(self, belief, y, k):
         self._need("discrete", "update")

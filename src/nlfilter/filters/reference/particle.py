@@ -72,6 +72,8 @@ class ParticleFilter(_ReferenceFilter):
     dt, substeps : SDE models: measurement step and Euler–Maruyama steps per measurement step
     threshold : resample when ESS < threshold · particles
     start : discrete models: step convention
+
+    ``Estimates.extras["ess"] (..., T)``: the effective sample size of each step's weights.
     """
 
     name = "particle"
@@ -130,6 +132,12 @@ class ParticleFilter(_ReferenceFilter):
         mean = np.einsum("bp,bpi->bi", w, x)
         d = x - mean[:, None, :]
         return mean, np.einsum("bp,bpi,bpj->bij", w, d, d)
+
+    def extras(self, belief: ParticleBelief):
+        """``ess (B,)`` per step: the effective sample size ``1 / Σ w²`` of the weights after the
+        step's update (``particles`` right after a resampling with no measurement)."""
+        w = _weights(belief.logw)
+        return {"ess": 1.0 / np.sum(w * w, axis=1)}
 
     def _update_unchecked(self, belief, y, k):
         self._need("discrete", "update")

@@ -1,0 +1,346 @@
+"""The yardstick of a comparison: a near-optimal reference filter that chooses its own resolution
+and measures its own error (:func:`certified_reference`).
+
+A Monte Carlo comparison judges each filter by ``gap_to_optimal``, its MSE minus the optimal
+filter's on the same paths. The "optimal" filter is in practice a grid or particle filter, optimal
+only in the limit of a fine grid or many particles; a reference that is too coarse makes filters
+look better than optimal. So the reference used by :func:`~nlfilter.comparison.compare` certifies
+itself:
+
+1. **Resolution from the model.** For ``n ≤ 2`` a :class:`~nlfilter.filters.reference.GridFilter`
+   whose spacing per axis is at most ``1 / RESOLUTION`` of the smaller of two scales: the
+   process-noise standard deviation over one measurement step (``√(G Q Gᵀ)_ii``, times ``dt`` for
+   an SDE, averaged over the simulated states) and the posterior standard deviation (the
+   ``POSTERIOR_QUANTILE`` quantile over paths and steps of a pilot particle filter's, on a few
+   paths). Its bounds hold the simulated states and ``m0`` widened by ``4`` times the larger
+   scale. When that grid needs more than :data:`GRID_POINTS` points (or, for a 2-D SDE, the
+   diffusion is not diagonal) it falls back to a
+   :class:`~nlfilter.filters.reference.ParticleFilter` with :data:`PARTICLES` particles.
+2. **Edge mass.** A grid reports the posterior mass on its outermost points at every step
+   (``extras["edge_mass"]``); above :data:`EDGE_MASS` the bounds are widened by half and the
+   grid rerun (twice at most), then flagged.
+3. **Its own error.** The reference is rerun at the next resolution (``2×`` the points per axis,
+   or ``4×`` the particles) on the first ``certify_paths`` paths, and the change of its MSE per
+   component is measured on those paths as a paired difference ``Δ ± se``. The tolerance per
+   component is ``rtol`` times its MSE or the smallest standard error of the gaps it judges (an
+   error below the comparison's resolution changes no verdict), whichever is larger; when in
+   every component ``se`` is within it and ``|Δ|`` is within it or within ``2 se`` (no change
+   beyond the noise), the reference is *certified* and named ``"optimal"``. Otherwise the next rung replaces it (run on all paths:
+   particles after a grid, ``4×`` the particles after particles, up to ``max_particles``) and is
+   checked the same way; a reference that never
+   passes is named ``"reference (not converged)"`` and a :class:`~nlfilter.errors.ReferenceWarning`
+   says what to raise.
+
+The certificate (:class:`Certificate`) records every rung tried, with sizes, error bounds, edge
+mass, effective sample size and seconds; ``compare`` writes it into ``Result.params["reference"]``
+and adds the reference's error (``√(Δ² + se²)``) to the standard error of every
+``gap_to_optimal``.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+import warnings
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .errors import ReferenceWarning
+from .evaluate import mse, paired_difference
+from .filters.reference import GridFilter, ParticleFilter
+
+RESOLUTION = 4          # grid points per (smallest) scale
+POSTERIOR_QUANTILE = 0.1
+GRID_POINTS = {1: 4001, 2: 1700}   # the largest automatic grid on all paths (its 2× refinement runs on a few)
+GRID_MIN = {1: 101, 2: 21}
+PARTICLES = 2000
+MAX_PARTICLES = 32000
+EDGE_MASS = 1e-3
+OPTIMAL = "optimal"
+NOT_CONVERGED = "reference (not converged)"
+
+
+@dataclass
+class Certificate:
+    """How a reference was chosen and how far it is from converged.
+
+    ``kind`` (``"grid"``, ``"particle"`` or the class name of a given reference), ``certified``
+    (True: its refinement moved its MSE by no more than the tolerance; None: a reference of
+    a kind that cannot be refined, not checked), ``label`` (the name in the table), ``size`` (grid
+    points per axis or particles), ``error`` (per component ``Δ`` and ``se``: the change of MSE
+    from this reference to the next finer one on ``paths`` paths), ``bound`` (``|Δ| + 2 se``,
+    the error it may have),
+    ``rungs`` (every resolution tried, with its numbers), ``seconds``, ``reason``."""
+
+    kind: str
+    certified: bool | None
+    label: str
+    size: object = None
+    bounds: object = None
+    rtol: float = 0.02
+    paths: int = 0
+    error: list = field(default_factory=list)   # [(Δ, se)] per component
+    bound: list = field(default_factory=list)
+    rungs: list = field(default_factory=list)
+    seconds: float = 0.0
+    reason: str = ""
+
+    def reference_error(self, i: int) -> float:
+        """The reference's error in component ``i`` as a standard deviation: ``√(Δ² + se²)`` (0
+        when not measured)."""
+        if not self.error:
+            return 0.0
+        d, se = self.error[i]
+        return math.hypot(d, se)
+
+    def to_dict(self) -> dict:
+        """Plain JSON types (lists, floats): what ``Result.params["reference"]`` keeps."""
+        import json
+        return json.loads(json.dumps({
+            "kind": self.kind, "certified": self.certified, "label": self.label, "size": self.size,
+            "bounds": self.bounds, "rtol": self.rtol, "paths": self.paths, "error": [list(e) for e in self.error],
+            "bound": list(self.bound), "rungs": self.rungs, "seconds": round(self.seconds, 3),
+            "reason": self.reason}, default=float))
+
+
+# -- the rungs of the ladder ----------------------------------------------------------------------
+@dataclass
+class _Rung:
+    kind: str          # "grid" or "particle"
+    size: object       # list of points per axis, or particles
+    bounds: object = None
+
+    def build(self, model, kw):
+        if self.kind == "grid":
+            n = model.n
+            return GridFilter(model, self.bounds[0] if n == 1 else self.bounds,
+                              int(self.size[0]) if n == 1 else [int(s) for s in self.size], **kw["grid"])
+        return ParticleFilter(model, int(self.size), **kw["particle"])
+
+    def refined(self):
+        """The next resolution, run on the certification paths only: ``2×`` the points per axis
+        (every other point of it is one of this grid's), or ``4×`` the particles."""
+        if self.kind == "grid":
+            return _Rung("grid", [2 * s - 1 for s in self.size], self.bounds)
+        return _Rung("particle", 4 * self.size)
+
+    def next(self, max_particles):
+        """The rung that replaces this one when it is not certified (run on all paths): particles
+        after a grid (a finer grid on all paths would cost ``4×``–``16×``), ``4×`` the particles
+        after particles, None past ``max_particles``."""
+        if self.kind == "grid":
+            return _Rung("particle", PARTICLES)
+        return _Rung("particle", 4 * self.size) if 4 * self.size <= max_particles else None
+
+    def describe(self):
+        return f"a {'×'.join(map(str, self.size))} grid" if self.kind == "grid" else f"{self.size} particles"
+
+
+def _scales(model, sim, P0, dt, post_sd):
+    """Per axis ``(small, big)``: the smaller of the process-noise and posterior standard
+    deviations (the prior's where neither is positive), and the largest of those and the prior's."""
+    xs = sim.xs.reshape(-1, model.n)
+    g = model.GQGT(xs[:: max(1, xs.shape[0] // 20000)])
+    noise = np.sqrt(np.mean(np.diagonal(g, axis1=-2, axis2=-1), axis=0) * (dt if model.kind == "sde" else 1.0))
+    prior = np.sqrt(np.diag(P0))
+    post = np.where(np.isfinite(post_sd) & (post_sd > 0), post_sd, prior)
+    cand = np.stack([noise, post])
+    small = np.min(np.where(cand > 0, cand, np.inf), axis=0)
+    small = np.where(np.isfinite(small), small, prior)
+    big = np.max(np.stack([noise, post, prior]), axis=0)
+    return small, big
+
+
+def _first_rung(model, sim, m0, P0, dt, post_sd, widen=1.0):
+    n = model.n
+    if n > 2:
+        return _Rung("particle", PARTICLES), "n > 2: particles"
+    if n == 2 and model.kind == "sde":
+        g = model.GQGT(sim.xs.reshape(-1, n)[:1000])
+        if np.any(np.abs(g[..., 0, 1]) > 1e-12 * (np.abs(g[..., 0, 0]) + np.abs(g[..., 1, 1]) + 1e-300)):
+            return _Rung("particle", PARTICLES), "the 2-D SDE grid needs a diagonal diffusion: particles"
+    small, big = _scales(model, sim, P0, dt, post_sd)
+    if not np.all(small > 0):
+        return _Rung("particle", PARTICLES), "no positive noise or posterior scale on an axis: particles"
+    xs = sim.xs.reshape(-1, n)
+    lo = np.minimum(xs.min(axis=0), m0) - 4 * big
+    hi = np.maximum(xs.max(axis=0), m0) + 4 * big
+    mid, half = (lo + hi) / 2, widen * (hi - lo) / 2
+    lo, hi = mid - half, mid + half
+    size = np.maximum(np.ceil((hi - lo) / (small / RESOLUTION)).astype(int) + 1, GRID_MIN[n])
+    size = [int(s) for s in size]
+    bounds = [(float(a), float(b)) for a, b in zip(lo, hi)]
+    if math.prod(size) > GRID_POINTS[n]:
+        return _Rung("particle", PARTICLES), (f"the grid the model needs ({'×'.join(map(str, size))} points: spacing "
+                                            f"{', '.join(f'{s / RESOLUTION:.3g}' for s in small)}) exceeds "
+                                            f"{GRID_POINTS[n]} points: particles")
+    return _Rung("grid", size, bounds), "grid: spacing ≤ 1/%d of the smallest scale per axis" % RESOLUTION
+
+
+def _pilot_posterior_sd(model, sim, m0, P0, kw, run, paths=16, particles=500):
+    """``(n,)`` the ``POSTERIOR_QUANTILE`` quantile of a pilot particle filter's posterior standard
+    deviations over a few paths and all steps."""
+    sub = slice(0, min(paths, sim.ys.shape[0]))
+    est = run(ParticleFilter(model, particles, **kw["particle"]), sim.ys[sub], "pilot")
+    ok = ~np.asarray(est.diverged, bool)
+    sd = np.sqrt(np.diagonal(est.covs[ok], axis1=-2, axis2=-1)).reshape(-1, model.n)
+    sd = sd[np.all(np.isfinite(sd), axis=1)]
+    return np.quantile(sd, POSTERIOR_QUANTILE, axis=0) if sd.size else np.full(model.n, np.nan)
+
+
+def _diagnostics(est):
+    out = {}
+    if "edge_mass" in est.extras:
+        em = np.asarray(est.extras["edge_mass"])
+        out["edge_mass_max"] = float(np.max(em)) if em.size else 0.0
+    if "ess" in est.extras:
+        ess = np.asarray(est.extras["ess"])
+        out["ess_min"] = float(np.min(ess)) if ess.size else float("nan")
+        out["ess_median"] = float(np.median(ess)) if ess.size else float("nan")
+    out["diverged"] = int(np.sum(est.diverged))
+    return out
+
+
+def _refinement_error(fine, coarse, xs, window):
+    """Per component ``(Δ, se)``: MSE(fine) − MSE(coarse) on the same paths."""
+    out = []
+    for i in range(xs.shape[-1]):
+        d = paired_difference(fine, coarse, xs, component=i, window=window)
+        out.append((d.value, d.stderr))
+    return out
+
+
+def _tolerance(est, judged, xs, window, rtol):
+    """Per component, the largest error bound a certified reference may have: ``rtol`` times its
+    MSE, or the smallest standard error of the gaps it judges (``judged``: name -> Estimates),
+    whichever is larger — an error below the comparison's own resolution changes no verdict."""
+    out = []
+    for i in range(xs.shape[-1]):
+        tol = rtol * abs(mse(est, xs, component=i, window=window).value)
+        ses = [paired_difference(e, est, xs, component=i, window=window).stderr for e in judged.values()]
+        ses = [s for s in ses if np.isfinite(s)]
+        out.append(max(tol, min(ses)) if ses else tol)
+    return out
+
+
+def _verdict(error, tol):
+    """``(bound |Δ| + 2 se per component, certified)``: certified when in every component the
+    refinement's noise is within the tolerance (``se ≤ tol``) and its change is within the
+    tolerance or not distinguishable from that noise (``|Δ| ≤ max(tol, 2 se)``)."""
+    bound = [abs(d) + 2 * se for d, se in error]
+    ok = all(np.isfinite(d) and np.isfinite(se) and se <= t and abs(d) <= max(t, 2 * se)
+             for (d, se), t in zip(error, tol))
+    return bound, ok
+
+
+def certified_reference(model, sim, m0, P0, *, run, judged=None, dt=None, start="update", substeps=10,
+                        window=0.5, rtol=0.02, certify_paths=64, max_particles=MAX_PARTICLES):
+    """``(estimates on all paths, Certificate)`` of the automatic reference (module docstring).
+
+    ``run(flt, ys, tag) -> Estimates`` runs a filter on (some of) the simulation's measurements
+    (the comparison supplies it, with the filter's own random stream keyed by ``tag``);
+    ``sim`` the shared :class:`~nlfilter.simulate.Simulation`; ``judged`` the filters' estimates
+    (name -> Estimates) whose gaps the reference will judge; the tolerance of the certificate is
+    ``rtol`` times the reference's MSE or the smallest standard error of those gaps, whichever is
+    larger (rule in the module docstring); ``certify_paths`` the paths of the refinement runs;
+    ``max_particles`` the last rung of the ladder."""
+    judged = judged or {}
+    t_start = time.perf_counter()
+    kw = {"grid": {"dt": dt} if model.kind == "sde" else {"start": start},
+          "particle": ({"dt": dt, "substeps": substeps} if model.kind == "sde" else {"start": start})}
+    P = sim.ys.shape[0]
+    sub = slice(0, min(certify_paths, P))
+    xs_sub = sim.xs[sub]
+    post_sd = _pilot_posterior_sd(model, sim, m0, P0, kw, run) if model.n <= 2 else np.full(model.n, np.nan)
+    rung, reason = _first_rung(model, sim, m0, P0, dt, post_sd)
+    rungs, widen = [], 1.0
+    est = run(rung.build(model, kw), sim.ys, f"reference {rung.kind} {rung.size}")
+    while True:
+        diag = _diagnostics(est)
+        record = {"kind": rung.kind, "size": rung.size, "bounds": rung.bounds, **diag}
+        if rung.kind == "grid" and diag.get("edge_mass_max", 0.0) > EDGE_MASS and widen < 2.0:
+            widen *= 1.5  # the bounds cut the density: widen by half and rerun this rung
+            record["verdict"] = f"edge mass {diag['edge_mass_max']:.2g} > {EDGE_MASS}: bounds widened"
+            rungs.append(record)
+            rung, reason = _first_rung(model, sim, m0, P0, dt, post_sd, widen=widen)
+            est = run(rung.build(model, kw), sim.ys, f"reference {rung.kind} {rung.size}")
+            continue
+        fine = rung.refined()
+        fine_sub = run(fine.build(model, kw), sim.ys[sub], f"refine {fine.kind} {fine.size}")
+        error = _refinement_error(fine_sub, est.take(sub), xs_sub, window)
+        ref_mse = [mse(est, sim.xs, component=i, window=window).value for i in range(model.n)]
+        tol = _tolerance(est, judged, sim.xs, window, rtol)
+        bound, ok = _verdict(error, tol)
+        edge_ok = diag.get("edge_mass_max", 0.0) <= EDGE_MASS
+        record.update(refined_to=fine.size, error=[list(e) for e in error], bound=bound, tolerance=tol, mse=ref_mse,
+                      verdict="certified" if ok and edge_ok and diag["diverged"] == 0 else "not converged")
+        rungs.append(record)
+        if record["verdict"] == "certified":
+            cert = Certificate(rung.kind, True, OPTIMAL, rung.size, rung.bounds, rtol, sub.stop, error, bound,
+                               rungs, time.perf_counter() - t_start, reason)
+            return est, cert
+        nxt = rung.next(max_particles)
+        if nxt is None:
+            break
+        rung = nxt
+        est = run(rung.build(model, kw), sim.ys, f"reference {rung.kind} {rung.size}")
+    last = rungs[-1]
+    error = [tuple(e) for e in last.get("error", [])]
+    bound = last.get("bound", [])
+    cert = Certificate(rung.kind, False, NOT_CONVERGED, rung.size, rung.bounds, rtol, sub.stop, error, bound,
+                       rungs, time.perf_counter() - t_start, reason)
+    warnings.warn(
+        f"compare: the automatic reference did not converge within its budget: refining {rung.describe()} "
+        f"to {rung.refined().describe()} changed the MSE by "
+        f"{', '.join(f'{d:+.3g} ± {se:.2g}' for d, se in error) or '?'} (error bound "
+        f"{', '.join(f'{b:.3g}' for b in bound) or '?'}; the tolerance is "
+        f"{', '.join(f'{t:.3g}' for t in last.get('tolerance', [])) or '?'}: rtol = {rtol} of the MSE or the "
+        f"gaps' smallest s.e.); its rows "
+        f"are labelled {NOT_CONVERGED!r}. Raise max_particles (now {max_particles}) or pass "
+        f"reference=ParticleFilter(model, {4 * int(rung.size) if rung.kind == 'particle' else PARTICLES}, ...)",
+        ReferenceWarning, stacklevel=3)
+    return est, cert
+
+
+def check_given_reference(flt, est, model, sim, *, run, judged=None, window=0.5, rtol=0.02, certify_paths=64):
+    """The certificate of a reference the user passed: a ``GridFilter`` or ``ParticleFilter`` is
+    refined once (``2×`` points per axis, ``4×`` particles) on ``certify_paths`` paths and
+    labelled as the automatic one; other kinds are taken as given (``certified = None``, named
+    ``"optimal"``). Edge mass and effective sample size are reported either way; a grid whose
+    edge mass exceeds :data:`EDGE_MASS` or a refinement that moves the MSE beyond ``rtol``
+    warns."""
+    t_start = time.perf_counter()
+    diag = _diagnostics(est)
+    P = sim.ys.shape[0]
+    sub = slice(0, min(certify_paths, P))
+    if isinstance(flt, GridFilter):
+        finer = GridFilter(flt.model, [(float(a[0]), float(a[-1])) for a in flt.axes] if flt.model.n > 1
+                           else (float(flt.axes[0][0]), float(flt.axes[0][-1])),
+                           [2 * len(a) - 1 for a in flt.axes] if flt.model.n > 1 else 2 * len(flt.axes[0]) - 1,
+                           **({"dt": flt.dt} if flt.model.kind == "sde" else {"start": flt.start}))
+        kind, size = "grid", [len(a) for a in flt.axes]
+    elif isinstance(flt, ParticleFilter):
+        kw = {"dt": flt.dt, "substeps": flt.substeps} if flt.model.kind == "sde" else {"start": flt.start}
+        finer = ParticleFilter(flt.model, 4 * flt.particles, threshold=flt.threshold, **kw)
+        kind, size = "particle", flt.particles
+    else:
+        return Certificate(type(flt).__name__, None, OPTIMAL, rungs=[diag], reason="given by the caller: not checked",
+                           seconds=time.perf_counter() - t_start)
+    fine_sub = run(finer, sim.ys[sub], "refine given")
+    error = _refinement_error(fine_sub, est.take(sub), sim.xs[sub], window)
+    ref_mse = [mse(est, sim.xs, component=i, window=window).value for i in range(sim.xs.shape[-1])]
+    tol = _tolerance(est, judged or {}, sim.xs, window, rtol)
+    bound, ok = _verdict(error, tol)
+    ok = (ok and diag.get("edge_mass_max", 0.0) <= EDGE_MASS and diag["diverged"] == 0)
+    cert = Certificate(kind, ok, OPTIMAL if ok else NOT_CONVERGED, size, None, rtol, sub.stop, error, bound,
+                       [{**diag, "error": [list(e) for e in error], "bound": bound, "tolerance": tol,
+                         "mse": ref_mse}],
+                       time.perf_counter() - t_start, "given by the caller")
+    if not ok:
+        warnings.warn(f"compare: the given reference ({kind} {size}) is not converged: refining it changed the MSE by "
+                      f"{', '.join(f'{d:+.3g} ± {se:.2g}' for d, se in error)}, edge mass "
+                      f"{diag.get('edge_mass_max', 0.0):.2g}, {diag['diverged']} diverged path(s); its numbers are "
+                      f"labelled {NOT_CONVERGED!r}: raise its resolution (or widen a grid's bounds)",
+                      ReferenceWarning, stacklevel=3)
+    return cert
