@@ -91,15 +91,18 @@ def test_params_are_the_shapes_simulated(quick_runs):
 
 
 def test_quick_params_differ_from_defaults_where_quick_overrides(quick_runs):
+    """The declared parameters a quick run changes are exactly those its code overrides."""
     changed = {eid: {k for k, v in exp.params.items() if quick_runs[eid][0].params[k] != v}
                for eid, exp in registry().items()}
-    assert changed["cubic-sensor"] == {"T", "burn"}           # the quick run: T = 6, burn = 3
-    assert quick_runs["cubic-sensor"][0].params["T"] == 6.0
-    assert changed["cubic-sensor-closures"] == {"t_end", "burn_in", "grid_size"}
-    assert changed["phase-tracking"] == {"time_constants", "discard", "grid", "sweep"}
-    assert changed["second-order"] == {"grid_size", "fb_particles", "fb_pf_runs"}
-    assert changed["linear-gaussian"] == {"steps", "grid", "particles"}
-    assert changed["zero-order"] == set()
+    assert changed == {
+        "cubic-sensor": {"T", "burn"}, "cubic-sensor-closures": {"t_end", "burn_in", "grid_size"},
+        "linear-gaussian": {"steps", "grid", "particles"}, "moment-first-order": {"T", "skip", "grid"},
+        "moment-second-order": {"T", "skip", "particles"}, "oh-shin": {"grid_size"},
+        "phase-tracking": {"time_constants", "discard", "grid", "sweep"},
+        "second-order": {"grid_size", "fb_particles", "fb_pf_runs"}, "zero-order": set(),
+        "zero-order-adaptive": {"n_max"}, "zero-order-robustness": {"n"}}
+    cubic = quick_runs["cubic-sensor"][0].params
+    assert (cubic["T"], cubic["burn"], cubic["paths"]) == (6.0, 3.0, 6)  # not the defaults T = 60, burn = 5
 
 
 def test_rows_unique_in_every_experiment(quick_runs):
