@@ -8,7 +8,7 @@ JSON schema (kept by every experiment; :meth:`Result.from_json` reads it back)::
                "paper": number|null, "value": number, "stderr": number|null}],
      "notes": [str],             # what the table's numbers mean (verdicts, windows, divergences)
      "meta": {"experiment": str, "seed": int|null, "runs": int|null (as requested),
-              "paths": int|null (as simulated), "quick": bool, "given": {...} (params as given),
+              "paths": int|{case: int}|null (as simulated), "quick": bool, "given": {...} (params as given),
               "command": str|null, "nlfilter": str, "numpy": str, "python": str,
               "timestamp": str (UTC, ISO 8601)}}
 
