@@ -38,7 +38,7 @@ from .filters.base import Estimates
 from .moments.closures import gaussian_moments
 from .filters.reference import GridFilter, ParticleFilter
 from .filters.registry import accepting, model_kind
-from .results import Result
+from .results import Result, provenance
 from .simulate import simulate
 
 PARTICLES = 2000
@@ -308,6 +308,7 @@ def compare(model, filters, steps, *, paths=200, m0, P0, rng=0, reference="auto"
     what = getattr(model, "name", "") or repr(model)
     res = Result("compare", f"{len(filters)} filter(s) against the optimal reference on {what}",
                  "nlfilter.compare: Monte Carlo on common random numbers", params)
+    res.meta = provenance("compare", seed=seed, runs=paths, paths=paths)
     comps = _component_names(model)
     for name, e in est.items():
         for i in range(model.n):
