@@ -37,7 +37,7 @@ def test_reproduce_quick_writes_schema(tmp_path, capsys):
     assert cli.main(["reproduce", "linear-gaussian", "--quick", "--no-progress", "--json", str(out),
                      "--plot", str(png), "--param", "r=0.4"]) == 0
     data = json.loads(out.read_text())
-    assert set(data) == {"experiment", "title", "source", "params", "rows"}
+    assert set(data) == {"experiment", "title", "source", "params", "rows", "notes", "meta"}
     assert data["params"]["r"] == 0.4
     rows = {(r["filter"], r["quantity"]): r for r in data["rows"]}
     for f in ("kf", "ekf", "ukf", "grid", "particle", "riccati"):

@@ -96,6 +96,7 @@ def _main(argv) -> int:
     except ValueError as exc:  # a parameter value the experiment itself rejects
         print(f"nlfilter: error: {exc}", file=sys.stderr)
         return 2
+    result.meta["command"] = " ".join(["nlfilter", *(sys.argv[1:] if argv is None else argv)])
     print(result.table())
     if args.json:
         result.to_json(args.json)

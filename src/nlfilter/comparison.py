@@ -36,7 +36,7 @@ from .filters import REGISTRY
 from .filters.base import Estimates
 from .moments.closures import gaussian_moments
 from .filters.registry import accepting, model_kind
-from .results import Result
+from .results import Result, provenance
 from .simulate import simulate
 from .errors import DivergenceError
 
@@ -317,6 +317,7 @@ def compare(model, filters, steps, *, paths=200, m0, P0, rng=0, reference="auto"
     what = getattr(model, "name", "") or repr(model)
     res = Result("compare", f"{len(filters)} filter(s) against the optimal reference on {what}",
                  "nlfilter.compare: Monte Carlo on common random numbers", params)
+    res.meta = provenance("compare", seed=seed, runs=paths, paths=paths)
     comps = _component_names(model)
     every = dict(filters, **({ref_name: None} if cert is not None else {}))
     for name, e in est.items():

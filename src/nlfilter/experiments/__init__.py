@@ -6,7 +6,10 @@ progress: bool) -> Result``. Each module in this package registers its experimen
 module needs no edit anywhere else.
 
 Declared parameters (``params``) are the only names ``--param`` accepts; their defaults fix the
-types, and values given on the command line are converted to those types.
+types, and values given on the command line are converted to those types. The returned
+``Result.params`` are the values that ran: an experiment records what it derives from ``quick``
+and ``runs`` (a shorter horizon, the number of Monte Carlo ``paths``) with ``Result.used``;
+:meth:`Experiment.run` adds the provenance (``Result.meta``).
 """
 
 from __future__ import annotations
@@ -16,7 +19,7 @@ import pkgutil
 from dataclasses import dataclass
 from typing import Callable
 
-from ..results import Result
+from ..results import Result, _decode, _encode, provenance
 
 
 @dataclass(frozen=True)
@@ -35,7 +38,12 @@ class Experiment:
             full[name] = self.convert(name, value)
         if runs is not None and (isinstance(runs, bool) or not isinstance(runs, int) or runs < 1):
             raise ValueError(f"runs: expected a positive integer, got {runs!r}")
-        return self.func(full, quick=quick, runs=runs, seed=seed, progress=progress)
+        given = {name: full[name] for name in (params or {})}
+        res = self.func(full, quick=quick, runs=runs, seed=seed, progress=progress)
+        res.params = _decode(_encode(res.params))  # as JSON keeps them (tuples as lists, numpy as Python)
+        res.meta = provenance(self.id, seed=seed, runs=runs, paths=res.params.get("paths"), quick=quick,
+                              given=given)
+        return res
 
     def convert(self, name: str, value):
         if name not in self.params:

@@ -63,18 +63,19 @@ def run(params, *, quick, runs, seed, progress):
         raise ValueError(f"param burn_in={p['burn_in']}: expected 0 ≤ burn_in < t_end = {p['t_end']}")
     res = Result("cubic-sensor-closures", "closures on the cubic sensor", "seed 001, ch. 5", p)
     dt = p["dt"]
-    t_end = 3.0 if quick else p["t_end"]
-    burn = min(p["burn_in"], 1.0) if quick else p["burn_in"]
-    steps = int(round(t_end / dt))
-    npaths = runs or (16 if quick else 300)
-    gsize = 121 if quick else p["grid_size"]
+    t_end = res.used("t_end", 3.0 if quick else p["t_end"])
+    burn = res.used("burn_in", min(p["burn_in"], 1.0) if quick else p["burn_in"])
+    steps = res.used("steps", int(round(t_end / dt)))
+    npaths = res.used("paths", runs or (16 if quick else 300))
+    gsize = res.used("grid_size", 121 if quick else p["grid_size"])
+    substeps = res.used("substeps", 5 if quick else 10)
     for case, (q, r) in enumerate(zip(qs, rs)):
         q, r = float(q), float(r)
         md = model(q, r)
         var = q / 2  # stationary variance of dx = −x dt + dw
         m0, P0 = np.zeros(1), np.array([[var]])
         sim = simulate(md, steps, paths=npaths, rng=ev.stream(seed, case), m0=m0, P0=P0, dt=dt,
-                       substeps=5 if quick else 10)
+                       substeps=substeps)
         sd = np.sqrt(var)
         filters = {
             "ekf": ContinuousEKF(md, dt, substeps=2),

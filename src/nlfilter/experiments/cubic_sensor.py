@@ -180,7 +180,7 @@ def _figures(res, pairs, quick, progress, cache):
     reduction by the post-processors (the thesis' conjecture, 001 §5.3: post-processing pays more at
     low noise-to-signal ratios), and Tables 5.1-5.2 as bars beside the Monte Carlo optimum."""
     q0 = pairs[0][0]
-    rs = np.geomspace(1e-3, 10.0, 5 if quick else 29)  # one point a decade (quick) or 7; r = 1 included
+    rs = np.geomspace(1e-3, 10.0, res.used("sweep", 5 if quick else 29))  # a point a decade (quick) or 7; r = 1 in
     mse = {"linear": [], "tensor (cubic)": [], "tensor5 (quintic)": [], "Bobrovsky-Zakai bound": []}
     red = {"x, cubic": [], "x, quintic": [], "x³, cubic": [], "x³, quintic": []}
     for rv in tqdm(rs, disable=not progress, desc="sweep over r"):
@@ -232,11 +232,14 @@ def _monte_carlo(res, model, lift, tf, q, r, params, quick, runs, seedseq, progr
     aug = lift.augmented(0)
     lam = np.max(np.abs(np.linalg.eigvals(aug.F[:3, :3] - K[:3] @ aug.H[:, :3])))
     dt = params["dt"] if params["dt"] > 0 else min(0.01, 0.05 / lam)
-    T = 6.0 if quick else params["T"]
-    burn = min(params["burn"], T / 2)
+    T = res.used("T", 6.0 if quick else params["T"])
+    burn = res.used("burn", min(params["burn"], T / 2))
     steps = int(round(T / dt))
+    pair = f"q={q:g},r={r:g}"  # dt (0: chosen per pair) and steps as they ran, per pair
+    res.params.setdefault("dt_run", {})[pair] = dt
+    res.params.setdefault("steps", {})[pair] = steps
     nb = int(round(burn / dt))
-    paths = runs or (6 if quick else 200)
+    paths = res.used("paths", runs or (6 if quick else 200))
     rng = np.random.default_rng(seedseq)
     sim = simulate_ou(q, r, dt, steps, paths, rng)  # exact OU transition, trapezoidal ∫ x³ dt
     xs, dys = sim.xs[..., 0], sim.ys
@@ -249,7 +252,7 @@ def _monte_carlo(res, model, lift, tf, q, r, params, quick, runs, seedseq, progr
     ests["tensor"] = (te.means[..., 0], te.means[..., 1])
     ue = UpdatedInnovationsFilter.from_tensor(tf, dt).run(dys, m0, P0, on_divergence="mark")
     ests["updated-innovations"] = (ue.means[..., 0], ue.means[..., 1])
-    others = _other_filters(model, dt, q, quick)
+    others = _other_filters(model, dt, q, res.used("grid_size", 81 if quick else 241))
     runs_ = []
     for name, flt in others:
         runs_.append((name, flt, 0.0))
@@ -344,7 +347,7 @@ TABLE = {(2.0, 1.0): ", 001 Table 5.1: .540", (1.0, 1.0): ", 001 Table 5.2: .378
 TAYLOR = {"ekf", "second-order-truncated", "second-order-gaussian"}
 
 
-def _other_filters(model, dt, q, quick):
+def _other_filters(model, dt, q, grid_size):
     """EKF, the second-order filters (seed 004 family), QLF/MQLF (seed 003), the conditional-moment
     filter with the Gaussian closure, and the grid reference (the optimal filter, up to its grid)."""
     s = np.sqrt(q / 2)
@@ -355,5 +358,5 @@ def _other_filters(model, dt, q, quick):
     out.append(("mqlf", MQLF(model, dt)))  # default: Edgeworth closure of order 4 (003 eqs. 25-33)
     out.append(("gaussian-closure", ConditionalMomentFilter(model, dt, closure=GaussianClosure(),
                                                             name="gaussian-closure")))
-    out.append(("optimal", GridFilter(model, (-6 * s, 6 * s), size=81 if quick else 241, dt=dt)))
+    out.append(("optimal", GridFilter(model, (-6 * s, 6 * s), size=grid_size, dt=dt)))
     return out

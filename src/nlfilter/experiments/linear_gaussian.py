@@ -50,6 +50,7 @@ def run(params, *, quick=False, runs=None, seed=0, progress=False):
     half = 0.5
     _, Pf = steady_state(md)
     res = Result("linear-gaussian", TITLE, "nlfilter check (no paper): Riccati equation", p)
+    res.used("paths", runs)
     res.add("riccati", "mse", Pf[0, 0])
     width = 6.0 * np.sqrt(np.diag(P_stat))
     filters = {

@@ -112,6 +112,7 @@ def run_first_order(params, *, quick, runs, seed, progress):
     R = runs or (20 if quick else 200)
     res = Result("moment-first-order", "First-order system x+ = h x + w, z = x + v",
                  "seed 000, eqs. 2.4-2.5", params)
+    res.params.update(T=T, skip=skip, grid=G, paths=R)  # the values that ran (quick caps included)
     laws = list(params["laws"])
     for law_name, child in zip(laws, np.random.SeedSequence(seed).spawn(len(laws))):
         law = input_law(law_name, wb)
@@ -187,6 +188,7 @@ def run_second_order(params, *, quick, runs, seed, progress):
     bkw = dict(bounding=params["bounding"], directions=int(params["directions"]))
     res = Result("moment-second-order", "Second-order system x+ = A x + b w, z = c.x + v",
                  "seed 000, eqs. 2.6-2.8", params)
+    res.params.update(T=T, skip=skip, particles=P, paths=R)  # the values that ran (quick caps included)
     laws = list(params["laws"])
     for law_name, child in zip(laws, np.random.SeedSequence(seed).spawn(len(laws))):
         law = input_law(law_name, wb)

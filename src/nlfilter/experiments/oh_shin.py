@@ -63,10 +63,10 @@ def run(params, *, quick, runs, seed, progress):
     res = Result("oh-shin", "QLF vs MQLF (seed 003, Fig. 2)", "seed 003, Section 5", p)
     md = model(p["Q"], p["R"])
     m0, P0, dt = np.array([p["m0"]]), np.array([[p["D0"]]]), p["dt"]
-    npaths = runs or (60 if quick else 4000)
-    sim = simulate(md, steps, paths=npaths, rng=ev.stream(seed, 0), m0=m0, P0=P0, dt=dt,
-                   substeps=10 if quick else 20)
-    grid_size = 201 if quick else p["grid_size"]
+    npaths = res.used("paths", runs or (60 if quick else 4000))
+    sim = simulate(md, res.used("steps", steps), paths=npaths, rng=ev.stream(seed, 0), m0=m0, P0=P0, dt=dt,
+                   substeps=res.used("substeps", 10 if quick else 20))
+    grid_size = res.used("grid_size", 201 if quick else p["grid_size"])
     sd0 = np.sqrt(p["D0"])
     lo = min(-1.5, p["m0"] - 8 * sd0 - 1.0) if p["m0"] < 0 else -1.5
     hi = max(1.5, p["m0"] + 8 * sd0)

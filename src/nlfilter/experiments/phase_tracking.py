@@ -8,6 +8,9 @@
 (c) Table 4.1: simulation at ``P_θℓ = 0.129`` (RK4, step 1 % of the PLL time constant 1/K,
     runs of 500 time constants with the first 25 discarded, common noise): PLL, LQF, tensor
     filter, and the optimal filter (grid on the circle).
+
+Rows are keyed by ``P``; the two kinds of ``mse_x1`` rows by ``method``: ``"off-line"`` (exact
+steady state, (a)) and ``"monte carlo"`` (the simulation, (c)).
 """
 
 from __future__ import annotations
@@ -49,20 +52,20 @@ def run(params, *, quick, runs, seed, progress):
     q = float(params["q"])
     # (a), (b): rows at a coarse set of P (plus the paper's 0.129 and any --param P=...)
     base = [0.01, 0.02, 0.05, 0.1, 0.129, 0.2, 0.5, 1.0, 2.0] if not quick else [0.05, 0.129, 0.5]
-    Ps = sorted(set(base) | {float(p) for p in params["P"]})
+    Ps = res.used("P_rows", sorted(set(base) | {float(p) for p in params["P"]}))
     for P in tqdm(Ps, disable=not progress, desc="post-processor"):
         fit = post_processor(P, q=q)
         paper = PEAK[0] if abs(P - PEAK[1]) < 1e-12 else None
         res.add("tensor", "reduction_x1", fit.reduction, paper=paper, P=P)
         res.add("tensor", "alpha", fit.gains[0], P=P)
         res.add("tensor", "beta", fit.gains[1], P=P)
-        res.add("linear", "mse_x1", fit.mse_linear, P=P)
-        res.add("tensor", "mse_x1", fit.mse, P=P)
+        res.add("linear", "mse_x1", fit.mse_linear, P=P, method="off-line")
+        res.add("tensor", "mse_x1", fit.mse, P=P, method="off-line")
         res.add("tensor5", "reduction_x1", post_processor(P, q=q, degree=5).reduction, P=P)
     peak, Pk = _peak(q)
     res.add("tensor", "peak_reduction_x1", peak, paper=PEAK[0])
     res.add("tensor", "peak_P", Pk, paper=PEAK[1])
-    n = 12 if quick else int(params["sweep"])
+    n = res.used("sweep", 12 if quick else int(params["sweep"]))
     grid = np.geomspace(0.01, 2.0, n)
     fits = [post_processor(float(P), q=q) for P in tqdm(grid, disable=not progress, desc="Fig. 4.3 sweep")]
     fits5 = [post_processor(float(P), q=q, degree=5) for P in grid]
@@ -84,11 +87,11 @@ def _simulation(res, params, q, quick, runs, seed, progress):
     q, r = qr_from_P(P, q)
     K = pll_gain(q, r)
     dt = params["step"] / K                       # 1 % of the PLL time constant 1/K
-    tc = 40.0 if quick else params["time_constants"]
-    disc = 5.0 if quick else params["discard"]
-    steps = int(round(tc / K / dt))
+    tc = res.used("time_constants", 40.0 if quick else params["time_constants"])
+    disc = res.used("discard", 5.0 if quick else params["discard"])
+    steps = res.used("steps", int(round(tc / K / dt)))
     nd = int(round(disc / K / dt))
-    paths = runs or (2 if quick else 16)
+    paths = res.used("paths", runs or (2 if quick else 16))
     rng = np.random.default_rng(np.random.SeedSequence(seed).spawn(1)[0])
     theta, dzs = simulate_phase(q, r, dt, steps, paths, rng)
     model = phase_model(q, r)
@@ -101,7 +104,7 @@ def _simulation(res, params, q, quick, runs, seed, progress):
     ests = {"pll": pll.extras["theta"], "lqf": lqf.extras["theta"], "tensor": ten.extras["theta"]}
     xs = {"lqf": lqf.means, "tensor": ten.means}
     if not quick or params["grid"] > 0:
-        ge = CircleGridFilter(model, dt, size=64 if quick else int(params["grid"])).run(dzs)
+        ge = CircleGridFilter(model, dt, size=res.used("grid", 64 if quick else int(params["grid"]))).run(dzs)
         ests["optimal"] = ge.extras["theta"]
         xs["optimal"] = ge.means
     x1 = np.sin(theta)
@@ -120,7 +123,7 @@ def _simulation(res, params, q, quick, runs, seed, progress):
         res.add(name, "bias_theta", b.mean(), stderr=se(b), P=P)
         if name in xs:  # x1 = sin θ: an ordinary MSE (the phase rows above need the wrapped error)
             e1 = ev.mse(xs[name][..., :1], x1[..., None], window=slice(nd, None))
-            res.add(name, "mse_x1", e1.value, stderr=e1.stderr if e1.paths > 1 else None, P=P)
+            res.add(name, "mse_x1", e1.value, stderr=e1.stderr if e1.paths > 1 else None, P=P, method="monte carlo")
     if "optimal" in ests:  # paired excess over the optimal filter (common noise)
         eo = (wrap(theta - ests["optimal"])[:, nd:] ** 2).mean(axis=1)
         e1o = ((xs["optimal"][..., 0] - x1)[:, nd:] ** 2).mean(axis=1)

@@ -76,7 +76,7 @@ def run(params, *, quick, runs, seed, progress):
     for i, name in enumerate(PROBLEMS):  # one independent stream per problem (SeedSequence.spawn)
         if name not in chosen:
             continue
-        nruns = runs or (QUICK["runs"] if quick else RUNS[name])
+        nruns = _ran(res, "paths", name, runs or (QUICK["runs"] if quick else RUNS[name]))
         rng = ev.stream(seed, i)
         case = {"quadratic": _quadratic, "state-noise": _state_noise, "falling-body": _falling_body}[name]
         case(res, params, nruns, rng, quick, progress)
@@ -114,17 +114,23 @@ def _verdict(res, problem):
     return "; ".join(parts)
 
 
-def _steps(params, name, quick, default):
+def _ran(res, key, problem, value):
+    """Record ``value`` as what ran for ``problem`` (``res.params[key][problem]``) -> ``value``."""
+    res.params.setdefault(key, {})[problem] = value
+    return value
+
+
+def _steps(res, params, name, quick, default):
     if params["steps"]:
-        return params["steps"]
-    return QUICK["steps"][name] if quick else default
+        return _ran(res, "problem_steps", name, params["steps"])
+    return _ran(res, "problem_steps", name, QUICK["steps"][name] if quick else default)
 
 
 # -- the three problems -------------------------------------------------------------------------
 def _quadratic(res, params, nruns, rng, quick, progress):
     prob = pb.quadratic(a=params["quad_a"], b=params["quad_b"], c=params["quad_c"], q=params["quad_q"],
                         r=params["quad_r"])
-    steps = _steps(params, "quadratic", quick, prob.steps)
+    steps = _steps(res, params, "quadratic", quick, prob.steps)
     md = prob.model
     sim = simulate(md, steps, paths=nruns, rng=rng, m0=prob.m0, P0=prob.P0)
     filters = {"ekf": EKF(md), "ukf": UKF(md), **{f: SecondOrderFilter(md, form=f) for f in FORMS}}
@@ -132,7 +138,7 @@ def _quadratic(res, params, nruns, rng, quick, progress):
             tqdm(filters.items(), disable=not progress, desc="quadratic", leave=False)}
     lo, hi = float(np.min(sim.xs)), float(np.max(sim.xs))
     pad = 6 * np.sqrt(params["quad_q"])
-    size = QUICK["grid_size"] if quick else params["grid_size"]
+    size = res.used("grid_size", QUICK["grid_size"] if quick else params["grid_size"])
     grid = GridFilter(md, (min(lo, -3 * np.sqrt(prob.P0[0, 0])) - pad, hi + pad), size)
     ests["optimal"] = grid.run(sim.ys, prob.m0, prob.P0, on_divergence="mark", progress=progress)
     _report(res, "quadratic", ests, sim.xs, ests["optimal"], slice(None))
@@ -144,7 +150,7 @@ def _quadratic(res, params, nruns, rng, quick, progress):
 def _state_noise(res, params, nruns, rng, quick, progress):
     prob = pb.state_noise(a=params["sn_a"], s0=params["sn_s0"], s1=params["sn_s1"], s2=params["sn_s2"],
                           c=params["sn_c"], r=params["sn_r"], dt=params["sn_dt"])
-    steps = _steps(params, "state-noise", quick, prob.steps)
+    steps = _steps(res, params, "state-noise", quick, prob.steps)
     md, dt = prob.model, prob.dt
     sim = simulate(md, steps, paths=nruns, rng=rng, m0=prob.m0, P0=prob.P0, dt=dt, substeps=10)
     inn = params["sn_innovation"]
@@ -156,7 +162,7 @@ def _state_noise(res, params, nruns, rng, quick, progress):
             tqdm(filters.items(), disable=not progress, desc="state-noise", leave=False)}
     ests["ukf"] = _ukf_on_euler(md, dt, sim.ys, prob.m0, prob.P0)
     lo, hi = float(np.min(sim.xs)), float(np.max(sim.xs))
-    size = QUICK["grid_size"] if quick else params["grid_size"]
+    size = res.used("grid_size", QUICK["grid_size"] if quick else params["grid_size"])
     grid = GridFilter(md, (lo - 1.0, hi + 1.0), size, dt=dt)
     ests["optimal"] = grid.run(sim.ys, prob.m0, prob.P0, on_divergence="mark", progress=progress)
     _report(res, "state-noise", ests, sim.xs, ests["optimal"], slice(None))
@@ -169,7 +175,7 @@ def _state_noise(res, params, nruns, rng, quick, progress):
 
 def _falling_body(res, params, nruns, rng, quick, progress):
     prob = pb.falling_body(r=params["fb_r"])
-    steps = _steps(params, "falling-body", quick, prob.steps)
+    steps = _steps(res, params, "falling-body", quick, prob.steps)
     md, dt, sub = prob.model, prob.dt, params["fb_substeps"]
     sim = simulate_continuous_discrete(md, steps, paths=nruns, rng=rng, x0=prob.x0, dt=dt, substeps=sub)
     xs, ys = sim.xs, sim.ys
@@ -182,8 +188,8 @@ def _falling_body(res, params, nruns, rng, quick, progress):
     ukf_model = DiscreteModel.from_functions(3, 1, flow, md.h, Q=np.zeros((3, 3)),
                                              R=md.R, name="falling-body flow map")
     ests["ukf"] = _run(UKF(ukf_model, start="predict"), ys, prob.m0, prob.P0)
-    npf = min(nruns, QUICK["fb_pf_runs"] if quick else params["fb_pf_runs"])
-    particles = QUICK["fb_particles"] if quick else params["fb_particles"]
+    npf = res.used("fb_pf_runs", min(nruns, QUICK["fb_pf_runs"] if quick else params["fb_pf_runs"]))
+    particles = res.used("fb_particles", QUICK["fb_particles"] if quick else params["fb_particles"])
     pf = ResampleMoveParticleFilter(md, particles, dt=dt, substeps=sub, moves=2, scale=1.0, start="predict").run(
         ys[:npf], prob.m0, prob.P0, rng=rng, on_divergence="mark", progress=progress)
     acc = pf.extras["accepted"][:, -1].sum() / max(pf.extras["proposed"][:, -1].sum(), 1)

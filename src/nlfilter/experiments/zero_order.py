@@ -130,7 +130,7 @@ def run_table1(params, *, quick, runs, seed, progress):
     Ns = [_check_N(N) for N in params["N"]]
     eps = float(params["eps"])
     res = Result("zero-order", "Zero-order problem: ensemble MSE (Table 1)", "seed 000, Table 1", params)
-    n_mc = runs or (20_000 if quick else 1_000_000)
+    n_mc = res.used("paths", runs or (20_000 if quick else 1_000_000))  # one sample per path
     ss = np.random.SeedSequence(seed)
     mismatched = []
     for J, child in zip(Js, ss.spawn(len(Js))):
@@ -239,6 +239,7 @@ def run_fig10(params, *, quick, runs, seed, progress):
     R = runs or (40 if quick else 2000)
     res = Result("zero-order-adaptive", "Zero-order adaptive filter, time-averaged MSE (Fig. 10)",
                  "seed 000, Fig. 10", params)
+    res.params.update(n_max=n_max, paths=R)  # the values that ran (quick caps included)
     grid = np.unique(np.linspace(params["window"], n_max, 60).astype(int))
     for J, child in zip(Js, np.random.SeedSequence(seed).spawn(len(Js))):
         xs, est, fbr = adaptive_estimates(J, Ns, n_max=n_max, runs=R, n0=params["n0"], window=params["window"],
@@ -342,6 +343,7 @@ def run_robustness(params, *, quick, runs, seed, progress):
     R = runs or (20 if quick else 500)
     res = Result("zero-order-robustness", "Zero-order filter: correlation and non-additive noise",
                  "seed 000, Chapter III", params)
+    res.params.update(n=n, paths=R)  # the values that ran (quick caps included)
     ss = np.random.SeedSequence(seed)
     kw = dict(n0=params["n0"], window=params["window"])
     m2x = (J + 1) / (J + 3)
