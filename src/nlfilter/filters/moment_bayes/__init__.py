@@ -18,8 +18,9 @@ estimator), and ``extras`` the family's flags and bounds (``fallback``, ``invali
 ``upper``, the moments in use, and for the adaptive filters the refresh flags ``refreshed`` and
 ``refresh_failed``). Every adaptive filter tests each refresh's moments against the moment space
 (:func:`~nlfilter.moments.densities.is_moment_sequence`) and takes ``invalid_moments=`` ("warn",
-"keep", "ignore"; :data:`INVALID_MOMENTS`) with one meaning everywhere. The prior is the filter's own (``m0 = P0 = None``). The
-adaptive learners' running statistics are per path in the belief: a filter object never changes.
+"keep", "ignore"; :data:`INVALID_MOMENTS`) with one meaning everywhere. The prior is the
+filter's own (``m0 = P0 = None``). The adaptive learners' running statistics are per path in the
+belief: a filter object never changes.
 The reference (grid/particle) yardsticks are in :mod:`nlfilter.filters.reference.bounded`.
 """
 

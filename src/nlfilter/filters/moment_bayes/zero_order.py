@@ -343,7 +343,8 @@ class ZeroOrderMomentFilter(MomentFilter):
 
     def _estimate(self, z, coef, coef_x):
         """``(x_hat, fallback, (l, u))`` of one step (a subclass may give None for ``(l, u)`` with
-        ``invalid_moments="ignore"``): the series precomputed with the known moments, else the belief's ``coef``, ``coef_x``."""
+        ``invalid_moments="ignore"``): the series precomputed with the known moments, else the
+        belief's ``coef``, ``coef_x``."""
         l, u = _interval(z, self.x_min, self.x_max, self.c, self.outside)
         known = not coef.shape[1]
         xh, fb, l, u = _estimate_on(l, u, self._s0 if known else coef, self._s1 if known else coef_x,
