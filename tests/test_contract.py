@@ -156,12 +156,13 @@ BN2 = BoundedNoiseModel(A2, [1.0, 1.0], [1.0, 1.0], 1.0)
 def _bounded_case(name, make, n, N=0, **kw):
     """A seed-000 moment filter (its own prior, m0 = P0 = None; NaN missing) of state dimension
     ``n``; ``N > 0``: adaptive with N learnt moments. Extras as documented: ``fallback``, and
-    ``invalid`` (zero-order) or the reachable ``lower``/``upper`` bounds; the moments learnt."""
+    ``invalid`` (zero-order) or the reachable ``lower``/``upper`` bounds; the moments learnt and the
+    refresh flags."""
     def data(batch, steps, seed):
         return _bounded(n)(batch, steps, seed)[..., None]
     zero = "zero-order" in name
     extras = {"fallback": (), **({"invalid": ()} if zero else {"lower": (n,), "upper": (n,)}),
-              **({"moments" if zero else "w_moments": (N,)} if N else {})}
+              **({"moments" if zero else "w_moments": (N,), "refreshed": (), "refresh_failed": ()} if N else {})}
     return Case(name, make, data, bad_prior=(("m0", np.zeros(n)), ("P0", np.eye(n))), extras=extras, **kw)
 
 

@@ -31,6 +31,18 @@ def test_first_order_quick_bimodal_beats_kalman_and_near_optimal(check_figure):
     assert res.series[gap]["bars"]["kalman"] == [gk]
 
 
+def test_first_order_reports_the_refresh_failure_rate():
+    # N = 6 learnt from 20 samples per refresh: a large share of the refreshes give input moments
+    # no law on [-w_b, w_b] has (quick run of the experiment: 47 %); N = 2 never does
+    res = get("moment-first-order").run({"laws": ["uniform"], "N": [2, 6], "T": 200, "skip": 30, "grid": 100},
+                                        quick=True, runs=10, seed=0)
+    r6 = res.get("adaptive6", "refresh_failure_rate", law="uniform")
+    r2 = res.get("adaptive2", "refresh_failure_rate", law="uniform")
+    assert 0.2 < r6.value <= 1.0 and r6.stderr > 0
+    assert r2.value == 0.0
+    assert not [r for r in res.rows if r.quantity == "refresh_failure_rate" and r.filter.startswith("moment")]
+
+
 def test_first_order_bad_params():
     with pytest.raises(ValueError, match="law"):
         get("moment-first-order").run({"laws": ["cauchy"]}, quick=True, runs=2)
@@ -47,6 +59,7 @@ def test_second_order_quick_runs_and_optimum_not_beaten(check_figure):
     for name in ("kalman", "moment4", "adaptive4"):
         g = res.get(name, "gap_to_optimal", law="bimodal")
         assert g.value > -3 * g.stderr
+    assert 0.0 <= res.get("adaptive4", "refresh_failure_rate", law="bimodal").value <= 1.0
     mse = "MSE by input law (6 paths × steps 10..59; E|x − x̂|² over both states; optimal: particle filter, 1000 particles)"
     check_figure(res, {mse: {"optimal", "kalman", "moment4"},
                        "Excess MSE over the optimum (paired on the same paths)": {"kalman", "moment4", "adaptive4"}})

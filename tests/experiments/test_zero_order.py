@@ -126,6 +126,11 @@ def test_adaptive_quick_rows(check_figure):
     assert res.get("linear", q, J=0).value == pytest.approx(res.get("optimal", q, J=0).value, abs=1e-12)
     assert any(n.startswith("claim J=10") for n in res.notes)
     assert "Fig. 10 J=10" in res.series
+    # the refresh failure rate of each adaptive filter: N = 2 always possible, N = 6 mostly impossible
+    # on J = 10 (quick run, seed 0: 92 % of the refreshes)
+    assert res.get("moment2", "refresh_failure_rate", J=10).value == 0.0
+    r6 = res.get("moment6", "refresh_failure_rate", J=10)
+    assert r6.value > 0.7 and r6.stderr > 0
 
 
 # ------------------------------------------------------------------ robustness (Chapter III)
@@ -174,6 +179,9 @@ def test_robustness_quick(check_figure):
             for name in ("linear", "moment2", "moment4"):
                 g = res.get(name, "gap_n400", case=case, **{key: val})
                 assert g.value > -3 * g.stderr - 1e-12
+    for name in ("moment2", "moment4", "moment4-additive"):
+        assert 0.0 <= res.get(name, "refresh_failure_rate", case="scaled-noise", beta=0.5).value <= 1.0
+    assert 0.0 <= res.get("moment4", "refresh_failure_rate", case="correlated", r=0.6).value <= 1.0
     # beta = 0: the non-additive filter is the additive one
     for N in (2, 4):
         a = res.get(f"moment{N}", "mse_n400", case="scaled-noise", beta=0.0).value

@@ -27,7 +27,8 @@ from tqdm import tqdm
 from . import experiment
 from ..filters.kalman import KalmanFilter
 from ..bounded import BoundedNoiseModel
-from ..filters.moment_bayes import FirstOrderMomentFilter
+from ..filters.moment_bayes import FirstOrderMomentFilter, refresh_failure_rate
+from .zero_order import failure_rate_row
 from ..filters.reference.bounded import BoundedGridFilter1D
 from ..models import DiscreteModel
 from ..results import Result
@@ -129,10 +130,11 @@ def run_first_order(params, *, quick, runs, seed, progress):
             r = FirstOrderMomentFilter(model, N, w_moments=raw_moments(law, N)).run(zs[..., None])
             est[f"moment{N}"] = r.means[..., 0]
             fb[f"moment{N}"] = r.extras["fallback"].mean()
-            r = FirstOrderMomentFilter(model, N, adaptive=True, n0=params["n0"],
-                                       window=params["window"]).run(zs[..., None])
+            r = FirstOrderMomentFilter(model, N, adaptive=True, n0=params["n0"], window=params["window"],
+                                       invalid_moments="ignore").run(zs[..., None])  # 000's algorithm as is
             est[f"adaptive{N}"] = r.means[..., 0]
             fb[f"adaptive{N}"] = r.extras["fallback"].mean()
+            failure_rate_row(res, f"adaptive{N}", refresh_failure_rate(r), law=law_name)
         per_path = _mse_rows(res, {k: v - xs for k, v in est.items()}, skip, law_name)
         _claims(res, per_path, law_name, Ns, "first-order")
         res.notes.append(f"first-order law={law_name}: uniform fallback used in "
@@ -211,9 +213,10 @@ def run_second_order(params, *, quick, runs, seed, progress):
         for N in tqdm(Ns, disable=not progress, desc=law_name):
             r = SecondOrderMomentFilter(model, N, w_moments=raw_moments(law, N), **bkw).run(zs[..., None])
             est[f"moment{N}"], fb[f"moment{N}"] = r.means, r.extras["fallback"].mean()
-            r = SecondOrderMomentFilter(model, N, adaptive=True, n0=params["n0"],
-                                        window=params["window"], **bkw).run(zs[..., None])
+            r = SecondOrderMomentFilter(model, N, adaptive=True, n0=params["n0"], window=params["window"],
+                                        invalid_moments="ignore", **bkw).run(zs[..., None])  # 000's algorithm
             est[f"adaptive{N}"], fb[f"adaptive{N}"] = r.means, r.extras["fallback"].mean()
+            failure_rate_row(res, f"adaptive{N}", refresh_failure_rate(r), law=law_name)
         errs = {k: np.sqrt(np.sum((v - xs) ** 2, axis=-1)) for k, v in est.items()}  # |x - x_hat|
         per_path = _mse_rows(res, errs, skip, law_name)
         _claims(res, per_path, law_name, Ns, "second-order")

@@ -20,7 +20,8 @@ from tqdm import tqdm
 from . import experiment
 from .. import evaluate as ev
 from ..bounded import ZeroOrderModel
-from ..filters.moment_bayes import MomentFilterWarning, ZeroOrderMomentFilter, power_density_estimate
+from ..filters.moment_bayes import (MomentFilterWarning, ZeroOrderMomentFilter, power_density_estimate,
+                                    refresh_failure_rate)
 from ..moments.densities import power_density_moments
 from ..results import Result
 
@@ -200,7 +201,8 @@ def run_table1(params, *, quick, runs, seed, progress):
 # ------------------------------------------------------------------ Fig. 10
 
 def adaptive_estimates(J, Ns, *, n_max, runs, n0, window, eps, invalid_moments, rng, progress=False):
-    """``(xs (runs, n_max, 1), estimates {name: (runs, n_max, 1)}, fallback rates {name: (fallback, invalid)})``
+    """``(xs (runs, n_max, 1), estimates {name: (runs, n_max, 1)}, fallback rates {name: (fallback, invalid,
+    refresh failure rate per run)})``
     of the adaptive filters of Fig. 7, the linear filter with the exact second moment of x and the
     optimal estimator (eq. 3.20) on one simulation of :class:`~nlfilter.bounded.ZeroOrderModel`."""
     xs, zs = ZeroOrderModel(J).simulate(n_max, runs, rng)
@@ -213,11 +215,21 @@ def adaptive_estimates(J, Ns, *, n_max, runs, n0, window, eps, invalid_moments, 
             warnings.simplefilter("ignore", MomentFilterWarning)
             r = f.run(zs)
         out[f"moment{N}"] = r.means
-        fb_rate[f"moment{N}"] = (float(np.mean(r.extras["fallback"])), float(np.mean(r.extras["invalid"])))
+        fb_rate[f"moment{N}"] = (float(np.mean(r.extras["fallback"])), float(np.mean(r.extras["invalid"])),
+                                 refresh_failure_rate(r))
     # linear filter with the exact second moment of x (000: "second moment known exactly")
     out["linear"] = linear_gain(J) * zs
     out["optimal"] = power_density_estimate(zs, J)
     return xs, out, fb_rate
+
+
+def failure_rate_row(res, name, rate, **key):
+    """The row ``refresh_failure_rate`` of an adaptive seed-000 filter: the fraction of its refreshes
+    whose moments no law on the support has (per run ``rate``, from
+    :func:`~nlfilter.filters.moment_bayes._common.refresh_failure_rate`; mean and se over runs)."""
+    rate = np.asarray(rate, dtype=float)
+    res.add(name, "refresh_failure_rate", float(rate.mean()),
+            stderr=float(rate.std(ddof=1) / np.sqrt(rate.size)) if rate.size > 1 else None, **key)
 
 
 def _paired(est, xs, a, b, n=None):
@@ -253,7 +265,8 @@ def run_fig10(params, *, quick, runs, seed, progress):
             if name != "optimal":
                 m, s = _paired(est, xs, name, "optimal")
                 res.add(name, f"gap_n{n_max}", m, stderr=s, J=J)
-        for name, (fb, inv) in fbr.items():
+        for name, (fb, inv, rate) in fbr.items():
+            failure_rate_row(res, name, rate, J=J)
             res.notes.append(f"J={J} {name}: eq. 3.16 used in {100 * fb:.2f}% of steps "
                              f"(moments not a moment sequence in {100 * inv:.2f}%)")
         # the curves of eq. 3.17 (cumulative time averages) at the grid points
@@ -359,7 +372,9 @@ def run_robustness(params, *, quick, runs, seed, progress):
         exv = float(np.mean(xs[..., 0] * v))  # E[xv] (the linear filter is given the true second moments)
         est["linear"] = (m2x + exv) / (m2x + 2 * exv + 1 / 3) * zs
         for N in tqdm(Ns, disable=not progress, desc=f"r={r}"):
-            est[f"moment{N}"] = ZeroOrderMomentFilter(N, adaptive=True, invalid_moments="ignore", **kw).run(zs).means
+            run = ZeroOrderMomentFilter(N, adaptive=True, invalid_moments="ignore", **kw).run(zs)
+            est[f"moment{N}"] = run.means
+            failure_rate_row(res, f"moment{N}", refresh_failure_rate(run), case="correlated", r=r)
             est[f"moment{N}-known"] = ZeroOrderMomentFilter(N, moments=power_density_moments(N, J),
                                                             invalid_moments="ignore").run(zs).means
         best = _rows(res, est, xs, n, case="correlated", r=r)
@@ -376,9 +391,12 @@ def run_robustness(params, *, quick, runs, seed, progress):
                                                      nodes=96).run(zs).means}
         est["linear"] = m2x / (m2x + (1 + beta ** 2 * m2x) / 3) * zs
         for N in tqdm(Ns, disable=not progress, desc=f"beta={beta}"):
-            est[f"moment{N}"] = ScaledNoiseZeroOrderFilter(N, beta, adaptive=True, **kw).run(zs).means
-            est[f"moment{N}-additive"] = ZeroOrderMomentFilter(N, adaptive=True, outside="clip",
-                                                               invalid_moments="ignore", **kw).run(zs).means
+            run = ScaledNoiseZeroOrderFilter(N, beta, adaptive=True, invalid_moments="ignore", **kw).run(zs)
+            est[f"moment{N}"] = run.means
+            failure_rate_row(res, f"moment{N}", refresh_failure_rate(run), case="scaled-noise", beta=beta)
+            run = ZeroOrderMomentFilter(N, adaptive=True, outside="clip", invalid_moments="ignore", **kw).run(zs)
+            est[f"moment{N}-additive"] = run.means
+            failure_rate_row(res, f"moment{N}-additive", refresh_failure_rate(run), case="scaled-noise", beta=beta)
         _rows(res, est, xs, n, case="scaled-noise", beta=beta)
     _robustness_figure(res, params, Ns, n, R)
     res.notes.append("correlated: x and v keep their laws, coupled by a Gaussian copula of correlation r.  "

@@ -5,7 +5,8 @@
                        :class:`ScaledNoiseZeroOrderFilter`; ``zero_order_estimate``, ``power_density_estimate``
 ``first_order``        :class:`FirstOrderMomentFilter`: ``x' = h x + w``, ``z = x + v`` (000 eqs. 2.4-2.5)
 ``second_order``       :class:`SecondOrderMomentFilter`: ``x' = A x + b w``, ``z = c.x + v`` (eqs. 2.6-2.8)
-``_common``            option checks, the (pure) adaptive-input learner, :class:`MomentFilterWarning`
+``_common``            option checks, the (pure) adaptive-input learner, :class:`MomentFilterWarning`,
+                       :data:`INVALID_MOMENTS` and :func:`refresh_failure_rate`
 =====================  =============================================================================
 
 All are :class:`~nlfilter.filters.base.Filter` s on a :class:`~nlfilter.bounded.BoundedNoiseModel`
@@ -14,12 +15,16 @@ All are :class:`~nlfilter.filters.base.Filter` s on a :class:`~nlfilter.bounded.
 :class:`~nlfilter.filters.base.Estimates` whose ``means`` are the posterior means, ``covs`` the
 posterior covariances from the carried moments (NaN where none: N = 1, and the zero-order
 estimator), and ``extras`` the family's flags and bounds (``fallback``, ``invalid``, ``lower``,
-``upper``, the moments in use). The prior is the filter's own (``m0 = P0 = None``). The
-adaptive learners' running statistics are per path in the belief: a filter object never changes.
+``upper``, the moments in use, and for the adaptive filters the refresh flags ``refreshed`` and
+``refresh_failed``). Every adaptive filter tests each refresh's moments against the moment space
+(:func:`~nlfilter.moments.densities.is_moment_sequence`) and takes ``invalid_moments=`` ("warn",
+"keep", "ignore"; :data:`INVALID_MOMENTS`) with one meaning everywhere. The prior is the
+filter's own (``m0 = P0 = None``). The adaptive learners' running statistics are per path in the
+belief: a filter object never changes.
 The reference (grid/particle) yardsticks are in :mod:`nlfilter.filters.reference.bounded`.
 """
 
-from ._common import MomentFilterWarning, impulse_power_sums
+from ._common import INVALID_MOMENTS, MomentFilterWarning, impulse_power_sums, refresh_failure_rate
 from .first_order import FirstOrderMomentFilter, IntervalBelief
 from .second_order import PolygonBelief, SecondOrderMomentFilter, linear_map_moments, moment_map_tensor
 from .zero_order import (ScaledNoiseZeroOrderFilter, ZeroOrderBelief, ZeroOrderMomentFilter, power_density_estimate,
@@ -27,4 +32,5 @@ from .zero_order import (ScaledNoiseZeroOrderFilter, ZeroOrderBelief, ZeroOrderM
 
 __all__ = ["ZeroOrderMomentFilter", "ScaledNoiseZeroOrderFilter", "FirstOrderMomentFilter", "SecondOrderMomentFilter",
            "ZeroOrderBelief", "IntervalBelief", "PolygonBelief", "zero_order_estimate", "power_density_estimate",
-           "impulse_power_sums", "linear_map_moments", "moment_map_tensor", "MomentFilterWarning"]
+           "impulse_power_sums", "linear_map_moments", "moment_map_tensor", "MomentFilterWarning", "INVALID_MOMENTS",
+           "refresh_failure_rate"]

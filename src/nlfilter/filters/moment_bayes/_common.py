@@ -1,19 +1,72 @@
 """What the seed-000 moment filters share: option checks, the pure adaptive-input learner (its
-running statistics live in the belief, per path), the missing-data helper and the warning."""
+running statistics live in the belief, per path), the missing-data helper, and what every
+adaptive filter does with impossible learnt moments (:data:`INVALID_MOMENTS`, the refresh report
+and its warning)."""
 
 from __future__ import annotations
+
+import warnings
 
 import numpy as np
 
 from ... import _validate as V
-from ...moments.densities import (cumulants_to_moments, difference_moments, moments_to_cumulants,
-                                  uniform_moments)
+from ...moments.densities import (cumulants_to_moments, difference_moments, is_moment_sequence,
+                                  moments_to_cumulants, uniform_moments)
 from ..base import Filter
 from ..beliefs import where_paths
 
 
 class MomentFilterWarning(UserWarning):
     """The moments in use cannot be those of a law on the support (N too high for the data)."""
+
+
+#: What an adaptive filter does when a refresh learns moments that no law on the bound has (the
+#: moment-space test :func:`~nlfilter.moments.densities.is_moment_sequence`), the same in every
+#: seed-000 filter:
+#:
+#: * ``"warn"`` — the impossible moments are not used: in their place the filter uses the uniform
+#:   law on the bound (the zero-order filter: eq. 3.16, the midpoint of the interval of x given z,
+#:   which is the estimate under that law) until a refresh learns possible ones; one
+#:   :class:`MomentFilterWarning` per run gives the refresh failure rate and what to change.
+#: * ``"keep"`` — the refresh is rejected: the moments in use before it (the last possible ones,
+#:   at first the initial guess) stay; warns as ``"warn"``.
+#: * ``"ignore"`` — the impossible moments are used as learnt (000's algorithm, guarded only by
+#:   the fallback of eq. 3.16 and its analogues); no warning.
+#:
+#: Whatever the choice, ``Estimates.extras`` has ``refreshed (..., T)`` (a refresh at that step)
+#: and ``refresh_failed (..., T)`` (it learnt impossible moments): per path, their sums over the
+#: time axis are the refresh count and the failed-refresh count.
+INVALID_MOMENTS = ("warn", "keep", "ignore")
+
+
+def check_invalid_moments(value) -> str:
+    return V.choice("invalid_moments", value, set(INVALID_MOMENTS))
+
+
+def refresh_failure_rate(est) -> np.ndarray:
+    """Per path ``(...)``: the fraction of the adaptive learner's refreshes that learnt impossible
+    moments (``extras["refresh_failed"]`` over ``extras["refreshed"]``; 0 where no refresh ran)."""
+    if "refreshed" not in est.extras:
+        if est.means.shape[-2] == 0:  # no step, no refresh
+            return np.zeros(est.means.shape[:-2])
+        raise ValueError("est: expected the Estimates of an adaptive seed-000 filter (extras 'refreshed', "
+                         f"'refresh_failed'), got extras {sorted(est.extras)}")
+    n = np.sum(est.extras["refreshed"], axis=-1)
+    return np.sum(est.extras["refresh_failed"], axis=-1) / np.maximum(n, 1)
+
+
+def warn_refresh_failures(flt, est, what: str, support, used: str) -> None:
+    """One :class:`MomentFilterWarning` for the run ``est`` of the adaptive filter ``flt`` if any
+    refresh learnt impossible moments: the filter, the failure rate, what was done and what to
+    change (lower N; more samples per refresh, ``window``, or a heavier initial guess, ``n0``)."""
+    bad = int(np.sum(est.extras.get("refresh_failed", 0)))
+    if not bad:
+        return
+    n = int(np.sum(est.extras["refreshed"]))
+    warnings.warn(f"{flt.name}: {bad} of {n} refreshes ({100 * bad / n:.1f} %) learnt moments of {what} that no "
+                  f"law on [{support[0]:g}, {support[1]:g}] has (N = {flt.N} too high for the data); {used}. "
+                  f"Lower N, or raise window (now {flt.window}) or n0 (now {flt.n0:g}).",
+                  MomentFilterWarning, stacklevel=4)
 
 
 def impulse_power_sums(g, N: int) -> np.ndarray:
@@ -47,9 +100,10 @@ def check_N(N):
 
 
 def configure_input(flt, w_bound, N, w_moments, adaptive, initial_w_moments, n0, window,
-                    noise_halfwidth, eps, outside):
+                    noise_halfwidth, eps, outside, invalid_moments):
     """Checks and stores the options shared by the first- and second-order filters: input bound,
-    order N, known or adaptive input moments (000 eqs. 2.27-2.29), measurement half-width."""
+    order N, known or adaptive input moments (000 eqs. 2.27-2.29), measurement half-width, what
+    to do with impossible learnt input moments (:data:`INVALID_MOMENTS`)."""
     flt.wb = float(V.positive("w_bound", w_bound))
     flt.N = check_N(N)
     flt.c = float(V.positive("noise_halfwidth", noise_halfwidth))
@@ -66,6 +120,8 @@ def configure_input(flt, w_bound, N, w_moments, adaptive, initial_w_moments, n0,
                              else chk("initial_w_moments", initial_w_moments))
     flt.n0 = float(V.positive("n0", n0, strict=False))
     flt.window = int(V.positive("window", window, integer=True))
+    flt.invalid_moments = check_invalid_moments(invalid_moments)
+    flt.uniform_w_moments = uniform_moments(flt.N, -flt.wb, flt.wb)
 
 
 def observed(y):
@@ -110,17 +166,36 @@ class MomentFilter(Filter):
 
     def _refresh_input(self, belief, z, obs):
         """The adaptive input step of 000's Fig. 7, before x_k is estimated: learn ``z_k`` (clipped
-        with ``outside="clip"``) and refresh the input moments of the paths whose window is complete.
-        Returns ``(mw, acc, count, redo)``: ``redo`` the paths whose prediction into step k must be
-        redone with the refreshed moments (None when there are none)."""
+        with ``outside="clip"``) and refresh the input moments of the paths whose window is complete;
+        refreshed moments that no law on ``[-w_b, w_b]`` has are handled as ``invalid_moments`` says.
+        Returns ``(mw, acc, count, redo, refreshed, failed)``: ``redo`` the paths whose prediction
+        into step k must be redone with the refreshed moments (None when there are none),
+        ``refreshed``/``failed (B,)`` the paths refreshed now and those whose refresh was impossible."""
         mw, acc, count = belief.mw, belief.acc, belief.count
+        none = np.zeros(mw.shape[0], bool)
         if not self.adaptive:
-            return mw, acc, count, None
+            return mw, acc, count, None, none, none
         zl = np.clip(z, -self.z_bound, self.z_bound) if self.outside == "clip" else z
         acc, count, due = self._learn(acc, count, zl, obs)
         if not due.any():
-            return mw, acc, count, None
-        mw = np.where(due[:, None], input_moments(self.N, self.S, self.mv, self.initial_w_moments,
-                                                  self.n0, acc, np.maximum(count, 1)), mw)
+            return mw, acc, count, None, none, none
+        new = input_moments(self.N, self.S, self.mv, self.initial_w_moments, self.n0, acc, np.maximum(count, 1))
+        ok = is_moment_sequence(new, -self.wb, self.wb)
+        if self.invalid_moments != "ignore" and not ok.all():
+            new = np.where(ok[:, None], new, self.uniform_w_moments if self.invalid_moments == "warn" else mw)
+        mw = np.where(due[:, None], new, mw)
         redo = due & belief.predicted
-        return mw, acc, count, (redo if redo.any() else None)
+        return mw, acc, count, (redo if redo.any() else None), due, due & ~ok
+
+    def _learner_extras(self, belief):
+        """The adaptive learner's per-step outputs: the input moments in use and the refresh flags."""
+        if not self.adaptive:
+            return {}
+        return {"w_moments": belief.mw, "refreshed": belief.refreshed, "refresh_failed": belief.refresh_failed}
+
+    def output(self, est):
+        if self.adaptive and self.invalid_moments != "ignore":
+            used = ("the uniform law on the bound used in their place" if self.invalid_moments == "warn"
+                    else "the moments in use before kept")
+            warn_refresh_failures(self, est, "the input w", (-self.wb, self.wb), used)
+        return est

@@ -37,8 +37,9 @@ from ._common import MomentFilter, configure_input, keep_missing, observed
 class IntervalBelief(NamedTuple):
     """Per path: posterior moments ``m (B, N)`` of x_k and support ``[lo, hi] (B,)``, the
     ``fallback (B,)`` flag, the input moments in use ``mw (B, N)``, the learner's power sums
-    ``acc (B, N)`` and sample count ``count (B,)``, the moments ``hm (B, N)`` of ``h x_{k-1}``
-    and ``predicted (B,)`` (whether ``m`` is a prediction from them, to redo after a refresh)."""
+    ``acc (B, N)`` and sample count ``count (B,)``, the moments ``hm (B, N)`` of ``h x_{k-1}``,
+    ``predicted (B,)`` (whether ``m`` is a prediction from them, to redo after a refresh) and the
+    flags ``refreshed``/``refresh_failed (B,)`` of this step's refresh (:data:`._common.INVALID_MOMENTS`)."""
 
     m: np.ndarray
     lo: np.ndarray
@@ -49,6 +50,8 @@ class IntervalBelief(NamedTuple):
     count: np.ndarray
     hm: np.ndarray
     predicted: np.ndarray
+    refreshed: np.ndarray
+    refresh_failed: np.ndarray
 
 
 def _raw_model(model, args, kind):
@@ -78,7 +81,8 @@ class FirstOrderMomentFilter(MomentFilter):
     ``m_2 - m_1^2`` (clipped at 0), NaN when N = 1 (no second moment is carried: no covariance
     exists, which is not a divergence); ``extras``: ``fallback (..., T)`` (uniform fallback used),
     ``lower``/``upper (..., T, 1)`` the posterior's interval and, adaptive, ``w_moments (..., T, N)``
-    the input moments in use. A missing measurement: predict only, nothing learnt.
+    the input moments in use and the refresh flags ``refreshed``/``refresh_failed (..., T)``. A
+    missing measurement: predict only, nothing learnt.
 
     Parameters
     ----------
@@ -93,6 +97,11 @@ class FirstOrderMomentFilter(MomentFilter):
     outside : {"raise", "clip"}
         A measurement inconsistent with the reachable interval: raise ``ValueError`` naming ``ys``,
         or clip to the nearest consistent value (posterior = the nearest end point).
+    invalid_moments : {"warn", "keep", "ignore"}
+        A refresh that learns input moments no law on ``[-w_b, w_b]`` has: use the uniform law's
+        instead and warn, keep the previous ones and warn, or use them silently (000's algorithm);
+        see :data:`nlfilter.filters.moment_bayes._common.INVALID_MOMENTS`. Default "warn" (until
+        this option the filter used them silently).
 
     Step convention: ``ys[..., 0, :]`` measures ``x_0``, whose prior is the stationary law implied by
     the (known or initially guessed) input moments on the stationary interval ``|x| <= w_b/(1-|h|)``.
@@ -111,7 +120,7 @@ class FirstOrderMomentFilter(MomentFilter):
 
     def __init__(self, model, *args, w_moments=None, adaptive: bool = False,
                  initial_w_moments=None, n0: float = 100.0, window: int = 20, noise_halfwidth: float | None = None,
-                 eps: float = 1e-9, outside: str = "raise"):
+                 eps: float = 1e-9, outside: str = "raise", invalid_moments: str = "warn"):
         model, rest = _raw_model(model, args, 1)
         if model.n != 1:
             raise ValueError(f"model: expected a first-order model (n = 1), got n = {model.n}")
@@ -124,7 +133,8 @@ class FirstOrderMomentFilter(MomentFilter):
         self.model = model
         self.h = h
         configure_input(self, model.w_bound, rest[0], w_moments, adaptive, initial_w_moments, n0, window,
-                        model.noise_halfwidth if noise_halfwidth is None else noise_halfwidth, eps, outside)
+                        model.noise_halfwidth if noise_halfwidth is None else noise_halfwidth, eps, outside,
+                        invalid_moments)
         self.bound = self.wb / (1.0 - abs(self.h))  # stationary reachable set |x| <= w_b/(1-|h|)
         self.S = 1.0 / (1.0 - self.h ** np.arange(1, self.N + 1))  # sum_j h^{ij} = 1/(1 - h^i)
         self.z_bound = self.bound + self.c  # largest possible |z|
@@ -188,24 +198,27 @@ class FirstOrderMomentFilter(MomentFilter):
         m = self.stationary_moments(mw)
         no = np.zeros(B, bool)
         return IntervalBelief(m, np.full(B, -self.bound), np.full(B, self.bound), no, mw,
-                              np.zeros((B, self.N)), np.zeros(B, int), np.zeros_like(m), no.copy())
+                              np.zeros((B, self.N)), np.zeros(B, int), np.zeros_like(m), no.copy(), no.copy(),
+                              no.copy())
 
     def predict(self, belief, k):
         hm = affine_moments(belief.m, self.h, 0.0)
         lp, up = self._predict_interval(belief.lo, belief.hi)
         B = belief.m.shape[0]
-        return belief._replace(m=sum_moments(hm, belief.mw), lo=lp, hi=up, fallback=np.zeros(B, bool),
-                               hm=hm, predicted=np.ones(B, bool))
+        no = np.zeros(B, bool)
+        return belief._replace(m=sum_moments(hm, belief.mw), lo=lp, hi=up, fallback=no, hm=hm,
+                               predicted=np.ones(B, bool), refreshed=no, refresh_failed=no)
 
     def update(self, belief, y, k):
         z, obs = observed(y)
         z = np.where(obs, z, 0.5 * (belief.lo + belief.hi))  # a consistent value on missing paths
         m = belief.m
-        mw, acc, count, redo = self._refresh_input(belief, z, obs)
+        mw, acc, count, redo, refreshed, failed = self._refresh_input(belief, z, obs)
         if redo is not None:
             m = np.where(redo[:, None], sum_moments(belief.hm, mw), m)
         post, lo, hi, fb = self.update_moments(m, belief.lo, belief.hi, z)
-        new = IntervalBelief(post, lo, hi, fb, mw, acc, count, belief.hm, np.zeros_like(belief.predicted))
+        new = IntervalBelief(post, lo, hi, fb, mw, acc, count, belief.hm, np.zeros_like(belief.predicted),
+                             refreshed, failed)
         return keep_missing(obs, new, belief._replace(m=m, mw=mw, acc=acc, count=count))
 
     def summary(self, belief):
@@ -214,7 +227,5 @@ class FirstOrderMomentFilter(MomentFilter):
         return m[:, :1], cov
 
     def extras(self, belief):
-        out = {"fallback": belief.fallback, "lower": belief.lo[:, None], "upper": belief.hi[:, None]}
-        if self.adaptive:
-            out["w_moments"] = belief.mw
-        return out
+        return {"fallback": belief.fallback, "lower": belief.lo[:, None], "upper": belief.hi[:, None],
+                **self._learner_extras(belief)}

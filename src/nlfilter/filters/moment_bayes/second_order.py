@@ -40,8 +40,9 @@ class PolygonBelief(NamedTuple):
     order <= N), the reachable polygon ``verts (B, V, 2)`` (``bounding="polygon"``; a common vertex
     capacity V, padded with repeated vertices) and bounding box ``lo``/``hi (B, 2)``, the
     ``fallback (B,)`` flag, the input moments in use ``mw (B, N)``, the learner's power sums
-    ``acc (B, N)`` and ``count (B,)``, the previous posterior ``prev (B, N+1, N+1)`` and
-    ``predicted (B,)`` (whether ``M`` is its prediction, to redo after a refresh)."""
+    ``acc (B, N)`` and ``count (B,)``, the previous posterior ``prev (B, N+1, N+1)``,
+    ``predicted (B,)`` (whether ``M`` is its prediction, to redo after a refresh) and the flags
+    ``refreshed``/``refresh_failed (B,)`` of this step's refresh (:data:`._common.INVALID_MOMENTS`)."""
 
     M: np.ndarray
     verts: np.ndarray
@@ -53,6 +54,8 @@ class PolygonBelief(NamedTuple):
     count: np.ndarray
     prev: np.ndarray
     predicted: np.ndarray
+    refreshed: np.ndarray
+    refresh_failed: np.ndarray
 
 
 def _merge(paths, new, old):
@@ -124,7 +127,9 @@ class SecondOrderMomentFilter(MomentFilter):
 
     ``run(ys)``, ``ys (..., T, 1)``: ``means (..., T, 2)`` the posterior means, ``covs`` the posterior
     covariances from the second moments (NaN when N = 1: none carried); ``extras``: ``fallback``,
-    ``lower``/``upper (..., T, 2)`` the posterior's bounding box and, adaptive, ``w_moments``.
+    ``lower``/``upper (..., T, 2)`` the posterior's bounding box and, adaptive, ``w_moments`` and
+    the refresh flags ``refreshed``/``refresh_failed (..., T)``. ``invalid_moments`` as in
+    :class:`~nlfilter.filters.moment_bayes.FirstOrderMomentFilter` (default "warn").
     A missing measurement: predict only, nothing learnt.
 
     >>> import numpy as np
@@ -141,7 +146,8 @@ class SecondOrderMomentFilter(MomentFilter):
 
     def __init__(self, model, *args, w_moments=None, adaptive: bool = False,
                  initial_w_moments=None, n0: float = 100.0, window: int = 20, noise_halfwidth: float | None = None,
-                 eps: float = 1e-9, outside: str = "raise", bounding: str = "polygon", directions: int = 16):
+                 eps: float = 1e-9, outside: str = "raise", bounding: str = "polygon", directions: int = 16,
+                 invalid_moments: str = "warn"):
         self.bounding = V.choice("bounding", bounding, {"box", "polygon"})
         model, rest = _raw_model(model, args, 2)
         if model.n != 2:
@@ -155,7 +161,8 @@ class SecondOrderMomentFilter(MomentFilter):
         if self.cv[1] == 0:
             raise ValueError("c: expected c[1] != 0 (swap the states otherwise)")
         configure_input(self, model.w_bound, rest[0], w_moments, adaptive, initial_w_moments, n0, window,
-                        model.noise_halfwidth if noise_halfwidth is None else noise_halfwidth, eps, outside)
+                        model.noise_halfwidth if noise_halfwidth is None else noise_halfwidth, eps, outside,
+                        invalid_moments)
         self._powers = np.arange(1, self.N + 1)
         # stationary bounding box and impulse response g_j = c^T A^j b
         Ab = [self.b]
@@ -367,7 +374,8 @@ class SecondOrderMomentFilter(MomentFilter):
             verts = np.zeros((B, 1, 2))
         no = np.zeros(B, bool)
         return PolygonBelief(M, verts, np.broadcast_to(lo, (B, 2)).copy(), np.broadcast_to(hi, (B, 2)).copy(),
-                             no, mw, np.zeros((B, self.N)), np.zeros(B, int), np.zeros_like(M), no.copy())
+                             no, mw, np.zeros((B, self.N)), np.zeros(B, int), np.zeros_like(M), no.copy(), no.copy(),
+                             no.copy())
 
     def predict(self, belief, k):
         B = belief.M.shape[0]
@@ -377,8 +385,9 @@ class SecondOrderMomentFilter(MomentFilter):
         else:
             M, verts = self.predict_polygon(belief.M, belief.verts, belief.mw)
             lo, hi = belief.lo, belief.hi
-        return belief._replace(M=M, verts=verts, lo=lo, hi=hi, fallback=np.zeros(B, bool), prev=belief.M,
-                               predicted=np.ones(B, bool))
+        no = np.zeros(B, bool)
+        return belief._replace(M=M, verts=verts, lo=lo, hi=hi, fallback=no, prev=belief.M,
+                               predicted=np.ones(B, bool), refreshed=no, refresh_failed=no)
 
     def update(self, belief, y, k):
         z, obs = observed(y)
@@ -387,7 +396,7 @@ class SecondOrderMomentFilter(MomentFilter):
                      else 0.5 * (belief.lo + belief.hi))
             z = np.where(obs, z, inner @ self.cv)
         M = belief.M
-        mw, acc, count, redo = self._refresh_input(belief, z, obs)
+        mw, acc, count, redo, refreshed, failed = self._refresh_input(belief, z, obs)
         if redo is not None:
             M = np.where(redo[:, None, None], linear_map_moments(belief.prev, self.A, self.b, mw, self._C), M)
         if self.bounding == "box":
@@ -395,7 +404,8 @@ class SecondOrderMomentFilter(MomentFilter):
             verts = belief.verts
         else:
             post, verts, lo, hi, fb = self.update_polygon(M, belief.verts, z)
-        new = PolygonBelief(post, verts, lo, hi, fb, mw, acc, count, belief.prev, np.zeros_like(belief.predicted))
+        new = PolygonBelief(post, verts, lo, hi, fb, mw, acc, count, belief.prev, np.zeros_like(belief.predicted),
+                            refreshed, failed)
         return new if obs.all() else _merge(obs, new, belief)
 
     def reset(self, belief, paths, start):
@@ -414,10 +424,7 @@ class SecondOrderMomentFilter(MomentFilter):
         return mean, cov
 
     def extras(self, belief):
-        out = {"fallback": belief.fallback, "lower": belief.lo, "upper": belief.hi}
-        if self.adaptive:
-            out["w_moments"] = belief.mw
-        return out
+        return {"fallback": belief.fallback, "lower": belief.lo, "upper": belief.hi, **self._learner_extras(belief)}
 
 
 def _not_psd(post):

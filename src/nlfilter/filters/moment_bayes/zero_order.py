@@ -31,7 +31,8 @@ from ...moments.densities import (LegendreDensity, difference_moments, is_moment
                                   legendre_antiderivative, legendre_values, pdf_batched_1d, series_times_x,
                                   uniform_moments)
 from ...bounded import ZeroOrderModel
-from ._common import MomentFilter, MomentFilterWarning, check_N, keep_missing, observed
+from ._common import (MomentFilter, MomentFilterWarning, check_invalid_moments, check_N, keep_missing, observed,
+                      warn_refresh_failures)
 
 
 class ZeroOrderBelief(NamedTuple):
@@ -41,7 +42,8 @@ class ZeroOrderBelief(NamedTuple):
     of their polynomial prior (``(B, 0)`` with the known moments) and ``coef_x (B, N+2)`` the series of
     x times it (refreshed with ``coef``; ``(B, 0)`` with the known moments); the learner's power sums
     ``acc (B, N)`` (completed windows) and ``part (B, N)`` (current window), ``count (B,)``
-    samples learnt."""
+    samples learnt; ``refreshed``/``refresh_failed (B,)`` the flags of this step's refresh
+    (:data:`._common.INVALID_MOMENTS`)."""
 
     mean: np.ndarray
     fallback: np.ndarray
@@ -53,6 +55,8 @@ class ZeroOrderBelief(NamedTuple):
     acc: np.ndarray
     part: np.ndarray
     count: np.ndarray
+    refreshed: np.ndarray
+    refresh_failed: np.ndarray
 
 
 def _interval(z, x_min, x_max, c, outside):
@@ -152,8 +156,9 @@ class ZeroOrderMomentFilter(MomentFilter):
     the estimates of x_k, ``covs`` NaN (documented: the estimator carries no posterior second
     moment), ``extras["fallback"]`` (True where eq. 3.16 was used), ``extras["invalid"]`` (True where
     the moments in use failed the moment-sequence test) and, adaptive, ``extras["moments"] (..., T, N)``
-    the moments of x in use at each step. A missing measurement: the estimate is the prior mean
-    of x (the first moment in use), nothing is learnt.
+    the moments of x in use at each step and the refresh flags ``refreshed``/``refresh_failed
+    (..., T)``. A missing measurement: the estimate is the prior mean of x (the first moment in
+    use), nothing is learnt.
 
     Parameters
     ----------
@@ -178,10 +183,13 @@ class ZeroOrderMomentFilter(MomentFilter):
     outside : {"raise", "clip"}
         Impossible measurements (``|z - x| > c`` for every admissible x): raise ``ValueError``
         naming ``ys``, or clip ``z`` to the nearest possible value.
-    invalid_moments : {"warn", "ignore"}
+    invalid_moments : {"warn", "keep", "ignore"}
         When the moments in use are not a moment sequence on the support (too high an N for the
-        data): "warn" issues a :class:`MomentFilterWarning` and uses eq. 3.16 while they are
-        invalid; "ignore" uses the polynomial anyway (000's own algorithm, guarded only by ``eps``).
+        data): "warn" uses eq. 3.16 while they are in use and issues one
+        :class:`MomentFilterWarning` per run; "keep" rejects a refresh that learns such moments
+        (the previous ones stay; impossible known or initial moments: as "warn") and warns;
+        "ignore" uses the polynomial anyway (000's own algorithm, guarded only by ``eps``). The
+        same meaning in every seed-000 filter: :data:`nlfilter.filters.moment_bayes._common.INVALID_MOMENTS`.
     """
 
     name = "zero-order-moment"
@@ -220,7 +228,7 @@ class ZeroOrderMomentFilter(MomentFilter):
         self.window = int(V.positive("window", window, integer=True))
         self.eps = float(V.positive("eps", eps, strict=False))
         self.outside = V.choice("outside", outside, {"raise", "clip"})
-        self.invalid_moments = V.choice("invalid_moments", invalid_moments, {"warn", "ignore"})
+        self.invalid_moments = check_invalid_moments(invalid_moments)
         self._powers = np.arange(1, self.N + 1)
         self._density = None if self.moments is None or self.moments.ndim > 1 else self.density()
         # what a step needs and the data do not change: the scaling t = alpha (x - center) of the
@@ -283,8 +291,9 @@ class ZeroOrderMomentFilter(MomentFilter):
         mean = self._prior_mean(m, B)
         coef = self.density(m).coef.copy() if m.shape[1] else np.zeros((B, 0))
         coef_x = series_times_x(coef, self._alpha, self._center) if m.shape[1] else np.zeros((B, 0))
-        return ZeroOrderBelief(mean, np.zeros(B, bool), ~valid, m, valid, coef, coef_x, zero, zero.copy(),
-                               np.zeros(B, int))
+        no = np.zeros(B, bool)
+        return ZeroOrderBelief(mean, no, ~valid, m, valid, coef, coef_x, zero, zero.copy(), np.zeros(B, int),
+                               no.copy(), no.copy())
 
     def _prior_mean(self, m, B):
         mom = m if m.shape[1] else np.broadcast_to(self.moments, (B, self.N))
@@ -293,7 +302,9 @@ class ZeroOrderMomentFilter(MomentFilter):
     def predict(self, belief, k):
         """x_{k+1} is independent of x_k: the belief is the prior of x (mean: the first moment in use)."""
         B = belief.mean.shape[0]
-        return belief._replace(mean=self._prior_mean(belief.moments, B), fallback=np.zeros(B, bool))
+        no = np.zeros(B, bool)
+        return belief._replace(mean=self._prior_mean(belief.moments, B), fallback=no, refreshed=no,
+                               refresh_failed=no)
 
     def update(self, belief, y, k):
         z, obs = observed(y)
@@ -301,6 +312,7 @@ class ZeroOrderMomentFilter(MomentFilter):
             z = np.where(obs, z, 0.5 * (self.x_min + self.x_max))  # a possible value on missing paths
         m, valid, coef, coef_x = belief.moments, belief.valid, belief.coef, belief.coef_x
         acc, part, count = belief.acc, belief.part, belief.count
+        due = failed = np.zeros(z.shape[0], bool)
         if self.adaptive:  # 000 Fig. 7 steps 4-6: accumulate, refresh if due, then estimate
             part = part + self._learning_data(z)[:, None] ** self._powers
             if not obs.all():
@@ -311,22 +323,28 @@ class ZeroOrderMomentFilter(MomentFilter):
                 acc = np.where(due[:, None], acc + part, acc)
                 part = np.where(due[:, None], 0.0, part)
                 new = self.recover_moments(acc / np.maximum(count, 1)[:, None], count)  # eqs. 2.27, 3.14, 3.15
+                m_prev, valid_prev = m, valid
                 m = np.where(due[:, None], new, m)
                 valid = np.where(due, is_moment_sequence(m, self.x_min, self.x_max), valid)
+                failed = due & ~valid
+                take = due & valid if self.invalid_moments == "keep" else due  # "keep": reject impossible ones
+                if self.invalid_moments == "keep":
+                    m, valid = np.where(take[:, None], m, m_prev), np.where(take, valid, valid_prev)
                 new = self.density(m).coef
-                coef = np.where(due[:, None], new, coef)
-                coef_x = np.where(due[:, None], series_times_x(new, self._alpha, self._center), coef_x)
+                coef = np.where(take[:, None], new, coef)
+                coef_x = np.where(take[:, None], series_times_x(new, self._alpha, self._center), coef_x)
         xh, fb, lu = self._estimate(z, coef, coef_x)
-        if self.invalid_moments == "warn":
+        if self.invalid_moments != "ignore":
             l, u = lu
             xh = np.where(valid, xh, 0.5 * (l + u))
             fb = fb | ~valid
-        new = ZeroOrderBelief(xh[:, None], fb, ~valid, m, valid, coef, coef_x, acc, part, count)
+        new = ZeroOrderBelief(xh[:, None], fb, ~valid, m, valid, coef, coef_x, acc, part, count, due, failed)
         return keep_missing(obs, new, belief)
 
     def _estimate(self, z, coef, coef_x):
-        """``(x_hat, fallback, (l, u))`` of one step (a subclass may give None for ``(l, u)`` when it never
-        warns): the series precomputed with the known moments, else the belief's ``coef``, ``coef_x``."""
+        """``(x_hat, fallback, (l, u))`` of one step (a subclass may give None for ``(l, u)`` with
+        ``invalid_moments="ignore"``): the series precomputed with the known moments, else the
+        belief's ``coef``, ``coef_x``."""
         l, u = _interval(z, self.x_min, self.x_max, self.c, self.outside)
         known = not coef.shape[1]
         xh, fb, l, u = _estimate_on(l, u, self._s0 if known else coef, self._s1 if known else coef_x,
@@ -339,11 +357,17 @@ class ZeroOrderMomentFilter(MomentFilter):
     def extras(self, belief):
         out = {"fallback": belief.fallback, "invalid": belief.invalid}
         if self.adaptive:
-            out["moments"] = belief.moments
+            out.update(moments=belief.moments, refreshed=belief.refreshed, refresh_failed=belief.refresh_failed)
         return out
 
     def output(self, est):
-        if self.invalid_moments == "warn" and "invalid" in est.extras and est.extras["invalid"].any():
+        if self.invalid_moments == "ignore":
+            return est
+        if self.adaptive and "refresh_failed" in est.extras and est.extras["refresh_failed"].any():
+            used = ("eq. 3.16 used while they were in use" if self.invalid_moments == "warn"
+                    else "the moments in use before kept")
+            warn_refresh_failures(self, est, "x", (self.x_min, self.x_max), used)
+        elif "invalid" in est.extras and est.extras["invalid"].any():
             n = int(np.sum(est.extras["invalid"]))
             warnings.warn(f"moments: {n} estimate(s) used moments that no law on [{self.x_min}, {self.x_max}] "
                           f"has (N = {self.N} too high for the data); eq. 3.16 used there",
@@ -362,7 +386,9 @@ class ScaledNoiseZeroOrderFilter(ZeroOrderMomentFilter):
     (Gauss–Legendre with ``nodes`` points: the integrand is smooth on (l, u)). Fallback: eq. 3.16.
     Impossible measurements are clipped to the possible range ``[min (x − (1 + beta x) c), max (x + (1 +
     beta x) c)]`` over the support (an outlier's estimate is then a bound of the support, and the
-    learner's sample moments cannot overflow); ``extras["invalid"]`` is always False (no moment test).
+    learner's sample moments cannot overflow). ``invalid_moments`` as in :class:`ZeroOrderMomentFilter`
+    (default "warn"; until this option the filter used impossible moments silently and reported
+    ``extras["invalid"]`` as always False).
 
     Adaptive moments: ``E[z^i] = sum_j C(i,j) E[x^{i-j} (1 + beta x)^j] m_v^(j)`` is triangular in
     the moments of x (the analogue of eq. 3.13) and is solved sequentially (analogue of eq. 3.14).
@@ -374,7 +400,8 @@ class ScaledNoiseZeroOrderFilter(ZeroOrderMomentFilter):
 
     def __init__(self, model, beta: float | None = None, *, N: int | None = None, support=None,
                  noise_halfwidth: float | None = None, moments=None, adaptive: bool = False,
-                 initial_moments=None, n0: float = 100.0, window: int = 20, eps: float = 1e-6, nodes: int = 48):
+                 initial_moments=None, n0: float = 100.0, window: int = 20, eps: float = 1e-6, nodes: int = 48,
+                 invalid_moments: str = "warn"):
         if isinstance(model, ZeroOrderModel):  # (model, N): beta is the model's
             if beta is not None and N is not None:
                 raise TypeError(f"beta: the model gives beta = {model.beta}; expected (model, N), got beta={beta!r}")
@@ -386,7 +413,7 @@ class ScaledNoiseZeroOrderFilter(ZeroOrderMomentFilter):
         super().__init__(model, N if isinstance(model, ZeroOrderModel) else None, support=support,
                          noise_halfwidth=noise_halfwidth, moments=moments,
                          adaptive=adaptive, initial_moments=initial_moments, n0=n0,
-                         window=window, eps=eps, outside="clip", invalid_moments="ignore")
+                         window=window, eps=eps, outside="clip", invalid_moments=invalid_moments)
         self.beta = float(beta)
         if not np.all(1 + self.beta * np.array([self.x_min, self.x_max]) > 0):
             raise ValueError(f"beta: expected 1 + beta x > 0 on the support {support}, got beta = {beta!r}")
@@ -429,9 +456,10 @@ class ScaledNoiseZeroOrderFilter(ZeroOrderMomentFilter):
         return self._estimate_sn(z, moments)
 
     def _estimate(self, z, coef, coef_x):
+        lu = self.interval(z) if self.invalid_moments != "ignore" else None
         if not coef.shape[1]:
-            return (*self.estimate(z), None)
-        return (*self._estimate_sn(z, density=LegendreDensity(coef, self.x_min, self.x_max)), None)
+            return (*self.estimate(z), lu)
+        return (*self._estimate_sn(z, density=LegendreDensity(coef, self.x_min, self.x_max)), lu)
 
     def _estimate_sn(self, z, moments=None, density=None):
         d = density if density is not None else (
@@ -456,5 +484,3 @@ class ScaledNoiseZeroOrderFilter(ZeroOrderMomentFilter):
     def _learning_data(self, z):
         return np.clip(z, *self._z_range)  # 000's flow chart: the measurements (every possible one as it is)
 
-    def extras(self, belief):
-        return {**super().extras(belief), "invalid": np.zeros_like(belief.invalid)}
