@@ -145,3 +145,12 @@ def test_certificate_is_in_params_and_json_ready():
     cert = json.loads(json.dumps(res.to_dict()))["params"]["reference"]
     assert {"kind", "certified", "label", "size", "error", "bound", "rungs", "seconds", "reason"} <= set(cert)
     assert cert["rungs"][-1]["verdict"] == "certified" and len(cert["error"]) == 1
+
+
+def test_compare_result_round_trips_through_json(tmp_path):
+    from nlfilter.results import Result
+    LIN = DiscreteModel([x], f=[0.9 * x], h=[x], Q=0.1, R=0.5)
+    res = compare(LIN, {"kf": KalmanFilter(LIN)}, 20, paths=8, m0=0.0, P0=0.5, rng=0)
+    res.to_json(tmp_path / "c.json")
+    back = Result.from_json(tmp_path / "c.json")
+    assert back == res and back.params["reference"] == res.params["reference"]
