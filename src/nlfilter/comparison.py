@@ -188,7 +188,8 @@ def compare(model, filters, steps, *, paths=200, m0, P0, rng=0, reference="auto"
     dt, substeps : SDE models only: measurement step (required) and Euler–Maruyama substeps of
         the simulation (and of an automatic particle reference)
     start : discrete models: step convention (see :mod:`nlfilter.filters.base`)
-    progress : show a progress bar over the filters
+    progress : show a progress bar over the filters, and over the steps of each reference run (the
+        certification can take longer than the filters)
     on_divergence : passed to every ``run``; ``"mark"`` leaves diverged paths out of the
         statistics and reports their share as ``divergence_rate``
 
@@ -262,10 +263,12 @@ def compare(model, filters, steps, *, paths=200, m0, P0, rng=0, reference="auto"
     if kind == "sde":
         params.update(dt=dt, substeps=substeps)
 
-    def run(name, flt, ys, key=None):
-        """One filter's estimates on ``ys`` (its own random stream keyed by ``key or name``); a
-        numerical failure names the filter."""
+    def run(name, flt, ys, key=None, bar=False):
+        """One filter's estimates on ``ys`` (its own random stream keyed by ``key or name``; a
+        progress bar over its steps with ``bar``); a numerical failure names the filter."""
         kw = {"rng": _run_rng(root, key or name)} if getattr(flt, "random", False) else {}
+        if bar:
+            kw["progress"] = True
         try:
             if getattr(flt, "own_prior", False):  # it starts from a prior of its own
                 return flt.run(ys, on_divergence=on_divergence, **kw)
@@ -293,13 +296,15 @@ def compare(model, filters, steps, *, paths=200, m0, P0, rng=0, reference="auto"
 
     cert = None
     if reference is not None:
-        ref_run = lambda flt, ys, tag: run(OPTIMAL, flt, ys, key=OPTIMAL if tag.startswith("reference") else tag)  # noqa: E731
+        def ref_run(flt, ys, tag):  # the reference's rungs: the main ones share the stream key "optimal"
+            return run(OPTIMAL, flt, ys, key=OPTIMAL if tag.startswith("reference") else tag, bar=progress)
+
         if reference == "auto":
             ref_est, cert = certified_reference(model, sim, m0v, P0m, run=ref_run, judged=est, dt=dt, start=start,
                                                 substeps=substeps, window=window, rtol=rtol,
                                                 certify_paths=certify_paths, max_particles=max_particles)
         else:
-            ref_est = run(OPTIMAL, reference, sim.ys)
+            ref_est = run(OPTIMAL, reference, sim.ys, bar=progress)
             cert = check_given_reference(reference, ref_est, model, sim, run=ref_run, judged=est, window=window, rtol=rtol,
                                          certify_paths=certify_paths)
         params["reference"] = cert.to_dict()
@@ -319,7 +324,7 @@ def compare(model, filters, steps, *, paths=200, m0, P0, rng=0, reference="auto"
                  "nlfilter.compare: Monte Carlo on common random numbers", params)
     res.meta = provenance("compare", seed=seed, runs=paths, paths=paths)
     comps = _component_names(model)
-    every = dict(filters, **({ref_name: None} if cert is not None else {}))
+    every = dict(filters, **({ref_name: None if isinstance(reference, str) else reference} if cert is not None else {}))
     for name, e in est.items():
         if not np.any(~np.asarray(e.diverged, bool)):
             res.add(name, "divergence_rate", 1.0)
