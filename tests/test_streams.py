@@ -98,7 +98,7 @@ def test_simulators_rows_of_a_range_equal_the_full_run(name):
         else tuple(a[3:7] for a in full)
     _same(rows, part)
     _same(full, again)
-    assert any(not np.array_equal(a[3], a[4]) for a in rows)  # paths differ
+    assert any(not np.array_equal(a[0], a[1]) for a in rows if np.ndim(a) > 1)  # paths differ
 
 
 @pytest.mark.parametrize("name", ["sde", "phase", "ou"])
