@@ -42,6 +42,7 @@ from nlfilter.moments.closures import EdgeworthClosure
 from nlfilter.moments.densities import uniform_moments
 from nlfilter.problems import euler_discretization
 from nlfilter.simulate import simulate, simulate_phase
+from nlfilter.streams import FILTER, PathRNG
 
 x, x1, x2 = sp.symbols("x x1 x2")
 DT = 0.05
@@ -377,15 +378,46 @@ def test_a_path_does_not_depend_on_the_others(case):
     close(_take(full, perm), outputs(case.run(d[perm])))
 
 
-@pytest.mark.parametrize("case", [c for c in CASES if c.random], ids=[c.name for c in CASES if c.random])
+RANDOM = [c for c in CASES if c.random]
+
+
+@pytest.mark.parametrize("case", RANDOM, ids=[c.name for c in RANDOM])
 def test_random_filter_is_reproducible_from_its_seed(case):
     d = case.data((3,), T, 2)
     a, b = outputs(case.run(d, rng=11)), outputs(case.run(d, rng=11))
     close(a, b, tol=0)
-    gen = outputs(case.run(d, rng=np.random.default_rng(11)))
-    close(a, gen, tol=0)
+    close(a, outputs(case.run(d, rng=np.random.SeedSequence(11))), tol=0)  # a seed is its SeedSequence
+    close(a, outputs(case.run(d, rng=PathRNG(11, 3, key=FILTER))), tol=0)  # ... and its per-path streams
+    gen = np.random.default_rng(11)  # a Generator: each run spawns a new root from it
+    g1, g2 = outputs(case.run(d, rng=gen)), outputs(case.run(d, rng=gen))
+    close(g1, outputs(case.run(d, rng=np.random.default_rng(11))), tol=0)
+    assert np.max(np.abs(g1["means"] - g2["means"])) > 1e-6
     c = outputs(case.run(d, rng=12))
     assert np.max(np.abs(c["means"] - a["means"])) > 1e-6  # the seed matters
+
+
+@pytest.mark.parametrize("case", RANDOM, ids=[c.name for c in RANDOM])
+def test_random_filter_on_some_paths_gives_those_rows(case):
+    """Per-path streams (nlfilter.streams): the run on paths 1..3 with their streams equals rows
+    1..3 of the run on all five paths, bitwise."""
+    d = case.data((5,), T, 2)
+    full = outputs(case.run(d, rng=11))
+    part = outputs(case.run(d[1:4], rng=PathRNG(11, range(1, 4), key=FILTER)))
+    close(_take(full, slice(1, 4)), part, tol=0)
+
+
+@pytest.mark.parametrize("case", CASES, ids=IDS)
+def test_chunks_give_the_numbers_of_one_batch(case):
+    """``run(..., chunk=2)`` runs the paths two by two: the same numbers (batch (5,) and (2, 3)):
+    bitwise for the random filters (per-path streams); within 1e-12 for the deterministic ones,
+    as a path alone (the test above: vectorized arithmetic over a batch may round differently in
+    the last bit with the batch size)."""
+    for batch in ((5,), (2, 3)):
+        d = case.data(batch, T, 3)
+        one = outputs(case.run(d, rng=4))
+        chunked = outputs(case.run(d, rng=4, chunk=2))
+        assert {k: v.shape for k, v in chunked.items()} == {k: v.shape for k, v in one.items()}
+        close(one, chunked, tol=0 if case.random else 1e-12)
 
 
 # -- 3. bad input: errors name the argument ------------------------------------------------------------
