@@ -25,6 +25,7 @@ import scipy.stats as st
 from tqdm import tqdm
 
 from . import experiment
+from .. import evaluate as ev
 from ..filters.kalman import KalmanFilter
 from ..bounded import BoundedNoiseModel
 from ..filters.moment_bayes import FirstOrderMomentFilter
@@ -113,23 +114,23 @@ def run_first_order(params, *, quick, runs, seed, progress):
     res = Result("moment-first-order", "First-order system x+ = h x + w, z = x + v",
                  "seed 000, eqs. 2.4-2.5", params)
     laws = list(params["laws"])
-    for law_name, child in zip(laws, np.random.SeedSequence(seed).spawn(len(laws))):
+    c = ev.chunk()
+    for i, law_name in enumerate(laws):
         law = input_law(law_name, wb)
-        rng = np.random.default_rng(child)
         truth = BoundedNoiseModel.first_order(h, wb, w_law=law)
-        xs, zs = truth.simulate(T, R, rng, burn=BURN)  # stationary: 300 steps of burn-in from 0
+        xs, zs = ev.in_chunks(lambda rows: truth.simulate(T, rows, ev.stream(seed, i), burn=BURN), R)  # stationary: 300 steps of burn-in from 0
         xs, zs = xs[..., 0], zs[..., 0]
         grid = BoundedGridFilter1D(truth, G=G)
-        est = {"optimal": grid.run(zs[..., None]).means[..., 0],
+        est = {"optimal": grid.run(zs[..., None], chunk=c).means[..., 0],
                "kalman": kalman_first_order(zs, h, law)}
         fb = {}
         model = BoundedNoiseModel.first_order(h, wb)
         for N in tqdm(Ns, disable=not progress, desc=law_name):
-            r = FirstOrderMomentFilter(model, N, w_moments=raw_moments(law, N)).run(zs[..., None])
+            r = FirstOrderMomentFilter(model, N, w_moments=raw_moments(law, N)).run(zs[..., None], chunk=c)
             est[f"moment{N}"] = r.means[..., 0]
             fb[f"moment{N}"] = r.extras["fallback"].mean()
             r = FirstOrderMomentFilter(model, N, adaptive=True, n0=params["n0"],
-                                       window=params["window"]).run(zs[..., None])
+                                       window=params["window"]).run(zs[..., None], chunk=c)
             est[f"adaptive{N}"] = r.means[..., 0]
             fb[f"adaptive{N}"] = r.extras["fallback"].mean()
         per_path = _mse_rows(res, {k: v - xs for k, v in est.items()}, skip, law_name)
@@ -188,11 +189,12 @@ def run_second_order(params, *, quick, runs, seed, progress):
     res = Result("moment-second-order", "Second-order system x+ = A x + b w, z = c.x + v",
                  "seed 000, eqs. 2.6-2.8", params)
     laws = list(params["laws"])
-    for law_name, child in zip(laws, np.random.SeedSequence(seed).spawn(len(laws))):
+    ck = ev.chunk()
+    for i, law_name in enumerate(laws):
         law = input_law(law_name, wb)
-        rng = np.random.default_rng(child)
+        rng = ev.stream(seed, i)  # simulation: the paths' streams; the particle filter: their FILTER sub-streams
         truth = BoundedNoiseModel(A, b, c, wb, w_law=law)
-        xs, zs = truth.simulate(T, R, rng, burn=BURN)  # stationary: 300 steps of burn-in from 0
+        xs, zs = ev.in_chunks(lambda rows: truth.simulate(T, rows, rng, burn=BURN), R)  # stationary: 300 steps of burn-in from 0
         zs = zs[..., 0]
 
         def x0_sampler(r, shape, law=law):
@@ -202,15 +204,15 @@ def run_second_order(params, *, quick, runs, seed, progress):
             return x
 
         est = {"optimal": BoundedParticleFilter(truth, particles=P).run(
-                   zs[..., None], initial=x0_sampler, rng=rng).means,
+                   zs[..., None], initial=x0_sampler, rng=rng, chunk=ck).means,
                "kalman": kalman_second_order(zs, A, b, c, law)}
         fb = {}
         model = BoundedNoiseModel(A, b, c, wb)
         for N in tqdm(Ns, disable=not progress, desc=law_name):
-            r = SecondOrderMomentFilter(model, N, w_moments=raw_moments(law, N), **bkw).run(zs[..., None])
+            r = SecondOrderMomentFilter(model, N, w_moments=raw_moments(law, N), **bkw).run(zs[..., None], chunk=ck)
             est[f"moment{N}"], fb[f"moment{N}"] = r.means, r.extras["fallback"].mean()
             r = SecondOrderMomentFilter(model, N, adaptive=True, n0=params["n0"],
-                                        window=params["window"], **bkw).run(zs[..., None])
+                                        window=params["window"], **bkw).run(zs[..., None], chunk=ck)
             est[f"adaptive{N}"], fb[f"adaptive{N}"] = r.means, r.extras["fallback"].mean()
         errs = {k: np.sqrt(np.sum((v - xs) ** 2, axis=-1)) for k, v in est.items()}  # |x - x_hat|
         per_path = _mse_rows(res, errs, skip, law_name)
