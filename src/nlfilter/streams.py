@@ -24,6 +24,15 @@ another process or machine, and give the rows ``100..199`` of the run on all pat
     draws from ``child(root(seed), p, FILTER)``), so a filter run with the simulation's seed
     does not reuse the simulation's noise.
 
+  - other ints — free for a run's further streams, e.g. one key per random filter in a
+    comparison: ``flt.run(ys, ..., rng=PathRNG(seed, rows, key=k))`` with ``k`` distinct per filter,
+    while the simulation is ``simulate(model, steps, paths=rows, rng=seed)`` (the same streams
+    as ``simulate(rng=seed)``).
+
+  A root serves either paths (``child(root, p)``) or cases (``child(root, k)``, each the root of its
+  own paths, as :func:`nlfilter.evaluate.stream` for an experiment's cases), never both: case
+  ``k``'s path ``p`` is ``(k, p)``, which is path ``k``'s sub-stream ``p``.
+
 * :class:`PathRNG` — the bundle of the generators of some paths: ``standard_normal``,
   ``random``, ``uniform``, ``normal`` draw ``(B, *shape)`` arrays path by path (row ``i`` from
   path ``paths[i]``'s generator, in the order of the calls), ``draw(fn, shape)`` for anything
