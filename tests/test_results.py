@@ -21,6 +21,10 @@ HORIZON = {"cubic-sensor": "steps", "cubic-sensor-closures": "steps", "linear-ga
            "moment-first-order": "T", "moment-second-order": "T", "oh-shin": "steps",
            "phase-tracking": "steps", "second-order": "problem_steps", "zero-order": None,
            "zero-order-adaptive": "n_max", "zero-order-robustness": "n"}
+# and the one that holds the simulated paths: "paths", but zero-order's Table 1 check draws its
+# "paths" i.i.d. samples as sample_paths paths of samples_per_path samples (per-path streams)
+PATHS = {"zero-order": "sample_paths"}
+HORIZON["zero-order"] = "samples_per_path"
 
 
 def _recording(func, calls):
@@ -29,7 +33,8 @@ def _recording(func, calls):
     def wrapper(*args, **kwargs):
         b = sig.bind(*args, **kwargs)
         b.apply_defaults()
-        calls.append((int(b.arguments["steps"]), int(b.arguments["paths"])))
+        paths = b.arguments["paths"]  # an int, or the range of path indices of one chunk
+        calls.append((int(b.arguments["steps"]), len(paths) if isinstance(paths, range) else int(paths)))
         return func(*args, **kwargs)
     return wrapper
 
@@ -85,7 +90,7 @@ def test_params_are_the_shapes_simulated(quick_runs):
     """Recorded paths and horizon = the (steps, paths) every simulator call of the quick run got."""
     for eid, (res, calls) in quick_runs.items():
         assert calls, eid
-        assert {p for _, p in calls} == _values(res.params["paths"]), eid
+        assert {p for _, p in calls} == _values(res.params[PATHS.get(eid, "paths")]), eid
         key = HORIZON[eid]
         assert {s for s, _ in calls} == (_values(res.params[key]) if key else {1}), eid
 

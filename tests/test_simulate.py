@@ -120,23 +120,24 @@ def test_zero_order_model_draws_laws_and_arguments():
     from nlfilter.bounded import ZeroOrderModel
     from nlfilter.moments.densities import power_density_moments
     J = 4
-    xs, zs = ZeroOrderModel(J).simulate(7, 3, np.random.default_rng(5))
-    rng = np.random.default_rng(5)
-    u, s = rng.random((3, 7)), rng.random((3, 7)) < 0.5
-    x = np.where(s, -1.0, 1.0) * u ** (1.0 / (J + 1))
-    np.testing.assert_array_equal(xs[..., 0], x)
-    np.testing.assert_array_equal(zs[..., 0], x + rng.uniform(-1.0, 1.0, (3, 7)))
+    xs, zs = ZeroOrderModel(J).simulate(7, 3, 5)
+    for p in range(3):  # path p from its own stream SeedSequence(5).spawn(3)[p]
+        rng = np.random.default_rng(np.random.SeedSequence(5).spawn(3)[p])
+        u, s = rng.random(7), rng.random(7) < 0.5
+        x = np.where(s, -1.0, 1.0) * u ** (1.0 / (J + 1))
+        np.testing.assert_array_equal(xs[p, :, 0], x)
+        np.testing.assert_array_equal(zs[p, :, 0], x + rng.uniform(-1.0, 1.0, 7))
     # the laws: moments of x (eq. 3.22) within 5 standard errors; scaled noise z = x + (1 + beta x) v
-    xs, zs, v = ZeroOrderModel(J, beta=0.5).simulate(1, 200_000, 1, noise=True)
-    x = xs[:, 0, 0]
+    xs, zs, v = ZeroOrderModel(J, beta=0.5).simulate(200_000, 1, 1, noise=True)  # i.i.d. along a path
+    x = xs[0, :, 0]
     for i, m in enumerate(power_density_moments(4, J), start=1):
         assert abs(np.mean(x ** i) - m) < 5 * np.std(x ** i) / np.sqrt(x.size)
-    np.testing.assert_array_equal(zs[:, 0, 0], x + (1 + 0.5 * x) * v[:, 0])
+    np.testing.assert_array_equal(zs[0, :, 0], x + (1 + 0.5 * x) * v[0])
     assert np.all(np.abs(v) <= 1)
     # Gaussian copula: each keeps its law, corr(x, v) > 0 for r > 0
-    xs, zs, v = ZeroOrderModel(10, copula_r=0.6).simulate(1, 100_000, 2, noise=True)
+    xs, zs, v = ZeroOrderModel(10, copula_r=0.6).simulate(100_000, 1, 2, noise=True)
     assert abs(np.mean(v) - 0.0) < 0.01 and abs(np.mean(v ** 2) - 1 / 3) < 0.01
-    assert abs(np.mean(xs ** 2) - 11 / 13) < 0.01 and np.corrcoef(xs[:, 0, 0], v[:, 0])[0, 1] > 0.4
+    assert abs(np.mean(xs ** 2) - 11 / 13) < 0.01 and np.corrcoef(xs[0, :, 0], v[0])[0, 1] > 0.4
     for kw, name in (({"J": 3}, "J"), ({"J": 2, "beta": 1.0}, "beta"), ({"J": 2, "copula_r": 1.0}, "copula_r"),
                      ({"J": 2, "noise_halfwidth": 0.0}, "noise_halfwidth")):
         with pytest.raises(ValueError, match=name):

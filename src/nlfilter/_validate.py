@@ -84,13 +84,3 @@ def choice(name: str, value, options):
     if value not in options:
         raise ValueError(f"{name}: expected one of {sorted(options)!r}, got {value!r}")
     return value
-
-
-def rng(value) -> np.random.Generator:
-    """A ``numpy.random.Generator`` from a Generator, a seed, or a SeedSequence."""
-    if isinstance(value, np.random.Generator):
-        return value
-    if value is None or isinstance(value, (numbers.Integral, np.random.SeedSequence)):
-        return np.random.default_rng(value)
-    raise TypeError(f"rng: expected a numpy.random.Generator, an integer seed or a SeedSequence, "
-                    f"got {type(value).__name__}")

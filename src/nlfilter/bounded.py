@@ -15,6 +15,7 @@ from __future__ import annotations
 import numpy as np
 
 from . import _validate as V
+from .streams import PathRNG
 
 
 class BoundedNoiseModel:
@@ -50,25 +51,29 @@ class BoundedNoiseModel:
             raise ValueError(f"model: h is the coefficient of a first-order model, this one has n = {self.n}")
         return float(self.A[0, 0])
 
-    def simulate(self, steps: int, paths: int, rng, x0=None, *, burn: int = 0):
-        """``(xs (paths, steps, n), ys (paths, steps, 1))``: ``w`` drawn from ``w_law`` (needed),
-        ``v`` uniform; the state starts at ``x0 (paths, n)`` (default 0) and runs ``burn`` steps
-        before the first recorded one (a burn-in from 0 to the stationary law; the experiments use
-        300). Draws: all inputs ``w (paths, burn + steps)`` at once, then all measurement noises."""
+    def simulate(self, steps: int, paths, rng, x0=None, *, burn: int = 0):
+        """``(xs (P, steps, n), ys (P, steps, 1))``: ``w`` drawn from ``w_law`` (needed), ``v``
+        uniform; the state starts at ``x0 (P, n)`` (default 0) and runs ``burn`` steps before the
+        first recorded one (a burn-in from 0 to the stationary law; the experiments use 300).
+        ``paths`` an int or a ``range`` of path indices, ``rng`` the root of the per-path streams
+        (:func:`nlfilter.simulate.simulate`). Draws of a path: its inputs ``w`` (``burn + steps``),
+        then its measurement noises (``steps``)."""
         if self.w_law is None:
             raise ValueError("w_law: simulating needs the input law, got None")
         V.positive("steps", steps, integer=True)
-        V.positive("paths", paths, integer=True)
         V.positive("burn", burn, integer=True, strict=False)
-        rng = np.random.default_rng(rng)
-        w = self.w_law.rvs(size=(paths, burn + steps), random_state=rng)
+        rng = PathRNG.of(rng, paths)
+        paths = len(rng)
+        c = self.noise_halfwidth
+        w, v = rng.draw(lambda g, s: (self.w_law.rvs(size=(burn + steps,), random_state=g),
+                                      g.uniform(-c, c, (steps,))))
         x = np.zeros((paths, self.n)) if x0 is None else np.broadcast_to(x0, (paths, self.n)).astype(float)
         xs = np.empty((paths, burn + steps, self.n))
         for k in range(burn + steps):
             xs[:, k] = x
             x = x @ self.A.T + w[:, k, None] * self.b
         xs = xs[:, burn:]
-        ys = xs @ self.c + rng.uniform(-self.noise_halfwidth, self.noise_halfwidth, (paths, steps))
+        ys = xs @ self.c + v
         return xs, ys[..., None]
 
 
@@ -106,14 +111,17 @@ class ZeroOrderModel:
         self.copula_r = None if copula_r is None else float(copula_r)
 
     def sample_x(self, rng, shape):
-        """Samples of ``(J+1)/2 x^J`` on (−1, 1): ``|x| = U^{1/(J+1)}``, random sign (draws: U, then the signs)."""
+        """Samples of ``(J+1)/2 x^J`` on (−1, 1): ``|x| = U^{1/(J+1)}``, random sign (draws: U, then
+        the signs). ``rng`` a Generator (``shape`` the whole shape) or a
+        :class:`~nlfilter.streams.PathRNG` (``(B, *shape)``: ``shape`` per path, drawn path by path)."""
         u = rng.random(shape)
         s = rng.random(shape) < 0.5
         return np.where(s, -1.0, 1.0) * u ** (1.0 / (self.J + 1))
 
     def sample_pair(self, rng, shape):
         """``(x, v)`` of the given shape: independent (draws: x as :meth:`sample_x`, then v), or
-        through the Gaussian copula (draws: g1, then the independent normal part of g2)."""
+        through the Gaussian copula (draws: g1, then the independent normal part of g2); ``rng`` as
+        in :meth:`sample_x`."""
         c = self.noise_halfwidth
         if self.copula_r is None:
             x = self.sample_x(rng, shape)
@@ -133,11 +141,10 @@ class ZeroOrderModel:
 
     def simulate(self, steps: int, paths: int, rng, *, noise: bool = False):
         """``(xs (paths, steps, 1), zs (paths, steps, 1))``, and the noises ``vs (paths, steps)``
-        with ``noise=True``; draws as :meth:`sample_pair` on ``(paths, steps)`` (one sample per
-        path with ``steps = 1``: an i.i.d. Monte Carlo)."""
+        with ``noise=True``; ``paths`` an int or a ``range`` of path indices, ``rng`` the root of the
+        per-path streams (:func:`nlfilter.simulate.simulate`); each path draws as :meth:`sample_pair`
+        on ``(steps,)`` (one sample per path with ``steps = 1``: an i.i.d. Monte Carlo)."""
         V.positive("steps", steps, integer=True)
-        V.positive("paths", paths, integer=True)
-        rng = np.random.default_rng(rng)
-        x, v = self.sample_pair(rng, (paths, steps))
+        x, v = PathRNG.of(rng, paths).draw(self.sample_pair, (steps,))
         out = (x[..., None], self.measure(x, v)[..., None])
         return (*out, v) if noise else out

@@ -34,6 +34,8 @@ def _parser() -> argparse.ArgumentParser:
                    help="override an experiment parameter (repeatable)")
     r.add_argument("--runs", type=int, default=None, help="number of Monte Carlo paths")
     r.add_argument("--seed", type=int, default=0, help="seed of the random streams (default 0)")
+    r.add_argument("--chunk", type=int, default=None,
+                   help="simulate and filter N Monte Carlo paths at a time (same numbers for any N)")
     r.add_argument("--json", metavar="PATH", help="write the result table as JSON")
     r.add_argument("--plot", metavar="PATH", help="write the figure as PNG")
     r.add_argument("--no-progress", action="store_true", help="hide progress bars")
@@ -87,12 +89,14 @@ def _main(argv) -> int:
         params = {k: exp.convert(k, v) for k, v in _parse_params(args.param).items()}
         if args.runs is not None and args.runs < 1:
             raise ValueError(f"--runs: expected a positive integer, got {args.runs}")
+        if args.chunk is not None and args.chunk < 1:
+            raise ValueError(f"--chunk: expected a positive integer, got {args.chunk}")
     except ValueError as exc:
         print(f"nlfilter: error: {exc}", file=sys.stderr)
         return 2
     try:
         result = exp.run(params, quick=args.quick, runs=args.runs, seed=args.seed,
-                         progress=not args.no_progress)
+                         progress=not args.no_progress, chunk=args.chunk)
     except ValueError as exc:  # a parameter value the experiment itself rejects
         print(f"nlfilter: error: {exc}", file=sys.stderr)
         return 2

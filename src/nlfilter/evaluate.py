@@ -9,11 +9,14 @@ are left out and counted.
 
 from __future__ import annotations
 
+import contextlib
+import contextvars
 from typing import NamedTuple
 
 import numpy as np
 
 from . import _validate as V
+from . import streams
 
 
 class Summary(NamedTuple):
@@ -135,8 +138,59 @@ def paired_difference(est_a, est_b, xs, *, component: int = 0, window=None) -> S
     return _summary(np.reshape(np.mean(d[..., w], axis=-1), -1), np.reshape(ok_a & ok_b, -1))
 
 
-def stream(seed: int, k: int) -> np.random.Generator:
-    """The ``k``-th independent generator of ``seed`` (``SeedSequence(seed).spawn``): one per
-    experiment case, so cases do not depend on each other's sizes."""
+def stream(seed: int, k: int) -> np.random.SeedSequence:
+    """The root of case ``k`` of ``seed``: ``SeedSequence(seed).spawn(k + 1)[k]``, computed without
+    state (:func:`nlfilter.streams.child`); one per experiment case, so cases do not depend on each
+    other's sizes. Path ``p`` of the case is then simulated from ``stream(seed, k).spawn(...)[p]``
+    and a random filter on it draws from that path's sub-stream ``streams.FILTER``
+    (:mod:`nlfilter.streams`): the rows depend on the seed and the path index only."""
     V.positive("k", k + 1, integer=True)
-    return np.random.default_rng(np.random.SeedSequence(seed).spawn(k + 1)[k])
+    return streams.child(streams.root(seed), k)
+
+
+_CHUNK: contextvars.ContextVar = contextvars.ContextVar("chunk", default=None)
+
+
+def chunk() -> int | None:
+    """Paths per batch of the running experiment (``Experiment.run(chunk=)``, CLI ``--chunk``), or
+    None (all at once): what the experiments pass to :func:`in_chunks` and ``Filter.run(chunk=)``.
+    An execution option: it never changes a number."""
+    return _CHUNK.get()
+
+
+@contextlib.contextmanager
+def chunked(n: int | None):
+    """Run the block with :func:`chunk` ``= n`` (None: all paths at once)."""
+    if n is not None:
+        V.positive("chunk", n, integer=True)
+    token = _CHUNK.set(n)
+    try:
+        yield
+    finally:
+        _CHUNK.reset(token)
+
+
+def _concat(parts):
+    first = parts[0]
+    if isinstance(first, np.ndarray):
+        return np.concatenate(parts)
+    if hasattr(first, "_fields") and type(first).__name__ == "Estimates":
+        return type(first).concatenate(parts)
+    if hasattr(first, "_fields") and hasattr(first, "t"):  # a Simulation: one time grid
+        return first._replace(**{f: np.concatenate([getattr(p, f) for p in parts]) for f in first._fields if f != "t"})
+    if isinstance(first, dict):
+        return {k: _concat([p[k] for p in parts]) for k in first}
+    if isinstance(first, tuple):
+        return tuple(_concat(list(c)) for c in zip(*parts))
+    raise TypeError(f"fn: expected arrays, Simulations, Estimates or tuples/dicts of them, got {type(first).__name__}")
+
+
+def in_chunks(fn, paths: int, size: int | None = None):
+    """``fn(rows)`` for the path ranges ``rows = range(a, b)`` of ``paths`` paths in chunks of
+    ``size`` (default :func:`chunk`; None: one range), concatenated along the paths axis (arrays,
+    :class:`~nlfilter.simulate.Simulation`, Estimates, and tuples or dicts of them). With per-path
+    streams (``simulate(paths=rows, rng=root)``) the result does not depend on ``size``."""
+    V.positive("paths", paths, integer=True)
+    size = chunk() if size is None else V.positive("size", size, integer=True)
+    size = paths if size is None else size
+    return _concat([fn(range(a, min(a + size, paths))) for a in range(0, paths, size)])

@@ -1,9 +1,12 @@
 """Sample paths of a model: true states and measurements for many trajectories at once.
 
 Every filter in a comparison is run on the same :class:`Simulation`, so they all see identical
-noise (common random numbers). The noises of all paths are drawn from one seeded
-``numpy.random.Generator`` in a fixed order (initial states, then process noise, then
-measurement noise), so a run is reproducible from its seed.
+noise (common random numbers). Each path draws from a stream of its own
+(:mod:`nlfilter.streams`: path ``p`` from ``SeedSequence(seed).spawn(P)[p]``), in a fixed order
+per path documented by each simulator (initial state, then process noise, then measurement
+noise), so a path depends on the seed and its index only: ``paths=range(a, b)`` simulates the
+rows ``a..b-1`` of the run on all paths, bitwise, and a run can be split into chunks or spread
+over processes.
 
 * Discrete models: ``xs[..., k, :]`` is the state measured by ``ys[..., k, :]``; the step
   convention (``start``) is that of :mod:`nlfilter.filters.base`.
@@ -21,6 +24,9 @@ import numpy as np
 
 from . import _validate as V
 from .noise import Gaussian, NoiseLaw
+from .streams import PathRNG, as_paths
+
+_BLOCK = 2 ** 20  # SDE simulators: standard normals drawn per block of steps (bounded memory)
 
 
 class Simulation(NamedTuple):
@@ -33,32 +39,43 @@ class Simulation(NamedTuple):
     t: np.ndarray
 
 
-def initial_states(n, paths, rng, *, m0=None, P0=None, x0=None, initial: NoiseLaw | None = None):
-    """``(paths, n)`` initial states: given ``x0``, drawn from the law ``initial``, or N(m0, P0)."""
+def initial_states(n, paths, rng, *, m0=None, P0=None, x0=None, initial: NoiseLaw | None = None,
+                   shape=()):
+    """``(P, *shape, n)`` initial states of the paths ``paths`` (an int ``P`` or a ``range``; ``rng``
+    a seed, SeedSequence, Generator or a :class:`~nlfilter.streams.PathRNG` over them): given
+    ``x0``, or drawn per path (``shape`` draws each) from the law ``initial`` or N(m0, P0)."""
+    P = len(rng) if isinstance(rng, PathRNG) else len(as_paths(paths))
     if x0 is not None:
         x0 = V.as_float_array("x0", x0, shape_tail=(n,))
-        return np.broadcast_to(x0, (paths, n)).copy()
+        return np.broadcast_to(x0, (P, *shape, n)).copy()
     if initial is not None:
         if not isinstance(initial, NoiseLaw) or initial.dim != n:
             raise TypeError(f"initial: expected a noise law of dimension {n}, got {initial!r}")
-        return initial.sample(rng, (paths,))
+        return PathRNG.of(rng, paths).sample(initial, shape)
     if m0 is None or P0 is None:
         raise ValueError("m0/P0: expected the prior mean and covariance (or x0, or initial), got None")
     m0 = V.as_float_array("m0", m0, shape_tail=(n,)) if np.ndim(m0) else np.full(n, float(m0))
-    return m0 + Gaussian(V.covariance("P0", P0, n)).sample(rng, (paths,))
+    return m0 + PathRNG.of(rng, paths).sample(Gaussian(V.covariance("P0", P0, n)), shape)
 
 
 def _start(model, steps, paths, rng, m0, P0, x0, initial):
-    """Checked sizes, the generator, the initial states (drawn first from it) and their copy, and
-    the state buffer ``(paths, steps, n)`` of a simulation."""
+    """Checked sizes, the per-path generators, the initial states (each path's first draw) and
+    their copy, and the state buffer ``(P, steps, n)`` of a simulation."""
     V.positive("steps", steps, integer=True)
-    V.positive("paths", paths, integer=True)
-    rng = V.rng(rng)
+    rng = PathRNG.of(rng, paths)
     x = initial_states(model.n, paths, rng, m0=m0, P0=P0, x0=x0, initial=initial)
-    return rng, x, x.copy(), np.empty((paths, steps, model.n))
+    return rng, x, x.copy(), np.empty((len(rng), steps, model.n))
 
 
-def simulate(model, steps: int, *, paths: int = 1, rng=None, m0=None, P0=None, x0=None,
+def _blocks(steps, paths, width):
+    """Steps ``[(k0, k1), ...]`` in blocks of at most ``_BLOCK`` numbers over all paths
+    (``width`` per path and step). Numpy fills ``standard_normal`` sequentially, so per-path
+    draws of consecutive blocks equal one draw of all steps: the result does not depend on it."""
+    K = max(1, _BLOCK // max(1, paths * width))
+    return [(k, min(k + K, steps)) for k in range(0, steps, K)]
+
+
+def simulate(model, steps: int, *, paths: int | range = 1, rng=None, m0=None, P0=None, x0=None,
              initial: NoiseLaw | None = None, start: str = "update", dt: float | None = None,
              substeps: int = 10, t0: float = 0.0) -> Simulation:
     """Simulate ``paths`` trajectories of ``steps`` measurement steps.
@@ -67,8 +84,15 @@ def simulate(model, steps: int, *, paths: int = 1, rng=None, m0=None, P0=None, x
     ----------
     model : DiscreteModel or SDEModel
     steps : number of measurements T
-    paths : number of independent trajectories (the leading axis of every output)
-    rng : ``numpy.random.Generator`` or seed
+    paths : number of independent trajectories (the leading axis of every output), or a
+        ``range`` of path indices: ``paths=range(a, b)`` gives rows ``a..b-1`` of the run on all paths
+    rng : seed, ``SeedSequence``, ``Generator`` or :class:`~nlfilter.streams.PathRNG` (the root of
+        the per-path streams, :mod:`nlfilter.streams`)
+
+    Draws of a path, in order: its initial state (unless ``x0``); discrete models: the process
+    noises of all steps, then the measurement noises of all steps; SDE models: per measurement
+    step, the ``substeps × r`` standard normals of the Brownian increments, then the ``m`` of the
+    measurement noise.
     m0, P0 / x0 / initial : the initial state: drawn from N(m0, P0), fixed ``x0``, or drawn from
         the noise law ``initial`` (a non-Gaussian prior)
     start : discrete models only, ``"update"`` or ``"predict"`` (see :mod:`nlfilter.filters.base`)
@@ -82,14 +106,14 @@ def simulate(model, steps: int, *, paths: int = 1, rng=None, m0=None, P0=None, x
     ((3, 5, 1), (3, 5, 1), [0.1, 0.2, 0.3, 0.4, 0.5])
     """
     rng, x, x_init, xs = _start(model, steps, paths, rng, m0, P0, x0, initial)
-    m = model.m
+    m, paths = model.m, len(rng)
     ys = np.empty((paths, steps, m))
     if model.kind == "discrete":
         if dt is not None:
             raise ValueError(f"dt: a DiscreteModel has no time step; expected None, got {dt!r}")
         offset = 1 if V.choice("start", start, {"update", "predict"}) == "predict" else 0
-        w = model.process_noise.sample(rng, (paths, steps))
-        v = model.measurement_noise.sample(rng, (paths, steps))
+        w, v = rng.draw(lambda g, s: (model.process_noise.sample(g, s), model.measurement_noise.sample(g, s)),
+                        (steps,))
         for k in range(steps):
             if k > 0 or offset:
                 j = k + offset - 1
@@ -107,55 +131,67 @@ def simulate(model, steps: int, *, paths: int = 1, rng=None, m0=None, P0=None, x
     sq_h = np.sqrt(h)
     LQ = model.process_noise._sqrt
     LR = model.measurement_noise._sqrt
-    for k in range(steps):
-        tk = t0 + k * dt
-        ydt = np.zeros((paths, m))
-        dB = rng.standard_normal((substeps, paths, model.r)) @ LQ.T * sq_h
-        for j in range(substeps):
-            s = tk + j * h
-            ydt += model.h(x, s) * h  # ∫ h dt, left point
-            x = x + model.f(x, s) * h + model.Gw(x, dB[j], s)
-        xs[:, k] = x
-        ys[:, k] = ydt + rng.standard_normal((paths, m)) @ LR.T * np.sqrt(dt)
+    r = model.r
+    for k0, k1 in _blocks(steps, paths, substeps * r + m):
+        z = rng.standard_normal((k1 - k0, substeps * r + m))  # (paths, K, substeps·r + m)
+        for k in range(k0, k1):
+            tk = t0 + k * dt
+            ydt = np.zeros((paths, m))
+            dB = z[:, k - k0, :substeps * r].reshape(paths, substeps, r) @ LQ.T * sq_h
+            for j in range(substeps):
+                s = tk + j * h
+                ydt += model.h(x, s) * h  # ∫ h dt, left point
+                x = x + model.f(x, s) * h + model.Gw(x, dB[:, j], s)
+            xs[:, k] = x
+            ys[:, k] = ydt + z[:, k - k0, substeps * r:] @ LR.T * np.sqrt(dt)
     return Simulation(xs, ys, x_init, t0 + dt * np.arange(1, steps + 1))
 
 
-def simulate_phase(q: float, r: float, dt: float, steps: int, paths: int, rng, *, substeps: int = 4,
+def simulate_phase(q: float, r: float, dt: float, steps: int, paths: int | range, rng, *, substeps: int = 4,
                    theta0=None):
     """The phase-tracking problem (seed 001 ch. 4, :class:`~nlfilter.bilinear.PhaseModel`):
     phase paths ``theta (paths, steps)`` at ``t_k = k dt`` (k = 1..steps, aligned with a filter's
     estimates) and baseband increments ``dzs (paths, steps, 2)``: θ exact Brownian increments on
     ``substeps`` sub-intervals, ``∫ (sin θ, cos θ) dt`` by the trapezoidal rule,
-    ``dn ~ N(0, 2 r dt I)`` (001 eq. 4.14). θ0 uniform on the circle unless ``theta0`` is given."""
+    ``dn ~ N(0, 2 r dt I)`` (001 eq. 4.14). θ0 uniform on the circle unless ``theta0`` is given.
+    ``paths``, ``rng``: as :func:`simulate`. Draws of a path: θ0, then per step the ``substeps``
+    normals of θ, then the 2 of ``dn``."""
+    V.positive("steps", steps, integer=True)
+    V.positive("substeps", substeps, integer=True)
+    rng = PathRNG.of(rng, paths)
+    paths = len(rng)
     h = dt / substeps
-    th = rng.uniform(-np.pi, np.pi, size=paths) if theta0 is None else np.broadcast_to(theta0, (paths,)).astype(float)
+    th = rng.uniform(-np.pi, np.pi, ()) if theta0 is None else np.broadcast_to(theta0, (paths,)).astype(float)
     thetas = np.empty((paths, steps))
     dzs = np.empty((paths, steps, 2))
     sq = np.sqrt(q * h)
     sn = np.sqrt(2 * r * dt)
-    for k in range(steps):
-        acc1 = np.zeros(paths)
-        acc2 = np.zeros(paths)
-        for _ in range(substeps):
-            tn = th + sq * rng.standard_normal(paths)
-            acc1 += 0.5 * h * (np.sin(th) + np.sin(tn))
-            acc2 += 0.5 * h * (np.cos(th) + np.cos(tn))
-            th = tn
-        thetas[:, k] = th
-        dzs[:, k, 0] = acc1 + sn * rng.standard_normal(paths)
-        dzs[:, k, 1] = acc2 + sn * rng.standard_normal(paths)
+    for k0, k1 in _blocks(steps, paths, substeps + 2):
+        z = rng.standard_normal((k1 - k0, substeps + 2))
+        for k in range(k0, k1):
+            acc1 = np.zeros(paths)
+            acc2 = np.zeros(paths)
+            for j in range(substeps):
+                tn = th + sq * z[:, k - k0, j]
+                acc1 += 0.5 * h * (np.sin(th) + np.sin(tn))
+                acc2 += 0.5 * h * (np.cos(th) + np.cos(tn))
+                th = tn
+            thetas[:, k] = th
+            dzs[:, k, 0] = acc1 + sn * z[:, k - k0, substeps]
+            dzs[:, k, 1] = acc2 + sn * z[:, k - k0, substeps + 1]
     return thetas, dzs
 
 
-def simulate_ou(q: float, r: float, dt: float, steps: int, paths: int, rng, *, h=None, rate: float = 1.0,
+def simulate_ou(q: float, r: float, dt: float, steps: int, paths: int | range, rng, *, h=None, rate: float = 1.0,
                 substeps: int = 4) -> Simulation:
     """A stationary Ornstein–Uhlenbeck state ``dx = −rate · x dt + dw`` (``E dw² = q dt``) seen
     through ``dy = h(x) dt + dv`` (``E dv² = r dt``; ``h`` a vectorized function, default the
     cubic sensor's ``x³``, seed 001 eqs. 5.1-5.4), as a :class:`Simulation` (``xs (paths, steps, 1)``
     at ``t_k = k dt``, k = 1..steps, ``ys`` the increments ``dy``): x by its *exact* Gaussian
     transition on ``substeps`` sub-intervals (no Euler bias in the state), ``∫ h(x) dt`` by the
-    trapezoidal rule on them; ``x0 ~ N(0, q / (2 rate))``, the stationary law. Draws: ``x0``, then
-    per step the ``substeps`` transitions and the measurement noise.
+    trapezoidal rule on them; ``x0 ~ N(0, q / (2 rate))``, the stationary law. ``paths``, ``rng``:
+    as :func:`simulate`. Draws of a path: ``x0``, then per step the ``substeps`` transitions and
+    the measurement noise.
 
     >>> sim = simulate_ou(2.0, 1.0, 0.01, 5, 3, np.random.default_rng(0))
     >>> sim.xs.shape, sim.ys.shape, sim.x0.shape
@@ -164,31 +200,33 @@ def simulate_ou(q: float, r: float, dt: float, steps: int, paths: int, rng, *, h
     for nm, v in (("q", q), ("r", r), ("dt", dt), ("rate", rate)):
         V.positive(nm, v)
     V.positive("steps", steps, integer=True)
-    V.positive("paths", paths, integer=True)
     V.positive("substeps", substeps, integer=True)
-    rng = V.rng(rng)
+    rng = PathRNG.of(rng, paths)
+    paths = len(rng)
     if h is None:
         h = lambda x: x ** 3  # noqa: E731
     dh = dt / substeps
     a = np.exp(-rate * dh)
     var = q / (2 * rate)
     sd = np.sqrt(var * (1 - a * a))
-    x = rng.normal(0.0, np.sqrt(var), size=paths)
+    x = np.sqrt(var) * rng.standard_normal(())
     x0 = x.copy()
     xs = np.empty((paths, steps))
     dys = np.empty((paths, steps, 1))
-    for k in range(steps):
-        acc = np.zeros(paths)
-        for _ in range(substeps):
-            xn = a * x + sd * rng.standard_normal(paths)
-            acc += 0.5 * dh * (h(x) + h(xn))
-            x = xn
-        xs[:, k] = x
-        dys[:, k, 0] = acc + np.sqrt(r * dt) * rng.standard_normal(paths)
+    for k0, k1 in _blocks(steps, paths, substeps + 1):
+        z = rng.standard_normal((k1 - k0, substeps + 1))
+        for k in range(k0, k1):
+            acc = np.zeros(paths)
+            for j in range(substeps):
+                xn = a * x + sd * z[:, k - k0, j]
+                acc += 0.5 * dh * (h(x) + h(xn))
+                x = xn
+            xs[:, k] = x
+            dys[:, k, 0] = acc + np.sqrt(r * dt) * z[:, k - k0, substeps]
     return Simulation(xs[..., None], dys, x0[:, None], dt * np.arange(1, steps + 1))
 
 
-def simulate_continuous_discrete(model, steps: int, *, paths: int = 1, rng=None, m0=None, P0=None, x0=None,
+def simulate_continuous_discrete(model, steps: int, *, paths: int | range = 1, rng=None, m0=None, P0=None, x0=None,
                                  initial: NoiseLaw | None = None, dt: float, substeps: int = 20,
                                  t0: float = 0.0) -> Simulation:
     """An :class:`~nlfilter.models.SDEModel` with *discrete* measurements (the continuous-discrete
@@ -199,8 +237,9 @@ def simulate_continuous_discrete(model, steps: int, *, paths: int = 1, rng=None,
     increment ``G(x, t_k) w``, ``w ~ N(0, Q dt)``, is added per interval after the flow (a coarse
     model of the process noise: meant for nearly deterministic dynamics such as the falling body).
     Returns a :class:`Simulation` with ``xs[:, k] = x(t_{k+1})``, ``ys[:, k]`` its measurement.
-    Draws: the initial states (unless ``x0``), the process noise interval by interval (only when
-    ``Q ≠ 0``), then all measurement noises.
+    ``paths``, ``rng``: as :func:`simulate`. Draws of a path: its initial state (unless ``x0``),
+    the ``steps × r`` standard normals of the process noise (only when ``Q ≠ 0``), then the
+    ``steps × m`` of the measurement noise.
 
     >>> from nlfilter import problems
     >>> p = problems.falling_body()
@@ -215,17 +254,19 @@ def simulate_continuous_discrete(model, steps: int, *, paths: int = 1, rng=None,
     dt = float(V.positive("dt", dt))
     V.positive("substeps", substeps, integer=True)
     rng, x, x_init, xs = _start(model, steps, paths, rng, m0, P0, x0, initial)
-    m = model.m
+    m, paths = model.m, len(rng)
     noisy = np.any(model.Q != 0)
+    L = np.linalg.cholesky(model.R)
+    SQ = Gaussian(model.Q * dt)._sqrt  # Q dt = SQ SQᵀ (Q may be singular)
+    w, v = rng.draw(lambda g, s: (g.standard_normal((*s, model.r)) if noisy else np.empty((*s, 0)),
+                                  g.standard_normal((*s, m))), (steps,))
     for k in range(steps):
         tk = t0 + k * dt
         x = ode_step(model.f, x, tk, dt, substeps=substeps, scheme="rk4")
         if noisy:
-            x = x + np.einsum("pia,pa->pi", model.G(x, tk), rng.multivariate_normal(
-                np.zeros(model.r), model.Q * dt, size=paths))
+            x = x + np.einsum("pia,pa->pi", model.G(x, tk), w[:, k] @ SQ.T)
         xs[:, k] = x
-    L = np.linalg.cholesky(model.R)
-    v = rng.standard_normal((paths, steps, m)) @ L.T
+    v = v @ L.T
     t = t0 + dt * np.arange(1, steps + 1)
     ys = np.empty((paths, steps, m))
     for k in range(steps):

@@ -31,15 +31,19 @@ class Experiment:
     func: Callable[..., Result]
 
     def run(self, params: dict | None = None, *, quick: bool = False, runs: int | None = None,
-            seed: int = 0, progress: bool = False) -> Result:
-        """Run with defaults overridden by ``params`` (already typed, or strings to convert)."""
+            seed: int = 0, progress: bool = False, chunk: int | None = None) -> Result:
+        """Run with defaults overridden by ``params`` (already typed, or strings to convert).
+        ``chunk``: simulate and filter the Monte Carlo paths that many at a time
+        (:func:`nlfilter.evaluate.chunk`); the rows are the same for any chunk (per-path streams)."""
         full = dict(self.params)
         for name, value in (params or {}).items():
             full[name] = self.convert(name, value)
         if runs is not None and (isinstance(runs, bool) or not isinstance(runs, int) or runs < 1):
             raise ValueError(f"runs: expected a positive integer, got {runs!r}")
         given = {name: full[name] for name in (params or {})}
-        res = self.func(full, quick=quick, runs=runs, seed=seed, progress=progress)
+        from ..evaluate import chunked
+        with chunked(chunk):
+            res = self.func(full, quick=quick, runs=runs, seed=seed, progress=progress)
         res.params = _decode(_encode(res.params))  # as JSON keeps them (tuples as lists, numpy as Python)
         res.meta = provenance(self.id, seed=seed, runs=runs, paths=res.params.get("paths"), quick=quick,
                               given=given)

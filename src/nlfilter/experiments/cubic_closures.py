@@ -74,8 +74,8 @@ def run(params, *, quick, runs, seed, progress):
         md = model(q, r)
         var = q / 2  # stationary variance of dx = −x dt + dw
         m0, P0 = np.zeros(1), np.array([[var]])
-        sim = simulate(md, steps, paths=npaths, rng=ev.stream(seed, case), m0=m0, P0=P0, dt=dt,
-                       substeps=substeps)
+        sim = ev.in_chunks(lambda rows: simulate(md, steps, paths=rows, rng=ev.stream(seed, case), m0=m0, P0=P0,
+                                                 dt=dt, substeps=substeps), npaths)
         sd = np.sqrt(var)
         filters = {
             "ekf": ContinuousEKF(md, dt, substeps=2),
@@ -87,7 +87,7 @@ def run(params, *, quick, runs, seed, progress):
         window = slice(int(round(burn / dt)), None)
         ests = {}
         for name, f in tqdm(filters.items(), disable=not progress, desc=f"cubic q={q:g} r={r:g}"):
-            ests[name] = f.run(sim.ys, m0, P0, on_divergence="mark")
+            ests[name] = f.run(sim.ys, m0, P0, on_divergence="mark", chunk=ev.chunk())
         opt = ev.mse(ests["optimal"], sim.xs, window=window)
         for name, est in ests.items():
             s = ev.mse(est, sim.xs, window=window)

@@ -128,9 +128,9 @@ def run(params, *, quick, runs, seed, progress):
     res = Result("cubic-sensor", "Cubic sensor: optimal linear filter, tensor post-processors, bound, Monte Carlo",
                  "seed 001, Tables 5.1-5.2", params)
     pairs = _pairs(params)
-    ss_seq = np.random.SeedSequence(seed)
     cache = {}
-    for (q, r), child in zip(pairs, ss_seq.spawn(len(pairs))):
+    for i, (q, r) in enumerate(pairs):
+        child = ev.stream(seed, i)
         paper = PAPER.get((q, r), {})
         model = cubic_model(q, r)
         lift = BilinearModel.from_polynomial(model)
@@ -240,17 +240,17 @@ def _monte_carlo(res, model, lift, tf, q, r, params, quick, runs, seedseq, progr
     res.params.setdefault("steps", {})[pair] = steps
     nb = int(round(burn / dt))
     paths = res.used("paths", runs or (6 if quick else 200))
-    rng = np.random.default_rng(seedseq)
-    sim = simulate_ou(q, r, dt, steps, paths, rng)  # exact OU transition, trapezoidal ∫ x³ dt
+    sim = ev.in_chunks(lambda rows: simulate_ou(q, r, dt, steps, rows, seedseq), paths)  # exact OU, trapezoidal ∫ x³ dt
+    c = ev.chunk()
     xs, dys = sim.xs[..., 0], sim.ys
     m0, P0 = stationary_lift_moments(q)
     truth = {"x": xs, "x3": xs ** 3}
     ests = {}
-    lin = OptimalLinearFilter(lift, dt).run(dys, m0, P0)
+    lin = OptimalLinearFilter(lift, dt).run(dys, m0, P0, chunk=c)
     ests["linear"] = (lin.means[..., 0], lin.means[..., 2])
-    te = tf.with_dt(dt).run(dys, m0, P0)
+    te = tf.with_dt(dt).run(dys, m0, P0, chunk=c)
     ests["tensor"] = (te.means[..., 0], te.means[..., 1])
-    ue = UpdatedInnovationsFilter.from_tensor(tf, dt).run(dys, m0, P0, on_divergence="mark")
+    ue = UpdatedInnovationsFilter.from_tensor(tf, dt).run(dys, m0, P0, on_divergence="mark", chunk=c)
     ests["updated-innovations"] = (ue.means[..., 0], ue.means[..., 1])
     others = _other_filters(model, dt, q, res.used("grid_size", 81 if quick else 241))
     runs_ = []
@@ -260,7 +260,7 @@ def _monte_carlo(res, model, lift, tf, q, r, params, quick, runs, seedseq, progr
             runs_.append((f"{name}@m0=σ", flt, np.sqrt(q / 2)))
     for name, flt, m0x in tqdm(runs_, disable=not progress, desc=f"cubic q={q:g} r={r:g}"):
         try:
-            e = flt.run(dys, [m0x], [[q / 2]], on_divergence="mark")
+            e = flt.run(dys, [m0x], [[q / 2]], on_divergence="mark", chunk=c)
         except (DivergenceError, ValueError, FloatingPointError) as exc:  # pragma: no cover
             res.notes.append(f"{name}: failed ({exc})")
             continue

@@ -16,7 +16,7 @@ import numpy as np
 import scipy.linalg as sla
 from tqdm.auto import tqdm
 
-from ..evaluate import mse, mse_per_step, nees, paired_difference, stream
+from ..evaluate import chunk, in_chunks, mse, mse_per_step, nees, paired_difference, stream
 from ..filters.ekf import EKF
 from ..filters.kalman import KalmanFilter, steady_state
 from ..filters.reference import GridFilter, ParticleFilter
@@ -46,7 +46,8 @@ def run(params, *, quick=False, runs=None, seed=0, progress=False):
     F = md.f_x(np.zeros(2), 0)
     P_stat = sla.solve_discrete_lyapunov(F, md.Q)  # stationary state covariance: the prior
     m0 = np.zeros(2)
-    sim = simulate(md, p["steps"], paths=runs, rng=stream(seed, 0), m0=m0, P0=P_stat)
+    sim = in_chunks(lambda rows: simulate(md, p["steps"], paths=rows, rng=stream(seed, 0), m0=m0, P0=P_stat), runs)
+    c = chunk()
     half = 0.5
     _, Pf = steady_state(md)
     res = Result("linear-gaussian", TITLE, "nlfilter check (no paper): Riccati equation", p)
@@ -54,11 +55,11 @@ def run(params, *, quick=False, runs=None, seed=0, progress=False):
     res.add("riccati", "mse", Pf[0, 0])
     width = 6.0 * np.sqrt(np.diag(P_stat))
     filters = {
-        "kf": lambda: KalmanFilter(md).run(sim.ys, m0, P_stat),
-        "ekf": lambda: EKF(md).run(sim.ys, m0, P_stat),
-        "ukf": lambda: UKF(md).run(sim.ys, m0, P_stat),
-        "grid": lambda: GridFilter(md, list(zip(-width, width)), p["grid"]).run(sim.ys, m0, P_stat),
-        "particle": lambda: ParticleFilter(md, p["particles"]).run(sim.ys, m0, P_stat, rng=stream(seed, 1)),
+        "kf": lambda: KalmanFilter(md).run(sim.ys, m0, P_stat, chunk=c),
+        "ekf": lambda: EKF(md).run(sim.ys, m0, P_stat, chunk=c),
+        "ukf": lambda: UKF(md).run(sim.ys, m0, P_stat, chunk=c),
+        "grid": lambda: GridFilter(md, list(zip(-width, width)), p["grid"]).run(sim.ys, m0, P_stat, chunk=c),
+        "particle": lambda: ParticleFilter(md, p["particles"]).run(sim.ys, m0, P_stat, rng=stream(seed, 1), chunk=c),
     }
     curves, bands = {}, {}
     for name, go in tqdm(filters.items(), disable=not progress, desc="filters"):

@@ -25,6 +25,7 @@ import scipy.stats as st
 from tqdm import tqdm
 
 from . import experiment
+from .. import evaluate as ev
 from ..filters.kalman import KalmanFilter
 from ..bounded import BoundedNoiseModel
 from ..filters.moment_bayes import FirstOrderMomentFilter, refresh_failure_rate
@@ -115,23 +116,23 @@ def run_first_order(params, *, quick, runs, seed, progress):
                  "seed 000, eqs. 2.4-2.5", params)
     res.params.update(T=T, skip=skip, grid=G, paths=R)  # the values that ran (quick caps included)
     laws = list(params["laws"])
-    for law_name, child in zip(laws, np.random.SeedSequence(seed).spawn(len(laws))):
+    c = ev.chunk()
+    for i, law_name in enumerate(laws):
         law = input_law(law_name, wb)
-        rng = np.random.default_rng(child)
         truth = BoundedNoiseModel.first_order(h, wb, w_law=law)
-        xs, zs = truth.simulate(T, R, rng, burn=BURN)  # stationary: 300 steps of burn-in from 0
+        xs, zs = ev.in_chunks(lambda rows: truth.simulate(T, rows, ev.stream(seed, i), burn=BURN), R)  # stationary: 300 steps of burn-in from 0
         xs, zs = xs[..., 0], zs[..., 0]
         grid = BoundedGridFilter1D(truth, G=G)
-        est = {"optimal": grid.run(zs[..., None]).means[..., 0],
+        est = {"optimal": grid.run(zs[..., None], chunk=c).means[..., 0],
                "kalman": kalman_first_order(zs, h, law)}
         fb = {}
         model = BoundedNoiseModel.first_order(h, wb)
         for N in tqdm(Ns, disable=not progress, desc=law_name):
-            r = FirstOrderMomentFilter(model, N, w_moments=raw_moments(law, N)).run(zs[..., None])
+            r = FirstOrderMomentFilter(model, N, w_moments=raw_moments(law, N)).run(zs[..., None], chunk=c)
             est[f"moment{N}"] = r.means[..., 0]
             fb[f"moment{N}"] = r.extras["fallback"].mean()
             r = FirstOrderMomentFilter(model, N, adaptive=True, n0=params["n0"], window=params["window"],
-                                       invalid_moments="ignore").run(zs[..., None])  # 000's algorithm as is
+                                       invalid_moments="ignore").run(zs[..., None], chunk=c)  # 000's algorithm as is
             est[f"adaptive{N}"] = r.means[..., 0]
             fb[f"adaptive{N}"] = r.extras["fallback"].mean()
             failure_rate_row(res, f"adaptive{N}", refresh_failure_rate(r), law=law_name)
@@ -192,11 +193,12 @@ def run_second_order(params, *, quick, runs, seed, progress):
                  "seed 000, eqs. 2.6-2.8", params)
     res.params.update(T=T, skip=skip, particles=P, paths=R)  # the values that ran (quick caps included)
     laws = list(params["laws"])
-    for law_name, child in zip(laws, np.random.SeedSequence(seed).spawn(len(laws))):
+    ck = ev.chunk()
+    for i, law_name in enumerate(laws):
         law = input_law(law_name, wb)
-        rng = np.random.default_rng(child)
+        rng = ev.stream(seed, i)  # simulation: the paths' streams; the particle filter: their FILTER sub-streams
         truth = BoundedNoiseModel(A, b, c, wb, w_law=law)
-        xs, zs = truth.simulate(T, R, rng, burn=BURN)  # stationary: 300 steps of burn-in from 0
+        xs, zs = ev.in_chunks(lambda rows: truth.simulate(T, rows, rng, burn=BURN), R)  # stationary: 300 steps of burn-in from 0
         zs = zs[..., 0]
 
         def x0_sampler(r, shape, law=law):
@@ -206,15 +208,15 @@ def run_second_order(params, *, quick, runs, seed, progress):
             return x
 
         est = {"optimal": BoundedParticleFilter(truth, particles=P).run(
-                   zs[..., None], initial=x0_sampler, rng=rng).means,
+                   zs[..., None], initial=x0_sampler, rng=rng, chunk=ck).means,
                "kalman": kalman_second_order(zs, A, b, c, law)}
         fb = {}
         model = BoundedNoiseModel(A, b, c, wb)
         for N in tqdm(Ns, disable=not progress, desc=law_name):
-            r = SecondOrderMomentFilter(model, N, w_moments=raw_moments(law, N), **bkw).run(zs[..., None])
+            r = SecondOrderMomentFilter(model, N, w_moments=raw_moments(law, N), **bkw).run(zs[..., None], chunk=ck)
             est[f"moment{N}"], fb[f"moment{N}"] = r.means, r.extras["fallback"].mean()
             r = SecondOrderMomentFilter(model, N, adaptive=True, n0=params["n0"], window=params["window"],
-                                        invalid_moments="ignore", **bkw).run(zs[..., None])  # 000's algorithm
+                                        invalid_moments="ignore", **bkw).run(zs[..., None], chunk=ck)  # 000's algorithm
             est[f"adaptive{N}"], fb[f"adaptive{N}"] = r.means, r.extras["fallback"].mean()
             failure_rate_row(res, f"adaptive{N}", refresh_failure_rate(r), law=law_name)
         errs = {k: np.sqrt(np.sum((v - xs) ** 2, axis=-1)) for k, v in est.items()}  # |x - x_hat|

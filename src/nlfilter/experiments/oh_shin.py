@@ -64,8 +64,9 @@ def run(params, *, quick, runs, seed, progress):
     md = model(p["Q"], p["R"])
     m0, P0, dt = np.array([p["m0"]]), np.array([[p["D0"]]]), p["dt"]
     npaths = res.used("paths", runs or (60 if quick else 4000))
-    sim = simulate(md, res.used("steps", steps), paths=npaths, rng=ev.stream(seed, 0), m0=m0, P0=P0, dt=dt,
-                   substeps=res.used("substeps", 10 if quick else 20))
+    substeps = res.used("substeps", 10 if quick else 20)
+    sim = ev.in_chunks(lambda rows: simulate(md, res.used("steps", steps), paths=rows, rng=ev.stream(seed, 0), m0=m0,
+                                             P0=P0, dt=dt, substeps=substeps), npaths)
     grid_size = res.used("grid_size", 201 if quick else p["grid_size"])
     sd0 = np.sqrt(p["D0"])
     lo = min(-1.5, p["m0"] - 8 * sd0 - 1.0) if p["m0"] < 0 else -1.5
@@ -80,7 +81,7 @@ def run(params, *, quick, runs, seed, progress):
     }
     ests = {}
     for name, f in tqdm(filters.items(), disable=not progress, desc="oh-shin filters"):
-        ests[name] = f.run(sim.ys, m0, P0, on_divergence="mark")
+        ests[name] = f.run(sim.ys, m0, P0, on_divergence="mark", chunk=ev.chunk())
     e2 = {k: ev.squared_errors(e, sim.xs, component=0) for k, e in ests.items()}  # (paths, T)
     ok = {k: ~np.asarray(e.diverged) for k, e in ests.items()}
 

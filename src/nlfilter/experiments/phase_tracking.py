@@ -92,19 +92,19 @@ def _simulation(res, params, q, quick, runs, seed, progress):
     steps = res.used("steps", int(round(tc / K / dt)))
     nd = int(round(disc / K / dt))
     paths = res.used("paths", runs or (2 if quick else 16))
-    rng = np.random.default_rng(np.random.SeedSequence(seed).spawn(1)[0])
-    theta, dzs = simulate_phase(q, r, dt, steps, paths, rng)
+    theta, dzs = ev.in_chunks(lambda rows: simulate_phase(q, r, dt, steps, rows, ev.stream(seed, 0)), paths)
+    c = ev.chunk()
     model = phase_model(q, r)
     m0, P0 = np.zeros(2), 0.5 * np.eye(2)  # filters start without phase information: x̂0 = E x0 = 0, θ̂0 = 0
     tf = PhaseTensorFilter(model, dt)
     fits = tf.fits()
-    pll = PLL(model, dt).run(dzs, m0, P0)
-    lqf = LinearQuadratureFilter(model, dt).run(dzs, m0, P0)
-    ten = tf.run(dzs, m0, P0)
+    pll = PLL(model, dt).run(dzs, m0, P0, chunk=c)
+    lqf = LinearQuadratureFilter(model, dt).run(dzs, m0, P0, chunk=c)
+    ten = tf.run(dzs, m0, P0, chunk=c)
     ests = {"pll": pll.extras["theta"], "lqf": lqf.extras["theta"], "tensor": ten.extras["theta"]}
     xs = {"lqf": lqf.means, "tensor": ten.means}
     if not quick or params["grid"] > 0:
-        ge = CircleGridFilter(model, dt, size=res.used("grid", 64 if quick else int(params["grid"]))).run(dzs)
+        ge = CircleGridFilter(model, dt, size=res.used("grid", 64 if quick else int(params["grid"]))).run(dzs, chunk=c)
         ests["optimal"] = ge.extras["theta"]
         xs["optimal"] = ge.means
     x1 = np.sin(theta)

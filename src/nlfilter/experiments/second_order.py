@@ -132,7 +132,7 @@ def _quadratic(res, params, nruns, rng, quick, progress):
                         r=params["quad_r"])
     steps = _steps(res, params, "quadratic", quick, prob.steps)
     md = prob.model
-    sim = simulate(md, steps, paths=nruns, rng=rng, m0=prob.m0, P0=prob.P0)
+    sim = ev.in_chunks(lambda rows: simulate(md, steps, paths=rows, rng=rng, m0=prob.m0, P0=prob.P0), nruns)
     filters = {"ekf": EKF(md), "ukf": UKF(md), **{f: SecondOrderFilter(md, form=f) for f in FORMS}}
     ests = {k: _run(flt, sim.ys, prob.m0, prob.P0) for k, flt in
             tqdm(filters.items(), disable=not progress, desc="quadratic", leave=False)}
@@ -140,7 +140,7 @@ def _quadratic(res, params, nruns, rng, quick, progress):
     pad = 6 * np.sqrt(params["quad_q"])
     size = res.used("grid_size", QUICK["grid_size"] if quick else params["grid_size"])
     grid = GridFilter(md, (min(lo, -3 * np.sqrt(prob.P0[0, 0])) - pad, hi + pad), size)
-    ests["optimal"] = grid.run(sim.ys, prob.m0, prob.P0, on_divergence="mark", progress=progress)
+    ests["optimal"] = grid.run(sim.ys, prob.m0, prob.P0, on_divergence="mark", progress=progress, chunk=ev.chunk())
     _report(res, "quadratic", ests, sim.xs, ests["optimal"], slice(None))
     res.notes.append(f"quadratic: x' = {params['quad_a']} x + {params['quad_b']} x² + w (q = "
                      f"{params['quad_q']}), y = x + {params['quad_c']} x² + v (r = {params['quad_r']}), "
@@ -152,7 +152,8 @@ def _state_noise(res, params, nruns, rng, quick, progress):
                           c=params["sn_c"], r=params["sn_r"], dt=params["sn_dt"])
     steps = _steps(res, params, "state-noise", quick, prob.steps)
     md, dt = prob.model, prob.dt
-    sim = simulate(md, steps, paths=nruns, rng=rng, m0=prob.m0, P0=prob.P0, dt=dt, substeps=10)
+    sim = ev.in_chunks(lambda rows: simulate(md, steps, paths=rows, rng=rng, m0=prob.m0, P0=prob.P0, dt=dt,
+                                             substeps=10), nruns)
     inn = params["sn_innovation"]
     if inn not in ("update", "ito"):
         raise ValueError(f"param sn_innovation={inn!r}: expected 'update' or 'ito'")
@@ -164,7 +165,7 @@ def _state_noise(res, params, nruns, rng, quick, progress):
     lo, hi = float(np.min(sim.xs)), float(np.max(sim.xs))
     size = res.used("grid_size", QUICK["grid_size"] if quick else params["grid_size"])
     grid = GridFilter(md, (lo - 1.0, hi + 1.0), size, dt=dt)
-    ests["optimal"] = grid.run(sim.ys, prob.m0, prob.P0, on_divergence="mark", progress=progress)
+    ests["optimal"] = grid.run(sim.ys, prob.m0, prob.P0, on_divergence="mark", progress=progress, chunk=ev.chunk())
     _report(res, "state-noise", ests, sim.xs, ests["optimal"], slice(None))
     res.notes.append(f"state-noise: dx = -{params['sn_a']} x dt + ({params['sn_s0']} + {params['sn_s1']} x "
                      f"+ {params['sn_s2']} x²) dβ, dy = (x + {params['sn_c']} x²) dt + dη (r = "
@@ -177,7 +178,8 @@ def _falling_body(res, params, nruns, rng, quick, progress):
     prob = pb.falling_body(r=params["fb_r"])
     steps = _steps(res, params, "falling-body", quick, prob.steps)
     md, dt, sub = prob.model, prob.dt, params["fb_substeps"]
-    sim = simulate_continuous_discrete(md, steps, paths=nruns, rng=rng, x0=prob.x0, dt=dt, substeps=sub)
+    sim = ev.in_chunks(lambda rows: simulate_continuous_discrete(md, steps, paths=rows, rng=rng, x0=prob.x0, dt=dt,
+                                                                 substeps=sub), nruns)
     xs, ys = sim.xs, sim.ys
     mk = lambda form: ContinuousDiscreteSecondOrderFilter(md, dt, form=form, substeps=sub,  # noqa: E731
                                                           start="predict")
@@ -191,7 +193,7 @@ def _falling_body(res, params, nruns, rng, quick, progress):
     npf = res.used("fb_pf_runs", min(nruns, QUICK["fb_pf_runs"] if quick else params["fb_pf_runs"]))
     particles = res.used("fb_particles", QUICK["fb_particles"] if quick else params["fb_particles"])
     pf = ResampleMoveParticleFilter(md, particles, dt=dt, substeps=sub, moves=2, scale=1.0, start="predict").run(
-        ys[:npf], prob.m0, prob.P0, rng=rng, on_divergence="mark", progress=progress)
+        ys[:npf], prob.m0, prob.P0, rng=rng, on_divergence="mark", progress=progress, chunk=ev.chunk())
     acc = pf.extras["accepted"][:, -1].sum() / max(pf.extras["proposed"][:, -1].sum(), 1)
     ests["optimal"] = pf
     _report(res, "falling-body", ests, xs, pf, slice(0, npf), late=True)
@@ -209,14 +211,14 @@ def _falling_body(res, params, nruns, rng, quick, progress):
 
 # -- helpers --------------------------------------------------------------------------------------
 def _run(flt, ys, m0, P0):
-    return flt.run(ys, m0, P0, on_divergence="mark")
+    return flt.run(ys, m0, P0, on_divergence="mark", chunk=ev.chunk())
 
 
 def _ukf_on_euler(md, dt, dys, m0, P0):
     """UKF on the Euler discretization, filtered at t_k with dy over [t_k, t_k+1], then predicted
     to t_k+1 (where ``Simulation.xs`` and the continuous filters are)."""
     flt = UKF(pb.euler_discretization(md, dt))
-    est = flt.run(dys / dt, m0, P0, on_divergence="mark")
+    est = flt.run(dys / dt, m0, P0, on_divergence="mark", chunk=ev.chunk())
     d = est.diverged
     safe = GaussianState(np.where(d[:, None, None], 0.0, est.means),
                          np.where(d[:, None, None, None], np.eye(md.n), est.covs))

@@ -113,6 +113,9 @@ def sample_power_density(rng, J: int, shape):
     return ZeroOrderModel(J).sample_x(rng, shape)
 
 
+SPP = 1000  # Table 1's Monte Carlo: i.i.d. samples per path (one stream each, nlfilter.streams)
+
+
 def _estimators(J, Ns, eps):
     out = {"optimal": (lambda z: power_density_estimate(z, J), None)}
     for N in Ns:
@@ -132,9 +135,8 @@ def run_table1(params, *, quick, runs, seed, progress):
     eps = float(params["eps"])
     res = Result("zero-order", "Zero-order problem: ensemble MSE (Table 1)", "seed 000, Table 1", params)
     n_mc = res.used("paths", runs or (20_000 if quick else 1_000_000))  # one sample per path
-    ss = np.random.SeedSequence(seed)
     mismatched = []
-    for J, child in zip(Js, ss.spawn(len(Js))):
+    for i, J in enumerate(Js):
         ests = _estimators(J, Ns, eps)
         det = {}
         for name, (est, sw) in ests.items():
@@ -149,25 +151,22 @@ def run_table1(params, *, quick, runs, seed, progress):
         for name in ests:
             if name != "optimal":
                 res.add(name, "mse_gap", det[name] - det["optimal"], J=J)
-        # Monte Carlo check with common random numbers across estimators: i.i.d. samples (one per
-        # path) drawn in chunks of 200 000 (the draw order of the seed), the MSE through evaluate
+        # Monte Carlo check with common random numbers across estimators: i.i.d. samples, drawn as
+        # paths of SPP samples each (per-path streams; a stream per sample would cost more than the
+        # estimators), 200 paths per chunk unless --chunk, the first n_mc samples, the MSE through evaluate
         model = ZeroOrderModel(J)
-        rng = np.random.default_rng(child)
-        chunk = 200_000
-        xs, est = [], {k: [] for k in ests}
-        done = 0
-        with tqdm(total=n_mc, disable=not progress, desc=f"J={J}") as bar:
-            while done < n_mc:
-                n = min(chunk, n_mc - done)
-                x, z = model.simulate(1, n, rng)
-                xs.append(x)
-                for name, (f, _) in ests.items():
-                    est[name].append(f(z))
-                done += n
-                bar.update(n)
-        xs = np.concatenate(xs)
+        spp = res.used("samples_per_path", min(SPP, n_mc))
+        npaths = res.used("sample_paths", -(-n_mc // spp))
+
+        def chunk(rows, bar):
+            x, z = model.simulate(spp, rows, ev.stream(seed, i))
+            bar.update(len(rows) * spp)
+            return x.reshape(-1, 1, 1), {name: f(z).reshape(-1, 1, 1) for name, (f, _) in ests.items()}
+        with tqdm(total=npaths * spp, disable=not progress, desc=f"J={J}") as bar:
+            xs, est = ev.in_chunks(lambda rows: chunk(rows, bar), npaths, ev.chunk() or 200)
+        xs = xs[:n_mc]
         for name, e in est.items():
-            sm = ev.mse(np.concatenate(e), xs)
+            sm = ev.mse(e[:n_mc], xs)
             res.add(name, "mse_mc", sm.value, stderr=sm.stderr, paper=paper_value(J, name), J=J)
     names = ["optimal"] + [f"moment{N}" for N in Ns] + ["linear"]
     Js = sorted(set(Js))  # the figure's x axis
@@ -205,7 +204,7 @@ def adaptive_estimates(J, Ns, *, n_max, runs, n0, window, eps, invalid_moments, 
     refresh failure rate per run)})``
     of the adaptive filters of Fig. 7, the linear filter with the exact second moment of x and the
     optimal estimator (eq. 3.20) on one simulation of :class:`~nlfilter.bounded.ZeroOrderModel`."""
-    xs, zs = ZeroOrderModel(J).simulate(n_max, runs, rng)
+    xs, zs = ev.in_chunks(lambda rows: ZeroOrderModel(J).simulate(n_max, rows, rng), runs)
     out = {}
     fb_rate = {}
     for N in tqdm(Ns, disable=not progress, desc=f"J={J}"):
@@ -213,7 +212,7 @@ def adaptive_estimates(J, Ns, *, n_max, runs, n0, window, eps, invalid_moments, 
                                   invalid_moments=invalid_moments)
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", MomentFilterWarning)
-            r = f.run(zs)
+            r = f.run(zs, chunk=ev.chunk())
         out[f"moment{N}"] = r.means
         fb_rate[f"moment{N}"] = (float(np.mean(r.extras["fallback"])), float(np.mean(r.extras["invalid"])),
                                  refresh_failure_rate(r))
@@ -253,10 +252,10 @@ def run_fig10(params, *, quick, runs, seed, progress):
                  "seed 000, Fig. 10", params)
     res.params.update(n_max=n_max, paths=R)  # the values that ran (quick caps included)
     grid = np.unique(np.linspace(params["window"], n_max, 60).astype(int))
-    for J, child in zip(Js, np.random.SeedSequence(seed).spawn(len(Js))):
+    for i, J in enumerate(Js):
         xs, est, fbr = adaptive_estimates(J, Ns, n_max=n_max, runs=R, n0=params["n0"], window=params["window"],
                                           eps=params["eps"], invalid_moments=params["invalid_moments"],
-                                          rng=np.random.default_rng(child), progress=progress)
+                                          rng=ev.stream(seed, i), progress=progress)
         qn = f"mse_n{n_max}"
         for name, e in est.items():
             sm = ev.mse(e, xs)
@@ -357,44 +356,43 @@ def run_robustness(params, *, quick, runs, seed, progress):
     res = Result("zero-order-robustness", "Zero-order filter: correlation and non-additive noise",
                  "seed 000, Chapter III", params)
     res.params.update(n=n, paths=R)  # the values that ran (quick caps included)
-    ss = np.random.SeedSequence(seed)
-    kw = dict(n0=params["n0"], window=params["window"])
+    kw, c = dict(n0=params["n0"], window=params["window"]), ev.chunk()
     m2x = (J + 1) / (J + 3)
     # --- correlation between the signal x and the measurement noise v (Gaussian copula)
-    for r, child in zip(params["r"], ss.spawn(len(params["r"]))):
+    for i, r in enumerate(params["r"]):
         r = float(r)
         if not 0 <= r < 1:
             raise ValueError(f"r: expected a copula correlation 0 <= r < 1, got {r}")
-        xs, zs, v = ZeroOrderModel(J, copula_r=r).simulate(n, R, np.random.default_rng(child), noise=True)
+        xs, zs, v = ev.in_chunks(lambda rows: ZeroOrderModel(J, copula_r=r).simulate(n, rows, ev.stream(seed, i), noise=True), R)
         z = zs[..., 0]
         rho = copula_corr(J, r)
         est = {"optimal": np.concatenate([correlated_optimal(zc, J, r) for zc in np.array_split(z, max(1, R // 20))])[..., None]}
         exv = float(np.mean(xs[..., 0] * v))  # E[xv] (the linear filter is given the true second moments)
         est["linear"] = (m2x + exv) / (m2x + 2 * exv + 1 / 3) * zs
         for N in tqdm(Ns, disable=not progress, desc=f"r={r}"):
-            run = ZeroOrderMomentFilter(N, adaptive=True, invalid_moments="ignore", **kw).run(zs)
+            run = ZeroOrderMomentFilter(N, adaptive=True, invalid_moments="ignore", **kw).run(zs, chunk=c)
             est[f"moment{N}"] = run.means
             failure_rate_row(res, f"moment{N}", refresh_failure_rate(run), case="correlated", r=r)
             est[f"moment{N}-known"] = ZeroOrderMomentFilter(N, moments=power_density_moments(N, J),
-                                                            invalid_moments="ignore").run(zs).means
+                                                            invalid_moments="ignore").run(zs, chunk=c).means
         best = _rows(res, est, xs, n, case="correlated", r=r)
         res.notes.append(f"correlated r={r}: corr(x, v) = {rho:.3f}; best adaptive N = "
                          + str(min(Ns, key=lambda N: best[f"moment{N}"])))
     # --- non-additive measurement z = x + (1 + beta x) v
-    for beta, child in zip(params["beta"], ss.spawn(len(params["beta"]) + 100)[100:]):
+    for i, beta in enumerate(params["beta"]):
         beta = float(beta)
         if not 0 <= beta < 1:
             raise ValueError(f"beta: expected 0 <= beta < 1, got {beta}")
-        xs, zs = ZeroOrderModel(J, beta=beta).simulate(n, R, np.random.default_rng(child))
+        xs, zs = ev.in_chunks(lambda rows: ZeroOrderModel(J, beta=beta).simulate(n, rows, ev.stream(seed, 100 + i)), R)
         # exact optimum: the same estimator with the true density (a degree-J polynomial, N = J)
         est = {"optimal": ScaledNoiseZeroOrderFilter(max(J, 1), beta, moments=power_density_moments(max(J, 1), J),
-                                                     nodes=96).run(zs).means}
+                                                     nodes=96).run(zs, chunk=c).means}
         est["linear"] = m2x / (m2x + (1 + beta ** 2 * m2x) / 3) * zs
         for N in tqdm(Ns, disable=not progress, desc=f"beta={beta}"):
-            run = ScaledNoiseZeroOrderFilter(N, beta, adaptive=True, invalid_moments="ignore", **kw).run(zs)
+            run = ScaledNoiseZeroOrderFilter(N, beta, adaptive=True, invalid_moments="ignore", **kw).run(zs, chunk=c)
             est[f"moment{N}"] = run.means
             failure_rate_row(res, f"moment{N}", refresh_failure_rate(run), case="scaled-noise", beta=beta)
-            run = ZeroOrderMomentFilter(N, adaptive=True, outside="clip", invalid_moments="ignore", **kw).run(zs)
+            run = ZeroOrderMomentFilter(N, adaptive=True, outside="clip", invalid_moments="ignore", **kw).run(zs, chunk=c)
             est[f"moment{N}-additive"] = run.means
             failure_rate_row(res, f"moment{N}-additive", refresh_failure_rate(run), case="scaled-noise", beta=beta)
         _rows(res, est, xs, n, case="scaled-noise", beta=beta)

@@ -52,6 +52,7 @@ import numpy as np
 
 from .. import _validate as V
 from ..errors import DivergenceError
+from ..streams import FILTER, PathRNG
 from .beliefs import GaussianState, where_paths
 from .linalg import _all_ok, bad_paths, symmetrize
 
@@ -294,7 +295,7 @@ class Filter:
 
     # -- the one loop ------------------------------------------------------------------------------
     def run(self, ys, m0=None, P0=None, *, initial=None, rng=None, t0: float = 0.0,
-            on_divergence: str = "raise", progress: bool = False) -> Estimates:
+            on_divergence: str = "raise", progress: bool = False, chunk: int | None = None) -> Estimates:
         """Filter a batch of measurement sequences ``ys (..., T, m)`` (increments for a
         continuous-time filter) from the prior ``(m0, P0)``.
 
@@ -305,11 +306,17 @@ class Filter:
             (filters with a prior of their own, e.g. a density on the support, take None)
         initial : a law with ``logpdf``/``sample`` for the filters that take a non-Gaussian prior
             (grid and particle filters); the others refuse it
-        rng : the random stream (a ``Generator`` or seed) of the filters that draw (``random``);
-            deterministic filters draw nothing and ignore it, so one call serves every filter
+        rng : the random streams of the filters that draw (``random``): a seed, ``SeedSequence``
+            or ``Generator`` (the root: path ``p`` of the flattened batch draws from its stream
+            ``FILTER``, :mod:`nlfilter.streams`), or a :class:`~nlfilter.streams.PathRNG` over the
+            paths (e.g. ``PathRNG(seed, range(100, 200), key=FILTER)``: the streams of paths
+            100..199, so the run gives those rows of the run on all paths); deterministic filters
+            draw nothing and ignore it, so one call serves every filter
         t0 : continuous time: the time of the first increment's start
         on_divergence : ``"raise"`` (default) or ``"mark"``
         progress : show a progress bar over the steps
+        chunk : None (all paths at once) or the number of paths per batch: the loop runs the paths
+            of the flattened batch in chunks and concatenates (the same numbers for any chunk)
 
         Returns
         -------
@@ -324,6 +331,20 @@ class Filter:
         t0 = float(t0)
         if self.time != "continuous" and t0 != 0.0:
             raise ValueError(f"t0: a discrete-time filter indexes steps by k; expected 0.0, got {t0!r}")
+        if self.random:
+            rng = PathRNG.of(rng, B, key=FILTER)
+        if chunk is not None and V.positive("chunk", chunk, integer=True) < B:
+            def rows(a, tail, lo, hi):  # a per-path prior (*batch, ...) -> its rows lo..hi-1
+                if a is None or np.ndim(a) <= tail:
+                    return a
+                a = np.asarray(a)
+                return np.broadcast_to(a, (*batch, *a.shape[a.ndim - tail:])).reshape(B, *a.shape[a.ndim - tail:])[lo:hi]
+            parts = [self.run(yf[lo:lo + chunk], rows(m0, 1, lo, lo + chunk), rows(P0, 2, lo, lo + chunk),
+                              initial=initial, rng=rng.take(slice(lo, lo + chunk)) if self.random else rng,
+                              t0=t0, on_divergence=on, progress=progress) for lo in range(0, B, chunk)]
+            est = Estimates.concatenate(parts)
+            out = lambda a: a.reshape(*batch, *a.shape[1:])  # noqa: E731
+            return Estimates(*(out(a) for a in est[:4]), MappingProxyType({k: out(v) for k, v in est.extras.items()}))
         belief = self.init(m0, P0, batch, initial=initial, rng=rng)
         start = belief
         rec = _Recorder(self, B, T, on)

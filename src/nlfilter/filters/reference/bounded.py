@@ -23,6 +23,7 @@ import numpy as np
 
 from ... import _validate as V
 from ...bounded import BoundedNoiseModel
+from ...streams import FILTER, PathRNG
 from ..base import Filter
 
 __all__ = ["BoundedGridFilter1D", "BoundedParticleFilter", "GridBelief", "ParticleBelief"]
@@ -128,7 +129,8 @@ class BoundedGridFilter1D(_BoundedReference):
 
 class ParticleBelief(NamedTuple):
     """Particles ``x (B, P, n)`` (equally weighted), the posterior ``mean (B, n)`` and ``cov (B, n, n)``
-    of the weighted particles before resampling, and the random stream ``rng`` (shared)."""
+    of the weighted particles before resampling, and the per-path generators ``rng`` (a
+    :class:`~nlfilter.streams.PathRNG`, one object for the run)."""
 
     x: np.ndarray
     mean: np.ndarray
@@ -143,7 +145,9 @@ class BoundedParticleFilter(_BoundedReference):
 
     Uniform likelihood ``1{|z - c.x| <= c_v}`` (000 eq. 3.3), systematic resampling every step;
     the input is drawn from ``model.w_law``. ``run(ys, initial=x0_sampler, rng=...)``:
-    ``x0_sampler(rng, shape) -> (*shape, n)`` draws ``x_0``. When every particle of a path is
+    ``x0_sampler(generator, shape) -> (*shape, n)`` draws ``x_0``, called per path with that path's
+    generator (``rng``: a seed, SeedSequence or Generator, path ``p`` then draws from the stream
+    ``FILTER`` of path ``p``, :mod:`nlfilter.streams`; or a PathRNG over the paths). When every particle of a path is
     excluded by a measurement the nearest ones are kept (rare). Means and covariances are those of
     the weighted particles.
     """
@@ -167,15 +171,16 @@ class BoundedParticleFilter(_BoundedReference):
                 raise ValueError(f"{name}: the particle filter draws x_0 from initial(rng, shape); expected None, got {v!r}")
         if not callable(initial):
             raise TypeError(f"initial: expected a sampler initial(rng, shape) -> (*shape, n), got {type(initial).__name__}")
-        rng = np.random.default_rng(rng)
         B, n = math.prod(batch), self.model.n
-        x = np.asarray(initial(rng, (B, self.P)), dtype=float).reshape(B, self.P, n)
+        rng = PathRNG.of(rng, B, key=FILTER)
+        x = np.asarray(rng.draw(initial, (self.P,)), dtype=float).reshape(B, self.P, n)
         mean = x.mean(axis=1)
         return ParticleBelief(x, mean, _cov(x, np.full((B, self.P), 1.0 / self.P), mean), rng)
 
     def predict(self, belief, k):
         B = belief.x.shape[0]
-        x = belief.x @ self.model.A.T + self.model.w_law.rvs(size=(B, self.P), random_state=belief.rng)[..., None] * self.model.b
+        w = belief.rng.draw(lambda g, s: self.model.w_law.rvs(size=s, random_state=g), (self.P,))
+        x = belief.x @ self.model.A.T + w[..., None] * self.model.b
         mean = x.mean(axis=1)
         return belief._replace(x=x, mean=mean, cov=_cov(x, np.full((B, self.P), 1.0 / self.P), mean))
 
@@ -197,7 +202,7 @@ class BoundedParticleFilter(_BoundedReference):
         cov = _cov(x, wts, mean)
         cdf = np.cumsum(wts, axis=1)
         cdf[:, -1] = 1.0
-        u = (rng.random((R, 1)) + np.arange(P)) / P
+        u = (rng.random((1,)) + np.arange(P)) / P
         idx = np.minimum(np.array([np.searchsorted(cdf[r], u[r]) for r in range(R)]), P - 1)
         xr = np.take_along_axis(x, idx[..., None], axis=1)
         xr = np.where(obs[:, None, None], xr, x)

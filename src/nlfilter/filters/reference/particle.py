@@ -1,8 +1,9 @@
 """Bootstrap particle filter, batched over paths (see :mod:`nlfilter.filters.reference`).
 
 The belief is a :class:`ParticleBelief`: particles ``x (B, Np, n)``, their log-weights
-``logw (B, Np)`` and the random generator the filter draws from (shared by all paths: the
-particles of every path are drawn from one stream, path after path, in a fixed order).
+``logw (B, Np)`` and the per-path generators the filter draws from (a
+:class:`~nlfilter.streams.PathRNG`: path ``p`` draws its particles from its own stream, so a run
+on some paths gives the rows of the run on all paths, bitwise).
 """
 
 from __future__ import annotations
@@ -12,18 +13,19 @@ from typing import NamedTuple
 import numpy as np
 
 from ... import _validate as V
+from ...streams import FILTER, PathRNG
 from ..linalg import measurement_loglik, observed_precision
 from ._common import _ReferenceFilter
 
 
 class ParticleBelief(NamedTuple):
     """Particles ``x (B, Np, n)``, log-weights ``logw (B, Np)`` (unnormalized: the weights of the
-    last update, kept until the next ``predict``/``step`` resamples), and the generator ``rng``
-    (not per path)."""
+    last update, kept until the next ``predict``/``step`` resamples), and the per-path generators
+    ``rng`` (one object for the run: a restarted path keeps drawing from its stream)."""
 
     x: np.ndarray
     logw: np.ndarray
-    rng: np.random.Generator
+    rng: PathRNG
 
     _shared = ("rng",)
 
@@ -49,11 +51,12 @@ def _weights(logw):
 
 def systematic_resample(w, rng):
     """Systematic resampling of each row of ``w (B, Np)`` (normalized weights): indices ``(B, Np)``,
-    one uniform draw per row from ``rng``."""
+    one uniform draw per row, from the row's generator (``rng`` a
+    :class:`~nlfilter.streams.PathRNG` over the rows) or from one ``Generator``."""
     B, Np = w.shape
     c = np.cumsum(w, axis=1)
     c[:, -1] = 1.0
-    u = (rng.random((B, 1)) + np.arange(Np)) / Np
+    u = ((rng.random((1,)) if isinstance(rng, PathRNG) else rng.random((B, 1))) + np.arange(Np)) / Np
     off = np.arange(B)[:, None]
     idx = np.searchsorted((c + off).ravel(), (u + off).ravel(), side="right")
     return np.minimum(idx.reshape(B, Np) - off * Np, Np - 1)
@@ -62,8 +65,10 @@ def systematic_resample(w, rng):
 class ParticleFilter(_ReferenceFilter):
     """Bootstrap particle filter, batched over paths; see :mod:`nlfilter.filters.reference`.
     Discrete models: ``predict``/``update``; SDE models: ``step`` (``time`` is ``"continuous"``).
-    ``run(..., rng=)`` seeds the particles (a Generator or seed); the prior is N(m0, P0) (one for
-    all paths) or the law ``initial``.
+    ``run(..., rng=)`` seeds the particles (a seed, SeedSequence or Generator: path ``p`` draws
+    from the stream ``FILTER`` of path ``p``, :mod:`nlfilter.streams`; or a
+    :class:`~nlfilter.streams.PathRNG` over the paths); the prior is N(m0, P0) (one for all paths)
+    or the law ``initial``.
 
     Parameters
     ----------
@@ -93,15 +98,15 @@ class ParticleFilter(_ReferenceFilter):
     # -- the belief functions ----------------------------------------------------------------
     def init(self, m0, P0, batch, *, initial=None, rng=None) -> ParticleBelief:
         """``particles`` draws per path from N(m0, P0) (one prior for all paths) or the law
-        ``initial``, all paths from ``rng`` in turn; equal weights."""
+        ``initial``, each path from its own stream; equal weights."""
         from ...simulate import initial_states
         md = self.model
-        rng = V.rng(rng)
         if initial is None and np.ndim(m0) > 1:
             raise ValueError(f"m0: the particle filter takes one prior mean ({md.n},) for all paths, "
                              f"got shape {np.shape(m0)}")
         B, Np = int(np.prod(batch)), self.particles
-        x = initial_states(md.n, B * Np, rng, m0=m0, P0=P0, initial=initial).reshape(B, Np, md.n)
+        rng = PathRNG.of(rng, B, key=FILTER)
+        x = initial_states(md.n, B, rng, m0=m0, P0=P0, initial=initial, shape=(Np,))
         return ParticleBelief(x, np.zeros((B, Np)), rng)
 
     def predict(self, belief: ParticleBelief, k) -> ParticleBelief:
@@ -168,7 +173,7 @@ class ParticleFilter(_ReferenceFilter):
         ess = 1.0 / np.sum(w**2, axis=1)
         rs = ess < self.threshold * Np
         if rs.any():
-            idx = systematic_resample(w[rs], belief.rng)
+            idx = systematic_resample(w[rs], belief.rng.take(rs))
             x, logw = x.copy(), logw.copy()
             x[rs] = np.take_along_axis(x[rs], idx[..., None], axis=1)
             logw[rs] = 0.0
@@ -179,13 +184,13 @@ class ParticleFilter(_ReferenceFilter):
         Euler–Maruyama substeps over ``[t, t + dt]`` (SDE)."""
         md = self.model
         if md.kind == "discrete":
-            w = md.process_noise.sample(rng, x.shape[:-1])
+            w = rng.sample(md.process_noise, x.shape[1:-1])
             return md.f(x, t) + md.Gw(x, w, t)
         h = self.dt / self.substeps
         L = md.process_noise._sqrt
         for j in range(self.substeps):
             s = t + j * h
-            dB = rng.standard_normal((*x.shape[:-1], md.r)) @ L.T * np.sqrt(h)
+            dB = rng.standard_normal((*x.shape[1:-1], md.r)) @ L.T * np.sqrt(h)
             x = x + md.f(x, s) * h + md.Gw(x, dB, s)
         return x
 

@@ -27,6 +27,7 @@ from typing import NamedTuple
 import numpy as np
 
 from ... import _validate as V
+from ...streams import FILTER, PathRNG
 from ..base import Filter, ode_step
 from ..linalg import observed_precision
 from .particle import systematic_resample
@@ -38,7 +39,8 @@ class ResampleMoveBelief(NamedTuple):
     ``logw (B, Np)`` log-weights, ``ys (B, K, m)`` the K measurements so far, ``mean (B, n)``,
     ``cov (B, n, n)`` the estimate, ``alive (B,)`` (False: a diverged path, left alone),
     ``accepted``/``proposed (B,)`` cumulative Metropolis counts. Shared: ``ks`` (the step index of
-    each stored measurement), ``prior`` ``(m0, P0⁻¹, √diag P0)``, the generator ``rng``."""
+    each stored measurement), ``prior`` ``(m0, P0⁻¹, √diag P0)``, the per-path generators ``rng``
+    (a :class:`~nlfilter.streams.PathRNG`)."""
 
     x0: np.ndarray
     x: np.ndarray
@@ -52,7 +54,7 @@ class ResampleMoveBelief(NamedTuple):
     proposed: np.ndarray
     ks: tuple
     prior: tuple
-    rng: np.random.Generator
+    rng: PathRNG
 
     _shared = ("ks", "prior", "rng")
 
@@ -75,7 +77,8 @@ class ResampleMoveParticleFilter(Filter):
     **without process noise** (``Q = 0``) read as continuous-discrete: ``dx/dt = f(x, t)``,
     ``y_k = h(x(t_k)) + v_k``, ``v_k ~ N(0, R)``, ``t_k = t0 + k dt`` (``predict``/``update``, as
     :class:`~nlfilter.filters.second_order.ContinuousDiscreteSecondOrderFilter`). The prior is
-    N(m0, P0), one for all paths; ``run(..., rng=)`` seeds the particles and the moves.
+    N(m0, P0), one for all paths; ``run(..., rng=)`` seeds the particles and the moves (path ``p``
+    from the stream ``FILTER`` of path ``p``, :mod:`nlfilter.streams`, or a PathRNG over the paths).
 
     Parameters
     ----------
@@ -139,12 +142,11 @@ class ResampleMoveParticleFilter(Filter):
     # -- the belief functions ----------------------------------------------------------------
     def init(self, m0, P0, batch, *, initial=None, rng=None) -> ResampleMoveBelief:
         """``particles`` draws per path from N(m0, P0) (one prior for all paths, all paths from
-        ``rng`` at once), equal weights, no measurement yet."""
+        its own stream), equal weights, no measurement yet."""
         if initial is not None:
             raise ValueError(f"initial: {type(self).__name__} starts from a Gaussian prior (m0, P0); "
                              f"expected None, got {type(initial).__name__}")
         n, m = self.model.n, self.model.m
-        rng = V.rng(rng)
         if np.ndim(m0) > 1 or np.ndim(P0) > 2:
             raise ValueError(f"m0: the resample-move filter takes one prior ({n},), ({n}, {n}) for all paths, "
                              f"got shapes {np.shape(m0)}, {np.shape(P0)}")
@@ -155,7 +157,8 @@ class ResampleMoveParticleFilter(Filter):
                              f"got {P0.tolist()}")
         D = np.sqrt(np.diag(P0))
         B, Np = int(np.prod(batch)), self.particles
-        z = rng.standard_normal((B, Np, n))
+        rng = PathRNG.of(rng, B, key=FILTER)
+        z = rng.standard_normal((Np, n))
         if np.count_nonzero(P0 - np.diag(np.diag(P0))) == 0:
             x0 = m0 + z * D
         else:
@@ -225,7 +228,8 @@ class ResampleMoveParticleFilter(Filter):
         res = (1.0 / np.sum(w**2, axis=1) < self.threshold * Np) & alive & ~gone
         if res.any():
             rows = np.flatnonzero(res)
-            idx = systematic_resample(w[rows], rng)
+            sub = rng.take(rows)  # the resampled paths' generators
+            idx = systematic_resample(w[rows], sub)
             take = lambda a: np.take_along_axis(a[rows], idx[..., None] if a.ndim == 3 else idx, axis=1)  # noqa: E731
             z0, zk, zc = take(x0), take(x), take(cum)
             logw[rows] = 0.0
@@ -239,7 +243,7 @@ class ResampleMoveParticleFilter(Filter):
                 c = z0 - z0.mean(axis=1, keepdims=True)
                 C = np.einsum("bpi,bpj->bij", c, c) / Np / np.outer(D, D)  # in prior-scaled units
                 L = np.linalg.cholesky(C + 1e-12 * np.eye(n)) * D[:, None]
-                prop = z0 + self.scale * rng.standard_normal(z0.shape) @ np.swapaxes(L, -1, -2)
+                prop = z0 + self.scale * sub.standard_normal(z0.shape[1:]) @ np.swapaxes(L, -1, -2)
                 xt, llp = prop.copy(), np.zeros(z0.shape[:2])
                 for j in range(k + 1):  # x(t_j) from x0 = x(t_0); the measurements at their steps
                     if j > 0:
@@ -247,7 +251,7 @@ class ResampleMoveParticleFilter(Filter):
                     if j in at:
                         llp = llp + self._loglik(xt, ys[rows, at[j]], j)
                 log_a = logprior(prop) + llp - logprior(z0) - zc
-                acc = np.log(rng.random(llp.shape)) < log_a
+                acc = np.log(sub.random(llp.shape[1:])) < log_a
                 accepted[rows] += acc.sum(axis=1)
                 proposed[rows] += acc.shape[1]
                 z0 = np.where(acc[..., None], prop, z0)
