@@ -18,8 +18,10 @@ certificate is ``Result.params["reference"]``, and its error is added (in quadra
 standard error of every ``gap_to_optimal``. A ``GridFilter`` or ``ParticleFilter`` given as
 ``reference`` is checked the same way (one refinement); any other reference is taken as given.
 
-Any filter that draws (``random = True``: a particle filter in ``filters``) gets a stream of its
-own, keyed by its name: runs are reproducible from ``rng`` and do not depend on the other filters.
+Randomness: ``compare(rng=seed)`` simulates exactly ``simulate(..., rng=seed)``'s paths (per-path
+streams, :mod:`nlfilter.streams`); any filter that draws (``random = True``: a particle filter)
+gets per-path sub-streams of its own, keyed by its name: runs are reproducible from ``rng``, do
+not depend on the other filters, and are the same for any ``chunk`` of paths.
 """
 
 from __future__ import annotations
@@ -31,7 +33,8 @@ import zlib
 import numpy as np
 
 from . import _validate as V
-from .evaluate import _window, mse, mse_per_step, nees, paired_difference, stream
+from . import streams
+from .evaluate import _window, mse, mse_per_step, nees, paired_difference
 from .filters import REGISTRY
 from .filters.base import Estimates
 from .moments.closures import gaussian_moments
@@ -44,23 +47,24 @@ from .yardstick import MAX_PARTICLES, OPTIMAL, certified_reference, check_given_
 
 
 def _streams(rng):
-    """``(simulation generator, root SeedSequence of the filters' own streams, seed or None)``.
+    """``(root SeedSequence, seed or None)``: the simulation is ``simulate(..., rng=root)`` — for
+    an int seed the same paths as ``simulate(..., rng=seed)`` —, the filters' own streams are
+    sub-streams of the same root (:mod:`nlfilter.streams`)."""
+    if isinstance(rng, bool) or not isinstance(rng, (numbers.Integral, np.random.Generator, np.random.SeedSequence)) \
+            or (isinstance(rng, numbers.Integral) and rng < 0):
+        raise TypeError(f"rng: expected a non-negative integer seed, a numpy.random.SeedSequence or a "
+                        f"numpy.random.Generator, got {rng!r}")
+    return streams.root(rng), (int(rng) if isinstance(rng, numbers.Integral) else None)
 
-    An int seed simulates with ``stream(seed, 0)``; a Generator simulates itself and roots the
-    filters' streams in a spawned child, so neither shifts the simulation's numbers."""
-    if isinstance(rng, np.random.Generator):
-        return rng, rng.spawn(1)[0].bit_generator.seed_seq, None
-    if isinstance(rng, bool) or not isinstance(rng, numbers.Integral) or rng < 0:
-        raise TypeError(f"rng: expected a non-negative integer seed or a numpy.random.Generator, got {rng!r}")
-    return stream(int(rng), 0), np.random.SeedSequence(int(rng)), int(rng)
 
-
-def _run_rng(root, name):
-    """The generator of a filter whose ``run`` takes ``rng`` (particle filters): the reference gets
-    spawn key 1 (``stream(seed, 1)`` for an int seed), a filter a key from its name, so that
-    adding or removing other filters does not change its numbers."""
-    key = (1,) if name == OPTIMAL else (2, zlib.crc32(name.encode()))
-    return np.random.default_rng(np.random.SeedSequence(root.entropy, spawn_key=(*root.spawn_key, *key)))
+def _run_rng(root, name, paths):
+    """The per-path streams of a filter whose ``run`` takes ``rng`` (particle filters), over the
+    first ``paths`` paths: path ``p`` draws from the sub-stream ``(p, key)`` of the comparison's
+    root, ``key = FILTER`` for the reference's main runs (the stream ``Filter.run(rng=seed)``
+    uses) and a key from the name for every other filter (or refinement), so that adding or
+    removing other filters, or splitting the paths into chunks, does not change its numbers."""
+    key = streams.FILTER if name == OPTIMAL else 1 + zlib.crc32(name.encode())
+    return streams.PathRNG(root, paths, key=key)
 
 
 def _check_filter(label, flt, model, dt, start):
@@ -156,7 +160,7 @@ def _component_names(model):
 
 def compare(model, filters, steps, *, paths=200, m0, P0, rng=0, reference="auto", window=0.5, dt=None,
             substeps=10, start="update", progress=False, on_divergence="mark", rtol=0.02, certify_paths=64,
-            max_particles=MAX_PARTICLES, full_output=False):
+            max_particles=MAX_PARTICLES, chunk=None, full_output=False):
     """Run every filter and a near-optimal reference on one shared simulation; a :class:`Result`.
 
     Parameters
@@ -173,8 +177,10 @@ def compare(model, filters, steps, *, paths=200, m0, P0, rng=0, reference="auto"
         :class:`~nlfilter.filters.base.Estimates`), built for ``model`` (and ``dt``)
     steps, paths : measurement steps and Monte Carlo paths (``paths ≥ 2``)
     m0, P0 : the prior: true initial states are drawn from N(m0, P0); every filter starts there
-    rng : an integer seed or a ``numpy.random.Generator`` (the simulation's; filters that draw
-        random numbers get spawned streams of their own)
+    rng : an integer seed, a ``SeedSequence`` or a ``numpy.random.Generator``: the root of the
+        per-path streams; the simulation is ``simulate(model, steps, paths=paths, rng=rng, ...)``'s
+        (the same paths for an int seed), and filters that draw random numbers get sub-streams of
+        their own per path
     reference : ``"auto"`` (a certified reference, see the module docstring), a filter instance,
         or ``None`` (no reference, no ``gap_to_optimal`` rows); it is named ``"optimal"`` in rows
         and figure when certified (or not checkable), else ``"reference (not converged)"``, and
@@ -182,6 +188,8 @@ def compare(model, filters, steps, *, paths=200, m0, P0, rng=0, reference="auto"
     rtol, certify_paths, max_particles : the reference's certificate: the largest error bound
         ``|Δ| + 2 se`` of its MSE relative to the MSE, the paths of its refinement run, and the
         most particles the automatic reference may use (:mod:`nlfilter.yardstick`)
+    chunk : None, or run every filter on that many paths at a time (memory); the numbers are the
+        same for any chunk (per-path streams, :mod:`nlfilter.streams`)
     full_output : also return the :class:`~nlfilter.simulate.Simulation` and the dict
         name -> :class:`~nlfilter.filters.base.Estimates` the numbers were computed from
     window : what :func:`~nlfilter.evaluate.mse` averages over (``0.5``: the second half)
@@ -252,10 +260,12 @@ def compare(model, filters, steps, *, paths=200, m0, P0, rng=0, reference="auto"
            else np.full(model.n, float(m0)))
     V.finite("m0", m0v)
     P0m = V.covariance("P0", P0, model.n)
-    sim_rng, root, seed = _streams(rng)
+    root, seed = _streams(rng)
+    if chunk is not None:
+        V.positive("chunk", chunk, integer=True)
 
     sim_kw = {"dt": dt, "substeps": substeps} if kind == "sde" else {"start": start}
-    sim = simulate(model, steps, paths=paths, rng=sim_rng, m0=m0v, P0=P0m, **sim_kw)
+    sim = simulate(model, steps, paths=paths, rng=root, m0=m0v, P0=P0m, **sim_kw)
 
     params = {"steps": steps, "paths": paths, "window": window, "seed": seed, "start": start,
               "on_divergence": on_divergence, "m0": m0v.tolist(),
@@ -266,7 +276,9 @@ def compare(model, filters, steps, *, paths=200, m0, P0, rng=0, reference="auto"
     def run(name, flt, ys, key=None, bar=False):
         """One filter's estimates on ``ys`` (its own random stream keyed by ``key or name``; a
         progress bar over its steps with ``bar``); a numerical failure names the filter."""
-        kw = {"rng": _run_rng(root, key or name)} if getattr(flt, "random", False) else {}
+        kw = {"rng": _run_rng(root, key or name, ys.shape[0])} if getattr(flt, "random", False) else {}
+        if chunk is not None:
+            kw["chunk"] = chunk
         if bar:
             kw["progress"] = True
         try:

@@ -338,9 +338,14 @@ def check_given_reference(flt, est, model, sim, *, run, judged=None, window=0.5,
                          "mse": ref_mse}],
                        time.perf_counter() - t_start, "given by the caller")
     if not ok:
-        warnings.warn(f"compare: the given reference ({kind} {size}) is not converged: refining it changed the MSE by "
-                      f"{', '.join(f'{d:+.3g} ± {se:.2g}' for d, se in error)}, edge mass "
-                      f"{diag.get('edge_mass_max', 0.0):.2g}, {diag['diverged']} diverged path(s); its numbers are "
-                      f"labelled {NOT_CONVERGED!r}: raise its resolution (or widen a grid's bounds)",
+        what = [f"refining it changed the MSE by {', '.join(f'{d:+.3g} ± {se:.2g}' for d, se in error)} "
+                f"(tolerance {', '.join(f'{t:.3g}' for t in tol)})"]
+        if kind == "grid":
+            what.append(f"edge mass {diag.get('edge_mass_max', 0.0):.2g} (at most {EDGE_MASS:g})")
+        if diag["diverged"]:
+            what.append(f"{diag['diverged']} diverged path(s)")
+        warnings.warn(f"compare: the given reference ({kind} {size}) is not converged: {'; '.join(what)}; its numbers "
+                      f"are labelled {NOT_CONVERGED!r}: raise its "
+                      f"{'points per axis or widen its bounds' if kind == 'grid' else 'particles'}",
                       ReferenceWarning, stacklevel=3)
     return cert
