@@ -172,10 +172,10 @@ def test_discrete_error_analysis_cubic_drift_agrees_with_monte_carlo():
     """x[k+1] = 0.9 x − 0.05 x³ + w, y = x + v, Q = R = 0.1, x[0] ~ N(2, 0.2), 30 steps. Tolerance:
     4 standard errors of the MC mean (400 000 paths; a false alarm ~6e-5 per check) plus the closure's
     error, estimated by the change of the analysis from Edgeworth-4 to Edgeworth-6 (≈ 2e-5, 0.1 se).
-    Measured (seed 5): E4 within 1.6 se at k ≥ 2 and 0.25 se on the k ≥ 10 average; at k = 0, where the
-    analysis is exactly the Kalman P⁺, this seed's MC is 3.1 se off (sampling: corr(x[0], v[0]) of the
-    draw is −3.3 se). The MC is sharp enough to reject the Gaussian-closure analysis
-    at order 4 (moments ≤ 4 kept, higher ones Gaussian: +0.8 %, 14.6 se)."""
+    Measured (seed 5, per-path streams): E4 within 1.8 se at k ≥ 2, 0.13 se at k = 0 (where the
+    analysis is exactly the Kalman P⁺) and 0.04 se on the k ≥ 10 average (the old single-stream
+    draw of seed 5 was 3.1 se off at k = 0: sampling). The MC is sharp enough to reject the
+    Gaussian-closure analysis at order 4 (moments ≤ 4 kept, higher ones Gaussian: +0.8 %, 14.3 se)."""
     from nlfilter.moments import GaussianClosure
     model = DiscreteModel([x], [0.9 * x - 0.05 * x**3], [x], Q=0.1, R=0.1)
     f = DiscreteQuasilinearFilter(model)
@@ -196,7 +196,7 @@ def test_discrete_error_analysis_cubic_sensor_agrees_with_monte_carlo():
     """x[k+1] = 0.9 x + w, y = x³ + v, Q = R = 0.1, x[0] ~ N(1, 0.1). x is Gaussian and x̂ enters the
     map linearly, so the moments behind the MSE (x^j, x̂ x^j, x̂²) form a closed set whose closure
     terms are Gaussian moments of x: the analysis is exact for every closure; tolerance 4 MC standard
-    errors (200 000 paths). Measured (seed 7): within 1.3 se at every step checked."""
+    errors (200 000 paths). Measured (seed 7, per-path streams): within 1.0 se at every step checked."""
     from nlfilter.moments import GaussianClosure
     model = DiscreteModel([x], [0.9 * x], [x**3], Q=0.1, R=0.1)
     f = DiscreteQuasilinearFilter(model)
