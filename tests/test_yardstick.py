@@ -175,3 +175,12 @@ def test_compare_simulates_what_simulate_does_and_any_chunk_gives_the_same_numbe
     pf = [r for r in res.rows if r.filter == "pf" and r.quantity == "mse"][0]
     assert pf == [r for r in chunked.rows if r.filter == "pf" and r.quantity == "mse"][0]
     assert est["pf"].extras["ess"].shape == (9, 15)
+
+
+def test_a_given_grid_too_large_to_refine_is_taken_as_given():
+    md = DiscreteModel.linear(np.diag([0.9, 0.8]), np.eye(2), 0.1 * np.eye(2), 0.5 * np.eye(2))
+    grid = GridFilter(md, [(-4.0, 4.0), (-4.0, 4.0)], 61)  # its 2× refinement: 121² = 14641 points
+    res = compare(md, {"kf": KalmanFilter(md)}, 5, paths=4, m0=np.zeros(2), P0=np.eye(2), rng=0, reference=grid)
+    cert = res.params["reference"]
+    assert cert["certified"] is None and "not checked" in cert["reason"] and cert["label"] == OPTIMAL
+    assert res.get(OPTIMAL, "edge_mass").value < 1e-3 and res.get("kf", "gap_to_optimal", component=0)

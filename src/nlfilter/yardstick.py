@@ -54,6 +54,7 @@ RESOLUTION = 4          # grid points per (smallest) scale
 POSTERIOR_QUANTILE = 0.1
 GRID_POINTS = {1: 4001, 2: 1700}   # the largest automatic grid on all paths (its 2× refinement runs on a few)
 GRID_MIN = {1: 101, 2: 21}
+REFINE_POINTS = {1: 4 * GRID_POINTS[1], 2: 4 * GRID_POINTS[2]}  # the largest refinement run (a few paths)
 PARTICLES = 2000
 MAX_PARTICLES = 32000
 EDGE_MASS = 1e-3
@@ -306,14 +307,24 @@ def certified_reference(model, sim, m0, P0, *, run, judged=None, dt=None, start=
 def check_given_reference(flt, est, model, sim, *, run, judged=None, window=0.5, rtol=0.02, certify_paths=64):
     """The certificate of a reference the user passed: a ``GridFilter`` or ``ParticleFilter`` is
     refined once (``2×`` points per axis, ``4×`` particles) on ``certify_paths`` paths and
-    labelled as the automatic one; other kinds are taken as given (``certified = None``, named
-    ``"optimal"``). Edge mass and effective sample size are reported either way; a grid whose
+    labelled as the automatic one; other kinds, and grids whose refinement would exceed
+    :data:`REFINE_POINTS` points, are taken as given (``certified = None``, named ``"optimal"``). Edge mass and effective sample size are reported either way; a grid whose
     edge mass exceeds :data:`EDGE_MASS` or a refinement that moves the MSE beyond ``rtol``
     warns."""
     t_start = time.perf_counter()
     diag = _diagnostics(est)
     P = sim.ys.shape[0]
     sub = slice(0, min(certify_paths, P))
+    if isinstance(flt, GridFilter) and math.prod(2 * len(a) - 1 for a in flt.axes) > REFINE_POINTS[flt.model.n]:
+        cert = Certificate("grid", None, OPTIMAL, [len(a) for a in flt.axes], rungs=[diag],
+                           seconds=time.perf_counter() - t_start,
+                           reason=f"given by the caller; its 2× refinement "
+                                  f"({math.prod(2 * len(a) - 1 for a in flt.axes)} points) exceeds "
+                                  f"{REFINE_POINTS[flt.model.n]}: not checked")
+        if diag.get("edge_mass_max", 0.0) > EDGE_MASS:
+            warnings.warn(f"compare: the given grid's edge mass reaches {diag['edge_mass_max']:.2g} (at most "
+                          f"{EDGE_MASS:g}): its bounds cut the density off; widen them", ReferenceWarning, stacklevel=3)
+        return cert
     if isinstance(flt, GridFilter):
         finer = GridFilter(flt.model, [(float(a[0]), float(a[-1])) for a in flt.axes] if flt.model.n > 1
                            else (float(flt.axes[0][0]), float(flt.axes[0][-1])),
