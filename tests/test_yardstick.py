@@ -177,10 +177,16 @@ def test_compare_simulates_what_simulate_does_and_any_chunk_gives_the_same_numbe
     assert est["pf"].extras["ess"].shape == (9, 15)
 
 
-def test_a_given_grid_too_large_to_refine_is_taken_as_given():
+def test_a_given_grid_too_large_to_refine_is_checked_against_particles():
     md = DiscreteModel.linear(np.diag([0.9, 0.8]), np.eye(2), 0.1 * np.eye(2), 0.5 * np.eye(2))
-    grid = GridFilter(md, [(-4.0, 4.0), (-4.0, 4.0)], 61)  # its 2× refinement: 121² = 14641 points
-    res = compare(md, {"kf": KalmanFilter(md)}, 5, paths=4, m0=np.zeros(2), P0=np.eye(2), rng=0, reference=grid)
+    grid = GridFilter(md, [(-6.0, 6.0), (-6.0, 6.0)], 61)  # its 2× refinement: 121² = 14641 points
+    res = compare(md, {"kf": KalmanFilter(md)}, 20, paths=40, certify_paths=40, m0=np.zeros(2), P0=np.eye(2),
+                  rng=0, reference=grid)
     cert = res.params["reference"]
-    assert cert["certified"] is None and "not checked" in cert["reason"] and cert["label"] == OPTIMAL
+    assert "checked against 8000 particles" in cert["reason"] and cert["certified"] is True, cert
     assert res.get(OPTIMAL, "edge_mass").value < 1e-3 and res.get("kf", "gap_to_optimal", component=0)
+    # the old automatic rule's 61 × 61 grid on the pendulum: too coarse, and now said so
+    with pytest.warns(ReferenceWarning, match="not converged"):
+        bad = compare(PENDULUM, {"ukf": UKF(PENDULUM)}, 20, paths=12, certify_paths=6,
+                      reference=GridFilter(PENDULUM, [(-2.5, 4.0), (-6.0, 6.0)], 61), **PKW)
+    assert bad.params["reference"]["certified"] is False

@@ -24,8 +24,8 @@ itself:
    component is measured on those paths as a paired difference ``Δ ± se``. The tolerance per
    component is ``rtol`` times its MSE or the smallest standard error of the gaps it judges (an
    error below the comparison's resolution changes no verdict), whichever is larger; when in
-   every component ``se`` is within it and ``|Δ|`` is within it or within ``2 se`` (no change
-   beyond the noise), the reference is *certified* and named ``"optimal"``. Otherwise the next rung replaces it (run on all paths:
+   every component ``se`` is within it and the decrease ``−Δ`` is within it or within ``2 se``
+   (no gain beyond the noise), the reference is *certified* and named ``"optimal"``. Otherwise the next rung replaces it (run on all paths:
    particles after a grid, ``4×`` the particles after particles, up to ``max_particles``) and is
    checked the same way; a reference that never
    passes is named ``"reference (not converged)"`` and a :class:`~nlfilter.errors.ReferenceWarning`
@@ -227,10 +227,12 @@ def _tolerance(est, judged, xs, window, rtol):
 
 def _verdict(error, tol):
     """``(bound |Δ| + 2 se per component, certified)``: certified when in every component the
-    refinement's noise is within the tolerance (``se ≤ tol``) and its change is within the
-    tolerance or not distinguishable from that noise (``|Δ| ≤ max(tol, 2 se)``)."""
+    refinement's noise is within the tolerance (``se ≤ tol``) and the decrease of the MSE it
+    brings is within the tolerance or not distinguishable from that noise
+    (``max(−Δ, 0) ≤ max(tol, 2 se)``). One-sided: a finer reference that does *worse*
+    (``Δ > 0``) shows its own error (a particle filter's noise), not this reference's."""
     bound = [abs(d) + 2 * se for d, se in error]
-    ok = all(np.isfinite(d) and np.isfinite(se) and se <= t and abs(d) <= max(t, 2 * se)
+    ok = all(np.isfinite(d) and np.isfinite(se) and se <= t and max(-d, 0.0) <= max(t, 2 * se)
              for (d, se), t in zip(error, tol))
     return bound, ok
 
@@ -307,25 +309,24 @@ def certified_reference(model, sim, m0, P0, *, run, judged=None, dt=None, start=
 def check_given_reference(flt, est, model, sim, *, run, judged=None, window=0.5, rtol=0.02, certify_paths=64):
     """The certificate of a reference the user passed: a ``GridFilter`` or ``ParticleFilter`` is
     refined once (``2×`` points per axis, ``4×`` particles) on ``certify_paths`` paths and
-    labelled as the automatic one; other kinds, and grids whose refinement would exceed
-    :data:`REFINE_POINTS` points, are taken as given (``certified = None``, named ``"optimal"``). Edge mass and effective sample size are reported either way; a grid whose
+    labelled as the automatic one (a grid whose 2× refinement would exceed :data:`REFINE_POINTS`
+    points is checked against ``4 × PARTICLES`` particles instead); other kinds are taken as
+    given (``certified = None``, named ``"optimal"``). Edge mass and effective sample size are reported either way; a grid whose
     edge mass exceeds :data:`EDGE_MASS` or a refinement that moves the MSE beyond ``rtol``
     warns."""
     t_start = time.perf_counter()
     diag = _diagnostics(est)
     P = sim.ys.shape[0]
     sub = slice(0, min(certify_paths, P))
+    reason = "given by the caller"
     if isinstance(flt, GridFilter) and math.prod(2 * len(a) - 1 for a in flt.axes) > REFINE_POINTS[flt.model.n]:
-        cert = Certificate("grid", None, OPTIMAL, [len(a) for a in flt.axes], rungs=[diag],
-                           seconds=time.perf_counter() - t_start,
-                           reason=f"given by the caller; its 2× refinement "
-                                  f"({math.prod(2 * len(a) - 1 for a in flt.axes)} points) exceeds "
-                                  f"{REFINE_POINTS[flt.model.n]}: not checked")
-        if diag.get("edge_mass_max", 0.0) > EDGE_MASS:
-            warnings.warn(f"compare: the given grid's edge mass reaches {diag['edge_mass_max']:.2g} (at most "
-                          f"{EDGE_MASS:g}): its bounds cut the density off; widen them", ReferenceWarning, stacklevel=3)
-        return cert
-    if isinstance(flt, GridFilter):
+        # its 2× refinement is too large to run: checked against 4 × PARTICLES particles instead
+        kw = {"dt": flt.dt, "substeps": 10} if flt.model.kind == "sde" else {"start": flt.start}
+        finer = ParticleFilter(flt.model, 4 * PARTICLES, **kw)
+        kind, size = "grid", [len(a) for a in flt.axes]
+        reason = (f"given by the caller; its 2× refinement ({math.prod(2 * len(a) - 1 for a in flt.axes)} points) "
+                  f"exceeds {REFINE_POINTS[flt.model.n]}: checked against {4 * PARTICLES} particles")
+    elif isinstance(flt, GridFilter):
         finer = GridFilter(flt.model, [(float(a[0]), float(a[-1])) for a in flt.axes] if flt.model.n > 1
                            else (float(flt.axes[0][0]), float(flt.axes[0][-1])),
                            [2 * len(a) - 1 for a in flt.axes] if flt.model.n > 1 else 2 * len(flt.axes[0]) - 1,
@@ -347,7 +348,7 @@ def check_given_reference(flt, est, model, sim, *, run, judged=None, window=0.5,
     cert = Certificate(kind, ok, OPTIMAL if ok else NOT_CONVERGED, size, None, rtol, sub.stop, error, bound,
                        [{**diag, "error": [list(e) for e in error], "bound": bound, "tolerance": tol,
                          "mse": ref_mse}],
-                       time.perf_counter() - t_start, "given by the caller")
+                       time.perf_counter() - t_start, reason)
     if not ok:
         what = [f"refining it changed the MSE by {', '.join(f'{d:+.3g} ± {se:.2g}' for d, se in error)} "
                 f"(tolerance {', '.join(f'{t:.3g}' for t in tol)})"]
