@@ -191,15 +191,18 @@ def _pilot_posterior_sd(model, sim, m0, P0, kw, run, paths=16, particles=500):
 
 
 def _diagnostics(est):
+    """Edge mass (grids) and effective sample size (particles) over the paths that did not
+    diverge, and the number that did."""
     out = {}
+    ok = ~np.asarray(est.diverged, bool)
     if "edge_mass" in est.extras:
-        em = np.asarray(est.extras["edge_mass"])
+        em = np.asarray(est.extras["edge_mass"])[ok]
         out["edge_mass_max"] = float(np.max(em)) if em.size else 0.0
     if "ess" in est.extras:
-        ess = np.asarray(est.extras["ess"])
+        ess = np.asarray(est.extras["ess"])[ok]
         out["ess_min"] = float(np.min(ess)) if ess.size else float("nan")
         out["ess_median"] = float(np.median(ess)) if ess.size else float("nan")
-    out["diverged"] = int(np.sum(est.diverged))
+    out["diverged"] = int(np.sum(~ok))
     return out
 
 
