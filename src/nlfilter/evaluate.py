@@ -171,12 +171,14 @@ def chunked(n: int | None):
 
 
 def _concat(parts):
+    from .filters.base import Estimates
+    from .simulate import Simulation
     first = parts[0]
     if isinstance(first, np.ndarray):
         return np.concatenate(parts)
-    if hasattr(first, "_fields") and type(first).__name__ == "Estimates":
-        return type(first).concatenate(parts)
-    if hasattr(first, "_fields") and hasattr(first, "t"):  # a Simulation: one time grid
+    if isinstance(first, Estimates):
+        return Estimates.concatenate(parts)
+    if isinstance(first, Simulation):  # one time grid
         return first._replace(**{f: np.concatenate([getattr(p, f) for p in parts]) for f in first._fields if f != "t"})
     if isinstance(first, dict):
         return {k: _concat([p[k] for p in parts]) for k in first}

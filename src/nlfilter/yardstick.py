@@ -240,6 +240,25 @@ def _verdict(error, tol):
     return bound, ok
 
 
+def _check(est, diag, fine, sim, sub, judged, window, rtol, run, tag):
+    """The refinement check of a reference's estimates ``est`` (all paths) against the filter
+    ``fine`` run on the paths ``sub``: ``(record fields, certified)`` — the change ``error``
+    ``[(Δ, se)]``, its ``bound``, the ``tolerance``, the reference's ``mse``; certified when
+    :func:`_verdict` passes, the edge mass is within :data:`EDGE_MASS` and no path diverged."""
+    error = _refinement_error(run(fine, sim.ys[sub], tag), est.take(sub), sim.xs[sub], window)
+    ref_mse = [mse(est, sim.xs, component=i, window=window).value for i in range(sim.xs.shape[-1])]
+    tol = _tolerance(est, judged, sim.xs, window, rtol)
+    bound, ok = _verdict(error, tol)
+    ok = ok and diag.get("edge_mass_max", 0.0) <= EDGE_MASS and diag["diverged"] == 0
+    return {"error": [list(e) for e in error], "bound": bound, "tolerance": tol, "mse": ref_mse}, ok
+
+
+def _filter_kw(model, dt, start, substeps):
+    """The constructor options of the reference filters on ``model``."""
+    return {"grid": {"dt": dt} if model.kind == "sde" else {"start": start},
+            "particle": ({"dt": dt, "substeps": substeps} if model.kind == "sde" else {"start": start})}
+
+
 def certified_reference(model, sim, m0, P0, *, run, judged=None, dt=None, start="update", substeps=10,
                         window=0.5, rtol=0.02, certify_paths=64, max_particles=MAX_PARTICLES):
     """``(estimates on all paths, Certificate)`` of the automatic reference (module docstring).
@@ -253,11 +272,8 @@ def certified_reference(model, sim, m0, P0, *, run, judged=None, dt=None, start=
     ``max_particles`` the last rung of the ladder."""
     judged = judged or {}
     t_start = time.perf_counter()
-    kw = {"grid": {"dt": dt} if model.kind == "sde" else {"start": start},
-          "particle": ({"dt": dt, "substeps": substeps} if model.kind == "sde" else {"start": start})}
-    P = sim.ys.shape[0]
-    sub = slice(0, min(certify_paths, P))
-    xs_sub = sim.xs[sub]
+    kw = _filter_kw(model, dt, start, substeps)
+    sub = slice(0, min(certify_paths, sim.ys.shape[0]))
     post_sd = _pilot_posterior_sd(model, sim, m0, P0, kw, run) if model.n <= 2 else np.full(model.n, np.nan)
     rung, reason = _first_rung(model, sim, m0, P0, dt, post_sd)
     rungs, widen = [], 1.0
@@ -273,18 +289,14 @@ def certified_reference(model, sim, m0, P0, *, run, judged=None, dt=None, start=
             est = run(rung.build(model, kw), sim.ys, f"reference {rung.kind} {rung.size}")
             continue
         fine = rung.refined()
-        fine_sub = run(fine.build(model, kw), sim.ys[sub], f"refine {fine.kind} {fine.size}")
-        error = _refinement_error(fine_sub, est.take(sub), xs_sub, window)
-        ref_mse = [mse(est, sim.xs, component=i, window=window).value for i in range(model.n)]
-        tol = _tolerance(est, judged, sim.xs, window, rtol)
-        bound, ok = _verdict(error, tol)
-        edge_ok = diag.get("edge_mass_max", 0.0) <= EDGE_MASS
-        record.update(refined_to=fine.size, error=[list(e) for e in error], bound=bound, tolerance=tol, mse=ref_mse,
-                      verdict="certified" if ok and edge_ok and diag["diverged"] == 0 else "not converged")
+        fields, ok = _check(est, diag, fine.build(model, kw), sim, sub, judged, window, rtol, run,
+                            f"refine {fine.kind} {fine.size}")
+        record.update(refined_to=fine.size, **fields, verdict="certified" if ok else "not converged")
         rungs.append(record)
-        if record["verdict"] == "certified":
-            cert = Certificate(rung.kind, True, OPTIMAL, rung.size, rung.bounds, rtol, sub.stop, error, bound,
-                               rungs, time.perf_counter() - t_start, reason)
+        if ok:
+            cert = Certificate(rung.kind, True, OPTIMAL, rung.size, rung.bounds, rtol, sub.stop,
+                               [tuple(e) for e in fields["error"]], fields["bound"], rungs,
+                               time.perf_counter() - t_start, reason)
             return est, cert
         nxt = rung.next(max_particles)
         if nxt is None:
@@ -319,22 +331,18 @@ def check_given_reference(flt, est, model, sim, *, run, judged=None, window=0.5,
     warns."""
     t_start = time.perf_counter()
     diag = _diagnostics(est)
-    P = sim.ys.shape[0]
-    sub = slice(0, min(certify_paths, P))
+    sub = slice(0, min(certify_paths, sim.ys.shape[0]))
     reason = "given by the caller"
-    if isinstance(flt, GridFilter) and math.prod(2 * len(a) - 1 for a in flt.axes) > REFINE_POINTS[flt.model.n]:
-        # its 2× refinement is too large to run: checked against 4 × PARTICLES particles instead
-        kw = {"dt": flt.dt, "substeps": 10} if flt.model.kind == "sde" else {"start": flt.start}
-        finer = ParticleFilter(flt.model, 4 * PARTICLES, **kw)
+    if isinstance(flt, GridFilter):
+        md = flt.model
+        kw = _filter_kw(md, getattr(flt, "dt", None), flt.start, 10)
         kind, size = "grid", [len(a) for a in flt.axes]
-        reason = (f"given by the caller; its 2× refinement ({math.prod(2 * len(a) - 1 for a in flt.axes)} points) "
-                  f"exceeds {REFINE_POINTS[flt.model.n]}: checked against {4 * PARTICLES} particles")
-    elif isinstance(flt, GridFilter):
-        finer = GridFilter(flt.model, [(float(a[0]), float(a[-1])) for a in flt.axes] if flt.model.n > 1
-                           else (float(flt.axes[0][0]), float(flt.axes[0][-1])),
-                           [2 * len(a) - 1 for a in flt.axes] if flt.model.n > 1 else 2 * len(flt.axes[0]) - 1,
-                           **({"dt": flt.dt} if flt.model.kind == "sde" else {"start": flt.start}))
-        kind, size = "grid", [len(a) for a in flt.axes]
+        rung = _Rung("grid", size, [(float(a[0]), float(a[-1])) for a in flt.axes]).refined()
+        finer = rung.build(md, kw)
+        if math.prod(rung.size) > REFINE_POINTS[md.n]:  # too large to run: 4 × PARTICLES particles instead
+            finer = _Rung("particle", 4 * PARTICLES).build(md, kw)
+            reason = (f"given by the caller; its 2× refinement ({math.prod(rung.size)} points) exceeds "
+                      f"{REFINE_POINTS[md.n]}: checked against {4 * PARTICLES} particles")
     elif isinstance(flt, ParticleFilter):
         kw = {"dt": flt.dt, "substeps": flt.substeps} if flt.model.kind == "sde" else {"start": flt.start}
         finer = ParticleFilter(flt.model, 4 * flt.particles, threshold=flt.threshold, **kw)
@@ -342,16 +350,10 @@ def check_given_reference(flt, est, model, sim, *, run, judged=None, window=0.5,
     else:
         return Certificate(type(flt).__name__, None, OPTIMAL, rungs=[diag], reason="given by the caller: not checked",
                            seconds=time.perf_counter() - t_start)
-    fine_sub = run(finer, sim.ys[sub], "refine given")
-    error = _refinement_error(fine_sub, est.take(sub), sim.xs[sub], window)
-    ref_mse = [mse(est, sim.xs, component=i, window=window).value for i in range(sim.xs.shape[-1])]
-    tol = _tolerance(est, judged or {}, sim.xs, window, rtol)
-    bound, ok = _verdict(error, tol)
-    ok = (ok and diag.get("edge_mass_max", 0.0) <= EDGE_MASS and diag["diverged"] == 0)
-    cert = Certificate(kind, ok, OPTIMAL if ok else NOT_CONVERGED, size, None, rtol, sub.stop, error, bound,
-                       [{**diag, "error": [list(e) for e in error], "bound": bound, "tolerance": tol,
-                         "mse": ref_mse}],
-                       time.perf_counter() - t_start, reason)
+    fields, ok = _check(est, diag, finer, sim, sub, judged or {}, window, rtol, run, "refine given")
+    error, tol = [tuple(e) for e in fields["error"]], fields["tolerance"]
+    cert = Certificate(kind, ok, OPTIMAL if ok else NOT_CONVERGED, size, None, rtol, sub.stop, error,
+                       fields["bound"], [{**diag, **fields}], time.perf_counter() - t_start, reason)
     if not ok:
         what = [f"refining it changed the MSE by {', '.join(f'{d:+.3g} ± {se:.2g}' for d, se in error)} "
                 f"(tolerance {', '.join(f'{t:.3g}' for t in tol)})"]
