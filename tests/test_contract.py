@@ -897,3 +897,79 @@ def test_adaptive_learner_skips_missing_measurements(case):
         a = outputs(case.run(_missing(d, 0)))["means"][0, MISSING_STEP + 1:]
         b = outputs(case.run(np.delete(d[:1], MISSING_STEP, axis=1)))["means"][0, MISSING_STEP:]
         close({"m": a}, {"m": b})
+
+
+# -- 8. log-likelihood and smoothing: offered through the protocol, or refused naming the option -----
+LIKELIHOOD = [c for c in CASES if c.filter().likelihood is not None]
+SMOOTHER = [c for c in CASES if c.filter().smoother is not None]
+
+
+def test_likelihood_and_smoother_families():
+    """Which filters give a likelihood and which smooth (the README's table says the same)."""
+    assert {c.filter().likelihood for c in LIKELIHOOD} == {"prediction-error", "exact", "estimate"}
+    for c in CASES:
+        f = c.filter()
+        assert (f.likelihood is not None) == (f.family in ("gaussian", "second-order")
+                                              or f.name in ("grid", "particle")), c.name
+        if f.family in ("gaussian", "second-order"):
+            assert f.smoother == "rts", c.name
+
+
+@pytest.mark.parametrize("case", LIKELIHOOD, ids=[c.name for c in LIKELIHOOD])
+def test_loglik_leaves_the_estimates_and_sums_its_steps(case):
+    """``run(..., loglik=True)`` gives the estimates of ``run`` (to 1e-12: the same arithmetic, but
+    SIMD reductions may round the last bit with the arrays' alignment) plus per-step
+    ``loglik (..., T)``, ``innovation (..., T, m)``, ``innovation_cov (..., T, m, m)``; a step
+    missing on every path adds 0; a missing component has a NaN innovation; chunks and a path
+    alone give the same numbers."""
+    d = _missing(case.data((3,), T, 2), 1)
+    d[:, 2] = np.nan  # step 2 measured on no path
+    plain = outputs(case.run(d, rng=3, on_divergence="mark"))
+    res = case.run(d, rng=3, on_divergence="mark", loglik=True)
+    out = outputs(res)
+    close(plain, out, tol=1e-12, keys=plain)
+    m = d.shape[-1]
+    assert out["extras.loglik"].shape == (3, T) and res.loglik.shape == (3,)
+    assert out["extras.innovation"].shape == (3, T, m) and out["extras.innovation_cov"].shape == (3, T, m, m)
+    ok = ~res.diverged
+    assert np.isfinite(res.loglik[ok]).all() and np.all(out["extras.loglik"][:, 2] == 0.0)
+    np.testing.assert_array_equal(np.isnan(out["extras.innovation"][ok]), np.isnan(d[ok]))
+    info = ["extras.loglik", "extras.innovation", "extras.innovation_cov"]
+    close(outputs(case.run(d, rng=3, on_divergence="mark", loglik=True, chunk=2)), out, keys=info)
+    if not case.random:
+        close(_take(out, slice(1, 2), info), outputs(case.run(d[1:2], on_divergence="mark", loglik=True)), keys=info)
+
+
+@pytest.mark.parametrize("case", [c for c in CASES if c.filter().likelihood is None],
+                         ids=[c.name for c in CASES if c.filter().likelihood is None])
+def test_no_likelihood_is_refused_naming_the_option(case):
+    with pytest.raises(TypeError, match="loglik"):
+        case.run(case.data((2,), T, 1), loglik=True)
+
+
+@pytest.mark.parametrize("case", SMOOTHER, ids=[c.name for c in SMOOTHER])
+def test_smoother_ends_at_the_filter_and_keeps_paths_apart(case):
+    """``smooth`` has the shapes of ``run``; at the last step it *is* the filter (nothing comes
+    after); its covariances are symmetric PSD; a path alone gives its row; missing data allowed."""
+    d = _missing(case.data((3,), T, 2), 1)
+    kw = {"on_divergence": "mark"} if case.name in LOSES_PSD else {}
+    flt = outputs(case.run(d, rng=3, **kw))
+    sm = case.filter().smooth(d, **{**case.prior, **case.run_kw, **kw}, rng=3)
+    assert sm.means.shape == flt["means"].shape and sm.covs.shape == flt["covs"].shape
+    ok = ~sm.diverged
+    close({"m": sm.means[ok, -1], "P": sm.covs[ok, -1]}, {"m": flt["means"][ok, -1], "P": flt["covs"][ok, -1]},
+          tol=1e-12)
+    assert np.isfinite(sm.means[ok]).all()
+    P = sm.covs[ok]
+    np.testing.assert_allclose(P, np.swapaxes(P, -1, -2), rtol=0, atol=1e-12)
+    assert np.linalg.eigvalsh(P).min() > -1e-9 * max(1.0, np.abs(P).max())
+    if not case.random:
+        one = case.filter().smooth(d[1:2], **{**case.prior, **case.run_kw, **kw})
+        close({"m": one.means, "P": one.covs}, {"m": sm.means[1:2], "P": sm.covs[1:2]})
+
+
+@pytest.mark.parametrize("case", [c for c in CASES if c.filter().smoother is None],
+                         ids=[c.name for c in CASES if c.filter().smoother is None])
+def test_no_smoother_is_refused_naming_it(case):
+    with pytest.raises(TypeError, match="smooth"):
+        case.filter().smooth(case.data((2,), T, 1), **{**case.prior, **case.run_kw})

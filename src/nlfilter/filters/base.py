@@ -54,7 +54,7 @@ from .. import _validate as V
 from ..errors import DivergenceError
 from ..streams import FILTER, PathRNG
 from .beliefs import GaussianState, where_paths
-from .linalg import _all_ok, bad_paths, symmetrize
+from .linalg import _all_ok, bad_paths, no_information, symmetrize
 
 _NO_EXTRAS = MappingProxyType({})
 
@@ -77,6 +77,30 @@ class Estimates(NamedTuple):
     @property
     def divergence_rate(self) -> float:
         return float(np.mean(self.diverged)) if self.diverged.size else 0.0
+
+    def _extra(self, name):
+        try:
+            return self.extras[name]
+        except KeyError:
+            raise ValueError(f"estimates: no {name!r} here; run the filter with loglik=True "
+                             "(filters whose likelihood attribute is None give none)") from None
+
+    @property
+    def loglik(self) -> np.ndarray:
+        """The log-likelihood ``log p(y_0, ..., y_{T-1})`` of each path ``(...,)``: the sum of the
+        per-step terms ``extras["loglik"] (..., T)`` (``run(..., loglik=True)``); NaN on the paths
+        that diverged (``diverged``)."""
+        return self._extra("loglik").sum(axis=-1)
+
+    @property
+    def innovations(self) -> np.ndarray:
+        """The innovations ``y_k − E[y_k | y_0..y_{k-1}]`` ``(..., T, m)`` (NaN where missing)."""
+        return self._extra("innovation")
+
+    @property
+    def innovation_covs(self) -> np.ndarray:
+        """Their predicted covariances ``(..., T, m, m)`` (NaN where nothing was measured)."""
+        return self._extra("innovation_cov")
 
     def take(self, idx) -> "Estimates":
         """The estimates of the paths ``idx`` (any index of the batch axes)."""
@@ -121,8 +145,9 @@ class _Recorder:
     """Bookkeeping of :meth:`Filter.run`: output arrays (time-major while filling), the divergence
     check after each step (raise or mark), the restart of marked paths."""
 
-    def __init__(self, flt, B, T, on_divergence):
+    def __init__(self, flt, B, T, on_divergence, keep: bool = False):
         self.flt, self.B, self.T = flt, B, T
+        self.beliefs = [] if keep else None  # every step's belief, for a smoother's backward pass
         self.on = on_divergence
         self.means = self.covs = None
         self.extras = {}
@@ -130,7 +155,7 @@ class _Recorder:
         self.step = np.full(B, -1)
         self.any_diverged = False
 
-    def _store(self, k, mean, cov, belief, d=None):
+    def _store(self, k, mean, cov, belief, d=None, info=None):
         if self.means is None:
             n = mean.shape[-1]
             self.means = np.empty((self.T, self.B, n))
@@ -142,6 +167,8 @@ class _Recorder:
             self.means[k] = np.where(d[:, None], np.nan, mean)
             self.covs[k] = np.nan if cov is None else np.where(d[:, None, None], np.nan, cov)
         ex = self.flt.extras(belief)
+        if info is not None:
+            ex = {**(ex or {}), **info}
         if ex:
             for name, v in ex.items():
                 v = np.asarray(v)
@@ -151,14 +178,17 @@ class _Recorder:
                     self.extras[name] = np.empty((self.T, *v.shape), v.dtype)
                 self.extras[name][k] = v
 
-    def record(self, k, belief, bad, start, *, write: bool = True):
-        """Check step ``k``'s belief (raise or mark), write its summary unless ``write`` is False,
-        and return it with the diverged paths restarted from ``start``."""
+    def record(self, k, belief, bad, start, *, write: bool = True, info=None):
+        """Check step ``k``'s belief (raise or mark), write its summary (and the step's likelihood
+        ``info``, a dict of per-path arrays) unless ``write`` is False, and return it with the
+        diverged paths restarted from ``start``."""
         mean, cov = self.flt.summary(belief)
         if bad is None and not self.any_diverged and (
                 _all_ok(mean, cov) if cov is not None else math.isfinite(np.add.reduce(mean, axis=None))):
             if write:
-                self._store(k, mean, cov, belief)
+                self._store(k, mean, cov, belief, info=info)
+                if self.beliefs is not None:
+                    self.beliefs.append(belief)
             return belief
         now = bad_paths(mean, cov) if cov is not None else ~np.all(np.isfinite(mean), axis=-1)
         if bad is not None:
@@ -176,7 +206,9 @@ class _Recorder:
             self.any_diverged = True
         belief = self.flt.reset(belief, self.diverged, start)  # restart harmlessly; outputs NaN (flagged)
         if write:
-            self._store(k, mean, cov, belief, self.diverged)
+            self._store(k, mean, cov, belief, self.diverged, info)
+            if self.beliefs is not None:
+                self.beliefs.append(belief)
         return belief
 
     def result(self, batch) -> Estimates:
@@ -217,6 +249,16 @@ class Filter:
     # path: its predicted MSE), "model" (a covariance of the filter's model, not of its error),
     # "none" (NaN)
     covariance = "posterior"
+    # what ``run(..., loglik=True)`` gives in ``extras["loglik"]``: None (no likelihood),
+    # "prediction-error" (the Gaussian filters: log N(y_k; ŷ_k, S_k) of their own predictive
+    # moments; exact for a linear-Gaussian model), "exact" (the grid filter: the log-evidence of
+    # the grid approximation), "estimate" (the particle filter: log of an unbiased estimate)
+    likelihood = None
+    # the backward pass of :meth:`smooth`: None (no smoother), "rts" (Rauch–Tung–Striebel through
+    # the moment rule), "forward-backward" (grid), "particle" (FFBSm); ``smoother_keeps``: the
+    # backward pass needs the forward beliefs of every step (not only their summaries)
+    smoother = None
+    smoother_keeps = False
 
     @classmethod
     def for_model(cls, model, *, dt: float | None = None, start: str = "update"):
@@ -273,6 +315,12 @@ class Filter:
         """Per-step extra outputs ``{name: (B, ...)}`` collected into ``Estimates.extras``; none by default."""
         return None
 
+    def _smooth(self, est: Estimates, beliefs, ys, t0):  # pragma: no cover - abstract
+        """The backward pass: ``(means (B, T, n), covs (B, T, n, n))`` smoothed, from the forward
+        estimates ``est`` over ``B`` paths, the forward beliefs of every step (a list of T, when
+        ``smoother_keeps``; else None), the measurements ``ys (B, T, m)`` and ``t0``."""
+        raise NotImplementedError
+
     def output(self, est: Estimates) -> Estimates:
         """Output map applied once to the whole run (a post-processor of the means); identity by default."""
         return est
@@ -288,6 +336,16 @@ class Filter:
     def _step_unchecked(self, belief, dy, t):
         return self.step(belief, dy, t), None
 
+    # ``run(..., loglik=True)`` calls these instead: ``(belief, bad paths, info)`` with ``info`` the
+    # step's ``{"loglik": (B,), "innovation": (B, m), "innovation_cov": (B, m, m)}``
+    # (:func:`~nlfilter.filters.linalg.innovation_info`); a filter that defines a likelihood
+    # (``likelihood`` not None) overrides them
+    def _update_info(self, belief, y, k):
+        raise TypeError(f"loglik: {type(self).__name__} defines no log-likelihood (its likelihood attribute "
+                        "is None); the Gaussian filters, the grid and the particle filters give one")
+
+    _step_info = _update_info
+
     def check_data(self, ys):
         """``ys`` as a float array ``(..., T, m)``; NaN (missing) allowed, ±inf refused."""
         ys = V.as_float_array("ys", ys, ndim_min=2, shape_tail=(None, self.data_dim))
@@ -295,7 +353,8 @@ class Filter:
 
     # -- the one loop ------------------------------------------------------------------------------
     def run(self, ys, m0=None, P0=None, *, initial=None, rng=None, t0: float = 0.0,
-            on_divergence: str = "raise", progress: bool = False, chunk: int | None = None) -> Estimates:
+            on_divergence: str = "raise", progress: bool = False, chunk: int | None = None,
+            loglik: bool = False) -> Estimates:
         """Filter a batch of measurement sequences ``ys (..., T, m)`` (increments for a
         continuous-time filter) from the prior ``(m0, P0)``.
 
@@ -317,13 +376,46 @@ class Filter:
         progress : show a progress bar over the steps
         chunk : None (all paths at once) or the number of paths per batch: the loop runs the paths
             of the flattened batch in chunks and concatenates (the same numbers for any chunk)
+        loglik : also record each step's log-likelihood ``extras["loglik"] (..., T)``, innovation
+            ``extras["innovation"] (..., T, m)`` and its predicted covariance
+            ``extras["innovation_cov"] (..., T, m, m)`` (``Estimates.loglik`` sums them over time;
+            missing components drop out exactly: a step's term is the density of its observed
+            components, 0 for a step missing entirely); a filter whose ``likelihood`` is None
+            refuses (TypeError)
 
         Returns
         -------
         Estimates
             ``means[..., k, :]`` estimates the state measured by ``ys[..., k, :]``.
         """
+        return self._drive(ys, m0, P0, initial, rng, t0, on_divergence, progress, chunk, loglik, False)
+
+    def smooth(self, ys, m0=None, P0=None, *, initial=None, rng=None, t0: float = 0.0,
+               on_divergence: str = "raise", progress: bool = False, chunk: int | None = None) -> Estimates:
+        """Smoothed estimates of a batch of measurement sequences: the filter's forward pass, then
+        its family's backward pass (``smoother``: the Rauch–Tung–Striebel recursion of the Gaussian
+        filters through their moment rule, the forward–backward grid smoother, the particle
+        smoother). Arguments as :meth:`run`.
+
+        Returns
+        -------
+        Estimates
+            ``means[..., k, :]`` and ``covs[..., k]`` estimate the state measured by
+            ``ys[..., k, :]`` given *all* of ``ys`` (``E[x_k | y_0..y_{T-1}]``); a path that
+            diverged in the forward pass has NaN smoothed estimates at every step (``diverged``).
+        """
+        if self.smoother is None:
+            raise TypeError(f"smooth: {type(self).__name__} has no smoother (its smoother attribute is None); "
+                            "the Gaussian filters, the grid and the particle filters have one")
+        return self._drive(ys, m0, P0, initial, rng, t0, on_divergence, progress, chunk, False, True)
+
+    def _drive(self, ys, m0, P0, initial, rng, t0, on_divergence, progress, chunk, loglik, smooth):
+        """The one loop behind :meth:`run` and :meth:`smooth`."""
         on = V.choice("on_divergence", on_divergence, {"raise", "mark"})
+        if not isinstance(loglik, (bool, np.bool_)):
+            raise TypeError(f"loglik: expected True or False, got {loglik!r}")
+        if loglik and self.likelihood is None:
+            self._update_info(None, None, 0)  # raises: this filter defines no likelihood
         ys = self.check_data(ys)
         batch, T, m = ys.shape[:-2], ys.shape[-2], ys.shape[-1]
         B = math.prod(batch)
@@ -339,25 +431,29 @@ class Filter:
                     return a
                 a = np.asarray(a)
                 return np.broadcast_to(a, (*batch, *a.shape[a.ndim - tail:])).reshape(B, *a.shape[a.ndim - tail:])[lo:hi]
-            parts = [self.run(yf[lo:lo + chunk], rows(m0, 1, lo, lo + chunk), rows(P0, 2, lo, lo + chunk),
-                              initial=initial, rng=rng.take(slice(lo, lo + chunk)) if self.random else rng,
-                              t0=t0, on_divergence=on, progress=progress) for lo in range(0, B, chunk)]
+            parts = [self._drive(yf[lo:lo + chunk], rows(m0, 1, lo, lo + chunk), rows(P0, 2, lo, lo + chunk),
+                                 initial, rng.take(slice(lo, lo + chunk)) if self.random else rng, t0, on, progress,
+                                 None, loglik, smooth) for lo in range(0, B, chunk)]
             est = Estimates.concatenate(parts)
             out = lambda a: a.reshape(*batch, *a.shape[1:])  # noqa: E731
             return Estimates(*(out(a) for a in est[:4]), MappingProxyType({k: out(v) for k, v in est.extras.items()}))
         belief = self.init(m0, P0, batch, initial=initial, rng=rng)
         start = belief
-        rec = _Recorder(self, B, T, on)
+        rec = _Recorder(self, B, T, on, keep=smooth and self.smoother_keeps)
         steps = range(T)
         if progress:
             from tqdm.auto import tqdm
             steps = tqdm(steps, desc=self.name, leave=False)
         with np.errstate(over="ignore", invalid="ignore", divide="ignore"):  # failures are caught by record
+            info = None
             if self.time == "continuous":
                 dt = self.dt
                 for k in steps:
-                    belief, bad = self._step_unchecked(belief, yf[:, k], t0 + k * dt)
-                    belief = rec.record(k, belief, bad, start)
+                    if loglik:
+                        belief, bad, info = self._step_info(belief, yf[:, k], t0 + k * dt)
+                    else:
+                        belief, bad = self._step_unchecked(belief, yf[:, k], t0 + k * dt)
+                    belief = rec.record(k, belief, bad, start, info=info)
             else:
                 offset = 0 if self.start == "update" else 1
                 absent = np.isnan(yf).all(axis=(0, 2))  # (T,): steps with no measurement on any path
@@ -368,10 +464,24 @@ class Filter:
                         if self.screen_predict:
                             belief, bad = rec.record(k, belief, bad, start, write=False), None
                     if not absent[k]:
-                        belief, bad_u = self._update_unchecked(belief, yf[:, k], k + offset)
+                        if loglik:
+                            belief, bad_u, info = self._update_info(belief, yf[:, k], k + offset)
+                        else:
+                            belief, bad_u = self._update_unchecked(belief, yf[:, k], k + offset)
                         bad = bad_u if bad is None else (bad if bad_u is None else bad | bad_u)
-                    belief = rec.record(k, belief, bad, start)
-        return self.output(rec.result(batch))
+                    elif loglik:  # nothing measured: the step adds nothing to the likelihood
+                        info = no_information(B, m)
+                    belief = rec.record(k, belief, bad, start, info=info)
+        if not smooth:
+            return self.output(rec.result(batch))
+        est = rec.result((B,))
+        with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
+            means, covs = self._smooth(est, rec.beliefs, yf, t0)
+        d = est.diverged
+        means = np.where(d[:, None, None], np.nan, means)
+        covs = np.where(d[:, None, None, None], np.nan, covs)
+        out = lambda a: a.reshape(*batch, *a.shape[1:])  # noqa: E731
+        return Estimates(out(means), out(covs), d.reshape(batch), est.diverged_step.reshape(batch))
 
 
 class DiscreteFilter(Filter):

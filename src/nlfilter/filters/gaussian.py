@@ -40,9 +40,10 @@ from __future__ import annotations
 import numpy as np
 
 from .. import _validate as V
-from .base import ContinuousFilter, DiscreteFilter, GaussianState
+from .base import ContinuousFilter, DiscreteFilter, GaussianState, ode_step
 from .rules import hessian_trace
-from .linalg import gaussian_update, mm, observed_precision, poison, symmetrize
+from .smoothing import _solve_right, continuous_rts, rts
+from .linalg import gaussian_update, innovation_info, mm, observed_precision, poison, symmetrize
 
 __all__ = ["GaussianFilter", "ContinuousDiscreteGaussianFilter", "ContinuousGaussianFilter", "iterated_update"]
 
@@ -93,11 +94,12 @@ class GaussianFilter(DiscreteFilter):
     def _time(self, k):
         return k
 
-    def _predict(self, state, k):
+    def _predict(self, state, k, cross: bool = False):
         """``m⁻ = E[f]``, ``P⁻ = Cov[f] + E[G Q Gᵀ]`` (+ the rule's fourth-moment term, added last;
-        symmetrized for a rule that asks), poisoned where the rule's nodes failed."""
+        symmetrized for a rule that asks), poisoned where the rule's nodes failed; with ``cross``
+        also ``Cov[x_k, f(x_k)]`` (the smoother's cross-covariance)."""
         md = self.model
-        mo = self.rule.moments(state, md.f, self._time(k), jac=md.f_x, hess=md.f_xx, cross=False, noise_of=md,
+        mo = self.rule.moments(state, md.f, self._time(k), jac=md.f_x, hess=md.f_xx, cross=cross, noise_of=md,
                                role="dynamics")
         P = mo.cov + mo.noise  # P⁻ = Cov[f] + E[G Q Gᵀ]
         if mo.quartic is not None:
@@ -105,13 +107,24 @@ class GaussianFilter(DiscreteFilter):
         if getattr(self.rule, "symmetrize", False):
             P = symmetrize(P)
         new = GaussianState(mo.mean, P)
-        return new if mo.bad is None else poison(new, mo.bad)
+        new = new if mo.bad is None else poison(new, mo.bad)
+        return (new, mo.cross) if cross else new
+
+    smoother = "rts"
+
+    def _predict_cross(self, state, k):
+        return self._predict(state, k, cross=True)
+
+    def _smooth(self, est, beliefs, ys, t0):
+        """The RTS backward pass through the rule (:func:`~nlfilter.filters.smoothing.rts`)."""
+        return rts(est.means, est.covs, self._predict_cross, 0 if self.start == "update" else 1)
 
     def predict(self, state, k):
         return self._predict(state, k)
 
-    def _update(self, state, y, t, R=None):
-        """``(updated belief, failed paths or None)`` at time ``t``; ``R`` defaults to the model's.
+    def _update(self, state, y, t, R=None, info: bool = False):
+        """``(updated belief, failed paths or None)`` at time ``t``; ``R`` defaults to the model's;
+        with ``info``, also the predicted measurement moments ``(ŷ, S)``.
 
         ``S = Cov[h] + R`` (+ the rule's fourth-moment term); a rule with ``screen`` has S checked
         for positive definiteness (failed paths get a harmless S and are reported); a rule's forcing
@@ -139,11 +152,19 @@ class GaussianFilter(DiscreteFilter):
             Sm = np.where(miss[..., :, None] | miss[..., None, :], np.eye(S.shape[-1]), S)
             u = np.linalg.solve(Sm, e[..., None])[..., 0]
             new = GaussianState(new.mean, symmetrize(new.cov + np.einsum("...ijk,...k->...ij", mo.forcing, u)))
-        return new, bad
+        return (new, bad, (mo.mean, S)) if info else (new, bad)
 
     def update(self, state, y, k):
         new, bad = self._update(state, y, self._time(k))
         return new if bad is None else poison(new, bad)
+
+    likelihood = "prediction-error"
+
+    def _update_info(self, state, y, k):
+        """``run(..., loglik=True)``: the update with the step's log N(y; ŷ, S) and innovation
+        (:func:`~nlfilter.filters.linalg.innovation_info`; S with the rule's fourth-moment term)."""
+        new, bad, (yhat, S) = self._update(GaussianState(*state), y, self._time(k), info=True)
+        return (new if bad is None else poison(new, bad)), bad, innovation_info(y, yhat, S)
 
 
 def _pd_mask(S):
@@ -204,6 +225,23 @@ class ContinuousDiscreteGaussianFilter(GaussianFilter):
     def _predict(self, state, k):
         """The belief at ``t_{k+1}`` from the belief at ``t_k = t0 + k dt`` (no measurement)."""
         return ContinuousFilter.integrate(self, self._rhs, GaussianState(*state), None, self._time(k))
+
+    def _predict_cross(self, state, k):
+        """The prediction and ``C(t_{k+1}) = Cov[x(t_k), x(t_{k+1})]``: the moment equations with
+        ``dC/dt = C P⁻¹ Cov[x, f]`` (:mod:`~nlfilter.filters.smoothing`), ``C(t_k) = P_k``."""
+        md = self.model
+
+        def rhs(x, s):
+            m, P, C = x
+            mo = self.rule.moments(GaussianState(m, P), md.f, s, jac=md.f_x, hess=md.f_xx, cov=False,
+                                   noise_of=md, role="dynamics")
+            dP = mo.cross + np.swapaxes(mo.cross, -1, -2) + mo.noise
+            return mo.mean, dP, C @ _solve_right(P, np.swapaxes(mo.cross, -1, -2)).swapaxes(-1, -2)
+
+        state = GaussianState(*state)
+        m, P, C = ode_step(rhs, (state.mean, state.cov, state.cov), self._time(k), self.dt, substeps=self.substeps,
+                           scheme=self.scheme, finish=lambda x: (x[0], symmetrize(x[1]), x[2]))
+        return GaussianState(m, P), C
 
 
 class ContinuousGaussianFilter(ContinuousFilter):
@@ -288,14 +326,30 @@ class ContinuousGaussianFilter(ContinuousFilter):
 
         return rhs
 
-    def _step(self, state, dy, t):
-        """``(state at t + dt, bad paths or None)``."""
+    likelihood = "prediction-error"
+
+    def _step_info(self, state, dy, t):
+        """``run(..., loglik=True)``: the step with the density of the increment under the
+        discretised measurement ``dy = h dt + dη``: ``dy/dt ~ N(ŷ, S)``, ``S = Cov[h] + R/dt``
+        from the belief at the step's start (the rule's moments; exact as dt → 0 on a linear
+        model), reported for ``dy`` (innovation ``dy − ŷ dt``, covariance ``S dt²``)."""
+        state = GaussianState(*state)
+        dy = np.asarray(dy, dtype=float)
+        new, bad, info = self._step(state, dy, t, info=True)
+        return new, bad, info
+
+    def _step(self, state, dy, t, info: bool = False):
+        """``(state at t + dt, bad paths or None)`` (and the step's likelihood output with ``info``)."""
         obs = ~np.isnan(dy)
+        if self.innovation == "update" or info:
+            new, bad, (yhat, S) = GaussianFilter._update(self, state, dy / self.dt, t, R=self.model.R / self.dt,
+                                                         info=True)
+            out = innovation_info(dy / self.dt, yhat, S, scale=self.dt) if info else None
         if self.innovation == "update":
-            new, bad = GaussianFilter._update(self, state, dy / self.dt, t, R=self.model.R / self.dt)
             new = new if bad is None else poison(new, bad)
             none = np.zeros_like(obs)
-            return self.integrate(self._rhs_factory(none, np.zeros_like(self._Rinv)), new, None, t), bad
+            new = self.integrate(self._rhs_factory(none, np.zeros_like(self._Rinv)), new, None, t)
+            return (new, bad, out) if info else (new, bad)
         dy0 = np.where(obs, dy, 0.0)
         m, P = state
         Rinv = observed_precision(self.model.R, self._Rinv, obs)
@@ -305,12 +359,18 @@ class ContinuousGaussianFilter(ContinuousFilter):
         cov = new.cov
         if M is not None:
             cov = symmetrize(cov + np.einsum("...ijk,...k->...ij", M, dy0))
-        return GaussianState(mean, cov), None
+        return (GaussianState(mean, cov), None, out) if info else (GaussianState(mean, cov), None)
 
     def step(self, state, dy, t):
         """The belief at ``t + dt`` from the belief at ``t`` and the increment ``dy (..., m)``."""
         new, bad = self._step(GaussianState(*state), np.asarray(dy, dtype=float), t)
         return new if bad is None else poison(new, bad)
+
+    smoother = "rts"
+
+    def _smooth(self, est, beliefs, ys, t0):
+        """The continuous RTS smoother (:func:`~nlfilter.filters.smoothing.continuous_rts`)."""
+        return continuous_rts(self, est.means, est.covs, t0)
 
     def _step_unchecked(self, state, dy, t):
         return self._step(state, dy, t)
@@ -362,3 +422,10 @@ class _Iterated:
 
     def update(self, state, y, k):
         return iterated_update(self.model, GaussianState(*state), y, self._time(k), self.iterations, self.tol)
+
+    def _update_info(self, state, y, k):
+        """The iterated update, with the likelihood of the first (EKF) linearization at the
+        predicted mean: the predictive law of y is not changed by iterating the posterior mode."""
+        state = GaussianState(*state)
+        _, _, (yhat, S) = GaussianFilter._update(self, state, y, self._time(k), info=True)
+        return self.update(state, y, k), None, innovation_info(y, yhat, S)

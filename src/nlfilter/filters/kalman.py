@@ -12,8 +12,9 @@ import numpy as np
 import scipy.linalg as sla
 
 from .base import ContinuousFilter, DiscreteFilter, GaussianState
-from .linalg import gaussian_update
+from .linalg import gaussian_update, innovation_info
 from .ekf import ContinuousEKF
+from .smoothing import rts
 
 
 def _require_linear(model, who):
@@ -49,12 +50,33 @@ class KalmanFilter(DiscreteFilter):
         return GaussianState(m @ F.T + b, F @ P @ F.T + GQG)
 
     def update(self, state, y, k):
+        return self._update(state, y, k)[0]
+
+    smoother = "rts"
+
+    def _predict_cross(self, state, k):
+        F = (self._mats if self._const else self._matrices(k))[0]
+        return self.predict(state, k), state.cov @ F.T  # Cov[x_k, x_{k+1}] = P Fᵀ
+
+    def _smooth(self, est, beliefs, ys, t0):
+        """The Rauch–Tung–Striebel smoother (Rauch, Tung & Striebel 1965; :func:`~nlfilter.filters.smoothing.rts`)."""
+        return rts(est.means, est.covs, self._predict_cross, 0 if self.start == "update" else 1)
+
+    likelihood = "prediction-error"
+
+    def _update(self, state, y, k):
         _, _, H, d, _ = self._mats if self._const else self._matrices(k)
         m, P = state
         R = self.model.R
         C = P @ H.T
         S = H @ C + R
-        return gaussian_update(state, y, m @ H.T + d, S, C, H=np.broadcast_to(H, (*m.shape[:-1], *H.shape)), R=R)
+        yhat = m @ H.T + d
+        return gaussian_update(state, y, yhat, S, C, H=np.broadcast_to(H, (*m.shape[:-1], *H.shape)), R=R), yhat, S
+
+    def _update_info(self, state, y, k):
+        """The update and the step's log N(y; H m⁻ + d, H P⁻ Hᵀ + R) (prediction-error decomposition)."""
+        new, yhat, S = self._update(GaussianState(*state), y, k)
+        return new, None, innovation_info(y, yhat, S)
 
 
 def steady_state(model, k: int = 0):

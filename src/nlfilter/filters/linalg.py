@@ -188,6 +188,58 @@ def measurement_loglik(law, resid, obs=None):
     raise ValueError("measurement_noise: partly missing measurements need a Gaussian or Independent law")
 
 
+LOG_2PI = math.log(2 * math.pi)
+
+
+def innovation_info(y: np.ndarray, y_pred: np.ndarray, S: np.ndarray, *, scale: float = 1.0) -> dict:
+    """The step's likelihood output ``{"loglik": (...,), "innovation": (..., m), "innovation_cov":
+    (..., m, m)}`` of a measurement ``y (..., m)`` predicted as ``N(y_pred, S)`` — the
+    prediction-error decomposition of the log-likelihood (Schweppe 1965; Harvey 1989, eq. 3.4.7)::
+
+        log p(y_k | y_0..y_{k-1}) = −½ [ eᵀ S⁻¹ e + log det S + m log 2π ],   e = y − ŷ
+
+    over the *observed* components only (a NaN component of ``y`` is missing: the marginal of
+    the others, exactly; 0 when all are missing). ``scale``: the measurement is reported as
+    ``scale · y`` (a continuous filter's increment ``dy = y dt``): innovation ``scale · e``,
+    covariance ``scale² S`` and the density of ``dy``, ``log p(y) − m_obs log scale``. A path
+    whose observed block of S is not positive definite gets NaN (its belief is poisoned too); a
+    path with nothing measured gets a NaN covariance (as a step measured on no path).
+
+    >>> info = innovation_info(np.array([1.0, np.nan]), np.zeros(2), np.array([[2.0, 0.5], [0.5, 1.0]]))
+    >>> bool(np.isclose(info["loglik"], -0.5 * (1 / 2 + np.log(2 * np.pi * 2)), rtol=0, atol=1e-14))
+    True
+    """
+    miss = np.isnan(y)
+    e = np.where(miss, 0.0, y - y_pred)
+    if y.shape[-1] == 1:
+        s = S[..., 0, 0]
+        with np.errstate(invalid="ignore", divide="ignore"):
+            ll = -0.5 * (e[..., 0] ** 2 / s + np.log(s) + LOG_2PI)
+        ll = np.where(miss[..., 0], 0.0, np.where(s > 0, ll, np.nan))
+    else:
+        So = S
+        if miss.any():
+            both = miss[..., :, None] | miss[..., None, :]
+            So = np.where(both, np.where(np.eye(y.shape[-1], dtype=bool), 1.0, 0.0), S)
+        finite = np.all(np.isfinite(So), axis=(-1, -2))
+        So = np.where(finite[..., None, None], So, np.eye(y.shape[-1]))
+        sign, logdet = np.linalg.slogdet(So)
+        ok = finite & (sign > 0)
+        safe = np.where(ok[..., None, None], So, np.eye(y.shape[-1]))
+        quad = np.einsum("...i,...i->...", e, np.linalg.solve(safe, e[..., None])[..., 0])
+        ll = np.where(ok, -0.5 * (quad + logdet + (~miss).sum(axis=-1) * LOG_2PI), np.nan)
+    if scale != 1.0:
+        ll = ll - (~miss).sum(axis=-1) * math.log(scale)
+    none = miss.all(axis=-1)[..., None, None]  # nothing measured on the path: NaN, as a step measured nowhere
+    return {"loglik": ll, "innovation": np.where(miss, np.nan, scale * e),
+            "innovation_cov": np.where(none, np.nan, (scale * scale) * np.broadcast_to(S, (*y.shape, y.shape[-1])))}
+
+
+def no_information(B: int, m: int) -> dict:
+    """:func:`innovation_info` of a step measured on no path: log-likelihood 0, innovation NaN."""
+    return {"loglik": np.zeros(B), "innovation": np.full((B, m), np.nan), "innovation_cov": np.full((B, m, m), np.nan)}
+
+
 def _solve_paths(S, C):
     """``(K = C S⁻¹, singular)`` when a batched solve failed: the paths whose innovation covariance
     ``S`` is non-finite or singular (LU determinant sign ≤ 0; S must be positive definite) get

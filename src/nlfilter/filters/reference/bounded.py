@@ -97,7 +97,7 @@ class BoundedGridFilter1D(_BoundedReference):
             p = p @ self.T
         self.p0 = p
 
-    def likelihood(self, z):
+    def point_likelihood(self, z):
         a = np.maximum(self.edges[:-1], z[..., None] - self.c)
         b = np.minimum(self.edges[1:], z[..., None] + self.c)
         return np.clip(b - a, 0.0, None)
@@ -114,7 +114,7 @@ class BoundedGridFilter1D(_BoundedReference):
     def update(self, belief, y, k):
         z = y[:, 0]
         obs = ~np.isnan(z)
-        p = belief.p * self.likelihood(np.where(obs, z, 0.0))
+        p = belief.p * self.point_likelihood(np.where(obs, z, 0.0))
         s = p.sum(axis=-1, keepdims=True)
         if np.any(~(s[obs] > 0)):
             raise ValueError(f"ys: measurement at step {k} impossible under the grid model")

@@ -15,7 +15,7 @@ from scipy import sparse
 from ... import _validate as V
 from ...noise import Gaussian
 from ..base import gaussian_prior
-from ..linalg import measurement_loglik, observed_precision
+from ..linalg import innovation_info, measurement_loglik, no_information, observed_precision
 from ._common import _ReferenceFilter
 
 
@@ -219,12 +219,32 @@ class GridFilter(_ReferenceFilter):
         p, bad = self._update(p, dy, t + self.dt)
         return GridBelief(p), bad
 
-    def _update(self, p, y, k):
-        """``(p⁺, dead paths or None)``; a dead path (zero likelihood everywhere) keeps ``p``."""
+    likelihood = "exact"
+
+    def _update_info(self, belief, y, k):
+        """``run(..., loglik=True)``: the update and ``log Σ_i p⁻_i p(y | x_i)``, the log-evidence of
+        the step under the grid density, with the innovation ``y − Σ p⁻_i h(x_i)`` and its covariance
+        ``Cov_{p⁻}[h] + R``."""
+        self._need("discrete", "update")
+        p, bad, info = self._update(belief.p, y, k, info=True)
+        return GridBelief(p), bad, info
+
+    def _step_info(self, belief, dy, t):
+        """``run(..., loglik=True)``: the step and the log-density of ``dy`` given the past,
+        ``log Σ_i p⁻_i N(dy; h(x_i) dt, R dt)`` (the Kallianpur–Striebel ratio times the density of
+        ``dη``), with the innovation ``dy − E[h] dt`` and its covariance ``(Cov[h] dt + R) dt``."""
+        self._need("continuous", "step")
+        p = _apply(belief.p, self._kernel(t))
+        p, bad, info = self._update(p, dy, t + self.dt, info=True)
+        return GridBelief(p), bad, info
+
+    def _update(self, p, y, k, info: bool = False):
+        """``(p⁺, dead paths or None)``; a dead path (zero likelihood everywhere) keeps ``p``; with
+        ``info`` also the step's likelihood output (see :meth:`_update_info`)."""
         md, X = self.model, self.X
         obs = ~np.isnan(y)
         if not obs.any():
-            return p, None
+            return (p, None, no_information(*y.shape)) if info else (p, None)
         hX = md.h(X, k)  # (N, m)
         if md.kind == "discrete":
             resid = np.where(obs[..., None, :], y[..., None, :] - hX, 0.0)
@@ -241,4 +261,17 @@ class GridFilter(_ReferenceFilter):
         w = np.exp(lp - np.where(np.isfinite(mx), mx, 0.0))
         s = w.sum(axis=-1, keepdims=True)
         dead |= ~(s[..., 0] > 0)
-        return np.where(dead[..., None], p, w / np.where(s > 0, s, 1.0)), (dead if dead.any() else None)
+        out = np.where(dead[..., None], p, w / np.where(s > 0, s, 1.0)), (dead if dead.any() else None)
+        if not info:
+            return out
+        with np.errstate(divide="ignore"):  # log Σ p_i exp(ll_i) / Σ p_i (a continuous step's p⁻ may lose mass)
+            ll = mx[..., 0] + np.log(s[..., 0]) - np.log(p.sum(axis=-1))
+        if md.kind != "discrete":  # times the density of dy under pure noise, N(dy; 0, R dt)
+            ll = ll + innovation_info(y, np.zeros_like(y), md.R * self.dt)["loglik"]
+        scale = 1.0 if md.kind == "discrete" else self.dt
+        Eh, Ch = _moments(p, hX)  # predictive moments of h
+        S = Ch * scale + md.R  # dy/dt: Cov[h] + R/dt, times dt² below
+        ll = np.where(dead, -np.inf, np.where(obs.any(axis=-1), ll, 0.0))  # nothing measured: exactly 0
+        res = innovation_info(y / scale, Eh, S / scale, scale=scale)
+        res["loglik"] = ll
+        return (*out, res)

@@ -14,7 +14,7 @@ import numpy as np
 
 from ... import _validate as V
 from ...streams import FILTER, PathRNG
-from ..linalg import measurement_loglik, observed_precision
+from ..linalg import innovation_info, measurement_loglik, no_information, observed_precision
 from ._common import _ReferenceFilter
 
 
@@ -154,16 +154,60 @@ class ParticleFilter(_ReferenceFilter):
         x = self._propagate(x, t, belief.rng)
         return self._weigh(belief, x, logw, dy, t + self.dt)
 
+    likelihood = "estimate"
+
+    def _update_info(self, belief, y, k):
+        """``run(..., loglik=True)``: the update and ``log Σ_i w̄_i p(y | x_i)`` (w̄ the normalized
+        predictive weights): the log of the step's factor of the bootstrap filter's unbiased
+        estimate of the likelihood (Del Moral 2004, Prop. 7.4.1; its log is biased low by about
+        half its variance), with the innovation ``y − Σ w̄_i h(x_i)`` and ``Cov_w̄[h] + R``."""
+        self._need("discrete", "update")
+        return self._weigh(belief, belief.x, belief.logw, y, k, info=True)
+
+    def _step_info(self, belief, dy, t):
+        """``run(..., loglik=True)``: the step and the estimate of the density of ``dy`` (as
+        :meth:`_update_info`, with ``N(dy; h(x_i) dt, R dt)``)."""
+        self._need("continuous", "step")
+        x, logw = self._resample(belief)
+        x = self._propagate(x, t, belief.rng)
+        return self._weigh(belief, x, logw, dy, t + self.dt, info=True)
+
     # -- the pieces ----------------------------------------------------------------------------
-    def _weigh(self, belief, x, logw, y, k):
+    def _weigh(self, belief, x, logw, y, k, info: bool = False):
         """The belief after adding the log-likelihood of ``y``; a dead path (no finite log-weight)
-        gets equal weights and is returned as bad."""
+        gets equal weights and is returned as bad. With ``info`` also the step's likelihood
+        output (:meth:`_update_info`)."""
+        out = None
         if not np.all(np.isnan(y)):
-            logw = logw + self._loglik(x, y, k)
+            ll = self._loglik(x, y, k)
+            if info:
+                out = self._info(x, logw, ll, y, k)
+            logw = logw + ll
+        elif info:
+            out = no_information(*y.shape)
         bad = _dead_paths(logw)
         if bad is not None:
             logw = np.where(bad[:, None], 0.0, logw)
-        return ParticleBelief(x, logw, belief.rng), bad
+        return (ParticleBelief(x, logw, belief.rng), bad) + ((out,) if info else ())
+
+    def _info(self, x, logw, ll, y, k):
+        md = self.model
+        w = _weights(logw)  # the predictive weights
+        a = np.log(w) + ll
+        with np.errstate(divide="ignore", invalid="ignore"):
+            mx = np.max(a, axis=-1)
+            lev = mx + np.log(np.sum(np.exp(a - np.where(np.isfinite(mx), mx, 0.0)[:, None]), axis=-1))
+        hx = md.h(x, k)
+        Eh = np.einsum("bp,bpi->bi", w, hx)
+        d = hx - Eh[:, None, :]
+        Ch = np.einsum("bp,bpi,bpj->bij", w, d, d)
+        if md.kind == "discrete":
+            res = innovation_info(y, Eh, Ch + md.R)
+        else:  # the Kallianpur–Striebel ratio times the density of dy under pure noise N(0, R dt)
+            lev = lev + innovation_info(y, np.zeros_like(y), md.R * self.dt)["loglik"]
+            res = innovation_info(y / self.dt, Eh, Ch + md.R / self.dt, scale=self.dt)
+        res["loglik"] = np.where(np.isnan(y).all(axis=-1), 0.0, lev)  # nothing measured on the path: exactly 0
+        return res
 
     def _resample(self, belief):
         """``(x, logw)`` with the paths whose ESS < threshold · particles resampled (systematic)."""
