@@ -24,6 +24,20 @@ G_x        (..., n, r, n)         [i, a, j] = ∂G_ia/∂x_j
 G_xx       (..., n, r, n, n)      [i, a, j, k] = ∂²G_ia/∂x_j∂x_k
 =========  =====================  ==============================================
 
+Parameters (``params={a: 0.9, q: 0.1}``) stay symbols of the generated functions: a model
+with other values is :meth:`Model.with_params` (no code generated again; what a fit needs), and
+``Q``/``R`` may be expressions in them (``Q=[[q]]``). A value may be an array over time ``(T,)``
+or per path ``(B, T)`` (``B`` the filtered batch), read at entry ``k`` at step ``k`` (SDE models:
+piecewise constant on a grid ``dt``); control inputs (``inputs=[u]``) are such arrays, given by
+:meth:`Model.with_inputs` ``u (..., T, p)``. A time-varying ``Q`` is carried by ``G``
+(``G_k Q_k^{1/2}``, ``model.Q`` the identity); a time-varying ``R`` is not supported.
+
+>>> import sympy as sp
+>>> x, u = sp.symbols("x u")
+>>> m = DiscreteModel([x], [0.5 * x + u], [x], Q=1.0, R=1.0, inputs=[u]).with_inputs([[1.0], [2.0]])
+>>> m.f(np.array([2.0]), 1).tolist(), m.time_invariant
+([3.0], False)
+
 A model may also be given as plain Python callables (:meth:`DiscreteModel.from_functions`); a
 derivative that was not given is ``None`` and a filter that needs it fails at construction
 (:meth:`Model.require`).
@@ -39,6 +53,8 @@ Example
 
 from __future__ import annotations
 
+import copy
+from types import MappingProxyType
 from typing import Callable
 
 import numpy as np
@@ -47,7 +63,7 @@ from sympy.printing.numpy import NumPyPrinter
 from sympy.printing.precedence import precedence
 
 from . import _validate as V
-from .noise import NoiseLaw, as_law
+from .noise import Gaussian, NoiseLaw, as_law
 
 _DERIVS = ("f", "f_x", "f_xx", "h", "h_x", "h_xx", "G", "G_x", "G_xx")
 
@@ -97,40 +113,135 @@ class _Broadcast:
         return self._view
 
 
-class _Batched:
-    """A SymPy array expression compiled once (``lambdify`` with ``cse=True``) into a function
-    of a state batch ``(..., n)`` and a scalar time, returning ``(..., *shape)``.
+class _Values:
+    """The parameter values of one model: ``{Symbol: float | array | None}`` and the grid that
+    maps a time to an array entry (shared by every generated function of the model).
 
-    Constant entries are broadcast over the batch (raw ``lambdify`` on matrices does not:
-    sympy issues #5642, #19259).
+    A scalar is used as is. An array ``(T,)`` (shared by all paths) or ``(..., T)`` (one row per
+    path) is read at entry ``k`` at step ``k`` (discrete models: the time argument *is* the
+    integer step), or for SDE models piecewise constant on the grid ``t0 + i dt``:
+    ``i = floor((t - t0) / dt + 1e-9)``, clipped to ``0..T-1``. ``None`` is an input that was
+    declared and not given.
     """
 
-    def __init__(self, exprs, states, time, shape):
+    def __init__(self, values: dict, inputs: tuple, dt, t0):
+        self.values, self.inputs, self.dt, self.t0 = values, inputs, dt, t0
+        self.arrays = {p for p, v in values.items() if isinstance(v, np.ndarray)}
+        self.per_path = {p for p in self.arrays if values[p].ndim > 1}
+        self.unset = {p for p, v in values.items() if v is None}
+
+    def scalar(self, syms) -> bool:
+        return not any(p in self.arrays or p in self.unset for p in syms)
+
+    def index(self, p, t, T: int) -> int:
+        if self.dt is None:  # a discrete model: the step index itself
+            k = float(t)
+            if k != int(k) or k < 0 or k >= T:
+                raise ValueError(f"{p}: its value is an array over {T} step(s); step k = {t!r} is outside "
+                                 f"0..{T - 1} (give at least as many entries as steps)")
+            return int(k)
+        return min(max(int(np.floor((float(t) - self.t0) / self.dt + 1e-9)), 0), T - 1)
+
+    def at(self, p, t, batch: tuple):
+        v = self.values[p]
+        if v is None:
+            raise ValueError(f"inputs: the model declares input(s) {[str(u) for u in self.inputs]} and none "
+                             "were given; evaluate model.with_inputs(u) with u of shape (..., T, p)")
+        if p not in self.arrays:
+            return v
+        k = self.index(p, t, v.shape[-1])
+        if v.ndim == 1:
+            return v[k]
+        lead = v.shape[:-1]
+        if tuple(batch[:len(lead)]) != lead:
+            raise ValueError(f"{p}: a per-path parameter array of shape {v.shape} needs states whose leading "
+                             f"axes are the paths {lead}, got a state batch {tuple(batch)}: per-path values "
+                             "need a filter that evaluates per path (not a grid filter's points, nor "
+                             "Filter.run(chunk=...)); give a (T,) array shared by all paths instead")
+        return v[..., k].reshape(*lead, *(1,) * (len(batch) - len(lead)))
+
+
+_NO_VALUES = _Values({}, (), None, 0.0)
+
+
+class _Kernel:
+    """A SymPy array expression compiled once (``lambdify`` with ``cse=True``) into a function of
+    the state components, the time and the parameters it uses; shared by every
+    :meth:`Model.with_params` copy of a model."""
+
+    def __init__(self, exprs, states, time, shape, params=()):
         self.shape = tuple(shape)
         flat = [sp.sympify(e) for e in exprs]
-        self._const = all(not (e.free_symbols & (set(states) | ({time} if time is not None else set())))
-                          for e in flat)
-        args = list(states) + ([time] if time is not None else [sp.Symbol("_t_unused")])
-        if self._const:
-            self._value = _Broadcast(np.array([float(e) for e in flat], dtype=float).reshape(self.shape))
+        free = set().union(*(e.free_symbols for e in flat)) if flat else set()
+        self.params = tuple(p for p in params if p in free)
+        self.varies = bool(free & (set(states) | ({time} if time is not None else set())))
+        self.const = not self.varies and not self.params
+        self.n = len(states)
+        if self.const:
+            self.value = np.array([float(e) for e in flat], dtype=float).reshape(self.shape)
         else:
-            self._fn = sp.lambdify(args, flat, modules="numpy", cse=True,
-                                   printer=_Printer({"fully_qualified_modules": False, "inline": True,
-                                                     "allow_unknown_functions": True}))
-        self._n = len(states)
+            args = list(states) + ([time] if time is not None else [sp.Symbol("_t_unused")]) + list(self.params)
+            self.fn = sp.lambdify(args, flat, modules="numpy", cse=True,
+                                  printer=_Printer({"fully_qualified_modules": False, "inline": True,
+                                                    "allow_unknown_functions": True}))
+
+
+class _Batched:
+    """A compiled :class:`_Kernel` bound to a model's parameter values: a function of a state batch
+    ``(..., n)`` and a scalar time, returning ``(..., *shape)``.
+
+    Constant entries are broadcast over the batch (raw ``lambdify`` on matrices does not:
+    sympy issues #5642, #19259); so is a function that depends on scalar parameters only.
+    """
+
+    def __init__(self, kernel: _Kernel, values: _Values = _NO_VALUES):
+        self.kernel, self.values, self.shape = kernel, values, kernel.shape
+        self._fixed = None
+        if kernel.const:
+            self._fixed = _Broadcast(kernel.value)
+        elif not kernel.varies and values.scalar(kernel.params):
+            self._fixed = _Broadcast(self._eval(np.zeros(kernel.n), 0.0))
 
     def __call__(self, x, t=0.0):
         x = np.asarray(x, dtype=float)
+        if self._fixed is not None:
+            return self._fixed(x.shape[:-1])
+        return self._eval(x, t)
+
+    def _eval(self, x, t):
         batch = x.shape[:-1]
-        if self._const:
-            return self._value(batch)
-        vals = self._fn(*(x[..., i] for i in range(self._n)), t)
+        kn = self.kernel
+        extra = [self.values.at(p, t, batch) for p in kn.params]
+        vals = kn.fn(*(x[..., i] for i in range(kn.n)), t, *extra)
         if len(vals) == 1 and np.shape(vals[0]) == batch:  # one entry: a reshape, no copy
             return np.asarray(vals[0], dtype=float).reshape(*batch, *self.shape)
         out = np.empty((*batch, len(vals)))
         for j, v in enumerate(vals):
             out[..., j] = v
         return out.reshape(*batch, *self.shape)
+
+
+class _Folded:
+    """``G`` (or ``G_x``, ``G_xx``: the noise axis is the second) times ``Q_t^{1/2}`` when ``Q``
+    varies with time: the filters and the simulator then see ``Q = I`` and the same ``G Q Gᵀ``."""
+
+    def __init__(self, inner: _Batched, Qfn: _Batched, per_path: int):
+        self.inner, self.Qfn, self.per_path, self.shape = inner, Qfn, per_path, inner.shape
+
+    def __call__(self, x, t=0.0):
+        x = np.asarray(x, dtype=float)
+        batch = x.shape[:-1]
+        lead = batch[:self.per_path]
+        Qt = self.Qfn(np.zeros((*lead, x.shape[-1])), t)  # (*lead, r, r)
+        w, U = np.linalg.eigh(Qt)
+        L = U * np.sqrt(np.clip(w, 0.0, None))[..., None, :]  # Q = L Lᵀ
+        L = L.reshape(*lead, *(1,) * (len(batch) - len(lead)), *L.shape[-2:])
+        G = self.inner(x, t)
+        if G.ndim == len(batch) + 2:
+            return G @ L
+        G = np.moveaxis(G, len(batch) + 1, -1)  # noise axis last
+        L = L.reshape(*L.shape[:-2], *(1,) * (G.ndim - len(batch) - 1), *L.shape[-2:])
+        return np.moveaxis(np.einsum("...a,...ab->...b", G, L), -1, len(batch) + 1)
 
 
 def _matrix(name, value, rows=None, cols=None) -> sp.Matrix:
@@ -154,13 +265,51 @@ def _vector(name, value, n=None) -> sp.Matrix:
     return M.reshape(M.shape[0] * M.shape[1], 1)
 
 
+def _is_symbolic(value) -> bool:
+    """Whether a Q or R argument holds SymPy expressions with free symbols."""
+    if isinstance(value, sp.Basic):
+        return bool(value.free_symbols)
+    if isinstance(value, (list, tuple)):
+        return any(_is_symbolic(v) for v in value)
+    if isinstance(value, np.ndarray) and value.dtype == object:
+        return any(_is_symbolic(v) for v in value.ravel())
+    return False
+
+
+def _param_value(name, value):
+    """A parameter value: a finite float, or a float array ``(T,)`` / ``(..., T)`` (read-only)."""
+    if np.ndim(value) == 0:
+        try:
+            v = float(value)
+        except (TypeError, ValueError) as exc:
+            raise TypeError(f"{name}: expected a number or an array over time, got {type(value).__name__}") from exc
+        V.finite(name, v)
+        return v
+    arr = V.as_float_array(name, value).copy()
+    if arr.shape[-1] == 0:
+        raise ValueError(f"{name}: expected an array over at least one step, got shape {arr.shape}")
+    V.finite(name, arr)
+    arr.setflags(write=False)
+    return arr
+
+
 class Model:
-    """Common part of :class:`DiscreteModel` and :class:`SDEModel` (see the module docstring)."""
+    """Common part of :class:`DiscreteModel` and :class:`SDEModel` (see the module docstring).
+
+    Parameters
+    ----------
+    params : ``{Symbol: value}``: symbols of f, h, G, Q and R kept as arguments of the generated
+        functions (values changed by :meth:`with_params` without generating code again). A value
+        is a number, or an array over time ``(T,)`` or per path ``(..., T)`` (see
+        :meth:`with_params`).
+    inputs : control-input symbols ``[u1, ..., up]`` fed by :meth:`with_inputs`.
+    Q, R : numbers or matrices, or SymPy expressions in the parameters (``[[q]]``, ``[[r**2]]``).
+    """
 
     kind = "model"
     time_name = "t"
 
-    def __init__(self, states, f, h, G=None, Q=None, R=None, *, params=None, time=None,
+    def __init__(self, states, f, h, G=None, Q=None, R=None, *, params=None, inputs=None, time=None,
                  process_noise: NoiseLaw | None = None, measurement_noise: NoiseLaw | None = None,
                  name: str = ""):
         if isinstance(states, sp.Symbol):
@@ -180,31 +329,64 @@ class Model:
         for p in params:
             if not isinstance(p, sp.Symbol):
                 raise TypeError(f"params: expected SymPy symbols as keys, got {p!r}")
+        if isinstance(inputs, sp.Symbol):
+            inputs = [inputs]
+        inputs = tuple(inputs or ())
+        if not all(isinstance(u, sp.Symbol) for u in inputs) or len(set(inputs)) != len(inputs):
+            raise TypeError(f"inputs: expected a list of distinct SymPy symbols, got {list(inputs)!r}")
+        clash = (set(inputs) & set(params)) | ((set(inputs) | set(params)) & (set(states) | {time}))
+        if clash:
+            raise ValueError(f"params/inputs: symbol(s) {sorted(map(str, clash))} are used twice "
+                             "(as a state, the time, a parameter or an input)")
+        names = [str(p) for p in list(params) + list(inputs)]
+        if len(set(names)) != len(names):
+            raise ValueError(f"params/inputs: expected distinct names, got {names}")
+        self.inputs = inputs
+        self._psyms = tuple(params) + inputs  # every argument beyond states and time
 
         fM = _vector("f", f, n)
         hM = _vector("h", h)
         GM = sp.eye(n) if G is None else _matrix("G", G, n, None)
-        fM, hM, GM = (M.subs(params) for M in (fM, hM, GM))
-        allowed = set(states) | ({time} if time is not None else set())
+        allowed = set(states) | ({time} if time is not None else set()) | set(self._psyms)
         for nm, M in (("f", fM), ("h", hM), ("G", GM)):
             extra = M.free_symbols - allowed
             if extra:
                 raise ValueError(f"{nm}: uses symbol(s) {sorted(map(str, extra))} that are neither states "
-                                 f"{[str(s) for s in states]}, the time symbol, nor given in params")
+                                 f"{[str(s) for s in states]}, the time symbol, nor given in params or inputs")
         self.n, self.m, self.r = n, hM.shape[0], GM.shape[1]
-        self.sym = {"f": fM, "h": hM, "G": GM}  # for the moment engine and second-order filters
-        self.Q = V.covariance("Q", np.eye(self.r) if Q is None and process_noise is None
-                              else (process_noise.cov if Q is None else Q), self.r)
-        if R is None and measurement_noise is None:
-            raise ValueError("R: expected the measurement noise covariance (m x m), got None")
-        self.R = V.covariance("R", measurement_noise.cov if R is None else R, self.m)
-        self.process_noise = as_law("process_noise", process_noise, self.Q)
-        self.measurement_noise = as_law("measurement_noise", measurement_noise, self.R)
-        for nm, law, cov in (("process_noise", self.process_noise, self.Q),
-                             ("measurement_noise", self.measurement_noise, self.R)):
+        self._sym = {"f": fM, "h": hM, "G": GM}  # parameters as symbols; .sym substitutes them
+        self._given_laws = (process_noise, measurement_noise)
+        # Q and R: numbers, checked once as before, or SymPy matrices in the parameters
+        self._QR = {}
+        for nm, val, dim in (("Q", Q, self.r), ("R", R, self.m)):
+            if not _is_symbolic(val):
+                continue
+            M = _matrix(nm, [[val]] if isinstance(val, sp.Basic) and not isinstance(val, sp.MatrixBase) else val,
+                        dim, dim)
+            extra = M.free_symbols - set(self._psyms)
+            if extra:
+                raise ValueError(f"{nm}: uses symbol(s) {sorted(map(str, extra))} that are not given in params")
+            if self._given_laws[nm == "R"] is not None:
+                raise ValueError(f"{'process_noise' if nm == 'Q' else 'measurement_noise'}: a noise law cannot "
+                                 f"be given with a {nm} that depends on parameters; drop the law (Gaussian)")
+            self._QR[nm] = _Kernel(list(M), states, None, (dim, dim), self._psyms)
+        if "Q" not in self._QR:
+            self._Q0 = V.covariance("Q", np.eye(self.r) if Q is None and process_noise is None
+                                    else (process_noise.cov if Q is None else Q), self.r)
+        if "R" not in self._QR:
+            if R is None and measurement_noise is None:
+                raise ValueError("R: expected the measurement noise covariance (m x m), got None")
+            self._R0 = V.covariance("R", measurement_noise.cov if R is None else R, self.m)
+            self._R_law = as_law("measurement_noise", measurement_noise, self._R0)
+        if "Q" not in self._QR:
+            self._Q_law = as_law("process_noise", process_noise, self._Q0)
+        for nm, key in (("process_noise", "Q"), ("measurement_noise", "R")):
+            if key in self._QR:
+                continue
+            law, cov = getattr(self, f"_{key}_law"), getattr(self, f"_{key}0")
             if law.cov.shape != cov.shape or not np.allclose(law.cov, cov, rtol=1e-8, atol=1e-12):
                 raise ValueError(f"{nm}: its covariance {law.cov.tolist()} differs from the given "
-                                 f"{'Q' if nm.startswith('p') else 'R'} {cov.tolist()}")
+                                 f"{key} {cov.tolist()}")
 
         x = sp.Matrix(states)
         fx = fM.jacobian(x)
@@ -220,17 +402,167 @@ class Model:
                  "h_xx": (flat(hxx), (self.m, n, n)),
                  "G": (list(GM), (n, self.r)), "G_x": (flat(Gx), (n, self.r, n)),
                  "G_xx": (flat(Gxx), (n, self.r, n, n))}
-        for key, (exprs, shape) in specs.items():
-            setattr(self, key, _Batched(exprs, states, time, shape))
+        self._kernels = {key: _Kernel(exprs, states, time, shape, self._psyms) for key, (exprs, shape) in specs.items()}
         self.given = set(_DERIVS)
-        # structure flags, read by filters that can exploit them
+        # structure flags (for every parameter value), read by filters that can exploit them
         self.G_constant = all(e.free_symbols.isdisjoint(states) for e in GM)
-        self._GQG0 = (_Broadcast(self.G(np.zeros(n)) @ self.Q @ self.G(np.zeros(n)).T)
-                      if all(not e.free_symbols for e in GM) else None)  # fixed G Q Gᵀ, computed once
+        self._G_fixed = all(e.free_symbols.isdisjoint(set(states) | {time}) for e in GM)
         self.is_linear = self.G_constant and all(  # f and h affine in the state
             e.is_polynomial(*states) and sp.Poly(e, *states).total_degree() <= 1 for e in list(fM) + list(hM))
-        # f, h and G do not depend on the time: filters may compute time-fixed quantities once
-        self.time_invariant = time is None or not any(M.has(time) for M in (fM, hM, GM))
+        self._timed = time is not None and any(M.has(time) for M in (fM, hM, GM))
+        self._uses = {k: set(self._kernels[k].params) for k in ("f", "h", "G")}
+        self._uses.update({k: set(kn.params) for k, kn in self._QR.items()})
+        values = {p: _param_value(str(p), v) for p, v in params.items()}
+        values.update({u: None for u in inputs})
+        self._bind(_Values(values, inputs, None, 0.0))
+
+    def _bind(self, values: _Values) -> None:
+        """Bind the generated functions, Q, R, the noise laws and the flags to one set of values
+        (no SymPy: this is all :meth:`with_params` costs)."""
+        if self.kind == "sde" and values.arrays and values.dt is None:
+            raise ValueError(f"dt: the parameter(s) {sorted(map(str, values.arrays))} are arrays over time; an "
+                             "SDEModel needs their grid: model.with_params(..., dt=, t0=)")
+        self._values = values
+        for key, kn in self._kernels.items():
+            setattr(self, key, _Batched(kn, values))
+        tv = {k for k, used in self._uses.items() if used & (values.arrays | values.unset)}
+        Qlaw, Rlaw = self._given_laws
+        if "R" in self._QR:
+            if "R" in tv:
+                raise ValueError(f"R: depends on time-varying parameter(s) {sorted(map(str, self._uses['R'] & values.arrays))}; "
+                                 "a time-varying R is not supported (filters read model.R as one matrix)")
+            self.R = self._covariance("R", self.m, values)
+            self.measurement_noise = Gaussian(self.R)
+        else:
+            self.R, self.measurement_noise = self._R0, self._R_law
+        self._fold = "Q" in tv
+        if self._fold:  # Q_t = L_t L_tᵀ moved into G: the filters see Q = I and the same G Q Gᵀ
+            per = max((values.values[p].ndim - 1 for p in self._uses["Q"] & values.per_path), default=0)
+            Qfn = _Batched(self._QR["Q"], values)
+            for key in ("G", "G_x", "G_xx"):
+                setattr(self, key, _Folded(getattr(self, key), Qfn, per))
+            self.Q = np.eye(self.r)
+            self.process_noise = Gaussian(self.Q)
+        elif "Q" in self._QR:
+            self.Q = self._covariance("Q", self.r, values)
+            self.process_noise = Gaussian(self.Q)
+        else:
+            self.Q, self.process_noise = self._Q0, self._Q_law
+        self._per_path_G = bool(self._uses["G"] & values.per_path) or (self._fold and bool(self._uses["Q"] & values.per_path))
+        fixed = self._G_fixed and "G" not in tv and not self._fold
+        self._GQG0 = (_Broadcast(self.G(np.zeros(self.n)) @ self.Q @ self.G(np.zeros(self.n)).T)
+                      if fixed else None)  # fixed G Q Gᵀ, computed once
+        # f, h, G (and Q) do not depend on the time: filters may compute time-fixed quantities once
+        self.time_invariant = not self._timed and not tv
+        self._sym_cache = None
+
+    def _covariance(self, nm, dim, values):
+        C = _Batched(self._QR[nm], values)(np.zeros(self.n))
+        try:
+            return V.covariance(nm, C, dim)
+        except ValueError as exc:
+            used = {str(p): values.values[p] for p in self._QR[nm].params}
+            raise ValueError(f"{exc} (at parameter values {used})") from None
+
+    # -- parameters and inputs ------------------------------------------------------------------
+    @property
+    def params(self):
+        """The parameter values, ``{name: value}`` (read-only; inputs not included)."""
+        vals = getattr(self, "_values", _NO_VALUES)
+        return MappingProxyType({str(p): v for p, v in vals.values.items() if p not in vals.inputs})
+
+    @property
+    def sym(self):
+        """``{"f", "h", "G"}`` as SymPy matrices with the current parameter values substituted
+        (for the moment engine and the symbolic filters); ``None`` for a model from callables."""
+        if self._sym is None:
+            return None
+        if self._sym_cache is None:
+            vals = self._values
+            bad = set().union(*(M.free_symbols for M in self._sym.values())) & (vals.arrays | vals.unset)
+            if bad:
+                raise ValueError(f"model.sym: parameter(s)/input(s) {sorted(map(str, bad))} have no single value "
+                                 "(arrays over time, or inputs not given); symbolic methods need numbers")
+            sub = {p: v for p, v in vals.values.items() if p not in vals.arrays and v is not None}
+            self._sym_cache = {k: (M.subs(sub) if sub else M) for k, M in self._sym.items()}
+        return self._sym_cache
+
+    def _lookup(self, key):
+        if isinstance(key, sp.Symbol) and key in self._psyms:
+            return key
+        for p in self._psyms:
+            if str(p) == key:
+                return p
+        raise ValueError(f"with_params: unknown parameter {key!r}; the model's parameters are "
+                         f"{[str(p) for p in self._psyms if p not in self.inputs]}"
+                         + (f" and inputs {[str(u) for u in self.inputs]}" if self.inputs else ""))
+
+    def with_params(self, values=None, /, *, dt: float | None = None, t0: float = 0.0, **named):
+        """A copy of the model with new parameter values, sharing the generated code (no SymPy).
+
+        ``values``: a dict keyed by symbol or name, and/or keywords by name (a parameter named
+        ``dt`` or ``t0`` goes in the dict). A value is a number, an array ``(T,)`` over time shared
+        by all paths, or ``(..., T)`` per path (leading axes those of the filtered batch). A
+        discrete model reads entry ``k`` at step ``k``; an :class:`SDEModel` reads the array as
+        piecewise constant on the grid ``t0 + i dt`` (``i = floor((t - t0)/dt + 1e-9)``, clipped
+        to the array): ``dt`` is then required (kept from the model when not given). An array
+        makes the model time-varying (``time_invariant = False``).
+
+        >>> import sympy as sp
+        >>> x, a = sp.symbols("x a")
+        >>> m = DiscreteModel([x], [a * x], [x], Q=1.0, R=1.0, params={a: 0.9})
+        >>> m2 = m.with_params(a=0.5)
+        >>> m2.params["a"], m2.f(np.array([2.0]), 0).tolist(), m.f(np.array([2.0]), 0).tolist()
+        (0.5, [1.0], [1.8])
+        """
+        if self._sym is None:
+            raise ValueError("with_params: a model built from_functions has no parameters; give their values "
+                             "to your callables (a closure) or state the model in SymPy with params=")
+        new = dict(self._values.values)
+        given = dict(values or {})
+        if not isinstance(given, dict):
+            raise TypeError(f"values: expected a dict keyed by symbol or name, got {type(values).__name__}")
+        given.update(named)
+        for key, v in given.items():
+            p = self._lookup(key)
+            new[p] = _param_value(str(p), v)
+        if self.kind == "discrete":
+            if dt is not None:
+                raise ValueError(f"dt: a DiscreteModel reads array entry k at step k; expected None, got {dt!r}")
+            grid = (None, 0.0)
+        else:
+            grid = ((float(V.positive("dt", dt)), float(t0)) if dt is not None
+                    else (self._values.dt, self._values.t0 if t0 == 0.0 else float(t0)))
+        out = copy.copy(self)
+        out._bind(_Values(new, self.inputs, *grid))
+        return out
+
+    def with_inputs(self, u, *, dt: float | None = None, t0: float = 0.0):
+        """A copy of the model fed by the control inputs ``u (..., T, p)`` (``p`` the declared
+        inputs; ``(T, p)`` shared by all paths, ``(B, T, p)`` per path): each input is a
+        time-varying parameter (:meth:`with_params`), read at entry ``k`` at step ``k``."""
+        if not self.inputs:
+            raise ValueError("with_inputs: the model declares no inputs; build it with inputs=[u1, ...]")
+        p = len(self.inputs)
+        u = V.as_float_array("u", u)
+        if u.ndim < 2 or u.shape[-1] != p:
+            raise ValueError(f"u: expected shape (..., T, {p}) for input(s) {[str(s) for s in self.inputs]}, "
+                             f"got {u.shape}")
+        return self.with_params({s: u[..., j] for j, s in enumerate(self.inputs)}, dt=dt, t0=t0)
+
+    def _rows(self, paths: range):
+        """The model for the paths ``paths`` (rows of every per-path parameter array), or itself."""
+        vals = getattr(self, "_values", _NO_VALUES)
+        if not vals.per_path:
+            return self
+        new = {}
+        for p in vals.per_path:
+            v = vals.values[p]
+            if v.ndim != 2 or v.shape[0] < paths.stop:
+                raise ValueError(f"{p}: a per-path array of shape {v.shape} for paths {paths!r}; expected "
+                                 f"(P, T) with P >= {paths.stop}")
+            new[p] = v[paths.start:paths.stop]
+        return self.with_params(new)
 
     # -- construction from plain callables -----------------------------------------------------
     @classmethod
@@ -247,7 +579,8 @@ class Model:
         self = cls.__new__(cls)
         V.positive("n", n, integer=True)
         V.positive("m", m, integer=True)
-        self.n, self.m, self.name, self.time, self.states, self.sym = n, m, name, None, None, None
+        self.n, self.m, self.name, self.time, self.states, self._sym = n, m, name, None, None, None
+        self.inputs, self._psyms, self._values, self._per_path_G, self._sym_cache = (), (), _NO_VALUES, False, None
         Qa = V.covariance("Q", Q)
         self.r = Qa.shape[0] if r is None else r
         self.Q = V.covariance("Q", Q, self.r)
@@ -309,7 +642,7 @@ class Model:
 
     def Gw(self, x, w, t=0.0) -> np.ndarray:
         """``G(x) w`` for a batch of states ``(..., n)`` and noises ``(..., r)`` (matmul when G is constant)."""
-        if self.G_constant:
+        if self.G_constant and not self._per_path_G:
             return w @ self.G(np.zeros(self.n), t).T
         return np.einsum("...ia,...a->...i", self.G(x, t), w)
 
@@ -332,7 +665,8 @@ class DiscreteModel(Model):
     states : list of sympy.Symbol, length n
     f : n expressions;  h : m expressions;  G : n x r matrix (identity if omitted)
     Q : (r, r) covariance of w;  R : (m, m) covariance of v
-    params : {Symbol: value} substituted at construction
+    params : {Symbol: value}, kept as symbols of the generated functions (:meth:`Model.with_params`)
+    inputs : control-input symbols, fed by :meth:`Model.with_inputs` an array ``u (..., T, p)``
     time : the step-index symbol, if f, h or G depend on it
     process_noise, measurement_noise : laws used to *simulate* w and v (Gaussian by default)
     """
@@ -352,12 +686,11 @@ class SDEModel(Model):
     kind = "sde"
     time_name = "t"
 
-    def __init__(self, states, f, h, G=None, Q=None, R=None, *, params=None, time=None,
+    def __init__(self, states, f, h, G=None, Q=None, R=None, *, params=None, inputs=None, time=None,
                  process_noise: NoiseLaw | None = None, measurement_noise: NoiseLaw | None = None,
                  name: str = ""):
-        super().__init__(states, f, h, G, Q, R, params=params, time=time, process_noise=process_noise,
-                         measurement_noise=measurement_noise, name=name)
-        from .noise import Gaussian
+        super().__init__(states, f, h, G, Q, R, params=params, inputs=inputs, time=time,
+                         process_noise=process_noise, measurement_noise=measurement_noise, name=name)
         for nm in ("process_noise", "measurement_noise"):
             if not isinstance(getattr(self, nm), Gaussian):
                 raise ValueError(f"{nm}: an SDEModel is driven by Brownian motion; expected None or "

@@ -67,6 +67,23 @@ def _start(model, steps, paths, rng, m0, P0, x0, initial):
     return rng, x, x.copy(), np.empty((len(rng), steps, model.n))
 
 
+def _path_rows(model, rng, paths):
+    """The model restricted to the simulated paths: per-path parameter or input arrays
+    ``(P, T)`` (:meth:`~nlfilter.models.Model.with_params`) give rows ``a..b-1`` for
+    ``paths=range(a, b)``; for ``paths=P`` they must have exactly ``P`` rows."""
+    rows = getattr(model, "_rows", None)
+    per = getattr(getattr(model, "_values", None), "per_path", ())
+    if rows is None or not per:
+        return model
+    if not isinstance(paths, range) and not isinstance(paths, PathRNG):
+        for p in per:
+            B = model._values.values[p].shape[0]
+            if B != len(rng):
+                raise ValueError(f"{p}: a per-path array with {B} row(s) for paths={paths!r}; expected "
+                                 f"{len(rng)} rows (or paths=range(a, b) to take rows a..b-1)")
+    return rows(rng.paths)
+
+
 def _blocks(steps, paths, width):
     """Steps ``[(k0, k1), ...]`` in blocks of at most ``_BLOCK`` numbers over all paths
     (``width`` per path and step). Numpy fills ``standard_normal`` sequentially, so per-path
@@ -99,6 +116,11 @@ def simulate(model, steps: int, *, paths: int | range = 1, rng=None, m0=None, P0
     dt, substeps, t0 : SDE models only: measurement step, Euler–Maruyama steps per measurement
         step, initial time
 
+    Parameters or inputs given as arrays (:meth:`~nlfilter.models.Model.with_params`,
+    :meth:`~nlfilter.models.Model.with_inputs`) are read at step ``k`` as a filter reads them
+    (``x[k+1] = f(x[k], k) + ...`` uses entry ``k``); per-path arrays ``(P, T)`` give row ``p``
+    to path ``p`` (rows ``a..b-1`` for ``paths=range(a, b)``).
+
     >>> import sympy as sp; from nlfilter import SDEModel
     >>> x = sp.Symbol("x")
     >>> sim = simulate(SDEModel([x], [-x], [x], Q=1.0, R=1.0), 5, paths=3, rng=0, m0=0.0, P0=1.0, dt=0.1)
@@ -106,6 +128,7 @@ def simulate(model, steps: int, *, paths: int | range = 1, rng=None, m0=None, P0
     ((3, 5, 1), (3, 5, 1), [0.1, 0.2, 0.3, 0.4, 0.5])
     """
     rng, x, x_init, xs = _start(model, steps, paths, rng, m0, P0, x0, initial)
+    model = _path_rows(model, rng, paths)
     m, paths = model.m, len(rng)
     ys = np.empty((paths, steps, m))
     if model.kind == "discrete":
@@ -254,6 +277,7 @@ def simulate_continuous_discrete(model, steps: int, *, paths: int | range = 1, r
     dt = float(V.positive("dt", dt))
     V.positive("substeps", substeps, integer=True)
     rng, x, x_init, xs = _start(model, steps, paths, rng, m0, P0, x0, initial)
+    model = _path_rows(model, rng, paths)
     m, paths = model.m, len(rng)
     noisy = np.any(model.Q != 0)
     L = np.linalg.cholesky(model.R)
