@@ -906,10 +906,10 @@ SMOOTHER = [c for c in CASES if c.filter().smoother is not None]
 
 def test_likelihood_and_smoother_families():
     """Which filters give a likelihood and which smooth (the README's table says the same)."""
-    assert {c.filter().likelihood for c in LIKELIHOOD} == {"prediction-error", "exact", "estimate"}
+    assert {c.filter().likelihood for c in LIKELIHOOD} == {"prediction-error", "exact", "estimate", "assumed-density"}
     for c in CASES:
         f = c.filter()
-        assert (f.likelihood is not None) == (f.family in ("gaussian", "second-order")
+        assert (f.likelihood is not None) == (f.family in ("gaussian", "second-order", "conditional moments")
                                               or f.name in ("grid", "particle")), c.name
         if f.family in ("gaussian", "second-order"):
             assert f.smoother == "rts", c.name

@@ -35,7 +35,7 @@ def test_compare_blocks_run(tmp_path, monkeypatch):
     4 paths, so that the test stays fast; the code path is the same)."""
     text = README.read_text()
     quick = re.search(r"## Quickstart\n\n```python\n(.*?)```", text, re.S).group(1)
-    section = text[text.index("### One call: `compare`"):text.index("## Conventions")]
+    section = text[text.index("### One call: `compare`"):text.index("### Likelihood, smoothers and parameters")]
     blocks = re.findall(r"```python\n(.*?)```", section, re.S)
     assert len(blocks) == 2
     monkeypatch.chdir(tmp_path)
@@ -47,3 +47,18 @@ def test_compare_blocks_run(tmp_path, monkeypatch):
     res = ns["res"]
     assert {r.filter for r in res.rows} == {"ekf", "ckf", "second-order", "optimal"}
     assert (tmp_path / "compare.png").stat().st_size > 5000
+
+
+def test_likelihood_block_runs(tmp_path, monkeypatch, capsys):
+    """The "Likelihood, smoothers and parameters" block runs as written (sizes cut: 60 steps, 2
+    paths, a 101-point grid; the code path is the same) and prints a converged fit."""
+    text = README.read_text()
+    section = text[text.index("### Likelihood, smoothers and parameters"):text.index("## Conventions")]
+    (code,) = re.findall(r"```python\n(.*?)```", section, re.S)
+    code = code.replace("300, paths=4", "60, paths=2").replace("401))", "101))")
+    monkeypatch.chdir(tmp_path)
+    ns = {}
+    exec(compile(code, "README-likelihood", "exec"), ns)
+    out = capsys.readouterr().out
+    assert ns["est"].loglik.shape == (2,) and ns["sm"].means.shape == (2, 60, 1)
+    assert "converged" in out and ns["res"].se_ok

@@ -75,7 +75,8 @@ def _main(argv) -> int:
 
         for row in table(REGISTRY):
             print("\t".join([row["name"], row["class"], row["family"] or "-", row["time"] or "-",
-                              row["accepts"] or "-", row["needs"] or "-", row["source"] or "-"]))
+                              row["accepts"] or "-", row["needs"] or "-", row["likelihood"] or "-",
+                              row["smoother"] or "-", row["source"] or "-"]))
         return 0
     if args.command == "list":
         for exp in experiments.registry().values():

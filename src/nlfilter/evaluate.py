@@ -138,6 +138,42 @@ def paired_difference(est_a, est_b, xs, *, component: int = 0, window=None) -> S
     return _summary(np.reshape(np.mean(d[..., w], axis=-1), -1), np.reshape(ok_a & ok_b, -1))
 
 
+class LogLik(NamedTuple):
+    """A record's log-likelihood ``value (...,)`` (per path of ``ys``), the standard error of that
+    value over ``replicates`` independent runs of a random filter (0 for a deterministic one), and
+    the spread (standard deviation) of a single run's estimate."""
+
+    value: np.ndarray
+    stderr: np.ndarray
+    spread: np.ndarray
+    replicates: int
+
+
+def loglik(flt, ys, m0=None, P0=None, *, replicates: int = 1, rng=0, **run_kw) -> LogLik:
+    """``log p(y_0..y_{T-1})`` of each record ``ys (..., T, m)`` by ``flt`` (``run(..., loglik=True)``).
+
+    A random filter (the particle filter: ``Filter.likelihood == "estimate"``) is run
+    ``replicates`` times on independent streams in one batch (the records tiled along a new
+    leading axis: replicate ``j`` of path ``p`` is path ``j·P + p`` of the run, :mod:`nlfilter.streams`):
+    ``value`` is the mean of the log-estimates, ``stderr`` its standard error, ``spread`` the
+    standard deviation of one run's log-estimate (the log of the unbiased likelihood estimate is
+    biased low by about spread²/2). A deterministic filter runs once (``replicates`` must be 1)."""
+    R = V.positive("replicates", replicates, integer=True)
+    if flt.likelihood is None:
+        raise TypeError(f"flt: {type(flt).__name__} defines no log-likelihood (its likelihood attribute is None)")
+    if not flt.random and R != 1:
+        raise ValueError(f"replicates: {type(flt).__name__} is deterministic: its log-likelihood has no spread; "
+                         f"expected 1, got {R}")
+    ys = np.asarray(ys, dtype=float)
+    tiled = np.broadcast_to(ys, (R, *ys.shape)) if R > 1 else ys
+    ll = flt.run(tiled, m0, P0, rng=rng, loglik=True, **run_kw).loglik
+    if R == 1:
+        zero = np.zeros(np.shape(ll))
+        return LogLik(ll, zero, zero, 1)
+    sd = ll.std(axis=0, ddof=1)
+    return LogLik(ll.mean(axis=0), sd / np.sqrt(R), sd, R)
+
+
 def stream(seed: int, k: int) -> np.random.SeedSequence:
     """The root of case ``k`` of ``seed``: ``SeedSequence(seed).spawn(k + 1)[k]``, computed without
     state (:func:`nlfilter.streams.child`); one per experiment case, so cases do not depend on each

@@ -487,6 +487,11 @@ class Model:
             self._sym_cache = {k: (M.subs(sub) if sub else M) for k, M in self._sym.items()}
         return self._sym_cache
 
+    def symbol(self, name):
+        """The SymPy symbol of the parameter ``name`` (a name or the symbol itself; its
+        assumptions, e.g. ``positive=True``, say how :func:`nlfilter.fit` may move it)."""
+        return self._lookup(name)
+
     def _lookup(self, key):
         if isinstance(key, sp.Symbol) and key in self._psyms:
             return key

@@ -15,7 +15,7 @@ import sympy as sp
 from nlfilter import DiscreteModel, SDEModel, simulate
 from nlfilter.filters import REGISTRY
 
-from .test_likelihood import GAUSSIAN, LIN, M0, P0, Q, R, TV, _data, _mats, dense
+from .test_likelihood import GAUSSIAN, LIN, M0, ONE, P0, Q, R, TV, _data, _mats, _one_data, dense
 
 
 def exact_smoother(ys, Fs, Hs, ds, start):
@@ -41,6 +41,22 @@ def test_rts_is_the_exact_smoothing_posterior(name, model, start):
         ms, Ps = exact_smoother(ys[p], Fs, Hs, ds, start)
         np.testing.assert_allclose(est.means[p], ms, rtol=0, atol=1e-9)
         np.testing.assert_allclose(est.covs[p], Ps, rtol=0, atol=1e-9)
+
+
+@pytest.mark.parametrize("name", GAUSSIAN)
+def test_scalar_rts_is_the_exact_smoothing_posterior(name):
+    """n = m = 1 (the elementwise paths of the update and the smoother's gain), missing data."""
+    ys = _one_data()
+    T = ys.shape[1]
+    a, qv, rv = 0.9, 0.5, 0.3
+    C = np.array([[a ** abs(i - j) * (a ** (2 * min(i, j)) * 1.0 + qv * (1 - a ** (2 * min(i, j))) / (1 - a * a))
+                   for j in range(T)] for i in range(T)])  # Cov[x_i, x_j], x_0 ~ N(0, 1)
+    est = REGISTRY[name](ONE).smooth(ys, [0.0], [[1.0]])
+    for p in range(2):
+        o = ~np.isnan(ys[p, :, 0])
+        K = C[:, o] @ np.linalg.inv(C[np.ix_(o, o)] + rv * np.eye(o.sum()))
+        np.testing.assert_allclose(est.means[p, :, 0], K @ ys[p, o, 0], rtol=0, atol=1e-9)
+        np.testing.assert_allclose(est.covs[p, :, 0, 0], np.diag(C - K @ C[:, o].T), rtol=0, atol=1e-9)
 
 
 x1, x2 = sp.symbols("x1 x2")

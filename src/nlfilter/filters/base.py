@@ -316,7 +316,8 @@ class Filter:
         return None
 
     def _smooth(self, est: Estimates, beliefs, ys, t0):  # pragma: no cover - abstract
-        """The backward pass: ``(means (B, T, n), covs (B, T, n, n))`` smoothed, from the forward
+        """The backward pass: ``(means (B, T, n), covs (B, T, n, n))`` smoothed (optionally a third
+        item, a dict of per-step extras ``(B, T, ...)``, e.g. the RTS lag-one covariances), from the forward
         estimates ``est`` over ``B`` paths, the forward beliefs of every step (a list of T, when
         ``smoother_keeps``; else None), the measurements ``ys (B, T, m)`` and ``t0``."""
         raise NotImplementedError
@@ -476,12 +477,13 @@ class Filter:
             return self.output(rec.result(batch))
         est = rec.result((B,))
         with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
-            means, covs = self._smooth(est, rec.beliefs, yf, t0)
+            means, covs, *more = self._smooth(est, rec.beliefs, yf, t0)
         d = est.diverged
-        means = np.where(d[:, None, None], np.nan, means)
-        covs = np.where(d[:, None, None, None], np.nan, covs)
+        nan = lambda a: np.where(d.reshape(-1, *(1,) * (a.ndim - 1)), np.nan, a)  # noqa: E731
         out = lambda a: a.reshape(*batch, *a.shape[1:])  # noqa: E731
-        return Estimates(out(means), out(covs), d.reshape(batch), est.diverged_step.reshape(batch))
+        extras = {k: out(nan(v)) for k, v in (more[0] if more and more[0] else {}).items()}
+        return Estimates(out(nan(means)), out(nan(covs)), d.reshape(batch), est.diverged_step.reshape(batch),
+                         MappingProxyType(extras))
 
 
 class DiscreteFilter(Filter):

@@ -117,7 +117,8 @@ class GaussianFilter(DiscreteFilter):
 
     def _smooth(self, est, beliefs, ys, t0):
         """The RTS backward pass through the rule (:func:`~nlfilter.filters.smoothing.rts`)."""
-        return rts(est.means, est.covs, self._predict_cross, 0 if self.start == "update" else 1)
+        ms, Ps, lag = rts(est.means, est.covs, self._predict_cross, 0 if self.start == "update" else 1)
+        return ms, Ps, {"lag_one_cov": lag}
 
     def predict(self, state, k):
         return self._predict(state, k)

@@ -60,7 +60,8 @@ class KalmanFilter(DiscreteFilter):
 
     def _smooth(self, est, beliefs, ys, t0):
         """The Rauch–Tung–Striebel smoother (Rauch, Tung & Striebel 1965; :func:`~nlfilter.filters.smoothing.rts`)."""
-        return rts(est.means, est.covs, self._predict_cross, 0 if self.start == "update" else 1)
+        ms, Ps, lag = rts(est.means, est.covs, self._predict_cross, 0 if self.start == "update" else 1)
+        return ms, Ps, {"lag_one_cov": lag}
 
     likelihood = "prediction-error"
 

@@ -209,6 +209,18 @@ def innovation_info(y: np.ndarray, y_pred: np.ndarray, S: np.ndarray, *, scale: 
     >>> bool(np.isclose(info["loglik"], -0.5 * (1 / 2 + np.log(2 * np.pi * 2)), rtol=0, atol=1e-14))
     True
     """
+    m = y.shape[-1]
+    if S.shape[:-1] != y.shape:
+        S = np.broadcast_to(S, (*y.shape, m))
+    if m == 1 and not math.isnan(_sum(y, axis=None)):  # the common case: one complete component
+        e = y - y_pred
+        s = S[..., 0]
+        with np.errstate(invalid="ignore", divide="ignore"):
+            ll = -0.5 * (e * e / s + np.log(s) + LOG_2PI)
+        ll = np.where(s > 0, ll, np.nan)[..., 0]
+        if scale != 1.0:
+            return {"loglik": ll - math.log(scale), "innovation": scale * e, "innovation_cov": (scale * scale) * S}
+        return {"loglik": ll, "innovation": e, "innovation_cov": S}
     miss = np.isnan(y)
     e = np.where(miss, 0.0, y - y_pred)
     if y.shape[-1] == 1:
@@ -232,7 +244,7 @@ def innovation_info(y: np.ndarray, y_pred: np.ndarray, S: np.ndarray, *, scale: 
         ll = ll - (~miss).sum(axis=-1) * math.log(scale)
     none = miss.all(axis=-1)[..., None, None]  # nothing measured on the path: NaN, as a step measured nowhere
     return {"loglik": ll, "innovation": np.where(miss, np.nan, scale * e),
-            "innovation_cov": np.where(none, np.nan, (scale * scale) * np.broadcast_to(S, (*y.shape, y.shape[-1])))}
+            "innovation_cov": np.where(none, np.nan, (scale * scale) * S)}
 
 
 def no_information(B: int, m: int) -> dict:

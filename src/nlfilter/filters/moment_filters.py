@@ -50,7 +50,7 @@ from ..moments.discrete import PolynomialMap, discrete_moment_equations
 from ..moments.ito import PolynomialSDE, moment_equations
 from ..polynomials import Polynomial, monomials
 from .base import ContinuousFilter, DiscreteFilter, GaussianState, ode_step
-from .linalg import measurement_loglik, observed_precision, sqrt_psd
+from .linalg import innovation_info, measurement_loglik, observed_precision, sqrt_psd
 
 __all__ = ["ConditionalMomentFilter", "DiscreteConditionalMomentFilter", "MomentBelief"]
 
@@ -127,10 +127,12 @@ class _MomentSet:
             out.append(np.broadcast_to(v, x.shape[:-1]))
         return np.stack(out, axis=-1)
 
-    def bayes(self, mu, loglik):
+    def bayes(self, mu, loglik, evidence=None):
         """Posterior kept moments of p*(x) ∝ N(x; m, K) g(x) exp(loglik(x)), g the degree-N polynomial
         matching the kept moments (clipped at 0), by Gauss-Hermite quadrature; ``loglik`` maps nodes
-        ``(..., P, n)`` to ``(..., P)``."""
+        ``(..., P, n)`` to ``(..., P)``. With ``evidence`` (a function ``h`` of the nodes), also
+        ``(log ∫ p* exp(loglik) / ∫ p*, E*[h], Cov*[h])``: the log-evidence of the measurement and
+        the predictive moments of h under the assumed density (the filter's likelihood output)."""
         gs = self.gaussian_state(mu)
         z, w = self._nodes
         L, bad = sqrt_psd(gs.cov)  # a path whose covariance is not PSD comes back NaN (run flags it)
@@ -146,9 +148,20 @@ class _MomentSet:
         else:
             omega = np.broadcast_to(w, x.shape[:-1])
         ll = loglik(x)
-        lw = np.exp(ll - ll.max(axis=-1, keepdims=True)) * omega
+        mx = ll.max(axis=-1, keepdims=True)
+        lw = np.exp(ll - mx) * omega
         out = np.einsum("...p,...pg->...g", lw, X[..., 1:]) / lw.sum(axis=-1)[..., None]
-        return np.where(bad[..., None], np.nan, out)
+        out = np.where(bad[..., None], np.nan, out)
+        if evidence is None:
+            return out
+        om = np.broadcast_to(omega, x.shape[:-1])
+        tot = om.sum(axis=-1)
+        lev = mx[..., 0] + np.log(lw.sum(axis=-1)) - np.log(tot)  # log E*[exp(loglik)]
+        hx = evidence(x)  # (..., P, m)
+        Eh = np.einsum("...p,...pi->...i", om, hx) / tot[..., None]
+        d = hx - Eh[..., None, :]
+        Ch = np.einsum("...p,...pi,...pj->...ij", om, d, d) / tot[..., None, None]
+        return out, np.where(bad, np.nan, lev), Eh, Ch
 
     def gaussian_state(self, mu):
         mean = mu[..., self.pos1]
@@ -202,6 +215,8 @@ class ConditionalMomentFilter(_MomentFilter, ContinuousFilter):
                  substeps: int = 1, update: str = "bayes", points: int = 24, name: str | None = None):
         ContinuousFilter.__init__(self, model, dt, scheme="rk4", substeps=substeps)
         self.update_rule = V.choice("update", update, {"bayes", "ito"})
+        if self.update_rule == "ito":
+            self.likelihood = None
         closure = GaussianClosure() if closure is None else closure
         N = kept_order(closure, order)
         h = _model_polys(model, "ConditionalMomentFilter")
@@ -232,7 +247,28 @@ class ConditionalMomentFilter(_MomentFilter, ContinuousFilter):
         Rinv = observed_precision(self.model.R, self._Rinv, obs)
         return mu + np.einsum("...km,...mn,...n->...k", C, Rinv, innov)
 
-    def _update_bayes(self, mu, dy, t):
+    # the log-evidence of each increment under the closure's assumed density, by the Bayes
+    # update's quadrature (an instance with the Itô update has none: set in __init__)
+    likelihood = "assumed-density"
+
+    def _step_info(self, belief, dy, t):
+        """``run(..., loglik=True)``: the step and ``log E*[N(dy; h(x) dt, R dt)]`` under the
+        assumed density p* of the kept moments (the Kallianpur–Striebel ratio of the Bayes update
+        times the density of dy under pure noise), the innovation ``dy − E*[h] dt`` and
+        ``(Cov*[h] dt + R) dt``."""
+        if self.likelihood is None:
+            return super()._step_info(belief, dy, t)
+        dy = np.asarray(dy, dtype=float)
+        mu, (lev, Eh, Ch) = self._update_bayes(belief.mu, dy, t, info=True)
+        mu = ode_step(lambda v, s: self._drift(v), mu, t, self.dt, substeps=self.substeps)
+        md, dt = self.model, self.dt
+        info = innovation_info(dy / dt, Eh, Ch + md.R / dt, scale=dt)
+        obs = ~np.isnan(dy)
+        lev = lev + innovation_info(dy, np.zeros_like(dy), md.R * dt)["loglik"]
+        info["loglik"] = np.where(obs.any(axis=-1), lev, 0.0)
+        return MomentBelief(mu), None, info
+
+    def _update_bayes(self, mu, dy, t, info: bool = False):
         """Bayes update over the step by the likelihood exp(hᵀR⁻¹dy − ½hᵀR⁻¹h dt) (see module docstring)."""
         obs = ~np.isnan(dy)
         dyz = np.where(obs, dy, 0.0)[..., None, :]
@@ -244,6 +280,9 @@ class ConditionalMomentFilter(_MomentFilter, ContinuousFilter):
             Rh = np.einsum("...mn,...pn->...pm", Rinv, hx)
             return np.einsum("...pm,...pm->...p", Rh, dyz) - 0.5 * dt * np.einsum("...pm,...pm->...p", Rh, hx)
 
+        if info:
+            post, *ev = self.set.bayes(mu, loglik, evidence=lambda x: md.h(x, t + dt))
+            return _unless_missing(obs, mu, post), ev
         return _unless_missing(obs, mu, self.set.bayes(mu, loglik))
 
     def step_moments(self, mu, dy, t):
@@ -295,13 +334,28 @@ class DiscreteConditionalMomentFilter(_MomentFilter, DiscreteFilter):
         """Bayes update of the assumed density by the measurement likelihood p_v(y − h(x))."""
         y = np.asarray(y, dtype=float)
         obs = ~np.isnan(y)
+        return _unless_missing(obs, mu, self.set.bayes(mu, self._loglik(y, obs, k)))
+
+    def _loglik(self, y, obs, k):
+        """``x -> log p_v(y − h(x, k))`` at quadrature nodes; partly missing: the marginal law of
+        the observed components."""
         md = self.model
-        law = md.measurement_noise
+        return lambda x: measurement_loglik(md.measurement_noise,
+                                            np.where(obs[..., None, :], y[..., None, :] - md.h(x, k), 0.0), obs)
 
-        def loglik(x):  # partly missing: the marginal law of the observed components
-            return measurement_loglik(law, np.where(obs[..., None, :], y[..., None, :] - md.h(x, k), 0.0), obs)
+    likelihood = "assumed-density"
 
-        return _unless_missing(obs, mu, self.set.bayes(mu, loglik))
+    def _update_info(self, belief, y, k):
+        """``run(..., loglik=True)``: the update and ``log E*[p_v(y − h(x))]`` under the assumed
+        density p* of the kept moments (the Bayes update's quadrature), the innovation
+        ``y − E*[h]`` and ``Cov*[h] + R``."""
+        y = np.asarray(y, dtype=float)
+        obs = ~np.isnan(y)
+        md = self.model
+        post, lev, Eh, Ch = self.set.bayes(belief.mu, self._loglik(y, obs, k), evidence=lambda x: md.h(x, k))
+        info = innovation_info(y, Eh, Ch + md.R)
+        info["loglik"] = np.where(obs.any(axis=-1), lev, 0.0)
+        return MomentBelief(_unless_missing(obs, belief.mu, post)), None, info
 
     def predict(self, belief, k):
         return MomentBelief(self.predict_moments(belief.mu, k))

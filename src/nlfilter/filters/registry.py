@@ -5,7 +5,8 @@
 accept a model (``compare(model, "all", ...)``); ``tests/test_contract.py`` iterates it, so a new
 filter cannot skip the contract. Each class declares what the registry shows: ``family``,
 ``source`` (seed and equations), ``accepts`` (model kinds: ``"discrete"``, ``"sde"``,
-``"bilinear"``, ...), ``needs`` (what the model must offer) and ``time``.
+``"bilinear"``, ...), ``needs`` (what the model must offer), ``time``, ``likelihood`` and
+``smoother``.
 """
 
 from __future__ import annotations
@@ -36,8 +37,10 @@ def accepting(registry: dict, model) -> dict:
 
 
 def table(registry: dict) -> list[dict]:
-    """One row per registered filter: name, class, family, time, accepts, needs, source."""
+    """One row per registered filter: name, class, family, time, accepts, needs, likelihood (what
+    ``run(..., loglik=True)`` gives, or ""), smoother (its backward pass, or ""), source."""
     return [{"name": name, "class": cls.__name__, "family": getattr(cls, "family", ""),
              "time": getattr(cls, "time", ""), "accepts": ", ".join(getattr(cls, "accepts", ())),
-             "needs": ", ".join(getattr(cls, "needs", ())), "source": getattr(cls, "source", "")}
+             "needs": ", ".join(getattr(cls, "needs", ())), "likelihood": getattr(cls, "likelihood", None) or "",
+             "smoother": getattr(cls, "smoother", None) or "", "source": getattr(cls, "source", "")}
             for name, cls in registry.items()]

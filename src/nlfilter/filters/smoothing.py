@@ -57,7 +57,7 @@ def _solve_right(A, B):
     safe = np.where(ok[..., None, None], A, np.eye(n))
     if n == 1:
         with np.errstate(divide="ignore", invalid="ignore"):
-            out = B / safe[..., 0, :]
+            out = B / safe  # (..., p, 1) / (..., 1, 1)
     else:
         try:
             out = np.swapaxes(np.linalg.solve(safe, np.swapaxes(np.where(ok[..., None, None], B, 0.0), -1, -2)), -1, -2)
@@ -71,17 +71,20 @@ def rts(means: np.ndarray, covs: np.ndarray, predict_cross, offset: int = 0):
 
     ``predict_cross(state, k) -> (GaussianState predicted, D (B, n, n))`` gives the prediction
     from step ``k`` of the run to step ``k + 1`` (model index ``k + offset``, the run's start
-    convention) and ``D = Cov[x_k, x_{k+1}]``. Returns the smoothed ``(means, covs)``.
+    convention) and ``D = Cov[x_k, x_{k+1}]``. Returns the smoothed ``(means, covs, lag)`` with
+    ``lag[:, k] = Cov[x_k, x_{k+1} | y_0..y_{T-1}] = G_k Pˢ_{k+1}`` (the lag-one covariance of
+    the smoothed law, for EM; NaN at the last step).
 
     >>> import numpy as np
     >>> F, Q = 0.9, 0.5      # scalar random walk, two filtered steps: the smoother revises step 0
     >>> pc = lambda s, k: (GaussianState(F * s.mean, F * F * s.cov + Q), F * s.cov)
-    >>> ms, Ps = rts(np.array([[[0.0], [1.0]]]), np.array([[[[1.0]], [[0.5]]]]), pc)
+    >>> ms, Ps, _ = rts(np.array([[[0.0], [1.0]]]), np.array([[[[1.0]], [[0.5]]]]), pc)
     >>> round(float(ms[0, 0, 0]), 6), round(float(Ps[0, 0, 0, 0]), 6)    # G = 0.9/1.31; 1 + G² (0.5 − 1.31)
     (0.687023, 0.61768)
     """
     T = means.shape[1]
     ms, Ps = means.copy(), covs.copy()
+    lag = np.full_like(covs, np.nan)
     for k in range(T - 2, -1, -1):
         m, P = means[:, k], covs[:, k]
         pred, D = predict_cross(GaussianState(m, P), k + offset)
@@ -89,7 +92,8 @@ def rts(means: np.ndarray, covs: np.ndarray, predict_cross, offset: int = 0):
         Gt = np.swapaxes(G, -1, -2)
         ms[:, k] = m + np.einsum("...ij,...j->...i", G, ms[:, k + 1] - pred.mean)
         Ps[:, k] = symmetrize(P + G @ (Ps[:, k + 1] - pred.cov) @ Gt)
-    return ms, Ps
+        lag[:, k] = G @ Ps[:, k + 1]
+    return ms, Ps, lag
 
 
 def continuous_rts(flt, means: np.ndarray, covs: np.ndarray, t0: float):

@@ -1,0 +1,383 @@
+"""Parameter estimation: maximum likelihood on any filter's log-likelihood, and EM for
+linear-Gaussian models.
+
+:func:`fit` maximizes ``Σ_paths log p(y_0..y_{T-1} | θ)`` as computed by a filter's
+``run(..., loglik=True)`` (the prediction-error decomposition of the Gaussian filters — exact on
+a linear-Gaussian model, an approximation (quasi-likelihood) otherwise; the grid filter's
+log-evidence; the particle filter's estimate) over the model parameters named in ``params0``
+(SymPy symbols of the model, :meth:`~nlfilter.models.Model.with_params`: no code is generated per
+evaluation). A parameter whose symbol is declared positive (``sp.Symbol("q", positive=True)``) or
+bounded below (``bounds={"q": (0, None)}``) is optimized on the log scale, one bounded on both
+sides on the logit scale, others as they are. Standard errors come from the observed information:
+the central-difference Hessian of ``−log L`` at the optimum in the natural parametrization
+(Harvey 1989, §3.5; the inverse Hessian is the asymptotic covariance of the MLE).
+
+:func:`fit_em` is the EM algorithm of Shumway & Stoffer (1982) for ``x_{k+1} = F x_k + w_k``,
+``y_k = H x_k + v_k``: the E-step is the Kalman (RTS) smoother with its lag-one covariances, the
+M-step the closed-form updates of F, H, Q, R (and, optionally, m0, P0). Each iteration does not
+decrease the likelihood; its fixed point is a stationary point of the likelihood (the MLE that
+:func:`fit` finds, to the tolerance).
+
+>>> import numpy as np, sympy as sp
+>>> from nlfilter import DiscreteModel, simulate
+>>> x, a = sp.symbols("x a"); q = sp.Symbol("q", positive=True)
+>>> model = DiscreteModel([x], [a * x], [x], Q=[[q]], R=0.5, params={a: 0.8, q: 0.3})
+>>> ys = simulate(model, 300, paths=2, m0=[0.0], P0=[[1.0]], rng=1).ys
+>>> res = fit(model, ys, {"a": 0.5, "q": 1.0}, filter="kf", m0=[0.0], P0=[[1.0]])
+>>> res.converged, abs(res.params["a"] - 0.8) < 2 * res.se["a"]
+(True, True)
+"""
+
+from __future__ import annotations
+
+import math
+import time
+import warnings
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy import optimize
+
+from . import _validate as V
+from .errors import DivergenceError
+
+__all__ = ["fit", "FitResult", "fit_em", "EMResult"]
+
+
+@dataclass(frozen=True)
+class FitResult:
+    """What :func:`fit` found, and how.
+
+    ``params``/``se``: ``{name: value}`` at the optimum and their standard errors (NaN where the
+    observed information is not positive definite: ``se_ok`` False, and ``message`` says so);
+    ``cov``: the asymptotic covariance (inverse observed information, parameter order of
+    ``names``); ``loglik``: the maximized log-likelihood; ``converged``/``message``/``nfev``/
+    ``nit``: the optimizer's word; ``model``: the model at the estimate; ``filter``, ``method``,
+    ``seconds``: how it was made."""
+
+    params: dict
+    se: dict
+    cov: np.ndarray
+    loglik: float
+    converged: bool
+    se_ok: bool
+    message: str
+    nfev: int
+    nit: int
+    names: tuple
+    filter: str
+    method: str
+    seconds: float
+    model: object = field(repr=False)
+
+    def to_dict(self) -> dict:
+        return {"params": dict(self.params), "se": dict(self.se), "cov": self.cov.tolist(), "loglik": self.loglik,
+                "converged": self.converged, "se_ok": self.se_ok, "message": self.message, "nfev": self.nfev,
+                "nit": self.nit, "filter": self.filter, "method": self.method, "seconds": self.seconds}
+
+    def __str__(self):
+        lines = [f"fit by {self.filter} ({self.method}): log L = {self.loglik:.6g}, "
+                 f"{'converged' if self.converged else 'NOT converged'} ({self.message}), {self.nfev} evaluations"]
+        lines += [f"  {k:>12s} = {v: .6g} ± {self.se[k]:.3g}" for k, v in self.params.items()]
+        return "\n".join(lines)
+
+
+class _Transform:
+    """Per parameter: identity, log(θ − lo), log(hi − θ) or logit on (lo, hi)."""
+
+    def __init__(self, kinds):
+        self.kinds = kinds  # list of (kind, lo, hi)
+
+    def to_free(self, theta):
+        out = []
+        for t, (kind, lo, hi) in zip(theta, self.kinds):
+            if kind == "id":
+                out.append(t)
+            elif kind == "lo":
+                out.append(math.log(t - lo))
+            elif kind == "hi":
+                out.append(math.log(hi - t))
+            else:
+                u = (t - lo) / (hi - lo)
+                out.append(math.log(u / (1 - u)))
+        return np.array(out)
+
+    def to_natural(self, z):
+        out = []
+        for v, (kind, lo, hi) in zip(z, self.kinds):
+            if kind == "id":
+                out.append(v)
+            elif kind == "lo":
+                out.append(lo + math.exp(min(v, 700.0)))
+            elif kind == "hi":
+                out.append(hi - math.exp(min(v, 700.0)))
+            else:
+                out.append(lo + (hi - lo) / (1 + math.exp(-max(min(v, 700.0), -700.0))))
+        return np.array(out)
+
+
+def _make_filter(filter, filter_options, dt, start):
+    from .filters import REGISTRY
+    from .filters.base import Filter
+    from .filters.registry import get
+
+    opts = dict(filter_options or {})
+    if isinstance(filter, str):
+        cls = get(REGISTRY, filter)
+        label = filter
+    elif isinstance(filter, type) and issubclass(filter, Filter):
+        cls, label = filter, filter.__name__
+    elif callable(filter):
+        return filter, None  # labelled by the class it builds
+    else:
+        raise TypeError(f"filter: expected a registry name, a Filter class or a callable model -> Filter, "
+                        f"got {type(filter).__name__}")
+
+    def build(model):
+        if opts:
+            if cls.time == "discrete" and getattr(model, "kind", None) == "discrete":
+                return cls(model, start=start, **opts)
+            return cls(model, dt, **opts) if dt is not None else cls(model, **opts)
+        return cls.for_model(model, dt=dt, start=start)
+
+    return build, label
+
+
+def fit(model, ys, params0, *, filter="ukf", m0=None, P0=None, initial=None, bounds=None, method: str = "L-BFGS-B",
+        dt: float | None = None, start: str = "update", filter_options=None, rng=0, se: bool = True,
+        options=None, progress: bool = False) -> FitResult:
+    """Maximum-likelihood estimate of the model parameters named in ``params0``.
+
+    Parameters
+    ----------
+    model : DiscreteModel or SDEModel with parameters (``params=`` at construction)
+    ys : measurements ``(..., T, m)``: independent records that share the parameters
+    params0 : ``{name or symbol: starting value}``; the other parameters stay at the model's values
+    filter : a registry name (``"kf"``, ``"ukf"``, ``"grid"``, ...), a Filter class, or a callable
+        ``model -> Filter`` (e.g. ``lambda md: GridFilter(md, (-5, 5), 201)``); it must define a
+        likelihood (``Filter.likelihood``)
+    m0, P0, initial : the prior, fixed (as in ``run``)
+    bounds : ``{name: (lo, hi)}`` (``None`` for an open side); positive symbols are bounded below by 0
+    method : a ``scipy.optimize.minimize`` method; ``"L-BFGS-B"`` (default, finite-difference
+        gradient) or ``"Nelder-Mead"`` (for a particle filter's noisy likelihood)
+    dt, start, filter_options : how the filter is built (continuous-time models need ``dt``)
+    rng : the particle filter's seed, the same at every evaluation (common random numbers)
+    se : compute standard errors (2p² + 1 more likelihood evaluations)
+    options : passed to ``scipy.optimize.minimize``
+    progress : show the number of evaluations and the best log-likelihood (tqdm)
+
+    Returns
+    -------
+    FitResult
+        A parameter value where the filter diverges on some path has log-likelihood −∞ for the
+        optimizer (it backs off); an estimate on such a value is never returned as converged.
+    """
+    t_start = time.perf_counter()
+    if not isinstance(params0, dict) or not params0:
+        raise TypeError(f"params0: expected a non-empty dict {{name: starting value}}, got {params0!r}")
+    if not callable(getattr(model, "with_params", None)):
+        raise TypeError(f"model: expected a DiscreteModel or SDEModel with parameters, got {type(model).__name__}")
+    syms = [model.symbol(k) for k in params0]
+    names = tuple(str(s) for s in syms)
+    if len(set(names)) != len(names):
+        raise ValueError(f"params0: a parameter is given twice: {list(params0)}")
+    bounds = dict(bounds or {})
+    for k in bounds:
+        if str(k) not in names:
+            raise ValueError(f"bounds: {k!r} is not among the fitted parameters {list(names)}")
+    bounds = {str(k): v for k, v in bounds.items()}
+    kinds = []
+    theta0 = []
+    for s, nm, v in zip(syms, names, params0.values()):
+        v = float(V.finite(nm, np.asarray(v, dtype=float)))
+        lo, hi = bounds.get(nm, (0.0 if s.is_positive else None, None))
+        lo = None if lo is None else float(lo)
+        hi = None if hi is None else float(hi)
+        if lo is not None and hi is not None and not lo < hi:
+            raise ValueError(f"bounds: expected lo < hi for {nm}, got {(lo, hi)}")
+        if (lo is not None and not v > lo) or (hi is not None and not v < hi):
+            raise ValueError(f"params0: {nm} = {v} is outside its bounds ({lo}, {hi})")
+        kinds.append(("id" if lo is None and hi is None else "lo" if hi is None else "hi" if lo is None else "logit",
+                      lo, hi))
+        theta0.append(v)
+    tr = _Transform(kinds)
+    build, label = _make_filter(filter, filter_options, dt, start)
+    first = build(model)
+    label = label or getattr(first, "name", type(first).__name__)
+    if getattr(first, "likelihood", None) is None:
+        raise TypeError(f"filter: {label} defines no log-likelihood; use a Gaussian filter, grid or particle")
+    ys = np.asarray(ys, dtype=float)
+
+    def loglik(theta):
+        md = model.with_params(dict(zip(names, theta)))
+        flt = build(md)
+        try:
+            est = flt.run(ys, m0, P0, initial=initial, rng=rng, on_divergence="mark", loglik=True)
+        except (DivergenceError, np.linalg.LinAlgError, FloatingPointError):
+            return -np.inf
+        if est.diverged.any():
+            return -np.inf
+        total = float(np.sum(est.loglik))
+        return total if math.isfinite(total) else -np.inf
+
+    bar = None
+    if progress:
+        from tqdm.auto import tqdm
+        bar = tqdm(desc=f"fit ({label})", unit="eval", leave=False)
+    best = [-np.inf]
+
+    def objective(z):
+        ll = loglik(tr.to_natural(z))
+        if bar is not None:
+            best[0] = max(best[0], ll)
+            bar.update(1)
+            bar.set_postfix(loglik=f"{best[0]:.6g}")
+        # the optimizer sees a large finite value where the filter fails, so that it backs off
+        return -ll if math.isfinite(ll) else 1e300
+
+    z0 = tr.to_free(np.array(theta0))
+    if not math.isfinite(loglik(np.array(theta0))):
+        raise ValueError(f"params0: the filter's log-likelihood at the starting values {dict(zip(names, theta0))} "
+                         "is not finite (a path diverged); start elsewhere")
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        opt = optimize.minimize(objective, z0, method=method, options=options)
+    theta = tr.to_natural(opt.x)
+    ll_hat = loglik(theta)
+    converged = bool(opt.success) and math.isfinite(ll_hat)
+    message = str(opt.message)
+    p = len(names)
+    cov = np.full((p, p), np.nan)
+    se_ok = False
+    if se and math.isfinite(ll_hat):
+        Hm = _hessian(lambda t: -loglik(t), theta, kinds)
+        if np.all(np.isfinite(Hm)):
+            w = np.linalg.eigvalsh(0.5 * (Hm + Hm.T))
+            if w.min() > 0:
+                cov = np.linalg.inv(Hm)
+                cov = 0.5 * (cov + cov.T)
+                se_ok = True
+        if not se_ok:
+            message += "; the observed information is not positive definite: no standard errors"
+    if bar is not None:
+        bar.close()
+    return FitResult(dict(zip(names, map(float, theta))), dict(zip(names, map(float, np.sqrt(np.diag(cov))))),
+                     cov, float(ll_hat), converged, se_ok, message, int(opt.nfev), int(getattr(opt, "nit", 0)),
+                     names, label, method, time.perf_counter() - t_start, model.with_params(dict(zip(names, theta))))
+
+
+def _hessian(f, theta, kinds, rel: float = 1e-4):
+    """Central-difference Hessian of ``f`` at ``theta``: steps ``h_i = rel · max(|θ_i|, 1e-3)``,
+    kept inside the bounds (a one-sided parameter near its bound gets a step of a tenth of the
+    distance); NaN if a value is not finite."""
+    p = len(theta)
+    h = np.array([rel * max(abs(t), 1e-3) for t in theta])
+    for i, (kind, lo, hi) in enumerate(kinds):
+        if lo is not None:
+            h[i] = min(h[i], 0.1 * (theta[i] - lo))
+        if hi is not None:
+            h[i] = min(h[i], 0.1 * (hi - theta[i]))
+    f0 = f(theta)
+    H = np.empty((p, p))
+    E = np.diag(h)
+    for i in range(p):
+        H[i, i] = (f(theta + E[i]) - 2 * f0 + f(theta - E[i])) / h[i] ** 2
+        for j in range(i):
+            H[i, j] = H[j, i] = (f(theta + E[i] + E[j]) - f(theta + E[i] - E[j]) - f(theta - E[i] + E[j])
+                                 + f(theta - E[i] - E[j])) / (4 * h[i] * h[j])
+    return H
+
+
+@dataclass(frozen=True)
+class EMResult:
+    """:func:`fit_em`'s estimate ``F, H, Q, R, m0, P0``, the log-likelihood at each iteration
+    (``loglik``: non-decreasing, the EM property), ``converged`` (relative change below ``tol``),
+    ``iterations``."""
+
+    F: np.ndarray
+    H: np.ndarray
+    Q: np.ndarray
+    R: np.ndarray
+    m0: np.ndarray
+    P0: np.ndarray
+    loglik: np.ndarray
+    converged: bool
+    iterations: int
+
+    def model(self):
+        """The fitted model (:meth:`DiscreteModel.linear`)."""
+        from .models import DiscreteModel
+        return DiscreteModel.linear(self.F, self.H, self.Q, self.R)
+
+
+def fit_em(ys, F, H, Q, R, m0, P0, *, estimate=("F", "H", "Q", "R"), iterations: int = 500, tol: float = 1e-9,
+           progress: bool = False) -> EMResult:
+    """EM for the linear-Gaussian model (Shumway & Stoffer 1982; Ghahramani & Hinton 1996).
+
+    ``ys (..., T, m)`` independent records (no missing data: a NaN is refused), starting values
+    ``F (n, n)``, ``H (m, n)``, ``Q``, ``R``, the prior ``m0``, ``P0``; ``estimate``: which of
+    ``"F", "H", "Q", "R", "m0", "P0"`` to update (the others stay fixed). With the smoothed moments
+    ``x̂_k = E[x_k|Y]``, ``P_k``, ``P_{k,k+1} = Cov[x_k, x_{k+1}|Y]`` (RTS with its lag-one
+    covariances, :func:`~nlfilter.filters.smoothing.rts`) and
+    ``S_ab = Σ E[x_a x_bᵀ | Y]`` summed over the steps and records::
+
+        F = S_{k+1,k} S_{k,k}⁻¹,   Q = (S_{k+1,k+1} − F S_{k,k+1}) / N_w
+        H = (Σ y_k x̂_kᵀ)(Σ E[x_k x_kᵀ])⁻¹,   R = Σ (y_k y_kᵀ − H x̂_k y_kᵀ) / N_y
+
+    (the sums over k = 0..T-2 for the dynamics; Shumway & Stoffer eqs. 12-14). Stops when the
+    relative change of the log-likelihood is below ``tol`` or after ``iterations``.
+    """
+    from .filters.kalman import KalmanFilter
+    from .models import DiscreteModel
+
+    ys = V.as_float_array("ys", ys, ndim_min=2)
+    if np.isnan(ys).any():
+        raise ValueError("ys: fit_em takes complete records (no NaN); use fit() for missing data")
+    F, H, Q, R = (np.array(V.as_float_array(nm, a, ndim=2)) for nm, a in (("F", F), ("H", H), ("Q", Q), ("R", R)))
+    m0 = np.array(V.as_float_array("m0", m0, ndim=1))
+    P0 = np.array(V.as_float_array("P0", P0, ndim=2))
+    est = set(estimate)
+    unknown = est - {"F", "H", "Q", "R", "m0", "P0"}
+    if unknown:
+        raise ValueError(f"estimate: expected some of F, H, Q, R, m0, P0, got {sorted(unknown)}")
+    Y = ys.reshape(-1, *ys.shape[-2:])
+    B, T, m = Y.shape
+    hist = []
+    converged = False
+    steps = range(V.positive("iterations", iterations, integer=True))
+    if progress:
+        from tqdm.auto import tqdm
+        steps = tqdm(steps, desc="EM", leave=False)
+    it = 0
+    for it in steps:
+        kf = KalmanFilter(DiscreteModel.linear(F, H, Q, R))
+        ll = float(np.sum(kf.run(Y, m0, P0, loglik=True).loglik))
+        hist.append(ll)
+        if len(hist) > 1 and abs(hist[-1] - hist[-2]) <= tol * abs(hist[-1]):
+            converged = True
+            break
+        sm = kf.smooth(Y, m0, P0)
+        xs, Ps, C = sm.means, sm.covs, sm.extras["lag_one_cov"]  # C[:, k] = Cov[x_k, x_{k+1} | Y]
+        Exx = Ps + xs[..., :, None] * xs[..., None, :]  # E[x_k x_kᵀ | Y]
+        S00 = Exx[:, :-1].sum(axis=(0, 1))
+        S11 = Exx[:, 1:].sum(axis=(0, 1))
+        S01 = (C[:, :-1] + xs[:, :-1, :, None] * xs[:, 1:, None, :]).sum(axis=(0, 1))  # Σ E[x_k x_{k+1}ᵀ]
+        if "F" in est:
+            F = np.linalg.solve(S00, S01).T  # S_{k+1,k} S_{k,k}⁻¹
+        if "Q" in est:
+            Qn = (S11 - F @ S01 - S01.T @ F.T + F @ S00 @ F.T) / (B * (T - 1))
+            Q = 0.5 * (Qn + Qn.T)
+        Sxx = Exx.sum(axis=(0, 1))
+        Syx = np.einsum("bti,btj->ij", Y, xs)
+        if "H" in est:
+            H = np.linalg.solve(Sxx, Syx.T).T
+        if "R" in est:
+            Syy = np.einsum("bti,btj->ij", Y, Y)
+            Rn = (Syy - H @ Syx.T - Syx @ H.T + H @ Sxx @ H.T) / (B * T)
+            R = 0.5 * (Rn + Rn.T)
+        if "m0" in est:
+            m0 = xs[:, 0].mean(axis=0)
+        if "P0" in est:
+            d = xs[:, 0] - m0
+            P0 = Ps[:, 0].mean(axis=0) + np.einsum("bi,bj->ij", d, d) / B
+    return EMResult(F, H, Q, R, m0, P0, np.array(hist), converged, it + 1)
