@@ -67,3 +67,57 @@ def test_state_dependent_G_enters_ekf_and_ukf(nonlinear3):
     np.testing.assert_allclose(ekf_cov, F @ P0 @ F.T + nonlinear3.GQGT(M0), atol=1e-14)
     ukf_cov = UKF(nonlinear3).predict(s, 0).cov
     assert not np.allclose(ukf_cov, UKF(_const_G_model(nonlinear3)).predict(s, 0).cov)
+
+
+def test_ukf_loglik_and_rts_smoother_match_filterpy(nonlinear3):
+    """filterpy's UKF log-likelihood per step (log N(y; ŷ, S)) and its unscented RTS smoother
+    (``UnscentedKalmanFilter.rts_smoother``) against ours (``run(..., loglik=True)``,
+    ``UKF.smooth``: the RTS pass through the unscented rule) on a nonlinear model, 1e-9."""
+    md = _const_G_model(nonlinear3)
+    ys = simulate(md, 30, paths=1, rng=7, m0=M0, P0=P0, start="predict").ys[0]
+    alpha, beta, kappa = 0.7, 2.0, 0.5
+    pts = MerweScaledSigmaPoints(3, alpha=alpha, beta=beta, kappa=kappa)
+    fp = UnscentedKalmanFilter(3, 2, 1.0, hx=lambda x: md.h(x, 0), fx=lambda x, dt: md.f(x, 0), points=pts)
+    fp.x, fp.P, fp.Q, fp.R = M0.copy(), P0.copy(), md.GQGT(np.zeros(3)), md.R.copy()
+    ukf = UKF(md, alpha=alpha, beta=beta, kappa=kappa, start="predict")
+    ours = ukf.run(ys[None], M0, P0, loglik=True)
+    Xs, Ps, lls = [], [], []
+    for y in ys:
+        fp.predict()
+        fp.update(y)
+        Xs.append(fp.x.copy())
+        Ps.append(fp.P.copy())
+        lls.append(fp.log_likelihood)
+    np.testing.assert_allclose(ours.extras["loglik"][0], lls, rtol=0, atol=1e-9)
+    xs, Pss, _ = fp.rts_smoother(np.array(Xs), np.array(Ps))
+    sm = ukf.smooth(ys[None], M0, P0)
+    np.testing.assert_allclose(sm.means[0], xs, rtol=0, atol=1e-9)
+    np.testing.assert_allclose(sm.covs[0], Pss, rtol=0, atol=1e-9)
+
+
+def test_kf_loglik_and_rts_smoother_match_filterpy():
+    from filterpy.kalman import KalmanFilter as FPKF
+    from nlfilter import DiscreteModel
+    from nlfilter.filters import KalmanFilter
+    F = np.array([[1.0, 0.1], [0.0, 0.95]])
+    H = np.array([[1.0, 0.0]])
+    Q, R = np.diag([0.01, 0.05]), np.array([[0.2]])
+    md = DiscreteModel.linear(F, H, Q, R)
+    m0, p0 = np.array([0.0, 1.0]), np.eye(2)
+    ys = simulate(md, 50, paths=1, rng=8, m0=m0, P0=p0, start="predict").ys[0]
+    fp = FPKF(2, 1)
+    fp.x, fp.P, fp.F, fp.H, fp.Q, fp.R = m0.copy(), p0.copy(), F, H, Q, R
+    mu, cov, _, _ = fp.batch_filter(ys)
+    lls = []
+    fp.x, fp.P = m0.copy(), p0.copy()
+    for y in ys:
+        fp.predict()
+        fp.update(y)
+        lls.append(fp.log_likelihood)
+    kf = KalmanFilter(md, start="predict")
+    ours = kf.run(ys[None], m0, p0, loglik=True)
+    np.testing.assert_allclose(ours.extras["loglik"][0], lls, rtol=0, atol=1e-9)
+    xs, Ps, _, _ = fp.rts_smoother(mu, cov)
+    sm = kf.smooth(ys[None], m0, p0)
+    np.testing.assert_allclose(sm.means[0], xs, rtol=0, atol=1e-9)
+    np.testing.assert_allclose(sm.covs[0], Ps, rtol=0, atol=1e-9)
