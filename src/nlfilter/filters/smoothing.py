@@ -57,7 +57,7 @@ def _solve_right(A, B):
     safe = np.where(ok[..., None, None], A, np.eye(n))
     if n == 1:
         with np.errstate(divide="ignore", invalid="ignore"):
-            out = B / safe[..., 0, :]
+            out = B / safe  # (..., p, 1) / (..., 1, 1)
     else:
         try:
             out = np.swapaxes(np.linalg.solve(safe, np.swapaxes(np.where(ok[..., None, None], B, 0.0), -1, -2)), -1, -2)
