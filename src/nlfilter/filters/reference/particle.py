@@ -282,4 +282,5 @@ class ParticleFilter(_ReferenceFilter):
         else:
             offset = 0 if self.start == "update" else 1
             logtau = lambda x, x1, k: transition_logpdf(md, x, x1, k + offset)  # noqa: E731
-        return ffbsm([b.x for b in beliefs], [b.logw for b in beliefs], logtau)
+        per_path = bool(getattr(getattr(md, "_values", None), "per_path", ()))  # parameters per path: no blocks
+        return ffbsm([b.x for b in beliefs], [b.logw for b in beliefs], logtau, block=ys.shape[0] if per_path else None)
