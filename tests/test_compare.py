@@ -2,6 +2,7 @@
 
 import pathlib
 import re
+import warnings
 
 import numpy as np
 import pytest
@@ -9,6 +10,7 @@ import scipy.linalg as sla
 import sympy as sp
 
 from nlfilter import DiscreteModel, SDEModel, compare
+from nlfilter.errors import ReferenceWarning
 from nlfilter.filters import EKF, UKF, ContinuousEKF, GridFilter, KalmanFilter, ParticleFilter
 
 x = sp.Symbol("x")
@@ -254,3 +256,69 @@ def test_named_filters_and_unknown_names():
         compare(CUBIC, ["kf"], 20, paths=4, m0=0.0, P0=0.5, rng=0)
     with pytest.raises(TypeError, match=r"^filters: expected 'all'"):
         compare(LIN, "some", 20, paths=4, m0=0.0, P0=0.5, rng=0)
+
+
+# -- smooth=True: every smoother against the optimal (grid) smoother ---------------------------------
+SMOOTH_FILTERS = ("ekf", "ukf", "discrete-conditional-moment")
+
+
+@pytest.fixture(scope="module")
+def smoothed():
+    return compare(CUBIC, list(SMOOTH_FILTERS), 60, paths=40, m0=0.5, P0=0.1, rng=0, smooth=True, full_output=True)
+
+
+def test_smooth_reports_smoothed_mse_and_gaps_beside_the_filters(smoothed):
+    """``smooth=True`` (cubic sensor, 40 paths, 60 steps): ``smoothed_mse`` and
+    ``smoothed_gap_to_optimal`` for every filter with a smoother, against the grid's
+    forward–backward smoother at the certified grid's resolution; the optimal smoother beats the
+    optimal filter (measured 0.0357 against 0.0433, a 358-point grid) and no smoother beats it
+    beyond 3 s.e. (measured: EKF 0.059 ± 0.038, UKF 0.0058 ± 0.0020; each below its filter's MSE,
+    0.094 < 0.102, 0.041 < 0.045); the filter without a smoother gets no
+    smoothed rows and a note; the filters' own rows are those of ``smooth=False``."""
+    res, sim, est = smoothed
+    opt, opt_s = (res.get("optimal", q, component=0) for q in ("mse", "smoothed_mse"))
+    assert opt_s.value < opt.value
+    d = np.mean((est["optimal"].means[..., 30:, 0] - sim.xs[..., 30:, 0]) ** 2
+                - (est["optimal (smoothed)"].means[..., 30:, 0] - sim.xs[..., 30:, 0]) ** 2, axis=1)
+    # the paired gain over the window: measured 0.0076 ± 0.0043 (1.8 s.e. at 40 paths)
+    assert d.mean() > 0 and np.isclose(d.mean(), opt.value - opt_s.value, rtol=1e-10)
+    for name in ("ekf", "ukf"):
+        gap = res.get(name, "smoothed_gap_to_optimal", component=0)
+        s_ = res.get(name, "smoothed_mse", component=0)
+        assert gap.value > -3 * gap.stderr and s_.value >= opt_s.value - 3 * gap.stderr
+        np.testing.assert_allclose(gap.value, s_.value - opt_s.value, rtol=1e-10, atol=1e-15)
+    assert not [r for r in res.rows if r.filter == "discrete-conditional-moment" and r.quantity.startswith("smoothed")]
+    sm = res.params["smoothing"]
+    assert sm["no_smoother"] == {"discrete-conditional-moment": "DiscreteConditionalMomentFilter"}
+    assert sm["reference"]["smoother"] == "forward-backward" and "resolution" in sm["reference"]["certificate"]
+    assert any(n.startswith("smoothing:") for n in res.notes)
+    # the smoothers end at their filters
+    for name in ("ekf", "ukf", "optimal"):
+        np.testing.assert_allclose(est[f"{name} (smoothed)"].means[:, -1], est[name].means[:, -1], rtol=0, atol=1e-12)
+    plain = compare(CUBIC, list(SMOOTH_FILTERS), 60, paths=40, m0=0.5, P0=0.1, rng=0)
+    assert [r.to_dict() for r in plain.rows] == [r.to_dict() for r in res.rows
+                                                 if not r.quantity.startswith("smoothed")]
+
+
+def test_smooth_with_a_particle_reference_and_a_reference_without_smoother():
+    """A particle reference smooths by FFBSm on the reference's streams (its forward pass is the
+    reference's run: the last step agrees); on an SDE the particle reference (substeps > 1) has no
+    smoother: no smoothed gaps, a reason."""
+    ref = ParticleFilter(LIN, 300)
+    with warnings.catch_warnings():  # 300 particles on 8 paths: not certified (labelled so)
+        warnings.simplefilter("ignore", ReferenceWarning)
+        res, sim, est = compare(LIN, {"kf": KalmanFilter(LIN)}, 20, paths=8, m0=0.0, P0=0.5, rng=2, reference=ref,
+                                smooth=True, full_output=True, certify_paths=4)
+    label = res.params["reference"]["label"]
+    assert res.params["smoothing"]["reference"] == {**res.params["smoothing"]["reference"], "label": label,
+                                                    "smoother": "particle"}
+    np.testing.assert_allclose(est[f"{label} (smoothed)"].means[:, -1], est[label].means[:, -1], rtol=0, atol=1e-12)
+    gap = res.get("kf", "smoothed_gap_to_reference" if label != "optimal" else "smoothed_gap_to_optimal", component=0)
+    assert np.isfinite(gap.value) and gap.stderr > 0
+    md = SDEModel([x], [-x], [x], Q=1.0, R=0.5)
+    res = compare(md, {"cekf": ContinuousEKF(md, 0.05)}, 20, paths=6, m0=0.0, P0=0.5, rng=0, dt=0.05, smooth=True,
+                  reference=ParticleFilter(md, 100, dt=0.05), certify_paths=3)
+    assert res.params["smoothing"]["reference"]["smoother"] is None
+    assert "substeps" in res.params["smoothing"]["reference"]["reason"]
+    assert res.get("cekf", "smoothed_mse", component=0).value > 0
+    assert not [r for r in res.rows if r.quantity.startswith("smoothed_gap")]

@@ -913,6 +913,10 @@ def test_likelihood_and_smoother_families():
                                               or f.name in ("grid", "particle")), c.name
         if f.family in ("gaussian", "second-order"):
             assert f.smoother == "rts", c.name
+        if f.name == "grid":
+            assert f.smoother == "forward-backward", c.name
+        if f.name == "particle":  # on an SDE only with substeps=1 (its step's transition density)
+            assert f.smoother == ("particle" if f.time == "discrete" or f.substeps == 1 else None), c.name
 
 
 @pytest.mark.parametrize("case", LIKELIHOOD, ids=[c.name for c in LIKELIHOOD])
@@ -954,7 +958,7 @@ def test_smoother_ends_at_the_filter_and_keeps_paths_apart(case):
     d = _missing(case.data((3,), T, 2), 1)
     kw = {"on_divergence": "mark"} if case.name in LOSES_PSD else {}
     flt = outputs(case.run(d, rng=3, **kw))
-    sm = case.filter().smooth(d, **{**case.prior, **case.run_kw, **kw}, rng=3)
+    sm = case.filter().smooth(d, **{**case.prior, **case.run_kw, **kw, "rng": 3})
     assert sm.means.shape == flt["means"].shape and sm.covs.shape == flt["covs"].shape
     ok = ~sm.diverged
     close({"m": sm.means[ok, -1], "P": sm.covs[ok, -1]}, {"m": flt["means"][ok, -1], "P": flt["covs"][ok, -1]},

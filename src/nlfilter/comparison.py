@@ -43,7 +43,7 @@ from .results import Result, provenance
 from .simulate import simulate
 from .errors import DivergenceError
 
-from .yardstick import MAX_PARTICLES, OPTIMAL, certified_reference, check_given_reference
+from .yardstick import MAX_PARTICLES, OPTIMAL, certified_reference, check_given_reference, reference_filter
 
 
 def _streams(rng):
@@ -159,7 +159,7 @@ def _component_names(model):
 
 def compare(model, filters, steps, *, paths=200, m0, P0, rng=0, reference="auto", window=0.5, dt=None,
             substeps=10, start="update", progress=False, on_divergence="mark", rtol=0.02, certify_paths=64,
-            max_particles=MAX_PARTICLES, chunk=None, full_output=False):
+            max_particles=MAX_PARTICLES, chunk=None, full_output=False, smooth=False):
     """Run every filter and a near-optimal reference on one shared simulation; a :class:`Result`.
 
     Parameters
@@ -190,7 +190,18 @@ def compare(model, filters, steps, *, paths=200, m0, P0, rng=0, reference="auto"
     chunk : None, or run every filter on that many paths at a time (memory); the numbers are the
         same for any chunk (per-path streams, :mod:`nlfilter.streams`)
     full_output : also return the :class:`~nlfilter.simulate.Simulation` and the dict
-        name -> :class:`~nlfilter.filters.base.Estimates` the numbers were computed from
+        name -> :class:`~nlfilter.filters.base.Estimates` the numbers were computed from (with
+        ``smooth``, also ``"<name> (smoothed)"`` -> the smoothed estimates)
+    smooth : also run the smoother (``Filter.smooth``) of every filter that has one (``smoother``
+        not None; the others are listed in ``params["smoothing"]["no_smoother"]``) and of the
+        reference (the forward–backward grid smoother or the particle smoother, at the
+        reference's own resolution: its certificate is the filter's, no second one is built;
+        :mod:`nlfilter.filters.reference.smoothing`), and report per filter and component
+        ``smoothed_mse`` and ``smoothed_gap_to_optimal`` (the paired difference to the reference
+        smoother on the same paths, ± its paired s.e. and the reference's certified error in
+        quadrature); the filters' rows are the same as without it. A particle reference costs
+        ``O(particles²)`` per step and path to smooth, and on an SDE (``substeps > 1``) has no
+        smoother: then no smoothed gaps, and a note
     window : what :func:`~nlfilter.evaluate.mse` averages over (``0.5``: the second half)
     dt, substeps : SDE models only: measurement step (required) and Euler–Maruyama substeps of
         the simulation (and of an automatic particle reference)
@@ -272,9 +283,11 @@ def compare(model, filters, steps, *, paths=200, m0, P0, rng=0, reference="auto"
     if kind == "sde":
         params.update(dt=dt, substeps=substeps)
 
-    def run(name, flt, ys, key=None, bar=False):
+    def run(name, flt, ys, key=None, bar=False, smooth=False):
         """One filter's estimates on ``ys`` (its own random stream keyed by ``key or name``; a
-        progress bar over its steps with ``bar``); a numerical failure names the filter."""
+        progress bar over its steps with ``bar``; its smoother's with ``smooth``: the same forward
+        pass, draws included); a numerical failure names the filter."""
+        go = flt.smooth if smooth else flt.run
         kw = {"rng": _run_rng(root, key or name, ys.shape[0])} if getattr(flt, "random", False) else {}
         if chunk is not None:
             kw["chunk"] = chunk
@@ -282,17 +295,18 @@ def compare(model, filters, steps, *, paths=200, m0, P0, rng=0, reference="auto"
             kw["progress"] = True
         try:
             if getattr(flt, "own_prior", False):  # it starts from a prior of its own
-                return flt.run(ys, on_divergence=on_divergence, **kw)
+                return go(ys, on_divergence=on_divergence, **kw)
             if given is not model and getattr(flt, "model", None) is given:  # a filter of the bilinear model
                 lm0, lP0, cols = _lifted_prior(given, m0v, P0m)
-                e = flt.run(ys, lm0, lP0, on_divergence=on_divergence, **kw)
+                e = go(ys, lm0, lP0, on_divergence=on_divergence, **kw)
                 if e.means.shape[-1] != len(cols):  # the whole lifted state: read the base coordinates
                     e = Estimates(e.means[..., cols], e.covs[..., cols, :][..., :, cols], e.diverged,
                                   e.diverged_step, e.extras)
                 return e
-            return flt.run(ys, m0v, P0m, on_divergence=on_divergence, **kw)
+            return go(ys, m0v, P0m, on_divergence=on_divergence, **kw)
         except (DivergenceError, np.linalg.LinAlgError, FloatingPointError, OverflowError) as exc:
-            exc.add_note(f"compare: while running filter {name!r} ({type(flt).__name__})")
+            exc.add_note(f"compare: while {'smoothing with' if smooth else 'running'} filter {name!r} "
+                         f"({type(flt).__name__})")
             raise
 
     from tqdm.auto import tqdm
@@ -330,6 +344,13 @@ def compare(model, filters, steps, *, paths=200, m0, P0, rng=0, reference="auto"
         params["skipped"] = skipped
     if failed:
         params["failed"] = failed
+    if smooth:
+        ref_flt = None
+        if cert is not None:
+            ref_flt = (reference_filter(cert, model, dt=dt, start=start, substeps=substeps)
+                       if isinstance(reference, str) else reference)
+        sm, smoothing = _smoothers(filters, est, failed, ref_name, ref_flt, cert, sim, run, on_divergence)
+        params["smoothing"] = smoothing
     what = getattr(model, "name", "") or repr(model)
     res = Result("compare", f"{len(filters)} filter(s) against the optimal reference on {what}",
                  "nlfilter.compare: Monte Carlo on common random numbers", params)
@@ -366,6 +387,8 @@ def compare(model, filters, steps, *, paths=200, m0, P0, rng=0, reference="auto"
         res.add(name, "divergence_rate", float(np.mean(e.diverged)))
     for name in failed:
         res.add(name, "divergence_rate", 1.0)
+    if smooth:
+        _smoothed_rows(res, sm, ref_name, cert, sim, model.n, window)
     if cert is not None:
         for i, (d, se) in enumerate(cert.error):
             res.add(ref_name, "reference_error", d, se, component=i)
@@ -390,6 +413,9 @@ def compare(model, filters, steps, *, paths=200, m0, P0, rng=0, reference="auto"
         res.notes.append("failed (numerical error): " + "; ".join(f"{k}: {v}" for k, v in failed.items()))
     if cert is not None:
         res.notes.append(_certificate_note(cert))
+    if smooth:
+        res.notes.append(_smoothing_note(params["smoothing"]))
+        est.update({f"{k} (smoothed)": v for k, v in sm.items()})
     res.notes.append(f"window {window!r} of {steps} steps, {paths} paths; {gap} = MSE − MSE({ref_name}) "
                      f"on the same paths, ± its paired s.e. and the reference's error; NEES ≈ {model.n} for a "
                      f"consistent filter (posterior covariances only; offline_mse: the off-line error "
@@ -410,3 +436,75 @@ def _certificate_note(cert) -> str:
     return (f"reference: {size}, {verdict}: a finer reference on {cert.paths} paths changed its MSE by {err} "
             f"(tolerance {tol or '?'}: rtol = {cert.rtol:g} of its MSE or the gaps' smallest s.e.; "
             f"{len(cert.rungs)} rung(s), {cert.seconds:.1f} s)")
+
+
+def _smoothers(filters, est, failed, ref_name, ref_flt, cert, sim, run, on_divergence):
+    """``(name -> smoothed Estimates, params["smoothing"])``: every filter with a smoother (its
+    forward pass on its own stream, as its run), then the reference's smoother (the reference's
+    stream: its forward pass is the reference's run)."""
+    sm, info = {}, {"no_smoother": {}, "failed": {}}
+    for name, flt in filters.items():
+        if name in failed or name not in est:
+            continue
+        if getattr(flt, "smoother", None) is None or not callable(getattr(flt, "smooth", None)):
+            info["no_smoother"][name] = type(flt).__name__
+            continue
+        try:
+            sm[name] = run(name, flt, sim.ys, smooth=True)
+        except (np.linalg.LinAlgError, FloatingPointError, OverflowError, ValueError) as exc:
+            if on_divergence == "raise" or isinstance(exc, DivergenceError):
+                raise
+            info["failed"][name] = f"{type(exc).__name__}: {str(exc).splitlines()[0] if str(exc) else ''}"
+    if ref_name is not None:
+        kind = getattr(ref_flt, "smoother", None)
+        info["reference"] = {"label": ref_name, "smoother": kind,
+                             "certificate": "the reference filter's (the smoother reuses its resolution; "
+                                            "not certified separately)"}
+        if kind is None:
+            info["reference"]["reason"] = (f"{type(ref_flt).__name__} has no smoother"
+                                           + (" on an SDE with substeps > 1" if getattr(ref_flt, "substeps", 1) != 1
+                                              and getattr(ref_flt, "time", "") == "continuous" else ""))
+        else:  # the reference's stream (key "optimal"): its forward pass is the reference's run
+            try:
+                sm[ref_name] = run(OPTIMAL, ref_flt, sim.ys, key=OPTIMAL, smooth=True)
+            except (np.linalg.LinAlgError, FloatingPointError, OverflowError, ValueError) as exc:
+                if on_divergence == "raise" or isinstance(exc, DivergenceError):
+                    raise
+                info["reference"]["smoother"] = None
+                info["reference"]["reason"] = f"{type(exc).__name__}: {str(exc).splitlines()[0] if str(exc) else ''}"
+    for k in ("no_smoother", "failed"):
+        if not info[k]:
+            del info[k]
+    return sm, info
+
+
+def _smoothed_rows(res, sm, ref_name, cert, sim, n, window):
+    """``smoothed_mse`` per smoother and component; ``smoothed_gap_to_optimal`` (or ``_to_reference``)
+    against the reference smoother on the same paths, ± the paired s.e. and the reference's error."""
+    ref = sm.get(ref_name)
+    gap = "smoothed_gap_to_optimal" if cert is None or cert.certified is not False else "smoothed_gap_to_reference"
+    for name, e in sm.items():
+        ok = ~np.asarray(e.diverged, bool)
+        if not ok.any():
+            continue
+        for i in range(n):
+            s_ = mse(e, sim.xs, component=i, window=window)
+            res.add(name, "smoothed_mse", s_.value, s_.stderr, component=i)
+            if ref is not None and name != ref_name and np.any(ok & ~np.asarray(ref.diverged, bool)):
+                d = paired_difference(e, ref, sim.xs, component=i, window=window)
+                res.add(name, gap, d.value, math.hypot(d.stderr, cert.reference_error(i)), component=i)
+
+
+def _smoothing_note(info) -> str:
+    """One line: which smoothers ran, and what the reference smoother is."""
+    parts = []
+    ref = info.get("reference")
+    if ref is not None:
+        parts.append(f"reference smoother: {ref['smoother']} on the {ref['label']} reference's resolution (its "
+                     "certificate is the filter's)" if ref["smoother"] else
+                     f"no reference smoother ({ref['reason']}): no smoothed gaps")
+    if info.get("no_smoother"):
+        parts.append("no smoother: " + ", ".join(info["no_smoother"]))
+    if info.get("failed"):
+        parts.append("smoother failed: " + "; ".join(f"{k}: {v}" for k, v in info["failed"].items()))
+    return "smoothing: " + "; ".join(parts) if parts else "smoothing: every filter smoothed"

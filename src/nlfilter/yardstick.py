@@ -321,6 +321,16 @@ def certified_reference(model, sim, m0, P0, *, run, judged=None, dt=None, start=
     return est, cert
 
 
+def reference_filter(cert, model, *, dt=None, start="update", substeps=10):
+    """The filter of the rung a :class:`Certificate` of :func:`certified_reference` names (kind,
+    size, bounds), built again on ``model`` with the comparison's options: what a smoother of the
+    reference runs (the same grid, or the same particles on the same streams)."""
+    if cert.kind not in ("grid", "particle"):
+        raise ValueError(f"cert: expected the certificate of an automatic grid or particle reference, got kind "
+                         f"{cert.kind!r}")
+    return _Rung(cert.kind, cert.size, cert.bounds).build(model, _filter_kw(model, dt, start, substeps))
+
+
 def check_given_reference(flt, est, model, sim, *, run, judged=None, window=0.5, rtol=0.02, certify_paths=64):
     """The certificate of a reference the user passed: a ``GridFilter`` or ``ParticleFilter`` is
     refined once (``2×`` points per axis, ``4×`` particles) on ``certify_paths`` paths and

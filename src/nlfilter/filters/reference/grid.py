@@ -275,3 +275,19 @@ class GridFilter(_ReferenceFilter):
         res = innovation_info(y / scale, Eh, S / scale, scale=scale)
         res["loglik"] = ll
         return (*out, res)
+
+    # -- the smoother ------------------------------------------------------------------------------
+    smoother = "forward-backward"
+    smoother_keeps = True
+
+    def _smooth(self, est, beliefs, ys, t0):
+        """The forward–backward smoother on the grid with the filter's own kernel
+        (:func:`~nlfilter.filters.reference.smoothing.grid_smoother`): exact for the grid's chain.
+        Keeps every step's density: ``B × T × N`` floats (``smooth(..., chunk=)`` bounds B)."""
+        from .smoothing import grid_smoother
+        if self.time == "continuous":  # step k's density is at t0 + (k + 1) dt; the next step starts there
+            kernel = lambda k: self._kernel(t0 + (k + 1) * self.dt)  # noqa: E731
+        else:  # step k + 1 is predicted from step k at model index k + offset (base.run)
+            offset = 0 if self.start == "update" else 1
+            kernel = lambda k: self._kernel(k + offset)  # noqa: E731
+        return grid_smoother([b.p for b in beliefs], kernel, self.X)

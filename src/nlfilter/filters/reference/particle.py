@@ -249,3 +249,38 @@ class ParticleFilter(_ReferenceFilter):
         hR = np.einsum("...pa,...ab->...pb", hx, Rinv)
         yo = np.where(obs, y, 0.0)
         return np.einsum("...a,...pa->...p", yo, hR) - 0.5 * self.dt * np.einsum("...pa,...pa->...p", hR, hx)
+
+    # -- the smoother ------------------------------------------------------------------------------
+    smoother_keeps = True
+
+    @property
+    def smoother(self):
+        """``"particle"`` (FFBSm); None on an SDE model with ``substeps > 1`` (no transition density)."""
+        return None if self.time == "continuous" and self.substeps != 1 else "particle"
+
+    def smooth(self, ys, m0=None, P0=None, **kw):
+        """The forward-filtering backward-smoothing particle smoother (Doucet, Godsill & Andrieu
+        2000; :func:`~nlfilter.filters.reference.smoothing.ffbsm`): the filter's run, then its
+        clouds reweighted backwards by the transition density — ``O(particles²)`` per step and
+        path (lower ``particles`` for long records). On an SDE model the transition density is
+        that of the filter's own Euler–Maruyama step, so it needs ``substeps=1``. Arguments and
+        result as :meth:`~nlfilter.filters.base.Filter.smooth`."""
+        if self.time == "continuous" and self.substeps != 1:
+            raise TypeError(f"smooth: the particle smoother needs the transition density of the filter's step; on "
+                            f"an SDEModel that is the Gaussian Euler–Maruyama step, substeps=1; got "
+                            f"substeps={self.substeps} (build ParticleFilter(model, ..., substeps=1), or smooth with "
+                            "the grid filter)")
+        return super().smooth(ys, m0, P0, **kw)
+
+    def _smooth(self, est, beliefs, ys, t0):
+        """FFBSm over the filtered clouds of every step (the belief after each update: the weights
+        of that update on the particles before the next resampling)."""
+        from .smoothing import ffbsm, transition_logpdf
+        md = self.model
+        if self.time == "continuous":  # step k's cloud is at t0 + (k + 1) dt: one Euler–Maruyama step on
+            logtau = lambda x, x1, k: transition_logpdf(md, x, x1, t0 + (k + 1) * self.dt, dt=self.dt)  # noqa: E731
+        else:
+            offset = 0 if self.start == "update" else 1
+            logtau = lambda x, x1, k: transition_logpdf(md, x, x1, k + offset)  # noqa: E731
+        per_path = bool(getattr(getattr(md, "_values", None), "per_path", ()))  # parameters per path: no blocks
+        return ffbsm([b.x for b in beliefs], [b.logw for b in beliefs], logtau, block=ys.shape[0] if per_path else None)

@@ -1,0 +1,186 @@
+"""The optimal smoothers of the reference filters: the backward passes of the grid filter
+(forward–backward) and of the particle filter (forward-filtering backward-smoothing), pure
+functions over the filtered beliefs of every step that ``Filter.smooth`` keeps.
+
+Both compute the marginal smoothing laws ``p(x_k | y_0..y_{T-1})`` from the filtered laws
+``p(x_k | y_0..y_k)`` and the transition density ``τ(x_{k+1} | x_k)`` by the backward recursion
+(Kitagawa 1987; Särkkä 2013, *Bayesian Filtering and Smoothing*, Thm. 8.1)::
+
+    p(x_k | y_{0:T-1}) = p(x_k | y_{0:k}) ∫ τ(x_{k+1} | x_k) p(x_{k+1} | y_{0:T-1}) / p(x_{k+1} | y_{0:k}) dx_{k+1}
+
+with ``p(x_{k+1} | y_{0:k}) = ∫ τ(x_{k+1} | x) p(x | y_{0:k}) dx`` the prediction, starting from
+the filtered law at the last step.
+
+Grid (:func:`grid_smoother`): on the grid, with the filter's own transition kernel ``K_k``
+(``p⁻_{k+1} ∝ p_k K_k``: the discretized transition density of a discrete model, or
+``expm(L dt)`` of Kushner's chain for an SDE)::
+
+    pˢ_k ∝ p_k ⊙ (K_k (pˢ_{k+1} ⊘ p⁻_{k+1}))        (0/0 = 0 where p⁻_{k+1} = 0)
+
+exact for the grid's Markov chain, so it converges to the optimal smoother as the grid is refined,
+at the filter's rate. Memory: the forward pass keeps every step's density, ``B × T × N`` floats
+(B paths, T steps, N grid points); ``smooth(..., chunk=)`` bounds B.
+
+Particles (:func:`ffbsm`): the forward-filtering backward-smoothing of the marginals (Doucet,
+Godsill & Andrieu 2000, *Statistics and Computing* 10, eq. 22; Hürzeler & Künsch 1998)
+reweights the filtered clouds ``{x_k,i, w_k,i}`` backwards::
+
+    wˢ_k,i ∝ w_k,i Σ_j wˢ_{k+1,j} τ(x_{k+1,j} | x_k,i) / Σ_l w_k,l τ(x_{k+1,j} | x_k,l)
+
+(``wˢ_{T-1} = w_{T-1}``). It draws nothing. Its cost is ``O(Np²)`` per step and path (every pair
+of particles of two consecutive steps), computed in blocks of paths by one batched matrix product
+per step; memory ``O(block · Np²)`` (:data:`BLOCK`). At the default 2000 particles that is
+``4·10⁶`` transition densities per step and path, about 0.1 s on one core (1-D, measured; the
+forward pass costs ~1 ms): for long records or many paths build the particle filter with fewer
+``particles`` (the smoother's Monte Carlo error then grows as ``1/√Np``, as the filter's).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .grid import _apply, _moments
+from .particle import _weights
+
+__all__ = ["grid_smoother", "ffbsm", "transition_logpdf"]
+
+BLOCK = 2**22  # elements of the pairwise arrays (paths × Np × Np × n) per block of the particle smoother
+
+
+def grid_smoother(filtered, kernel, X):
+    """The forward–backward grid smoother (module docstring).
+
+    ``filtered``: the filtered probability vectors of steps ``0..T-1``, a sequence of ``(B, N)``;
+    ``kernel(k)``: the transition kernel from step ``k`` to step ``k + 1`` (``(N, N)``, dense or
+    scipy sparse, ``p⁻ ∝ p @ K``); ``X (N, n)`` the grid points. Returns the smoothed
+    ``(means (B, T, n), covs (B, T, n, n))``.
+
+    >>> import numpy as np
+    >>> K = np.array([[0.9, 0.1], [0.1, 0.9]])   # a two-state chain; step 1 is sure of state 0
+    >>> X = np.array([[0.0], [1.0]])
+    >>> m, _ = grid_smoother([np.array([[0.5, 0.5]]), np.array([[1.0, 0.0]])], lambda k: K, X)
+    >>> m[0, :, 0].round(6).tolist()      # p(x_0 = 1 | y) = 0.5 · 0.1 / (0.5 · 0.9 + 0.5 · 0.1)
+    [0.1, 0.0]
+    """
+    T = len(filtered)
+    B = filtered[-1].shape[0]
+    n = X.shape[-1]
+    means, covs = np.empty((B, T, n)), np.empty((B, T, n, n))
+    if T == 0:
+        return means, covs
+    ps = filtered[-1]
+    means[:, -1], covs[:, -1] = _moments(ps, X)
+    for k in range(T - 2, -1, -1):
+        p = filtered[k]
+        K = kernel(k)
+        pred = _apply(p, K)
+        pred = pred / pred.sum(axis=-1, keepdims=True)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            r = np.where(pred > 0, ps / pred, 0.0)  # 0/0 = 0: no predicted mass, no smoothed mass
+        ps = p * _apply(r, K.T)  # K r, for each path: r @ Kᵀ
+        s = ps.sum(axis=-1, keepdims=True)
+        ps = np.where(s > 0, ps / np.where(s > 0, s, 1.0), p)  # a dead path keeps its filtered density
+        means[:, k], covs[:, k] = _moments(ps, X)
+    return means, covs
+
+
+def _weighted_moments(w, x):
+    mean = np.einsum("bp,bpi->bi", w, x)
+    d = x - mean[:, None, :]
+    return mean, np.einsum("bp,bpi,bpj->bij", w, d, d)
+
+
+def ffbsm(xs, logws, logtau, block: int | None = None):
+    """The forward-filtering backward-smoothing of the marginals (module docstring).
+
+    ``xs``, ``logws``: the filtered particles ``(B, Np, n)`` and their (unnormalized) log-weights
+    ``(B, Np)`` of steps ``0..T-1``; ``logtau(x, x1, k) -> (b, Np, Np)``: the log transition
+    density ``log τ(x1_j | x_i)`` from step ``k`` to ``k + 1`` for a block of paths; ``block``:
+    paths per block (default: as many as keep the pairwise arrays under :data:`BLOCK` elements).
+    Returns the smoothed ``(means (B, T, n), covs (B, T, n, n))``.
+
+    >>> import numpy as np
+    >>> x0, x1 = np.array([[[0.0], [1.0]]]), np.array([[[0.0]]])   # two particles, then one
+    >>> lt = lambda x, y, k: -0.5 * (y[:, None, :, 0] - x[:, :, None, 0]) ** 2   # τ = N(x, 1)
+    >>> m, _ = ffbsm([x0, x1], [np.zeros((1, 2)), np.zeros((1, 1))], lt)
+    >>> round(float(m[0, 0, 0]), 6)       # wˢ_0 ∝ (1, e^{-1/2}): mean e^{-1/2} / (1 + e^{-1/2})
+    0.377541
+    """
+    T = len(xs)
+    B, _, n = xs[-1].shape
+    means, covs = np.empty((B, T, n)), np.empty((B, T, n, n))
+    if T == 0:
+        return means, covs
+    Np = max(x.shape[1] for x in xs)
+    if block is None:
+        block = max(1, BLOCK // (Np * Np * n))
+    for lo in range(0, B, block):
+        sl = slice(lo, min(lo + block, B))
+        ws = _weights(logws[-1][sl])
+        means[sl, -1], covs[sl, -1] = _weighted_moments(ws, xs[-1][sl])
+        for k in range(T - 2, -1, -1):
+            w = _weights(logws[k][sl])
+            lt = logtau(xs[k][sl], xs[k + 1][sl], k)  # (b, i, j): log τ(x_{k+1,j} | x_k,i)
+            mx = np.max(lt, axis=1, keepdims=True)  # per column j: the ratio τ_ij / Σ_l w_l τ_lj is scale-free
+            lt -= np.where(np.isfinite(mx), mx, 0.0)
+            A = np.exp(lt, out=lt)
+            den = np.einsum("bi,bij->bj", w, A)  # Σ_l w_k,l τ(x_{k+1,j} | x_k,l)
+            with np.errstate(divide="ignore", invalid="ignore"):
+                v = np.where(den > 0, ws / den, 0.0)
+            new = w * np.einsum("bij,bj->bi", A, v)
+            s = new.sum(axis=-1, keepdims=True)
+            ws = np.where(s > 0, new / np.where(s > 0, s, 1.0), w)  # no support at all: keep the filter's
+            means[sl, k], covs[sl, k] = _weighted_moments(ws, xs[k][sl])
+    return means, covs
+
+
+def transition_logpdf(model, x, x1, k, dt=None):
+    """``log τ(x1_j | x_i) (..., Np, Np1)`` for particles ``x (..., Np, n)`` and ``x1 (..., Np1, n)``.
+
+    A discrete model ``x' = f(x, k) + G(x, k) w``: with Gaussian noise ``N(x'; f, G Q Gᵀ)``
+    (``G Q Gᵀ`` non-singular); with another noise law that has a density and a square ``G``,
+    ``log p_w(G⁻¹ (x' − f)) − log |det G|``. An SDE (``dt`` given): the Euler–Maruyama step over
+    ``dt`` at time ``k``, ``N(x'; x + f(x, k) dt, G Q Gᵀ dt)``. A fixed ``G Q Gᵀ`` (the common
+    case) whitens both clouds once, and the quadratic form is one matrix product,
+    ``|a_j − b_i|² = |a_j|² + |b_i|² − 2 b_i·a_j``. A transition without a density (singular
+    ``G Q Gᵀ``) raises ``ValueError``."""
+    from ...noise import Gaussian
+    md, n = model, model.n
+    if dt is None:
+        f = md.f(x, k)
+        law = md.process_noise
+        if not isinstance(law, Gaussian):
+            if not (md.r == md.n and law.has_density):
+                raise ValueError("process_noise: the particle smoother needs a Gaussian law, or a law with a "
+                                 "density and a square G")
+            G = md.G(x, k)
+            det = np.linalg.det(G)
+            if not np.all(np.abs(det) > 0):
+                raise ValueError("model: the particle smoother needs a transition density; G(x) is singular")
+            z = np.einsum("...iab,...ijb->...ija", np.linalg.inv(G), x1[..., None, :, :] - f[..., :, None, :])
+            return law.logpdf(z) - np.log(np.abs(det))[..., :, None]
+        scale = 1.0
+    else:
+        f = x + md.f(x, k) * dt
+        scale = dt
+    fixed = getattr(md, "_GQG0", None) is not None
+    C = (md.GQGT(np.zeros(n)) if fixed else md.GQGT(x, k)) * scale
+    try:
+        L = np.linalg.cholesky(C)
+    except np.linalg.LinAlgError:
+        raise ValueError("process_noise: the particle smoother needs a transition density; G Q Gᵀ is singular "
+                         "(a state without process noise)") from None
+    Li = np.linalg.inv(L)
+    logdet = 2.0 * np.sum(np.log(np.diagonal(L, axis1=-2, axis2=-1)), axis=-1) + n * np.log(2 * np.pi)
+    if fixed:  # whitened clouds a = L⁻¹ x1, b = L⁻¹ f: one matrix product per path
+        a, b = x1 @ Li.T, f @ Li.T
+        q = b @ np.swapaxes(a, -1, -2)  # in place below: the (..., Np, Np1) array is the cost
+        q *= -2.0
+        q += np.sum(b * b, axis=-1)[..., :, None]
+        q += np.sum(a * a, axis=-1)[..., None, :]
+        np.maximum(q, 0.0, out=q)
+        q *= -0.5
+        q -= 0.5 * logdet
+        return q
+    z = np.einsum("...iab,...ijb->...ija", Li, x1[..., None, :, :] - f[..., :, None, :])
+    return -0.5 * np.sum(z * z, axis=-1) - 0.5 * logdet[..., :, None]
