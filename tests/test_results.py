@@ -16,11 +16,12 @@ from nlfilter.results import Result, Row
 # the simulators the experiments call (under the names their modules import) and the parameter
 # of each experiment's Result.params that holds the simulated horizon (int, or {case: int})
 simulate_module = importlib.import_module("nlfilter.simulate")
+comparison_module = importlib.import_module("nlfilter.comparison")
 SIMULATORS = ("simulate", "simulate_ou", "simulate_phase", "simulate_continuous_discrete")
 HORIZON = {"cubic-sensor": "steps", "cubic-sensor-closures": "steps", "linear-gaussian": "steps",
            "moment-first-order": "T", "moment-second-order": "T", "oh-shin": "steps",
            "phase-tracking": "steps", "second-order": "problem_steps", "zero-order": None,
-           "zero-order-adaptive": "n_max", "zero-order-robustness": "n"}
+           "zero-order-adaptive": "n_max", "zero-order-robustness": "n", "smoothing": "steps"}
 # and the one that holds the simulated paths: "paths", but zero-order's Table 1 check draws its
 # "paths" i.i.d. samples as sample_paths paths of samples_per_path samples (per-path streams)
 PATHS = {"zero-order": "sample_paths"}
@@ -44,9 +45,10 @@ def _quick(exp):
     calls = []
     module = inspect.getmodule(exp.func)
     with pytest.MonkeyPatch.context() as mp:
-        for name in SIMULATORS:
-            if hasattr(module, name) and getattr(module, name) is getattr(simulate_module, name):
-                mp.setattr(module, name, _recording(getattr(simulate_module, name), calls))
+        for mod in (module, comparison_module):  # an experiment may simulate through compare
+            for name in SIMULATORS:
+                if hasattr(mod, name) and getattr(mod, name) is getattr(simulate_module, name):
+                    mp.setattr(mod, name, _recording(getattr(simulate_module, name), calls))
         for cls in (BoundedNoiseModel, ZeroOrderModel):
             mp.setattr(cls, "simulate", _recording(cls.simulate, calls))
         res = exp.run(quick=True, seed=0)
@@ -105,7 +107,7 @@ def test_quick_params_differ_from_defaults_where_quick_overrides(quick_runs):
         "moment-second-order": {"T", "skip", "particles"}, "oh-shin": {"grid_size"},
         "phase-tracking": {"time_constants", "discard", "grid", "sweep"},
         "second-order": {"grid_size", "fb_particles", "fb_pf_runs"}, "zero-order": set(),
-        "zero-order-adaptive": {"n_max"}, "zero-order-robustness": {"n"}}
+        "zero-order-adaptive": {"n_max"}, "zero-order-robustness": {"n"}, "smoothing": {"steps", "particles"}}
     cubic = quick_runs["cubic-sensor"][0].params
     assert (cubic["T"], cubic["burn"], cubic["paths"]) == (6.0, 3.0, 6)  # not the defaults T = 60, burn = 5
 

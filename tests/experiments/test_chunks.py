@@ -19,6 +19,7 @@ CASES = {
     "oh-shin": ({}, 5),
     "phase-tracking": ({}, 3),
     "second-order": ({}, 5),
+    "smoothing": ({"steps": 8}, 5),
     "zero-order": ({"J": [2], "N": [2]}, 2500),  # 3 paths of 1000 samples
     "zero-order-adaptive": ({"J": [0], "N": [2]}, 5),
     "zero-order-robustness": ({"r": [0.3], "beta": [0.2], "N": [2]}, 5),

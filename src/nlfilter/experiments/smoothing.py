@@ -1,0 +1,82 @@
+"""``smoothing``: every Gaussian smoother beside its own filter and the optimal smoother.
+
+Two discrete models with a cubic sensor (issue 12's benchmark; no paper):
+
+* ``cubic`` — the quickstart's ``x[k+1] = 0.99 x + w``, ``y = x³ + v``, ``Q = 0.01``, ``R = 0.1``,
+  ``x0 ~ N(0.5, 0.1)``;
+* ``rotating-cubic`` — 2-D, ``x[k+1] = [[0.8, 0.3], [−0.3, 0.8]] x + w``, ``Q = 0.2 I``, measured
+  by ``y = x1³/3 + v``, ``R = 0.1``, ``x0 ~ N((0.5, 0), 0.5 I)``: the second component is seen only
+  through the dynamics, so smoothing matters most there.
+
+For each, :func:`~nlfilter.compare` with ``smooth=True`` runs the EKF, iterated EKF, UKF, CKF,
+GHKF and the Gaussian second-order filter and their RTS smoothers
+(:mod:`nlfilter.filters.smoothing`: one backward pass through each filter's moment rule) on one
+simulation, beside the certified reference and its smoother (the forward–backward grid smoother
+in 1-D, the FFBSm particle smoother in 2-D: :mod:`nlfilter.filters.reference.smoothing`). Rows
+per filter and component, the MSE over the whole record: ``mse`` (filter), ``smoothed_mse``,
+``smoothing_gain`` (filter MSE − smoothed MSE on the same paths, paired s.e.) and
+``smoothed_gap_to_optimal`` (smoothed MSE − the optimal smoother's, paired s.e. and the
+reference's error). A smoother whose gain is negative is worse than its own filter: the RTS
+pass trusts the filter's covariances, and an inconsistent filter (NEES far above n) misleads it.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import sympy as sp
+from tqdm.auto import tqdm
+
+from ..comparison import compare
+from ..evaluate import chunk, paired_difference, stream
+from ..filters.reference import ParticleFilter
+from ..models import DiscreteModel
+from ..results import Result
+from . import experiment
+
+TITLE = "RTS smoothers of every Gaussian filter against the optimal smoother (cubic sensors)"
+SOURCE = "nlfilter check (no paper): Särkkä 2013 ch. 8-9 (Gaussian RTS smoothers); issue 12"
+FILTERS = ("ekf", "iekf", "ukf", "ckf", "ghkf", "second-order")
+
+
+def cases():
+    """``{name: (model, m0, P0)}`` of the experiment (see the module docstring)."""
+    x, x1, x2 = sp.symbols("x x1 x2")
+    cubic = DiscreteModel([x], [0.99 * x], [x**3], Q=0.01, R=0.1, name="cubic")
+    rot = DiscreteModel([x1, x2], [0.8 * x1 + 0.3 * x2, -0.3 * x1 + 0.8 * x2], [x1**3 / 3], Q=0.2 * np.eye(2),
+                        R=0.1, name="rotating-cubic")
+    return {"cubic": (cubic, np.array([0.5]), np.array([[0.1]])),
+            "rotating-cubic": (rot, np.array([0.5, 0.0]), 0.5 * np.eye(2))}
+
+
+@experiment("smoothing", title=TITLE, source=SOURCE, params={"steps": 50, "particles": 1000})
+def run(params, *, quick=False, runs=None, seed=0, progress=False):
+    p = dict(params)
+    if quick:
+        p["steps"], p["particles"] = min(p["steps"], 20), min(p["particles"], 300)
+    runs = runs or (16 if quick else 200)
+    res = Result("smoothing", TITLE, SOURCE, p)
+    res.used("paths", runs)
+    refs = {}
+    for k, (name, (md, m0, P0)) in enumerate(tqdm(cases().items(), disable=not progress, desc="models")):
+        # 1-D: the automatic (certified grid) reference; 2-D: a particle filter, refined once to
+        # 4x its particles by the certificate (the FFBSm smoother costs particles² per step and path)
+        ref = "auto" if md.n == 1 else ParticleFilter(md, p["particles"])
+        out, sim, est = compare(md, list(FILTERS), p["steps"], paths=runs, m0=m0, P0=P0, rng=stream(seed, k),
+                                reference=ref, window=None, smooth=True, chunk=chunk(), full_output=True)
+        refs[name] = out.params["reference"]
+        for row in out.rows:
+            if row.quantity in ("mse", "smoothed_mse", "gap_to_optimal", "smoothed_gap_to_optimal",
+                                "gap_to_reference", "smoothed_gap_to_reference", "nees"):
+                res.add(row.filter, row.quantity, row.value, row.stderr, model=name, **row.params)
+        for flt in [*FILTERS, next(iter(r.filter for r in out.rows if r.quantity == "smoothed_mse"
+                                        and r.filter not in FILTERS), None)]:
+            if flt is None or f"{flt} (smoothed)" not in est:
+                continue
+            for i in range(md.n):  # filter − its smoother, paired on the same paths
+                d = paired_difference(est[flt], est[f"{flt} (smoothed)"], sim.xs, component=i)
+                res.add(flt, "smoothing_gain", d.value, d.stderr, model=name, component=i)
+        res.notes.extend(f"{name}: {n}" for n in out.notes[:-1])
+    res.params["references"] = refs
+    res.notes.append("MSE over the whole record; smoothing_gain = MSE(filter) − MSE(its smoother) on the same "
+                     "paths; smoothed_gap_to_optimal = MSE(smoother) − MSE(optimal smoother), paired")
+    return res
