@@ -21,29 +21,77 @@ import numpy as np
 from .. import _validate as V
 from .base import DiscreteFilter, GaussianState  # noqa: F401  (GaussianState: the doctests)
 from .gaussian import ContinuousDiscreteGaussianFilter, GaussianFilter
+from .linalg import poison
 from .rules import Unscented, sigma_points
 
 
 class UKF(GaussianFilter):
     """Unscented Kalman filter (batched): the :class:`~nlfilter.filters.gaussian.GaussianFilter`
     skeleton with the :class:`~nlfilter.filters.rules.Unscented` rule. ``alpha, beta, kappa``:
-    scaling of the sigma points (module docstring)."""
+    scaling of the sigma points (module docstring).
+
+    ``augmented``: the prediction over sigma points of the augmented state ``(x, w)`` (Julier &
+    Uhlmann 1997; Wan & van der Merwe 2000, the augmented UKF): ``N((m, 0), diag(P, Q))`` in
+    dimension ``n + r`` (λ, weights and ``kappa`` of that dimension), propagated through
+    ``x⁺ = f(x, w)``; then ``m⁻ = Σ W_i f(χ_i)``, ``P⁻ = Σ W^c_i (f(χ_i) − m⁻)(·)ᵀ`` (no added noise
+    term) and, for the smoother, ``Cov[x, x⁺]`` from the x-part of the points. The measurement
+    noise stays additive (the usual n-point update with R). ``None`` (default): augmented exactly
+    when the model's noise is non-additive (``DiscreteModel(..., noise=[w...])``); ``True`` on an
+    additive model propagates ``f(x) + G(x) w`` (on a linear model every choice is the Kalman
+    filter)."""
 
     name = "ukf"
-    source = "Julier & Uhlmann 1997; van der Merwe 2004 (scaled sigma points)"
+    source = "Julier & Uhlmann 1997; van der Merwe 2004 (scaled sigma points); Wan & van der Merwe 2000 (augmented)"
+    structures = ("state-dependent R", "cross noise", "non-additive noise")
 
     def __init__(self, model, *, alpha: float = 1.0, beta: float = 2.0, kappa: float = 0.0,
-                 start: str = "update"):
+                 start: str = "update", augmented: bool | None = None):
         DiscreteFilter.__init__(self, model, start=start)
         alpha = float(V.positive("alpha", alpha))
         beta = float(V.positive("beta", beta, strict=False))
         if not np.isfinite(kappa) or model.n + kappa <= 0:
             raise ValueError(f"kappa: expected n + kappa > 0 (n = {model.n}), got {kappa!r}")
+        additive = getattr(model, "additive", True)
+        if augmented is None:
+            augmented = not additive
+        if not isinstance(augmented, (bool, np.bool_)):
+            raise TypeError(f"augmented: expected True, False or None, got {augmented!r}")
+        if not augmented and not additive:
+            raise ValueError("augmented: the model's noise enters f non-additively (noise=); expected True or None "
+                             "(augmented sigma points), got False")
+        if augmented and getattr(model, "cross_noise", None) is not None:
+            raise ValueError("augmented: augmented sigma points with correlated noise (cross_noise) are not "
+                             "supported; expected False (the decorrelated prediction)")
+        self.augmented = bool(augmented)
         self._set_rule(Unscented(alpha, beta, float(kappa)))
         self.alpha, self.beta, self.kappa = self.rule.alpha, self.rule.beta, self.rule.kappa
+        if self.augmented:
+            self._aug_rule = Unscented(alpha, beta, float(kappa))
+            self._aug_rule.check(model.n + model.r)
 
     def _points(self, state):
         return sigma_points(state.mean, state.cov, self.alpha, self.beta, self.kappa)
+
+    def _predict(self, state, k, cross: bool = False):
+        """With ``augmented``: the prediction over the sigma points of ``(x, w)`` (class docstring)."""
+        if not self.augmented:
+            return super()._predict(state, k, cross=cross)
+        md = self.model
+        n, r = md.n, md.r
+        m, P = state[0], state[1]
+        batch = m.shape[:-1]
+        ma = np.concatenate([m, np.zeros((*batch, r))], axis=-1)
+        Pa = np.zeros((*batch, n + r, n + r))
+        Pa[..., :n, :n] = P
+        Pa[..., n:, n:] = md.Q
+
+        def f(Z, t):  # x⁺ = f(x, w) on augmented points Z = (x, w)
+            return md.f_aug(Z, t) if not getattr(md, "additive", True) else md.transition(Z[..., :n], Z[..., n:], t)
+
+        mo = self._aug_rule.moments(GaussianState(ma, Pa), f, self._time(k), cross=cross)
+        new = GaussianState(mo.mean, mo.cov)
+        new = new if mo.bad is None else poison(new, mo.bad)
+        return (new, mo.cross[..., :n, :]) if cross else new
 
 
 class ContinuousDiscreteUKF(ContinuousDiscreteGaussianFilter):
