@@ -45,6 +45,9 @@ each filter lists in ``structures`` what it handles and refuses the rest at cons
   noise symbols in ``f`` (``G`` not given, ``Q`` their covariance); :meth:`Model.transition`
   evaluates it (``f_aug`` on the augmented vector ``(x, w)``), ``model.f`` is ``f(x, 0)`` and
   ``model.G`` is ``∂f/∂w`` at ``w = 0``.
+* ``meas_noise=[v1, ..., vp]``: non-additive measurement noise, ``y[k] = h(x[k], v[k], k)``
+  (``R`` the ``p x p`` covariance of v); :meth:`Model.measurement` evaluates it (``h_aug``),
+  ``model.h`` is ``h(x, 0)``.
 
 >>> import sympy as sp
 >>> x, u = sp.symbols("x u")
@@ -331,7 +334,7 @@ class Model:
 
     def __init__(self, states, f, h, G=None, Q=None, R=None, *, params=None, inputs=None, time=None,
                  process_noise: NoiseLaw | None = None, measurement_noise: NoiseLaw | None = None,
-                 name: str = "", cross_noise=None, noise=None):
+                 name: str = "", cross_noise=None, noise=None, meas_noise=None):
         if isinstance(states, sp.Symbol):
             states = [states]
         states = list(states)
@@ -366,16 +369,22 @@ class Model:
 
         fM = _vector("f", f, n)
         hM = _vector("h", h)
-        # non-additive process noise: x[k+1] = f(x[k], w[k]) with the noise symbols in f
-        if isinstance(noise, sp.Symbol):
-            noise = [noise]
-        noise = tuple(noise or ())
-        if noise:
-            if not all(isinstance(w, sp.Symbol) for w in noise) or len(set(noise)) != len(noise):
-                raise TypeError(f"noise: expected a list of distinct SymPy symbols (the process noise in f), got {list(noise)!r}")
-            used = set(noise) & (set(states) | set(self._psyms) | {time})
+        # non-additive noise: x[k+1] = f(x[k], w[k]), y[k] = h(x[k], v[k]) with the noise symbols in f, h
+        noise, meas_noise = (tuple([a] if isinstance(a, sp.Symbol) else (a or ())) for a in (noise, meas_noise))
+        for nm, syms, other in (("noise", noise, meas_noise), ("meas_noise", meas_noise, noise)):
+            if not syms:
+                continue
+            if not all(isinstance(w, sp.Symbol) for w in syms) or len(set(syms)) != len(syms):
+                raise TypeError(f"{nm}: expected a list of distinct SymPy symbols (the "
+                                f"{'process noise in f' if nm == 'noise' else 'measurement noise in h'}), got {list(syms)!r}")
+            used = set(syms) & (set(states) | set(self._psyms) | {time} | set(other))
             if used:
-                raise ValueError(f"noise: symbol(s) {sorted(map(str, used))} are already states, the time, parameters or inputs")
+                raise ValueError(f"{nm}: symbol(s) {sorted(map(str, used))} are already states, the time, parameters, "
+                                 "inputs or the other noise")
+        if meas_noise:
+            h_aug = hM
+            hM = hM.subs({v: 0 for v in meas_noise})  # the nominal measurement h(x, 0)
+        if noise:
             if G is not None:
                 raise ValueError("G: a model with non-additive noise (noise=[...]) states the noise in f; expected "
                                  f"G=None, got {G!r}")
@@ -383,24 +392,27 @@ class Model:
             GM = fM.jacobian(sp.Matrix(noise)).subs({w: 0 for w in noise})  # the noise gain at w = 0
         else:
             GM = sp.eye(n) if G is None else _matrix("G", G, n, None)
-        self.additive = not noise
-        self.noise_symbols = noise
+        self.additive, self.additive_measurement = not noise, not meas_noise
+        self.noise_symbols, self.meas_noise_symbols = noise, meas_noise
         allowed = set(states) | ({time} if time is not None else set()) | set(self._psyms)
-        for nm, M in (("f", fM), ("h", hM), ("G", GM)):
-            extra = M.free_symbols - allowed - (set(noise) if nm == "f" else set())
+        for nm, M in (("f", fM), ("h", h_aug if meas_noise else hM), ("G", GM)):
+            own = set(noise) if nm == "f" else set(meas_noise) if nm == "h" else set()
+            extra = M.free_symbols - allowed - own
             if extra:
                 raise ValueError(f"{nm}: uses symbol(s) {sorted(map(str, extra))} that are neither states "
                                  f"{[str(s) for s in states]}, the time symbol, nor given in params or inputs"
-                                 + (" (nor noise)" if nm == "f" and noise else ""))
+                                 + (" (nor noise)" if nm == "f" and noise else "")
+                                 + (" (nor meas_noise)" if nm == "h" and meas_noise else ""))
         if noise:
             f_aug = fM
             fM = fw0
         self.n, self.m, self.r = n, hM.shape[0], GM.shape[1]
+        self.mv = len(meas_noise) if meas_noise else self.m  # the dimension of v (R is mv x mv)
         self._sym = {"f": fM, "h": hM, "G": GM}  # parameters as symbols; .sym substitutes them
         self._given_laws = (process_noise, measurement_noise)
         # Q and R: numbers, checked once as before, or SymPy matrices in the parameters
         self._QR = {}
-        for nm, val, dim in (("Q", Q, self.r), ("R", R, self.m)):
+        for nm, val, dim in (("Q", Q, self.r), ("R", R, self.mv)):
             if not _is_symbolic(val):
                 continue
             M = _matrix(nm, [[val]] if isinstance(val, sp.Basic) and not isinstance(val, sp.MatrixBase) else val,
@@ -423,7 +435,7 @@ class Model:
         if "R" not in self._QR:
             if R is None and measurement_noise is None:
                 raise ValueError("R: expected the measurement noise covariance (m x m), got None")
-            self._R0 = V.covariance("R", measurement_noise.cov if R is None else R, self.m)
+            self._R0 = V.covariance("R", measurement_noise.cov if R is None else R, self.mv)
             self._R_law = as_law("measurement_noise", measurement_noise, self._R0)
         if "Q" not in self._QR:
             self._Q_law = as_law("process_noise", process_noise, self._Q0)
@@ -452,20 +464,29 @@ class Model:
         self._kernels = {key: _Kernel(exprs, states, time, shape, self._psyms) for key, (exprs, shape) in specs.items()}
         if noise:  # f(x, w) on the augmented vector (x, w) (..., n + r)
             self._kernels["f_aug"] = _Kernel(list(f_aug), states + list(noise), time, (n,), self._psyms)
+        if meas_noise:  # h(x, v) on (x, v) (..., n + mv)
+            self._kernels["h_aug"] = _Kernel(list(h_aug), states + list(meas_noise), time, (self.m,), self._psyms)
         self.given = set(_DERIVS)
         # structure flags (for every parameter value), read by filters that can exploit them
         self.G_constant = all(e.free_symbols.isdisjoint(states) for e in GM)
         self._G_fixed = all(e.free_symbols.isdisjoint(set(states) | {time}) for e in GM)
-        self.is_linear = self.additive and self.G_constant and all(  # f and h affine in the state
+        self.is_linear = self.additive and self.additive_measurement and self.G_constant and all(  # f and h affine in the state
             e.is_polynomial(*states) and sp.Poly(e, *states).total_degree() <= 1 for e in list(fM) + list(hM))
-        self._timed = time is not None and any(M.has(time) for M in (fM, hM, GM) + ((f_aug,) if noise else ()))
+        self._timed = time is not None and any(M.has(time) for M in (fM, hM, GM) + ((f_aug,) if noise else ())
+                                               + ((h_aug,) if meas_noise else ()))
         self._uses = {k: set(self._kernels[k].params) for k in ("f", "h", "G")}
         if noise:
             self._uses["f"] |= set(self._kernels["f_aug"].params)
+        if meas_noise:
+            self._uses["h"] |= set(self._kernels["h_aug"].params)
+            if "R" in self._QR and self._QR["R"].varies:
+                raise ValueError("R: a state-dependent R with non-additive measurement noise (meas_noise=) is not "
+                                 "supported; state the dependence in h(x, v)")
         self.cross_noise = None
         if cross_noise is not None:  # E[w vᵀ] = S (r x m), Anderson & Moore 1979 §5.5
-            if noise:
-                raise ValueError("cross_noise: correlated noise with non-additive noise (noise=) is not supported")
+            if noise or meas_noise:
+                raise ValueError("cross_noise: correlated noise with non-additive noise (noise=, meas_noise=) is not "
+                                 "supported")
             if not self.G_constant:
                 raise ValueError("cross_noise: correlated process and measurement noise needs a G that does not "
                                  "depend on the state")
@@ -505,7 +526,7 @@ class Model:
                 self._R, self._measurement_noise = None, None
                 self._R_fn = _Batched(self._QR["R"], values)
             else:
-                self.R = self._covariance("R", self.m, values)
+                self.R = self._covariance("R", self.mv, values)
                 self.measurement_noise = Gaussian(self.R)
         else:
             self.R, self.measurement_noise = self._R0, self._R_law
@@ -554,6 +575,8 @@ class Model:
             out.add("cross noise")
         if not getattr(self, "additive", True):
             out.add("non-additive noise")
+        if not getattr(self, "additive_measurement", True):
+            out.add("non-additive measurement noise")
         return frozenset(out)
 
     # -- the measurement noise covariance: one matrix, or R(x, k) --------------------------------
@@ -594,7 +617,7 @@ class Model:
         """
         x = np.asarray(x, dtype=float)
         if self.R_constant:
-            return np.broadcast_to(self._R, (*x.shape[:-1], self.m, self.m))
+            return np.broadcast_to(self._R, (*x.shape[:-1], *self._R.shape))
         R = self._R_fn(x, t)
         if self.m == 1:
             bad = ~(R[..., 0, 0] > 0)
@@ -629,10 +652,10 @@ class Model:
         (for the moment engine and the symbolic filters); ``None`` for a model from callables."""
         if self._sym is None:
             return None
-        if not self.additive:
-            raise ValueError("model.sym: the model's process noise enters f non-additively (noise=); symbolic "
-                             "methods (moment engine, quasilinear and conditional-moment filters) take x[k+1] = "
-                             "f(x) + G w")
+        if not (self.additive and self.additive_measurement):
+            raise ValueError("model.sym: the model's noise enters f or h non-additively (noise=, meas_noise=); "
+                             "symbolic methods (moment engine, quasilinear and conditional-moment filters) take "
+                             "x[k+1] = f(x) + G w, y = h(x) + v")
         if self._sym_cache is None:
             vals = self._values
             bad = set().union(*(M.free_symbols for M in self._sym.values())) & (vals.arrays | vals.unset)
@@ -742,6 +765,7 @@ class Model:
         self.Q = V.covariance("Q", Q, self.r)
         self.R = V.covariance("R", R, m)
         self.R_constant, self.cross_noise, self.additive, self.noise_symbols = True, None, True, ()
+        self.additive_measurement, self.meas_noise_symbols, self.mv = True, (), m
         self.process_noise = as_law("process_noise", process_noise, self.Q)
         self.measurement_noise = as_law("measurement_noise", measurement_noise, self.R)
         for key, fn in (("f", f), ("h", h)):
@@ -808,6 +832,16 @@ class Model:
         z = np.concatenate([np.broadcast_to(x, (*lead, self.n)), np.broadcast_to(w, (*lead, self.r))], axis=-1)
         return self.f_aug(z, t)
 
+    def measurement(self, x, v, t=0.0) -> np.ndarray:
+        """``y`` from states ``(..., n)`` and measurement noises ``(..., mv)``: ``h(x) + v``, or
+        ``h(x, v)`` for non-additive measurement noise (``meas_noise=``; ``h_aug`` on ``(x, v)``)."""
+        if getattr(self, "additive_measurement", True):
+            return self.h(x, t) + v
+        x, v = np.asarray(x, dtype=float), np.asarray(v, dtype=float)
+        lead = np.broadcast_shapes(x.shape[:-1], v.shape[:-1])
+        z = np.concatenate([np.broadcast_to(x, (*lead, self.n)), np.broadcast_to(v, (*lead, self.mv))], axis=-1)
+        return self.h_aug(z, t)
+
     def Gw(self, x, w, t=0.0) -> np.ndarray:
         """``G(x) w`` for a batch of states ``(..., n)`` and noises ``(..., r)`` (matmul when G is constant)."""
         if self.G_constant and not self._per_path_G:
@@ -839,6 +873,7 @@ class DiscreteModel(Model):
     process_noise, measurement_noise : laws used to *simulate* w and v (Gaussian by default)
     cross_noise : ``(r, m)`` ``E[w_k v_kᵀ]``, correlated process and measurement noise (module docstring)
     noise : the process-noise symbols when they enter ``f`` non-additively (module docstring)
+    meas_noise : the measurement-noise symbols when they enter ``h`` non-additively
 
     ``R`` may depend on the states (``R_of``): the radar of filterpy's EKF test, whose range
     noise grows with the range:
@@ -869,10 +904,10 @@ class SDEModel(Model):
 
     def __init__(self, states, f, h, G=None, Q=None, R=None, *, params=None, inputs=None, time=None,
                  process_noise: NoiseLaw | None = None, measurement_noise: NoiseLaw | None = None,
-                 name: str = "", cross_noise=None, noise=None):
-        for nm, val in (("cross_noise", cross_noise), ("noise", noise)):
+                 name: str = "", cross_noise=None, noise=None, meas_noise=None):
+        for nm, val in (("cross_noise", cross_noise), ("noise", noise), ("meas_noise", meas_noise)):
             if val is not None:
-                raise ValueError(f"{nm}: correlated (cross_noise) or non-additive (noise) noise is supported for "
+                raise ValueError(f"{nm}: correlated (cross_noise) or non-additive (noise, meas_noise) noise is supported for "
                                  f"DiscreteModel only; an SDEModel is dx = f dt + G dβ, dy = h dt + dη with "
                                  f"independent β and η; expected None, got {val!r}")
         super().__init__(states, f, h, G, Q, R, params=params, inputs=inputs, time=time,

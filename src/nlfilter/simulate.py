@@ -122,7 +122,7 @@ def simulate(model, steps: int, *, paths: int | range = 1, rng=None, m0=None, P0
     (``steps`` pairs, one more with ``start="predict"``, in place of the process then
     measurement noises); ``w_j`` drives ``x[j+1]`` and ``v_j`` corrupts ``y_j`` (the filters'
     convention). Non-additive noise
-    (``noise=``): ``x[k+1] = f(x[k], w[k])``.
+    (``noise=``, ``meas_noise=``): ``x[k+1] = f(x[k], w[k])``, ``y[k] = h(x[k], v[k])``.
 
     Parameters or inputs given as arrays (:meth:`~nlfilter.models.Model.with_params`,
     :meth:`~nlfilter.models.Model.with_inputs`) are read at step ``k`` as a filter reads them
@@ -160,7 +160,8 @@ def simulate(model, steps: int, *, paths: int | range = 1, rng=None, m0=None, P0
             vk = v[:, k]
             if Rx:  # R(x_k) = L Lᵀ (R_of raises where it is not positive definite)
                 vk = np.einsum("...ij,...j->...i", np.linalg.cholesky(model.R_of(x, k + offset)), vk)
-            ys[:, k] = model.h(x, k + offset) + vk
+            ys[:, k] = (model.h(x, k + offset) + vk if getattr(model, "additive_measurement", True)
+                        else model.measurement(x, vk, k + offset))
         return Simulation(xs, ys, x_init, np.arange(steps) + offset)
     if model.kind != "sde":
         raise TypeError(f"model: expected a DiscreteModel or SDEModel, got {type(model).__name__}")

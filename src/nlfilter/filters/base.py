@@ -261,7 +261,8 @@ class Filter:
     smoother_keeps = False
     # the model structures beyond additive, uncorrelated noise with one constant R that the filter
     # handles (:attr:`~nlfilter.models.Model.structure`): "state-dependent R", "cross noise",
-    # "non-additive noise"; a model with another is refused at construction (check_structure)
+    # "non-additive noise", "non-additive measurement noise"; a model with another is refused at
+    # construction (check_structure)
     structures: tuple = ()
 
     @classmethod
@@ -497,11 +498,12 @@ def check_structure(flt, model) -> None:
     if missing:
         what = {"state-dependent R": "R: the model's measurement noise covariance depends on the state (R(x))",
                 "cross noise": "cross_noise: the model's process and measurement noises are correlated",
-                "non-additive noise": "noise: the model's process noise enters f non-additively"}
+                "non-additive noise": "noise: the model's process noise enters f non-additively",
+                "non-additive measurement noise": "meas_noise: the model's measurement noise enters h non-additively"}
         raise ValueError(f"{'; '.join(what[k] for k in missing)}; {type(flt).__name__} handles "
                          f"{list(flt.structures) or 'none of these'} (see each filter's structures attribute: "
-                         "the Gaussian filters take R(x) and cross noise, UKF(augmented=True) non-additive noise, "
-                         "GridFilter and ParticleFilter R(x))")
+                         "the Gaussian filters take R(x) and cross noise, the UKF non-additive noise (augmented "
+                         "sigma points), GridFilter and ParticleFilter R(x), ParticleFilter non-additive process noise)")
 
 
 class DiscreteFilter(Filter):

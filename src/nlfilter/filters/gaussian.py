@@ -14,7 +14,10 @@ with correlated R, singular S poisoned).
 A state-dependent measurement noise ``v_k ~ N(0, R(x_k))`` (``DiscreteModel(..., R=<expression in
 the states>)``) enters as ``R(m⁻)``, R at the predicted mean: ``S = Cov[h] + R(m⁻)`` (the EKF
 convention, as filterpy's radar example passes ``R=`` at each update; the exact term would be
-``E[R(x)]``, which the reference filters use implicitly). The log-likelihood output uses this S. A linearizing rule (Taylor-1) also hands its ``H = h_x(m)``
+``E[R(x)]``, which the reference filters use implicitly). The log-likelihood output uses this S.
+Correlated process and measurement noise (``cross_noise``, ``E[w_k v_kᵀ] = S``): the prediction
+from step k uses the decorrelated dynamics ``f(x) + G S R⁻¹ (y_k − h(x))`` and the noise
+``Q − S R⁻¹ Sᵀ`` (:class:`_CrossNoise`; the belief, a :class:`MeasuredState`, carries ``y_k``). A linearizing rule (Taylor-1) also hands its ``H = h_x(m)``
 to the update, which then uses the Joseph form ``(I − K H) P (I − K H)ᵀ + K R Kᵀ``.
 
 Continuous-discrete time (an :class:`~nlfilter.models.SDEModel` ``dx = f dt + G dβ`` measured at
