@@ -977,3 +977,47 @@ def test_smoother_ends_at_the_filter_and_keeps_paths_apart(case):
 def test_no_smoother_is_refused_naming_it(case):
     with pytest.raises(TypeError, match="smooth"):
         case.filter().smooth(case.data((2,), T, 1), **{**case.prior, **case.run_kw})
+
+
+# -- model structures (issue 12 item 4): handled, or refused naming them -------------------------
+def _structured(model):
+    """The model with each structure beyond additive uncorrelated noise with one R: R(x), cross
+    noise E[w vᵀ] = S, non-additive noise (f(x) + G (w ⊙ (1 + 0.1 x₁²)), written in w) and
+    non-additive measurement noise (h(x) + v ⊙ (1 + 0.1 x₁²), written in v)."""
+    st, f, h, G = model.states, model.sym["f"], model.sym["h"], model.sym["G"]
+    Q, R = model.Q, model.R
+    Rx = sp.Matrix(R.tolist()) + sp.diag(*([0.1 * st[0] ** 2] + [0] * (model.m - 1)))
+    k = min(model.r, model.m)
+    S = 0.3 * np.linalg.cholesky(Q)[:, :k] @ np.linalg.cholesky(R)[:, :k].T
+    ws = sp.symbols(f"w1:{model.r + 1}")
+    fw = f + G * sp.Matrix([w * (1 + 0.1 * st[0] ** 2) for w in ws])
+    vs = sp.symbols(f"v1:{model.m + 1}")
+    hv = h + sp.Matrix([v * (1 + 0.1 * st[0] ** 2) for v in vs])
+    return {"state-dependent R": DiscreteModel(st, f, h, G=G, Q=Q, R=Rx),
+            "cross noise": DiscreteModel(st, f, h, G=G, Q=Q, R=R, cross_noise=S),
+            "non-additive noise": DiscreteModel(st, fw, h, Q=Q, R=R, noise=list(ws)),
+            "non-additive measurement noise": DiscreteModel(st, f, hv, G=G, Q=Q, R=R, meas_noise=list(vs))}
+
+
+STRUCTURED = [c for c in CASES if "model" in inspect.signature(c.make).parameters
+              and getattr(inspect.signature(c.make).parameters["model"].default, "kind", None) == "discrete"]
+_ARG = {"state-dependent R": "R", "cross noise": "cross_noise", "non-additive noise": "noise",
+        "non-additive measurement noise": "meas_noise"}
+
+
+@pytest.mark.parametrize("case", STRUCTURED, ids=[c.name for c in STRUCTURED])
+def test_model_structures_are_handled_or_refused_naming_them(case):
+    """A filter either lists a model structure in its ``structures`` and runs on it (finite
+    estimates), or refuses the model at construction with a ValueError naming the argument."""
+    for what, model in _structured(inspect.signature(case.make).parameters["model"].default).items():
+        cls = type(case.filter())
+        if what not in cls.structures:
+            with pytest.raises(ValueError, match=f"^{_ARG[what]}: "):
+                case.make(model=model)
+            continue
+        flt = case.make(model=model)
+        ys = simulate(model, T, paths=3, rng=4, m0=case.prior["m0"], P0=case.prior["P0"]).ys
+        kw = {"on_divergence": "mark"} if case.name in LOSES_PSD else {}  # forms documented to lose PSD
+        est = flt.run(ys, **{**case.prior, **case.run_kw, **kw})
+        assert est.means.shape == (3, T, model.n) and np.isfinite(est.means[~est.diverged]).all()
+        assert kw or not est.diverged.any()

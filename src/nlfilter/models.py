@@ -30,7 +30,24 @@ with other values is :meth:`Model.with_params` (no code generated again; what a 
 or per path ``(B, T)`` (``B`` the filtered batch), read at entry ``k`` at step ``k`` (SDE models:
 piecewise constant on a grid ``dt``); control inputs (``inputs=[u]``) are such arrays, given by
 :meth:`Model.with_inputs` ``u (..., T, p)``. A time-varying ``Q`` is carried by ``G``
-(``G_k Q_k^{1/2}``, ``model.Q`` the identity); a time-varying ``R`` is not supported.
+(``G_k Q_k^{1/2}``, ``model.Q`` the identity); a ``R`` varying with parameter arrays is not
+supported.
+
+Structure beyond additive, uncorrelated noise with one constant R (:attr:`Model.structure`;
+each filter lists in ``structures`` what it handles and refuses the rest at construction):
+
+* ``R`` in the states (and the time symbol): ``v_k ~ N(0, R(x_k, k))``, evaluated by
+  :meth:`Model.R_of` (``R_constant`` False; ``model.R`` then raises, naming the filters that take
+  R(x)). Discrete models only.
+* ``cross_noise=S`` ``(r, m)``: ``E[w_k v_kᵀ] = S`` (w_k drives x_{k+1}, v_k corrupts y_k);
+  constant G and R, the joint covariance checked positive semi-definite.
+* ``noise=[w1, ..., wr]``: non-additive process noise, ``x[k+1] = f(x[k], w[k], k)`` with the
+  noise symbols in ``f`` (``G`` not given, ``Q`` their covariance); :meth:`Model.transition`
+  evaluates it (``f_aug`` on the augmented vector ``(x, w)``), ``model.f`` is ``f(x, 0)`` and
+  ``model.G`` is ``∂f/∂w`` at ``w = 0``.
+* ``meas_noise=[v1, ..., vp]``: non-additive measurement noise, ``y[k] = h(x[k], v[k], k)``
+  (``R`` the ``p x p`` covariance of v); :meth:`Model.measurement` evaluates it (``h_aug``),
+  ``model.h`` is ``h(x, 0)``.
 
 >>> import sympy as sp
 >>> x, u = sp.symbols("x u")
@@ -66,6 +83,12 @@ from . import _validate as V
 from .noise import Gaussian, NoiseLaw, as_law
 
 _DERIVS = ("f", "f_x", "f_xx", "h", "h_x", "h_xx", "G", "G_x", "G_xx")
+
+_STATE_R = ("model.R: this model's measurement noise covariance depends on the state (R(x)), so it has no "
+            "single matrix R; a filter that needs one (off-line gains, QLF/MQLF, moment filters, the Kalman "
+            "filter, continuous-time filters) cannot take it. Use a Gaussian filter (EKF, UKF, CKF, GHKF, "
+            "second-order: R at the predicted mean), GridFilter or ParticleFilter (R(x) exactly); "
+            "model.R_of(x, k) evaluates it")
 
 
 class FullPrecisionPrinter(NumPyPrinter):
@@ -267,7 +290,7 @@ def _vector(name, value, n=None) -> sp.Matrix:
 
 def _is_symbolic(value) -> bool:
     """Whether a Q or R argument holds SymPy expressions with free symbols."""
-    if isinstance(value, sp.Basic):
+    if isinstance(value, (sp.Basic, sp.MatrixBase)):
         return bool(value.free_symbols)
     if isinstance(value, (list, tuple)):
         return any(_is_symbolic(v) for v in value)
@@ -311,7 +334,7 @@ class Model:
 
     def __init__(self, states, f, h, G=None, Q=None, R=None, *, params=None, inputs=None, time=None,
                  process_noise: NoiseLaw | None = None, measurement_noise: NoiseLaw | None = None,
-                 name: str = ""):
+                 name: str = "", cross_noise=None, noise=None, meas_noise=None):
         if isinstance(states, sp.Symbol):
             states = [states]
         states = list(states)
@@ -346,37 +369,73 @@ class Model:
 
         fM = _vector("f", f, n)
         hM = _vector("h", h)
-        GM = sp.eye(n) if G is None else _matrix("G", G, n, None)
+        # non-additive noise: x[k+1] = f(x[k], w[k]), y[k] = h(x[k], v[k]) with the noise symbols in f, h
+        noise, meas_noise = (tuple([a] if isinstance(a, sp.Symbol) else (a or ())) for a in (noise, meas_noise))
+        for nm, syms, other in (("noise", noise, meas_noise), ("meas_noise", meas_noise, noise)):
+            if not syms:
+                continue
+            if not all(isinstance(w, sp.Symbol) for w in syms) or len(set(syms)) != len(syms):
+                raise TypeError(f"{nm}: expected a list of distinct SymPy symbols (the "
+                                f"{'process noise in f' if nm == 'noise' else 'measurement noise in h'}), got {list(syms)!r}")
+            used = set(syms) & (set(states) | set(self._psyms) | {time} | set(other))
+            if used:
+                raise ValueError(f"{nm}: symbol(s) {sorted(map(str, used))} are already states, the time, parameters, "
+                                 "inputs or the other noise")
+        if meas_noise:
+            h_aug = hM
+            hM = hM.subs({v: 0 for v in meas_noise})  # the nominal measurement h(x, 0)
+        if noise:
+            if G is not None:
+                raise ValueError("G: a model with non-additive noise (noise=[...]) states the noise in f; expected "
+                                 f"G=None, got {G!r}")
+            fw0 = fM.subs({w: 0 for w in noise})
+            GM = fM.jacobian(sp.Matrix(noise)).subs({w: 0 for w in noise})  # the noise gain at w = 0
+        else:
+            GM = sp.eye(n) if G is None else _matrix("G", G, n, None)
+        self.additive, self.additive_measurement = not noise, not meas_noise
+        self.noise_symbols, self.meas_noise_symbols = noise, meas_noise
         allowed = set(states) | ({time} if time is not None else set()) | set(self._psyms)
-        for nm, M in (("f", fM), ("h", hM), ("G", GM)):
-            extra = M.free_symbols - allowed
+        for nm, M in (("f", fM), ("h", h_aug if meas_noise else hM), ("G", GM)):
+            own = set(noise) if nm == "f" else set(meas_noise) if nm == "h" else set()
+            extra = M.free_symbols - allowed - own
             if extra:
                 raise ValueError(f"{nm}: uses symbol(s) {sorted(map(str, extra))} that are neither states "
-                                 f"{[str(s) for s in states]}, the time symbol, nor given in params or inputs")
+                                 f"{[str(s) for s in states]}, the time symbol, nor given in params or inputs"
+                                 + (" (nor noise)" if nm == "f" and noise else "")
+                                 + (" (nor meas_noise)" if nm == "h" and meas_noise else ""))
+        if noise:
+            f_aug = fM
+            fM = fw0
         self.n, self.m, self.r = n, hM.shape[0], GM.shape[1]
+        self.mv = len(meas_noise) if meas_noise else self.m  # the dimension of v (R is mv x mv)
         self._sym = {"f": fM, "h": hM, "G": GM}  # parameters as symbols; .sym substitutes them
         self._given_laws = (process_noise, measurement_noise)
         # Q and R: numbers, checked once as before, or SymPy matrices in the parameters
         self._QR = {}
-        for nm, val, dim in (("Q", Q, self.r), ("R", R, self.m)):
+        for nm, val, dim in (("Q", Q, self.r), ("R", R, self.mv)):
             if not _is_symbolic(val):
                 continue
             M = _matrix(nm, [[val]] if isinstance(val, sp.Basic) and not isinstance(val, sp.MatrixBase) else val,
                         dim, dim)
-            extra = M.free_symbols - set(self._psyms)
+            # R may depend on the state (and the time): R(x, k), evaluated by R_of
+            ok = set(self._psyms) | (set(states) | ({time} if time is not None else set()) if nm == "R" else set())
+            extra = M.free_symbols - ok
             if extra:
-                raise ValueError(f"{nm}: uses symbol(s) {sorted(map(str, extra))} that are not given in params")
+                raise ValueError(f"{nm}: uses symbol(s) {sorted(map(str, extra))} that are not given in params"
+                                 + (" (nor states or the time symbol)" if nm == "R" else ""))
             if self._given_laws[nm == "R"] is not None:
                 raise ValueError(f"{'process_noise' if nm == 'Q' else 'measurement_noise'}: a noise law cannot "
-                                 f"be given with a {nm} that depends on parameters; drop the law (Gaussian)")
-            self._QR[nm] = _Kernel(list(M), states, None, (dim, dim), self._psyms)
+                                 f"be given with a {nm} that depends on parameters or states; drop the law (Gaussian)")
+            if nm == "R" and any(sp.simplify(M[i, j] - M[j, i]) != 0 for i in range(dim) for j in range(i)):
+                raise ValueError(f"{nm}: expected a symmetric matrix, got {M.tolist()}")
+            self._QR[nm] = _Kernel(list(M), states, time if nm == "R" else None, (dim, dim), self._psyms)
         if "Q" not in self._QR:
             self._Q0 = V.covariance("Q", np.eye(self.r) if Q is None and process_noise is None
                                     else (process_noise.cov if Q is None else Q), self.r)
         if "R" not in self._QR:
             if R is None and measurement_noise is None:
                 raise ValueError("R: expected the measurement noise covariance (m x m), got None")
-            self._R0 = V.covariance("R", measurement_noise.cov if R is None else R, self.m)
+            self._R0 = V.covariance("R", measurement_noise.cov if R is None else R, self.mv)
             self._R_law = as_law("measurement_noise", measurement_noise, self._R0)
         if "Q" not in self._QR:
             self._Q_law = as_law("process_noise", process_noise, self._Q0)
@@ -403,14 +462,44 @@ class Model:
                  "G": (list(GM), (n, self.r)), "G_x": (flat(Gx), (n, self.r, n)),
                  "G_xx": (flat(Gxx), (n, self.r, n, n))}
         self._kernels = {key: _Kernel(exprs, states, time, shape, self._psyms) for key, (exprs, shape) in specs.items()}
+        if noise:  # f(x, w) on the augmented vector (x, w) (..., n + r)
+            self._kernels["f_aug"] = _Kernel(list(f_aug), states + list(noise), time, (n,), self._psyms)
+        if meas_noise:  # h(x, v) on (x, v) (..., n + mv)
+            self._kernels["h_aug"] = _Kernel(list(h_aug), states + list(meas_noise), time, (self.m,), self._psyms)
         self.given = set(_DERIVS)
         # structure flags (for every parameter value), read by filters that can exploit them
         self.G_constant = all(e.free_symbols.isdisjoint(states) for e in GM)
         self._G_fixed = all(e.free_symbols.isdisjoint(set(states) | {time}) for e in GM)
-        self.is_linear = self.G_constant and all(  # f and h affine in the state
+        self.is_linear = self.additive and self.additive_measurement and self.G_constant and all(  # f and h affine in the state
             e.is_polynomial(*states) and sp.Poly(e, *states).total_degree() <= 1 for e in list(fM) + list(hM))
-        self._timed = time is not None and any(M.has(time) for M in (fM, hM, GM))
+        self._timed = time is not None and any(M.has(time) for M in (fM, hM, GM) + ((f_aug,) if noise else ())
+                                               + ((h_aug,) if meas_noise else ()))
         self._uses = {k: set(self._kernels[k].params) for k in ("f", "h", "G")}
+        if noise:
+            self._uses["f"] |= set(self._kernels["f_aug"].params)
+        if meas_noise:
+            self._uses["h"] |= set(self._kernels["h_aug"].params)
+            if "R" in self._QR and self._QR["R"].varies:
+                raise ValueError("R: a state-dependent R with non-additive measurement noise (meas_noise=) is not "
+                                 "supported; state the dependence in h(x, v)")
+        self.cross_noise = None
+        if cross_noise is not None:  # E[w vᵀ] = S (r x m), Anderson & Moore 1979 §5.5
+            if noise or meas_noise:
+                raise ValueError("cross_noise: correlated noise with non-additive noise (noise=, meas_noise=) is not "
+                                 "supported")
+            if not self.G_constant:
+                raise ValueError("cross_noise: correlated process and measurement noise needs a G that does not "
+                                 "depend on the state")
+            if any(law is not None and not isinstance(law, Gaussian) for law in self._given_laws):
+                raise ValueError("cross_noise: correlated noise is drawn jointly Gaussian; expected no (or Gaussian) "
+                                 "process_noise and measurement_noise laws")
+            Sc = V.as_float_array("cross_noise", cross_noise, ndim=2)
+            if Sc.shape != (self.r, self.m):
+                raise ValueError(f"cross_noise: expected E[w vᵀ] of shape (r, m) = ({self.r}, {self.m}), got {Sc.shape}")
+            V.finite("cross_noise", Sc)
+            Sc = Sc.copy()
+            Sc.setflags(write=False)
+            self.cross_noise = Sc
         self._uses.update({k: set(kn.params) for k, kn in self._QR.items()})
         values = {p: _param_value(str(p), v) for p, v in params.items()}
         values.update({u: None for u in inputs})
@@ -427,15 +516,23 @@ class Model:
             setattr(self, key, _Batched(kn, values))
         tv = {k for k, used in self._uses.items() if used & (values.arrays | values.unset)}
         Qlaw, Rlaw = self._given_laws
+        self.R_constant = True
         if "R" in self._QR:
             if "R" in tv:
                 raise ValueError(f"R: depends on time-varying parameter(s) {sorted(map(str, self._uses['R'] & values.arrays))}; "
                                  "a time-varying R is not supported (filters read model.R as one matrix)")
-            self.R = self._covariance("R", self.m, values)
-            self.measurement_noise = Gaussian(self.R)
+            if self._QR["R"].varies:  # R(x, k): a function of the state (and time), R_of
+                self.R_constant = False
+                self._R, self._measurement_noise = None, None
+                self._R_fn = _Batched(self._QR["R"], values)
+            else:
+                self.R = self._covariance("R", self.mv, values)
+                self.measurement_noise = Gaussian(self.R)
         else:
             self.R, self.measurement_noise = self._R0, self._R_law
         self._fold = "Q" in tv
+        if self._fold and (self.cross_noise is not None or not self.additive):
+            raise ValueError("Q: a time-varying Q with correlated (cross_noise) or non-additive noise is not supported")
         if self._fold:  # Q_t = L_t L_tᵀ moved into G: the filters see Q = I and the same G Q Gᵀ
             per = max((values.values[p].ndim - 1 for p in self._uses["Q"] & values.per_path), default=0)
             Qfn = _Batched(self._QR["Q"], values)
@@ -448,6 +545,15 @@ class Model:
             self.process_noise = Gaussian(self.Q)
         else:
             self.Q, self.process_noise = self._Q0, self._Q_law
+        if self.cross_noise is not None:
+            if not self.R_constant:
+                raise ValueError("cross_noise: correlated noise with a state-dependent R is not supported")
+            J = np.block([[self.Q, self.cross_noise], [self.cross_noise.T, self.R]])
+            low = np.linalg.eigvalsh(J)[0]
+            if low < -1e-12 * max(1.0, np.abs(J).max()):
+                raise ValueError(f"cross_noise: the joint covariance [[Q, S], [Sᵀ, R]] of (w, v) is not positive "
+                                 f"semi-definite (smallest eigenvalue {low:.3g}); got S = {self.cross_noise.tolist()}")
+            self._joint_noise = Gaussian(J)
         self._per_path_G = bool(self._uses["G"] & values.per_path) or (self._fold and bool(self._uses["Q"] & values.per_path))
         fixed = self._G_fixed and "G" not in tv and not self._fold
         self._GQG0 = (_Broadcast(self.G(np.zeros(self.n)) @ self.Q @ self.G(np.zeros(self.n)).T)
@@ -455,6 +561,75 @@ class Model:
         # f, h, G (and Q) do not depend on the time: filters may compute time-fixed quantities once
         self.time_invariant = not self._timed and not tv
         self._sym_cache = None
+
+    @property
+    def structure(self) -> frozenset:
+        """What the model has beyond additive, uncorrelated noise with one constant R:
+        ``"state-dependent R"`` (:meth:`R_of`), ``"cross noise"`` (:attr:`cross_noise`),
+        ``"non-additive noise"``; a filter refuses a structure it does not handle (its
+        ``structures``, :func:`~nlfilter.filters.base.check_structure`)."""
+        out = set()
+        if not getattr(self, "R_constant", True):
+            out.add("state-dependent R")
+        if getattr(self, "cross_noise", None) is not None:
+            out.add("cross noise")
+        if not getattr(self, "additive", True):
+            out.add("non-additive noise")
+        if not getattr(self, "additive_measurement", True):
+            out.add("non-additive measurement noise")
+        return frozenset(out)
+
+    # -- the measurement noise covariance: one matrix, or R(x, k) --------------------------------
+    @property
+    def R(self) -> np.ndarray:
+        """The measurement noise covariance ``(m, m)`` when it is constant (``R_constant``); a model
+        whose R depends on the state has none: :meth:`R_of` evaluates it."""
+        if self._R is None:
+            raise ValueError(_STATE_R)
+        return self._R
+
+    @R.setter
+    def R(self, value):
+        self._R = value
+
+    @property
+    def measurement_noise(self) -> NoiseLaw:
+        """The law of ``v`` (for simulation and the reference filters' likelihood); a model with
+        a state-dependent R has the Gaussian ``N(0, R(x))`` at each state instead (:meth:`R_of`)."""
+        if self._measurement_noise is None:
+            raise ValueError(_STATE_R.replace("model.R", "model.measurement_noise", 1))
+        return self._measurement_noise
+
+    @measurement_noise.setter
+    def measurement_noise(self, value):
+        self._measurement_noise = value
+
+    def R_of(self, x, t=0.0) -> np.ndarray:
+        """``R(x, t) (..., m, m)`` at a batch of states ``x (..., n)`` (the constant ``R``
+        broadcast when ``R_constant``). A state-dependent R is checked at every call: where it is
+        not positive definite a ``ValueError`` names the first such state (never silent).
+
+        >>> import sympy as sp
+        >>> x = sp.Symbol("x")
+        >>> m = DiscreteModel([x], [x], [x], Q=1.0, R=[[0.1 + x**2]])
+        >>> m.R_constant, m.R_of(np.array([[1.0], [2.0]]), 0)[:, 0, 0].tolist()
+        (False, [1.1, 4.1])
+        """
+        x = np.asarray(x, dtype=float)
+        if self.R_constant:
+            return np.broadcast_to(self._R, (*x.shape[:-1], *self._R.shape))
+        R = self._R_fn(x, t)
+        if self.m == 1:
+            bad = ~(R[..., 0, 0] > 0)
+        else:
+            bad = ~np.all(np.linalg.eigvalsh(np.where(np.isfinite(R), R, 0.0)) > 0, axis=-1) | \
+                ~np.all(np.isfinite(R), axis=(-1, -2))
+        if bad.any():
+            idx = np.argwhere(bad)[0]
+            raise ValueError(f"R: the state-dependent measurement noise covariance is not positive definite at "
+                             f"state x = {x[tuple(idx)].tolist()} ({self.time_name} = {t!r}): R = "
+                             f"{R[tuple(idx)].tolist()}; expected R(x) positive definite wherever it is evaluated")
+        return R
 
     def _covariance(self, nm, dim, values):
         C = _Batched(self._QR[nm], values)(np.zeros(self.n))
@@ -477,6 +652,10 @@ class Model:
         (for the moment engine and the symbolic filters); ``None`` for a model from callables."""
         if self._sym is None:
             return None
+        if not (self.additive and self.additive_measurement):
+            raise ValueError("model.sym: the model's noise enters f or h non-additively (noise=, meas_noise=); "
+                             "symbolic methods (moment engine, quasilinear and conditional-moment filters) take "
+                             "x[k+1] = f(x) + G w, y = h(x) + v")
         if self._sym_cache is None:
             vals = self._values
             bad = set().union(*(M.free_symbols for M in self._sym.values())) & (vals.arrays | vals.unset)
@@ -590,6 +769,8 @@ class Model:
         self.r = Qa.shape[0] if r is None else r
         self.Q = V.covariance("Q", Q, self.r)
         self.R = V.covariance("R", R, m)
+        self.R_constant, self.cross_noise, self.additive, self.noise_symbols = True, None, True, ()
+        self.additive_measurement, self.meas_noise_symbols, self.mv = True, (), m
         self.process_noise = as_law("process_noise", process_noise, self.Q)
         self.measurement_noise = as_law("measurement_noise", measurement_noise, self.R)
         for key, fn in (("f", f), ("h", h)):
@@ -645,6 +826,27 @@ class Model:
             raise ValueError(f"model: {by} needs {', '.join(missing)}, which the model does not give; "
                              "state the model in SymPy or pass these callables to from_functions")
 
+    def transition(self, x, w, t=0.0) -> np.ndarray:
+        """``x[k+1]`` from states ``(..., n)`` and process noises ``(..., r)``: ``f(x) + G(x) w``, or
+        ``f(x, w)`` for a model with non-additive noise (``noise=``; evaluated as ``f_aug`` on the
+        augmented vector ``(x, w)``)."""
+        if getattr(self, "additive", True):
+            return self.f(x, t) + self.Gw(x, w, t)
+        x, w = np.asarray(x, dtype=float), np.asarray(w, dtype=float)
+        lead = np.broadcast_shapes(x.shape[:-1], w.shape[:-1])
+        z = np.concatenate([np.broadcast_to(x, (*lead, self.n)), np.broadcast_to(w, (*lead, self.r))], axis=-1)
+        return self.f_aug(z, t)
+
+    def measurement(self, x, v, t=0.0) -> np.ndarray:
+        """``y`` from states ``(..., n)`` and measurement noises ``(..., mv)``: ``h(x) + v``, or
+        ``h(x, v)`` for non-additive measurement noise (``meas_noise=``; ``h_aug`` on ``(x, v)``)."""
+        if getattr(self, "additive_measurement", True):
+            return self.h(x, t) + v
+        x, v = np.asarray(x, dtype=float), np.asarray(v, dtype=float)
+        lead = np.broadcast_shapes(x.shape[:-1], v.shape[:-1])
+        z = np.concatenate([np.broadcast_to(x, (*lead, self.n)), np.broadcast_to(v, (*lead, self.mv))], axis=-1)
+        return self.h_aug(z, t)
+
     def Gw(self, x, w, t=0.0) -> np.ndarray:
         """``G(x) w`` for a batch of states ``(..., n)`` and noises ``(..., r)`` (matmul when G is constant)."""
         if self.G_constant and not self._per_path_G:
@@ -674,6 +876,20 @@ class DiscreteModel(Model):
     inputs : control-input symbols, fed by :meth:`Model.with_inputs` an array ``u (..., T, p)``
     time : the step-index symbol, if f, h or G depend on it
     process_noise, measurement_noise : laws used to *simulate* w and v (Gaussian by default)
+    cross_noise : ``(r, m)`` ``E[w_k v_kᵀ]``, correlated process and measurement noise (module docstring)
+    noise : the process-noise symbols when they enter ``f`` non-additively (module docstring)
+    meas_noise : the measurement-noise symbols when they enter ``h`` non-additively
+
+    ``R`` may depend on the states (``R_of``): the radar of filterpy's EKF test, whose range
+    noise grows with the range:
+
+    >>> import sympy as sp
+    >>> px, v, alt = sp.symbols("px v alt")
+    >>> rng_ = sp.sqrt(px**2 + alt**2)
+    >>> radar = DiscreteModel([px, v, alt], [px + 0.05 * v, v, alt], [rng_], Q=np.diag([0, 1e-3, 1e-3]),
+    ...                       R=[[0.05 * rng_]])
+    >>> sorted(radar.structure), radar.R_of(np.array([300.0, 90.0, 400.0]), 0).tolist()
+    (['state-dependent R'], [[25.0]])
     """
 
     kind = "discrete"
@@ -693,9 +909,18 @@ class SDEModel(Model):
 
     def __init__(self, states, f, h, G=None, Q=None, R=None, *, params=None, inputs=None, time=None,
                  process_noise: NoiseLaw | None = None, measurement_noise: NoiseLaw | None = None,
-                 name: str = ""):
+                 name: str = "", cross_noise=None, noise=None, meas_noise=None):
+        for nm, val in (("cross_noise", cross_noise), ("noise", noise), ("meas_noise", meas_noise)):
+            if val is not None:
+                raise ValueError(f"{nm}: correlated (cross_noise) or non-additive (noise, meas_noise) noise is supported for "
+                                 f"DiscreteModel only; an SDEModel is dx = f dt + G dβ, dy = h dt + dη with "
+                                 f"independent β and η; expected None, got {val!r}")
         super().__init__(states, f, h, G, Q, R, params=params, inputs=inputs, time=time,
                          process_noise=process_noise, measurement_noise=measurement_noise, name=name)
+        if not self.R_constant:
+            raise ValueError("R: an SDEModel's measurement intensity (E dη dηᵀ = R dt) must not depend on the "
+                             "state: a state-dependent R(x) is supported for DiscreteModel only (a "
+                             "continuous-discrete model's discrete measurements: give them as a DiscreteModel)")
         for nm in ("process_noise", "measurement_noise"):
             if not isinstance(getattr(self, nm), Gaussian):
                 raise ValueError(f"{nm}: an SDEModel is driven by Brownian motion; expected None or "

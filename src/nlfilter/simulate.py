@@ -116,6 +116,14 @@ def simulate(model, steps: int, *, paths: int | range = 1, rng=None, m0=None, P0
     dt, substeps, t0 : SDE models only: measurement step, Euler–Maruyama steps per measurement
         step, initial time
 
+    A state-dependent measurement noise (``R_of``) draws ``v_k = L(x_k) z_k``, ``L Lᵀ = R(x_k)``
+    (Cholesky), ``z_k`` standard normal in the place of the measurement noise. Correlated noise
+    (``cross_noise``) draws ``(w_k, v_k)`` jointly, one ``N(0, [[Q, S], [Sᵀ, R]])`` vector per step
+    (``steps`` pairs, one more with ``start="predict"``, in place of the process then
+    measurement noises); ``w_j`` drives ``x[j+1]`` and ``v_j`` corrupts ``y_j`` (the filters'
+    convention). Non-additive noise
+    (``noise=``, ``meas_noise=``): ``x[k+1] = f(x[k], w[k])``, ``y[k] = h(x[k], v[k])``.
+
     Parameters or inputs given as arrays (:meth:`~nlfilter.models.Model.with_params`,
     :meth:`~nlfilter.models.Model.with_inputs`) are read at step ``k`` as a filter reads them
     (``x[k+1] = f(x[k], k) + ...`` uses entry ``k``); per-path arrays ``(P, T)`` give row ``p``
@@ -135,14 +143,25 @@ def simulate(model, steps: int, *, paths: int | range = 1, rng=None, m0=None, P0
         if dt is not None:
             raise ValueError(f"dt: a DiscreteModel has no time step; expected None, got {dt!r}")
         offset = 1 if V.choice("start", start, {"update", "predict"}) == "predict" else 0
-        w, v = rng.draw(lambda g, s: (model.process_noise.sample(g, s), model.measurement_noise.sample(g, s)),
-                        (steps,))
+        Rx = not getattr(model, "R_constant", True)  # v_k ~ N(0, R(x_k)): standard normals, scaled at the state
+        if getattr(model, "cross_noise", None) is not None:  # (w_j, v_j) jointly Gaussian, E[w_j v_jᵀ] = S
+            # pair j at model time j: v_j corrupts y_j, w_j drives x_{j+1}
+            wv = rng.draw(lambda g, s: model._joint_noise.sample(g, s), (steps + offset,))
+            w, v = wv[:, :steps, :model.r], wv[:, offset:, model.r:]  # w[:, k]: the noise into step k + offset
+            w = np.concatenate([np.full_like(w[:, :1], np.nan), w[:, :-1]], axis=1) if not offset else w
+        else:
+            vlaw = Gaussian(np.eye(m)) if Rx else model.measurement_noise
+            w, v = rng.draw(lambda g, s: (model.process_noise.sample(g, s), vlaw.sample(g, s)), (steps,))
         for k in range(steps):
             if k > 0 or offset:
                 j = k + offset - 1
-                x = model.f(x, j) + model.Gw(x, w[:, k], j)
+                x = model.transition(x, w[:, k], j)
             xs[:, k] = x
-            ys[:, k] = model.h(x, k + offset) + v[:, k]
+            vk = v[:, k]
+            if Rx:  # R(x_k) = L Lᵀ (R_of raises where it is not positive definite)
+                vk = np.einsum("...ij,...j->...i", np.linalg.cholesky(model.R_of(x, k + offset)), vk)
+            ys[:, k] = (model.h(x, k + offset) + vk if getattr(model, "additive_measurement", True)
+                        else model.measurement(x, vk, k + offset))
         return Simulation(xs, ys, x_init, np.arange(steps) + offset)
     if model.kind != "sde":
         raise TypeError(f"model: expected a DiscreteModel or SDEModel, got {type(model).__name__}")

@@ -157,6 +157,9 @@ def _first_rung(model, sim, m0, P0, dt, post_sd, widen=1.0):
     n = model.n
     if n > 2:
         return _Rung("particle", PARTICLES), "n > 2: particles"
+    beyond = sorted(set(getattr(model, "structure", ())) - set(GridFilter.structures))
+    if beyond:  # e.g. non-additive noise: the grid has no transition density for it
+        return _Rung("particle", PARTICLES), f"the grid filter does not take {', '.join(beyond)}: particles"
     if n == 2 and model.kind == "sde":
         g = model.GQGT(sim.xs.reshape(-1, n)[:1000])
         if np.any(np.abs(g[..., 0, 1]) > 1e-12 * (np.abs(g[..., 0, 0]) + np.abs(g[..., 1, 1]) + 1e-300)):

@@ -259,6 +259,11 @@ class Filter:
     # backward pass needs the forward beliefs of every step (not only their summaries)
     smoother = None
     smoother_keeps = False
+    # the model structures beyond additive, uncorrelated noise with one constant R that the filter
+    # handles (:attr:`~nlfilter.models.Model.structure`): "state-dependent R", "cross noise",
+    # "non-additive noise", "non-additive measurement noise"; a model with another is refused at
+    # construction (check_structure)
+    structures: tuple = ()
 
     @classmethod
     def for_model(cls, model, *, dt: float | None = None, start: str = "update"):
@@ -486,6 +491,23 @@ class Filter:
                          MappingProxyType(extras))
 
 
+def check_structure(flt, model) -> None:
+    """Refuse, naming it, a model structure (:attr:`~nlfilter.models.Model.structure`: a
+    state-dependent R, correlated process and measurement noise, non-additive noise) that the
+    filter ``flt`` does not handle (its ``structures``): a filter never ignores one silently."""
+    has = getattr(model, "structure", frozenset())
+    missing = sorted(set(has) - set(flt.structures))
+    if missing:
+        what = {"state-dependent R": "R: the model's measurement noise covariance depends on the state (R(x))",
+                "cross noise": "cross_noise: the model's process and measurement noises are correlated",
+                "non-additive noise": "noise: the model's process noise enters f non-additively",
+                "non-additive measurement noise": "meas_noise: the model's measurement noise enters h non-additively"}
+        raise ValueError(f"{'; '.join(what[k] for k in missing)}; {type(flt).__name__} handles "
+                         f"{list(flt.structures) or 'none of these'} (see each filter's structures attribute: "
+                         "the Gaussian filters take R(x) and cross noise, the UKF non-additive noise (augmented "
+                         "sigma points), GridFilter and ParticleFilter R(x), ParticleFilter non-additive process noise)")
+
+
 class DiscreteFilter(Filter):
     """Base of discrete-time filters on a :class:`~nlfilter.models.DiscreteModel`: subclasses give
     ``predict(state, k)`` and ``update(state, y, k)`` over a :class:`GaussianState`."""
@@ -495,6 +517,7 @@ class DiscreteFilter(Filter):
     def __init__(self, model, *, start: str = "update"):
         if getattr(model, "kind", None) != "discrete":
             raise TypeError(f"model: {type(self).__name__} expects a DiscreteModel, got {type(model).__name__}")
+        check_structure(self, model)
         self.model = model
         self.start = V.choice("start", start, {"update", "predict"})
 

@@ -9,7 +9,15 @@ The EKF, UKF, cubature (CKF) and Gauss–Hermite (GHKF) Kalman filters differ on
               m⁺ = m⁻ + K (y − ŷ),  P⁺ = P⁻ − K S Kᵀ
 
 (:func:`~nlfilter.filters.base.gaussian_update`: missing components, partly missing measurements
-with correlated R, singular S poisoned). A linearizing rule (Taylor-1) also hands its ``H = h_x(m)``
+with correlated R, singular S poisoned).
+
+A state-dependent measurement noise ``v_k ~ N(0, R(x_k))`` (``DiscreteModel(..., R=<expression in
+the states>)``) enters as ``R(m⁻)``, R at the predicted mean: ``S = Cov[h] + R(m⁻)`` (the EKF
+convention, as filterpy's radar example passes ``R=`` at each update; the exact term would be
+``E[R(x)]``, which the reference filters use implicitly). The log-likelihood output uses this S.
+Correlated process and measurement noise (``cross_noise``, ``E[w_k v_kᵀ] = S``): the prediction
+from step k uses the decorrelated dynamics ``f(x) + G S R⁻¹ (y_k − h(x))`` and the noise
+``Q − S R⁻¹ Sᵀ`` (:class:`_CrossNoise`; the belief, a :class:`MeasuredState`, carries ``y_k``). A linearizing rule (Taylor-1) also hands its ``H = h_x(m)``
 to the update, which then uses the Joseph form ``(I − K H) P (I − K H)ᵀ + K R Kᵀ``.
 
 Continuous-discrete time (an :class:`~nlfilter.models.SDEModel` ``dx = f dt + G dβ`` measured at
@@ -37,18 +45,101 @@ maximization of the posterior density in place of the single Taylor-1 update.
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import numpy as np
 
 from .. import _validate as V
 from .base import ContinuousFilter, DiscreteFilter, GaussianState, ode_step
 from .rules import hessian_trace
 from .smoothing import _solve_right, continuous_rts, rts
-from .linalg import gaussian_update, innovation_info, mm, observed_precision, poison, symmetrize
+from .linalg import decorrelation, gaussian_update, innovation_info, mm, observed_precision, poison, symmetrize
 
-__all__ = ["GaussianFilter", "ContinuousDiscreteGaussianFilter", "ContinuousGaussianFilter", "iterated_update"]
+__all__ = ["GaussianFilter", "ContinuousDiscreteGaussianFilter", "ContinuousGaussianFilter", "iterated_update",
+           "MeasuredState"]
 
 
-class GaussianFilter(DiscreteFilter):
+class MeasuredState(NamedTuple):
+    """A Gaussian belief with the measurement ``y (..., m)`` it was last conditioned on (NaN:
+    none, as after a prediction): the belief of the filters on a model with correlated process
+    and measurement noise (``cross_noise``), whose prediction from step k needs ``y_k``."""
+
+    mean: np.ndarray
+    cov: np.ndarray
+    y: np.ndarray
+
+
+class _CrossNoise:
+    """Correlated noise ``E[w_k v_kᵀ] = S`` (``model.cross_noise``) for a discrete Gaussian filter,
+    the standard decorrelation (Anderson & Moore 1979, §5.5; Simon 2006, §7.1): with ``y_k``
+    measuring ``x_k`` and ``w_k`` driving ``x_{k+1}``, write ``w_k = K_w v_k + w̃_k``,
+    ``K_w = S R⁻¹``, ``w̃_k ⊥ v_k``::
+
+        x_{k+1} = f(x_k) + G K_w (y_k − h(x_k)) + G w̃_k,    Cov[w̃] = Q − S R⁻¹ Sᵀ
+
+    a model without correlation whose dynamics depend on ``y_k``: the prediction from the
+    filtered belief of step k takes the moments of ``f̃(x) = f(x) + G K_w (y_k − h(x))`` (its
+    Jacobian ``f_x − G K_w h_x``, Hessian ``f_xx − G K_w h_xx``) by the filter's rule, and the noise
+    ``E[G Q Gᵀ] − G K_w Sᵀ Gᵀ`` (G does not depend on the state). The belief carries ``y_k``
+    (:class:`MeasuredState`, frozen: the update returns it, the prediction reads it); with
+    components of ``y_k`` missing only the observed ones decorrelate (``S_o R_oo⁻¹``), with none
+    (the first prediction of ``start="predict"``, a step missing on a path, a plain
+    :class:`GaussianState`) the prediction is the uncorrelated one."""
+
+    def _set_cross(self):
+        self._cross = getattr(self.model, "cross_noise", None)
+        if self._cross is not None:
+            self._Rinv_c = np.linalg.inv(self.model.R)
+
+    def init(self, m0, P0, batch, *, initial=None, rng=None):
+        s = super().init(m0, P0, batch, initial=initial, rng=rng)
+        if self._cross is None:
+            return s
+        return MeasuredState(s.mean, s.cov, np.full((*s.mean.shape[:-1], self.model.m), np.nan))
+
+    def _carry(self, new, y):
+        """The updated belief, with the measurement it saw when the noise is correlated."""
+        if self._cross is None:
+            return new
+        return MeasuredState(new.mean, new.cov, np.broadcast_to(y, new.mean.shape[:-1] + y.shape[-1:]))
+
+    def _predicted(self, new):
+        return new if self._cross is None else MeasuredState(
+            new.mean, new.cov, np.full((*new.mean.shape[:-1], self.model.m), np.nan))
+
+    def _decorrelation(self, state, k):
+        """``(D = G K_w, e, G K_w Sᵀ Gᵀ)``: the gain of ``y_k − h``, the observed ``y_k`` (0 where
+        missing), the noise covariance removed; ``None`` without a measurement."""
+        y = getattr(state, "y", None)
+        if y is None:
+            return None
+        md = self.model
+        obs = ~np.isnan(y)
+        Kw, KS = decorrelation(self._cross, md.R, self._Rinv_c, obs)
+        G = md.G(np.zeros(md.n), k)
+        return G @ Kw, np.where(obs, y, 0.0), G @ KS @ G.T
+
+    def _smooth_predict(self, ys, offset):
+        """The smoother's prediction from step ``j`` (model index) with that step's measurement."""
+        if self._cross is None:
+            return self._predict_cross
+        return lambda st, j: self._predict_cross(MeasuredState(st.mean, st.cov, ys[:, j - offset]), j)
+
+
+def as_belief(state):
+    """A Gaussian belief from a ``(mean, cov)`` pair (a :class:`MeasuredState` as it is)."""
+    return state if isinstance(state, MeasuredState) else GaussianState(*state)
+
+
+def _lift(A, nb, X, tail):
+    """``A (*batch, *tail)`` viewed against ``X (*batch, *nodes, n)`` (nodes of a rule); a shared
+    ``A (*tail)`` as is."""
+    if A.ndim == tail:
+        return A
+    return A.reshape(A.shape[:nb] + (1,) * (X.ndim - 1 - nb) + A.shape[nb:])
+
+
+class GaussianFilter(_CrossNoise, DiscreteFilter):
     """Discrete-time Gaussian filter over a moment ``rule`` (see the module docstring).
 
     Parameters
@@ -74,6 +165,7 @@ class GaussianFilter(DiscreteFilter):
     family = "gaussian"
     source = "Ito & Xiong 2000 (Gaussian filters); Särkkä 2013, Bayesian Filtering and Smoothing, ch. 6"
     accepts = ("discrete",)
+    structures = ("state-dependent R", "cross noise")
     needs: tuple = ()
     time = "discrete"
 
@@ -90,6 +182,7 @@ class GaussianFilter(DiscreteFilter):
             check(self.model.n)
         self.rule = rule
         self.model.require("f", "h", "G", *rule.needs(self.model), by=by or type(self).__name__)
+        self._set_cross()
 
     def _time(self, k):
         return k
@@ -99,15 +192,33 @@ class GaussianFilter(DiscreteFilter):
         symmetrized for a rule that asks), poisoned where the rule's nodes failed; with ``cross``
         also ``Cov[x_k, f(x_k)]`` (the smoother's cross-covariance)."""
         md = self.model
-        mo = self.rule.moments(state, md.f, self._time(k), jac=md.f_x, hess=md.f_xx, cross=cross, noise_of=md,
+        f, f_x, f_xx, sub = md.f, md.f_x, md.f_xx, None
+        if self._cross is not None:  # correlated noise: the decorrelated dynamics f̃ (_CrossNoise)
+            dec = self._decorrelation(state, k)
+            state = GaussianState(state.mean, state.cov)
+            if dec is not None:
+                D, e, sub = dec
+                nb = e.ndim - 1
+
+                def f(X, t):
+                    return md.f(X, t) + np.einsum("...ij,...j->...i", _lift(D, nb, X, 2), _lift(e, nb, X, 1) - md.h(X, t))
+
+                def f_x(X, t):
+                    return md.f_x(X, t) - _lift(D, nb, X, 2) @ md.h_x(X, t)
+
+                def f_xx(X, t):
+                    return md.f_xx(X, t) - np.einsum("...ij,...jkl->...ikl", _lift(D, nb, X, 2), md.h_xx(X, t))
+        mo = self.rule.moments(state, f, self._time(k), jac=f_x, hess=f_xx, cross=cross, noise_of=md,
                                role="dynamics")
         P = mo.cov + mo.noise  # P⁻ = Cov[f] + E[G Q Gᵀ]
+        if sub is not None:  # Cov[w̃] = Q − S R⁻¹ Sᵀ
+            P = P - sub
         if mo.quartic is not None:
             P = P + mo.quartic
         if getattr(self.rule, "symmetrize", False):
             P = symmetrize(P)
         new = GaussianState(mo.mean, P)
-        new = new if mo.bad is None else poison(new, mo.bad)
+        new = self._predicted(new if mo.bad is None else poison(new, mo.bad))
         return (new, mo.cross) if cross else new
 
     smoother = "rts"
@@ -117,7 +228,8 @@ class GaussianFilter(DiscreteFilter):
 
     def _smooth(self, est, beliefs, ys, t0):
         """The RTS backward pass through the rule (:func:`~nlfilter.filters.smoothing.rts`)."""
-        ms, Ps, lag = rts(est.means, est.covs, self._predict_cross, 0 if self.start == "update" else 1)
+        off = 0 if self.start == "update" else 1
+        ms, Ps, lag = rts(est.means, est.covs, self._smooth_predict(ys, off), off)
         return ms, Ps, {"lag_one_cov": lag}
 
     def predict(self, state, k):
@@ -132,7 +244,8 @@ class GaussianFilter(DiscreteFilter):
         tensor adds ``Σ_k M_k [S⁻¹(y − ŷ)]_k`` to the covariance (the discrete C tensor of seed 004
         eq. 17, see :mod:`nlfilter.filters.second_order`)."""
         md = self.model
-        R = md.R if R is None else R
+        if R is None:  # a state-dependent R(x) at the predicted mean (the EKF convention)
+            R = md.R if getattr(md, "R_constant", True) else md.R_of(state.mean, t)
         mo = self.rule.moments(state, md.h, t, jac=md.h_x, hess=md.h_xx, role="measurement")
         S = mo.cov + R
         if mo.quartic is not None:
@@ -156,16 +269,18 @@ class GaussianFilter(DiscreteFilter):
         return (new, bad, (mo.mean, S)) if info else (new, bad)
 
     def update(self, state, y, k):
+        if self._cross is not None:
+            state = GaussianState(state.mean, state.cov)
         new, bad = self._update(state, y, self._time(k))
-        return new if bad is None else poison(new, bad)
+        return self._carry(new if bad is None else poison(new, bad), y)
 
     likelihood = "prediction-error"
 
     def _update_info(self, state, y, k):
         """``run(..., loglik=True)``: the update with the step's log N(y; ŷ, S) and innovation
         (:func:`~nlfilter.filters.linalg.innovation_info`; S with the rule's fourth-moment term)."""
-        new, bad, (yhat, S) = self._update(GaussianState(*state), y, self._time(k), info=True)
-        return (new if bad is None else poison(new, bad)), bad, innovation_info(y, yhat, S)
+        new, bad, (yhat, S) = self._update(GaussianState(state[0], state[1]), y, self._time(k), info=True)
+        return self._carry(new if bad is None else poison(new, bad), y), bad, innovation_info(y, yhat, S)
 
 
 def _pd_mask(S):
@@ -391,7 +506,7 @@ def iterated_update(model, state, y, t, iterations: int, tol: float) -> Gaussian
     """
     md = model
     m, P = state
-    R = md.R
+    R = md.R if getattr(md, "R_constant", True) else md.R_of(m, t)  # R(x) at the predicted mean, as the first update
 
     def linear_update(x, first):
         H = md.h_x(x, t)
@@ -422,11 +537,12 @@ class _Iterated:
         self.tol = float(V.positive("tol", tol, strict=False))
 
     def update(self, state, y, k):
-        return iterated_update(self.model, GaussianState(*state), y, self._time(k), self.iterations, self.tol)
+        new = iterated_update(self.model, GaussianState(state[0], state[1]), y, self._time(k), self.iterations, self.tol)
+        return self._carry(new, y)
 
     def _update_info(self, state, y, k):
         """The iterated update, with the likelihood of the first (EKF) linearization at the
         predicted mean: the predictive law of y is not changed by iterating the posterior mode."""
-        state = GaussianState(*state)
+        state = GaussianState(state[0], state[1])
         _, _, (yhat, S) = GaussianFilter._update(self, state, y, self._time(k), info=True)
         return self.update(state, y, k), None, innovation_info(y, yhat, S)

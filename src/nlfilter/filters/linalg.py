@@ -170,6 +170,15 @@ def observed_precision(R: np.ndarray, Rinv: np.ndarray, obs: np.ndarray) -> np.n
     return np.where(both, np.linalg.inv(np.where(both, R, np.eye(R.shape[-1]))), 0.0)
 
 
+def decorrelation(S: np.ndarray, R: np.ndarray, Rinv: np.ndarray, obs: np.ndarray):
+    """``(K_w, K_w Sᵀ)`` for correlated noise ``E[w vᵀ] = S (r, m)`` measured on the components
+    ``obs (..., m)``: ``K_w = S_o R_oo⁻¹`` ``(r, m)`` or ``(..., r, m)`` (zero columns where a
+    component is missing), so that ``E[w | v_o] = K_w v`` and ``Cov[w | v_o] = Q − K_w Sᵀ``
+    (Anderson & Moore 1979, §5.5; Simon 2006, §7.1; nothing observed: ``K_w = 0``)."""
+    Kw = S @ observed_precision(R, Rinv, obs)
+    return Kw, Kw @ S.T
+
+
 def measurement_loglik(law, resid, obs=None):
     """log p_v(resid) ``(..., N)`` for residuals ``(..., N, m)`` under the noise law ``law``;
     ``obs (..., m)`` marks the observed components of each path: a partly missing measurement has
@@ -189,6 +198,36 @@ def measurement_loglik(law, resid, obs=None):
 
 
 LOG_2PI = math.log(2 * math.pi)
+
+
+def gaussian_loglik(resid: np.ndarray, R: np.ndarray, obs: np.ndarray | None = None) -> np.ndarray:
+    """``log N(resid; 0, R)`` ``(...)`` for residuals ``resid (..., m)`` and covariances
+    ``R (..., m, m)`` that differ from point to point (a state-dependent R(x) at each grid point
+    or particle; broadcast against ``resid``); ``obs`` (broadcastable to ``resid``) marks the
+    observed components: the density of their marginal (R's observed block), 0 where none is.
+    R must be positive definite (:meth:`~nlfilter.models.Model.R_of` checks it).
+
+    >>> R = np.array([[[2.0, 0.5], [0.5, 1.0]]])
+    >>> ll = gaussian_loglik(np.array([[1.0, 3.0]]), R, np.array([True, False]))
+    >>> bool(np.isclose(ll[0], -0.5 * (1 / 2 + np.log(2 * np.pi * 2)), rtol=0, atol=1e-14))
+    True
+    """
+    m = resid.shape[-1]
+    if obs is not None and not np.all(obs):
+        obs = np.broadcast_to(obs, np.broadcast_shapes(np.shape(obs), resid.shape))
+        both = obs[..., :, None] & obs[..., None, :]
+        R = np.where(both, R, np.eye(m))  # the observed block, the identity elsewhere
+        resid = np.where(obs, resid, 0.0)
+        k = obs.sum(axis=-1)
+    else:
+        k = m
+    if m == 1:
+        r = R[..., 0, 0]
+        return -0.5 * (resid[..., 0] ** 2 / r + np.log(r) + k * LOG_2PI)
+    R, resid = np.broadcast_arrays(R, resid[..., None])
+    _, logdet = np.linalg.slogdet(R)
+    quad = np.einsum("...i,...i->...", resid[..., 0], np.linalg.solve(R, resid)[..., 0])
+    return -0.5 * (quad + logdet + k * LOG_2PI)
 
 
 def innovation_info(y: np.ndarray, y_pred: np.ndarray, S: np.ndarray, *, scale: float = 1.0) -> dict:

@@ -69,7 +69,7 @@ import numpy as np
 from .. import _validate as V
 from ..errors import DivergenceError
 from .base import ContinuousFilter, DiscreteFilter, GaussianState
-from .gaussian import ContinuousDiscreteGaussianFilter, ContinuousGaussianFilter, GaussianFilter
+from .gaussian import ContinuousDiscreteGaussianFilter, ContinuousGaussianFilter, GaussianFilter, as_belief
 from .linalg import bad_paths
 from .rules import FORMS, Taylor2, gaussian_quartic, hessian_trace, noise_covariance, quarter_outer
 
@@ -106,17 +106,19 @@ class _DiscreteFamily(_Family):
     ``run`` uses the unchecked forms and marks."""
 
     def predict(self, state, k):
-        return self._checked(self._predict(GaussianState(*state), k), False, "predicted covariance", k)
+        return self._checked(self._predict(as_belief(state), k), False, "predicted covariance", k)
 
     def update(self, state, y, k):
-        new, bad = self._update(GaussianState(*state), np.asarray(y, dtype=float), self._time(k))
-        return self._checked(new, bad, "updated (or innovation) covariance", k)
+        y = np.asarray(y, dtype=float)
+        new, bad = self._update(GaussianState(state[0], state[1]), y, self._time(k))
+        return self._carry(self._checked(new, bad, "updated (or innovation) covariance", k), y)
 
     def _predict_unchecked(self, state, k):
-        return self._predict(GaussianState(*state), k), None
+        return self._predict(as_belief(state), k), None
 
     def _update_unchecked(self, state, y, k):
-        return self._update(GaussianState(*state), y, self._time(k))
+        new, bad = self._update(GaussianState(state[0], state[1]), y, self._time(k))
+        return self._carry(new, y), bad
 
 
 class SecondOrderFilter(_DiscreteFamily, GaussianFilter):

@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 
 from ... import _validate as V
-from ..base import Filter
+from ..base import Filter, check_structure
 
 
 def _check_time_step(flt, model, dt, who):
@@ -21,7 +21,7 @@ def _check_time_step(flt, model, dt, who):
         flt.time = "continuous"
     elif dt is not None:
         raise ValueError(f"dt: a DiscreteModel has no time step; expected None, got {dt!r}")
-    elif not model.measurement_noise.has_density:
+    elif getattr(model, "R_constant", True) and not model.measurement_noise.has_density:
         raise ValueError(f"measurement_noise: the {who} needs a law with a density (logpdf)")
     else:
         flt.time = "discrete"
@@ -37,6 +37,7 @@ class _ReferenceFilter(Filter):
     screen_predict = False  # a density or particle cloud pushed forward: a failure shows after the update
 
     def _setup(self, model, dt, start, who):
+        check_structure(self, model)
         self.model = model
         self.start = V.choice("start", start, {"update", "predict"})
         _check_time_step(self, model, dt, who)

@@ -15,7 +15,7 @@ from scipy import sparse
 from ... import _validate as V
 from ...noise import Gaussian
 from ..base import gaussian_prior
-from ..linalg import innovation_info, measurement_loglik, no_information, observed_precision
+from ..linalg import gaussian_loglik, innovation_info, measurement_loglik, no_information, observed_precision
 from ._common import _ReferenceFilter
 
 
@@ -73,6 +73,7 @@ class GridFilter(_ReferenceFilter):
     source = ("point-mass filter (Bucy & Senne); SDEs: Kushner's Markov-chain approximation of the "
               "Fokker–Planck operator and the Kallianpur–Striebel likelihood")
     needs = ("n ≤ 2", "noise density")
+    structures = ("state-dependent R",)
 
     def __init__(self, model, bounds, size=401, *, dt: float | None = None, start: str = "update"):
         if model.n > 2:
@@ -246,9 +247,14 @@ class GridFilter(_ReferenceFilter):
         if not obs.any():
             return (p, None, no_information(*y.shape)) if info else (p, None)
         hX = md.h(X, k)  # (N, m)
+        RX = None
         if md.kind == "discrete":
             resid = np.where(obs[..., None, :], y[..., None, :] - hX, 0.0)
-            ll = measurement_loglik(md.measurement_noise, resid, obs)
+            if md.R_constant:
+                ll = measurement_loglik(md.measurement_noise, resid, obs)
+            else:  # v ~ N(0, R(x)) exactly at each point (observed components: their marginal)
+                RX = md.R_of(X, k)  # (N, m, m)
+                ll = gaussian_loglik(resid, RX, obs[..., None, :])
         else:
             Rinv = observed_precision(md.R, self._Rinv, obs)  # partly missing: the observed marginal
             yo = np.where(obs, y, 0.0)
@@ -270,7 +276,8 @@ class GridFilter(_ReferenceFilter):
             ll = ll + innovation_info(y, np.zeros_like(y), md.R * self.dt)["loglik"]
         scale = 1.0 if md.kind == "discrete" else self.dt
         Eh, Ch = _moments(p, hX)  # predictive moments of h
-        S = Ch * scale + md.R  # dy/dt: Cov[h] + R/dt, times dt² below
+        # dy/dt: Cov[h] + R/dt, times dt² below; a state-dependent R: Cov[h] + E[R(x)]
+        S = Ch * scale + (md.R if RX is None else np.einsum("...k,kij->...ij", p, RX) / p.sum(axis=-1)[..., None, None])
         ll = np.where(dead, -np.inf, np.where(obs.any(axis=-1), ll, 0.0))  # nothing measured: exactly 0
         res = innovation_info(y / scale, Eh, S / scale, scale=scale)
         res["loglik"] = ll

@@ -14,7 +14,7 @@ import numpy as np
 
 from ... import _validate as V
 from ...streams import FILTER, PathRNG
-from ..linalg import innovation_info, measurement_loglik, no_information, observed_precision
+from ..linalg import gaussian_loglik, innovation_info, measurement_loglik, no_information, observed_precision
 from ._common import _ReferenceFilter
 
 
@@ -85,6 +85,7 @@ class ParticleFilter(_ReferenceFilter):
     source = "bootstrap particle filter (Gordon, Salmond & Smith 1993), systematic resampling"
     needs = ("noise density",)
     random = True
+    structures = ("state-dependent R", "non-additive noise")
 
     def __init__(self, model, particles: int = 2000, *, dt: float | None = None, substeps: int = 5,
                  threshold: float = 0.5, start: str = "update"):
@@ -201,8 +202,8 @@ class ParticleFilter(_ReferenceFilter):
         Eh = np.einsum("bp,bpi->bi", w, hx)
         d = hx - Eh[:, None, :]
         Ch = np.einsum("bp,bpi,bpj->bij", w, d, d)
-        if md.kind == "discrete":
-            res = innovation_info(y, Eh, Ch + md.R)
+        if md.kind == "discrete":  # Cov[y] = Cov[h] + E[R(x)]
+            res = innovation_info(y, Eh, Ch + (md.R if md.R_constant else np.einsum("bp,bpij->bij", w, md.R_of(x, k))))
         else:  # the Kallianpur–Striebel ratio times the density of dy under pure noise N(0, R dt)
             lev = lev + innovation_info(y, np.zeros_like(y), md.R * self.dt)["loglik"]
             res = innovation_info(y / self.dt, Eh, Ch + md.R / self.dt, scale=self.dt)
@@ -229,7 +230,7 @@ class ParticleFilter(_ReferenceFilter):
         md = self.model
         if md.kind == "discrete":
             w = rng.sample(md.process_noise, x.shape[1:-1])
-            return md.f(x, t) + md.Gw(x, w, t)
+            return md.transition(x, w, t)  # f(x) + G(x) w, or f(x, w) for non-additive noise
         h = self.dt / self.substeps
         L = md.process_noise._sqrt
         for j in range(self.substeps):
@@ -243,6 +244,8 @@ class ParticleFilter(_ReferenceFilter):
         obs = ~np.isnan(y)
         if md.kind == "discrete":
             resid = np.where(obs[..., None, :], y[..., None, :] - md.h(x, k), 0.0)
+            if not md.R_constant:  # v ~ N(0, R(x)) exactly at each particle
+                return gaussian_loglik(resid, md.R_of(x, k), obs[..., None, :])
             return measurement_loglik(md.measurement_noise, resid, obs)
         hx = md.h(x, k)
         Rinv = observed_precision(md.R, self._Rinv, obs)  # partly missing: the observed marginal
