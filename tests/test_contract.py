@@ -31,7 +31,7 @@ from nlfilter.filters import (CKF, REGISTRY, EKF, FORMS, GHKF, MQLF, PLL, QLF, U
                               TensorFilter, ZeroOrderMomentFilter)
 from nlfilter.filters import (ContinuousDiscreteCKF, ContinuousDiscreteEKF, ContinuousDiscreteGaussianFilter,
                               ContinuousDiscreteGHKF, ContinuousDiscreteIEKF, ContinuousDiscreteUKF, GaussianFilter,
-                              IteratedEKF)
+                              IteratedEKF, StatisticallyLinearizedFilter, ContinuousDiscreteSLF)
 from nlfilter.filters.rules import Taylor2
 from nlfilter.filters.reference import ResampleMoveParticleFilter
 from nlfilter.bounded import BoundedNoiseModel
@@ -204,6 +204,10 @@ CASES = [
     _gauss("ckf", lambda model=D2, **k: CKF(model, **k), D2, M2, P2, options=(("start", "bogus"),)),
     _gauss("ghkf", lambda model=D2, **k: GHKF(model, **k), D2, M2, P2,
            options=(("order", "bogus"), ("order", 0), ("start", "bogus"))),
+    _gauss("slf", lambda model=D2, **k: StatisticallyLinearizedFilter(model, **k), D2, M2, P2,
+           options=(("start", "bogus"),)),
+    _gauss("cd-slf", lambda model=S2, **k: ContinuousDiscreteSLF(model, DT, **k), euler_discretization(S2, DT),
+           M2, P2, options=(("scheme", "bogus"), ("start", "bogus"))),
     _gauss("iekf", lambda model=D2, **k: IteratedEKF(model, **k), D2, M2, P2,
            options=(("iterations", 0), ("tol", -1.0), ("start", "bogus"))),
     *[_gauss(name, lambda cls=cls, model=S2, **k: cls(model, DT, **k), euler_discretization(S2, DT), M2, P2,

@@ -647,6 +647,12 @@ class Model:
         return MappingProxyType({str(p): v for p, v in vals.values.items() if p not in vals.inputs})
 
     @property
+    def expressions(self):
+        """``{"f", "h", "G"}`` as SymPy matrices with the parameters and inputs kept as symbols (their
+        structure in the states holds for every value); ``None`` for a model from callables."""
+        return self._sym
+
+    @property
     def sym(self):
         """``{"f", "h", "G"}`` as SymPy matrices with the current parameter values substituted
         (for the moment engine and the symbolic filters); ``None`` for a model from callables."""

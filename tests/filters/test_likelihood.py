@@ -18,7 +18,7 @@ from nlfilter.filters import REGISTRY, GridFilter, ParticleFilter
 from nlfilter.filters.gaussian import ContinuousGaussianFilter
 from nlfilter.filters.rules import Taylor1
 
-GAUSSIAN = ["kf", "ekf", "iekf", "ukf", "ckf", "ghkf", "second-order"]
+GAUSSIAN = ["kf", "ekf", "iekf", "ukf", "ckf", "ghkf", "slf", "second-order"]
 
 x1, x2, k = sp.symbols("x1 x2 k")
 F = np.array([[0.9, 0.2], [0.0, 0.8]])

@@ -78,7 +78,7 @@ def _discretized(dt):
 
 @pytest.mark.parametrize("name", ["continuous-discrete-ekf", "continuous-discrete-ukf", "continuous-discrete-ckf",
                                   "continuous-discrete-ghkf", "continuous-discrete-second-order",
-                                  "continuous-discrete-iekf"])
+                                  "continuous-discrete-iekf", "continuous-discrete-slf"])
 def test_continuous_discrete_rts_is_the_smoother_of_the_exact_discretization(name):
     """The moment equations with dC/dt = C Fᵀ (RK4, 20 substeps per interval of 0.2): the RTS
     smoother of the exact discretization to 1e-8 (RK4's error, (0.01)^4 ≈ 1e-8 relative)."""
@@ -110,3 +110,19 @@ def test_continuous_rts_converges_to_the_discrete_smoother():
         gaps.append(np.abs(kb.covs[0, mid, 0, 0] - ref.covs[0, mid, 0, 0]).max())
     # measured 4.9e-4, 2.6e-4, 1.4e-4 (smoothed variance ≈ 0.15): first order
     assert all(1.6 < a / b < 2.4 for a, b in zip(gaps, gaps[1:])) and gaps[2] < 2e-4, gaps
+
+
+def test_statistically_linearized_filter_has_the_exact_gaussian_moments():
+    """The SLF's prediction of x³ under N(m, P) is the exact statistical linearization:
+    E[x³] = m³ + 3mP, Var[x³] = 9m⁴P + 36m²P² + 15P³, Cov[x, x³] = 3m²P + 3P² (1e-12), and its
+    smoother uses that cross-covariance (on the cubic growth model, a smoother gain G = Cov[x, f] / P⁻)."""
+    x = sp.Symbol("x")
+    md = DiscreteModel([x], [x**3], [x], Q=0.1, R=1.0)
+    flt = REGISTRY["slf"](md)
+    m, P = 0.7, 0.4
+    from nlfilter.filters import GaussianState
+    pred, cross = flt._predict_cross(GaussianState(np.array([m]), np.array([[P]])), 0)
+    assert abs(pred.mean[0] - (m**3 + 3 * m * P)) < 1e-12
+    assert abs(pred.cov[0, 0] - (9 * m**4 * P + 36 * m**2 * P**2 + 15 * P**3 + 0.1)) < 1e-12
+    assert abs(cross[0, 0] - (3 * m**2 * P + 3 * P**2)) < 1e-12
+    assert flt.order == 4

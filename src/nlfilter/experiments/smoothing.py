@@ -8,7 +8,7 @@ Two discrete models with a cubic sensor (issue 12's benchmark; no paper):
   by ``y = x1³/3 + v``, ``R = 0.1``, ``x0 ~ N((0.5, 0), 0.5 I)``: the second component is seen only
   through the dynamics, so smoothing matters most there.
 
-For each, :func:`~nlfilter.compare` with ``smooth=True`` runs the EKF, iterated EKF, UKF, CKF,
+For each, :func:`~nlfilter.compare` with ``smooth=True`` runs the EKF, iterated EKF, UKF, CKF, SLF,
 GHKF and the Gaussian second-order filter and their RTS smoothers
 (:mod:`nlfilter.filters.smoothing`: one backward pass through each filter's moment rule) on one
 simulation, beside the certified reference and its smoother (the forward–backward grid smoother
@@ -35,7 +35,7 @@ from . import experiment
 
 TITLE = "RTS smoothers of every Gaussian filter against the optimal smoother (cubic sensors)"
 SOURCE = "nlfilter check (no paper): Särkkä 2013 ch. 8-9 (Gaussian RTS smoothers); issue 12"
-FILTERS = ("ekf", "iekf", "ukf", "ckf", "ghkf", "second-order")
+FILTERS = ("ekf", "iekf", "ukf", "ckf", "ghkf", "slf", "second-order")
 
 
 def cases():
@@ -76,6 +76,14 @@ def run(params, *, quick=False, runs=None, seed=0, progress=False):
                 d = paired_difference(est[flt], est[f"{flt} (smoothed)"], sim.xs, component=i)
                 res.add(flt, "smoothing_gain", d.value, d.stderr, model=name, component=i)
         res.notes.extend(f"{name}: {n}" for n in out.notes[:-1])
+        ref_label = next(r.filter for r in out.rows if r.quantity == "smoothed_mse" and r.filter not in FILTERS)
+        names = [*FILTERS, ref_label]
+        for i in range(md.n):
+            rows = {"filter": [res.get(f, "mse", model=name, component=i) for f in names],
+                    "RTS smoother": [res.get(f, "smoothed_mse", model=name, component=i) for f in names]}
+            res.series[f"{name}, x{i + 1}: MSE of each filter and its smoother ({runs} paths)"] = {
+                "kind": "bar", "categories": names, "bars": {k: [r.value for r in v] for k, v in rows.items()},
+                "errors": {k: [2 * r.stderr for r in v] for k, v in rows.items()}, "ylabel": "mean square error"}
     res.params["references"] = refs
     res.notes.append("MSE over the whole record; smoothing_gain = MSE(filter) − MSE(its smoother) on the same "
                      "paths; smoothed_gap_to_optimal = MSE(smoother) − MSE(optimal smoother), paired")

@@ -6,7 +6,8 @@ module                    filters
 ========================  ==================================================================
 kalman, ekf, ukf          KalmanFilter, KalmanBucy, EKF, IteratedEKF, ContinuousEKF, UKF,
                           ContinuousDiscreteEKF, ContinuousDiscreteIEKF, ContinuousDiscreteUKF
-cubature                  CKF, GHKF, ContinuousDiscreteCKF, ContinuousDiscreteGHKF
+cubature                  CKF, GHKF, ContinuousDiscreteCKF, ContinuousDiscreteGHKF, the statistically
+                          linearized filters (exact Gaussian moments of polynomial models)
 gaussian, rules           GaussianFilter, ContinuousDiscreteGaussianFilter over a moment rule
                           (Taylor1, Unscented, Cubature, GaussHermite)
 second_order              SecondOrderFilter, ContinuousSecondOrderFilter,
@@ -29,7 +30,8 @@ reference                 GridFilter, ParticleFilter, ResampleMoveParticleFilter
 from .base import ContinuousFilter, DiscreteFilter, Estimates, GaussianState
 from .bilinear import (DiscreteOptimalLinearFilter, OptimalLinearFilter, PseudoObservablesFilter, TensorFilter,
                        UpdatedInnovationsFilter)
-from .cubature import CKF, GHKF, ContinuousDiscreteCKF, ContinuousDiscreteGHKF
+from .cubature import (CKF, GHKF, ContinuousDiscreteCKF, ContinuousDiscreteGHKF, ContinuousDiscreteSLF,
+                       StatisticallyLinearizedFilter)
 from .ekf import EKF, ContinuousDiscreteEKF, ContinuousDiscreteIEKF, ContinuousEKF, IteratedEKF
 from .gaussian import ContinuousDiscreteGaussianFilter, GaussianFilter
 from .kalman import KalmanBucy, KalmanFilter
@@ -49,11 +51,11 @@ from . import registry as _registry
 #: Every public filter by name (a plain dict; see :mod:`nlfilter.filters.registry`).
 REGISTRY = {
     "kf": KalmanFilter, "kalman-bucy": KalmanBucy,
-    "ekf": EKF, "iekf": IteratedEKF, "ukf": UKF, "ckf": CKF, "ghkf": GHKF,
+    "ekf": EKF, "iekf": IteratedEKF, "ukf": UKF, "ckf": CKF, "ghkf": GHKF, "slf": StatisticallyLinearizedFilter,
     "continuous-ekf": ContinuousEKF,
     "continuous-discrete-ekf": ContinuousDiscreteEKF, "continuous-discrete-iekf": ContinuousDiscreteIEKF,
     "continuous-discrete-ukf": ContinuousDiscreteUKF, "continuous-discrete-ckf": ContinuousDiscreteCKF,
-    "continuous-discrete-ghkf": ContinuousDiscreteGHKF,
+    "continuous-discrete-ghkf": ContinuousDiscreteGHKF, "continuous-discrete-slf": ContinuousDiscreteSLF,
     "second-order": SecondOrderFilter, "continuous-second-order": ContinuousSecondOrderFilter,
     "continuous-discrete-second-order": ContinuousDiscreteSecondOrderFilter,
     "conditional-moment": ConditionalMomentFilter, "discrete-conditional-moment": DiscreteConditionalMomentFilter,
@@ -85,4 +87,5 @@ __all__ = ["REGISTRY", "get", "GaussianState", "Estimates", "DiscreteFilter", "C
            "FirstOrderMomentFilter", "SecondOrderMomentFilter", "ScaledNoiseZeroOrderFilter", "GridFilter",
            "ParticleFilter", "BoundedGridFilter1D", "BoundedParticleFilter", "ResampleMoveParticleFilter",
            "CKF", "GHKF", "IteratedEKF", "ContinuousDiscreteEKF", "ContinuousDiscreteIEKF", "ContinuousDiscreteUKF",
-           "ContinuousDiscreteCKF", "ContinuousDiscreteGHKF", "GaussianFilter", "ContinuousDiscreteGaussianFilter"]
+           "ContinuousDiscreteCKF", "ContinuousDiscreteGHKF", "GaussianFilter", "ContinuousDiscreteGaussianFilter",
+           "StatisticallyLinearizedFilter", "ContinuousDiscreteSLF"]

@@ -95,6 +95,8 @@ class ParticleFilter(_ReferenceFilter):
             raise ValueError(f"threshold: expected a number in [0, 1], got {threshold!r}")
         self.substeps = V.positive("substeps", substeps, integer=True)
         self._setup(model, dt, start, "particle filter")
+        if self.time == "continuous" and self.substeps != 1:
+            self.smoother = None  # the smoother needs the transition density of one Euler–Maruyama step
 
     # -- the belief functions ----------------------------------------------------------------
     def init(self, m0, P0, batch, *, initial=None, rng=None) -> ParticleBelief:
@@ -256,10 +258,8 @@ class ParticleFilter(_ReferenceFilter):
     # -- the smoother ------------------------------------------------------------------------------
     smoother_keeps = True
 
-    @property
-    def smoother(self):
-        """``"particle"`` (FFBSm); None on an SDE model with ``substeps > 1`` (no transition density)."""
-        return None if self.time == "continuous" and self.substeps != 1 else "particle"
+    # FFBSm; an instance on an SDE model with substeps > 1 has none (no transition density: __init__)
+    smoother = "particle"
 
     def smooth(self, ys, m0=None, P0=None, **kw):
         """The forward-filtering backward-smoothing particle smoother (Doucet, Godsill & Andrieu
