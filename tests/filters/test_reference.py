@@ -84,7 +84,15 @@ M2, P2 = np.array([0.3, -0.2]), np.array([[0.5, 0.1], [0.1, 0.4]])
 
 
 def _by_hand(flt, ys, m0, P0, rng):
-    """The loop of ``Filter.run`` written with the public step functions."""
+    """The loop of ``Filter.run`` written with the public step functions (under the BLAS thread
+    limit ``run`` sets for the filter, ``blas_threads``: a threaded product may sum in another
+    order, and the comparison is bitwise)."""
+    from nlfilter.filters.base import _blas_limit
+    with _blas_limit(flt.blas_threads):
+        return _by_hand_steps(flt, ys, m0, P0, rng)
+
+
+def _by_hand_steps(flt, ys, m0, P0, rng):
     b = flt.init(m0, P0, ys.shape[:-2], rng=rng)
     means, covs = [], []
     for k in range(ys.shape[-2]):
@@ -170,3 +178,24 @@ def test_grid_filter_reads_time_of_from_functions_model():
     g = GridFilter(md, (-6, 6), 801).run(ys, 0.0, 0.5)
     np.testing.assert_allclose(g.means, kf.means, atol=1e-5)
     np.testing.assert_allclose(g.covs, kf.covs, atol=1e-5)
+
+
+def test_grid_blas_threads_do_not_change_the_numbers():
+    """The grid filters run with one BLAS thread (``blas_threads = 1``, threadpoolctl once per run:
+    no thread cliff on small products); the BLAS library's default threads give the same
+    estimates (to 1e-12: a threaded product may sum in another order)."""
+    import sympy as sp
+    from nlfilter import DiscreteModel, simulate
+    from nlfilter.filters import GridFilter
+    from threadpoolctl import threadpool_info
+    x = sp.Symbol("x")
+    md = DiscreteModel([x], [0.9 * x + 0.5 * sp.sin(x)], [x**3 / 10], Q=0.5, R=0.1)
+    ys = simulate(md, 20, paths=30, rng=0, m0=[0.0], P0=[[1.0]]).ys
+    flt = GridFilter(md, (-6.0, 6.0), 201)
+    before = [i["num_threads"] for i in threadpool_info()]
+    one = flt.run(ys, [0.0], [[1.0]])
+    assert [i["num_threads"] for i in threadpool_info()] == before  # restored after the run
+    flt.blas_threads = None
+    default = flt.run(ys, [0.0], [[1.0]])
+    np.testing.assert_allclose(one.means, default.means, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(one.covs, default.covs, rtol=0, atol=1e-12)

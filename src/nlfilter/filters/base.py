@@ -259,6 +259,10 @@ class Filter:
     # backward pass needs the forward beliefs of every step (not only their summaries)
     smoother = None
     smoother_keeps = False
+    # BLAS threads for the run loop: None leaves the BLAS library as it is; a number limits it for
+    # the run (threadpoolctl, set once per run): the grid filters' small matrix products lose several
+    # times their cost to thread start-up on a few cores (benchmarks/bench_grid.py)
+    blas_threads: int | None = None
     # the model structures beyond additive, uncorrelated noise with one constant R that the filter
     # handles (:attr:`~nlfilter.models.Model.structure`): "state-dependent R", "cross noise",
     # "non-additive noise", "non-additive measurement noise"; a model with another is refused at
@@ -443,6 +447,12 @@ class Filter:
             est = Estimates.concatenate(parts)
             out = lambda a: a.reshape(*batch, *a.shape[1:])  # noqa: E731
             return Estimates(*(out(a) for a in est[:4]), MappingProxyType({k: out(v) for k, v in est.extras.items()}))
+        with _blas_limit(self.blas_threads):
+            return self._loop(yf, batch, m, m0, P0, initial, rng, t0, on, progress, loglik, smooth)
+
+    def _loop(self, yf, batch, m, m0, P0, initial, rng, t0, on, progress, loglik, smooth):
+        """The steps of :meth:`_drive` over ``yf (B, T, m)``, its checks done."""
+        B, T = yf.shape[:2]
         belief = self.init(m0, P0, batch, initial=initial, rng=rng)
         start = belief
         rec = _Recorder(self, B, T, on, keep=smooth and self.smoother_keeps)
@@ -489,6 +499,15 @@ class Filter:
         extras = {k: out(nan(v)) for k, v in (more[0] if more and more[0] else {}).items()}
         return Estimates(out(nan(means)), out(nan(covs)), d.reshape(batch), est.diverged_step.reshape(batch),
                          MappingProxyType(extras))
+
+
+def _blas_limit(threads):
+    """A context limiting the BLAS library to ``threads`` threads (threadpoolctl); a no-op for None."""
+    if threads is None:
+        import contextlib
+        return contextlib.nullcontext()
+    from threadpoolctl import threadpool_limits
+    return threadpool_limits(limits=threads, user_api="blas")
 
 
 def check_structure(flt, model) -> None:

@@ -243,6 +243,7 @@ class CircleGridFilter(Filter):
     [0.0, 0.0]
     """
 
+    blas_threads = 1  # small dense products per step: one BLAS thread (base.Filter.blas_threads)
     name = "circle-grid"
     family = "reference"
     source = "seed 001 ch. 4 (optimal filter of Table 4.1; eqs. 4.11-4.14)"

@@ -70,6 +70,7 @@ class BoundedGridFilter1D(_BoundedReference):
     impossible measurement (no cell consistent with it) raises ValueError naming ``ys``.
     """
 
+    blas_threads = 1  # small dense products per step: one BLAS thread (base.Filter.blas_threads)
     name = "bounded-grid"
     source = "seed 000 eqs. 1.9, 1.13, 3.3 (point-mass reference)"
     needs = ("first-order model", "input law with a CDF")

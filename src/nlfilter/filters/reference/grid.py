@@ -69,6 +69,7 @@ class GridFilter(_ReferenceFilter):
     at each step (:meth:`edge_mass`): when it is not small, the bounds cut the density off.
     """
 
+    blas_threads = 1  # small dense products per step: one BLAS thread (base.Filter.blas_threads)
     name = "grid"
     source = ("point-mass filter (Bucy & Senne); SDEs: Kushner's Markov-chain approximation of the "
               "Fokker–Planck operator and the Kallianpur–Striebel likelihood")
