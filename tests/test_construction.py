@@ -6,11 +6,12 @@ import copy
 import numpy as np
 import pytest
 import sympy as sp
+from sympy.printing.numpy import NumPyPrinter
 
 from nlfilter import DiscreteModel, SDEModel
 from nlfilter.filters.ekf import EKF
 from nlfilter.filters.second_order import SecondOrderFilter
-from nlfilter.models import _Batched, _Kernel, _LazyKernels
+from nlfilter.models import _Batched, _Kernel, _LazyKernels, _nothing_to_share, _Printer
 
 LAZY = ("f_xx", "h_xx", "G_x", "G_xx")
 ALL = ("f", "f_x", "f_xx", "h", "h_x", "h_xx", "G", "G_x", "G_xx")
@@ -150,3 +151,60 @@ def test_ekf_without_hessians_and_require():
         fn.require("f_x", "f_xx", "h_xx", by="SecondOrderFilter")
     with pytest.raises(ValueError, match="f_xx"):
         SecondOrderFilter(fn)
+
+
+def test_code_without_cse_only_when_cse_finds_nothing():
+    """Where the screen skips common-subexpression elimination, lambdify with it writes the same
+    code (so the numbers cannot move); where CSE would share something the screen refuses."""
+    import inspect
+
+    xs = sp.symbols("x1:7")
+    rng = np.random.default_rng(5)
+    cases = []
+    for trial in range(12):
+        F = np.round(rng.standard_normal((4, 6)), trial % 3 + 1)
+        F[rng.random(F.shape) < 0.3] = 0.0
+        if trial % 4 == 1:
+            F[0, 0], F[1, 2] = 1.0, -1.0
+        M = sp.Matrix(F.tolist()) * sp.Matrix(xs)
+        if trial % 4 == 2:
+            M = M + sp.Matrix([0.5, -0.25, 0, 1.5])
+        if trial % 4 == 3:
+            M = sp.Matrix([sp.Integer(2) * xs[0] - xs[1], xs[2] + sp.Rational(1, 3), -xs[3], 3 * xs[4] - 7 * xs[5]])
+        cases.append(list(M))
+    cases += [[xs[0] + xs[1], xs[0] + xs[1] + xs[2]], [2.0 * xs[0] + xs[1], -2.0 * xs[0]], [xs[0] * xs[1]],
+              [xs[0] + 1, xs[1] + 1], [-xs[0] - xs[1], xs[0] + xs[1] + xs[2]]]
+    printer = lambda: _Printer({"fully_qualified_modules": False, "inline": True,  # noqa: E731
+                                "allow_unknown_functions": True})
+    skipped = 0
+    for exprs in cases:
+        with_cse = sp.cse(exprs)[0]
+        if _nothing_to_share(exprs):
+            skipped += 1
+            assert not with_cse, exprs
+            a = inspect.getsource(sp.lambdify(list(xs), exprs, modules="numpy", cse=True, printer=printer()))
+            b = inspect.getsource(sp.lambdify(list(xs), exprs, modules="numpy", cse=False, printer=printer()))
+            assert a == b, exprs
+    assert skipped >= 8
+    assert not _nothing_to_share([xs[0] + xs[1], xs[0] + xs[1] + xs[2]])
+    assert not _nothing_to_share([xs[0] ** 2])
+
+
+class _Reference(_Printer):
+    def _print_Mul(self, expr):  # the printer without the c*s shortcut
+        return NumPyPrinter._print_Mul(self, expr)
+
+
+def test_printer_shortcut_writes_the_same_text():
+    settings = {"fully_qualified_modules": False, "inline": True, "allow_unknown_functions": True}
+    p, ref = _Printer(settings), _Reference(settings)
+    x, y, lam = sp.symbols("x y lambda")
+    rng = np.random.default_rng(7)
+    coeffs = list(rng.standard_normal(20) * 10.0 ** rng.integers(-12, 12, 20)) + [1.0, -1.0, 0.5, -2.0, 1e300, -5e-324]
+    for c in coeffs:
+        for s in (x, lam):
+            e = sp.Mul(sp.Float(c), s)
+            if e.is_Mul and len(e.args) == 2:
+                assert p.doprint(e) == ref.doprint(e), e
+            row = sp.Float(c) * s + 0.25 * y - 3 * x * y - sp.Float(c) * y**2
+            assert p.doprint(row) == ref.doprint(row), row

@@ -122,6 +122,16 @@ class _Printer(FullPrecisionPrinter):
             return "(" + "*".join([base] * int(expr.exp)) + ")"  # parenthesized: a product, not a power
         return super()._print_Pow(expr, rational=rational)
 
+    def _print_Mul(self, expr):
+        # c*s (a finite float times a symbol, the terms of a linear model): the text NumPyPrinter
+        # writes, without its general factor ordering (a third of a dense linear model's build)
+        if len(expr.args) == 2:
+            c, s = expr.args
+            if c.is_Float and s.is_Symbol and np.isfinite(float(c)):
+                v = float(c)
+                return ("-" if v < 0 else "") + repr(abs(v)) + "*" + self._print(s)
+        return super()._print_Mul(expr)
+
 
 class _Broadcast:
     """A constant array viewed over a batch shape, the last view kept (filters ask for the same
@@ -188,6 +198,32 @@ class _Values:
 _NO_VALUES = _Values({}, (), None, 0.0)
 
 
+def _nothing_to_share(exprs) -> bool:
+    """Whether common-subexpression elimination can find nothing in ``exprs`` (then ``lambdify``
+    without it writes the same code, without its cost: seconds for a dense 42-state linear model).
+
+    Decided for sums of terms ``c*s``, ``s`` and ``c`` (``c`` a number, ``s`` a symbol) only: no
+    term, up to its sign, may occur twice in the whole list (so no subexpression repeats and no two
+    sums, nor their negations, share two terms); anything else answers ``False`` (use CSE)."""
+    seen = set()
+    for e in exprs:
+        for a in (e.args if e.is_Add else (e,)):
+            if a.is_Mul:
+                if len(a.args) != 2 or not (a.args[0].is_Number and a.args[1].is_Symbol):
+                    return False
+                key = (abs(a.args[0]), a.args[1])
+            elif a.is_Symbol:
+                key = (sp.S.One, a)
+            elif a.is_Number:
+                key = (abs(a), None)
+            else:
+                return False
+            if key in seen:
+                return False
+            seen.add(key)
+    return True
+
+
 class _Kernel:
     """A SymPy array expression compiled once (``lambdify`` with ``cse=True``) into a function of
     the state components, the time and the parameters it uses; shared by every
@@ -213,7 +249,7 @@ class _Kernel:
             self.value = np.array([float(e) for e in flat], dtype=float).reshape(self.shape)
         else:
             args = list(states) + ([time] if time is not None else [sp.Symbol("_t_unused")]) + list(self.params)
-            self.fn = sp.lambdify(args, flat, modules="numpy", cse=True,
+            self.fn = sp.lambdify(args, flat, modules="numpy", cse=not _nothing_to_share(flat),
                                   printer=_Printer({"fully_qualified_modules": False, "inline": True,
                                                     "allow_unknown_functions": True}))
 
@@ -223,7 +259,11 @@ def _d(e, s):
     over the terms that contain ``s`` only (``Add._eval_derivative`` differentiates every term: the
     n³ cost of a dense n-state Jacobian)."""
     if e.is_Add:
-        return e.func(*[a.diff(s) for a in e.args if s in a.free_symbols])
+        return e.func(*[_d(a, s) for a in e.args if s in a.free_symbols])
+    if e is s:
+        return sp.S.One
+    if e.is_Mul and len(e.args) == 2 and e.args[1] is s and e.args[0].is_Number:  # c*s: c, as Mul's rule gives
+        return e.args[0]
     return e.diff(s)
 
 
