@@ -267,12 +267,27 @@ def _d(e, s):
     return e.diff(s)
 
 
-def _jacobian(M, states) -> sp.Matrix:
-    """``M.jacobian(states)`` (the same entries), an entry free of a state skipped as zero."""
+def _gradients(exprs, states) -> list:
+    """``[[∂e/∂s for s in states] for e in exprs]``, each entry the expression ``sp.diff`` gives; a
+    sum is differentiated over the terms that contain ``s`` (in the sum's order), an entry free of
+    ``s`` is zero."""
     rows = []
-    for e in M:
-        fs = e.free_symbols
-        rows.append([_d(e, s) if s in fs else sp.S.Zero for s in states])
+    for e in exprs:
+        if e.is_Add:
+            terms = {}
+            for a in e.args:
+                for s in a.free_symbols:
+                    terms.setdefault(s, []).append(a)
+            rows.append([e.func(*[_d(a, s) for a in terms[s]]) if s in terms else sp.S.Zero for s in states])
+        else:
+            fs = e.free_symbols
+            rows.append([_d(e, s) if s in fs else sp.S.Zero for s in states])
+    return rows
+
+
+def _jacobian(M, states) -> sp.Matrix:
+    """``M.jacobian(states)`` (the same entries)."""
+    rows = _gradients(M, states)
     return sp.Matrix(len(rows), len(states), [d for row in rows for d in row]) if rows else sp.zeros(0, len(states))
 
 
@@ -287,16 +302,11 @@ def _affine(e, grad, states) -> bool:
 
 
 def _first(M, states) -> list:
-    """``[∂e/∂s for e in M for s in states]`` (row-major over ``M``, the states last)."""
-    return [_d(e, s) if s in fs else sp.S.Zero
-            for e in M for fs in (e.free_symbols,) for s in states]
-
-
-def _second(first, states) -> list:
-    """``[∂e/∂s for e in first for s in states]``: the Hessian entries ``[..., j, k]`` from the
-    first derivatives ``[..., j]`` (the same ``sp.diff`` per entry as a nested loop, an entry free of
-    ``s`` skipped as zero, so the generated code is the same)."""
-    return _first(first, states)
+    """``[∂e/∂s for e in M for s in states]`` (row-major over ``M``, the states last): G's
+    derivatives ``[i, a, j]``, and from first derivatives ``[..., j]`` the Hessian entries
+    ``[..., j, k]`` (the same ``sp.diff`` per entry as the nested loops of before, so the generated
+    code is the same)."""
+    return [d for row in _gradients(list(M), states) for d in row]
 
 
 class _LazyKernels:
@@ -593,12 +603,12 @@ class Model:
         # second derivatives (and G's derivatives) are generated on first call, once for every copy
         r, m, Gc, ps = self.r, self.m, self.G_constant, self._psyms
         self._lazy = _LazyKernels({
-            "f_xx": ((n, n, n), lambda: _Kernel(_second(list(fx), states), states, time, (n, n, n), ps)),
-            "h_xx": ((m, n, n), lambda: _Kernel(_second(list(hx), states), states, time, (m, n, n), ps)),
+            "f_xx": ((n, n, n), lambda: _Kernel(_first(list(fx), states), states, time, (n, n, n), ps)),
+            "h_xx": ((m, n, n), lambda: _Kernel(_first(list(hx), states), states, time, (m, n, n), ps)),
             "G_x": ((n, r, n), lambda: _Kernel.zeros((n, r, n), n) if Gc else
                     _Kernel(_first(GM, states), states, time, (n, r, n), ps)),
             "G_xx": ((n, r, n, n), lambda: _Kernel.zeros((n, r, n, n), n) if Gc else
-                     _Kernel(_second(_first(GM, states), states), states, time, (n, r, n, n), ps)),
+                     _Kernel(_first(_first(GM, states), states), states, time, (n, r, n, n), ps)),
         })
         if noise:  # f(x, w) on the augmented vector (x, w) (..., n + r)
             self._kernels["f_aug"] = _Kernel(list(f_aug), states + list(noise), time, (n,), self._psyms)
