@@ -24,6 +24,11 @@ G_x        (..., n, r, n)         [i, a, j] = ∂G_ia/∂x_j
 G_xx       (..., n, r, n, n)      [i, a, j, k] = ∂²G_ia/∂x_j∂x_k
 =========  =====================  ==============================================
 
+``f``, ``h``, ``G`` and the Jacobians ``f_x``, ``h_x`` are generated at construction; the second
+derivatives ``f_xx``, ``h_xx`` and G's derivatives ``G_x``, ``G_xx`` on their first call (a filter
+that never uses them never pays for them), once for the model and all its :meth:`Model.with_params`
+copies; a ``G`` free of the states has ``G_x = G_xx = 0`` without any SymPy.
+
 Parameters (``params={a: 0.9, q: 0.1}``) stay symbols of the generated functions: a model
 with other values is :meth:`Model.with_params` (no code generated again; what a fit needs), and
 ``Q``/``R`` may be expressions in them (``Q=[[q]]``). A value may be an array over time ``(T,)``
