@@ -24,6 +24,11 @@ G_x        (..., n, r, n)         [i, a, j] = ∂G_ia/∂x_j
 G_xx       (..., n, r, n, n)      [i, a, j, k] = ∂²G_ia/∂x_j∂x_k
 =========  =====================  ==============================================
 
+``f``, ``h``, ``G`` and the Jacobians ``f_x``, ``h_x`` are generated at construction; the second
+derivatives ``f_xx``, ``h_xx`` and G's derivatives ``G_x``, ``G_xx`` on their first call (a filter
+that never uses them never pays for them), once for the model and all its :meth:`Model.with_params`
+copies; a ``G`` free of the states has ``G_x = G_xx = 0`` without any SymPy.
+
 Parameters (``params={a: 0.9, q: 0.1}``) stay symbols of the generated functions: a model
 with other values is :meth:`Model.with_params` (no code generated again; what a fit needs), and
 ``Q``/``R`` may be expressions in them (``Q=[[q]]``). A value may be an array over time ``(T,)``
@@ -71,6 +76,7 @@ Example
 from __future__ import annotations
 
 import copy
+import weakref
 from types import MappingProxyType
 from typing import Callable
 
@@ -120,6 +126,16 @@ class _Printer(FullPrecisionPrinter):
             base = self.parenthesize(expr.base, precedence(expr))
             return "(" + "*".join([base] * int(expr.exp)) + ")"  # parenthesized: a product, not a power
         return super()._print_Pow(expr, rational=rational)
+
+    def _print_Mul(self, expr):
+        # c*s (a finite float times a symbol, the terms of a linear model): the text NumPyPrinter
+        # writes, without its general factor ordering (a third of a dense linear model's build)
+        if len(expr.args) == 2:
+            c, s = expr.args
+            if c.is_Float and s.is_Symbol and np.isfinite(float(c)):
+                v = float(c)
+                return ("-" if v < 0 else "") + repr(abs(v)) + "*" + self._print(s)
+        return super()._print_Mul(expr)
 
 
 class _Broadcast:
@@ -187,10 +203,44 @@ class _Values:
 _NO_VALUES = _Values({}, (), None, 0.0)
 
 
+def _nothing_to_share(exprs) -> bool:
+    """Whether common-subexpression elimination can find nothing in ``exprs`` (then ``lambdify``
+    without it writes the same code, without its cost: seconds for a dense 42-state linear model).
+
+    Decided for sums of terms ``c*s``, ``s`` and ``c`` (``c`` a number, ``s`` a symbol) only: no
+    term, up to its sign, may occur twice in the whole list (so no subexpression repeats and no two
+    sums, nor their negations, share two terms); anything else answers ``False`` (use CSE)."""
+    seen = set()
+    for e in exprs:
+        for a in (e.args if e.is_Add else (e,)):
+            if a.is_Mul:
+                if len(a.args) != 2 or not (a.args[0].is_Number and a.args[1].is_Symbol):
+                    return False
+                key = (abs(a.args[0]), a.args[1])
+            elif a.is_Symbol:
+                key = (sp.S.One, a)
+            elif a.is_Number:
+                key = (abs(a), None)
+            else:
+                return False
+            if key in seen:
+                return False
+            seen.add(key)
+    return True
+
+
 class _Kernel:
     """A SymPy array expression compiled once (``lambdify`` with ``cse=True``) into a function of
     the state components, the time and the parameters it uses; shared by every
     :meth:`Model.with_params` copy of a model."""
+
+    @classmethod
+    def zeros(cls, shape, n: int) -> "_Kernel":
+        """The kernel of an all-zero array (G's derivatives when G is free of the states), no SymPy."""
+        self = cls.__new__(cls)
+        self.shape, self.params, self.varies, self.const, self.n = tuple(shape), (), False, True, n
+        self.value = np.zeros(self.shape)
+        return self
 
     def __init__(self, exprs, states, time, shape, params=()):
         self.shape = tuple(shape)
@@ -204,9 +254,109 @@ class _Kernel:
             self.value = np.array([float(e) for e in flat], dtype=float).reshape(self.shape)
         else:
             args = list(states) + ([time] if time is not None else [sp.Symbol("_t_unused")]) + list(self.params)
-            self.fn = sp.lambdify(args, flat, modules="numpy", cse=True,
+            self.fn = sp.lambdify(args, flat, modules="numpy", cse=not _nothing_to_share(flat),
                                   printer=_Printer({"fully_qualified_modules": False, "inline": True,
                                                     "allow_unknown_functions": True}))
+
+
+def _d(e, s):
+    """``∂e/∂s`` as ``sp.diff`` gives it (the same expression), a sum differentiated term by term
+    over the terms that contain ``s`` only (``Add._eval_derivative`` differentiates every term: the
+    n³ cost of a dense n-state Jacobian)."""
+    if e.is_Add:
+        return e.func(*[_d(a, s) for a in e.args if s in a.free_symbols])
+    if e is s:
+        return sp.S.One
+    if e.is_Mul and len(e.args) == 2 and e.args[1] is s and e.args[0].is_Number:  # c*s: c, as Mul's rule gives
+        return e.args[0]
+    return e.diff(s)
+
+
+def _gradients(exprs, states) -> list:
+    """``[[∂e/∂s for s in states] for e in exprs]``, each entry the expression ``sp.diff`` gives; a
+    sum is differentiated over the terms that contain ``s`` (in the sum's order), an entry free of
+    ``s`` is zero."""
+    rows = []
+    for e in exprs:
+        if e.is_Add:
+            terms = {}
+            for a in e.args:
+                for s in a.free_symbols:
+                    terms.setdefault(s, []).append(a)
+            rows.append([e.func(*[_d(a, s) for a in terms[s]]) if s in terms else sp.S.Zero for s in states])
+        else:
+            fs = e.free_symbols
+            rows.append([_d(e, s) if s in fs else sp.S.Zero for s in states])
+    return rows
+
+
+def _jacobian(M, states) -> sp.Matrix:
+    """``M.jacobian(states)`` (the same entries)."""
+    rows = _gradients(M, states)
+    return sp.Matrix(len(rows), len(states), [d for row in rows for d in row]) if rows else sp.zeros(0, len(states))
+
+
+def _affine(e, grad, states) -> bool:
+    """Whether ``e`` is a polynomial of total degree ≤ 1 in ``states`` (``grad`` its gradient): a
+    polynomial whose gradient is free of the states is affine; otherwise SymPy's ``Poly`` decides."""
+    if not e.is_polynomial(*states):
+        return False
+    if all(g.free_symbols.isdisjoint(states) for g in grad):
+        return True
+    return sp.Poly(e, *states).total_degree() <= 1
+
+
+def _first(M, states) -> list:
+    """``[∂e/∂s for e in M for s in states]`` (row-major over ``M``, the states last): G's
+    derivatives ``[i, a, j]``, and from first derivatives ``[..., j]`` the Hessian entries
+    ``[..., j, k]`` (the same ``sp.diff`` per entry as the nested loops of before, so the generated
+    code is the same)."""
+    return [d for row in _gradients(list(M), states) for d in row]
+
+
+class _LazyKernels:
+    """Kernels generated on first use (the second derivatives, G's derivatives), shared by every
+    :meth:`Model.with_params` copy of a model: whichever copy calls first generates the code once,
+    and every copy, made before or after, uses it."""
+
+    def __init__(self, makers: dict):
+        self.shapes = {k: shape for k, (shape, _) in makers.items()}
+        self._makers = {k: make for k, (_, make) in makers.items()}
+        self.built = {}
+
+    def kernel(self, key) -> "_Kernel":
+        kn = self.built.get(key)
+        if kn is None:
+            kn = self.built[key] = self._makers[key]()
+            del self._makers[key]  # the SymPy expressions it held are no longer needed
+        return kn
+
+    def bind(self, key, values, model):
+        if key in self.built:
+            return _Batched(self.built[key], values)
+        return _Lazy(self, key, values, model)
+
+
+class _Lazy:
+    """Stands for a model's ``_Batched`` function until its first call, which generates the kernel
+    (:class:`_LazyKernels`), binds it to the model's values and puts it in the model's place."""
+
+    def __init__(self, store: _LazyKernels, key: str, values, model):
+        self.store, self.key, self.values, self.shape = store, key, values, store.shapes[key]
+        self._model, self._fn = weakref.ref(model), None
+
+    @property
+    def kernel(self) -> "_Kernel":
+        return self.store.kernel(self.key)
+
+    def __call__(self, x, t=0.0):
+        fn = self._fn
+        if fn is None:
+            fn = self._fn = _Batched(self.store.kernel(self.key), self.values)
+            model = self._model()
+            if model is not None and model.__dict__.get(self.key) is self:
+                setattr(model, self.key, fn)  # later look-ups go straight to the function
+        return fn(x, t)
 
 
 class _Batched:
@@ -447,31 +597,33 @@ class Model:
                 raise ValueError(f"{nm}: its covariance {law.cov.tolist()} differs from the given "
                                  f"{key} {cov.tolist()}")
 
-        x = sp.Matrix(states)
-        fx = fM.jacobian(x)
-        hx = hM.jacobian(x)
-        fxx = [[[sp.diff(fx[i, j], s) for s in states] for j in range(n)] for i in range(n)]
-        hxx = [[[sp.diff(hx[i, j], s) for s in states] for j in range(n)] for i in range(self.m)]
-        Gx = [[[sp.diff(GM[i, a], s) for s in states] for a in range(self.r)] for i in range(n)]
-        Gxx = [[[[sp.diff(GM[i, a], s, u) for u in states] for s in states] for a in range(self.r)]
-               for i in range(n)]
-        flat = lambda nested: list(np.array(nested, dtype=object).ravel())  # noqa: E731
-        specs = {"f": (list(fM), (n,)), "f_x": (list(fx), (n, n)), "f_xx": (flat(fxx), (n, n, n)),
+        fx = _jacobian(fM, states)
+        hx = _jacobian(hM, states)
+        # the G-constant flag first: a G free of the states has G_x = G_xx = 0 (no SymPy)
+        self.G_constant = all(e.free_symbols.isdisjoint(states) for e in GM)
+        specs = {"f": (list(fM), (n,)), "f_x": (list(fx), (n, n)),
                  "h": (list(hM), (self.m,)), "h_x": (list(hx), (self.m, n)),
-                 "h_xx": (flat(hxx), (self.m, n, n)),
-                 "G": (list(GM), (n, self.r)), "G_x": (flat(Gx), (n, self.r, n)),
-                 "G_xx": (flat(Gxx), (n, self.r, n, n))}
+                 "G": (list(GM), (n, self.r))}
         self._kernels = {key: _Kernel(exprs, states, time, shape, self._psyms) for key, (exprs, shape) in specs.items()}
+        # second derivatives (and G's derivatives) are generated on first call, once for every copy
+        r, m, Gc, ps = self.r, self.m, self.G_constant, self._psyms
+        self._lazy = _LazyKernels({
+            "f_xx": ((n, n, n), lambda: _Kernel(_first(list(fx), states), states, time, (n, n, n), ps)),
+            "h_xx": ((m, n, n), lambda: _Kernel(_first(list(hx), states), states, time, (m, n, n), ps)),
+            "G_x": ((n, r, n), lambda: _Kernel.zeros((n, r, n), n) if Gc else
+                    _Kernel(_first(GM, states), states, time, (n, r, n), ps)),
+            "G_xx": ((n, r, n, n), lambda: _Kernel.zeros((n, r, n, n), n) if Gc else
+                     _Kernel(_first(_first(GM, states), states), states, time, (n, r, n, n), ps)),
+        })
         if noise:  # f(x, w) on the augmented vector (x, w) (..., n + r)
             self._kernels["f_aug"] = _Kernel(list(f_aug), states + list(noise), time, (n,), self._psyms)
         if meas_noise:  # h(x, v) on (x, v) (..., n + mv)
             self._kernels["h_aug"] = _Kernel(list(h_aug), states + list(meas_noise), time, (self.m,), self._psyms)
         self.given = set(_DERIVS)
         # structure flags (for every parameter value), read by filters that can exploit them
-        self.G_constant = all(e.free_symbols.isdisjoint(states) for e in GM)
         self._G_fixed = all(e.free_symbols.isdisjoint(set(states) | {time}) for e in GM)
         self.is_linear = self.additive and self.additive_measurement and self.G_constant and all(  # f and h affine in the state
-            e.is_polynomial(*states) and sp.Poly(e, *states).total_degree() <= 1 for e in list(fM) + list(hM))
+            _affine(e, row, states) for e, row in zip(list(fM) + list(hM), fx.tolist() + hx.tolist()))
         self._timed = time is not None and any(M.has(time) for M in (fM, hM, GM) + ((f_aug,) if noise else ())
                                                + ((h_aug,) if meas_noise else ()))
         self._uses = {k: set(self._kernels[k].params) for k in ("f", "h", "G")}
@@ -514,6 +666,8 @@ class Model:
         self._values = values
         for key, kn in self._kernels.items():
             setattr(self, key, _Batched(kn, values))
+        for key in self._lazy.shapes:  # built on first call (or now, if another copy built the code)
+            setattr(self, key, self._lazy.bind(key, values, self))
         tv = {k for k, used in self._uses.items() if used & (values.arrays | values.unset)}
         Qlaw, Rlaw = self._given_laws
         self.R_constant = True
