@@ -170,6 +170,8 @@ def main(argv=None):
     ap.add_argument("--repeat", type=int, default=3)
     ap.add_argument("--filterpy-paths", type=int, default=5)
     ap.add_argument("--no-peers", action="store_true", help="nlfilter only")
+    ap.add_argument("--peers-from", default=None, metavar="LABEL",
+                    help="with --no-peers: copy the peers' timings from that run of the JSON (same machine)")
     ap.add_argument("--label", default="after", help="the entry of the JSON to write (e.g. before/after)")
     ap.add_argument("--out", default=str(OUT))
     a = ap.parse_args(argv)
@@ -217,6 +219,16 @@ def main(argv=None):
         print(json.dumps(row), flush=True)
     out = pathlib.Path(a.out)
     res = json.loads(out.read_text()) if out.exists() else {}
+    if a.peers_from:
+        peers = {r["n"]: r for r in res["runs"][a.peers_from]["rows"]}
+        notes.append(f"peers' timings copied from the run {a.peers_from!r} (the peers' code did not change)")
+        for row in rows:
+            for k, v in peers.get(row["n"], {}).items():
+                if k not in row:
+                    row[k] = v
+            if "dynamax_us_per_path_step" in row:
+                row["dynamax_over_nlfilter"] = {k: v / row["us_per_path_step"][k]
+                                                for k, v in row["dynamax_us_per_path_step"].items()}
     res.update({"benchmark": "dimensions", "problem":
                 "x_i' = 0.9 x_i + 0.1 sin(x_{i+1}) + w, y_j = x_j + 0.1 x_{j+m}^2 + v, Q = 0.01 I, R = 0.1 I, "
                 "m0 = 0, P0 = I, m = ceil(n/2)"})
