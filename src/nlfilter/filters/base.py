@@ -142,8 +142,9 @@ def gaussian_prior(m0, P0, n: int, batch: tuple, *, data: str = "ys", one: bool 
 
 
 class _Recorder:
-    """Bookkeeping of :meth:`Filter.run`: output arrays (time-major while filling), the divergence
-    check after each step (raise or mark), the restart of marked paths."""
+    """Bookkeeping of :meth:`Filter.run`: output arrays (path-major ``(B, T, ...)`` while filling,
+    the layout of the result: no transposing copy at the end), the divergence check after each
+    step (raise or mark), the restart of marked paths."""
 
     def __init__(self, flt, B, T, on_divergence, keep: bool = False):
         self.flt, self.B, self.T = flt, B, T
@@ -158,14 +159,14 @@ class _Recorder:
     def _store(self, k, mean, cov, belief, d=None, info=None):
         if self.means is None:
             n = mean.shape[-1]
-            self.means = np.empty((self.T, self.B, n))
-            self.covs = np.empty((self.T, self.B, n, n))
+            self.means = np.empty((self.B, self.T, n))
+            self.covs = np.empty((self.B, self.T, n, n))
         if d is None:
-            self.means[k] = mean
-            self.covs[k] = np.nan if cov is None else cov
+            self.means[:, k] = mean
+            self.covs[:, k] = np.nan if cov is None else cov
         else:
-            self.means[k] = np.where(d[:, None], np.nan, mean)
-            self.covs[k] = np.nan if cov is None else np.where(d[:, None, None], np.nan, cov)
+            self.means[:, k] = np.where(d[:, None], np.nan, mean)
+            self.covs[:, k] = np.nan if cov is None else np.where(d[:, None, None], np.nan, cov)
         ex = self.flt.extras(belief)
         if info is not None:
             ex = {**(ex or {}), **info}
@@ -175,8 +176,8 @@ class _Recorder:
                 if d is not None and v.dtype.kind == "f":
                     v = np.where(d.reshape(-1, *(1,) * (v.ndim - 1)), np.nan, v)
                 if name not in self.extras:
-                    self.extras[name] = np.empty((self.T, *v.shape), v.dtype)
-                self.extras[name][k] = v
+                    self.extras[name] = np.empty((v.shape[0], self.T, *v.shape[1:]), v.dtype)
+                self.extras[name][:, k] = v
 
     def record(self, k, belief, bad, start, *, write: bool = True, info=None):
         """Check step ``k``'s belief (raise or mark), write its summary (and the step's likelihood
@@ -212,12 +213,11 @@ class _Recorder:
         return belief
 
     def result(self, batch) -> Estimates:
-        def out(a):  # (T, B, ...) -> (*batch, T, ...)
-            a = np.moveaxis(a, 0, 1)
-            return np.ascontiguousarray(a.reshape(*batch, *a.shape[1:]))
+        def out(a):  # (B, T, ...) -> (*batch, T, ...), a view
+            return a.reshape(*batch, *a.shape[1:])
         if self.means is None:  # T = 0
             n = self.flt.state_dim
-            self.means, self.covs = np.empty((0, self.B, n)), np.empty((0, self.B, n, n))
+            self.means, self.covs = np.empty((self.B, 0, n)), np.empty((self.B, 0, n, n))
         extras = MappingProxyType({k: out(v) for k, v in self.extras.items()})
         return Estimates(out(self.means), out(self.covs), self.diverged.reshape(batch), self.step.reshape(batch), extras)
 
