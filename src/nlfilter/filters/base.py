@@ -425,7 +425,7 @@ class Filter:
         if not isinstance(loglik, (bool, np.bool_)):
             raise TypeError(f"loglik: expected True or False, got {loglik!r}")
         if loglik and self.likelihood is None:
-            self._update_info(None, None, 0)  # raises: this filter defines no likelihood
+            Filter._update_info(self, None, None, 0)  # raises the TypeError naming loglik
         ys = self.check_data(ys)
         batch, T, m = ys.shape[:-2], ys.shape[-2], ys.shape[-1]
         B = math.prod(batch)
