@@ -43,14 +43,18 @@ def test_ekf_matches_filterpy_step_by_step(nonlinear3):
         np.testing.assert_allclose(ours.covs[0, k], fp.P, atol=1e-9)
 
 
-def test_ukf_matches_filterpy_step_by_step(nonlinear3):
-    md = _const_G_model(nonlinear3)
-    ys = simulate(md, 40, paths=1, rng=6, m0=M0, P0=P0, start="predict").ys[0]
-    alpha, beta, kappa = 0.7, 2.0, 0.5
+def _ukf_pair(md, alpha=0.7, beta=2.0, kappa=0.5):
+    """filterpy's UKF and ours with the same scaled sigma points, prior and noise (predict-first)."""
     pts = MerweScaledSigmaPoints(3, alpha=alpha, beta=beta, kappa=kappa)
     fp = UnscentedKalmanFilter(3, 2, 1.0, hx=lambda x: md.h(x, 0), fx=lambda x, dt: md.f(x, 0), points=pts)
     fp.x, fp.P, fp.Q, fp.R = M0.copy(), P0.copy(), md.GQGT(np.zeros(3)), md.R.copy()
-    ukf = UKF(md, alpha=alpha, beta=beta, kappa=kappa, start="predict")
+    return fp, UKF(md, alpha=alpha, beta=beta, kappa=kappa, start="predict")
+
+
+def test_ukf_matches_filterpy_step_by_step(nonlinear3):
+    md = _const_G_model(nonlinear3)
+    ys = simulate(md, 40, paths=1, rng=6, m0=M0, P0=P0, start="predict").ys[0]
+    fp, ukf = _ukf_pair(md)
     ours = ukf.run(ys[None], M0, P0)
     for k, y in enumerate(ys):
         fp.predict()
@@ -75,11 +79,7 @@ def test_ukf_loglik_and_rts_smoother_match_filterpy(nonlinear3):
     ``UKF.smooth``: the RTS pass through the unscented rule) on a nonlinear model, 1e-9."""
     md = _const_G_model(nonlinear3)
     ys = simulate(md, 30, paths=1, rng=7, m0=M0, P0=P0, start="predict").ys[0]
-    alpha, beta, kappa = 0.7, 2.0, 0.5
-    pts = MerweScaledSigmaPoints(3, alpha=alpha, beta=beta, kappa=kappa)
-    fp = UnscentedKalmanFilter(3, 2, 1.0, hx=lambda x: md.h(x, 0), fx=lambda x, dt: md.f(x, 0), points=pts)
-    fp.x, fp.P, fp.Q, fp.R = M0.copy(), P0.copy(), md.GQGT(np.zeros(3)), md.R.copy()
-    ukf = UKF(md, alpha=alpha, beta=beta, kappa=kappa, start="predict")
+    fp, ukf = _ukf_pair(md)
     ours = ukf.run(ys[None], M0, P0, loglik=True)
     Xs, Ps, lls = [], [], []
     for y in ys:
