@@ -364,7 +364,7 @@ class Filter:
     # -- the one loop ------------------------------------------------------------------------------
     def run(self, ys, m0=None, P0=None, *, initial=None, rng=None, t0: float = 0.0,
             on_divergence: str = "raise", progress: bool = False, chunk: int | None = None,
-            loglik: bool = False) -> Estimates:
+            loglik: bool = False, backend: str = "numpy") -> Estimates:
         """Filter a batch of measurement sequences ``ys (..., T, m)`` (increments for a
         continuous-time filter) from the prior ``(m0, P0)``.
 
@@ -392,16 +392,22 @@ class Filter:
             missing components drop out exactly: a step's term is the density of its observed
             components, 0 for a step missing entirely); a filter whose ``likelihood`` is None
             refuses (TypeError)
+        backend : ``"numpy"`` (default: this loop) or ``"numba"``: the same filter compiled, one
+            loop over paths and steps (:mod:`nlfilter.filters.compiled`: the discrete EKF, UKF,
+            CKF, GHKF, SLF and second-order filters on SymPy models; the same estimates to
+            rounding, tested to 1e-12; compiled at the first run of a model, seconds); a filter
+            or model it does not take raises a TypeError naming backend
 
         Returns
         -------
         Estimates
             ``means[..., k, :]`` estimates the state measured by ``ys[..., k, :]``.
         """
-        return self._drive(ys, m0, P0, initial, rng, t0, on_divergence, progress, chunk, loglik, False)
+        return self._drive(ys, m0, P0, initial, rng, t0, on_divergence, progress, chunk, loglik, False, backend)
 
     def smooth(self, ys, m0=None, P0=None, *, initial=None, rng=None, t0: float = 0.0,
-               on_divergence: str = "raise", progress: bool = False, chunk: int | None = None) -> Estimates:
+               on_divergence: str = "raise", progress: bool = False, chunk: int | None = None,
+               backend: str = "numpy") -> Estimates:
         """Smoothed estimates of a batch of measurement sequences: the filter's forward pass, then
         its family's backward pass (``smoother``: the Rauch–Tung–Striebel recursion of the Gaussian
         filters through their moment rule, the forward–backward grid smoother, the particle
@@ -417,11 +423,17 @@ class Filter:
         if self.smoother is None:
             raise TypeError(f"smooth: {type(self).__name__} has no smoother (its smoother attribute is None); "
                             "the Gaussian filters, the grid and the particle filters have one")
-        return self._drive(ys, m0, P0, initial, rng, t0, on_divergence, progress, chunk, False, True)
+        return self._drive(ys, m0, P0, initial, rng, t0, on_divergence, progress, chunk, False, True, backend)
 
-    def _drive(self, ys, m0, P0, initial, rng, t0, on_divergence, progress, chunk, loglik, smooth):
+    def _drive(self, ys, m0, P0, initial, rng, t0, on_divergence, progress, chunk, loglik, smooth, backend="numpy"):
         """The one loop behind :meth:`run` and :meth:`smooth`."""
         on = V.choice("on_divergence", on_divergence, {"raise", "mark"})
+        backend = V.choice("backend", backend, {"numpy", "numba"})
+        if backend == "numba":
+            from .compiled import unsupported
+            reason = unsupported(self)
+            if reason is not None:
+                raise TypeError(f"backend: 'numba' cannot run {type(self).__name__}: {reason}; use backend='numpy'")
         if not isinstance(loglik, (bool, np.bool_)):
             raise TypeError(f"loglik: expected True or False, got {loglik!r}")
         if loglik and self.likelihood is None:
@@ -443,10 +455,14 @@ class Filter:
                 return np.broadcast_to(a, (*batch, *a.shape[a.ndim - tail:])).reshape(B, *a.shape[a.ndim - tail:])[lo:hi]
             parts = [self._drive(yf[lo:lo + chunk], rows(m0, 1, lo, lo + chunk), rows(P0, 2, lo, lo + chunk),
                                  initial, rng.take(slice(lo, lo + chunk)) if self.random else rng, t0, on, progress,
-                                 None, loglik, smooth) for lo in range(0, B, chunk)]
+                                 None, loglik, smooth, backend) for lo in range(0, B, chunk)]
             est = Estimates.concatenate(parts)
             out = lambda a: a.reshape(*batch, *a.shape[1:])  # noqa: E731
             return Estimates(*(out(a) for a in est[:4]), MappingProxyType({k: out(v) for k, v in est.extras.items()}))
+        if backend == "numba":
+            from .compiled import run_compiled
+            est = run_compiled(self, yf, batch if not smooth else (B,), m0, P0, on, loglik, progress)
+            return self._smoothed(est, None, yf, t0, batch) if smooth else est
         with _blas_limit(self.blas_threads):
             return self._loop(yf, batch, m, m0, P0, initial, rng, t0, on, progress, loglik, smooth)
 
@@ -490,9 +506,12 @@ class Filter:
                     belief = rec.record(k, belief, bad, start, info=info)
         if not smooth:
             return self.output(rec.result(batch))
-        est = rec.result((B,))
+        return self._smoothed(rec.result((B,)), rec.beliefs, yf, t0, batch)
+
+    def _smoothed(self, est, beliefs, yf, t0, batch):
+        """The family's backward pass over the forward pass ``est`` (paths flattened)."""
         with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
-            means, covs, *more = self._smooth(est, rec.beliefs, yf, t0)
+            means, covs, *more = self._smooth(est, beliefs, yf, t0)
         d = est.diverged
         nan = lambda a: np.where(d.reshape(-1, *(1,) * (a.ndim - 1)), np.nan, a)  # noqa: E731
         out = lambda a: a.reshape(*batch, *a.shape[1:])  # noqa: E731

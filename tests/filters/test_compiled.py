@@ -1,0 +1,210 @@
+"""The compiled run loop (``run(..., backend="numba")``, issue 13 goal 3): the same filter as the
+NumPy loop, which stays the reference.
+
+Tolerance: 1e-12, relative to the size of each output (``|a − b| ≤ 1e-12 · max(1, |a|)``). The two
+loops do the same arithmetic in a different order (an LU solve for NumPy's ``solve``, explicit sums
+for ``einsum``/``matmul``): on these well-conditioned models the differences are rounding, measured
+at ≤ 3e-14 relative over 60 steps; 1e-12 leaves a margin of 30 and still catches any change of
+formula (those move outputs by 1e-4 or more). Compilation takes seconds per model and rule kind,
+so the models here are few and small.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import sympy as sp
+from hypothesis import given, settings
+from hypothesis import strategies as hst
+
+from nlfilter import DiscreteModel, SDEModel
+from nlfilter.errors import DivergenceError
+from nlfilter.filters import compiled
+from nlfilter.filters.cubature import CKF, GHKF, StatisticallyLinearizedFilter
+from nlfilter.filters.ekf import EKF, ContinuousDiscreteEKF, IteratedEKF
+from nlfilter.filters.linalg import PSD_TOL, _bad_paths_exact
+from nlfilter.filters.rules import FORMS
+from nlfilter.filters.second_order import SecondOrderFilter
+from nlfilter.filters.ukf import UKF
+from nlfilter.simulate import simulate
+from tests.filters.test_screen import _matrix  # the screen's test matrices, every kind
+
+pytestmark = pytest.mark.skipif(not compiled.available(), reason="numba does not import")
+
+RTOL = 1e-12
+
+x1, x2, a, k = sp.symbols("x1 x2 a k")
+
+
+def nonlinear():
+    """Two states, two measurements, a parameter, a time-varying input and a state-dependent G."""
+    f = [0.9 * x1 + 0.1 * sp.sin(x2) + 0.05 * sp.cos(0.3 * k), a * x2 - 0.05 * x1 * x2]
+    h = [x1 + 0.1 * x2**2, sp.atan(x2)]
+    G = [[1.0, 0.0], [0.1 * x1, 1.0]]
+    return DiscreteModel([x1, x2], f, h, G, Q=[[0.02, 0.005], [0.005, 0.01]], R=[[0.1, 0.02], [0.02, 0.2]],
+                         params={a: 0.8}, time=k, name="two-state")
+
+
+def polynomial():
+    """A polynomial model with constant G (the second-order and SLF filters' case)."""
+    return DiscreteModel([x1, x2], [0.9 * x1 + 0.1 * x2, 0.8 * x2 - 0.1 * x1**2], [x1 + x2**2 / 4, x1 * x2 / 2],
+                         Q=[[0.02, 0.0], [0.0, 0.01]], R=[[0.1, 0.0], [0.0, 0.2]], name="polynomial")
+
+
+@pytest.fixture(scope="module")
+def data():
+    md = nonlinear()
+    ys = simulate(md, 60, paths=6, rng=3, m0=[0.2, -0.1], P0=0.3 * np.eye(2)).ys.copy()
+    ys[1, 4, 0] = np.nan  # partly missing
+    ys[2, 9] = np.nan  # missing on one path
+    ys[:, 15] = np.nan  # missing on every path
+    ys[3, 20:23, 1] = np.nan
+    return md, ys
+
+
+def close(a, b):
+    a, b = np.asarray(a), np.asarray(b)
+    assert a.shape == b.shape
+    np.testing.assert_array_equal(np.isnan(a), np.isnan(b))
+    ok = ~np.isnan(a)
+    scale = np.maximum(1.0, np.abs(a[ok]))
+    err = np.max(np.abs(a[ok] - b[ok]) / scale, initial=0.0)
+    assert err <= RTOL, err
+
+
+def same(e1, e2):
+    close(e1.means, e2.means)
+    close(e1.covs, e2.covs)
+    np.testing.assert_array_equal(e1.diverged, e2.diverged)
+    np.testing.assert_array_equal(e1.diverged_step, e2.diverged_step)
+    assert set(e1.extras) == set(e2.extras)
+    for name in e1.extras:
+        close(e1.extras[name], e2.extras[name])
+
+
+MAKERS = {"ekf": EKF, "ukf": UKF, "ckf": CKF, "ghkf": lambda md, **kw: GHKF(md, order=3, **kw),
+          "ukf-scaled": lambda md, **kw: UKF(md, alpha=0.5, beta=2.0, kappa=1.0, **kw)}
+
+
+@pytest.mark.parametrize("name", list(MAKERS))
+@pytest.mark.parametrize("start", ["update", "predict"])
+def test_same_estimates_and_likelihood_as_numpy(data, name, start):
+    md, ys = data
+    flt = MAKERS[name](md, start=start)
+    m0 = np.array([[0.2, -0.1]] * 6) + 0.01 * np.arange(6)[:, None]  # a prior per path
+    P0 = 0.3 * np.eye(2)
+    ref = flt.run(ys, m0, P0, loglik=True)
+    new = flt.run(ys, m0, P0, loglik=True, backend="numba")
+    same(ref, new)
+    assert np.isfinite(new.loglik).all()
+
+
+@pytest.mark.parametrize("form", FORMS)
+def test_second_order_forms_as_numpy(form):
+    md = polynomial()
+    ys = simulate(md, 40, paths=4, rng=5, m0=[0.1, 0.2], P0=0.2 * np.eye(2)).ys.copy()
+    ys[0, 3, 1] = np.nan
+    ys[:, 7] = np.nan
+    flt = SecondOrderFilter(md, form=form)
+    same(flt.run(ys, [0.1, 0.2], 0.2 * np.eye(2), loglik=True, on_divergence="mark"),
+         flt.run(ys, [0.1, 0.2], 0.2 * np.eye(2), loglik=True, on_divergence="mark", backend="numba"))
+
+
+def test_slf_and_smoother_as_numpy():
+    md = polynomial()
+    ys = simulate(md, 30, paths=3, rng=6, m0=[0.1, 0.2], P0=0.2 * np.eye(2)).ys
+    flt = StatisticallyLinearizedFilter(md)
+    same(flt.run(ys, [0.1, 0.2], 0.2 * np.eye(2)), flt.run(ys, [0.1, 0.2], 0.2 * np.eye(2), backend="numba"))
+    same(flt.smooth(ys, [0.1, 0.2], 0.2 * np.eye(2)), flt.smooth(ys, [0.1, 0.2], 0.2 * np.eye(2), backend="numba"))
+
+
+def test_parameters_are_read_at_run_time_and_the_code_is_shared(data):
+    md, ys = data
+    other = md.with_params(a=0.5)
+    flt = EKF(other)
+    same(flt.run(ys, [0.2, -0.1], 0.3 * np.eye(2)), flt.run(ys, [0.2, -0.1], 0.3 * np.eye(2), backend="numba"))
+    assert compiled.model_kernels(other)["f"] is compiled.model_kernels(md)["f"]  # generated once
+    a1 = EKF(md).run(ys, [0.2, -0.1], 0.3 * np.eye(2), backend="numba")
+    a2 = flt.run(ys, [0.2, -0.1], 0.3 * np.eye(2), backend="numba")
+    assert np.abs(a1.means - a2.means).max() > 1e-3  # the new value is used
+
+
+def _diverging():
+    x = sp.Symbol("x")
+    return DiscreteModel([x], [1.5 * x**2], [sp.Integer(0)], Q=0.1, R=1.0, name="blows up")  # x² grows unobserved
+
+
+@pytest.mark.parametrize("make", [EKF, UKF, lambda md: SecondOrderFilter(md, form="gaussian")],
+                         ids=["ekf", "ukf", "second-order"])
+def test_divergence_marked_and_raised_as_numpy(make):
+    md = _diverging()
+    ys = np.zeros((4, 40, 1))
+    m0 = np.array([[0.1], [0.5], [2.0], [3.0]])  # the last two blow up, at different steps
+    flt = make(md)
+    ref = flt.run(ys, m0, 0.1, on_divergence="mark", loglik=True)
+    new = flt.run(ys, m0, 0.1, on_divergence="mark", loglik=True, backend="numba")
+    assert ref.diverged.any() and len(set(ref.diverged_step.tolist())) > 1  # paths fail at different steps
+    same(ref, new)
+    with pytest.raises(DivergenceError) as e1:
+        flt.run(ys, m0, 0.1)
+    with pytest.raises(DivergenceError) as e2:
+        flt.run(ys, m0, 0.1, backend="numba")
+    assert str(e1.value) == str(e2.value)
+    assert e1.value.step == e2.value.step
+
+
+def test_singular_prior():
+    """A known state component (P0 singular): the EKF needs no square root; the node rules take an
+    eigen root of P, and on a linear model every root gives the same moments."""
+    md = DiscreteModel.linear([[0.9, 0.1], [0.0, 0.8]], [[1.0, 0.0], [0.0, 1.0]], Q=0.01 * np.eye(2), R=0.1 * np.eye(2))
+    ys = simulate(md, 20, paths=2, rng=1, m0=[0.0, 0.0], P0=np.diag([1.0, 0.0])).ys
+    for flt in (EKF(md), UKF(md, start="predict"), CKF(md)):
+        same(flt.run(ys, [0.0, 0.0], np.diag([1.0, 0.0])),
+             flt.run(ys, [0.0, 0.0], np.diag([1.0, 0.0]), backend="numba"))
+
+
+def test_what_it_does_not_take_is_named(data):
+    md, ys = data
+    with pytest.raises(ValueError, match="backend"):
+        EKF(md).run(ys, [0.0, 0.0], np.eye(2), backend="jax")
+    with pytest.raises(TypeError, match="backend: 'numba'.*IteratedEKF"):
+        IteratedEKF(md).run(ys, [0.0, 0.0], np.eye(2), backend="numba")
+    x = sp.Symbol("x")
+    sde = SDEModel([x], [-x], [x], Q=1.0, R=1.0)
+    with pytest.raises(TypeError, match="backend: 'numba'"):
+        ContinuousDiscreteEKF(sde, 0.1).run(np.zeros((1, 3, 1)), [0.0], [[1.0]], backend="numba")
+    varying = md.with_params(a=np.full(60, 0.7))
+    with pytest.raises(TypeError, match="backend: 'numba'.*vary over time"):
+        EKF(varying).run(ys, [0.0, 0.0], np.eye(2), backend="numba")
+    with pytest.raises(TypeError, match="backend: 'numba'.*depends on neither the state nor the time"):
+        SecondOrderFilter(md).run(ys, [0.0, 0.0], np.eye(2), backend="numba")  # G depends on x1
+
+
+def test_chunks_and_progress_give_the_same_numbers(data):
+    md, ys = data
+    flt = UKF(md)
+    one = flt.run(ys, [0.2, -0.1], 0.3 * np.eye(2), backend="numba", loglik=True)
+    same(one, flt.run(ys, [0.2, -0.1], 0.3 * np.eye(2), backend="numba", loglik=True, chunk=4))
+    same(one, flt.run(ys, [0.2, -0.1], 0.3 * np.eye(2), backend="numba", loglik=True, progress=True))
+    batch = flt.run(ys.reshape(2, 3, *ys.shape[1:]), [0.2, -0.1], 0.3 * np.eye(2), backend="numba")
+    close(batch.means.reshape(one.means.shape), one.means)
+
+
+@settings(max_examples=200, deadline=None)
+@given(n=hst.integers(1, 6), seed=hst.integers(0, 2**32 - 1), log_scale=hst.floats(-4.0, 7.0),
+       kind=hst.sampled_from(("pd", "psd-singular", "zero", "within", "near", "beyond", "negative", "nan",
+                              "asymmetric")))
+def test_compiled_screen_is_the_eigenvalue_test(n, seed, kind, log_scale):
+    """The compiled divergence test (Cholesky screen, then Jacobi eigenvalues) flags exactly what
+    the NumPy test flags (:func:`~nlfilter.filters.linalg._bad_paths_exact`)."""
+    rng = np.random.default_rng(seed)
+    P = _matrix(rng, n, kind, 10.0**log_scale)
+    m = rng.standard_normal(n)
+    W, L, ev = np.empty((n, n)), np.empty((n, n)), np.empty(n)
+    ok = compiled._psd_check(m, P, n, PSD_TOL, W, L, ev)
+    assert ok == (not _bad_paths_exact(m[None], P[None])[0])
+    if ok and kind not in ("nan", "asymmetric"):  # L Lᵀ = P (the eigen root where Cholesky fails: up to
+        # the clipped negatives); an asymmetric P: Cholesky reads its lower triangle, as NumPy's
+        V = np.empty((n, n))
+        assert compiled._sqrt_check(P, L, n, PSD_TOL, W, ev, V)
+        np.testing.assert_allclose(L @ L.T, 0.5 * (P + P.T), rtol=0, atol=1e-8 * max(1.0, np.abs(P).max()))
