@@ -42,6 +42,17 @@ def test_every_gaussian_filter_finds_the_kalman_mle(ar_fit):
     assert abs(ukf.loglik - res.loglik) < 1e-8 * abs(res.loglik)
 
 
+@pytest.mark.skipif(not __import__("nlfilter.filters.compiled", fromlist=["x"]).available(), reason="no numba")
+def test_compiled_filter_finds_the_same_mle(ar_fit):
+    """``fit(..., backend="numba")``: the compiled EKF's likelihood is the NumPy loop's to rounding
+    (1e-12), so the optimizer ends at the same optimum (its tolerance, as above)."""
+    ys, res = ar_fit
+    ekf = fit(AR, ys, {"a": 0.5, "q": 1.0, "r": 1.0}, filter="ekf", se=False, backend="numba", **PRIOR)
+    for k in res.params:
+        assert abs(ekf.params[k] - res.params[k]) < 1e-4 * abs(res.params[k])
+    assert abs(ekf.loglik - res.loglik) < 1e-8 * abs(res.loglik)
+
+
 def test_em_climbs_to_the_same_mle(ar_fit):
     """EM (Shumway & Stoffer) never decreases the likelihood and converges to the MLE that the
     direct maximization finds: log L within 1e-6 relative, parameters within 3e-3 (EM's slow

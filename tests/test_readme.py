@@ -53,7 +53,7 @@ def test_likelihood_block_runs(tmp_path, monkeypatch, capsys):
     """The "Likelihood, smoothers and parameters" block runs as written (sizes cut: 60 steps, 2
     paths, a 101-point grid; the code path is the same) and prints a converged fit."""
     text = README.read_text()
-    section = text[text.index("### Likelihood, smoothers and parameters"):text.index("## Conventions")]
+    section = text[text.index("### Likelihood, smoothers and parameters"):text.index("### Speed: the compiled loop")]
     (code,) = re.findall(r"```python\n(.*?)```", section, re.S)
     code = code.replace("300, paths=4", "60, paths=2").replace("401))", "101))")
     monkeypatch.chdir(tmp_path)
@@ -62,3 +62,18 @@ def test_likelihood_block_runs(tmp_path, monkeypatch, capsys):
     out = capsys.readouterr().out
     assert ns["est"].loglik.shape == (2,) and ns["sm"].means.shape == (2, 60, 1)
     assert "converged" in out and ns["res"].se_ok
+
+
+def test_compiled_block_runs(tmp_path, monkeypatch, capsys):
+    """The "Speed: the compiled loop" block runs as written (2000 steps instead of 100,000; the
+    code path is the same) and gives the NumPy loop's estimates."""
+    text = README.read_text()
+    section = text[text.index("### Speed: the compiled loop"):text.index("## Conventions")]
+    (code,) = re.findall(r"```python\n(.*?)```", section, re.S)
+    code = code.replace("100_000", "2000")
+    monkeypatch.chdir(tmp_path)
+    ns = {}
+    exec(compile(code, "README-compiled", "exec"), ns)
+    assert ns["est"].means.shape == (1, 2000, 1)
+    ref = ns["EKF"](ns["model"]).run(ns["ys"], m0=0.5, P0=0.1)
+    assert abs(ns["est"].means - ref.means).max() < 1e-12

@@ -33,6 +33,14 @@ pytestmark = pytest.mark.skipif(not compiled.available(), reason="numba does not
 
 RTOL = 1e-12
 
+
+@pytest.fixture(autouse=True)
+def general_loops(monkeypatch):
+    """The general (not dimension-specialized) loops: 3-7 s of compilation per model and rule kind
+    instead of 15-45 s; the specialized loops do the same arithmetic, which
+    :func:`test_specialized_loops_give_the_same_numbers` checks to the last bit."""
+    monkeypatch.setattr(compiled, "SPECIALIZE_UP_TO", 0)
+
 x1, x2, a, k = sp.symbols("x1 x2 a k")
 
 
@@ -97,6 +105,25 @@ def test_same_estimates_and_likelihood_as_numpy(data, name, start):
     new = flt.run(ys, m0, P0, loglik=True, backend="numba")
     same(ref, new)
     assert np.isfinite(new.loglik).all()
+
+
+@pytest.mark.parametrize("start", ["update", "predict"])
+def test_scalar_batch_loop_as_numpy(start):
+    """One state, measurement and noise: the EKF's scalar batch loop (all paths at each step)."""
+    x = sp.Symbol("x")
+    md = DiscreteModel([x], [a * x + 0.1 * sp.sin(k)], [x**3], G=[[1 + 0.1 * x**2]], Q=0.01, R=0.1,
+                       params={a: 0.99}, time=k)
+    ys = simulate(md, 80, paths=7, rng=2, m0=0.5, P0=0.1).ys.copy()
+    ys[3, 5] = np.nan
+    ys[:, 7] = np.nan
+    flt = EKF(md, start=start)
+    m0 = 0.5 + 0.1 * np.arange(7)[:, None]
+    ref = flt.run(ys, m0, 0.1, loglik=True)
+    new = flt.run(ys, m0, 0.1, loglik=True, backend="numba")
+    same(ref, new)
+    assert new.means.shape == (7, 80, 1) and new.extras["innovation_cov"].shape == (7, 80, 1, 1)
+    same(flt.run(ys.reshape(7, 1, 80, 1), m0.reshape(7, 1, 1), 0.1, backend="numba"),
+         flt.run(ys.reshape(7, 1, 80, 1), m0.reshape(7, 1, 1), 0.1))
 
 
 @pytest.mark.parametrize("form", FORMS)
@@ -208,3 +235,19 @@ def test_compiled_screen_is_the_eigenvalue_test(n, seed, kind, log_scale):
         V = np.empty((n, n))
         assert compiled._sqrt_check(P, L, n, PSD_TOL, W, ev, V)
         np.testing.assert_allclose(L @ L.T, 0.5 * (P + P.T), rtol=0, atol=1e-8 * max(1.0, np.abs(P).max()))
+
+
+@pytest.mark.parametrize("make", [EKF, UKF], ids=["taylor1", "nodes"])
+def test_specialized_loops_give_the_same_numbers(data, make, monkeypatch):
+    """Small models run loops with the dimensions compiled in and the helpers inlined
+    (``SPECIALIZE_UP_TO``): the same operations in the same order, so the same bits."""
+    md, ys = data
+    flt = make(md)
+    general = flt.run(ys, [0.2, -0.1], 0.3 * np.eye(2), loglik=True, backend="numba")
+    monkeypatch.setattr(compiled, "SPECIALIZE_UP_TO", 4)
+    special = flt.run(ys, [0.2, -0.1], 0.3 * np.eye(2), loglik=True, backend="numba")
+    store = compiled._KERNELS[md._kernels["f"]]
+    assert any(key[0] == "steps" and key[-1] == (2, 2, 2, None) for key in store if isinstance(key, tuple))
+    for a_, b_ in ((general.means, special.means), (general.covs, special.covs),
+                   (general.extras["loglik"], special.extras["loglik"])):
+        np.testing.assert_array_equal(a_, b_)
