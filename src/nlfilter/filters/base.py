@@ -40,6 +40,10 @@ with eigenvalues ≥ −tol·scale), together with the paths a step reports as f
 records the paths in ``Estimates.diverged`` / ``diverged_step``, fills their later estimates
 with NaN (flagged, never silent), restarts them harmlessly from the initial belief and goes on
 with the others, whose estimates are those of a run without them.
+
+Backends: ``run(..., backend="numba")`` hands the same run to the compiled loop of
+:mod:`nlfilter.filters.compiled` (the discrete Gaussian filters on SymPy models), which keeps
+every convention above; this loop stays the reference it is tested against.
 """
 
 from __future__ import annotations
