@@ -12,6 +12,9 @@ with Q = 0.01 I, R = 0.1 I, m0 = 0, P0 = I, 1000 paths × 200 steps (``--paths``
   batched over paths;
 * filterpy ``ExtendedKalmanFilter`` and ``UnscentedKalmanFilter`` (a Python loop per path and
   step) on a subset of paths (``--filterpy-paths``), per path-step;
+* with ``--backend numba`` or ``both``: the same nlfilter filters through ``run(..., backend="numba")``
+  (the compiled loop; compile time, the first run on 10 steps, reported apart) and the largest
+  difference of its means from the NumPy loop's;
 * dynamax ``extended_kalman_filter`` / ``unscented_kalman_filter`` in float64 under ``jit`` +
   ``vmap`` (compile time excluded, reported apart), where jax and dynamax install.
 
@@ -21,7 +24,8 @@ runs with ``start="predict"`` against it; dynamax updates first, as nlfilter's d
 ``after``): the JSON keeps one entry per label, so the timings of the code before a change stay
 beside those after it. No timing is asserted anywhere.
 
-Run: ``PYTHONPATH=src python benchmarks/bench_dimensions.py [--label after] [--dims 1 2 4 8 16]``
+Run: ``PYTHONPATH=src python benchmarks/bench_dimensions.py [--label after] [--dims 1 2 4 8 16]
+[--backend numpy|numba|both]``
 """
 
 from __future__ import annotations
@@ -62,6 +66,16 @@ def best_of(fn, repeat):
     return best, out
 
 
+def compiled(flt, ys, m0, P0, repeat, **kw):
+    """``flt.run(ys, m0, P0, backend="numba")``: compile seconds (its first run, on 10 steps), best
+    seconds of ``repeat`` runs on all of ``ys``, and the estimates."""
+    t0 = time.perf_counter()
+    flt.run(ys[..., :10, :], m0, P0, backend="numba", **kw)
+    first = time.perf_counter() - t0
+    t, est = best_of(lambda: flt.run(ys, m0, P0, backend="numba", **kw), repeat)
+    return first, t, est
+
+
 def _np_fns(n):
     m = math.ceil(n / 2)
     nxt = [(i + 1) % n for i in range(n)]
@@ -91,11 +105,18 @@ def _np_fns(n):
 
 def filterpy_runs(n, ys, npth, repeat):
     """µs per path-step of filterpy's EKF and UKF and their means ``(npth, T, n)``."""
+    return filterpy_pair(_np_fns(n), ys[:npth], np.zeros(n), np.eye(n), Q * np.eye(n),
+                         R * np.eye(ys.shape[-1]), repeat)
+
+
+def filterpy_pair(fns, ys, m0, P0, Qm, Rm, repeat):
+    """filterpy's EKF and UKF over every path of ``ys (paths, T, m)`` with the NumPy functions
+    ``fns = (fx, hx, F, H)`` of one state ``(n,)``: µs per path-step and the means ``(paths, T, n)``."""
     from filterpy.kalman import ExtendedKalmanFilter, MerweScaledSigmaPoints, UnscentedKalmanFilter
 
-    fx, hx, F, H = _np_fns(n)
-    m = ys.shape[-1]
-    T = ys.shape[1]
+    fx, hx, F, H = fns
+    n, m = len(m0), ys.shape[-1]
+    npth, T = ys.shape[:2]
 
     class FP(ExtendedKalmanFilter):
         def predict(self, u=0):
@@ -107,7 +128,7 @@ def filterpy_runs(n, ys, npth, repeat):
         out = np.empty((npth, T, n))
         for p in range(npth):
             f = FP(n, m)
-            f.x, f.P, f.Q, f.R = np.zeros((n, 1)), np.eye(n), Q * np.eye(n), R * np.eye(m)
+            f.x, f.P, f.Q, f.R = np.array(m0, float)[:, None], np.array(P0, float), Qm, Rm
             for k in range(T):
                 f.predict()
                 f.update(ys[p, k][:, None], lambda x: H(x[:, 0]), lambda x: hx(x[:, 0])[:, None])
@@ -119,7 +140,7 @@ def filterpy_runs(n, ys, npth, repeat):
         for p in range(npth):
             pts = MerweScaledSigmaPoints(n, alpha=1.0, beta=2.0, kappa=0.0)
             f = UnscentedKalmanFilter(n, m, 1.0, hx, fx, pts)
-            f.x, f.P, f.Q, f.R = np.zeros(n), np.eye(n), Q * np.eye(n), R * np.eye(m)
+            f.x, f.P, f.Q, f.R = np.array(m0, float), np.array(P0, float), Qm, Rm
             for k in range(T):
                 f.predict()
                 f.update(ys[p, k])
@@ -133,22 +154,34 @@ def filterpy_runs(n, ys, npth, repeat):
 
 def dynamax_runs(n, ys, repeat):
     """µs per path-step of dynamax's EKF and UKF (jit + vmap, float64), compile seconds, means."""
+    return dynamax_pair(lambda jnp: dynamax_chain(n, ys.shape[-1], jnp), ys, repeat, vmap=True)
+
+
+def dynamax_chain(n, m, jnp):
+    """The chain's ``(m0, P0, f, Q, h, R)`` in jax."""
+    nxt = jnp.array([(i + 1) % n for i in range(n)])
+    sq = jnp.array([(j + m) % n for j in range(m)])
+    return (jnp.zeros(n), jnp.eye(n), lambda x: 0.9 * x + 0.1 * jnp.sin(x[nxt]), Q * jnp.eye(n),
+            lambda x: x[:m] + 0.1 * x[sq] ** 2, R * jnp.eye(m))
+
+
+def dynamax_pair(spec, ys, repeat, vmap=True):
+    """dynamax's EKF and UKF (float64, ``jit``, over the paths of ``ys (paths, T, m)`` with ``vmap``,
+    or over one trajectory ``ys (T, m)`` without): µs per (path-)step, compile seconds, means, jax's
+    version. ``spec(jnp)`` gives the model ``(m0, P0, f, Q, h, R)``."""
     import jax
     jax.config.update("jax_enable_x64", True)
     import jax.numpy as jnp
     from dynamax.nonlinear_gaussian_ssm import (ParamsNLGSSM, UKFHyperParams, extended_kalman_filter,
                                                 unscented_kalman_filter)
 
-    m = ys.shape[-1]
-    nxt = jnp.array([(i + 1) % n for i in range(n)])
-    sq = jnp.array([(j + m) % n for j in range(m)])
-    params = ParamsNLGSSM(initial_mean=jnp.zeros(n), initial_covariance=jnp.eye(n),
-                          dynamics_function=lambda x: 0.9 * x + 0.1 * jnp.sin(x[nxt]),
-                          dynamics_covariance=Q * jnp.eye(n),
-                          emission_function=lambda x: x[:m] + 0.1 * x[sq] ** 2, emission_covariance=R * jnp.eye(m))
+    m0, P0, f, Qm, h, Rm = spec(jnp)
+    params = ParamsNLGSSM(initial_mean=m0, initial_covariance=P0, dynamics_function=f, dynamics_covariance=Qm,
+                          emission_function=h, emission_covariance=Rm)
     hyper = UKFHyperParams(alpha=1.0, beta=2.0, kappa=0.0)
-    runs = {"ekf": jax.jit(jax.vmap(lambda y: extended_kalman_filter(params, y).filtered_means)),
-            "ukf": jax.jit(jax.vmap(lambda y: unscented_kalman_filter(params, y, hyper).filtered_means))}
+    over = jax.vmap if vmap else (lambda fn: fn)
+    runs = {"ekf": jax.jit(over(lambda y: extended_kalman_filter(params, y).filtered_means)),
+            "ukf": jax.jit(over(lambda y: unscented_kalman_filter(params, y, hyper).filtered_means))}
     yj = jnp.asarray(ys)
     us, compile_s, means = {}, {}, {}
     for name, run in runs.items():
@@ -156,7 +189,7 @@ def dynamax_runs(n, ys, repeat):
         run(yj).block_until_ready()
         first = time.perf_counter() - t0
         t, out = best_of(lambda: run(yj).block_until_ready(), repeat)
-        us[name] = t / (ys.shape[0] * ys.shape[1]) * 1e6
+        us[name] = t / math.prod(ys.shape[:-1]) * 1e6
         compile_s[name] = first - t
         means[name] = np.asarray(out)
     return us, compile_s, means, jax.__version__
@@ -169,12 +202,17 @@ def main(argv=None):
     ap.add_argument("--steps", type=int, default=200)
     ap.add_argument("--repeat", type=int, default=3)
     ap.add_argument("--filterpy-paths", type=int, default=5)
+    ap.add_argument("--backend", choices=["numpy", "numba", "both"], default="numpy",
+                    help="nlfilter's run loop: numpy (the reference, default), numba (compiled; compile time "
+                         "apart) or both columns")
     ap.add_argument("--no-peers", action="store_true", help="nlfilter only")
     ap.add_argument("--peers-from", default=None, metavar="LABEL",
                     help="with --no-peers: copy the peers' timings from that run of the JSON (same machine)")
     ap.add_argument("--label", default="after", help="the entry of the JSON to write (e.g. before/after)")
     ap.add_argument("--out", default=str(OUT))
     a = ap.parse_args(argv)
+    if a.backend != "numpy":
+        import nlfilter.filters.compiled  # noqa: F401  (numba imported outside the compile times)
     rows = []
     notes = []
     jax_version = None
@@ -189,8 +227,17 @@ def main(argv=None):
             filters["ghkf-2"] = GHKF(md, order=2)
         row = {"n": n, "m": ys.shape[-1], "paths": a.paths, "steps": a.steps, "us_per_path_step": {}}
         for name, flt in filters.items():
-            t, _ = best_of(lambda: flt.run(ys, m0, P0), a.repeat)
-            row["us_per_path_step"][name] = t / ps * 1e6
+            if a.backend != "numba":
+                t, _ = best_of(lambda: flt.run(ys, m0, P0), a.repeat)
+                row["us_per_path_step"][name] = t / ps * 1e6
+            if a.backend != "numpy":
+                first, t, est = compiled(flt, ys, m0, P0, a.repeat)
+                row.setdefault("numba_us_per_path_step", {})[name] = t / ps * 1e6
+                row.setdefault("numba_compile_seconds", {})[name] = first
+                row.setdefault("numba_vs_numpy_max_abs_difference_of_means", {})[name] = float(
+                    np.max(np.abs(est.means - flt.run(ys, m0, P0).means)))
+        if not row["us_per_path_step"]:
+            del row["us_per_path_step"]
         if not a.no_peers:
             # filterpy predicts first; dynamax, as nlfilter's default, updates first
             first = {k: cls(md, start="predict").run(ys, m0, P0).means for k, cls in (("ekf", EKF), ("ukf", UKF))}
@@ -211,7 +258,10 @@ def main(argv=None):
                 row["dynamax_compile_seconds"] = comp
                 for k in us:
                     diffs[f"{k}_vs_dynamax"] = float(np.max(np.abs(ours[k] - means[k])))
-                row["dynamax_over_nlfilter"] = {k: us[k] / row["us_per_path_step"][k] for k in us}
+                for col, key in (("us_per_path_step", "dynamax_over_nlfilter"),
+                                 ("numba_us_per_path_step", "dynamax_over_nlfilter_numba")):
+                    if col in row:
+                        row[key] = {k: us[k] / row[col][k] for k in us}
             except ImportError as exc:
                 notes.append(f"dynamax/jax not installed: {exc}") if n == a.dims[0] else None
             row["max_abs_difference_of_means"] = diffs
@@ -226,9 +276,10 @@ def main(argv=None):
             for k, v in peers.get(row["n"], {}).items():
                 if k not in row:
                     row[k] = v
-            if "dynamax_us_per_path_step" in row:
-                row["dynamax_over_nlfilter"] = {k: v / row["us_per_path_step"][k]
-                                                for k, v in row["dynamax_us_per_path_step"].items()}
+            for col, key in (("us_per_path_step", "dynamax_over_nlfilter"),
+                             ("numba_us_per_path_step", "dynamax_over_nlfilter_numba")):
+                if "dynamax_us_per_path_step" in row and col in row:
+                    row[key] = {k: v / row[col][k] for k, v in row["dynamax_us_per_path_step"].items()}
     res.update({"benchmark": "dimensions", "problem":
                 "x_i' = 0.9 x_i + 0.1 sin(x_{i+1}) + w, y_j = x_j + 0.1 x_{j+m}^2 + v, Q = 0.01 I, R = 0.1 I, "
                 "m0 = 0, P0 = I, m = ceil(n/2)"})
@@ -236,7 +287,7 @@ def main(argv=None):
         "machine": {"python": platform.python_version(), "numpy": np.__version__, "cpu": platform.machine(),
                     "cores": os.cpu_count(), "jax": jax_version,
                     "note": "2 cores shared with other jobs: best of N, noisy"},
-        "repeat": a.repeat, "notes": notes, "rows": rows}
+        "repeat": a.repeat, "backend": a.backend, "notes": notes, "rows": rows}
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text(json.dumps(res, indent=2) + "\n")
     print(f"wrote {out}")
