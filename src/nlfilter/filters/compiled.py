@@ -111,8 +111,14 @@ def _source(name, exprs, shape, states, time, psyms) -> str:
     else:
         red = []
     zeros = [i for i, e in enumerate(flat) if e == 0]
-    for i in zeros:
-        lines.append(f"    out[{', '.join(map(str, np.unravel_index(i, shape)))}] = 0.0")
+    if len(zeros) > 8:  # a sparse Hessian: one loop of zeros, then the nonzero entries (compact code)
+        ix = [f"i{d}" for d in range(len(shape))]
+        for d, (v, size) in enumerate(zip(ix, shape)):
+            lines.append("    " + "    " * d + f"for {v} in range({size}):")
+        lines.append("    " + "    " * len(shape) + f"out[{', '.join(ix)}] = 0.0")
+    else:
+        for i in zeros:
+            lines.append(f"    out[{', '.join(map(str, np.unravel_index(i, shape)))}] = 0.0")
     for (i, _), e in zip(nonzero, red):
         lines.append(f"    out[{', '.join(map(str, np.unravel_index(i, shape)))}] = {pr.doprint(e)}")
     if len(lines) == 1:
@@ -191,7 +197,9 @@ def model_kernels(model, *, second: bool = False) -> dict:
             src = _source(name, exprs, shape, states, time, psyms)
             ns = {"math": math}
             exec(compile(src, f"<nlfilter.compiled {w}>", "exec"), ns)  # noqa: S102 - code we generated
-            store[w] = _jit(ns[name], _nrt=False, inline="always")  # scalar code: no reference counting
+            # scalar code: no reference counting; small functions inlined into the loops (a
+            # Hessian of 16 states, 4096 entries, inlined took 18 minutes to compile)
+            store[w] = _jit(ns[name], _nrt=False, inline="always" if len(exprs) <= 64 else "never")
             store["src_" + w] = src
     return {w: store[w] for w in want}
 
