@@ -1184,8 +1184,15 @@ def _nodes(flt, n):
         return np.concatenate([c * np.eye(n), -c * np.eye(n)]), w, w
     if isinstance(rule, GaussHermite):
         z, w = _gh_rule(n, rule.order)
-        return np.ascontiguousarray(z, float), np.array(w), np.array(w)
+        return np.array(z, float), np.array(w, float), np.array(w, float)  # writeable copies: one numba type for all rules
     raise TypeError(f"rule: no compiled nodes for {type(rule).__name__}")  # pragma: no cover
+
+
+def _plain(a):
+    """``a`` as a writeable C-contiguous float array (a read-only or strided array is another
+    numba type: it would compile the loop again)."""
+    a = np.asarray(a, dtype=float)
+    return a if a.flags.c_contiguous and a.flags.writeable else np.array(a, dtype=float, order="C")
 
 
 def run_compiled(flt, yf, batch, m0, P0, on, loglik, progress=False):
@@ -1200,17 +1207,17 @@ def run_compiled(flt, yf, batch, m0, P0, on, loglik, progress=False):
     B, T, mdim = yf.shape
     n = md.n
     prior = flt.init(m0, P0, batch)
-    mean0 = np.ascontiguousarray(prior.mean, float).reshape(B, n)
-    cov0 = np.ascontiguousarray(prior.cov, float).reshape(B, n, n)
-    ys = np.ascontiguousarray(yf, float)
+    mean0 = _plain(prior.mean).reshape(B, n)
+    cov0 = _plain(prior.cov).reshape(B, n, n)
+    ys = _plain(yf)
     offset = 0 if flt.start == "update" else 1
     absent = np.isnan(ys).all(axis=(0, 2)) if B else np.zeros(T, bool)
     vals = md._values.values
     p = np.array([float(vals[s]) for s in md._psyms], float)
-    Q = np.ascontiguousarray(md.Q, float)
-    R = np.ascontiguousarray(md.R, float)
+    Q = _plain(md.Q)
+    R = _plain(md.R)
     G_const = bool(md._G_fixed)
-    GQG0 = (np.ascontiguousarray(md.GQGT(np.zeros(n)), float) if G_const else np.zeros((n, n)))
+    GQG0 = _plain(md.GQGT(np.zeros(n))) if G_const else np.zeros((n, n))
     means = np.empty((B, T, n))
     covs = np.empty((B, T, n, n))
     want = bool(loglik)
