@@ -464,6 +464,26 @@ def _tr_(A, At, ni, nj):
             At[j, i] = A[i, j]
 
 
+def _predict_cov_(F, P, N, out, T1, T2, n):
+    """``out = F P Fᵀ + N`` (``out`` may be ``P``; ``T1``, ``T2`` scratch)."""
+    _tr(F, T1, n, n)
+    _mm(P, T1, T2, n, n, n, False)  # P Fᵀ
+    for i in range(n):
+        for j in range(n):
+            out[i, j] = N[i, j]
+    _mm(F, T2, out, n, n, n, True)
+
+
+def _meas_cov_(P, H, R, Ht, C, S, n, mdim):
+    """``C = P Hᵀ`` and ``S = H C + R`` (the linearized measurement moments)."""
+    _tr(H, Ht, mdim, n)
+    _mm(P, Ht, C, n, n, mdim, False)
+    for a in range(mdim):
+        for c in range(mdim):
+            S[a, c] = R[a, c]
+    _mm(H, C, S, mdim, n, mdim, True)
+
+
 def _condition_(m, P, y, yhat, S, C, H, R, joseph, M, forcing, screen, n, mdim, w, want, ll_out, inn_out, cov_out):
     """The update of :func:`~nlfilter.filters.linalg.gaussian_update` on one path (``m``, ``P`` in
     place): the observed components ``o`` of ``y``, ``K = C_o S_oo⁻¹`` (row by row: ``K_i =
@@ -679,12 +699,7 @@ def _steps_taylor1_(f, fx, h, hx, G, ys, m0, P0, p, Q, R, GQG0, G_const, offset,
                             for a in range(r):
                                 s += GQ[i, a] * Gm[j, a]
                             N[i, j] = s
-                _tr(F, FP, n, n)  # Fᵀ (FP as scratch)
-                _mm(P, FP, W, n, n, n, False)  # P Fᵀ
-                for i in range(n):
-                    for j in range(n):
-                        P[i, j] = N[i, j]
-                _mm(F, W, P, n, n, n, True)  # F (P Fᵀ) + G Q Gᵀ
+                _predict_cov(F, P, N, P, FP, W, n)  # F P Fᵀ + G Q Gᵀ
                 for i in range(n):
                     m[i] = mp[i]
                 if not _psd_check(m, P, n, tol, W, L, ev):
@@ -694,12 +709,7 @@ def _steps_taylor1_(f, fx, h, hx, G, ys, m0, P0, p, Q, R, GQG0, G_const, offset,
                 t = float(k + offset)
                 h(m, t, p, yhat)
                 hx(m, t, p, Hm)
-                _tr(Hm, Ht, mdim, n)
-                _mm(P, Ht, C, n, n, mdim, False)  # C = P Hᵀ
-                for a in range(mdim):
-                    for c in range(mdim):
-                        S[a, c] = R[a, c]
-                _mm(Hm, C, S, mdim, n, mdim, True)  # S = H C + R
+                _meas_cov(P, Hm, R, Ht, C, S, n, mdim)  # C = P Hᵀ, S = H C + R
                 for a in range(mdim):
                     yk[a] = ys[b, k, a]
                 ok = _condition(m, P, yk, yhat, S, C, Hm, R, True, M0, False, False, n, mdim, w, want, l1, i1, c1)
@@ -966,10 +976,10 @@ def _alloc_taylor2(ys, m0, Q, N=0):
     W, L, ev, V = np.empty((n, n)), np.empty((n, n)), np.empty(n), np.empty((n, n))
     w = _work(n, mdim)
     yk, l1, i1, c1 = np.empty(mdim), np.empty(1), np.empty(mdim), np.empty((mdim, mdim))
-    return (m, P, mp, F, Hm, C, S, FP, Af, Ah, tr, AP, Cf, M, yhat, W, L, ev, V, w, yk, l1, i1, c1)
+    return (m, P, mp, F, Hm, C, S, FP, Af, Ah, tr, AP, Cf, M, yhat, W, L, ev, V, w, yk, l1, i1, c1, np.empty((n, mdim)))
 
 
-def _steps_taylor2_(f, fx, fxx, h, hx, hxx, ys, m0, P0, p, R, GQG0, second, dyn_kind, meas_kind, force_kind, joseph, offset, absent, tol, means, covs, ll, inn, icov, want, step, m, P, mp, F, Hm, C, S, FP, Af, Ah, tr, AP, Cf, M, yhat, W, L, ev, V, w, yk, l1, i1, c1):
+def _steps_taylor2_(f, fx, fxx, h, hx, hxx, ys, m0, P0, p, R, GQG0, second, dyn_kind, meas_kind, force_kind, joseph, offset, absent, tol, means, covs, ll, inn, icov, want, step, m, P, mp, F, Hm, C, S, FP, Af, Ah, tr, AP, Cf, M, yhat, W, L, ev, V, w, yk, l1, i1, c1, Ht):
     B, T, mdim = ys.shape
     n = m0.shape[1]
     for b in range(B):
@@ -988,18 +998,7 @@ def _steps_taylor2_(f, fx, fxx, h, hx, hxx, ys, m0, P0, p, R, GQG0, second, dyn_
                     _hess_trace(P, Af, n, n, tr)
                     for i in range(n):
                         mp[i] += 0.5 * tr[i]
-                for i in range(n):
-                    for j in range(n):
-                        s = 0.0
-                        for q in range(n):
-                            s += P[i, q] * F[j, q]
-                        FP[i, j] = s
-                for i in range(n):
-                    for j in range(n):
-                        s = 0.0
-                        for q in range(n):
-                            s += F[i, q] * FP[q, j]
-                        Cf[i, j] = s + GQG0[i, j]
+                _predict_cov(F, P, GQG0, Cf, FP, W, n)  # F P Fᵀ + G Q Gᵀ (004 eq. 19)
                 if second:
                     _quartic(dyn_kind, P, Af, tr, n, n, AP, Cf)
                 for i in range(n):  # symmetrized (Taylor-2)
@@ -1019,18 +1018,7 @@ def _steps_taylor2_(f, fx, fxx, h, hx, hxx, ys, m0, P0, p, R, GQG0, second, dyn_
                     _hess_trace(P, Ah, n, mdim, tr)
                     for a in range(mdim):
                         yhat[a] += 0.5 * tr[a]
-                for i in range(n):
-                    for a in range(mdim):
-                        s = 0.0
-                        for q in range(n):
-                            s += P[i, q] * Hm[a, q]
-                        C[i, a] = s
-                for a in range(mdim):
-                    for c in range(mdim):
-                        s = 0.0
-                        for q in range(n):
-                            s += Hm[a, q] * C[q, c]
-                        S[a, c] = s + R[a, c]
+                _meas_cov(P, Hm, R, Ht, C, S, n, mdim)  # C = P Hᵀ, S = H C + R
                 force = False
                 if second:
                     _quartic(meas_kind, P, Ah, tr, n, mdim, AP, S)
@@ -1080,6 +1068,8 @@ if _nb is not None:  # compiled on first use (lazily, by numba)
     _lu = _jit(_lu_, _nrt=False)
     _lu_solve = _jit(_lu_solve_, _nrt=False)
     _mm = _jit(_mm_, _nrt=False)
+    _predict_cov = _jit(_predict_cov_, _nrt=False)
+    _meas_cov = _jit(_meas_cov_, _nrt=False)
     _tr = _jit(_tr_, _nrt=False)
     _condition = _jit(_condition_, _nrt=False)
     _write = _jit(_write_, _nrt=False)
@@ -1107,7 +1097,7 @@ _FUNCTION_ARGS = {"taylor1": ("f", "fx", "h", "hx", "G"), "nodes": ("f", "h", "G
 #: (no fast-math), so both give the same numbers to the last bit.
 SPECIALIZE_UP_TO = 4
 
-_HELPERS = ("_chol_", "_psd_ok_", "_psd_check_", "_sqrt_psd_", "_sqrt_check_", "_jacobi_", "_lu_", "_lu_solve_",
+_HELPERS = ("_predict_cov_", "_meas_cov_", "_chol_", "_psd_ok_", "_psd_check_", "_sqrt_psd_", "_sqrt_check_", "_jacobi_", "_lu_", "_lu_solve_",
             "_mm_", "_tr_", "_condition_", "_write_", "_mark_", "_nodes_moments_", "_hess_trace_", "_quartic_")
 _STEPS = ("_steps_taylor1_", "_steps_nodes_", "_steps_taylor2_", "_steps_scalar_")
 _SOURCE = {}  # read once at import: later edits of this file cannot skew the compiled code
