@@ -484,6 +484,22 @@ def _meas_cov_(P, H, R, Ht, C, S, n, mdim):
     _mm(H, C, S, mdim, n, mdim, True)
 
 
+def _add_gqg_(G, Q, GQ, out, w, n, r):
+    """``out += w · G Q Gᵀ`` (``GQ`` scratch)."""
+    for i in range(n):
+        for a in range(r):
+            s = 0.0
+            for c in range(r):
+                s += G[i, c] * Q[c, a]
+            GQ[i, a] = s
+    for i in range(n):
+        for j in range(n):
+            s = 0.0
+            for a in range(r):
+                s += GQ[i, a] * G[j, a]
+            out[i, j] += w * s
+
+
 def _condition_(m, P, y, yhat, S, C, H, R, joseph, M, forcing, screen, n, mdim, w, want, ll_out, inn_out, cov_out):
     """The update of :func:`~nlfilter.filters.linalg.gaussian_update` on one path (``m``, ``P`` in
     place): the observed components ``o`` of ``y``, ``K = C_o S_oo⁻¹`` (row by row: ``K_i =
@@ -688,17 +704,9 @@ def _steps_taylor1_(f, fx, h, hx, G, ys, m0, P0, p, Q, R, GQG0, G_const, offset,
                 else:  # G(m) Q G(m)ᵀ
                     G(m, t, p, Gm)
                     for i in range(n):
-                        for a in range(r):
-                            s = 0.0
-                            for c in range(r):
-                                s += Gm[i, c] * Q[c, a]
-                            GQ[i, a] = s
-                    for i in range(n):
                         for j in range(n):
-                            s = 0.0
-                            for a in range(r):
-                                s += GQ[i, a] * Gm[j, a]
-                            N[i, j] = s
+                            N[i, j] = 0.0
+                    _add_gqg(Gm, Q, GQ, N, 1.0, n, r)
                 _predict_cov(F, P, N, P, FP, W, n)  # F P Fᵀ + G Q Gᵀ
                 for i in range(n):
                     m[i] = mp[i]
@@ -886,18 +894,7 @@ def _steps_nodes_(f, h, G, z, wm, wc, ys, m0, P0, p, Q, R, GQG0, G_const, offset
                                 Nz[i, j] = 0.0
                         for i2 in range(N):
                             G(X[i2], t, p, Gm)
-                            for i in range(n):
-                                for a in range(r):
-                                    s = 0.0
-                                    for c in range(r):
-                                        s += Gm[i, c] * Q[c, a]
-                                    GQ[i, a] = s
-                            for i in range(n):
-                                for j in range(n):
-                                    s = 0.0
-                                    for a in range(r):
-                                        s += GQ[i, a] * Gm[j, a]
-                                    Nz[i, j] += wm[i2] * s
+                            _add_gqg(Gm, Q, GQ, Nz, wm[i2], n, r)
                     for i in range(n):
                         m[i] = mean[i]
                         for j in range(n):
@@ -1069,6 +1066,7 @@ if _nb is not None:  # compiled on first use (lazily, by numba)
     _lu_solve = _jit(_lu_solve_, _nrt=False)
     _mm = _jit(_mm_, _nrt=False)
     _predict_cov = _jit(_predict_cov_, _nrt=False)
+    _add_gqg = _jit(_add_gqg_, _nrt=False)
     _meas_cov = _jit(_meas_cov_, _nrt=False)
     _tr = _jit(_tr_, _nrt=False)
     _condition = _jit(_condition_, _nrt=False)
@@ -1097,7 +1095,7 @@ _FUNCTION_ARGS = {"taylor1": ("f", "fx", "h", "hx", "G"), "nodes": ("f", "h", "G
 #: (no fast-math), so both give the same numbers to the last bit.
 SPECIALIZE_UP_TO = 4
 
-_HELPERS = ("_predict_cov_", "_meas_cov_", "_chol_", "_psd_ok_", "_psd_check_", "_sqrt_psd_", "_sqrt_check_", "_jacobi_", "_lu_", "_lu_solve_",
+_HELPERS = ("_add_gqg_", "_predict_cov_", "_meas_cov_", "_chol_", "_psd_ok_", "_psd_check_", "_sqrt_psd_", "_sqrt_check_", "_jacobi_", "_lu_", "_lu_solve_",
             "_mm_", "_tr_", "_condition_", "_write_", "_mark_", "_nodes_moments_", "_hess_trace_", "_quartic_")
 _STEPS = ("_steps_taylor1_", "_steps_nodes_", "_steps_taylor2_", "_steps_scalar_")
 _SOURCE = {}  # read once at import: later edits of this file cannot skew the compiled code
