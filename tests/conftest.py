@@ -64,3 +64,9 @@ def _check_figure(result, tmp_path, expect: dict, paper=()):
 def check_figure(tmp_path):
     """``check_figure(result, expect, paper=())``: see :func:`_check_figure`."""
     return lambda result, expect, paper=(): _check_figure(result, tmp_path, expect, paper)
+
+
+@pytest.fixture(autouse=True)
+def _private_store(tmp_path, monkeypatch):
+    """The command line's results store goes to a temporary file, never the user's cache."""
+    monkeypatch.setenv("NLFILTER_STORE", str(tmp_path / "results.sqlite"))

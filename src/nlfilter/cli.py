@@ -1,7 +1,10 @@
-"""The ``nlfilter`` command: ``nlfilter list`` (``--filters``: the filter registry) and ``nlfilter reproduce ID``.
+"""The ``nlfilter`` command: ``nlfilter list`` (``--filters``: the filter registry), ``nlfilter
+reproduce ID`` and ``nlfilter results list | show | export`` (the results store, :mod:`nlfilter.store`).
 
-Errors in what the user typed (unknown experiment, unknown or malformed ``--param``) print one
-line on stderr and exit with code 2, never a traceback.
+Errors in what the user typed (unknown experiment, unknown or malformed ``--param``, an output
+path that cannot be written) print one line on stderr and exit with code 2, never a traceback,
+before any work starts. Ctrl-C prints one line and exits with code 130; every Monte Carlo block
+finished by then is in the store, and the same command resumes from there.
 """
 
 from __future__ import annotations
@@ -39,7 +42,40 @@ def _parser() -> argparse.ArgumentParser:
     r.add_argument("--json", metavar="PATH", help="write the result table as JSON")
     r.add_argument("--plot", metavar="PATH", help="write the figure as PNG")
     r.add_argument("--no-progress", action="store_true", help="hide progress bars")
+    _execution_options(r)
+    res = sub.add_parser("results", help="the results store: list runs, show one, export tables")
+    rsub = res.add_subparsers(dest="action", required=True, parser_class=_Parser)
+    for name, helptext in (("list", "list the stored runs (latest first)"),
+                           ("show", "print a stored run's table (or its status)"),
+                           ("export", "write stored results as CSV rows or JSON")):
+        a = rsub.add_parser(name, help=helptext)
+        a.add_argument("--store", metavar="PATH", default=None,
+                       help="the store's SQLite file (default $NLFILTER_STORE or ~/.cache/nlfilter/results.sqlite)")
+        if name == "list":
+            a.add_argument("--experiment", metavar="ID", default=None, help="only this experiment's runs")
+        if name == "show":
+            a.add_argument("run_id", type=int, metavar="RUN", help="run id (see `nlfilter results list`)")
+        if name == "export":
+            a.add_argument("run_ids", type=int, nargs="*", metavar="RUN",
+                           help="run ids (default: the latest finished run of each experiment)")
+            fmt = a.add_mutually_exclusive_group(required=True)
+            fmt.add_argument("--csv", metavar="PATH", help="one line per table row")
+            fmt.add_argument("--json", metavar="PATH", help="a list of the results' JSON")
     return p
+
+
+def _execution_options(r):
+    r.add_argument("--store", metavar="PATH", default=None,
+                   help="results store (SQLite) that keeps every finished Monte Carlo block, so an interrupted "
+                        "run resumes (default $NLFILTER_STORE or ~/.cache/nlfilter/results.sqlite)")
+    r.add_argument("--no-store", action="store_true", help="keep nothing: compute every block afresh")
+    r.add_argument("--executor", choices=("local", "dask"), default="local",
+                   help="where the Monte Carlo blocks run: this process (default) or a dask.distributed "
+                        "cluster (pip install \"nlfilter[dask]\"); the numbers are the same")
+    r.add_argument("--scheduler", metavar="ADDRESS", default=None,
+                   help="dask scheduler address (default: start a LocalCluster)")
+    r.add_argument("--workers", type=int, default=None, metavar="N",
+                   help="worker processes of the LocalCluster (default 2)")
 
 
 def _parse_params(items) -> dict:
@@ -65,6 +101,52 @@ def main(argv=None) -> int:
     except BrokenPipeError:  # output piped into e.g. `head`, which closed early: not an error
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())  # no second error at exit
         return 0
+    except KeyboardInterrupt:  # Ctrl-C: one line, exit 130 (the store keeps every finished block)
+        print("nlfilter: interrupted" + _KEPT.get(), file=sys.stderr)
+        return 130
+
+
+class _Kept:
+    """What an interrupted run leaves behind, for the one line printed on Ctrl-C."""
+
+    text = ""
+
+    def get(self):
+        return self.text
+
+
+_KEPT = _Kept()
+
+
+def _error(exc) -> int:
+    print(f"nlfilter: error: {exc}", file=sys.stderr)
+    return 2
+
+
+def _check_output(option: str, path: str | None, suffix: str | None = None) -> None:
+    """Refuse, before any work, an output path that cannot be written."""
+    if path is None:
+        return
+    if not path.strip():
+        raise ValueError(f"{option}: expected a file path, got an empty string")
+    folder = os.path.dirname(os.path.abspath(path))
+    if os.path.isdir(path):
+        raise ValueError(f"{option} {path!r}: is a folder; expected a file path")
+    if not os.path.isdir(folder):
+        raise ValueError(f"{option} {path!r}: the folder {folder!r} does not exist")
+    if not os.access(folder, os.W_OK):
+        raise ValueError(f"{option} {path!r}: the folder {folder!r} is not writable")
+    if suffix is not None and not path.lower().endswith(suffix):
+        raise ValueError(f"{option} {path!r}: expected a file name ending in {suffix}")
+
+
+def _open_store(args):
+    from .store import ResultsStore
+    if getattr(args, "no_store", False):
+        if args.store is not None:
+            raise ValueError("--no-store: given with --store; expected one of them")
+        return None
+    return ResultsStore(args.store)
 
 
 def _main(argv) -> int:
@@ -85,6 +167,12 @@ def _main(argv) -> int:
                 for name, default in sorted(exp.params.items()):
                     print(f"    --param {name}={_show(default)}")
         return 0
+    if args.command == "results":
+        try:
+            return _results(args)
+        except ValueError as exc:
+            return _error(exc)
+    command = " ".join(["nlfilter", *(sys.argv[1:] if argv is None else argv)])
     try:
         exp = experiments.get(args.id)
         params = {k: exp.convert(k, v) for k, v in _parse_params(args.param).items()}
@@ -92,16 +180,44 @@ def _main(argv) -> int:
             raise ValueError(f"--runs: expected a positive integer, got {args.runs}")
         if args.chunk is not None and args.chunk < 1:
             raise ValueError(f"--chunk: expected a positive integer, got {args.chunk}")
+        if args.workers is not None and args.workers < 1:
+            raise ValueError(f"--workers: expected a positive integer, got {args.workers}")
+        if args.executor == "local" and (args.scheduler is not None or args.workers is not None):
+            raise ValueError("--scheduler/--workers: need --executor dask")
+        _check_output("--json", args.json, ".json")
+        _check_output("--plot", args.plot, ".png")
+        store = _open_store(args)
     except ValueError as exc:
-        print(f"nlfilter: error: {exc}", file=sys.stderr)
-        return 2
+        return _error(exc)
+    run_id = None
+    if store is not None:
+        run_id = store.start_run(exp.id, params=params, seed=args.seed, runs=args.runs, quick=args.quick,
+                                 command=command)
+        _KEPT.text = (f"; the finished Monte Carlo blocks are kept in {store.path} (run {run_id}): "
+                      "rerun the same command to resume")
+    status = "failed"
     try:
         result = exp.run(params, quick=args.quick, runs=args.runs, seed=args.seed,
-                         progress=not args.no_progress, chunk=args.chunk)
+                         progress=not args.no_progress, chunk=args.chunk, executor=args.executor,
+                         store=store, scheduler=args.scheduler, workers=args.workers)
+        status = "done"
+    except KeyboardInterrupt:
+        status = "interrupted"
+        raise
     except ValueError as exc:  # a parameter value the experiment itself rejects
-        print(f"nlfilter: error: {exc}", file=sys.stderr)
-        return 2
-    result.meta["command"] = " ".join(["nlfilter", *(sys.argv[1:] if argv is None else argv)])
+        return _error(exc)
+    finally:
+        if store is not None:
+            if status != "done":
+                store.finish_run(run_id, status)
+                store.close()
+    result.meta["command"] = command
+    if store is not None:
+        store.finish_run(run_id, "done", result)
+        store.close()
+        ex = result.meta.get("execution", {})
+        if ex.get("blocks_reused"):
+            print(f"reused {ex['blocks_reused']} finished Monte Carlo block(s) from {store.path}", file=sys.stderr)
     print(result.table())
     if args.json:
         result.to_json(args.json)
@@ -112,6 +228,71 @@ def _main(argv) -> int:
         plot_result(result, args.plot)
         print(f"wrote {args.plot}")
     return 0
+
+
+def _results(args) -> int:
+    """``nlfilter results list | show RUN | export [RUN ...] --csv PATH | --json PATH``."""
+    from .store import ResultsStore, default_path
+
+    path = args.store or str(default_path())
+    if not os.path.exists(path):
+        raise ValueError(f"--store {path!r}: no results store there (run `nlfilter reproduce ...` first)")
+    with ResultsStore(path) as st:
+        if args.action == "list":
+            rows = st.runs(args.experiment)
+            print("\t".join(["run", "experiment", "status", "seed", "runs", "quick", "started", "seconds", "command"]))
+            for r in rows:
+                secs = "-" if r["seconds"] is None else f"{r['seconds']:.1f}"
+                print("\t".join(str(v) for v in (r["id"], r["experiment"], r["status"], r["seed"],
+                                                 "-" if r["runs"] is None else r["runs"], bool(r["quick"]),
+                                                 r["started"], secs, r["command"] or "-")))
+            return 0
+        if args.action == "show":
+            run = st.run(args.run_id)
+            print(f"run {run['id']}: {run['experiment']} ({run['status']}, started {run['started']}, "
+                  f"nlfilter {run['version']}, code {run['code']})")
+            if run["result"] is None:
+                print(f"no table: the run is {run['status']}; its finished Monte Carlo blocks are in the store "
+                      f"({st.count_blocks(run['experiment'])} block(s) of {run['experiment']})")
+            else:
+                print(run["result"].table())
+            return 0
+        # export
+        out = args.csv or args.json
+        _check_output("--csv" if args.csv else "--json", out, ".csv" if args.csv else ".json")
+        if args.run_ids:
+            picked = [st.run(i) for i in args.run_ids]
+            bad = [r["id"] for r in picked if r["result"] is None]
+            if bad:
+                raise ValueError(f"RUN {bad[0]}: not finished (status {picked[0]['status']}); expected a done run")
+        else:
+            latest = {}
+            for r in st.runs():
+                if r["status"] == "done" and r["experiment"] not in latest:
+                    latest[r["experiment"]] = r["id"]
+            picked = [st.run(i) for i in sorted(latest.values())]
+        from .results import atomic_write
+        if args.json:
+            import json
+            text = json.dumps([{"run": r["id"], **r["result"].to_dict()} for r in picked], indent=2,
+                              allow_nan=False, ensure_ascii=False) + "\n"
+            atomic_write(out, text.encode("utf-8"))
+        else:
+            import csv
+            import io
+            import json
+            buf = io.StringIO()
+            w = csv.writer(buf)
+            w.writerow(["run", "experiment", "filter", "quantity", "params", "paper", "value", "stderr"])
+            for r in picked:
+                for row in r["result"].rows:
+                    d = row.to_dict()
+                    w.writerow([r["id"], r["experiment"], d["filter"], d["quantity"],
+                                json.dumps(d["params"], sort_keys=True), "" if d["paper"] is None else d["paper"],
+                                d["value"], "" if d["stderr"] is None else d["stderr"]])
+            atomic_write(out, buf.getvalue().encode("utf-8"))
+        print(f"wrote {out} ({len(picked)} run(s))")
+        return 0
 
 
 if __name__ == "__main__":  # pragma: no cover

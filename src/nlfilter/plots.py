@@ -107,7 +107,13 @@ def plot_result(result, path, *, dpi: int = 100) -> None:
     title, source = _heading(result)
     head = textwrap.fill(f"{result.experiment}: {title}", 130)
     fig.suptitle(f"{head}\n" + textwrap.fill(f"source: {source}", 130), fontsize=10)
-    fig.savefig(path, dpi=dpi)
+    import io
+
+    from .results import atomic_write
+
+    buf = io.BytesIO()  # drawn in memory, then written atomically: never a partial PNG
+    fig.savefig(buf, dpi=dpi, format="png")
+    atomic_write(path, buf.getvalue())
 
 
 def _heading(result) -> tuple[str, str]:

@@ -20,6 +20,7 @@ is "none" (no paper value, no standard error). ``series`` (the figures' arrays) 
 
 from __future__ import annotations
 
+import contextlib
 import json
 import math
 import platform
@@ -187,9 +188,10 @@ class Result:
                 "notes": list(self.notes), "meta": _encode(self.meta)}
 
     def to_json(self, path) -> None:
-        with open(path, "w") as fh:
-            json.dump(self.to_dict(), fh, indent=2, allow_nan=False, ensure_ascii=False)
-            fh.write("\n")
+        """Write the JSON form to ``path`` atomically (a temporary file beside it, then renamed):
+        an interrupted write never leaves a truncated file."""
+        text = json.dumps(self.to_dict(), indent=2, allow_nan=False, ensure_ascii=False) + "\n"
+        atomic_write(path, text.encode("utf-8"))
 
     @classmethod
     def from_json(cls, source) -> "Result":
@@ -221,6 +223,23 @@ class Result:
                  "  ".join("-" * w for w in widths)]
         lines += ["  ".join(c.ljust(w) for c, w in zip(b, widths)) for b in body]
         return "\n".join([f"{self.experiment}: {self.title}", f"source: {self.source}", *lines, *self.notes])
+
+
+def atomic_write(path, data: bytes) -> None:
+    """Write ``data`` to ``path`` through a temporary file in the same folder and ``os.replace``."""
+    import os
+    import tempfile
+
+    path = os.fspath(path)
+    fd, tmp = tempfile.mkstemp(dir=os.path.dirname(os.path.abspath(path)), prefix=".nlfilter-", suffix=".tmp")
+    try:
+        with os.fdopen(fd, "wb") as fh:
+            fh.write(data)
+        os.replace(tmp, path)
+    except BaseException:
+        with contextlib.suppress(OSError):
+            os.unlink(tmp)
+        raise
 
 
 def _fmt(x) -> str:

@@ -31,10 +31,16 @@ class Experiment:
     func: Callable[..., Result]
 
     def run(self, params: dict | None = None, *, quick: bool = False, runs: int | None = None,
-            seed: int = 0, progress: bool = False, chunk: int | None = None) -> Result:
+            seed: int = 0, progress: bool = False, chunk: int | None = None, executor=None, store=None,
+            scheduler: str | None = None, workers: int | None = None) -> Result:
         """Run with defaults overridden by ``params`` (already typed, or strings to convert).
+
         ``chunk``: simulate and filter the Monte Carlo paths that many at a time
-        (:func:`nlfilter.evaluate.chunk`); the rows are the same for any chunk (per-path streams)."""
+        (:func:`nlfilter.evaluate.chunk`); the rows are the same for any chunk (per-path streams).
+        ``executor`` (``"local"``, ``"dask"`` with ``scheduler``/``workers``, or an executor object)
+        and ``store`` (a :class:`~nlfilter.store.ResultsStore`): where the experiment's
+        block-structured Monte Carlo (:func:`nlfilter.montecarlo.montecarlo`) is computed and kept —
+        the numbers do not depend on either. How it ran is recorded in ``meta["execution"]``."""
         full = dict(self.params)
         for name, value in (params or {}).items():
             full[name] = self.convert(name, value)
@@ -42,11 +48,14 @@ class Experiment:
             raise ValueError(f"runs: expected a positive integer, got {runs!r}")
         given = {name: full[name] for name in (params or {})}
         from ..evaluate import chunked
-        with chunked(chunk):
+        from ..montecarlo import session
+        with session(executor=executor, store=store, experiment=self.id, seed=seed, chunk=chunk,
+                     progress=progress, scheduler=scheduler, workers=workers) as sess, chunked(chunk):
             res = self.func(full, quick=quick, runs=runs, seed=seed, progress=progress)
         res.params = _decode(_encode(res.params))  # as JSON keeps them (tuples as lists, numpy as Python)
         res.meta = provenance(self.id, seed=seed, runs=runs, paths=res.params.get("paths"), quick=quick,
                               given=given)
+        res.meta["execution"] = sess.execution()
         return res
 
     def convert(self, name: str, value):

@@ -15,6 +15,8 @@ steady state, (a)) and ``"monte carlo"`` (the simulation, (c)).
 
 from __future__ import annotations
 
+from functools import partial
+
 import numpy as np
 from scipy.optimize import minimize_scalar
 from tqdm import tqdm
@@ -22,6 +24,7 @@ from tqdm import tqdm
 from . import experiment
 from .. import evaluate as ev
 from ..bilinear import phase_model
+from ..montecarlo import montecarlo
 from ..filters.phase import (CircleGridFilter, LinearQuadratureFilter, PLL, PhaseTensorFilter, pll_gain,
                              post_processor, qr_from_P, wrap)
 from ..results import Result
@@ -45,7 +48,7 @@ def _peak(q):
 @experiment("phase-tracking", title="Phase tracking: PLL, linear quadrature filter, tensor filter, optimal",
             source="seed 001, Figs. 4.3-4.4, Table 4.1 (ch. 4, Appendix A)",
             params={"P": [], "q": 1.0, "sim_P": 0.129, "time_constants": 500.0, "discard": 25.0,
-                    "step": 0.01, "grid": 256, "sweep": 100, "simulate": True})
+                    "step": 0.01, "grid": 256, "sweep": 100, "simulate": True, "block": 32})
 def run(params, *, quick, runs, seed, progress):
     title = "Phase tracking: PLL, linear quadrature filter, tensor filter, optimal"
     res = Result("phase-tracking", title, "seed 001, Figs. 4.3-4.4, Table 4.1", params)
@@ -82,6 +85,33 @@ def run(params, *, quick, runs, seed, progress):
     return res
 
 
+def _phase_block(rows, *, q, r, dt, steps, nd, seed, grid):
+    """One Monte Carlo block of Table 4.1 (:func:`nlfilter.montecarlo.montecarlo`): simulate the
+    paths ``rows`` (per-path streams of case 0 of ``seed``), run the PLL, the LQF, the tensor filter
+    and (``grid > 0``) the optimal grid filter on the common noise, and reduce each path to its
+    window means after the first ``nd`` steps: ``m2_<f>`` = mean ε², ``cos_<f>`` = mean 1 − cos ε,
+    ``bias_<f>`` = mean ε (ε = θ − θ̂ wrapped), ``x1_<f>`` = mean (x̂₁ − sin θ)² and ``ok_<f>`` (not
+    diverged) for the filters that estimate x."""
+    theta, dzs = simulate_phase(q, r, dt, steps, rows, ev.stream(seed, 0))
+    model = phase_model(q, r)
+    m0, P0 = np.zeros(2), 0.5 * np.eye(2)  # filters start without phase information: x̂0 = E x0 = 0, θ̂0 = 0
+    runs = {"pll": PLL(model, dt).run(dzs, m0, P0), "lqf": LinearQuadratureFilter(model, dt).run(dzs, m0, P0),
+            "tensor": PhaseTensorFilter(model, dt).run(dzs, m0, P0)}
+    if grid > 0:
+        runs["optimal"] = CircleGridFilter(model, dt, size=grid).run(dzs)
+    x1 = np.sin(theta)
+    out = {}
+    for name, est in runs.items():
+        eps = wrap(theta - est.extras["theta"])[:, nd:]
+        out[f"m2_{name}"] = (eps ** 2).mean(axis=1)
+        out[f"cos_{name}"] = (1 - np.cos(eps)).mean(axis=1)
+        out[f"bias_{name}"] = eps.mean(axis=1)
+        if name != "pll":  # x1 = sin θ: an ordinary MSE (the phase rows need the wrapped error)
+            out[f"x1_{name}"] = ((est.means[..., 0] - x1)[:, nd:] ** 2).mean(axis=1)
+            out[f"ok_{name}"] = ~np.asarray(est.diverged)
+    return out
+
+
 def _simulation(res, params, q, quick, runs, seed, progress):
     P = float(params["sim_P"])
     q, r = qr_from_P(P, q)
@@ -92,59 +122,42 @@ def _simulation(res, params, q, quick, runs, seed, progress):
     steps = res.used("steps", int(round(tc / K / dt)))
     nd = int(round(disc / K / dt))
     paths = res.used("paths", runs or (2 if quick else 16))
-    theta, dzs = ev.in_chunks(lambda rows: simulate_phase(q, r, dt, steps, rows, ev.stream(seed, 0)), paths)
-    c = ev.chunk()
-    model = phase_model(q, r)
-    m0, P0 = np.zeros(2), 0.5 * np.eye(2)  # filters start without phase information: x̂0 = E x0 = 0, θ̂0 = 0
-    tf = PhaseTensorFilter(model, dt)
-    fits = tf.fits()
-    pll = PLL(model, dt).run(dzs, m0, P0, chunk=c)
-    lqf = LinearQuadratureFilter(model, dt).run(dzs, m0, P0, chunk=c)
-    ten = tf.run(dzs, m0, P0, chunk=c)
-    ests = {"pll": pll.extras["theta"], "lqf": lqf.extras["theta"], "tensor": ten.extras["theta"]}
-    xs = {"lqf": lqf.means, "tensor": ten.means}
-    if not quick or params["grid"] > 0:
-        ge = CircleGridFilter(model, dt, size=res.used("grid", 64 if quick else int(params["grid"]))).run(dzs, chunk=c)
-        ests["optimal"] = ge.extras["theta"]
-        xs["optimal"] = ge.means
-    x1 = np.sin(theta)
+    grid = res.used("grid", 64 if quick else int(params["grid"])) if (not quick or params["grid"] > 0) else 0
+    block = res.used("block", int(params["block"]))
+    ident = {"q": q, "r": r, "dt": dt, "steps": steps, "nd": nd, "seed": seed, "grid": grid}
+    pp = montecarlo("Table 4.1 simulation", partial(_phase_block, **ident), paths, block=block, ident=ident)
+    fits = PhaseTensorFilter(phase_model(q, r), dt).fits()
+    names = [k for k in ("pll", "lqf", "tensor", "optimal") if f"m2_{k}" in pp]
     se = lambda v: float(v.std(ddof=1) / np.sqrt(v.size)) if v.size > 1 else None  # noqa: E731
-    for name, th in ests.items():
-        eps = wrap(theta - th)[:, nd:]
+    for name in names:
         pap = TABLE_4_1.get(name, (None, None, None))
-        m2 = (eps ** 2).mean(axis=1)
+        m2 = pp[f"m2_{name}"]
         res.add(name, "mse_theta", m2.mean(), stderr=se(m2), paper=pap[0], P=P)
         rms = np.degrees(np.sqrt(m2.mean()))
         rse = None if se(m2) is None else np.degrees(se(m2) / (2 * np.sqrt(m2.mean())))
         res.add(name, "rms_deg", rms, stderr=rse, paper=pap[1], P=P)
-        c = (1 - np.cos(eps)).mean(axis=1)
+        c = pp[f"cos_{name}"]
         res.add(name, "one_minus_cos", c.mean(), stderr=se(c), paper=pap[2], P=P)
-        b = eps.mean(axis=1)
+        b = pp[f"bias_{name}"]
         res.add(name, "bias_theta", b.mean(), stderr=se(b), P=P)
-        if name in xs:  # x1 = sin θ: an ordinary MSE (the phase rows above need the wrapped error)
-            e1 = ev.mse(xs[name][..., :1], x1[..., None], window=slice(nd, None))
+        if f"x1_{name}" in pp:
+            e1 = ev._summary(pp[f"x1_{name}"], pp[f"ok_{name}"])
             res.add(name, "mse_x1", e1.value, stderr=e1.stderr if e1.paths > 1 else None, P=P, method="monte carlo")
-    if "optimal" in ests:  # paired excess over the optimal filter (common noise)
-        eo = (wrap(theta - ests["optimal"])[:, nd:] ** 2).mean(axis=1)
-        e1o = ((xs["optimal"][..., 0] - x1)[:, nd:] ** 2).mean(axis=1)
-        for name, th in ests.items():
-            if name == "optimal":
-                continue
-            d = (wrap(theta - th)[:, nd:] ** 2).mean(axis=1) - eo
+    if "optimal" in names:  # paired excess over the optimal filter (common noise)
+        for name in names[:-1]:
+            d = pp[f"m2_{name}"] - pp["m2_optimal"]
             res.add(name, "excess_mse_theta", d.mean(), stderr=se(d), P=P)
-            if name in xs:
-                d1 = ((xs[name][..., 0] - x1)[:, nd:] ** 2).mean(axis=1) - e1o
+            if f"x1_{name}" in pp:
+                d1 = pp[f"x1_{name}"] - pp["x1_optimal"]
                 res.add(name, "excess_mse_x1", d1.mean(), stderr=se(d1), P=P)
-    bias = {k: float(wrap(theta - v)[:, nd:].mean()) for k, v in ests.items()}
-    m2all = {k: float((wrap(theta - v)[:, nd:] ** 2).mean()) for k, v in ests.items()}
+    bias = {k: float(pp[f"bias_{k}"].mean()) for k in names}
+    m2all = {k: float(pp[f"m2_{k}"].mean()) for k in names}
     res.notes.append("001 §4.3 attributes the LQF/TF deficit to biased phase estimates; here the biases are "
                      + ", ".join(f"{k} {b:+.4f}" for k, b in bias.items()) + " rad, so bias² is "
                      + ", ".join(f"{k} {100 * bias[k] ** 2 / (m2all[k] - m2all['pll']):.0f}%"
                                  for k in ("lqf", "tensor") if m2all[k] > m2all["pll"])
                      + " of the excess over the PLL (see the bias_theta rows for their standard errors)")
-    d_lin = ((xs["lqf"][..., 0] - x1)[:, nd:] ** 2).mean(axis=1)
-    d_ten = ((xs["tensor"][..., 0] - x1)[:, nd:] ** 2).mean(axis=1)
-    red = 100 * (1 - d_ten / d_lin)
+    red = 100 * (1 - pp["x1_tensor"] / pp["x1_lqf"])
     res.add("tensor", "reduction_x1_mc", red.mean(), stderr=float(red.std(ddof=1) / np.sqrt(red.size)) if red.size > 1 else None,
             paper=MC_REDUCTION, P=P)
     res.add("lqf", "mse_x1_offline", fits[0].mse_linear, P=P)
@@ -152,7 +165,6 @@ def _simulation(res, params, q, quick, runs, seed, progress):
     res.notes.append(f"Simulation at P={P:g} (q={q:g}, r={r:.4g}): {paths} runs of {tc:g} time constants 1/K "
                      f"(K={K:.4g}), first {disc:g} discarded, RK4 step {dt:.3g} (1% of 1/K), common noise; "
                      f"stderr across runs. Paper: 4 runs (3% predicted standard deviation).")
-    names = [k for k in ("pll", "lqf", "tensor", "optimal") if k in ests]
     rows = [res.get(k, "mse_theta", P=P) for k in names]
     res.series[f"Table 4.1: phase error at P_θℓ = {P:g} ({paths} runs × {tc:g} time constants)"] = {
         "kind": "bar", "categories": names, "bars": {"ours (Monte Carlo)": [r.value for r in rows]},

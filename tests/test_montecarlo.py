@@ -1,0 +1,204 @@
+"""The block-structured Monte Carlo (nlfilter.montecarlo) and the results store (nlfilter.store):
+identical numbers for any executor, worker count and chunk; an interrupted run resumes without
+recomputing its finished blocks; Ctrl-C on the command line exits 130 with one line and leaves
+the store consistent; ``nlfilter results list | show | export``.
+
+"Identical" here is bitwise: every block is computed as its own batch from per-path streams, so
+who computes it (this process, a Dask worker) and how blocks are grouped into tasks (the chunk)
+cannot change its arithmetic. The JSON compared is the whole result file except ``meta``'s
+timestamp and ``meta["execution"]``, which record how the run was computed by design."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import sqlite3
+import subprocess
+import sys
+import time
+
+import numpy as np
+import pytest
+
+from nlfilter import cli, montecarlo
+from nlfilter.experiments import get
+from nlfilter.experiments import phase_tracking as pt
+from nlfilter.store import ResultsStore
+
+PARAMS = {"sweep": 3, "block": 2}  # quick phase tracking: 5 paths = blocks of 2, 2 and 1
+
+
+def _json(res) -> str:
+    d = res.to_dict()
+    d["meta"].pop("timestamp")
+    d["meta"].pop("execution")
+    return json.dumps(d, sort_keys=True)
+
+
+@pytest.fixture(scope="module")
+def reference():
+    return get("phase-tracking").run(PARAMS, quick=True, runs=5, seed=1)
+
+
+def test_chunks_give_identical_json(reference):
+    exp = get("phase-tracking")
+    for chunk in (1, 3, 4, 100):
+        assert _json(exp.run(PARAMS, quick=True, runs=5, seed=1, chunk=chunk)) == _json(reference), chunk
+
+
+def test_dask_workers_give_identical_json(reference):
+    pytest.importorskip("dask.distributed")
+    exp = get("phase-tracking")
+    for workers, chunk in ((1, None), (2, None), (2, 4)):
+        res = exp.run(PARAMS, quick=True, runs=5, seed=1, executor="dask", workers=workers, chunk=chunk)
+        assert res.meta["execution"]["executor"] == "dask" and res.meta["execution"]["workers"] == workers
+        assert res.meta["execution"]["blocks_computed"] == 3
+        assert _json(res) == _json(reference), (workers, chunk)
+
+
+def test_interrupted_run_resumes_only_unfinished_blocks(tmp_path, monkeypatch, reference):
+    real = pt._phase_block
+    calls = []
+
+    def flaky(rows, **kw):  # the third block "crashes" the process (as Ctrl-C would)
+        calls.append(rows)
+        if len(calls) == 3:
+            raise KeyboardInterrupt
+        return real(rows, **kw)
+
+    monkeypatch.setattr(pt, "_phase_block", flaky)
+    exp = get("phase-tracking")
+    with ResultsStore(tmp_path / "s.sqlite") as st:
+        with pytest.raises(KeyboardInterrupt):
+            exp.run(PARAMS, quick=True, runs=5, seed=1, store=st)
+        assert st.count_blocks("phase-tracking") == 2
+        calls.clear()
+        res = exp.run(PARAMS, quick=True, runs=5, seed=1, store=st)
+        assert [(r.start, r.stop) for r in calls] == [(4, 5)]  # only the unfinished block
+        assert (res.meta["execution"]["blocks_reused"], res.meta["execution"]["blocks_computed"]) == (2, 1)
+        assert _json(res) == _json(reference)
+        calls.clear()  # a larger run reuses the blocks it shares (the same path ranges)
+        more = exp.run(PARAMS, quick=True, runs=6, seed=1, store=st)
+        assert [(r.start, r.stop) for r in calls] == [(4, 6)]
+        assert more.params["paths"] == 6
+        calls.clear()  # another seed, another key: nothing reused
+        exp.run(PARAMS, quick=True, runs=2, seed=2, store=st)
+        assert [(r.start, r.stop) for r in calls] == [(0, 2)]
+
+
+def test_montecarlo_checks_block_functions(tmp_path):
+    with pytest.raises(TypeError, match="dict of per-path arrays"):
+        montecarlo.montecarlo("t", lambda rows: [1.0], 3, block=2)
+    with pytest.raises(ValueError, match="leading axis of 2"):
+        montecarlo.montecarlo("t", lambda rows: {"a": np.zeros(7)}, 3, block=2)
+    with pytest.raises(ValueError, match="block: expected a positive integer"):
+        montecarlo.montecarlo("t", lambda rows: {"a": np.zeros(len(rows))}, 3, block=0)
+    with ResultsStore(tmp_path / "s.sqlite") as st, montecarlo.session(store=st, experiment="x"):
+        with pytest.raises(ValueError, match="ident"):
+            montecarlo.montecarlo("t", lambda rows: {"a": np.zeros(len(rows))}, 3)
+    with pytest.raises(ValueError, match="executor"):
+        with montecarlo.session(executor="spark"):
+            pass
+    with pytest.raises(ValueError, match="store.*folder"):
+        ResultsStore(tmp_path)
+
+
+def _cli(*args, **kw):
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join(filter(None, [os.path.join(os.path.dirname(__file__), "..", "src"),
+                                                                     os.environ.get("PYTHONPATH")]))}
+    return subprocess.Popen([sys.executable, "-m", "nlfilter.cli", *args], stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True, env=env, **kw)
+
+
+def test_ctrl_c_exits_130_and_the_rerun_resumes(tmp_path):
+    store = tmp_path / "s.sqlite"
+    out = tmp_path / "out.json"
+    args = ["reproduce", "phase-tracking", "--quick", "--runs", "12", "--seed", "4", "--param", "block=1",
+            "--param", "sweep=3", "--no-progress", "--store", str(store), "--json", str(out)]
+    p = _cli(*args)
+    deadline = time.time() + 120
+    blocks = 0
+    while time.time() < deadline and p.poll() is None:  # wait for the first finished block
+        time.sleep(0.2)
+        if store.exists():
+            try:
+                with sqlite3.connect(store) as db:
+                    blocks = db.execute("SELECT COUNT(*) FROM blocks").fetchone()[0]
+            except sqlite3.OperationalError:  # the schema is not there yet
+                blocks = 0
+            if blocks >= 2:
+                break
+    assert p.poll() is None, "the run ended before it could be interrupted"
+    p.send_signal(signal.SIGINT)
+    stdout, stderr = p.communicate(timeout=60)
+    assert p.returncode == 130, stderr
+    assert len(stderr.strip().splitlines()) == 1 and "Traceback" not in stderr, stderr
+    assert "interrupted" in stderr and str(store) in stderr
+    assert not out.exists()  # no partial JSON
+    with ResultsStore(store) as st:
+        kept = st.count_blocks("phase-tracking")
+        assert 2 <= kept < 12
+        assert st.runs()[0]["status"] == "interrupted"
+    p = _cli(*args)
+    stdout, stderr = p.communicate(timeout=300)
+    assert p.returncode == 0, stderr
+    assert f"reused {kept} finished Monte Carlo block(s)" in stderr
+    resumed = json.loads(out.read_text())
+    assert resumed["meta"]["execution"]["blocks_computed"] == 12 - kept
+    # the uninterrupted run, in a process of its own too (the off-line rows' last bit may depend on
+    # the process's BLAS thread count, which the Monte Carlo blocks pin to 1)
+    fresh_out = tmp_path / "fresh.json"
+    p = _cli(*[a if a != str(out) else str(fresh_out) for a in args if a not in ("--store", str(store))], "--no-store")
+    assert p.communicate(timeout=300)[0] and p.returncode == 0
+    fresh = json.loads(fresh_out.read_text())
+    assert resumed["rows"] == fresh["rows"] and resumed["notes"] == fresh["notes"]
+    assert fresh["meta"]["execution"]["blocks_computed"] == 12 and fresh["meta"]["execution"]["store"] is None
+
+
+def test_results_list_show_export(tmp_path, capsys):
+    store = str(tmp_path / "s.sqlite")
+    base = ["reproduce", "linear-gaussian", "--quick", "--runs", "4", "--param", "steps=20", "--no-progress",
+            "--store", store]
+    assert cli.main(base) == 0
+    assert cli.main(base + ["--seed", "3"]) == 0
+    capsys.readouterr()
+    assert cli.main(["results", "list", "--store", store]) == 0
+    lines = capsys.readouterr().out.strip().splitlines()
+    assert lines[0].split("\t")[:3] == ["run", "experiment", "status"]
+    assert [ln.split("\t")[:4] for ln in lines[1:]] == [["2", "linear-gaussian", "done", "3"],
+                                                        ["1", "linear-gaussian", "done", "0"]]
+    assert cli.main(["results", "show", "1", "--store", store]) == 0
+    shown = capsys.readouterr().out
+    assert "run 1: linear-gaussian (done" in shown and "riccati" in shown
+    csv_path, json_path = tmp_path / "rows.csv", tmp_path / "all.json"
+    assert cli.main(["results", "export", "1", "2", "--csv", str(csv_path), "--store", store]) == 0
+    import csv
+    rows = list(csv.DictReader(csv_path.open()))
+    with ResultsStore(store) as st:
+        r1, r2 = st.run(1)["result"], st.run(2)["result"]
+    assert len(rows) == len(r1.rows) + len(r2.rows)
+    first = rows[0]
+    assert first["run"] == "1" and first["experiment"] == "linear-gaussian"
+    assert float(first["value"]) == r1.rows[0].value
+    assert cli.main(["results", "export", "--json", str(json_path), "--store", store]) == 0  # latest per experiment
+    data = json.loads(json_path.read_text())
+    assert [d["run"] for d in data] == [2] and data[0]["rows"] == r2.to_dict()["rows"]
+    capsys.readouterr()
+    for argv in (["results", "show", "99", "--store", store], ["results", "list", "--store", str(tmp_path / "none.sqlite")],
+                 ["results", "export", "--csv", str(tmp_path / "no" / "x.csv"), "--store", store]):
+        assert cli.main(argv) == 2, argv
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and err[0].startswith("nlfilter: error:"), err
+
+
+def test_output_paths_are_checked_before_the_run(tmp_path, capsys):
+    for opt, path in (("--json", str(tmp_path / "missing" / "a.json")), ("--json", ""), ("--plot", str(tmp_path / "fig.xyz")),
+                      ("--plot", str(tmp_path))):
+        t0 = time.perf_counter()
+        assert cli.main(["reproduce", "phase-tracking", opt, path, "--no-progress"]) == 2
+        assert time.perf_counter() - t0 < 5  # refused up front, not after the full run
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and opt in err[0], err
+    assert cli.main(["reproduce", "linear-gaussian", "--quick", "--workers", "2"]) == 2
+    assert "--executor dask" in capsys.readouterr().err
