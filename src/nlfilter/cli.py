@@ -31,7 +31,10 @@ def _parser() -> argparse.ArgumentParser:
     ls.add_argument("--filters", action="store_true",
                     help="list the filter registry instead: name, family, time, model kinds, needs, source")
     r = sub.add_parser("reproduce", help="run one experiment and print its table")
-    r.add_argument("id", help="experiment id (see `nlfilter list`)")
+    r.add_argument("id", help="experiment id (see `nlfilter list`), or `all`: every experiment")
+    r.add_argument("--report", metavar="DIR", default=None,
+                   help="write DIR/index.md (paper · nlfilter · s.e. · optimum · verdict per experiment, "
+                        "provenance) with each result's JSON and figure")
     r.add_argument("--quick", action="store_true", help="small version (same code path), for tests and CI")
     r.add_argument("--param", action="append", default=[], metavar="NAME=VALUE",
                    help="override an experiment parameter (repeatable)")
@@ -173,7 +176,11 @@ def _main(argv) -> int:
         except ValueError as exc:
             return _error(exc)
     command = " ".join(["nlfilter", *(sys.argv[1:] if argv is None else argv)])
+    if args.id == "all":
+        return _reproduce_all(args, command)
     try:
+        if args.report is not None:
+            _check_folder(args.report)
         exp = experiments.get(args.id)
         params = {k: exp.convert(k, v) for k, v in _parse_params(args.param).items()}
         if args.runs is not None and args.runs < 1:
@@ -227,6 +234,84 @@ def _main(argv) -> int:
 
         plot_result(result, args.plot)
         print(f"wrote {args.plot}")
+    if args.report:
+        from .report import write_report
+
+        print(f"wrote {write_report([result], args.report)}")
+    return 0
+
+
+def _check_folder(path: str) -> None:
+    if not path.strip():
+        raise ValueError("--report: expected a folder path, got an empty string")
+    if os.path.exists(path) and not os.path.isdir(path):
+        raise ValueError(f"--report {path!r}: is a file; expected a folder")
+    parent = os.path.dirname(os.path.abspath(path))
+    if not os.path.isdir(parent):
+        raise ValueError(f"--report {path!r}: the folder {parent!r} does not exist")
+
+
+def _reproduce_all(args, command) -> int:
+    """``nlfilter reproduce all``: every experiment in turn; with a store, an experiment already
+    finished with the same settings and code is read back instead of run again, so an interrupted
+    ``reproduce all`` resumes (its unfinished experiment from its finished blocks)."""
+    from .plots import plot_result
+    from .report import write_report
+
+    try:
+        for opt, val in (("--param", args.param), ("--runs", args.runs), ("--json", args.json), ("--plot", args.plot)):
+            if val:
+                raise ValueError(f"{opt}: not with `reproduce all` (each experiment has its own); use --report DIR")
+        if args.chunk is not None and args.chunk < 1:
+            raise ValueError(f"--chunk: expected a positive integer, got {args.chunk}")
+        if args.workers is not None and args.workers < 1:
+            raise ValueError(f"--workers: expected a positive integer, got {args.workers}")
+        if args.executor == "local" and (args.scheduler is not None or args.workers is not None):
+            raise ValueError("--scheduler/--workers: need --executor dask")
+        if args.report is not None:
+            _check_folder(args.report)
+            os.makedirs(args.report, exist_ok=True)
+        store = _open_store(args)
+    except ValueError as exc:
+        return _error(exc)
+    results = []
+    try:
+        for exp in experiments.registry().values():
+            found = None if store is None else store.find_done(exp.id, params={}, seed=args.seed, runs=None,
+                                                               quick=args.quick)
+            if found is not None:
+                print(f"{exp.id}: finished earlier, read back from {store.path}", file=sys.stderr)
+                result = found
+            else:
+                run_id = None
+                if store is not None:
+                    run_id = store.start_run(exp.id, params={}, seed=args.seed, runs=None, quick=args.quick,
+                                             command=command)
+                    _KEPT.text = (f" during {exp.id}; finished experiments and Monte Carlo blocks are kept in "
+                                  f"{store.path}: rerun the same command to resume")
+                status = "failed"
+                try:
+                    result = exp.run({}, quick=args.quick, seed=args.seed, progress=not args.no_progress,
+                                     chunk=args.chunk, executor=args.executor, store=store,
+                                     scheduler=args.scheduler, workers=args.workers)
+                    result.meta["command"] = command
+                    status = "done"
+                except KeyboardInterrupt:
+                    status = "interrupted"
+                    raise
+                finally:
+                    if store is not None:
+                        store.finish_run(run_id, status, result if status == "done" else None)
+                if args.report is not None and result.series:
+                    plot_result(result, os.path.join(args.report, f"{exp.id}.png"))
+            print(result.table())
+            print()
+            results.append(result)
+    finally:
+        if store is not None:
+            store.close()
+    if args.report is not None:
+        print(f"wrote {write_report(results, args.report, figures=False)}")
     return 0
 
 

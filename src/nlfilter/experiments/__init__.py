@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import importlib
 import pkgutil
+import time
 from dataclasses import dataclass
 from typing import Callable
 
@@ -49,13 +50,15 @@ class Experiment:
         given = {name: full[name] for name in (params or {})}
         from ..evaluate import chunked
         from ..montecarlo import session
+        t0 = time.perf_counter()
         with session(executor=executor, store=store, experiment=self.id, seed=seed, chunk=chunk,
                      progress=progress, scheduler=scheduler, workers=workers) as sess, chunked(chunk):
             res = self.func(full, quick=quick, runs=runs, seed=seed, progress=progress)
+        seconds = time.perf_counter() - t0
         res.params = _decode(_encode(res.params))  # as JSON keeps them (tuples as lists, numpy as Python)
         res.meta = provenance(self.id, seed=seed, runs=runs, paths=res.params.get("paths"), quick=quick,
                               given=given)
-        res.meta["execution"] = sess.execution()
+        res.meta["execution"] = {**sess.execution(), "seconds": round(seconds, 3)}
         return res
 
     def convert(self, name: str, value):

@@ -1,0 +1,195 @@
+"""The reproduction report: every experiment's paper values beside ours, with a verdict each.
+
+:func:`write_report` writes ``DIR/index.md`` (one section per experiment: a table
+paper · nlfilter · s.e. · optimum · verdict for every row that has a paper value, the experiment's
+notes, and the run's provenance), ``DIR/<id>.json`` (the whole result) and ``DIR/<id>.png`` (its
+figure). :func:`render_table` is the one Markdown table of an experiment, which the README's
+results section carries between ``<!-- report:ID -->`` and ``<!-- /report:ID -->``
+(:func:`readme_blocks`; a test checks that they equal the committed full report's).
+
+The verdict rule (:func:`verdict`), stated once:
+
+* a **Monte Carlo** row (it has a standard error ``se``): *reproduced* when
+  ``|ours − paper| ≤ 3 se``; else *not reproduced*, with the distance in standard errors.
+  (When the paper's value is itself a Monte Carlo estimate, its own error is not counted: a
+  "not reproduced" then says that the paper's printed value is off by more than our run can
+  explain.)
+* a **deterministic** row (no standard error: an off-line, exact computation): *reproduced* when
+  ours, rounded to the decimals the paper printed, equals the paper's value (a tolerance of half a
+  unit in the last printed place); else *not reproduced*, with both values.
+* a row whose value is not finite: *not reproduced* (no number).
+
+>>> from nlfilter.results import Row
+>>> verdict(Row("kf", "mse", 0.5243, stderr=0.001, paper=0.522))
+('reproduced', '2.3 s.e.')
+>>> verdict(Row("kf", "mse", 0.3776, paper=0.371))
+('not reproduced', 'ours 0.378 at the 3 printed decimals')
+"""
+
+from __future__ import annotations
+
+import math
+import os
+from pathlib import Path
+
+from .results import Result, Row, _fmt, _fmt_params, atomic_write
+
+MC_SIGMAS = 3.0  # a Monte Carlo row is reproduced within this many of our standard errors
+
+
+def _decimals(x: float) -> int:
+    """The decimals the paper printed: those of the shortest repr of its value (0.1401 -> 4, 9.2 -> 1, 12.0 -> 0)."""
+    text = repr(float(x))
+    if "e" in text or "E" in text:
+        mant, exp = text.lower().split("e")
+        d = len(mant.split(".")[1]) if "." in mant else 0
+        return max(0, d - int(exp))
+    frac = text.split(".")[1] if "." in text else ""
+    return 0 if frac == "0" else len(frac)
+
+
+def verdict(row: Row) -> tuple[str, str]:
+    """``(verdict, reason)`` of a row with a paper value (module docstring); ``("", "")`` without one."""
+    if row.paper is None:
+        return "", ""
+    v, p = row.value, row.paper
+    if v is None or not math.isfinite(v):
+        return "not reproduced", f"no finite value ({v})"
+    if row.stderr is not None and math.isfinite(row.stderr) and row.stderr > 0:
+        k = abs(v - p) / row.stderr
+        return ("reproduced" if k <= MC_SIGMAS else "not reproduced"), f"{k:.1f} s.e."
+    d = _decimals(p)
+    tol = 0.5 * 10.0 ** (-d) * (1 + 1e-9)
+    shown = f"{v:.{d}f}"
+    if abs(v - p) <= tol:
+        return "reproduced", f"{shown} at the {d} printed decimals"
+    return "not reproduced", f"ours {shown} at the {d} printed decimals"
+
+
+def _optimum(res: Result, row: Row):
+    for r in res.rows:
+        if r.filter == "optimal" and r.quantity == row.quantity and r.params == row.params:
+            return r.value
+    return None
+
+
+def render_table(res: Result) -> str:
+    """The Markdown table of ``res``'s rows that carry a paper value: filter, quantity, params,
+    paper, nlfilter, s.e., optimum (the ``optimal`` row of the same quantity and params, if any),
+    verdict (reason)."""
+    lines = ["| filter | quantity | params | paper | nlfilter | s.e. | optimum | verdict |",
+             "|---|---|---|---|---|---|---|---|"]
+    for r in res.rows:
+        if r.paper is None:
+            continue
+        v, why = verdict(r)
+        opt = _optimum(res, r)
+        lines.append(f"| {r.filter} | {r.quantity} | {_fmt_params(r.params)} | {_fmt(r.paper)} | {_fmt(r.value)} | "
+                     f"{_fmt(r.stderr)} | {_fmt(opt)} | {v} ({why}) |")
+    if len(lines) == 2:
+        lines.append("| (no row of this experiment has a paper value) | | | | | | | |")
+    return "\n".join(lines)
+
+
+def counts(res: Result) -> dict:
+    """``{"reproduced": n, "not reproduced": m}`` over the rows with a paper value."""
+    out = {"reproduced": 0, "not reproduced": 0}
+    for r in res.rows:
+        v, _ = verdict(r)
+        if v:
+            out[v] += 1
+    return out
+
+
+def provenance_line(res: Result) -> str:
+    m = res.meta
+    ex = m.get("execution") or {}
+    secs = ex.get("seconds")
+    paths = m.get("paths")
+    return (f"nlfilter {m.get('nlfilter')}, numpy {m.get('numpy')}, Python {m.get('python')}; seed {m.get('seed')}, "
+            f"paths {paths}, {'quick' if m.get('quick') else 'full'} run"
+            + (f", {secs:.0f} s" if isinstance(secs, (int, float)) else "")
+            + (f" on the {ex['executor']} executor" if ex.get("executor") else "")
+            + f"; {m.get('timestamp')}" + (f"; `{m['command']}`" if m.get("command") else ""))
+
+
+def section(res: Result, figure: str | None = None) -> str:
+    c = counts(res)
+    parts = [f'<a id="{res.experiment}"></a>', "", f"## `{res.experiment}` — {res.title}", "", f"Source: {res.source}. "
+             f"Rows with a paper value: {c['reproduced']} reproduced, {c['not reproduced']} not reproduced.", "",
+             render_table(res), ""]
+    if res.notes:
+        parts += [*(f"- {n}" for n in res.notes), ""]
+    if figure:
+        parts += [f"![{res.experiment}]({figure})", ""]
+    parts += [f"Provenance: {provenance_line(res)}", ""]
+    return "\n".join(parts)
+
+
+def write_report(results: list[Result], folder, *, figures: bool = True, title: str | None = None) -> Path:
+    """Write ``folder/index.md``, ``folder/<id>.json`` and (``figures``) ``folder/<id>.png`` for
+    ``results``; returns the path of ``index.md``. Every file is written atomically."""
+    folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    total = {"reproduced": 0, "not reproduced": 0}
+    body = []
+    for res in results:
+        res.to_json(folder / f"{res.experiment}.json")
+        if figures and res.series:
+            from .plots import plot_result
+            plot_result(res, folder / f"{res.experiment}.png")
+        # a result read back from the store has no series: its figure is the one written when it ran
+        fig = f"{res.experiment}.png" if (folder / f"{res.experiment}.png").exists() else None
+        for k, n in counts(res).items():
+            total[k] += n
+        body.append(section(res, fig))
+    quick = any(r.meta.get("quick") for r in results)
+    head = [f"# {title or 'nlfilter: reproduction report'}", "",
+            f"{len(results)} experiments ({'quick runs: small sizes, same code paths' if quick else 'full runs'}); "
+            f"rows with a paper value: {total['reproduced']} reproduced, {total['not reproduced']} not reproduced.",
+            "", "Verdicts: a Monte Carlo row is reproduced when it lies within "
+            f"{MC_SIGMAS:g} of our standard errors of the paper's value; a deterministic row when it rounds to the "
+            "paper's printed decimals (`nlfilter.report`). The notes under each table say what the numbers mean "
+            "and, for each \"not reproduced\", what the project found.", "",
+            "| experiment | reproduced | not reproduced | paths | seconds |", "|---|---|---|---|---|"]
+    for res in results:
+        c = counts(res)
+        secs = (res.meta.get("execution") or {}).get("seconds")
+        paths = res.meta.get("paths")
+        if isinstance(paths, dict):
+            paths = ", ".join(f"{k} {v}" for k, v in paths.items())
+        head.append(f"| [`{res.experiment}`](#{res.experiment}) | {c['reproduced']} | {c['not reproduced']} | "
+                    f"{paths} | {'-' if secs is None else f'{secs:.0f}'} |")
+    text = "\n".join(head + [""] + body)
+    index = folder / "index.md"
+    atomic_write(index, text.encode("utf-8"))
+    return index
+
+
+def readme_blocks(text: str) -> dict[str, str]:
+    """The generated blocks of a README: ``{experiment id: text between the markers}``."""
+    import re
+    return {m.group(1): m.group(2).strip("\n")
+            for m in re.finditer(r"<!-- report:([\w.-]+) -->\n(.*?)<!-- /report:\1 -->", text, re.S)}
+
+
+def fill_readme(text: str, results: dict[str, Result]) -> str:
+    """``text`` with every ``<!-- report:ID -->`` block replaced by :func:`render_table` of ``results[ID]``."""
+    import re
+
+    def sub(m):
+        eid = m.group(1)
+        if eid not in results:
+            raise ValueError(f"README block report:{eid}: no result for it; expected one of {sorted(results)}")
+        return f"<!-- report:{eid} -->\n{render_table(results[eid])}\n<!-- /report:{eid} -->"
+    return re.sub(r"<!-- report:([\w.-]+) -->\n(.*?)<!-- /report:\1 -->", sub, text, flags=re.S)
+
+
+def load_folder(folder) -> dict[str, Result]:
+    """Every ``<id>.json`` result in ``folder``, by experiment id."""
+    out = {}
+    for name in sorted(os.listdir(folder)):
+        if name.endswith(".json"):
+            res = Result.from_json(Path(folder) / name)
+            out[res.experiment] = res
+    return out

@@ -1,0 +1,94 @@
+"""The reproduction report (nlfilter.report, ``nlfilter reproduce all --report DIR``): the
+verdict rule, a complete quick report of every experiment, its resume from the store."""
+
+from __future__ import annotations
+
+import json
+import math
+import time
+
+import pytest
+
+from nlfilter import cli, experiments
+from nlfilter.report import _decimals, counts, fill_readme, readme_blocks, render_table, verdict
+from nlfilter.results import Result, Row
+
+
+def test_printed_decimals():
+    assert [_decimals(x) for x in (0.1401, 9.2, 12.0, 0.54, 5.63, 1e-5, 2.5e-3, 21.4)] == [4, 1, 0, 2, 2, 5, 4, 1]
+
+
+def test_verdict_rule():
+    # Monte Carlo: within 3 of our standard errors
+    assert verdict(Row("f", "q", 0.150, stderr=0.001, paper=0.1477))[0] == "reproduced"       # 2.3 se
+    assert verdict(Row("f", "q", 0.139, stderr=0.0003, paper=0.1477)) == ("not reproduced", "29.0 s.e.")
+    # deterministic: half a unit in the paper's last printed place
+    assert verdict(Row("f", "q", 0.52238, paper=0.522))[0] == "reproduced"
+    assert verdict(Row("f", "q", 0.5225, paper=0.522))[0] == "reproduced"                     # the edge
+    assert verdict(Row("f", "q", 0.52251, paper=0.522))[0] == "not reproduced"
+    assert verdict(Row("f", "q", 9.16, paper=9.2))[0] == "reproduced"
+    assert verdict(Row("f", "q", math.nan, paper=1.0))[0] == "not reproduced"
+    assert verdict(Row("f", "q", 1.0)) == ("", "")                                            # no paper value
+    # a standard error of 0 or NaN (one path) is treated as deterministic, never as "within 0 se"
+    assert verdict(Row("f", "q", 0.52238, stderr=math.nan, paper=0.522))[0] == "reproduced"
+
+
+def test_table_and_readme_blocks():
+    res = Result("demo", "a demo", "no paper", {})
+    res.add("kf", "mse", 0.52238, paper=0.522, P=1)
+    res.add("optimal", "mse", 0.5, P=1)
+    res.add("kf", "gap", 0.1)
+    table = render_table(res)
+    assert table.splitlines()[2] == "| kf | mse | P=1 | 0.522 | 0.52238 | - | 0.5 | reproduced (0.522 at the 3 printed decimals) |"
+    assert len(table.splitlines()) == 3 and counts(res) == {"reproduced": 1, "not reproduced": 0}
+    text = "intro\n<!-- report:demo -->\nold table\n<!-- /report:demo -->\nend\n"
+    filled = fill_readme(text, {"demo": res})
+    assert readme_blocks(filled) == {"demo": table} and filled.endswith("end\n")
+    with pytest.raises(ValueError, match="report:demo"):
+        fill_readme(text, {})
+
+
+@pytest.fixture(scope="module")
+def quick_report(tmp_path_factory):
+    folder = tmp_path_factory.mktemp("report")
+    store = folder / "store.sqlite"
+    argv = ["reproduce", "all", "--quick", "--no-progress", "--report", str(folder / "out"), "--store", str(store)]
+    assert cli.main(argv) == 0
+    return folder / "out", argv
+
+
+def test_quick_report_is_complete(quick_report):
+    out, _ = quick_report
+    index = (out / "index.md").read_text()
+    reg = experiments.registry()
+    for eid in reg:
+        res = Result.from_json(out / f"{eid}.json")
+        assert res.meta["quick"] and res.meta["seed"] == 0 and res.meta["execution"]["seconds"] >= 0
+        assert f'<a id="{eid}"></a>' in index and f"## `{eid}`" in index
+        assert render_table(res) in index  # the table of every experiment, verdicts included
+        assert (out / f"{eid}.png").stat().st_size > 10_000
+        c = counts(res)
+        assert f"| [`{eid}`](#{eid}) | {c['reproduced']} | {c['not reproduced']} |" in index
+    assert index.count("Provenance: nlfilter ") == len(reg)
+    total = sum(counts(Result.from_json(out / f"{e}.json"))["reproduced"] for e in reg)
+    assert f"{total} reproduced" in index.splitlines()[2]
+
+
+def test_rerun_reads_finished_experiments_back(quick_report, capsys):
+    out, argv = quick_report
+    before = (out / "index.md").read_text()
+    capsys.readouterr()
+    t0 = time.perf_counter()
+    assert cli.main(argv) == 0
+    assert time.perf_counter() - t0 < 30  # nothing recomputed (the quick run takes about a minute)
+    err = capsys.readouterr().err
+    assert err.count("finished earlier, read back") == len(experiments.registry())
+    assert (out / "index.md").read_text() == before
+
+
+def test_reproduce_all_refuses_per_experiment_options(capsys, tmp_path):
+    for extra in (["--param", "T=1"], ["--runs", "3"], ["--json", str(tmp_path / "a.json")],
+                  ["--report", str(tmp_path / "missing" / "r")]):
+        assert cli.main(["reproduce", "all", "--quick", *extra]) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and extra[0] in err[0], err
