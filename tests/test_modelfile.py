@@ -78,12 +78,14 @@ def test_example_runs_through_compare(path, tmp_path, capsys):
 
 def test_cli_is_compare_on_the_stated_model(tmp_path, capsys):
     """The command runs exactly ``compare`` on the model, prior and [run] defaults of the file
-    (the same numbers as the model built in Python)."""
+    (the same numbers as the model built in Python), and writes the figure."""
     path = tmp_path / "pendulum.toml"
     path.write_text(PENDULUM)
-    out = tmp_path / "out.json"
-    assert cli.main(["compare", str(path), "--no-progress", "--json", str(out)]) == 0
+    out, png = tmp_path / "out.json", tmp_path / "fig.png"
+    assert cli.main(["compare", str(path), "--no-progress", "--json", str(out), "--plot", str(png)]) == 0
+    assert png.stat().st_size > 10_000
     data = json.loads(out.read_text())
+    assert data["meta"]["command"] == f"nlfilter compare {path} --no-progress --json {out} --plot {png}"
     th, om = sp.symbols("theta omega")
     md = DiscreteModel([th, om], [th + 0.05 * om, om - 0.05 * 9.81 * sp.sin(th)], [sp.sin(th)], G=[[0], [1]],
                        Q=[[0.01]], R=[[0.1]])
