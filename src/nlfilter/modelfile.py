@@ -19,7 +19,7 @@ A pendulum observed through the sine of its angle (``examples/models/pendulum.to
     [dynamics]
     f = ["theta + dt*omega", "omega - dt*g*sin(theta)"]   # an SDE: drift = [...]
     G = [["0"], ["1"]]             # optional noise input (n × r; default the identity); an SDE: diffusion
-    Q = [[0.01]]                   # optional r × r covariance of w (an SDE: intensity, E dβ dβᵀ = Q dt);
+    Q = [[0.001]]                  # optional r × r covariance of w (an SDE: intensity, E dβ dβᵀ = Q dt);
                                    # default the identity
     [measurement]
     h = ["sin(theta)"]
