@@ -3,6 +3,8 @@
 import pathlib
 import re
 
+import pytest
+
 README = pathlib.Path(__file__).resolve().parents[1] / "README.md"
 
 
@@ -25,7 +27,9 @@ def test_docstrings_cite_only_documents_in_the_project():
             continue  # this test names the missing document itself
         for name in re.findall(r"\b([\w./-]+\.md)\b", path.read_text(encoding="utf-8")):
             cited.setdefault(name, []).append(path.relative_to(root).as_posix())
-    missing = {n: p for n, p in cited.items() if not (root / n).exists() and n != "README.md"}
+    # files the code writes (the report's page, in the folder the user names) are not citations
+    written = {"index.md", "DIR/index.md", "folder/index.md"}
+    missing = {n: p for n, p in cited.items() if not (root / n).exists() and n != "README.md" and n not in written}
     assert missing == {}
     assert "DESIGN.md" not in cited
 
@@ -77,3 +81,20 @@ def test_compiled_block_runs(tmp_path, monkeypatch, capsys):
     assert ns["est"].means.shape == (1, 2000, 1)
     ref = ns["EKF"](ns["model"]).run(ns["ys"], m0=0.5, P0=0.1)
     assert abs(ns["est"].means - ref.means).max() < 1e-12
+
+
+def test_model_file_block_is_the_example(tmp_path):
+    """The "Your own model as a file" block is ``examples/models/pendulum.toml`` as shipped, and
+    the one-line error it shows is what a typo in that file gives."""
+    from nlfilter.modelfile import ModelFileError, load_model
+
+    text = README.read_text()
+    section = text[text.index("### Your own model as a file"):text.index("## Quickstart")]
+    (block,) = re.findall(r"```toml\n(.*?)```", section, re.S)
+    assert block == (README.parent / "examples" / "models" / "pendulum.toml").read_text()
+    broken = tmp_path / "pendulum.toml"
+    broken.write_text(block.replace('sin(theta)"]', 'sin(thet)"]', 1))
+    with pytest.raises(ModelFileError) as info:
+        load_model(broken)
+    shown = re.search(r"`(pendulum\.toml:\d+: .*?), \.\.\.`", section, re.S).group(1)
+    assert str(info.value).replace(str(broken), "pendulum.toml").startswith(re.sub(r"\s+", " ", shown))

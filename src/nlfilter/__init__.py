@@ -12,6 +12,7 @@ from .bilinear import BilinearModel
 from .comparison import compare
 from .evaluate import mse, mse_per_step, nees, paired_difference
 from .fitting import fit, fit_em
+from .modelfile import load_model
 from .models import DiscreteModel, SDEModel
 from .noise import Gaussian, Independent, Sampler
 from .results import Result, Row
@@ -20,5 +21,5 @@ from .simulate import Simulation, simulate
 __version__ = "0.1.0"
 
 __all__ = ["DiscreteModel", "SDEModel", "BilinearModel", "Gaussian", "Independent", "Sampler",
-           "simulate", "Simulation", "compare", "fit", "fit_em", "mse", "mse_per_step", "nees", "paired_difference", "Result", "Row",
+           "simulate", "Simulation", "compare", "load_model", "fit", "fit_em", "mse", "mse_per_step", "nees", "paired_difference", "Result", "Row",
            "filters", "moments", "problems"]

@@ -1,10 +1,13 @@
 """The ``nlfilter`` command: ``nlfilter list`` (``--filters``: the filter registry), ``nlfilter
-reproduce ID`` and ``nlfilter results list | show | export`` (the results store, :mod:`nlfilter.store`).
+reproduce ID | all``, ``nlfilter compare MODEL.toml`` (every filter that applies against the
+certified reference, on a model stated in a file: :mod:`nlfilter.modelfile`) and ``nlfilter results
+list | show | export`` (the results store, :mod:`nlfilter.store`).
 
-Errors in what the user typed (unknown experiment, unknown or malformed ``--param``, an output
-path that cannot be written) print one line on stderr and exit with code 2, never a traceback,
-before any work starts. Ctrl-C prints one line and exits with code 130; every Monte Carlo block
-finished by then is in the store, and the same command resumes from there.
+Errors in what the user typed (unknown experiment, unknown or malformed ``--param``, a model file
+that cannot be read, an unknown filter, an output path that cannot be written) print one line on
+stderr and exit with code 2, never a traceback, before any work starts. Ctrl-C prints one line and
+exits with code 130; every Monte Carlo block finished by then is in the store, and the same command
+resumes from there.
 """
 
 from __future__ import annotations
@@ -23,7 +26,7 @@ class _Parser(argparse.ArgumentParser):
 
 
 def _parser() -> argparse.ArgumentParser:
-    p = _Parser(prog="nlfilter", description="Moment-based nonlinear filters: reproduce the papers' experiments.")
+    p = _Parser(prog="nlfilter", description="Moment-based nonlinear filters: reproduce the papers' experiments, compare the filters on your model.")
     sub = p.add_subparsers(dest="command", required=True, parser_class=_Parser)
     ls = sub.add_parser("list", help="list the experiments: id, title, source")
     ls.add_argument("--params", action="store_true",
@@ -64,6 +67,20 @@ def _parser() -> argparse.ArgumentParser:
             fmt = a.add_mutually_exclusive_group(required=True)
             fmt.add_argument("--csv", metavar="PATH", help="one line per table row")
             fmt.add_argument("--json", metavar="PATH", help="a list of the results' JSON")
+    c = sub.add_parser("compare", help="compare every filter that applies with the certified reference, on a "
+                                       "model stated in a TOML file")
+    c.add_argument("model", metavar="MODEL.toml", help="the model file (see nlfilter.modelfile; examples/models/)")
+    c.add_argument("--paths", type=int, default=None, help="Monte Carlo paths (default: the file's [run] paths, else 200)")
+    c.add_argument("--steps", type=int, default=None, help="measurement steps (default: the file's [run] steps, else 100)")
+    c.add_argument("--filters", default=None, metavar="all|NAME,NAME",
+                   help="'all' or comma-separated registry names (`nlfilter list --filters`; default: the file's "
+                        "[run] filters, else all)")
+    c.add_argument("--seed", type=int, default=None, help="seed of the random streams (default: the file's, else 0)")
+    c.add_argument("--json", metavar="PATH", help="write the result table as JSON")
+    c.add_argument("--plot", metavar="PATH", help="write the figure (MSE per step per component) as PNG")
+    c.add_argument("--report", metavar="DIR", default=None,
+                   help="write DIR/index.md with the table, the JSON and the figure")
+    c.add_argument("--no-progress", action="store_true", help="hide progress bars")
     return p
 
 
@@ -121,11 +138,6 @@ class _Kept:
 _KEPT = _Kept()
 
 
-def _error(exc) -> int:
-    print(f"nlfilter: error: {exc}", file=sys.stderr)
-    return 2
-
-
 def _check_output(option: str, path: str | None, suffix: str | None = None) -> None:
     """Refuse, before any work, an output path that cannot be written."""
     if path is None:
@@ -170,6 +182,8 @@ def _main(argv) -> int:
                 for name, default in sorted(exp.params.items()):
                     print(f"    --param {name}={_show(default)}")
         return 0
+    if args.command == "compare":
+        return _compare(args, argv)
     if args.command == "results":
         try:
             return _results(args)
@@ -225,6 +239,59 @@ def _main(argv) -> int:
         ex = result.meta.get("execution", {})
         if ex.get("blocks_reused"):
             print(f"reused {ex['blocks_reused']} finished Monte Carlo block(s) from {store.path}", file=sys.stderr)
+    _write(result, args)
+    return 0
+
+
+def _error(exc) -> int:
+    """One line on stderr (the first of the message), exit code 2."""
+    msg = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+    print(f"nlfilter: error: {msg}", file=sys.stderr)
+    return 2
+
+
+def _compare(args, argv) -> int:
+    """``nlfilter compare MODEL.toml``: :func:`nlfilter.comparison.compare` on the file's model and
+    prior, the file's ``[run]`` defaults overridden by the options; the file's path and sha256 in
+    ``meta``."""
+    from .comparison import compare
+    from .modelfile import load_model
+
+    try:
+        spec = load_model(args.model)
+        _check_output("--json", args.json, ".json")
+        _check_output("--plot", args.plot, ".png")
+        if args.report is not None:
+            _check_folder(args.report)
+        for opt, value, low in (("--paths", args.paths, 2), ("--steps", args.steps, 1), ("--seed", args.seed, 0)):
+            if value is not None and value < low:
+                raise ValueError(f"{opt}: got {value}; expected an integer ≥ {low}")
+        filters = spec.filters
+        if args.filters is not None:
+            names = [f.strip() for f in args.filters.split(",")]
+            if args.filters.strip() == "all":
+                filters = "all"
+            elif not all(names):
+                raise ValueError(f"--filters: got {args.filters!r}; expected 'all' or comma-separated registry names")
+            else:
+                filters = names
+        paths = spec.paths if args.paths is None else args.paths
+        steps = spec.steps if args.steps is None else args.steps
+        seed = spec.seed if args.seed is None else args.seed
+        result = compare(spec.model, filters if filters == "all" else list(filters), steps, paths=paths, m0=spec.m0,
+                         P0=spec.P0, rng=seed, dt=spec.dt, progress=not args.no_progress)
+    except ValueError as exc:  # the file, an option, or a filter the model cannot serve
+        return _error(exc)
+    result.meta.update(model_file=str(args.model), model_sha256=spec.sha256,
+                       given={k: v for k, v in (("paths", args.paths), ("steps", args.steps),
+                                                ("filters", args.filters), ("seed", args.seed)) if v is not None},
+                       command=" ".join(["nlfilter", *(sys.argv[1:] if argv is None else argv)]))
+    _write(result, args)
+    return 0
+
+
+def _write(result, args) -> None:
+    """Print the table; write the JSON and the figure when asked."""
     print(result.table())
     if args.json:
         result.to_json(args.json)

@@ -1,0 +1,479 @@
+"""Models as files: a stochastic model, its prior and a comparison's defaults in a small TOML file
+(:func:`load_model`; ``nlfilter compare MODEL.toml`` runs every filter that applies against the
+certified reference).
+
+The file
+--------
+A pendulum observed through the sine of its angle (``examples/models/pendulum.toml``)::
+
+    [model]
+    name = "pendulum"              # optional (default: the file's name)
+    kind = "discrete"              # "discrete": x[k+1] = f + G w, y = h + v
+                                   # "sde": dx = drift dt + diffusion dβ, dy = h dt + dη
+    states = ["theta", "omega"]
+
+    [parameters]                   # optional: numbers substituted into the expressions
+    g = 9.81
+    dt = 0.05
+
+    [dynamics]
+    f = ["theta + dt*omega", "omega - dt*g*sin(theta)"]   # an SDE: drift = [...]
+    G = [["0"], ["1"]]             # optional noise input (n × r; default the identity); an SDE: diffusion
+    Q = [[0.001]]                  # optional r × r covariance of w (an SDE: intensity, E dβ dβᵀ = Q dt);
+                                   # default the identity
+    [measurement]
+    h = ["sin(theta)"]
+    R = [[0.1]]                    # m × m, positive definite (an SDE: intensity, E dη dηᵀ = R dt)
+    # dt = 0.01                    # an SDE only (required there): the measurement interval
+
+    [prior]                        # x[0] ~ N(mean, cov); every filter starts there
+    mean = [1.0, 0.0]
+    cov = [[0.1, 0], [0, 0.1]]     # or its diagonal: [0.1, 0.1]
+
+    [run]                          # optional defaults of `nlfilter compare` (its options override them)
+    steps = 200                    # default 100
+    paths = 200                    # default 200 (at least 2)
+    filters = "all"                # or a list of registry names (`nlfilter list --filters`)
+    seed = 0                       # default 0
+
+Expressions (the entries of ``f``/``drift``, ``G``/``diffusion`` and ``h``) are strings (or plain
+numbers) in the declared states, the parameters, the constants ``pi`` and ``E``, and the functions
+``sin cos tan asin acos atan atan2 sinh cosh tanh exp log sqrt Abs sign erf Min Max``, with
+``+ - * / **`` and parentheses; any other name (a typo), any other syntax (attribute access,
+indexing, strings, ``^``: powers are ``**``) is an error naming it, and nothing in a file is ever
+evaluated as Python. The covariances ``Q``, ``R`` and ``cov`` hold numbers, or strings in the
+parameters only (``"q*dt"``); each is checked symmetric and positive semi-definite (``R``
+positive definite: the reference filters need its density).
+
+Errors
+------
+Every problem raises :class:`ModelFileError` (a ``ValueError``) with one line
+``FILE:LINE: FIELD: what was given; what was expected``, ``LINE`` the line of the offending key
+(or of its table), e.g. ``pendulum.toml:13: dynamics.Q: got a 2×2 matrix; expected 1×1 (r × r,
+r = 1: the columns of G)``. Unknown tables and keys are refused with the expected ones (a typo is
+never ignored); a TOML syntax error keeps the line and column ``tomllib`` reports.
+
+>>> import pathlib, tempfile
+>>> text = '''
+... [model]
+... kind = "discrete"
+... states = ["x"]
+... [dynamics]
+... f = ["0.9*x"]
+... Q = [[0.1]]
+... [measurement]
+... h = ["x**3"]
+... R = [[0.5]]
+... [prior]
+... mean = [0.0]
+... cov = [[1.0]]
+... '''
+>>> with tempfile.TemporaryDirectory() as d:
+...     path = pathlib.Path(d, "cubic.toml"); _ = path.write_text(text)
+...     spec = load_model(path)
+>>> spec.model, spec.steps, spec.dt, spec.m0.tolist()
+(DiscreteModel(n=1, m=1, r=1, cubic), 100, None, [0.0])
+"""
+
+from __future__ import annotations
+
+import hashlib
+import io
+import keyword
+import math
+import numbers
+import pathlib
+import re
+import tokenize
+import tomllib
+from typing import NamedTuple
+
+import numpy as np
+import sympy as sp
+from sympy.parsing.sympy_parser import auto_number, parse_expr
+
+from .models import DiscreteModel, SDEModel
+
+FUNCTIONS = {name: getattr(sp, name) for name in
+             ("sin", "cos", "tan", "asin", "acos", "atan", "atan2", "sinh", "cosh", "tanh", "exp", "log",
+              "sqrt", "Abs", "sign", "erf", "Min", "Max")}
+CONSTANTS = {"pi": sp.pi, "E": sp.E}
+_NUMBERS = {"Integer": sp.Integer, "Float": sp.Float, "Rational": sp.Rational}  # what auto_number writes
+RESERVED = set(FUNCTIONS) | set(CONSTANTS) | set(_NUMBERS)
+_OPERATORS = {"+", "-", "*", "/", "**", "(", ")", ","}
+
+DEFAULTS = {"steps": 100, "paths": 200, "filters": "all", "seed": 0}
+
+# the schema: table -> {key: required?}; the dynamics' keys depend on the kind
+_TABLES = {
+    "model": {"name": False, "kind": True, "states": True},
+    "parameters": None,  # any identifier
+    "dynamics": None,    # by kind, below
+    "measurement": None,
+    "prior": {"mean": True, "cov": True},
+    "run": {"steps": False, "paths": False, "filters": False, "seed": False},
+}
+_REQUIRED_TABLES = ("model", "dynamics", "measurement", "prior")
+_DYNAMICS = {"discrete": {"f": True, "G": False, "Q": False}, "sde": {"drift": True, "diffusion": False, "Q": False}}
+_MEASUREMENT = {"discrete": {"h": True, "R": True}, "sde": {"h": True, "R": True, "dt": True}}
+
+
+class ModelFileError(ValueError):
+    """A model file that cannot be read: ``FILE:LINE: FIELD: what was given; what was expected``."""
+
+
+class ModelSpec(NamedTuple):
+    """What a model file states: the built ``model`` (:class:`~nlfilter.models.DiscreteModel` or
+    :class:`~nlfilter.models.SDEModel`), the prior ``m0 (n,)``, ``P0 (n, n)``, the measurement
+    interval ``dt`` (an SDE; ``None`` for a discrete model), the comparison's defaults ``steps``,
+    ``paths``, ``filters`` (``"all"`` or a tuple of registry names) and ``seed``, and the file's
+    ``path`` and the ``sha256`` of its bytes."""
+
+    model: object
+    m0: np.ndarray
+    P0: np.ndarray
+    dt: float | None
+    steps: int
+    paths: int
+    filters: object
+    seed: int
+    path: str
+    sha256: str
+
+
+class _Lines:
+    """Where tables and keys sit in the file's text (tomllib gives values, not positions):
+    ``line(table, key)`` is the line of ``key`` within ``table`` (header or dotted key), else
+    that of the table's header, else 1."""
+
+    _HEADER = re.compile(r"^\s*\[\[?\s*([^\[\]]+?)\s*\]\]?\s*(#.*)?$")
+    _KEY = re.compile(r"""^\s*((?:[A-Za-z0-9_-]+|"[^"]*"|'[^']*')(?:\s*\.\s*(?:[A-Za-z0-9_-]+|"[^"]*"|'[^']*'))*)\s*=(?!=)""")
+
+    def __init__(self, text: str):
+        self.tables, self.keys = {}, {}
+        table = ()
+        for no, line in enumerate(text.splitlines(), 1):
+            h = self._HEADER.match(line)
+            if h:
+                table = self._parts(h.group(1))
+                self.tables.setdefault(table, no)
+                continue
+            k = self._KEY.match(line)
+            if k:
+                path = table + self._parts(k.group(1))
+                for i in range(1, len(path)):
+                    self.tables.setdefault(path[:i], no)
+                self.keys.setdefault(path, no)
+
+    @staticmethod
+    def _parts(dotted: str) -> tuple:
+        return tuple(p.strip().strip("\"'") for p in re.findall(r"""(?:"[^"]*"|'[^']*'|[^.]+)""", dotted))
+
+    def line(self, table: str, key: str | None = None) -> int:
+        if key is not None and (table, key) in self.keys:
+            return self.keys[(table, key)]
+        if key is not None and (table, key) in self.tables:  # a sub-table [table.key]
+            return self.tables[(table, key)]
+        if (table,) in self.tables:
+            return self.tables[(table,)]
+        return self.keys.get((table,), 1)  # an inline table: `model = {...}`
+
+
+class _Reader:
+    """One file's checks: every error names the file, the line and the field."""
+
+    def __init__(self, path: str, text: str):
+        self.path, self.lines = path, _Lines(text)
+
+    def fail(self, table: str, key: str | None, what: str, field: str | None = None):
+        field = field or (f"{table}.{key}" if key else table)
+        raise ModelFileError(f"{self.path}:{self.lines.line(table, key)}: {field}: {what}")
+
+    def table(self, doc: dict, name: str, required: bool) -> dict:
+        value = doc.get(name)
+        if value is None:
+            if required:
+                self.fail(name, None, f"got no [{name}] table; expected one (the tables a model file needs: "
+                                      f"{', '.join(f'[{t}]' for t in _REQUIRED_TABLES)})")
+            return {}
+        if not isinstance(value, dict):
+            self.fail(name, None, f"got the value {value!r}; expected a table [{name}]")
+        return value
+
+    def keys(self, table: str, value: dict, schema: dict, note: str = "") -> None:
+        for key in value:
+            if key not in schema:
+                self.fail(table, key, f"got the unknown key {key!r}; expected one of {sorted(schema)}{note}")
+        for key, required in schema.items():
+            if required and key not in value:
+                self.fail(table, None, f"got no key {key!r}; expected the keys {[k for k, r in schema.items() if r]}"
+                                       + (f" (optional: {[k for k, r in schema.items() if not r]})"
+                                          if not all(schema.values()) else ""),
+                          field=f"{table}.{key}")
+
+    def string(self, table, key, value) -> str:
+        if not isinstance(value, str) or not value:
+            self.fail(table, key, f"got {value!r}; expected a non-empty string")
+        return value
+
+    def number(self, table, key, value, *, positive=False, integer=False, minimum=None):
+        ok = (isinstance(value, numbers.Integral) if integer else isinstance(value, numbers.Real))
+        if isinstance(value, bool) or not ok:
+            self.fail(table, key, f"got {value!r}; expected {'an integer' if integer else 'a number'}")
+        if not math.isfinite(value):
+            self.fail(table, key, f"got {value!r}; expected a finite number")
+        if positive and value <= 0:
+            self.fail(table, key, f"got {value!r}; expected a positive {'integer' if integer else 'number'}")
+        if minimum is not None and value < minimum:
+            self.fail(table, key, f"got {value!r}; expected an integer ≥ {minimum}")
+        return value
+
+    def names(self, table, key, value) -> list:
+        if not isinstance(value, list) or not value or not all(isinstance(s, str) for s in value):
+            self.fail(table, key, f"got {value!r}; expected a non-empty list of names (strings)")
+        for s in value:
+            if not s.isidentifier() or keyword.iskeyword(s) or "__" in s or s in RESERVED:
+                self.fail(table, key, f"got the name {s!r}; expected an identifier that is not a Python keyword, "
+                                      f"has no '__' and is not one of the reserved names {sorted(RESERVED)}")
+        if len(set(value)) != len(value):
+            self.fail(table, key, f"got {value!r}; expected distinct names")
+        return value
+
+    # -- expressions ---------------------------------------------------------------------------
+    def expr(self, table, key, field, value, allowed: dict, what: str) -> sp.Expr:
+        """A SymPy expression from a string (or a number) in the names of ``allowed`` only."""
+        if isinstance(value, bool) or not isinstance(value, (str, numbers.Real)):
+            self.fail(table, key, f"got {value!r}; expected an expression (a string) or a number", field)
+        if isinstance(value, numbers.Real):
+            if not math.isfinite(value):
+                self.fail(table, key, f"got {value!r}; expected a finite number", field)
+            return sp.Integer(value) if isinstance(value, numbers.Integral) else sp.Float(value)
+        text = value
+        try:
+            tokens = list(tokenize.generate_tokens(io.StringIO(text).readline))
+        except (tokenize.TokenError, SyntaxError, IndentationError) as exc:
+            self.fail(table, key, f"got {text!r} ({exc.args[0]}); expected an expression", field)
+        for tok in tokens:
+            if tok.type in (tokenize.NEWLINE, tokenize.NL, tokenize.ENDMARKER, tokenize.NUMBER):
+                continue
+            if tok.type == tokenize.NAME:
+                if tok.string not in allowed and tok.string not in FUNCTIONS and tok.string not in CONSTANTS:
+                    self.fail(table, key, f"got the unknown name {tok.string!r} in {text!r}; expected {what}, the "
+                                          f"constants pi, E or the functions {' '.join(FUNCTIONS)}", field)
+                continue
+            if tok.type == tokenize.OP and tok.string in _OPERATORS:
+                continue
+            hint = " (powers are **)" if tok.string == "^" else ""
+            self.fail(table, key, f"got {tok.string!r} in {text!r}{hint}; expected names, numbers, + - * / ** "
+                                  "and parentheses", field)
+        for tok in tokens:  # decimal numbers only (no 0x10, 1_000, 2j)
+            if tok.type == tokenize.NUMBER and not re.fullmatch(r"(\d+\.?\d*|\.\d+)([eE][+-]?\d+)?", tok.string):
+                self.fail(table, key, f"got the number {tok.string!r} in {text!r}; expected a real decimal number",
+                          field)
+        glob = {"__builtins__": {}, **_NUMBERS, **FUNCTIONS, **CONSTANTS}
+        try:
+            e = parse_expr(text, local_dict=dict(allowed), global_dict=glob, transformations=(auto_number,),
+                           evaluate=True)
+        except Exception as exc:  # sympy's parser reports any syntax as SyntaxError, TypeError, ...
+            msg = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+            self.fail(table, key, f"got {text!r} ({type(exc).__name__}: {msg}); expected an expression", field)
+        if not isinstance(e, sp.Expr) or isinstance(e, sp.Tuple):
+            self.fail(table, key, f"got {text!r} (a {type(e).__name__}); expected a scalar expression", field)
+        if e.has(sp.zoo, sp.nan, sp.oo, -sp.oo, sp.I):
+            self.fail(table, key, f"got {text!r} = {e}; expected a finite real expression", field)
+        return e
+
+    def vector(self, table, key, value, n, allowed, what) -> list:
+        if not isinstance(value, list) or not value:
+            self.fail(table, key, f"got {value!r}; expected a non-empty list of expressions (strings)")
+        if n is not None and len(value) != n:
+            self.fail(table, key, f"got {len(value)} expression(s); expected {n} (one per state)")
+        return [self.expr(table, key, f"{table}.{key}[{i}]", v, allowed, what) for i, v in enumerate(value)]
+
+    def matrix(self, table, key, value, allowed, what, rows=None, cols=None, why="") -> list:
+        """A list of equal-length lists of expressions; ``rows``/``cols`` fixed when given."""
+        if (not isinstance(value, list) or not value or not all(isinstance(r, list) and r for r in value)
+                or len({len(r) for r in value}) != 1):
+            self.fail(table, key, f"got {value!r}; expected a matrix: a list of rows, each a non-empty list of "
+                                  "the same length")
+        shape = (len(value), len(value[0]))
+        if (rows is not None and shape[0] != rows) or (cols is not None and shape[1] != cols):
+            want = f"{rows if rows is not None else 'any'}×{cols if cols is not None else 'any'}"
+            self.fail(table, key, f"got a {shape[0]}×{shape[1]} matrix; expected {want}{why}")
+        return [[self.expr(table, key, f"{table}.{key}[{i}][{j}]", v, allowed, what) for j, v in enumerate(r)]
+                for i, r in enumerate(value)]
+
+    def covariance(self, table, key, value, size, params, why="", definite=False) -> np.ndarray:
+        """A ``size × size`` symmetric PSD (PD with ``definite``) matrix of numbers (or strings in
+        the parameters), or its diagonal (a list of ``size`` entries)."""
+        what = f"numbers or the parameters {sorted(params)}" if params else "numbers"
+        if not isinstance(value, list) or not value:
+            self.fail(table, key, f"got {value!r}; expected a {size}×{size} matrix (a list of {size} rows) or its "
+                                  f"diagonal (a list of {size} entries){why}")
+        if isinstance(value, list) and value and not any(isinstance(r, list) for r in value):
+            if len(value) != size:
+                self.fail(table, key, f"got a diagonal of {len(value)} entries; expected {size}×{size} (or its "
+                                      f"diagonal of {size}){why}")
+            diag = [self.expr(table, key, f"{table}.{key}[{i}]", v, params, what) for i, v in enumerate(value)]
+            M = np.diag([float(d) for d in diag])
+        else:
+            M = np.array([[float(e) for e in row]
+                          for row in self.matrix(table, key, value, params, what, size, size,
+                                                 why + f" (or its diagonal of {size})")])
+        if not np.all(np.isfinite(M)):
+            self.fail(table, key, f"got {M.tolist()}; expected finite entries")
+        scale = max(1.0, float(np.max(np.abs(M))))
+        if np.max(np.abs(M - M.T)) > 1e-10 * scale:
+            self.fail(table, key, f"got {M.tolist()}; expected a symmetric matrix")
+        w = float(np.min(np.linalg.eigvalsh(M)))
+        if w < -1e-10 * scale or (definite and w <= 1e-12 * scale):
+            self.fail(table, key, f"got {M.tolist()} (smallest eigenvalue {w:.3g}); expected a positive "
+                                  f"{'definite' if definite else 'semi-definite'} matrix")
+        return M
+
+
+def load_model(path) -> ModelSpec:
+    """Read a model file (module docstring): the model built from it, its prior and the
+    comparison's defaults, as a :class:`ModelSpec`.
+
+    Parameters
+    ----------
+    path : str or path-like, a TOML file
+
+    Raises
+    ------
+    ModelFileError
+        (a ``ValueError``) one line ``FILE:LINE: FIELD: what was given; what was expected``, for a
+        missing or unreadable file, a TOML syntax error, an unknown table or key, a name an
+        expression does not declare, a wrong shape, a non-finite number or a covariance that is
+        not positive semi-definite.
+    """
+    if not isinstance(path, (str, pathlib.PurePath)):
+        raise TypeError(f"path: expected a file path (str or pathlib.Path), got {type(path).__name__}")
+    name = str(path)
+    try:
+        data = pathlib.Path(path).read_bytes()
+    except OSError as exc:
+        raise ModelFileError(f"{name}:1: file: got {type(exc).__name__} ({exc.strerror or exc}); expected a "
+                             "readable TOML model file") from None
+    try:
+        text = data.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        raise ModelFileError(f"{name}:1: file: got bytes that are not UTF-8 ({exc.reason}); expected a TOML "
+                             "file (UTF-8 text)") from None
+    try:
+        doc = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        msg = str(exc)
+        at = re.search(r"\(at line (\d+), column (\d+)\)", msg)
+        line = int(at.group(1)) if at else max(1, len(text.splitlines()))
+        where = f"column {at.group(2)}" if at else "the end of the file"
+        msg = re.sub(r"\s*\(at (line \d+, column \d+|end of document)\)", "", msg)
+        raise ModelFileError(f"{name}:{line}: toml: got invalid TOML at {where} ({msg}); expected a valid TOML "
+                             "file") from None
+    rd = _Reader(name, text)
+    for key, value in doc.items():
+        if key not in _TABLES:
+            what = (f"the unknown table [{key}]" if isinstance(value, dict) else f"the key {key!r} outside any table")
+            rd.fail(key, None, f"got {what}; expected the tables {', '.join(f'[{t}]' for t in _TABLES)}")
+        if not isinstance(value, dict):
+            rd.fail(key, None, f"got the value {value!r}; expected a table [{key}]")
+
+    # [model]
+    mt = rd.table(doc, "model", True)
+    rd.keys("model", mt, _TABLES["model"])
+    kind = rd.string("model", "kind", mt["kind"])
+    if kind not in _DYNAMICS:
+        rd.fail("model", "kind", f"got {kind!r}; expected 'discrete' or 'sde'")
+    states = rd.names("model", "states", mt["states"])
+    title = rd.string("model", "name", mt["name"]) if "name" in mt else pathlib.Path(name).stem
+    n = len(states)
+    syms = {s: sp.Symbol(s) for s in states}
+
+    # [parameters]
+    pt = rd.table(doc, "parameters", False)
+    params = {}
+    for key, value in pt.items():
+        if not isinstance(key, str) or not key.isidentifier() or keyword.iskeyword(key) or "__" in key \
+                or key in RESERVED:
+            rd.fail("parameters", key, f"got the name {key!r}; expected an identifier that is not a Python keyword, "
+                                       f"has no '__' and is not one of the reserved names {sorted(RESERVED)}")
+        if key in syms:
+            rd.fail("parameters", key, f"got {key!r}, a state's name; expected a parameter name distinct from the "
+                                       f"states {states}")
+        rd.number("parameters", key, value)
+        params[key] = sp.Integer(value) if isinstance(value, numbers.Integral) else sp.Float(value)
+    allowed = {**syms, **params}
+    what = f"a state {states}" + (f" or a parameter {sorted(params)}" if params else "")
+
+    # [dynamics]
+    dt_ = rd.table(doc, "dynamics", True)
+    fkey, gkey = ("f", "G") if kind == "discrete" else ("drift", "diffusion")
+    rd.keys("dynamics", dt_, _DYNAMICS[kind], f" (kind = {kind!r}: " + ("x[k+1] = f + G w)" if kind == "discrete" else
+                                                                       "dx = drift dt + diffusion dβ)"))
+    f = rd.vector("dynamics", fkey, dt_[fkey], n, allowed, what)
+    G = None
+    if gkey in dt_:
+        G = rd.matrix("dynamics", gkey, dt_[gkey], allowed, what, rows=n, why=f" (n × r, n = {n} states)")
+    r = n if G is None else len(G[0])
+    Q = (rd.covariance("dynamics", "Q", dt_["Q"], r, params,
+                       f" (r × r, r = {r}: the columns of {gkey})" if G is not None else
+                       f" (r × r, r = n = {n}: {gkey} is the identity)")
+         if "Q" in dt_ else np.eye(r))
+
+    # [measurement]
+    mt_ = rd.table(doc, "measurement", True)
+    rd.keys("measurement", mt_, _MEASUREMENT[kind], " (dt: an SDE's measurement interval)" if kind == "discrete" else "")
+    h = rd.vector("measurement", "h", mt_["h"], None, allowed, what)
+    m = len(h)
+    R = rd.covariance("measurement", "R", mt_["R"], m, params, f" (m × m, m = {m}: the entries of h)", definite=True)
+    dt = float(rd.number("measurement", "dt", mt_["dt"], positive=True)) if kind == "sde" else None
+
+    # [prior]
+    pr = rd.table(doc, "prior", True)
+    rd.keys("prior", pr, _TABLES["prior"])
+    mean = pr["mean"]
+    if not isinstance(mean, list) or len(mean) != n:
+        rd.fail("prior", "mean", f"got {mean!r}; expected a list of {n} numbers (one per state {states})")
+    m0 = np.array([float(rd.number("prior", "mean", v)) for v in mean])
+    P0 = rd.covariance("prior", "cov", pr["cov"], n, params, f" (n × n, n = {n} states)")
+
+    # [run]
+    rn = rd.table(doc, "run", False)
+    rd.keys("run", rn, _TABLES["run"])
+    run = dict(DEFAULTS)
+    if "steps" in rn:
+        run["steps"] = int(rd.number("run", "steps", rn["steps"], integer=True, positive=True))
+    if "paths" in rn:
+        run["paths"] = int(rd.number("run", "paths", rn["paths"], integer=True, minimum=2))
+    if "seed" in rn:
+        run["seed"] = int(rd.number("run", "seed", rn["seed"], integer=True, minimum=0))
+    if "filters" in rn:
+        run["filters"] = _filters(rd, rn["filters"])
+
+    cls = DiscreteModel if kind == "discrete" else SDEModel
+    try:
+        model = cls(list(syms.values()), f, h, G=G, Q=Q, R=R, name=title)
+    except (ValueError, TypeError) as exc:  # what the checks above do not anticipate
+        rd.fail("dynamics", None, f"got a model the library refuses ({str(exc).splitlines()[0]}); expected a "
+                                  f"valid {cls.__name__}", field="model")
+    return ModelSpec(model, m0, P0, dt, run["steps"], run["paths"], run["filters"], run["seed"], name,
+                     hashlib.sha256(data).hexdigest())
+
+
+def _filters(rd: _Reader, value):
+    """``"all"`` or a tuple of registry names (a list in the file)."""
+    from .filters import REGISTRY
+
+    if value == "all":
+        return "all"
+    if not isinstance(value, list) or not value or not all(isinstance(v, str) for v in value):
+        rd.fail("run", "filters", f"got {value!r}; expected \"all\" or a non-empty list of registry names")
+    unknown = [v for v in value if v not in REGISTRY]
+    if unknown:
+        rd.fail("run", "filters", f"got the unknown filter(s) {unknown}; expected registry names from "
+                                  f"{sorted(REGISTRY)}")
+    return tuple(dict.fromkeys(value))
+
+
+__all__ = ["ModelFileError", "ModelSpec", "load_model"]
