@@ -10,7 +10,7 @@ import time
 import pytest
 
 from nlfilter import cli, experiments
-from nlfilter.report import _decimals, counts, fill_readme, readme_blocks, render_table, verdict
+from nlfilter.report import _decimals, counts, fill_readme, readme_blocks, render_block, render_table, verdict
 from nlfilter.results import Result, Row
 
 
@@ -43,7 +43,8 @@ def test_table_and_readme_blocks():
     assert len(table.splitlines()) == 3 and counts(res) == {"reproduced": 1, "not reproduced": 0}
     text = "intro\n<!-- report:demo -->\nold table\n<!-- /report:demo -->\nend\n"
     filled = fill_readme(text, {"demo": res})
-    assert readme_blocks(filled) == {"demo": table} and filled.endswith("end\n")
+    assert readme_blocks(filled) == {"demo": render_block("demo", {"demo": res})} and filled.endswith("end\n")
+    assert table in filled and "<details>" in filled
     with pytest.raises(ValueError, match="report:demo"):
         fill_readme(text, {})
 

@@ -101,6 +101,22 @@ def counts(res: Result) -> dict:
     return out
 
 
+def render_summary(results: list[Result], link: str = "#{id}") -> str:
+    """One line per experiment: its rows with a paper value reproduced / not reproduced, the paths
+    simulated and the run's seconds; ``link`` (``{id}`` is replaced) is each name's target."""
+    lines = ["| experiment | reproduced | not reproduced | paths | seconds |", "|---|---|---|---|---|"]
+    for res in results:
+        c = counts(res)
+        secs = (res.meta.get("execution") or {}).get("seconds")
+        paths = res.meta.get("paths")
+        if isinstance(paths, dict):
+            paths = ", ".join(f"{k} {v}" for k, v in paths.items())
+        target = link.replace("{id}", res.experiment)
+        lines.append(f"| [`{res.experiment}`]({target}) | {c['reproduced']} | {c['not reproduced']} | "
+                     f"{paths} | {'-' if secs is None else f'{secs:.0f}'} |")
+    return "\n".join(lines)
+
+
 def provenance_line(res: Result) -> str:
     m = res.meta
     ex = m.get("execution") or {}
@@ -151,15 +167,7 @@ def write_report(results: list[Result], folder, *, figures: bool = True, title: 
             f"{MC_SIGMAS:g} of our standard errors of the paper's value; a deterministic row when it rounds to the "
             "paper's printed decimals (`nlfilter.report`). The notes under each table say what the numbers mean "
             "and, for each \"not reproduced\", what the project found.", "",
-            "| experiment | reproduced | not reproduced | paths | seconds |", "|---|---|---|---|---|"]
-    for res in results:
-        c = counts(res)
-        secs = (res.meta.get("execution") or {}).get("seconds")
-        paths = res.meta.get("paths")
-        if isinstance(paths, dict):
-            paths = ", ".join(f"{k} {v}" for k, v in paths.items())
-        head.append(f"| [`{res.experiment}`](#{res.experiment}) | {c['reproduced']} | {c['not reproduced']} | "
-                    f"{paths} | {'-' if secs is None else f'{secs:.0f}'} |")
+            render_summary(results, link="#{id}")]
     text = "\n".join(head + [""] + body)
     index = folder / "index.md"
     atomic_write(index, text.encode("utf-8"))
@@ -173,15 +181,30 @@ def readme_blocks(text: str) -> dict[str, str]:
             for m in re.finditer(r"<!-- report:([\w.-]+) -->\n(.*?)<!-- /report:\1 -->", text, re.S)}
 
 
+def render_block(eid: str, results: dict[str, Result]) -> str:
+    """The text of README block ``eid``: ``summary`` (:func:`render_summary`, linking to the
+    committed report) or an experiment id (:func:`render_table`, folded under a summary line)."""
+    if eid == "summary":
+        return render_summary(list(results.values()), link=f"{REPORT_LINK}#{{id}}")
+    if eid not in results:
+        raise ValueError(f"README block report:{eid}: no result for it; expected 'summary' or one of {sorted(results)}")
+    res = results[eid]
+    c = counts(res)
+    return (f"<details><summary>Paper values row by row ({c['reproduced']} reproduced, {c['not reproduced']} not "
+            f"reproduced; generated from <code>{REPORT_DIR}/{eid}.json</code>)</summary>\n\n"
+            f"{render_table(res)}\n\n</details>")
+
+
+REPORT_DIR = "docs/report"  # the committed full report (docs/make_report.py)
+REPORT_LINK = f"{REPORT_DIR}/index.md"
+
+
 def fill_readme(text: str, results: dict[str, Result]) -> str:
-    """``text`` with every ``<!-- report:ID -->`` block replaced by :func:`render_table` of ``results[ID]``."""
+    """``text`` with every ``<!-- report:ID -->`` block replaced by :func:`render_block`."""
     import re
 
     def sub(m):
-        eid = m.group(1)
-        if eid not in results:
-            raise ValueError(f"README block report:{eid}: no result for it; expected one of {sorted(results)}")
-        return f"<!-- report:{eid} -->\n{render_table(results[eid])}\n<!-- /report:{eid} -->"
+        return f"<!-- report:{m.group(1)} -->\n{render_block(m.group(1), results)}\n<!-- /report:{m.group(1)} -->"
     return re.sub(r"<!-- report:([\w.-]+) -->\n(.*?)<!-- /report:\1 -->", sub, text, flags=re.S)
 
 
