@@ -3,16 +3,16 @@
 A filter is a small object holding configuration and the model's numeric functions, plus a
 handful of pure functions over a *belief* (a frozen container, :mod:`~nlfilter.filters.beliefs`):
 
-===========================  ========================================================================
-``init(m0, P0, batch, ...)``  the belief at the start, for ``B = prod(batch)`` paths (leading axis B)
-``predict(belief, k)``        discrete time: the belief of step ``k + 1`` from that of step ``k``
-``update(belief, y, k)``      discrete time: condition on ``y (B, m)``; NaN components are missing
-``step(belief, dy, t)``       continuous time: the belief at ``t + dt`` after the increment ``dy``
-``summary(belief)``           ``(mean (B, n), cov (B, n, n) or None)``: what ``run`` reports and checks
-``reset(belief, paths, b0)``  the belief with ``paths`` restarted from ``b0`` (after a divergence)
-``extras(belief)``            optional per-step extra outputs ``{name: (B, ...)}`` (family-specific)
-``output(estimates)``         optional output map applied once at the end (a post-processor)
-===========================  ========================================================================
+==============================  ========================================================================
+``init(m0, P0, batch, ...)``    the belief at the start, for ``B = prod(batch)`` paths (leading axis B)
+``predict(belief, k)``          discrete time: the belief of step ``k + 1`` from that of step ``k``
+``update(belief, y, k)``        discrete time: condition on ``y (B, m)``; NaN components are missing
+``step(belief, dy, t)``         continuous time: the belief at ``t + dt`` after the increment ``dy``
+``summary(belief)``             ``(mean (B, n), cov (B, n, n) or None)``: what ``run`` reports and checks
+``reset(belief, paths, b0)``    the belief with ``paths`` restarted from ``b0`` (after a divergence)
+``extras(belief)``              optional per-step extra outputs ``{name: (B, ...)}`` (family-specific)
+``output(estimates)``           optional output map applied once at the end (a post-processor)
+==============================  ========================================================================
 
 :meth:`Filter.run` is the one loop. It alone handles the input checks, the batch, the start
 convention, fully missing steps, divergence (raise / mark), the progress bar and the output

@@ -52,8 +52,10 @@ class EKF(GaussianFilter):
 
 
 class IteratedEKF(_Iterated, EKF):
-    """Iterated extended Kalman filter (Bell & Cathey 1993): the EKF prediction, and an update that
-    repeats the linearization of h at the latest estimate (Gauss–Newton on the MAP problem)::
+    """Iterated extended Kalman filter (Bell & Cathey 1993).
+
+    The EKF prediction, and an update that repeats the linearization of h at the latest estimate
+    (Gauss–Newton on the MAP problem)::
 
         x_0 = m⁻,  H_i = h_x(x_i),  K_i = P⁻ H_iᵀ (H_i P⁻ H_iᵀ + R)⁻¹
         x_{i+1} = m⁻ + K_i (y − h(x_i) − H_i (m⁻ − x_i)),    m⁺ = x_N

@@ -1,6 +1,6 @@
 """The optimal linear filters of bilinear systems (seed 001, Vallot 1981), continuous and discrete
 time, with their second moments, steady state and the Wonham-type existence condition; both run
-on the off-line-gain runner of :mod:`.offline` (re-exported by :mod:`.bilinear`).
+on the off-line-gain runner of :mod:`.offline` (re-exported by :mod:`nlfilter.filters.bilinear`).
 
 Optimal linear filter (001 eqs. 2.31-2.47), in the augmented coordinates ``z = (x, 1)`` of
 :meth:`~nlfilter.bilinear.BilinearModel.augmented`::

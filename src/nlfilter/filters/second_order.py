@@ -3,30 +3,30 @@ continuous-discrete time, in the forms the paper discusses.
 
 One family, one ``form=`` option:
 
-=======================  =====================================================================
-form                     what it is
-=======================  =====================================================================
-``"truncated"``          Henriksen's correct truncated second-order filter (default):
-                         discrete 004 eqs. 18-23, continuous 004 eqs. 35-37. Third *and*
-                         fourth central moments neglected, so no −¼ terms and ``C = 0``.
-``"truncated-jazwinski"`` the truncated filter before the correction (Jazwinski 1966/1970,
-                         Bass et al. 1966): −¼(X f_xx)(X f_xx)ᵀ in the predicted covariance
-                         (004 eq. 11 without its fourth-moment term), −¼(X h_xx)(X h_xx)ᵀ in the
-                         gain's inverse (004 text after eq. 23), and the random forcing
-                         term −½ X_ij (X h_xx) of 004 eq. 33 in the covariance update.
-``"modified"``           Jazwinski's *modified* truncated filter (``C = 0``): eq. 19 prediction,
-                         −¼(X h_xx)(X h_xx)ᵀ kept inside the gain's inverse. In continuous time
-                         it is the correct filter (004 sec. 3: "identical to the filter which has
-                         been derived here"), so there ``"modified"`` = ``"truncated"``.
-``"gaussian"``           Gaussian second-order filter: fourth central moments of a Gaussian,
-                         ½ tr(f_xx⁽ⁱ⁾ X f_xx⁽ʲ⁾ X) in the prediction, ½ tr(h_xx⁽ⁱ⁾ X h_xx⁽ʲ⁾ X) in
-                         the innovation covariance, the Gaussian fourth-moment term of G(x) V Gᵀ(x),
-                         and the forcing term Σ_k (X h_xx⁽ᵏ⁾ X)[·]_k (opposite sign to 004 eq. 33).
-``"modified-gaussian"``  the Gaussian filter with ``C = 0`` (no forcing term), Jazwinski's other
-                         modified form.
-``"first-order"``        all second-order terms dropped: the extended Kalman filter (the baseline,
-                         given here so that the continuous-discrete EKF exists too).
-=======================  =====================================================================
+=========================  =====================================================================
+form                       what it is
+=========================  =====================================================================
+``"truncated"``            Henriksen's correct truncated second-order filter (default):
+                           discrete 004 eqs. 18-23, continuous 004 eqs. 35-37. Third *and*
+                           fourth central moments neglected, so no −¼ terms and ``C = 0``.
+``"truncated-jazwinski"``  the truncated filter before the correction (Jazwinski 1966/1970,
+                           Bass et al. 1966): −¼(X f_xx)(X f_xx)ᵀ in the predicted covariance
+                           (004 eq. 11 without its fourth-moment term), −¼(X h_xx)(X h_xx)ᵀ in the
+                           gain's inverse (004 text after eq. 23), and the random forcing
+                           term −½ X_ij (X h_xx) of 004 eq. 33 in the covariance update.
+``"modified"``             Jazwinski's *modified* truncated filter (``C = 0``): eq. 19 prediction,
+                           −¼(X h_xx)(X h_xx)ᵀ kept inside the gain's inverse. In continuous time
+                           it is the correct filter (004 sec. 3: "identical to the filter which has
+                           been derived here"), so there ``"modified"`` = ``"truncated"``.
+``"gaussian"``             Gaussian second-order filter: fourth central moments of a Gaussian,
+                           ½ tr(f_xx⁽ⁱ⁾ X f_xx⁽ʲ⁾ X) in the prediction, ½ tr(h_xx⁽ⁱ⁾ X h_xx⁽ʲ⁾ X) in
+                           the innovation covariance, the Gaussian fourth-moment term of G(x) V Gᵀ(x),
+                           and the forcing term Σ_k (X h_xx⁽ᵏ⁾ X)[·]_k (opposite sign to 004 eq. 33).
+``"modified-gaussian"``    the Gaussian filter with ``C = 0`` (no forcing term), Jazwinski's other
+                           modified form.
+``"first-order"``          all second-order terms dropped: the extended Kalman filter (the baseline,
+                           given here so that the continuous-discrete EKF exists too).
+=========================  =====================================================================
 
 All three are configurations of the skeletons of :mod:`nlfilter.filters.gaussian` (discrete,
 continuous-discrete, continuous Itô) with the moment rule :class:`~nlfilter.filters.rules.Taylor2`

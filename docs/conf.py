@@ -1,0 +1,87 @@
+"""Sphinx configuration of the nlfilter documentation.
+
+Build (from the repository root, after ``pip install ".[docs]"``)::
+
+    python -m sphinx -b html docs docs/_build/html
+
+The API reference comes from the numpydoc docstrings, the gallery from ``examples/plot_*.py``
+(sphinx-gallery runs every one of them during the build), and the table of the "choosing a
+filter" page from a small :func:`nlfilter.compare` run made at build time
+(:mod:`choosing_tables`).
+"""
+
+import sys
+from pathlib import Path
+
+import matplotlib
+
+matplotlib.use("Agg")
+
+HERE = Path(__file__).resolve().parent
+ROOT = HERE.parent
+sys.path.insert(0, str(HERE))
+if (ROOT / "src" / "nlfilter").is_dir():  # a source checkout: document this tree, not an installed copy
+    sys.path.insert(0, str(ROOT / "src"))
+
+import nlfilter  # noqa: E402
+
+project = "nlfilter"
+author = "the nlfilter authors"
+copyright = "the nlfilter authors, MIT licence"
+release = version = nlfilter.__version__
+
+extensions = [
+    "sphinx.ext.autodoc",
+    "sphinx.ext.autosummary",
+    "sphinx.ext.mathjax",
+    "numpydoc",
+    "sphinx_gallery.gen_gallery",
+]
+
+exclude_patterns = ["_build", "_generated", "figures", "**.ipynb_checkpoints", "sg_execution_times.rst"]
+templates_path = []
+source_suffix = {".rst": "restructuredtext"}
+root_doc = "index"
+nitpicky = False
+suppress_warnings = ["config.cache"]  # sphinx-gallery's conf values are not picklable
+
+# -- autodoc / numpydoc ------------------------------------------------------------------------
+autosummary_generate = False        # the API pages use automodule; autosummary only for tables
+autodoc_default_options = {"members": True, "show-inheritance": False}
+autodoc_member_order = "bysource"
+autodoc_typehints = "none"          # the numpydoc Parameters sections say the types
+numpydoc_show_class_members = False  # automodule lists the members once
+numpydoc_class_members_toctree = False
+numpydoc_validation_checks = set()
+
+# -- sphinx-gallery ----------------------------------------------------------------------------
+sphinx_gallery_conf = {
+    "examples_dirs": "../examples",
+    "gallery_dirs": "auto_examples",
+    "filename_pattern": r"plot_",     # every plot_*.py is executed
+    "download_all_examples": False,
+    "remove_config_comments": True,
+    "within_subsection_order": "FileNameSortKey",
+    "abort_on_example_error": True,
+    "capture_repr": (),
+    "matplotlib_animations": False,
+    "reset_modules": ("matplotlib",),
+    "show_memory": False,
+    "write_computation_times": False,
+}
+
+html_theme = "alabaster"
+html_static_path = []
+html_title = f"nlfilter {release}"
+html_theme_options = {"description": "moment-based nonlinear filters", "page_width": "1100px",
+                      "sidebar_width": "240px"}
+
+
+def _choosing_tables(app):
+    import choosing_tables
+
+    choosing_tables.write(HERE / "_generated")
+
+
+def setup(app):
+    app.connect("builder-inited", _choosing_tables)
