@@ -93,3 +93,53 @@ def test_reproduce_all_refuses_per_experiment_options(capsys, tmp_path):
         assert cli.main(["reproduce", "all", "--quick", *extra]) == 2
         err = capsys.readouterr().err.strip().splitlines()
         assert len(err) == 1 and extra[0] in err[0], err
+
+
+ROOT = __import__("pathlib").Path(__file__).resolve().parents[1]
+
+
+def _committed():
+    """The committed full report's results and single runs, as docs/make_report.py reads them."""
+    from nlfilter.report import REPORT_DIR, load_folder
+    dest = ROOT / REPORT_DIR
+    res = load_folder(dest) if dest.exists() else {}
+    res.update({p.stem: Result.from_json(p) for p in sorted((dest / "runs").glob("*.json"))})
+    return res
+
+
+def test_readme_blocks_equal_the_committed_report():
+    """Every generated block of the README is what docs/make_report.py makes of the committed
+    JSON files (so the README's tables cannot drift from the report), and docs/report/index.md
+    too; every experiment of the registry is in the committed report."""
+    from nlfilter.report import REPORT_DIR, render_block, write_report
+    text = (ROOT / "README.md").read_text(encoding="utf-8")
+    blocks = readme_blocks(text)
+    results = _committed()
+    assert {"summary", "phase-tracking-table-4.1"} <= set(blocks)
+    for eid, body in blocks.items():
+        assert body == render_block(eid, results), eid
+    reg = experiments.registry()
+    exps = [results[e] for e in reg if e in results]
+    assert [r.experiment for r in exps] == list(reg), "an experiment is missing from docs/report"
+    assert all(not r.meta["quick"] and r.meta["seed"] == 0 for r in exps)
+
+
+def test_readme_table_4_1_quotes_the_committed_run():
+    """The README's Table 4.1 paragraph (hand-written) quotes the committed decisive run: each
+    value and standard error as printed (5 decimals), the distance in standard errors (1 decimal)."""
+    import re
+    run = _committed()["phase-tracking-table-4.1"]
+    text = (ROOT / "README.md").read_text(encoding="utf-8")
+    part = text[text.index("**Table 4.1 decided**"):text.index("**The thesis' LQF")]
+    assert run.params["paths"] == 256 and run.params["time_constants"] == 2000
+    for name in ("pll", "lqf", "tensor", "optimal"):
+        row = run.get(name, "mse_theta", P=0.129)
+        line = next(ln for ln in part.splitlines() if ln.startswith(f"| {name}"))
+        v, se = map(float, re.search(r"\| ([\d.]+) ± ([\d.]+) \|", line).groups())
+        assert (v, se) == (round(row.value, 5), round(row.stderr, 5)), name
+        if row.paper is not None:
+            k = float(re.search(r"\(([\d.]+) s\.e\.\)", line).group(1))
+            assert k == round(abs(row.value - row.paper) / row.stderr, 1), name
+            ex = run.get(name, "excess_mse_theta", P=0.129)
+            ev, ese = map(float, re.findall(r"([\d.]+) ± ([\d.]+) \|$", line)[0])
+            assert (ev, ese) == (round(ex.value, 5), round(ex.stderr, 5)), name
