@@ -23,7 +23,7 @@ def test_list_params_round_trip_through_param(capsys):
         if not line.startswith("    "):
             current = experiments.get(line.split("\t")[0])
             continue
-        name, _, value = line.strip().removeprefix("--param ").partition("=")
+        name, _, value = line.strip().removeprefix("--param ").split("  (")[0].partition("=")
         default = current.params[name]
         got = current.convert(name, value)
         assert got == (list(default) if isinstance(default, tuple) else default) or str(got) == str(default)

@@ -180,7 +180,10 @@ def _main(argv) -> int:
             print(f"{exp.id}\t{exp.title}\t{exp.source}")
             if args.params:
                 for name, default in sorted(exp.params.items()):
-                    print(f"    --param {name}={_show(default)}")
+                    rng = exp.ranges.get(name)
+                    shown = "" if rng is None else ("  (one of " + ", ".join(rng) + ")" if isinstance(rng, tuple)
+                                                    else "  (" + rng.replace(",", ", ") + ")")
+                    print(f"    --param {name}={_show(default)}{shown}")
         return 0
     if args.command == "compare":
         return _compare(args, argv)

@@ -15,9 +15,10 @@ and ``runs`` (a shorter horizon, the number of Monte Carlo ``paths``) with ``Res
 from __future__ import annotations
 
 import importlib
+import math
 import pkgutil
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Callable
 
 from ..results import Result, _decode, _encode, provenance
@@ -30,6 +31,7 @@ class Experiment:
     source: str
     params: dict  # name -> default value (its type is the parameter's type)
     func: Callable[..., Result]
+    ranges: dict = field(default_factory=dict)  # name -> range (see check_range) or a tuple of choices
 
     def run(self, params: dict | None = None, *, quick: bool = False, runs: int | None = None,
             seed: int = 0, progress: bool = False, chunk: int | None = None, executor=None, store=None,
@@ -62,6 +64,45 @@ class Experiment:
         return res
 
     def convert(self, name: str, value):
+        """``value`` (a string from the command line, or a Python value) as parameter ``name``:
+        converted to the default's type, then checked (:meth:`check`)."""
+        return self.check(name, self._convert(name, value))
+
+    def check(self, name: str, value):
+        """``value`` of parameter ``name`` if it has the default's type, is finite (numbers; every
+        element of a list), is non-empty (a list whose default is not) and lies in the declared
+        range or choices (``ranges``); else a ValueError/TypeError naming ``param NAME``."""
+        default = self.params[name]
+        label = f"param {name}={value!r}"
+        items = value if isinstance(default, (list, tuple)) else [value]
+        if isinstance(default, (list, tuple)):
+            if not isinstance(value, (list, tuple)):
+                raise TypeError(f"{label}: expected a list (default {default!r})")
+            if default and not value:
+                raise ValueError(f"{label}: expected at least one value (default {_show_list(default)})")
+        if isinstance(default, (list, tuple)):
+            kind = type(default[0]) if default else float
+        else:
+            kind = type(default)
+        for v in items:
+            if kind is bool or isinstance(default, bool):
+                if not isinstance(v, bool):
+                    raise TypeError(f"{label}: expected true or false (default {default!r})")
+                continue
+            if kind in (int, float) or default is None:
+                if isinstance(v, bool) or not isinstance(v, (int, float)) or (kind is int and not isinstance(v, int)):
+                    raise TypeError(f"{label}: expected {'an integer' if kind is int else 'a number'} "
+                                    f"(default {default!r})")
+                if not math.isfinite(v):
+                    raise ValueError(f"{label}: expected a finite number (default {default!r})")
+            elif kind is str and not isinstance(v, str):
+                raise TypeError(f"{label}: expected a string (default {default!r})")
+            spec = self.ranges.get(name)
+            if spec is not None:
+                check_range(label, v, spec)
+        return value
+
+    def _convert(self, name: str, value):
         if name not in self.params:
             raise ValueError(f"param {name!r}: unknown for experiment {self.id!r}; "
                              f"expected one of {sorted(self.params)}")
@@ -76,12 +117,12 @@ class Experiment:
                     return False
                 raise ValueError
             if isinstance(default, int):
-                return int(value)
+                return _scalar(int, value)
             if isinstance(default, float):
                 return float(value)
             if isinstance(default, (list, tuple)):
                 kind = type(default[0]) if default else float
-                return [kind(v) for v in value.split(",") if v != ""]
+                return [_scalar(kind, v.strip()) for v in value.split(",") if v.strip() != ""]
             if default is None:
                 return float(value)
         except ValueError:
@@ -90,17 +131,69 @@ class Experiment:
         return value
 
 
+def _scalar(kind, text: str):
+    """``text`` as ``kind``; an integer may be written ``1e6`` or ``1000.0`` if it is whole."""
+    if kind is int:
+        try:
+            return int(text)
+        except ValueError:
+            f = float(text)  # ValueError if not a number
+            if not (math.isfinite(f) and f.is_integer()):
+                raise ValueError from None
+            return int(f)
+    if kind is bool:
+        if text.lower() in ("1", "true", "yes", "on"):
+            return True
+        if text.lower() in ("0", "false", "no", "off"):
+            return False
+        raise ValueError
+    return kind(text)
+
+
+def _show_list(v) -> str:
+    return ",".join(map(str, v)) if v else "(empty)"
+
+
+_OPS = {">": lambda a, b: a > b, ">=": lambda a, b: a >= b, "<": lambda a, b: a < b, "<=": lambda a, b: a <= b}
+
+
+def check_range(label: str, value, spec) -> None:
+    """Check ``value`` against ``spec``: a tuple of allowed values, or a string of comma-separated
+    bounds ``OP NUMBER`` (``OP`` one of ``>``, ``>=``, ``<``, ``<=``), e.g. ``">0"``,
+    ``">=1,<=1e6"``; a ValueError names ``label``, the value and the range.
+
+    >>> check_range("param T=-1.0", -1.0, ">0")
+    Traceback (most recent call last):
+    ...
+    ValueError: param T=-1.0: expected a value > 0
+    """
+    if isinstance(spec, tuple):
+        if value not in spec:
+            raise ValueError(f"{label}: expected one of {list(spec)}")
+        return
+    for part in spec.split(","):
+        part = part.strip()
+        op = part[:2] if part[:2] in _OPS else part[:1]
+        bound = float(part[len(op):])
+        if not _OPS[op](value, bound):
+            raise ValueError(f"{label}: expected a value " + " and ".join(p.strip() for p in spec.split(",")))
+
+
 _REGISTRY: dict[str, Experiment] = {}
 _LOADED = False
 
 
-def experiment(id: str, *, title: str, source: str, params: dict | None = None):
-    """Register ``func`` as experiment ``id``."""
+def experiment(id: str, *, title: str, source: str, params: dict | None = None, ranges: dict | None = None):
+    """Register ``func`` as experiment ``id``; ``ranges``: name -> the range of a parameter
+    (:func:`check_range`: ``">0"``, ``">=1,<=1e6"``) or a tuple of its choices."""
 
     def deco(func):
         if id in _REGISTRY:
             raise ValueError(f"experiment id {id!r} registered twice")
-        _REGISTRY[id] = Experiment(id, title, source, dict(params or {}), func)
+        unknown = set(ranges or {}) - set(params or {})
+        if unknown:
+            raise ValueError(f"ranges of {id!r}: {sorted(unknown)} are not parameters")
+        _REGISTRY[id] = Experiment(id, title, source, dict(params or {}), func, dict(ranges or {}))
         return func
 
     return deco

@@ -105,7 +105,9 @@ def _horizon(params, quick, T_quick, skip_quick):
 @experiment("moment-first-order", title="First-order system: moment filter vs Kalman vs grid optimum",
             source="seed 000, eqs. 2.4-2.5 (Chapter IV, outlined in the abstract)",
             params={"h": 0.5, "w_bound": 2.0, "N": [2, 4, 6], "laws": list(LAWS), "T": 2000, "skip": 500,
-                    "n0": 100.0, "window": 20, "grid": 400})
+                    "n0": 100.0, "window": 20, "grid": 400},
+            ranges={"h": ">-1,<1", "w_bound": ">0", "N": ">=1,<=12", "laws": tuple(LAWS), "T": ">=2,<=10000000",
+                    "skip": ">=0", "n0": ">0", "window": ">=1,<=100000", "grid": ">=10,<=100000"})
 def run_first_order(params, *, quick, runs, seed, progress):
     h, wb = float(params["h"]), float(params["w_bound"])
     Ns = [int(N) for N in params["N"]]
@@ -176,7 +178,10 @@ def kalman_second_order(zs, A, b, c, law, noise_halfwidth=1.0):
             source="seed 000, eqs. 2.6-2.8 (Chapter V, outlined in the abstract)",
             params={"h1": 0.6, "h2": -0.5, "d1": 1.0, "d2": 1.0, "w_bound": 1.5, "N": [2, 4, 6],
                     "laws": list(LAWS), "T": 400, "skip": 100, "n0": 100.0, "window": 20,
-                    "particles": 4000, "bounding": "polygon", "directions": 16})
+                    "particles": 4000, "bounding": "polygon", "directions": 16},
+            ranges={"w_bound": ">0", "N": ">=1,<=12", "laws": tuple(LAWS), "T": ">=2,<=1000000", "skip": ">=0",
+                    "n0": ">0", "window": ">=1,<=100000", "particles": ">=10,<=10000000", "bounding": ("polygon", "box"),
+                    "directions": ">=4,<=1024"})
 def run_second_order(params, *, quick, runs, seed, progress):
     from ..filters.moment_bayes import SecondOrderMomentFilter
     from ..filters.reference.bounded import BoundedParticleFilter

@@ -48,7 +48,9 @@ def _peak(q):
 @experiment("phase-tracking", title="Phase tracking: PLL, linear quadrature filter, tensor filter, optimal",
             source="seed 001, Figs. 4.3-4.4, Table 4.1 (ch. 4, Appendix A)",
             params={"P": [], "q": 1.0, "sim_P": 0.129, "time_constants": 500.0, "discard": 25.0,
-                    "step": 0.01, "grid": 256, "sweep": 100, "simulate": True, "block": 32})
+                    "step": 0.01, "grid": 256, "sweep": 100, "simulate": True, "block": 32},
+            ranges={"P": ">0,<=100", "q": ">0", "sim_P": ">0,<=100", "time_constants": ">0,<=1e5", "discard": ">=0",
+                    "step": ">0,<=0.5", "grid": ">=0,<=65536", "sweep": ">=2,<=10000", "block": ">=1,<=100000"})
 def run(params, *, quick, runs, seed, progress):
     title = "Phase tracking: PLL, linear quadrature filter, tensor filter, optimal"
     res = Result("phase-tracking", title, "seed 001, Figs. 4.3-4.4, Table 4.1", params)

@@ -54,6 +54,11 @@ PARAMS = {
     "fb_r": 1e4, "fb_substeps": 20, "fb_particles": 1000, "fb_pf_runs": 100,
     "grid_size": 401,
 }
+RANGES = {  # what --param accepts (nlfilter.experiments.check_range)
+    "steps": ">=0,<=100000", "quad_q": ">0", "quad_r": ">0", "sn_r": ">0", "sn_dt": ">0,<=1",
+    "sn_innovation": ("update", "ito"), "fb_r": ">0", "fb_substeps": ">=1,<=10000", "fb_particles": ">=10,<=10000000",
+    "fb_pf_runs": ">=2,<=100000", "grid_size": ">=11,<=100001",
+}
 RUNS = {"quadratic": 1000, "state-noise": 400, "falling-body": 500}
 QUICK = {"runs": 24, "steps": {"quadratic": 15, "state-noise": 40, "falling-body": 15},
          "grid_size": 151, "fb_particles": 200, "fb_pf_runs": 8}
@@ -62,7 +67,7 @@ QUICK = {"runs": 24, "steps": {"quadratic": 15, "state-noise": 40, "falling-body
 @experiment("second-order", title="Second-order filters: Henriksen's correct truncated form vs the "
             "pre-correction, modified and Gaussian forms, EKF, UKF and the optimal reference",
             source="seed 004 (Henriksen 1979) eqs. 11, 18-23, 33, 35-37; falling body of Athans, "
-                   "Wishner & Bertolini 1968", params=PARAMS)
+                   "Wishner & Bertolini 1968", params=PARAMS, ranges=RANGES)
 def run(params, *, quick, runs, seed, progress):
     res = Result("second-order", "second-order filters (seed 004)", "seed 004", params)
     chosen = PROBLEMS if params["problem"] == "all" else tuple(

@@ -48,7 +48,8 @@ def cases():
             "rotating-cubic": (rot, np.array([0.5, 0.0]), 0.5 * np.eye(2))}
 
 
-@experiment("smoothing", title=TITLE, source=SOURCE, params={"steps": 50, "particles": 1000})
+@experiment("smoothing", title=TITLE, source=SOURCE, params={"steps": 50, "particles": 1000},
+            ranges={"steps": ">=2,<=100000", "particles": ">=10,<=1000000"})
 def run(params, *, quick=False, runs=None, seed=0, progress=False):
     p = dict(params)
     if quick:

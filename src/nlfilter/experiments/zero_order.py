@@ -128,7 +128,8 @@ def _estimators(J, Ns, eps):
 
 @experiment("zero-order", title="Zero-order problem: ensemble MSE of optimal, moment and linear estimators",
             source="seed 000, Table 1 (eqs. 3.7, 3.20, 3.21, 3.24)",
-            params={"J": [0, 2, 4, 6, 8, 10], "N": [2, 4, 6], "eps": 1e-6})
+            params={"J": [0, 2, 4, 6, 8, 10], "N": [2, 4, 6], "eps": 1e-6},
+            ranges={"J": ">=0,<=40", "N": ">=1,<=12", "eps": ">0,<1"})
 def run_table1(params, *, quick, runs, seed, progress):
     Js = [_check_J(J) for J in params["J"]]
     Ns = [_check_N(N) for N in params["N"]]
@@ -240,7 +241,9 @@ def _paired(est, xs, a, b, n=None):
 @experiment("zero-order-adaptive", title="Zero-order adaptive moment filter: time-averaged MSE vs n",
             source="seed 000, Fig. 10 (a) J=10, (b) J=0; flow chart Fig. 7",
             params={"J": [10, 0], "N": [2, 4, 6], "n0": 100.0, "window": 20, "n_max": 3000,
-                    "eps": 1e-6, "invalid_moments": "ignore"})
+                    "eps": 1e-6, "invalid_moments": "ignore"},
+            ranges={"J": ">=0,<=40", "N": ">=1,<=12", "n0": ">0", "window": ">=1,<=100000", "n_max": ">=2,<=10000000",
+                    "eps": ">0,<1", "invalid_moments": ("warn", "keep", "ignore")})
 def run_fig10(params, *, quick, runs, seed, progress):
     Js = [_check_J(J) for J in params["J"]]
     Ns = [_check_N(N) for N in params["N"]]
@@ -346,7 +349,9 @@ def correlated_optimal(z, J: int, r: float, nodes: int = 160):
 @experiment("zero-order-robustness", title="Zero-order filter under input/noise correlation and non-additive noise",
             source="seed 000, Chapter III (abstract: correlation and non-additive measurement)",
             params={"J": 10, "N": [2, 4, 6], "r": [0.0, 0.3, 0.6, 0.9], "beta": [0.0, 0.3, 0.6],
-                    "n": 3000, "n0": 100.0, "window": 20})
+                    "n": 3000, "n0": 100.0, "window": 20},
+            ranges={"J": ">=0,<=40", "N": ">=1,<=12", "r": ">-1,<1", "beta": ">=-10,<=10", "n": ">=2,<=10000000",
+                    "n0": ">0", "window": ">=1,<=100000"})
 def run_robustness(params, *, quick, runs, seed, progress):
     from ..filters.moment_bayes import ScaledNoiseZeroOrderFilter
     J = _check_J(params["J"])
