@@ -184,8 +184,9 @@ def readme_blocks(text: str) -> dict[str, str]:
 def render_block(eid: str, results: dict[str, Result]) -> str:
     """The text of README block ``eid``: ``summary`` (:func:`render_summary`, linking to the
     committed report) or an experiment id (:func:`render_table`, folded under a summary line)."""
-    if eid == "summary":
-        return render_summary(list(results.values()), link=f"{REPORT_LINK}#{{id}}")
+    if eid == "summary":  # the experiments (not the single runs kept beside them)
+        exps = [r for k, r in results.items() if k == r.experiment]
+        return render_summary(exps, link=f"{REPORT_LINK}#{{id}}")
     if eid not in results:
         raise ValueError(f"README block report:{eid}: no result for it; expected 'summary' or one of {sorted(results)}")
     res = results[eid]
@@ -211,8 +212,8 @@ def fill_readme(text: str, results: dict[str, Result]) -> str:
 def load_folder(folder) -> dict[str, Result]:
     """Every ``<id>.json`` result in ``folder``, by experiment id."""
     out = {}
-    for name in sorted(os.listdir(folder)):
+    for name in os.listdir(folder):
         if name.endswith(".json"):
             res = Result.from_json(Path(folder) / name)
             out[res.experiment] = res
-    return out
+    return dict(sorted(out.items()))  # by id, as the registry lists them
