@@ -190,5 +190,5 @@ def test_robustness_quick(check_figure):
     # beta = 0.5: modelling the state-dependent noise helps (paired over the same data)
     assert (res.get("moment4", "mse_n400", case="scaled-noise", beta=0.5).value
             < res.get("moment4-additive", "mse_n400", case="scaled-noise", beta=0.5).value)
-    with pytest.raises(ValueError, match="r: expected"):
+    with pytest.raises(ValueError, match="param r=1.0: expected a value >-1 and <1"):
         get("zero-order-robustness").run({"r": [1.0]}, quick=True, runs=2)

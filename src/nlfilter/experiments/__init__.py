@@ -99,7 +99,7 @@ class Experiment:
                 raise TypeError(f"{label}: expected a string (default {default!r})")
             spec = self.ranges.get(name)
             if spec is not None:
-                check_range(label, v, spec)
+                check_range(f"param {name}={v!r}" if isinstance(default, (list, tuple)) else label, v, spec)
         return value
 
     def _convert(self, name: str, value):
@@ -165,7 +165,7 @@ def check_range(label: str, value, spec) -> None:
     >>> check_range("param T=-1.0", -1.0, ">0")
     Traceback (most recent call last):
     ...
-    ValueError: param T=-1.0: expected a value > 0
+    ValueError: param T=-1.0: expected a value >0
     """
     if isinstance(spec, tuple):
         if value not in spec:
