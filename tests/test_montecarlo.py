@@ -202,3 +202,41 @@ def test_output_paths_are_checked_before_the_run(tmp_path, capsys):
         assert len(err) == 1 and opt in err[0], err
     assert cli.main(["reproduce", "linear-gaussian", "--quick", "--workers", "2"]) == 2
     assert "--executor dask" in capsys.readouterr().err
+
+
+def _own_block(rows, *, flt, model):
+    """A user's block function: simulate the paths ``rows`` of ``model`` and reduce each to the
+    filter's mean squared error (per-path streams: the same path numbers in any block)."""
+    from nlfilter.simulate import simulate
+    sim = simulate(model, 30, paths=rows, rng=11, m0=0.5, P0=0.1)
+    est = flt.run(sim.ys, [0.5], [[0.1]])
+    return {"mse": ((est.means - sim.xs) ** 2).mean(axis=(1, 2))}
+
+
+def test_a_users_filter_sweep_runs_on_dask():
+    """Filters built from a SymPy model pickle to Dask workers (the model's lazily generated
+    functions travel without their weak back-reference) and give the local numbers bitwise."""
+    pytest.importorskip("dask.distributed")
+    import functools
+
+    import cloudpickle
+    import sympy as sp
+
+    from nlfilter import DiscreteModel
+    from nlfilter.filters import REGISTRY
+
+    x = sp.Symbol("x")
+    md = DiscreteModel([x], f=[0.9 * x + 0.1 * sp.sin(x)], h=[x ** 3], Q=0.1, R=0.5)
+    names = ("ekf", "ukf", "second-order")
+    for name in names:  # pickles before and after first use
+        flt = REGISTRY[name].for_model(md)
+        cloudpickle.loads(cloudpickle.dumps(flt))
+        flt.run(np.zeros((1, 3, 1)), [0.5], [[0.1]])
+        cloudpickle.loads(cloudpickle.dumps(flt))
+    local = {n: montecarlo.montecarlo(n, functools.partial(_own_block, flt=REGISTRY[n].for_model(md), model=md), 7,
+                                      block=3)["mse"] for n in names}
+    with montecarlo.session(executor="dask", workers=2, chunk=3):
+        remote = {n: montecarlo.montecarlo(n, functools.partial(_own_block, flt=REGISTRY[n].for_model(md), model=md),
+                                           7, block=3)["mse"] for n in names}
+    for n in names:
+        assert local[n].shape == (7,) and np.array_equal(local[n], remote[n]), n

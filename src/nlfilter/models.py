@@ -337,6 +337,10 @@ class _LazyKernels:
         return _Lazy(self, key, values, model)
 
 
+def _no_model():
+    return None
+
+
 class _Lazy:
     """Stands for a model's ``_Batched`` function until its first call, which generates the kernel
     (:class:`_LazyKernels`), binds it to the model's values and puts it in the model's place."""
@@ -348,6 +352,14 @@ class _Lazy:
     @property
     def kernel(self) -> "_Kernel":
         return self.store.kernel(self.key)
+
+    def __getstate__(self):  # pickled (e.g. to a Dask worker) without the weak back-reference
+        return {**self.__dict__, "_model": None}
+
+    def __setstate__(self, state):
+        self.__dict__.update(state)
+        if self._model is None:
+            self._model = _no_model
 
     def __call__(self, x, t=0.0):
         fn = self._fn
