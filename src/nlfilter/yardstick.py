@@ -17,8 +17,9 @@ itself:
    diffusion is not diagonal) it falls back to a
    :class:`~nlfilter.filters.reference.ParticleFilter` with :data:`PARTICLES` particles.
 2. **Edge mass.** A grid reports the posterior mass on its outermost points at every step
-   (``extras["edge_mass"]``); above :data:`EDGE_MASS` the bounds are widened by half and the
-   grid rerun (twice at most), then flagged.
+   (``extras["edge_mass"]``); above :data:`EDGE_MASS`, or when paths left the grid (the grid
+   filter marks them diverged: its ``edge_limit``), the bounds are widened by half and the grid
+   rerun (twice at most), then flagged.
 3. **Its own error.** The reference is rerun at the next resolution (``2×`` the points per axis,
    or ``4×`` the particles) on the first ``certify_paths`` paths, and the change of its MSE per
    component is measured on those paths as a paired difference ``Δ ± se``. The tolerance per
@@ -194,12 +195,15 @@ def _pilot_posterior_sd(model, sim, m0, P0, kw, run, paths=16, particles=500):
 
 
 def _diagnostics(est):
-    """Edge mass (grids) and effective sample size (particles) over the paths that did not
-    diverge, and the number that did."""
+    """Edge mass (grids: over every step of every path, a diverged one's up to its divergence —
+    a path that left the grid is marked diverged, and the mass it had on the edge before counts)
+    and effective sample size (particles, over the paths that did not diverge), and the number of
+    paths that diverged."""
     out = {}
     ok = ~np.asarray(est.diverged, bool)
     if "edge_mass" in est.extras:
-        em = np.asarray(est.extras["edge_mass"])[ok]
+        em = np.asarray(est.extras["edge_mass"], float)
+        em = em[np.isfinite(em)]
         out["edge_mass_max"] = float(np.max(em)) if em.size else 0.0
     if "ess" in est.extras:
         ess = np.asarray(est.extras["ess"])[ok]
@@ -284,9 +288,11 @@ def certified_reference(model, sim, m0, P0, *, run, judged=None, dt=None, start=
     while True:
         diag = _diagnostics(est)
         record = {"kind": rung.kind, "size": rung.size, "bounds": rung.bounds, **diag}
-        if rung.kind == "grid" and diag.get("edge_mass_max", 0.0) > EDGE_MASS and widen < 2.0:
-            widen *= 1.5  # the bounds cut the density: widen by half and rerun this rung
-            record["verdict"] = f"edge mass {diag['edge_mass_max']:.2g} > {EDGE_MASS}: bounds widened"
+        cut = diag.get("edge_mass_max", 0.0) > EDGE_MASS
+        if rung.kind == "grid" and (cut or diag["diverged"]) and widen < 2.0:
+            widen *= 1.5  # the bounds cut the density, or paths left the grid: widen by half and rerun
+            record["verdict"] = (f"edge mass {diag['edge_mass_max']:.2g} > {EDGE_MASS}" if cut else
+                                 f"{diag['diverged']} path(s) left the grid or diverged") + ": bounds widened"
             rungs.append(record)
             rung, reason = _first_rung(model, sim, m0, P0, dt, post_sd, widen=widen)
             est = run(rung.build(model, kw), sim.ys, f"reference {rung.kind} {rung.size}")

@@ -202,6 +202,12 @@ class _Recorder:
         if now.any():
             if self.on == "raise":
                 idx = np.flatnonzero(now)
+                why = self.flt._divergence_reason(belief, now)
+                if why is not None:  # the filter says what failed (e.g. the grid filter: left the grid)
+                    text, what, idx = why
+                    raise DivergenceError(f"{self.flt.name}: {text} at step {k} on {idx.size} path(s), first "
+                                          f"{idx[:5].tolist()}; pass on_divergence='mark' to record such paths "
+                                          "and go on", step=k, paths=idx, what=what)
                 raise DivergenceError(
                     f"{self.flt.name}: covariance lost positive definiteness or a value became non-finite "
                     f"at step {k} on {idx.size} path(s), first {idx[:5].tolist()}; pass "
@@ -323,6 +329,13 @@ class Filter:
     def reset(self, belief, paths, start):
         """The belief with the paths ``paths`` restarted from ``start`` (field by field)."""
         return where_paths(paths, start, belief)
+
+    def _divergence_reason(self, belief, paths):
+        """What failed on the paths ``paths (B,)`` of a belief the run loop is about to report as
+        diverged, for its message: ``(text, what, path indices)`` when the filter knows (the grid
+        filter: the posterior left the grid), None for the generic message (a non-finite value or
+        a covariance that lost positive definiteness)."""
+        return None
 
     def extras(self, belief):
         """Per-step extra outputs ``{name: (B, ...)}`` collected into ``Estimates.extras``; none by default."""

@@ -41,6 +41,12 @@ for SDEs) resamples first.
 
 Both filters flag a measurement that is impossible under every grid point / particle (zero
 likelihood everywhere, e.g. bounded noise and a too-narrow grid) as a divergence of that path.
+The grid filter also flags a path that left its grid: its density at an outermost point reaches
+``edge_limit`` (default 0.9) of its peak (the mean would sit at the edge).
+
+Any split of the paths gives the same numbers: the particle filters draw path ``p`` from its own
+stream (:mod:`nlfilter.streams`; bitwise), the grid filters choose nothing from the batch (to the
+last bits of the BLAS products over the batch).
 """
 
 from .bounded import BoundedGridFilter1D, BoundedParticleFilter

@@ -19,6 +19,12 @@ from ..linalg import gaussian_loglik, innovation_info, measurement_loglik, no_in
 from ._common import _ReferenceFilter
 
 
+EDGE_LIMIT = 0.9
+"""The default ``edge_limit`` of :class:`GridFilter`: a path whose density at an outermost grid
+point reaches 0.9 of its peak has left the grid (its mode is on the edge, or within half a
+standard deviation of it; the experiments' grids stay below 0.1)."""
+
+
 class GridBelief(NamedTuple):
     """Probability vectors ``p (B, N)`` over the grid points ``GridFilter.X (N, n)``."""
 
@@ -64,9 +70,21 @@ class GridFilter(_ReferenceFilter):
     size : points per axis (int, or one per axis)
     dt : SDE models: the measurement step
     start : discrete models: step convention (see :mod:`nlfilter.filters.base`)
+    edge_limit : a path has *left the grid* when, after an update (a step for SDEs), the
+        probability of one of the outermost grid points is at least ``edge_limit`` times the
+        largest probability of the path's density (:meth:`edge_ratio`): the bounds cut the density
+        near its mode and the mean sits at the edge. The run loop reports such a path as diverged
+        (``on_divergence="raise"``: :class:`~nlfilter.errors.DivergenceError` naming the paths and
+        the step, ``what="edge"``; ``"mark"``: flagged in ``Estimates.diverged``, NaN from that
+        step on). Default :data:`EDGE_LIMIT` (0.9: a Gaussian cut within 0.46 standard deviations
+        of its mode, or a mode on the edge as when the state is outside); None: never. A ratio,
+        not a mass, so that the rule does not depend on the number of points: the mass on the
+        outermost points of a density cut at its mode shrinks as the grid is refined (two of 101
+        points hold 1-10 % of it), while the ratio stays near 1.
 
     ``Estimates.extras["edge_mass"] (..., T)``: the posterior mass on the outermost grid points
-    at each step (:meth:`edge_mass`): when it is not small, the bounds cut the density off.
+    at each step (:meth:`edge_mass`): when it is not small, the bounds cut the density off (the
+    automatic reference of :func:`~nlfilter.comparison.compare` widens them above 1e-3).
     """
 
     blas_threads = 1  # small dense products per step: one BLAS thread (base.Filter.blas_threads)
@@ -76,7 +94,8 @@ class GridFilter(_ReferenceFilter):
     needs = ("n ≤ 2", "noise density")
     structures = ("state-dependent R",)
 
-    def __init__(self, model, bounds, size=401, *, dt: float | None = None, start: str = "update"):
+    def __init__(self, model, bounds, size=401, *, dt: float | None = None, start: str = "update",
+                 edge_limit: float | None = EDGE_LIMIT):
         if model.n > 2:
             raise ValueError(f"model: the grid filter handles n ≤ 2 states, got n = {model.n}; use ParticleFilter")
         n = model.n
@@ -94,6 +113,12 @@ class GridFilter(_ReferenceFilter):
         mesh = np.meshgrid(*self.axes, indexing="ij")
         self.X = np.stack([g.ravel() for g in mesh], axis=-1)  # (N, n), first axis slowest
         self._setup(model, dt, start, "grid filter")
+        if edge_limit is not None:
+            if isinstance(edge_limit, bool) or not isinstance(edge_limit, (int, float, np.floating, np.integer)) \
+                    or not 0.0 < float(edge_limit) <= 1.0:
+                raise ValueError(f"edge_limit: expected a number in (0, 1] or None, got {edge_limit!r}")
+            edge_limit = float(edge_limit)
+        self.edge_limit = edge_limit
         self._time_varying = not getattr(model, "time_invariant", False)
         self._kernel_cache = None
 
@@ -185,13 +210,13 @@ class GridFilter(_ReferenceFilter):
         """Discrete time: ``p⁺ ∝ p · p_v(y − h(x, k))`` for ``y (B, m)`` (NaN components missing);
         raises :class:`~nlfilter.errors.DivergenceError` where ``y`` is impossible at every grid point."""
         belief, bad = self._update_unchecked(belief, y, k)
-        self._raise_dead(bad, f"step {k}")
+        self._raise_bad(belief, bad, f"step {k}")
         return belief
 
     def step(self, belief: GridBelief, dy, t) -> GridBelief:
         """SDE: ``p · expm(L dt)`` over ``[t, t + dt]``, then the likelihood of the increment ``dy (B, m)``."""
         belief, bad = self._step_unchecked(belief, dy, t)
-        self._raise_dead(bad, f"t = {t}")
+        self._raise_bad(belief, bad, f"t = {t}")
         return belief
 
     def summary(self, belief: GridBelief):
@@ -206,6 +231,58 @@ class GridFilter(_ReferenceFilter):
         inner = q[(slice(None), *(slice(1, -1) for _ in self.axes))]
         return 1.0 - inner.reshape(p.shape[0], -1).sum(axis=-1)
 
+    def edge_ratio(self, p) -> np.ndarray:
+        """``(B,)``: the largest probability of an outermost grid point over the largest
+        probability of all points, for probability vectors ``p (B, N)``: 1 when the density's mode
+        is on the edge, ``exp(-d²/2)`` for a Gaussian cut ``d`` standard deviations from its mode
+        (``edge_limit`` in the class docstring)."""
+        q = p.reshape(p.shape[0], *(len(a) for a in self.axes))
+        edge = np.ones(q.shape[1:], bool)
+        edge[tuple(slice(1, -1) for _ in self.axes)] = False
+        with np.errstate(divide="ignore", invalid="ignore"):
+            return q[:, edge].max(axis=-1) / p.max(axis=-1)
+
+    def _left(self, p):
+        """``(B,)`` the paths whose density reaches ``edge_limit`` of its peak on the edge, or None."""
+        if self.edge_limit is None:
+            return None
+        out = self.edge_ratio(p) >= self.edge_limit
+        return out if out.any() else None
+
+    def _bad(self, p, dead):
+        """The paths to report: ``dead`` (zero likelihood everywhere) or left the grid; None if none."""
+        left = self._left(p)
+        if left is None:
+            return dead
+        return left if dead is None else (dead | left)
+
+    def _divergence_reason(self, belief, paths):
+        """The run loop's message for the paths that left the grid (``edge_limit``); None for others."""
+        left = self._left(belief.p)
+        if left is None or not (left & paths).any():
+            return None
+        idx = np.flatnonzero(left & paths)
+        r = self.edge_ratio(belief.p[idx])
+        return (f"the posterior left the grid (bounds {self._bounds_text()}): its probability at an outermost point is "
+                f"{r.min():.3g}{'' if idx.size == 1 else f'-{r.max():.3g}'} of its peak (edge_limit = {self.edge_limit:g}), "
+                "the mean sits at the edge; widen bounds", "edge", idx)
+
+    def _bounds_text(self):
+        b = [f"({a[0]:g}, {a[-1]:g})" for a in self.axes]
+        return b[0] if len(b) == 1 else "[" + ", ".join(b) + "]"
+
+    def _raise_bad(self, belief, bad, where):
+        """``update``/``step`` called on their own: raise for the dead paths or those that left the grid."""
+        if bad is None:
+            return
+        why = self._divergence_reason(belief, bad)
+        if why is not None:
+            from ...errors import DivergenceError
+            text, what, idx = why
+            raise DivergenceError(f"{self.name}: {text} at {where} on {idx.size} path(s), first {idx[:5].tolist()}",
+                                  paths=idx, what=what)
+        self._raise_dead(bad, where)
+
     def extras(self, belief: GridBelief):
         """``edge_mass (B,)`` per step (:meth:`edge_mass`)."""
         return {"edge_mass": self.edge_mass(belief.p)}
@@ -213,13 +290,13 @@ class GridFilter(_ReferenceFilter):
     def _update_unchecked(self, belief, y, k):
         self._need("discrete", "update")
         p, bad = self._update(belief.p, y, k)
-        return GridBelief(p), bad
+        return GridBelief(p), self._bad(p, bad)
 
     def _step_unchecked(self, belief, dy, t):
         self._need("continuous", "step")
         p = _apply(belief.p, self._kernel(t))
         p, bad = self._update(p, dy, t + self.dt)
-        return GridBelief(p), bad
+        return GridBelief(p), self._bad(p, bad)
 
     likelihood = "exact"
 
@@ -229,7 +306,7 @@ class GridFilter(_ReferenceFilter):
         ``Cov_{p⁻}[h] + R``."""
         self._need("discrete", "update")
         p, bad, info = self._update(belief.p, y, k, info=True)
-        return GridBelief(p), bad, info
+        return GridBelief(p), self._bad(p, bad), info
 
     def _step_info(self, belief, dy, t):
         """``run(..., loglik=True)``: the step and the log-density of ``dy`` given the past,
@@ -238,7 +315,7 @@ class GridFilter(_ReferenceFilter):
         self._need("continuous", "step")
         p = _apply(belief.p, self._kernel(t))
         p, bad, info = self._update(p, dy, t + self.dt, info=True)
-        return GridBelief(p), bad, info
+        return GridBelief(p), self._bad(p, bad), info
 
     def _update(self, p, y, k, info: bool = False):
         """``(p⁺, dead paths or None)``; a dead path (zero likelihood everywhere) keeps ``p``; with
