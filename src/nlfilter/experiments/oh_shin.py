@@ -85,15 +85,6 @@ def _oh_shin_block(rows, *, Q, R, m0, D0, order, dt, steps, substeps, grid, seed
     return out
 
 
-def _mse_per_step(e2, ok):
-    """:func:`nlfilter.evaluate.mse_per_step` from the per-path squared errors ``e2 (paths, T)``:
-    the MSE at each step over the paths ``ok`` and its standard error."""
-    e2 = e2[ok]
-    if e2.shape[0] < 2:
-        raise ValueError(f"estimates: need at least 2 non-diverged paths, got {e2.shape[0]}")
-    return e2.mean(axis=0), e2.std(axis=0, ddof=1) / np.sqrt(e2.shape[0])
-
-
 @experiment("oh-shin", title="QLF vs MQLF (Edgeworth closure) on dx = −x³dt + dβ, dy = x dt + dη",
             source="seed 003 (Oh & Shin 1995), Section 5, eqs. 18-33, Fig. 2", params=PARAMS)
 def run(params, *, quick, runs, seed, progress):
@@ -179,7 +170,7 @@ def run(params, *, quick, runs, seed, progress):
         "model and parameters; both our methods (off-line moments and Monte Carlo) agree with each other.")
     lines, bands = {}, {}
     for name in filters:
-        mse_t, se_t = _mse_per_step(e2[name], ok[name])
+        mse_t, se_t = ev._per_step(e2[name], ok[name])
         lines[f"{name} (MC)"] = np.concatenate([[p["D0"]], mse_t])
         if name == "optimal":
             bands[f"{name} (MC)"] = (np.concatenate([[p["D0"]], mse_t - 2 * se_t]),
