@@ -23,6 +23,7 @@ import pytest
 
 from nlfilter import cli, montecarlo
 from nlfilter.experiments import get
+from nlfilter.experiments import cubic_sensor as cs
 from nlfilter.experiments import phase_tracking as pt
 from nlfilter.store import ResultsStore
 
@@ -85,6 +86,35 @@ def test_interrupted_run_resumes_only_unfinished_blocks(tmp_path, monkeypatch, r
         calls.clear()  # another seed, another key: nothing reused
         exp.run(PARAMS, quick=True, runs=2, seed=2, store=st)
         assert [(r.start, r.stop) for r in calls] == [(0, 2)]
+
+
+CUBIC = {"q": [2.0], "r": [1.0], "block": 2}  # quick cubic sensor, one (q, r): 5 paths = blocks of 2, 2 and 1
+
+
+def test_cubic_sensor_resumes_only_unfinished_blocks(tmp_path, monkeypatch):
+    exp = get("cubic-sensor")
+    reference = exp.run(CUBIC, quick=True, runs=5, seed=1)
+    real = cs._cubic_block
+    calls, crash = [], [True]
+
+    def flaky(rows, **kw):  # the second block of the first run "crashes" the process (as Ctrl-C would)
+        calls.append(rows)
+        if len(calls) == 2 and crash[0]:
+            crash[0] = False
+            raise KeyboardInterrupt
+        return real(rows, **kw)
+
+    monkeypatch.setattr(cs, "_cubic_block", flaky)
+    with ResultsStore(tmp_path / "s.sqlite") as st:
+        with pytest.raises(KeyboardInterrupt):
+            exp.run(CUBIC, quick=True, runs=5, seed=1, store=st)
+        assert st.count_blocks("cubic-sensor") == 1
+        calls.clear()
+        res = exp.run(CUBIC, quick=True, runs=5, seed=1, store=st)
+        assert [(r.start, r.stop) for r in calls] == [(2, 4), (4, 5)]  # only the unfinished blocks
+        assert (res.meta["execution"]["blocks_reused"], res.meta["execution"]["blocks_computed"]) == (1, 2)
+        assert _json(res) == _json(reference)
+        assert any(r.quantity == "diverged_fraction" for r in res.rows)  # the per-path flags came back too
 
 
 def test_montecarlo_checks_block_functions(tmp_path):

@@ -85,7 +85,13 @@ def mse_per_step(est, xs, *, component: int = 0):
     """MSE at each step ``(T,)`` and its standard error ``(T,)`` (diverged paths left out)."""
     means, xs, ok = _means_and_mask(est, xs)
     e2 = ((means[..., component] - xs[..., component]) ** 2).reshape(-1, means.shape[-2])
-    e2 = e2[np.reshape(ok, -1)]
+    return _per_step(e2, np.reshape(ok, -1))
+
+
+def _per_step(e2: np.ndarray, ok: np.ndarray):
+    """:func:`mse_per_step` from the squared errors ``e2 (paths, T)`` and the paths ``ok (paths,)``
+    that did not diverge (e.g. per-path arrays of Monte Carlo blocks, :mod:`nlfilter.montecarlo`)."""
+    e2 = e2[ok]
     if e2.shape[0] < 2:
         raise ValueError(f"estimates: need at least 2 non-diverged paths, got {e2.shape[0]}")
     return e2.mean(axis=0), e2.std(axis=0, ddof=1) / np.sqrt(e2.shape[0])
@@ -109,6 +115,13 @@ def nees(est, xs, *, window=None, label: str = "estimates") -> Summary:
     ...
     ValueError: ukf: NEES undefined: the covariance at path 1, step 2 is not positive definite (smallest eigenvalue 0)
     """
+    return _summary(*nees_per_path(est, xs, window=window, label=label))
+
+
+def nees_per_path(est, xs, *, window=None, label: str = "estimates"):
+    """The per-path window means of :func:`nees` and the flags of the paths that did not diverge ->
+    ``(per_path (paths,), ok (paths,))``, whose mean over the paths ``ok`` is :func:`nees` (for the
+    per-path arrays of Monte Carlo blocks, :mod:`nlfilter.montecarlo`); errors as :func:`nees`."""
     means, xs, ok = _means_and_mask(est, xs)
     covs = np.asarray(est.covs, dtype=float)
     w = _window(means.shape[-2], window)
@@ -126,7 +139,7 @@ def nees(est, xs, *, window=None, label: str = "estimates") -> Summary:
                          f"definite (smallest eigenvalue {lam[tuple(where)][0]:.3g})")
     sol = np.linalg.solve(safe, np.where(okP[..., None], e, 0.0)[..., None])[..., 0]
     q = np.einsum("...i,...i->...", np.where(okP[..., None], e, 0.0), sol)
-    return _summary(np.reshape(np.mean(q, axis=-1), -1), np.reshape(ok, -1))
+    return np.reshape(np.mean(q, axis=-1), -1), np.reshape(ok, -1)
 
 
 def paired_difference(est_a, est_b, xs, *, component: int = 0, window=None) -> Summary:

@@ -1,8 +1,14 @@
 """Every Monte Carlo experiment gives the same rows for any chunk of paths (per-path streams,
-nlfilter.streams): ``Experiment.run(chunk=2)`` (CLI ``--chunk 2``) equals one batch. The
-simulations and the random filters are bitwise the same (tests/test_streams.py, the contract);
-the deterministic filters' vectorized arithmetic may round the last bit differently with the
-batch size (the contract's batch-independence tolerance, 1e-12), so rows agree to 1e-12."""
+nlfilter.streams): ``Experiment.run(chunk=2)`` (CLI ``--chunk 2``) equals one batch.
+
+Experiments whose Monte Carlo is stated in blocks (nlfilter.montecarlo: ``cubic-sensor``,
+``cubic-sensor-closures``, ``linear-gaussian``, ``oh-shin``, ``phase-tracking``; ``BLOCKS`` below)
+compute every block as its own batch whatever the chunk, so their rows for ``chunk=1``,
+``chunk=2`` and no chunk are identical, bitwise. The others (``moment-*``, ``second-order``,
+``smoothing``, ``zero-order*``) batch the paths by the chunk: their simulations and random
+filters are bitwise the same (tests/test_streams.py, the contract), but the deterministic
+filters' vectorized arithmetic may round the last bit differently with the batch size (the
+contract's batch-independence tolerance, 1e-12), so their rows agree to 1e-12."""
 
 import numpy as np
 import pytest
@@ -24,13 +30,35 @@ CASES = {
     "zero-order-adaptive": ({"J": [0], "N": [2]}, 5),
     "zero-order-robustness": ({"r": [0.3], "beta": [0.2], "N": [2]}, 5),
 }
+# Monte Carlo in blocks, bitwise the same for any chunk: the extra parameters of the test (blocks of
+# 2 paths: 2, 2, 1; a chunk of 4 puts two blocks in one task)
+BLOCKS = {"cubic-sensor": {"block": 2}, "cubic-sensor-closures": {"block": 2}, "oh-shin": {"block": 2},
+          "linear-gaussian": {"block": 2}, "phase-tracking": {"block": 2, "sweep": 3}}
 
 
 def _rows(res):
     return [(r.filter, r.quantity, repr(sorted(r.params.items())), r.value, r.stderr) for r in res.rows]
 
 
-@pytest.mark.parametrize("eid", sorted(CASES))
+def _exact(res):
+    """The rows with every value as its exact hexadecimal float (NaN equal to NaN): == is bitwise."""
+    return [r[:3] + tuple(None if v is None else float(v).hex() for v in r[3:]) for r in _rows(res)]
+
+
+@pytest.mark.parametrize("eid", sorted(BLOCKS))
+def test_block_experiments_give_bitwise_the_same_rows_for_any_chunk(eid):
+    params, runs = CASES[eid]
+    params = {**params, **BLOCKS[eid]}
+    exp = get(eid)
+    one = exp.run(params, quick=True, runs=runs, seed=3)
+    assert one.meta["execution"]["blocks_computed"] >= 2
+    for chunk in (1, 2, 4):
+        res = exp.run(params, quick=True, runs=runs, seed=3, chunk=chunk)
+        assert _exact(res) == _exact(one), chunk
+        assert res.notes == one.notes, chunk
+
+
+@pytest.mark.parametrize("eid", sorted(set(CASES) - set(BLOCKS)))
 def test_chunked_run_gives_the_rows_of_one_batch(eid):
     params, runs = CASES[eid]
     exp = get(eid)

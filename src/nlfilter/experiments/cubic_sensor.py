@@ -20,9 +20,15 @@ about the prior law, gains off-line), ``gaussian-closure`` (conditional-moment f
 Gaussian closure, :class:`~nlfilter.filters.moment_filters.ConditionalMomentFilter`), and
 ``optimal`` (grid filter). The QLF also gets an off-line ``mse_x`` row: its true steady-state MSE
 from the moments of the joint process (x, x̂) (:meth:`QuasilinearFilter.error_analysis`).
+
+The Monte Carlo is computed in blocks of ``block`` paths (:func:`_cubic_block`,
+:func:`nlfilter.montecarlo.montecarlo`): the same numbers on any executor and for any chunk,
+kept in the results store and resumed after a crash.
 """
 
 from __future__ import annotations
+
+from functools import partial
 
 import numpy as np
 from tqdm import tqdm
@@ -33,13 +39,13 @@ from .. import problems as pb
 from ..bilinear import BilinearModel
 from ..errors import DivergenceError, SingularSystemError
 from ..filters.bilinear import (OptimalLinearFilter, TensorFilter, UpdatedInnovationsFilter, multistage)
-from ..filters.base import Estimates
 from ..filters.ekf import ContinuousEKF
 from ..filters.moment_filters import ConditionalMomentFilter
 from ..filters.quasilinear import MQLF, QLF
 from ..filters.reference import GridFilter
 from ..filters.second_order import ContinuousSecondOrderFilter
 from ..models import SDEModel
+from ..montecarlo import montecarlo
 from ..moments.closures import GaussianClosure
 from ..results import Result
 from ..simulate import simulate_ou
@@ -89,18 +95,21 @@ def stationary_lift_moments(q: float):
     return m0, P0
 
 
-def _mc(est, truth, burn: int, ref=None):
-    """MSE of ``est (paths, T)`` against ``truth`` over the steps after ``burn`` (or, with ``ref``, the
-    paired difference to it) by :mod:`nlfilter.evaluate`, a path counting as diverged when its
-    squared error is not finite in the window -> (mean, standard error, paths used)."""
+def _window_mse(est, truth, burn: int, ref=None):
+    """Per-path MSE of ``est (paths, T)`` against ``truth`` over the steps after ``burn`` (or, with
+    ``ref``, the per-path paired difference to it), as :func:`nlfilter.evaluate.mse` averages it,
+    and the per-path flag ``ok``: the squared error is finite in the window (a diverged path, NaN
+    after its divergence, is excluded) -> (per_path, ok)."""
     w = slice(burn, None)
     e2 = (est - truth) ** 2 if ref is None else (est - truth) ** 2 - (ref - truth) ** 2
-    ok = np.all(np.isfinite(e2[:, w]), axis=1)  # diverged paths (NaN after divergence) are excluded
-    a = Estimates(est[..., None], None, ~ok, None)
-    if ref is None:
-        s = ev.mse(a, truth[..., None], window=w)
-    else:
-        s = ev.paired_difference(a, Estimates(ref[..., None], None, ~ok, None), truth[..., None], window=w)
+    return np.mean(e2[:, w], axis=-1), np.all(np.isfinite(e2[:, w]), axis=1)
+
+
+def _mc(per_path, ok):
+    """The Monte Carlo mean of the per-path values ``per_path`` on the paths ``ok``
+    (:func:`nlfilter.evaluate._summary`, the aggregation of :func:`nlfilter.evaluate.mse`)
+    -> (mean, standard error, paths used); NaN and no standard error with fewer than 2 paths."""
+    s = ev._summary(per_path, ok)
     if s.paths < 2:
         return float("nan"), None, s.paths
     return s.value, s.stderr, s.paths
@@ -123,14 +132,13 @@ def _pairs(params):
 @experiment("cubic-sensor", title="Cubic sensor: optimal linear filter, tensor post-processors, bound, Monte Carlo",
             source="seed 001, Tables 5.1-5.2 (ch. 5, Appendix B)",
             params={"q": [2.0, 1.0], "r": [1.0, 1.0], "T": 60.0, "burn": 5.0, "dt": 0.0,
-                    "monte_carlo": True})
+                    "monte_carlo": True, "block": 32})
 def run(params, *, quick, runs, seed, progress):
     res = Result("cubic-sensor", "Cubic sensor: optimal linear filter, tensor post-processors, bound, Monte Carlo",
                  "seed 001, Tables 5.1-5.2", params)
     pairs = _pairs(params)
     cache = {}
-    for i, (q, r) in enumerate(pairs):
-        child = ev.stream(seed, i)
+    for case, (q, r) in enumerate(pairs):
         paper = PAPER.get((q, r), {})
         model = cubic_model(q, r)
         lift = BilinearModel.from_polynomial(model)
@@ -167,7 +175,7 @@ def run(params, *, quick, runs, seed, progress):
                          f"β₂={fits[1].gains[1]:.4g}")
         if not params["monte_carlo"]:
             continue
-        _monte_carlo(res, model, lift, tf, q, r, params, quick, runs, child, progress, row)
+        _monte_carlo(res, lift, tf, q, r, params, quick, runs, case, seed, row)
         _qlf_notes(res, qlf_off, q, r, row, fits[0].mse_linear)
     _figures(res, pairs, quick, progress, cache)
     if any(k in PAPER for k in pairs):
@@ -227,7 +235,69 @@ def _figures(res, pairs, quick, progress, cache):
         "paper": {k: [v[i].paper for i in keep] for k, v in rows.items()}, "ylabel": "E (x − x̂)²"}
 
 
-def _monte_carlo(res, model, lift, tf, q, r, params, quick, runs, seedseq, progress, row):
+def _filters(model, dt, q, grid_size):
+    """The Monte Carlo's filters after the three of the lift: ``[(name, filter, m0 of x)]`` —
+    :func:`_other_filters`, the Taylor filters also from one prior standard deviation (started at
+    the prior mean 0 they never move, h'(0) = 0)."""
+    out = []
+    for name, flt in _other_filters(model, dt, q, grid_size):
+        out.append((name, flt, 0.0))
+        if name in TAYLOR:
+            out.append((f"{name}@m0=σ", flt, np.sqrt(q / 2)))
+    return out
+
+
+LIFT_FILTERS = ("linear", "tensor", "updated-innovations")  # estimate x and x³ (coordinates of the lift)
+
+
+def _cubic_block(rows, *, q, r, dt, steps, nb, seed, case, grid):
+    """One Monte Carlo block of the cubic sensor (:func:`nlfilter.montecarlo.montecarlo`): simulate
+    the stationary paths ``rows`` (per-path streams of case ``case`` of ``seed``; exact OU,
+    trapezoidal ∫ x³ dt), run every filter on the common noise — the optimal linear filter of the
+    lift (001 eqs. 2.31-2.47), the tensor filter (001 eqs. 5.11-5.12) and the updated-innovations
+    filter (001 Fig. 3.4) from the stationary lift moments, then :func:`_filters` from
+    ``N(m0, q/2)`` — and reduce each path to its window means after the first ``nb`` steps
+    (:func:`_window_mse`): ``x_<f>``/``okx_<f>`` (MSE of x), ``x3_<f>``/``okx3_<f>`` (of x³, the
+    lift's filters), ``ex_<f>``/``okex_<f>`` (paired excess over the optimal filter); for the
+    other filters ``div_<f>`` (diverged) and ``err_<f>`` (the message of a filter that failed on
+    the block, else ""); ``dqlf``: max over the path of |x̂_mqlf − x̂_qlf|."""
+    model = cubic_model(q, r)
+    lift = BilinearModel.from_polynomial(model)
+    tf = TensorFilter(lift, 1.0, targets=[0, 2], degree=3)
+    tf.fit()
+    sim = simulate_ou(q, r, dt, steps, rows, ev.stream(seed, case))
+    xs, dys = sim.xs[..., 0], sim.ys
+    m0, P0 = stationary_lift_moments(q)
+    ests = {}
+    lin = OptimalLinearFilter(lift, dt).run(dys, m0, P0)
+    ests["linear"] = (lin.means[..., 0], lin.means[..., 2])
+    te = tf.with_dt(dt).run(dys, m0, P0)
+    ests["tensor"] = (te.means[..., 0], te.means[..., 1])
+    ue = UpdatedInnovationsFilter.from_tensor(tf, dt).run(dys, m0, P0, on_divergence="mark")
+    ests["updated-innovations"] = (ue.means[..., 0], ue.means[..., 1])
+    out = {}
+    nan = np.full(xs.shape, np.nan)
+    for name, flt, m0x in _filters(model, dt, q, grid):
+        try:
+            e = flt.run(dys, [m0x], [[q / 2]], on_divergence="mark")
+            out[f"err_{name}"] = np.full(len(rows), "")
+            out[f"div_{name}"] = np.asarray(e.diverged, bool)
+            ests[name] = (e.means[..., 0], None)
+        except (DivergenceError, ValueError, FloatingPointError) as exc:  # pragma: no cover
+            out[f"err_{name}"] = np.full(len(rows), str(exc))
+            out[f"div_{name}"] = np.ones(len(rows), bool)
+            ests[name] = (nan, None)
+    for name, (ex, ex3) in ests.items():
+        out[f"x_{name}"], out[f"okx_{name}"] = _window_mse(ex, xs, nb)
+        if ex3 is not None:
+            out[f"x3_{name}"], out[f"okx3_{name}"] = _window_mse(ex3, xs ** 3, nb)
+        if name != "optimal":  # gap to the optimal filter, paired on common noise
+            out[f"ex_{name}"], out[f"okex_{name}"] = _window_mse(ex, xs, nb, ref=ests["optimal"][0])
+    out["dqlf"] = np.fmax.reduce(np.abs(ests["mqlf"][0] - ests["qlf"][0]), axis=1)  # np.nanmax, per path
+    return out
+
+
+def _monte_carlo(res, lift, tf, q, r, params, quick, runs, case, seed, row):
     K = tf.linear.steady_state().K
     aug = lift.augmented(0)
     lam = np.max(np.abs(np.linalg.eigvals(aug.F[:3, :3] - K[:3] @ aug.H[:, :3])))
@@ -240,59 +310,46 @@ def _monte_carlo(res, model, lift, tf, q, r, params, quick, runs, seedseq, progr
     res.params.setdefault("steps", {})[pair] = steps
     nb = int(round(burn / dt))
     paths = res.used("paths", runs or (6 if quick else 200))
-    sim = ev.in_chunks(lambda rows: simulate_ou(q, r, dt, steps, rows, seedseq), paths)  # exact OU, trapezoidal ∫ x³ dt
-    c = ev.chunk()
-    xs, dys = sim.xs[..., 0], sim.ys
-    m0, P0 = stationary_lift_moments(q)
-    truth = {"x": xs, "x3": xs ** 3}
-    ests = {}
-    lin = OptimalLinearFilter(lift, dt).run(dys, m0, P0, chunk=c)
-    ests["linear"] = (lin.means[..., 0], lin.means[..., 2])
-    te = tf.with_dt(dt).run(dys, m0, P0, chunk=c)
-    ests["tensor"] = (te.means[..., 0], te.means[..., 1])
-    ue = UpdatedInnovationsFilter.from_tensor(tf, dt).run(dys, m0, P0, on_divergence="mark", chunk=c)
-    ests["updated-innovations"] = (ue.means[..., 0], ue.means[..., 1])
-    others = _other_filters(model, dt, q, res.used("grid_size", 81 if quick else 241))
-    runs_ = []
-    for name, flt in others:
-        runs_.append((name, flt, 0.0))
-        if name in TAYLOR:  # Taylor filters started at the prior mean 0 never move (h'(0) = 0)
-            runs_.append((f"{name}@m0=σ", flt, np.sqrt(q / 2)))
-    for name, flt, m0x in tqdm(runs_, disable=not progress, desc=f"cubic q={q:g} r={r:g}"):
-        try:
-            e = flt.run(dys, [m0x], [[q / 2]], on_divergence="mark", chunk=c)
-        except (DivergenceError, ValueError, FloatingPointError) as exc:  # pragma: no cover
-            res.notes.append(f"{name}: failed ({exc})")
+    grid = res.used("grid_size", 81 if quick else 241)
+    block = res.used("block", int(params["block"]))
+    ident = {"q": q, "r": r, "dt": dt, "steps": steps, "nb": nb, "seed": seed, "case": case, "grid": grid}
+    pp = montecarlo(f"cubic q={q:g} r={r:g}", partial(_cubic_block, **ident), paths, block=block, ident=ident)
+    names = list(LIFT_FILTERS)
+    for name in [n for n, _, _ in _filters(cubic_model(q, r), dt, q, grid)]:
+        err = [e for e in pp[f"err_{name}"] if e]
+        if err:  # pragma: no cover
+            res.notes.append(f"{name}: failed ({err[0]})")
             continue
-        ests[name] = (e.means[..., 0], None)
-        res.add(name, "diverged_fraction", float(np.mean(e.diverged)), **row)
-        if e.diverged.any():
-            res.notes.append(f"{name} (q={q:g}, r={r:g}): {int(e.diverged.sum())}/{paths} paths diverged, "
+        names.append(name)
+        div = pp[f"div_{name}"]
+        res.add(name, "diverged_fraction", float(np.mean(div)), **row)
+        if div.any():
+            res.notes.append(f"{name} (q={q:g}, r={r:g}): {int(div.sum())}/{paths} paths diverged, "
                              "excluded from its MSE")
-    if "ekf" in ests:
+    if "ekf" in names:
         res.notes.append("ekf and second-order filters started at the prior mean m0 = 0 stay there (h'(0) = 0 and "
                          "the second-order correction 3Pm vanishes at m = 0): their MSE is the prior variance q/2; "
                          "rows '@m0=σ' start them one prior standard deviation away")
-    for name, (ex, ex3) in ests.items():
-        v, se, n = _mc(ex, truth["x"], nb)
+    for name in names:
+        v, se, n = _mc(pp[f"x_{name}"], pp[f"okx_{name}"])
         if n < 2:
             res.notes.append(f"{name} (q={q:g}, r={r:g}): fewer than 2 paths without divergence; no MSE")
             continue
         res.add(name, "mse_x_mc", v, stderr=se, **row)
-        if ex3 is not None:
-            v3, se3, _ = _mc(ex3, truth["x3"], nb)
+        if f"x3_{name}" in pp:
+            v3, se3, _ = _mc(pp[f"x3_{name}"], pp[f"okx3_{name}"])
             res.add(name, "mse_x3_mc", v3, stderr=se3, **row)
-    if "optimal" in ests:  # gap to the optimal filter, paired on common noise
-        for name, (ex, _) in ests.items():
+    if "optimal" in names:  # gap to the optimal filter, paired on common noise
+        for name in names:
             if name == "optimal":
                 continue
-            v, se, n = _mc(ex, truth["x"], nb, ref=ests["optimal"][0])
+            v, se, n = _mc(pp[f"ex_{name}"], pp[f"okex_{name}"])
             if n >= 2:
                 res.add(name, "excess_mse_x_mc", v, stderr=se, **row)
     res.notes.append(f"Monte Carlo q={q:g}, r={r:g}: {paths} stationary paths, T={T:g}, first {burn:g} discarded, "
                      f"dt={dt:.3g}, common noise for all filters")
-    if "mqlf" in ests and "qlf" in ests:
-        d = np.nanmax(np.abs(ests["mqlf"][0] - ests["qlf"][0]))
+    if "mqlf" in names and "qlf" in names:
+        d = np.nanmax(pp["dqlf"])
         res.notes.append(f"mqlf (q={q:g}, r={r:g}): identical to the QLF here (max |x̂_mqlf − x̂_qlf| = {d:.2g}): the "
                          "prior law is exactly Gaussian (linear state equation, stationary Gaussian start), so the "
                          "Edgeworth closure's quasi-moments vanish and both compute the same a1, b1.")

@@ -7,23 +7,27 @@ run, beside the Riccati prediction (steady-state filtered covariance from
 ``scipy.linalg.solve_discrete_are``). All five filters are optimal here, so every MSE should
 agree with the Riccati value within its Monte Carlo standard error (the grid and particle
 filters up to their discretization error). ``gap_to_optimal`` rows: each filter's MSE minus the
-Kalman filter's (the optimum here) on the same paths, with its paired standard error.
+Kalman filter's (the optimum here) on the same paths, with its paired standard error. The Monte Carlo is computed in blocks of ``block`` paths
+(:func:`_linear_block`, :func:`nlfilter.montecarlo.montecarlo`).
 """
 
 from __future__ import annotations
 
+from functools import partial
+
 import numpy as np
 import scipy.linalg as sla
-from tqdm.auto import tqdm
 
-from ..evaluate import chunk, in_chunks, mse, mse_per_step, nees, paired_difference, stream
+from ..evaluate import _per_step, _summary, nees_per_path, stream
 from ..filters.ekf import EKF
 from ..filters.kalman import KalmanFilter, steady_state
 from ..filters.reference import GridFilter, ParticleFilter
 from ..filters.ukf import UKF
 from ..models import DiscreteModel
+from ..montecarlo import montecarlo
 from ..results import Result
 from ..simulate import simulate
+from ..streams import FILTER, PathRNG
 from . import experiment
 
 TITLE = "Linear Gaussian 2-state model: every filter against the Riccati steady state"
@@ -35,44 +39,71 @@ def model(q1=0.1, q2=0.2, r=0.5):
     return DiscreteModel.linear(F, [[1.0, 0.0]], np.diag([q1, q2]), [[r]], name="linear-gaussian")
 
 
+FILTERS = ("kf", "ekf", "ukf", "grid", "particle")
+
+
+def _linear_block(rows, *, q1, q2, r, steps, grid, particles, seed):
+    """One Monte Carlo block (:func:`nlfilter.montecarlo.montecarlo`): simulate the paths ``rows``
+    from the stationary prior (per-path streams of case 0 of ``seed``), run the filters on them (the
+    particle filter draws from the paths' streams of case 1) and reduce each path to its means over
+    the second half of the run: ``mse_<f>`` (of (x1 − x̂1)²), ``nees_<f>``, ``gap_<f>`` (the paired
+    difference to the Kalman filter's), with ``ok_<f>`` (not diverged) and ``e2_<f>`` (the squared
+    error at every step, for the MSE per step)."""
+    md = model(q1, q2, r)
+    F = md.f_x(np.zeros(2), 0)
+    P_stat = sla.solve_discrete_lyapunov(F, md.Q)  # stationary state covariance: the prior
+    m0 = np.zeros(2)
+    sim = simulate(md, steps, paths=rows, rng=stream(seed, 0), m0=m0, P0=P_stat)
+    width = 6.0 * np.sqrt(np.diag(P_stat))
+    filters = {
+        "kf": lambda: KalmanFilter(md).run(sim.ys, m0, P_stat),
+        "ekf": lambda: EKF(md).run(sim.ys, m0, P_stat),
+        "ukf": lambda: UKF(md).run(sim.ys, m0, P_stat),
+        "grid": lambda: GridFilter(md, list(zip(-width, width)), grid).run(sim.ys, m0, P_stat),
+        "particle": lambda: ParticleFilter(md, particles).run(sim.ys, m0, P_stat,
+                                                              rng=PathRNG(stream(seed, 1), rows, key=FILTER)),
+    }
+    half = slice(int(round(0.5 * steps)), None)  # the window 0.5 of nlfilter.evaluate.mse
+    out, e2 = {}, {}
+    for name, go in filters.items():
+        est = go()
+        e2[name] = (est.means[..., 0] - sim.xs[..., 0]) ** 2
+        out[f"mse_{name}"] = np.mean(e2[name][:, half], axis=-1)
+        out[f"nees_{name}"], out[f"ok_{name}"] = nees_per_path(est, sim.xs, window=half, label=name)
+        if name != "kf":
+            out[f"gap_{name}"] = np.mean((e2[name] - e2["kf"])[:, half], axis=-1)
+        out[f"e2_{name}"] = e2[name]
+    return out
+
+
 @experiment("linear-gaussian", title=TITLE, source="nlfilter check (no paper): Riccati equation",
-            params={"q1": 0.1, "q2": 0.2, "r": 0.5, "steps": 200, "grid": 61, "particles": 1000})
+            params={"q1": 0.1, "q2": 0.2, "r": 0.5, "steps": 200, "grid": 61, "particles": 1000,
+                    "block": 32})
 def run(params, *, quick=False, runs=None, seed=0, progress=False):
     p = dict(params)
     if quick:
         p["steps"], p["grid"], p["particles"] = min(p["steps"], 80), min(p["grid"], 41), min(p["particles"], 400)
     runs = runs or (100 if quick else 1000)
     md = model(p["q1"], p["q2"], p["r"])
-    F = md.f_x(np.zeros(2), 0)
-    P_stat = sla.solve_discrete_lyapunov(F, md.Q)  # stationary state covariance: the prior
-    m0 = np.zeros(2)
-    sim = in_chunks(lambda rows: simulate(md, p["steps"], paths=rows, rng=stream(seed, 0), m0=m0, P0=P_stat), runs)
-    c = chunk()
-    half = 0.5
     _, Pf = steady_state(md)
     res = Result("linear-gaussian", TITLE, "nlfilter check (no paper): Riccati equation", p)
     res.used("paths", runs)
+    block = res.used("block", int(p["block"]))
     res.add("riccati", "mse", Pf[0, 0])
-    width = 6.0 * np.sqrt(np.diag(P_stat))
-    filters = {
-        "kf": lambda: KalmanFilter(md).run(sim.ys, m0, P_stat, chunk=c),
-        "ekf": lambda: EKF(md).run(sim.ys, m0, P_stat, chunk=c),
-        "ukf": lambda: UKF(md).run(sim.ys, m0, P_stat, chunk=c),
-        "grid": lambda: GridFilter(md, list(zip(-width, width)), p["grid"]).run(sim.ys, m0, P_stat, chunk=c),
-        "particle": lambda: ParticleFilter(md, p["particles"]).run(sim.ys, m0, P_stat, rng=stream(seed, 1), chunk=c),
-    }
+    ident = {"q1": p["q1"], "q2": p["q2"], "r": p["r"], "steps": p["steps"], "grid": p["grid"],
+             "particles": p["particles"], "seed": seed}
+    pp = montecarlo("filters", partial(_linear_block, **ident), runs, block=block, ident=ident)
     curves, bands = {}, {}
-    for name, go in tqdm(filters.items(), disable=not progress, desc="filters"):
-        est = go()
-        s = mse(est, sim.xs, window=half)
+    for name in FILTERS:
+        ok = pp[f"ok_{name}"]
+        s = _summary(pp[f"mse_{name}"], ok)
         res.add(name, "mse", s.value, s.stderr)
-        res.add(name, "nees", nees(est, sim.xs, window=half).value, nees(est, sim.xs, window=half).stderr)
-        if name == "kf":
-            optimal = est  # the Kalman filter is the optimal filter of this model
-        else:  # paired on the same paths: its standard error is far below the MSE's
-            d = paired_difference(est, optimal, sim.xs, window=half)
+        n = _summary(pp[f"nees_{name}"], ok)
+        res.add(name, "nees", n.value, n.stderr)
+        if name != "kf":  # paired on the same paths (the Kalman filter is the optimal filter of this model)
+            d = _summary(pp[f"gap_{name}"], ok & pp["ok_kf"])
             res.add(name, "gap_to_optimal", d.value, d.stderr)
-        curves[name], se = mse_per_step(est, sim.xs)
+        curves[name], se = _per_step(pp[f"e2_{name}"], ok)
         if name == "kf":  # all five are optimal here: one band shows the Monte Carlo noise
             bands[name] = (curves[name] - 2 * se, curves[name] + 2 * se)
     curves["riccati"] = np.full(p["steps"], Pf[0, 0])

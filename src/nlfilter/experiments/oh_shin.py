@@ -17,14 +17,16 @@ filters ``truncated`` and ``gaussian`` (seed 004, :mod:`nlfilter.filters.second_
   the paper's claim is −0.0013 (0.015 vs 0.0163, "8.6 %").
 
 The paper's values are the ``paper`` column of the qlf/mqlf rows. The figure is the paper's Fig. 2:
-MSE over t for each filter (Monte Carlo) with the off-line curves.
+MSE over t for each filter (Monte Carlo) with the off-line curves. The Monte Carlo is computed in
+blocks of ``block`` paths (:func:`_oh_shin_block`, :func:`nlfilter.montecarlo.montecarlo`).
 """
 
 from __future__ import annotations
 
+from functools import partial
+
 import numpy as np
 import sympy as sp
-from tqdm.auto import tqdm
 
 from .. import _validate as V
 from .. import evaluate as ev
@@ -33,6 +35,7 @@ from ..filters.quasilinear import MQLF, QLF
 from ..filters.reference import GridFilter
 from ..filters.second_order import ContinuousSecondOrderFilter
 from ..models import SDEModel
+from ..montecarlo import montecarlo
 from ..moments.closures import EdgeworthClosure
 from ..results import Result
 from ..simulate import simulate
@@ -40,13 +43,46 @@ from . import experiment
 
 PAPER = {"qlf": 0.0163, "mqlf": 0.015}  # 003 Section 5, text under Fig. 2 (P at t = 1.0)
 PARAMS = {"Q": 0.05, "R": 0.05, "m0": 4.0, "D0": 0.05, "order": 4, "t_end": 1.0, "dt": 0.01,
-          "grid_size": 601}
+          "grid_size": 601, "block": 32}
 
 
 def model(Q: float, R: float) -> SDEModel:
     """003 eqs. 18-19 as an Itô SDE with measurement increments."""
     x = sp.Symbol("x")
     return SDEModel([x], [-x**3], [x], Q=Q, R=R, name="oh-shin")
+
+
+def _filters(md, m0: float, D0: float, order: int, dt: float, grid_size: int) -> dict:
+    """The filters of the experiment by name: QLF (003 eqs. 22-24), MQLF (003 eqs. 25-33), EKF, the
+    second-order filters (seed 004) and the grid filter on an interval that holds the prior."""
+    sd0 = np.sqrt(D0)
+    lo = min(-1.5, m0 - 8 * sd0 - 1.0) if m0 < 0 else -1.5
+    hi = max(1.5, m0 + 8 * sd0)
+    return {
+        "qlf": QLF(md, dt),
+        "mqlf": MQLF(md, dt, closure=EdgeworthClosure(order)),
+        "ekf": ContinuousEKF(md, dt, substeps=4),
+        "truncated": ContinuousSecondOrderFilter(md, dt, form="truncated", substeps=4),
+        "gaussian": ContinuousSecondOrderFilter(md, dt, form="gaussian", substeps=4),
+        "optimal": GridFilter(md, (lo, hi), size=grid_size, dt=dt),
+    }
+
+
+def _oh_shin_block(rows, *, Q, R, m0, D0, order, dt, steps, substeps, grid, seed):
+    """One Monte Carlo block (:func:`nlfilter.montecarlo.montecarlo`): simulate the paths ``rows`` of
+    003 eqs. 18-19 from ``x(0) ~ N(m0, D0)`` (per-path streams of case 0 of ``seed``; Euler-Maruyama
+    with ``substeps`` per step), run every filter (:func:`_filters`) on the common noise and return,
+    per path, ``e2_<f>`` — the squared error (x − x̂)² at every step (the MSE at t_end and over t,
+    and the paired differences, are means of these over the paths) — and ``ok_<f>`` (not diverged)."""
+    md = model(Q, R)
+    mean, cov = np.array([m0]), np.array([[D0]])
+    sim = simulate(md, steps, paths=rows, rng=ev.stream(seed, 0), m0=mean, P0=cov, dt=dt, substeps=substeps)
+    out = {}
+    for name, f in _filters(md, m0, D0, order, dt, grid).items():
+        est = f.run(sim.ys, mean, cov, on_divergence="mark")
+        out[f"e2_{name}"] = ev.squared_errors(est, sim.xs, component=0)
+        out[f"ok_{name}"] = ~np.asarray(est.diverged)
+    return out
 
 
 @experiment("oh-shin", title="QLF vs MQLF (Edgeworth closure) on dx = −x³dt + dβ, dy = x dt + dη",
@@ -65,37 +101,26 @@ def run(params, *, quick, runs, seed, progress):
     m0, P0, dt = np.array([p["m0"]]), np.array([[p["D0"]]]), p["dt"]
     npaths = res.used("paths", runs or (60 if quick else 4000))
     substeps = res.used("substeps", 10 if quick else 20)
-    sim = ev.in_chunks(lambda rows: simulate(md, res.used("steps", steps), paths=rows, rng=ev.stream(seed, 0), m0=m0,
-                                             P0=P0, dt=dt, substeps=substeps), npaths)
     grid_size = res.used("grid_size", 201 if quick else p["grid_size"])
-    sd0 = np.sqrt(p["D0"])
-    lo = min(-1.5, p["m0"] - 8 * sd0 - 1.0) if p["m0"] < 0 else -1.5
-    hi = max(1.5, p["m0"] + 8 * sd0)
-    filters = {
-        "qlf": QLF(md, dt),
-        "mqlf": MQLF(md, dt, closure=EdgeworthClosure(p["order"])),
-        "ekf": ContinuousEKF(md, dt, substeps=4),
-        "truncated": ContinuousSecondOrderFilter(md, dt, form="truncated", substeps=4),
-        "gaussian": ContinuousSecondOrderFilter(md, dt, form="gaussian", substeps=4),
-        "optimal": GridFilter(md, (lo, hi), size=grid_size, dt=dt),
-    }
-    ests = {}
-    for name, f in tqdm(filters.items(), disable=not progress, desc="oh-shin filters"):
-        ests[name] = f.run(sim.ys, m0, P0, on_divergence="mark", chunk=ev.chunk())
-    e2 = {k: ev.squared_errors(e, sim.xs, component=0) for k, e in ests.items()}  # (paths, T)
-    ok = {k: ~np.asarray(e.diverged) for k, e in ests.items()}
+    block = res.used("block", int(p["block"]))
+    ident = {"Q": p["Q"], "R": p["R"], "m0": p["m0"], "D0": p["D0"], "order": p["order"], "dt": dt,
+             "steps": res.used("steps", steps), "substeps": substeps, "grid": grid_size, "seed": seed}
+    pp = montecarlo("oh-shin filters", partial(_oh_shin_block, **ident), npaths, block=block, ident=ident)
+    filters = _filters(md, p["m0"], p["D0"], p["order"], dt, grid_size)
+    e2 = {k: pp[f"e2_{k}"] for k in filters}  # (paths, T)
+    ok = {k: pp[f"ok_{k}"] for k in filters}
 
     def at_end(name, other=None):
-        """MSE at t_end (or its paired difference to ``other``), non-diverged paths: (value, se, diverged)."""
-        last = slice(-1, None)
-        s = (ev.mse(ests[name], sim.xs, window=last) if other is None
-             else ev.paired_difference(ests[name], ests[other], sim.xs, window=last))
+        """MSE at t_end (or its paired difference to ``other``), non-diverged paths: (value, se, diverged)
+        (:func:`nlfilter.evaluate.mse`, :func:`nlfilter.evaluate.paired_difference` on the window ``[-1:]``)."""
+        d = e2[name] if other is None else e2[name] - e2[other]
+        s = ev._summary(np.mean(d[:, -1:], axis=-1), ok[name] if other is None else ok[name] & ok[other])
         return s.value, s.stderr, s.diverged
 
     off = {}
     for name in ("qlf", "mqlf"):
         off[name] = filters[name].error_analysis(m0, P0, steps, closure=EdgeworthClosure(4), order=4)
-    t = np.concatenate([[0.0], sim.t])
+    t = np.concatenate([[0.0], dt * np.arange(1, steps + 1)])
     for name in filters:
         v, se, nd = at_end(name)
         res.add(name, "mse_t1", v, se, paper=PAPER.get(name), t=p["t_end"], diverged=nd)
@@ -145,7 +170,7 @@ def run(params, *, quick, runs, seed, progress):
         "model and parameters; both our methods (off-line moments and Monte Carlo) agree with each other.")
     lines, bands = {}, {}
     for name in filters:
-        mse_t, se_t = ev.mse_per_step(ests[name], sim.xs)
+        mse_t, se_t = ev._per_step(e2[name], ok[name])
         lines[f"{name} (MC)"] = np.concatenate([[p["D0"]], mse_t])
         if name == "optimal":
             bands[f"{name} (MC)"] = (np.concatenate([[p["D0"]], mse_t - 2 * se_t]),
