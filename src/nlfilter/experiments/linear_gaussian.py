@@ -78,7 +78,9 @@ def _linear_block(rows, *, q1, q2, r, steps, grid, particles, seed):
 
 @experiment("linear-gaussian", title=TITLE, source="nlfilter check (no paper): Riccati equation",
             params={"q1": 0.1, "q2": 0.2, "r": 0.5, "steps": 200, "grid": 61, "particles": 1000,
-                    "block": 32})
+                    "block": 1000},  # block: the default full run's paths (one batch)
+            ranges={"q1": ">0", "q2": ">0", "r": ">0", "steps": ">=2,<=1000000", "grid": ">=5,<=100001",
+                    "particles": ">=10,<=10000000", "block": ">=1,<=1000000"})
 def run(params, *, quick=False, runs=None, seed=0, progress=False):
     p = dict(params)
     if quick:
