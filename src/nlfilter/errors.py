@@ -59,6 +59,18 @@ class SingularSystemError(NLFilterError, np.linalg.LinAlgError):
     """A steady-state or moment system has no unique solution."""
 
 
+class NoStationaryLawError(SingularSystemError, ClosureDivergedError):
+    """A steady state was asked of a system that has none: the moment equations have a mode that
+    does not decay (an eigenvalue with non-negative real part, or of modulus ≥ 1 in discrete
+    time), or the solution of the steady-state equations is not the moments of any law (a negative
+    even moment, a covariance or moment matrix that is not positive semi-definite).
+
+    It is a :class:`SingularSystemError` (so a ``ValueError``, through
+    ``numpy.linalg.LinAlgError``) and a :class:`ClosureDivergedError` at ``time = inf`` (what
+    :func:`~nlfilter.moments.solve.steady_state` raised for these cases before); ``moment`` names
+    a monomial of the offending mode when known."""
+
+
 class MomentsNotClosedError(NLFilterError, ValueError):
     """The monomials reachable from the requested ones by the Itô generator exceed the size cap:
     the moment hierarchy does not close (a drift of degree > 1 raises the degree)."""

@@ -377,7 +377,10 @@ class QuasilinearFilter(OfflineGainFilter, ContinuousFilter):
         Fig. 2, eq. 11) with the off-line coefficients of eqs. 4-8, 16, through
         :func:`~nlfilter.filters.offline_analysis.gain_error_analysis`; closed by ``closure``
         (default Edgeworth of ``order`` 4 as in the paper); ``order`` defaults to the closure's
-        order (:func:`~nlfilter.moments.closures.kept_order`). Polynomial models."""
+        order (:func:`~nlfilter.moments.closures.kept_order`). Polynomial models. An ``order``
+        whose joint moment system exceeds
+        :data:`~nlfilter.filters.offline_analysis.MAX_ANALYSIS_MOMENTS` moments (order > 14 for a
+        scalar state) is a ``ValueError`` naming ``order``."""
         if not self.lin.polynomial:
             raise NotPolynomialError("model: the off-line accuracy analysis needs polynomial f, GQGᵀ and h")
         m0, P0 = self._prior(m0, P0)
@@ -484,7 +487,10 @@ class DiscreteQuasilinearFilter(OfflineGainFilter):
         ``order`` defaults to the closure's order). The coefficients of :meth:`offline` (003 eqs.
         4-5 on the prior moments, eq. 11 in discrete form) enter
         :func:`~nlfilter.filters.offline_analysis.gain_error_analysis` as ``d = b0 − b1 m``,
-        ``e = a0 − a1 m``. Polynomial models; ``t`` holds the step indices, ``.prior`` the prior's MSE."""
+        ``e = a0 − a1 m``. Polynomial models; ``t`` holds the step indices, ``.prior`` the prior's MSE.
+        An ``order`` whose joint moment system exceeds
+        :data:`~nlfilter.filters.offline_analysis.MAX_ANALYSIS_MOMENTS` moments (order > 14 for a
+        scalar state) is a ``ValueError`` naming ``order``."""
         if not self.lin.polynomial:
             raise NotPolynomialError("model: the off-line accuracy analysis needs polynomial f, G and h")
         m0, P0 = _prior(self.model.n, m0, P0)

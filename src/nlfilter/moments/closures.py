@@ -37,6 +37,7 @@ from typing import Sequence
 
 import numpy as np
 
+from .._validate import as_float_array, covariance, finite
 from ..polynomials import monomials
 
 __all__ = ["Closure", "GaussianClosure", "CumulantClosure", "EdgeworthClosure", "closure_by_name",
@@ -460,14 +461,20 @@ def gaussian_moments(mean, cov, indices: Sequence[tuple]) -> np.ndarray:
     """Raw moments ``E[x^γ]`` of N(mean, cov) for each γ in ``indices``; batched:
     ``mean (..., n)``, ``cov (..., n, n)`` -> ``(..., len(indices))``.
 
+    ``cov`` must be a (batch of) finite symmetric positive semi-definite matrices: a negative
+    variance has no Gaussian law, and is a ``ValueError`` naming ``cov`` and its smallest
+    eigenvalue (tolerance 1e-10 relative to its largest entry).
+
     >>> gaussian_moments([2.0], [[1.0]], [(1,), (2,), (3,)]).tolist()
     [2.0, 5.0, 14.0]
     """
-    mean = np.asarray(mean, dtype=float)
-    cov = np.asarray(cov, dtype=float)
+    mean = as_float_array("mean", mean, ndim_min=1)
+    finite("mean", mean)
+    cov = as_float_array("cov", cov)
     n = mean.shape[-1]
     if cov.shape[-2:] != (n, n):
         raise ValueError(f"cov: expected trailing shape ({n}, {n}), got {cov.shape}")
+    covariance("cov", cov, n, batch=True)
     batch = np.broadcast_shapes(mean.shape[:-1], cov.shape[:-2])
     mean = np.broadcast_to(mean, (*batch, n))
     cov = np.broadcast_to(cov, (*batch, n, n))

@@ -66,7 +66,8 @@ __all__ = ["PolynomialSDE", "MomentEquations", "moment_equations", "generator", 
 @dataclass(frozen=True)
 class PolynomialSDE:
     """Itô SDE ``dx = f dt + G dβ`` in polynomial form: ``drift`` (n polynomials f_s) and
-    ``diffusion`` (n x n symmetric polynomials σ = G Q Gᵀ).
+    ``diffusion`` (n x n symmetric polynomials σ = G Q Gᵀ; a state-independent part that is not
+    positive semi-definite is refused, see :meth:`from_sympy`).
 
     ``symbols``: the coefficient symbols (time first when given); ``states``: SymPy symbols of the
     state if known (for messages and conversions); ``names``: variable names (default from
@@ -105,6 +106,7 @@ class PolynomialSDE:
                 if diff[i][j] != diff[j][i]:
                     raise ValueError(f"diffusion: expected a symmetric matrix, entries [{i}][{j}] and "
                                      f"[{j}][{i}] differ")
+        _check_diffusion(diff)
         object.__setattr__(self, "drift", drift)
         object.__setattr__(self, "diffusion", diff)
         syms = set()
@@ -159,6 +161,12 @@ class PolynomialSDE:
         Qa = Q if isinstance(Q, sp.MatrixBase) else np.asarray(Q, dtype=object if _symbolic(Q) else float)
         if Qa.shape != (r, r):
             raise ValueError(f"Q: expected shape ({r}, {r}) for {r} noise column(s), got {Qa.shape}")
+        if not _symbolic(Qa) and r:
+            Qf = np.asarray(Qa.tolist() if isinstance(Qa, sp.MatrixBase) else Qa, dtype=float)
+            w = np.linalg.eigvalsh(0.5 * (Qf + Qf.T))
+            if not np.all(np.isfinite(Qf)) or w[0] < -1e-10 * max(1.0, float(np.max(np.abs(Qf)))):
+                raise ValueError(f"Q: expected a finite positive semi-definite noise covariance, got {Qf.tolist()} "
+                                 f"(smallest eigenvalue {w[0]:.6g})")
         exact = any(p.exact for row in G for p in row)
         sigma = []
         for i in range(n):
@@ -180,7 +188,13 @@ class PolynomialSDE:
                    names=None) -> "PolynomialSDE":
         """From SymPy: ``f`` (n expressions) and either ``sigma`` (n x n, σ = G Q Gᵀ) or the noise
         columns ``G`` (n x r) with their covariance ``Q`` (r x r or a scalar; default I).
-        ``exact``: exact SymPy coefficients (see :mod:`nlfilter.polynomials`)."""
+        ``exact``: exact SymPy coefficients (see :mod:`nlfilter.polynomials`).
+
+        ``sigma`` is the diffusion matrix itself, a covariance: a state-independent negative
+        diagonal entry (``sigma=[[-1]]``) or a constant ``sigma`` with a negative eigenvalue is a
+        ``ValueError`` naming ``diffusion`` (a state-dependent ``sigma`` is taken as given: it need
+        only be PSD where the state lives). ``G`` may have any sign (σ = G Q Gᵀ); a numeric ``Q``
+        must be positive semi-definite (``ValueError`` naming ``Q``)."""
         states = list(states)
         n = len(states)
         fM = sp.Matrix(f)
@@ -262,6 +276,37 @@ class PolynomialSDE:
             out.append(acc)
         self._cache[key] = out
         return out
+
+
+def _constant_value(p: Polynomial):
+    """The value of a polynomial that does not depend on the state or on symbols, else None."""
+    if any(any(e) for e in p.terms):
+        return None
+    c = p.terms.get((0,) * p.nvars, 0.0)
+    try:
+        return float(c)
+    except (TypeError, ValueError):
+        return None
+
+
+def _check_diffusion(diff):
+    """σ = G Q Gᵀ is a covariance: refuse what is certainly not positive semi-definite. A
+    state-independent negative diagonal entry, or a state-independent σ with a negative
+    eigenvalue, is never a diffusion. A state-dependent σ needs only be PSD where the state lives
+    (x(1 − x) of the Wright-Fisher diffusion is negative outside [0, 1]) and is not checked."""
+    n = len(diff)
+    const = [[_constant_value(q) for q in row] for row in diff]
+    for i in range(n):
+        d = const[i][i]
+        if d is not None and d < 0:
+            raise ValueError(f"diffusion: expected σ = G Q Gᵀ positive semi-definite, got the constant "
+                             f"σ[{i}][{i}] = {d:.6g} < 0 (a negative diffusion coefficient)")
+    if all(v is not None for row in const for v in row):
+        S = np.array(const, dtype=float)
+        w = np.linalg.eigvalsh(S)
+        if w[0] < -1e-10 * max(1.0, float(np.max(np.abs(S)))):
+            raise ValueError(f"diffusion: expected σ = G Q Gᵀ positive semi-definite, got the constant "
+                             f"matrix {S.tolist()} with eigenvalue {w[0]:.6g} < 0")
 
 
 def _symbolic(Q) -> bool:

@@ -26,6 +26,7 @@ and is still importable from here.
 
 from __future__ import annotations
 
+import numbers
 from dataclasses import dataclass
 
 import numpy as np
@@ -34,11 +35,12 @@ import scipy.sparse.linalg as spla
 from scipy.integrate import solve_ivp
 
 from .. import _validate as V
-from ..errors import ClosureDivergedError, SingularSystemError
+from ..errors import ClosureDivergedError, NoStationaryLawError, SingularSystemError
 from ..polynomials import monomial_name
 from .closures import Closure
 from .equations import MomentEquations, _unit
-from .stationary import gaussian_scale, linear_steady_state, stationary_moments
+from .stationary import (describe_mode, gaussian_scale, linear_steady_state, moment_space_violation,
+                         nondecaying_modes, stationary_moments)
 
 __all__ = ["propagate", "iterate", "steady_state", "linear_steady_state", "stationary_moments", "gaussian_scale",
            "MomentSolution", "variance_positions"]
@@ -128,18 +130,26 @@ def propagate(eqs: MomentEquations, mu0, t_eval, *, closure: Closure | None = No
     return the moments at ``t_eval``.
 
     ``values``: the coefficient symbols other than time ({symbol or name: number or callable of t}).
-    Raises :class:`ClosureDivergedError` when a variance turns negative or a moment blows up.
+    Raises :class:`ClosureDivergedError` when a variance turns negative or a moment blows up, and
+    ``ValueError`` up front for non-finite ``t_eval``, ``t0`` or ``mu0`` (a NaN time would send
+    the integrator on an endless run) or ``t0 > t_eval[0]``.
     """
     if eqs.kind != "continuous":
         raise ValueError(f"eqs: expected continuous-time moment equations, got {eqs.kind}; use iterate()")
     _check_closure(eqs, closure)
     t_eval = V.as_float_array("t_eval", t_eval, ndim=1)
+    V.finite("t_eval", t_eval)
     if t_eval.size == 0 or np.any(np.diff(t_eval) < 0):
         raise ValueError("t_eval: expected a non-empty non-decreasing array of times")
     mu0 = V.as_float_array("mu0", mu0, shape_tail=(len(eqs.indices),))
     if mu0.ndim != 1:
         raise ValueError(f"mu0: expected shape ({len(eqs.indices)},), got {mu0.shape}")
     V.finite("mu0", mu0)
+    if t0 is not None:
+        if isinstance(t0, bool) or not isinstance(t0, numbers.Real) or not np.isfinite(t0):
+            raise ValueError(f"t0: expected a finite start time, got {t0!r}")
+        if t0 > t_eval[0]:
+            raise ValueError(f"t0: expected a start time ≤ t_eval[0] = {t_eval[0]:.6g}, got {t0!r}")
     t0 = float(t_eval[0]) if t0 is None else float(t0)
 
     def rhs(t, mu):
@@ -225,17 +235,31 @@ def steady_state(eqs: MomentEquations, *, closure: Closure | None = None, guess=
     without the constant monomial is solved by :func:`linear_steady_state` instead: rescaled, and
     with the conserved combinations of moments fixed from ``initial``. With a closure: damped
     Newton from ``guess`` (default: the moments of N(0, I)) with the exact Jacobian.
+
+    No moments of a law that does not exist: :class:`~nlfilter.errors.NoStationaryLawError` (a
+    ``ValueError``) when
+
+    * the closed moment equations have a mode that does not decay (continuous: an eigenvalue of
+      ``A`` with real part ≥ 0 other than an exactly conserved 0; discrete: of modulus ≥ 1 other
+      than 1), checked before solving and naming the eigenvalue and its moments — ``dx = x dt + dβ``
+      has "eigenvalue +1 on E[x1] (the drift's linear part)"; with a closure, when the Jacobian
+      ``A + B ∂ν/∂μ`` at the solution has such a mode (the fixed point repels);
+    * the solution is not a moment sequence: a negative even moment, a covariance or moment
+      (Hankel) matrix that is not positive semi-definite
+      (:func:`~nlfilter.moments.stationary.moment_space_violation`).
     """
     _check_closure(eqs, closure)
     A, B, c = eqs.at(t, values)
     K = len(eqs.indices)
     zero = (0,) * len(eqs.indices[0])
+    names = [f"x{i + 1}" for i in range(len(zero))]
+    if eqs.closed:
+        _check_stable(eqs, A, names)
     if (initial is not None or scale is not None) and eqs.closed and eqs.kind == "continuous":
         if zero in eqs.index:
             raise ValueError("initial, scale: only for systems without the constant monomial in eqs.indices")
         mu = linear_steady_state(A, c, indices=eqs.indices, initial=initial, scale=scale)
-        _diagnose(eqs, mu, np.inf)
-        return mu
+        return _check_result(eqs, mu, names, "eqs")
     M = sps.csr_matrix(A, dtype=float)
     if eqs.kind == "discrete":
         M = M - sps.identity(K, format="csr")
@@ -265,15 +289,13 @@ def steady_state(eqs: MomentEquations, *, closure: Closure | None = None, guess=
                 except SingularSystemError as diag:
                     why = str(diag)
                 else:
-                    _diagnose(eqs, mu, np.inf)
-                    return mu
+                    return _check_result(eqs, mu, names, "eqs")
             raise SingularSystemError(f"eqs: the steady-state system is singular ({_rank_message(M)}); {why}") from exc
         mu = lu.solve(rhs)
         if not np.all(np.isfinite(mu)) or np.linalg.norm(M @ mu - rhs) > 1e-8 * max(1.0, np.linalg.norm(rhs)):
             raise SingularSystemError(f"eqs: the steady-state system is singular or ill-conditioned "
                                       f"({_rank_message(M)})")
-        _diagnose(eqs, mu, np.inf)
-        return mu
+        return _check_result(eqs, mu, names, "eqs")
     Bd = B.tocsr()
     Bd = sps.diags(cvec_scale) @ Bd
     if guess is None:
@@ -293,6 +315,41 @@ def steady_state(eqs: MomentEquations, *, closure: Closure | None = None, guess=
     if not res < 1e-8 * max(1.0, np.max(np.abs(mu))):
         raise ClosureDivergedError(f"closure: the closed steady-state equations have no solution near the "
                                    f"guess (Newton stopped with residual {res:.3g})", time=np.inf)
+    mu = _check_result(eqs, mu, names, "closure")
+    # the fixed point must attract: the closed dynamics' Jacobian A + B ∂ν/∂μ has no non-decaying mode
+    Jc = sps.csr_matrix(A, dtype=float) + sps.csr_matrix(B) @ closure.jacobian(eqs.indices, mu, eqs.missing,
+                                                                              sparse=True)
+    _check_stable(eqs, Jc, names, closure=closure)
+    return mu
+
+
+def _check_stable(eqs, A, names, closure=None):
+    """Raise NoStationaryLawError when the moment dynamics (``A`` without the constant monomial)
+    have a mode that does not decay (exactly conserved modes are left to the singular-system
+    diagnosis; with a closure, ``A`` is the Jacobian at the fixed point and none are left out)."""
+    zero = (0,) * len(names)
+    keep = [i for i, g in enumerate(eqs.indices) if g != zero]
+    Ak = sps.csr_matrix(A, dtype=float)[keep][:, keep]
+    modes = nondecaying_modes(Ak, [eqs.indices[i] for i in keep], kind=eqs.kind, conserved=closure is None)
+    if not modes:
+        return
+    lam, block = modes[0]
+    what = describe_mode(lam, block, names, eqs.kind, linear_part=closure is None)
+    if closure is None:
+        raise NoStationaryLawError(f"eqs: no stationary law: the {eqs.kind} moment equations have {what}, so "
+                                   f"these moments grow (or oscillate) without bound", time=np.inf, moment=block[0])
+    raise NoStationaryLawError(f"closure: the steady state of the {closure.name}-closed moment equations is "
+                               f"unstable ({what} of their Jacobian): the closed moments do not settle there",
+                               time=np.inf, moment=block[0])
+
+
+def _check_result(eqs, mu, names, who):
+    """``mu`` when it is a moment sequence (finite, not blown up, see
+    :func:`~nlfilter.moments.stationary.moment_space_violation`), else raise."""
+    why = moment_space_violation(eqs.indices, mu, names)
+    if why is not None:
+        raise NoStationaryLawError(f"{who}: the steady-state solution is not the moments of any law: {why}"
+                                   + ("; the closure failed" if who == "closure" else ""), time=np.inf)
     _diagnose(eqs, mu, np.inf)
     return mu
 

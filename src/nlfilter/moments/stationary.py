@@ -17,13 +17,14 @@ import scipy.sparse as sps
 import scipy.sparse.linalg as spla
 from scipy.sparse.csgraph import connected_components
 
-from ..errors import SingularSystemError
+from ..errors import NoStationaryLawError, SingularSystemError
 from ..polynomials import monomial_name
 from .closed import closed_hull
 from .equations import _unit
 from .ito import as_polynomial_sde, moment_equations
 
-__all__ = ["linear_steady_state", "gaussian_scale", "stationary_moments"]
+__all__ = ["linear_steady_state", "gaussian_scale", "stationary_moments", "nondecaying_modes",
+           "moment_space_violation"]
 
 
 def _equilibrate(A, passes: int = 6):
@@ -82,6 +83,142 @@ def _eigvals_blockwise(M) -> np.ndarray:
     return np.concatenate(out)
 
 
+def _spectrum_blocks(M, max_block: int = 3000):
+    """``[(idx, eigenvalues)]`` of the diagonal blocks of ``M`` on its strongly connected
+    components (the spectrum is their union), or None when a block exceeds ``max_block``."""
+    M = sps.csr_matrix(M)
+    ncomp, lab = connected_components(M, directed=True, connection="strong")
+    order = np.argsort(lab, kind="stable")
+    blocks = np.split(order, np.flatnonzero(np.diff(lab[order])) + 1)
+    if max(len(b) for b in blocks) > max_block:
+        return None
+    return [(idx, np.linalg.eigvals(M[idx][:, idx].toarray())) for idx in blocks]
+
+
+def nondecaying_modes(A, indices, *, kind: str = "continuous", tol: float = 1e-9, conserved: bool = True,
+                      max_block: int = 3000):
+    """The modes of the moment dynamics ``dμ/dt = A μ`` (``kind="continuous"``) or
+    ``μ' = A μ`` (``"discrete"``) that do not decay: ``[(λ, monomials of its block)]``, lowest
+    degree first (within a block the least stable eigenvalue). Exactly conserved modes (``λ = 0``,
+    discrete ``λ = 1``) are left out when ``conserved`` (they make the system singular, which the
+    callers diagnose). Returns None when the spectrum is too large to compute (a block over
+    ``max_block``). ``indices``: the monomial of each row of ``A`` (the constant one excluded).
+
+    The eigenvalues are those of a diagonally rescaled (similar) matrix, block by block on the
+    strongly connected components of ``A`` (moment matrices split by degree).
+    """
+    A = sps.csr_matrix(A, dtype=float)
+    if A.shape[0] == 0:
+        return []
+    _, s = _equilibrate(A)
+    blocks = _spectrum_blocks(sps.diags(1.0 / s) @ A @ sps.diags(s), max_block)
+    if blocks is None:
+        return None
+    allev = np.concatenate([ev for _, ev in blocks])
+    escale = max(float(np.max(np.abs(allev))), 1e-300) if kind == "continuous" else 1.0
+    out = []
+    for idx, ev in blocks:
+        if kind == "continuous":
+            keep = np.abs(ev) > 1e-8 * escale if conserved else np.ones(ev.shape, bool)
+            bad = keep & (ev.real > -tol * escale)
+            key = ev.real
+        else:
+            keep = np.abs(ev - 1.0) > 1e-8 if conserved else np.ones(ev.shape, bool)
+            bad = keep & (np.abs(ev) > 1.0 - tol)
+            key = np.abs(ev)
+        if bad.any():
+            k = np.flatnonzero(bad)[np.argmax(key[bad])]
+            out.append((complex(ev[k]), [indices[i] for i in sorted(idx)]))
+    out.sort(key=lambda m: min(sum(g) for g in m[1]))
+    return out
+
+
+def describe_mode(lam: complex, block, names, kind: str = "continuous", *, linear_part: bool = True) -> str:
+    """``"eigenvalue +1 (real part ≥ 0) on E[x1] (the drift's linear part)"``: a mode of
+    :func:`nondecaying_modes` in words (the last remark when ``linear_part`` and the block is of
+    the means)."""
+    lam_s = f"{lam.real:+.4g}" if abs(lam.imag) <= 1e-12 * max(1.0, abs(lam)) else f"{lam:.4g}"
+    cond = "real part ≥ 0" if kind == "continuous" else "modulus ≥ 1"
+    mons = ", ".join(f"E[{monomial_name(g, names)}]" for g in block[:4]) + (", ..." if len(block) > 4 else "")
+    part = " (the drift's linear part)" if kind == "continuous" else " (the map's linear part)"
+    return f"eigenvalue {lam_s} ({cond}) on {mons}" + (part if linear_part and all(sum(g) == 1 for g in block)
+                                                       else "")
+
+
+def moment_space_violation(indices, mu, names, *, tol: float = 1e-7, max_matrix: int = 300) -> str | None:
+    """Why the values ``mu`` of the monomials ``indices`` are not the moments of any law, or None.
+
+    Checks what is cheap and necessary: every even moment ``E[x^{2α}] ≥ 0``; the covariance
+    (raw second-moment matrix when the means are not kept) positive semi-definite; the moment
+    matrix ``[E x^{α+β}]`` over the monomials up to half the top degree positive semi-definite when
+    all its entries are kept (at most ``max_matrix`` rows), else each coordinate's Hankel matrix
+    ``[E x_i^(p+q)]`` over the powers whose products are kept.
+    Matrices are normalized by their diagonals; ``tol`` bounds their negative eigenvalues.
+    """
+    mu = np.asarray(mu, dtype=float)
+    if not np.all(np.isfinite(mu)):
+        return None  # non-finite values are a blow-up, reported as such
+    n = len(indices[0]) if len(indices) else 0
+    zero = (0,) * n
+    val = {tuple(g): float(v) for g, v in zip(indices, mu)}
+    val[zero] = 1.0
+    deg_scale: dict = {}
+    for g, v in val.items():
+        deg_scale[sum(g)] = max(deg_scale.get(sum(g), 1.0), abs(v))
+    for g, v in val.items():
+        if any(g) and all(a % 2 == 0 for a in g) and v < -tol * deg_scale[sum(g)]:
+            return f"the even moment E[{monomial_name(g, names)}] = {v:.4g} is negative"
+
+    def units(i, k=1):
+        e = [0] * n
+        e[i] = k
+        return tuple(e)
+
+    def psd(basis, what):
+        M = np.array([[val[tuple(a + b for a, b in zip(p, q))] for q in basis] for p in basis])
+        d = np.sqrt(np.where(np.diag(M) > 0, np.diag(M), 1.0))
+        w = np.linalg.eigvalsh(M / d[:, None] / d[None, :])
+        return None if w[0] >= -tol else f"{what} is not positive semi-definite (eigenvalue {w[0]:.3g} after " \
+                                            f"normalization by its diagonal)"
+
+    second = [tuple(a + b for a, b in zip(units(i), units(j))) for i in range(n) for j in range(n)]
+    if all(e in val for e in second):
+        if all(units(i) in val for i in range(n)):
+            m = np.array([val[units(i)] for i in range(n)])
+            C = np.array([[val[tuple(a + b for a, b in zip(units(i), units(j)))] for j in range(n)]
+                          for i in range(n)]) - np.outer(m, m)
+            dg = np.diag(C)
+            neg = np.flatnonzero(dg < -tol * np.maximum(1.0, np.abs([val[units(i, 2)] for i in range(n)])))
+            if neg.size:
+                i = int(neg[0])
+                return f"the variance of {names[i]} is {dg[i]:.4g} < 0"
+            dd = np.sqrt(np.where(dg > 0, dg, 1.0))
+            w = np.linalg.eigvalsh(C / dd[:, None] / dd[None, :])
+            if w[0] < -tol:
+                return f"the covariance is not positive semi-definite (eigenvalue {w[0]:.3g} of the correlation matrix)"
+        else:
+            why = psd([units(i) for i in range(n)], "the second-moment matrix E[x xᵀ]")
+            if why:
+                return why
+    top = max((sum(g) for g in val), default=0)
+    half = top // 2
+    if half >= 1:
+        from ..polynomials import monomials
+        basis = monomials(n, half)
+        if len(basis) <= max_matrix and all(tuple(a + b for a, b in zip(p, q)) in val for p in basis for q in basis):
+            return psd(basis, f"the moment matrix [E x^(α+β)] over the monomials of degree ≤ {half}")
+        for i in range(n):  # the powers p of x_i whose products E[x_i^(p+q)] are all kept (x², x⁴ alone: 1, x²)
+            pw = [0]
+            for p in range(1, half + 1):
+                if all(units(i, p + q) in val for q in pw + [p]):
+                    pw.append(p)
+            if len(pw) > 1:
+                why = psd([units(i, p) for p in pw], f"the Hankel matrix of the moments of {names[i]}")
+                if why:
+                    return why
+    return None
+
+
 def _describe(vec, labels, k=6):
     order = np.argsort(-np.abs(vec))[:k]
     v = vec / vec[order[0]]
@@ -111,8 +248,9 @@ def linear_steady_state(A, c, *, indices, initial=None, scale=None, labels=None,
     (dict or callable ``index -> E[·] at t = 0``); the solution is unique iff ``[A; ℓᵀ]`` has
     full column rank.
 
-    Raises :class:`~nlfilter.errors.SingularSystemError` when there is no steady state or it is
-    not unique.
+    Raises :class:`~nlfilter.errors.NoStationaryLawError` (a
+    :class:`~nlfilter.errors.SingularSystemError`) when a mode grows or oscillates (no finite
+    steady state), :class:`~nlfilter.errors.SingularSystemError` when it is not unique.
 
     >>> import scipy.sparse as sps
     >>> linear_steady_state(sps.csr_matrix([[-2.0]]), [2.0], indices=[(2,)]).tolist()   # OU: E x² = 1
@@ -147,9 +285,9 @@ def linear_steady_state(A, c, *, indices, initial=None, scale=None, labels=None,
         zero = np.abs(ev) <= 1e-8 * escale
         k0 = int(zero.sum())
         if check_stable and np.any(ev.real[~zero] > -tol * escale):
-            raise SingularSystemError(
+            raise NoStationaryLawError(
                 f"steady_state: the moments grow without bound (eigenvalue {ev.real[~zero].max():.3g} "
-                "of the moment matrix has non-negative real part): no finite steady state")
+                "of the moment matrix has non-negative real part): no finite steady state", time=np.inf)
         Ard = Ar.toarray()
     if k0 == 0:
         try:  # sparse LU: the moment matrices are sparse, and small dense LAPACK calls pay for threads
