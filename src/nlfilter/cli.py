@@ -165,6 +165,7 @@ def _open_store(args):
 
 
 def _main(argv) -> int:
+    _KEPT.text = ""  # what a Ctrl-C leaves behind: set once a run has a store
     args = _parser().parse_args(argv)
     if args.command == "list" and args.filters:
         from .filters import REGISTRY
@@ -211,7 +212,7 @@ def _main(argv) -> int:
         _check_output("--json", args.json, ".json")
         _check_output("--plot", args.plot, ".png")
         store = _open_store(args)
-    except ValueError as exc:
+    except (ValueError, TypeError) as exc:
         return _error(exc)
     run_id = None
     if store is not None:
