@@ -155,6 +155,16 @@ def _check_output(option: str, path: str | None, suffix: str | None = None) -> N
         raise ValueError(f"{option} {path!r}: expected a file name ending in {suffix}")
 
 
+def _check_execution(args) -> None:
+    """``--chunk``, ``--workers``, ``--scheduler`` as the executor can take them."""
+    if args.chunk is not None and args.chunk < 1:
+        raise ValueError(f"--chunk: expected a positive integer, got {args.chunk}")
+    if args.workers is not None and args.workers < 1:
+        raise ValueError(f"--workers: expected a positive integer, got {args.workers}")
+    if args.executor == "local" and (args.scheduler is not None or args.workers is not None):
+        raise ValueError("--scheduler/--workers: need --executor dask")
+
+
 def _open_store(args):
     from .store import ResultsStore
     if getattr(args, "no_store", False):
@@ -203,12 +213,7 @@ def _main(argv) -> int:
         params = {k: exp.convert(k, v) for k, v in _parse_params(args.param).items()}
         if args.runs is not None and args.runs < 1:
             raise ValueError(f"--runs: expected a positive integer, got {args.runs}")
-        if args.chunk is not None and args.chunk < 1:
-            raise ValueError(f"--chunk: expected a positive integer, got {args.chunk}")
-        if args.workers is not None and args.workers < 1:
-            raise ValueError(f"--workers: expected a positive integer, got {args.workers}")
-        if args.executor == "local" and (args.scheduler is not None or args.workers is not None):
-            raise ValueError("--scheduler/--workers: need --executor dask")
+        _check_execution(args)
         _check_output("--json", args.json, ".json")
         _check_output("--plot", args.plot, ".png")
         store = _open_store(args)
@@ -333,12 +338,7 @@ def _reproduce_all(args, command) -> int:
         for opt, val in (("--param", args.param), ("--runs", args.runs), ("--json", args.json), ("--plot", args.plot)):
             if val:
                 raise ValueError(f"{opt}: not with `reproduce all` (each experiment has its own); use --report DIR")
-        if args.chunk is not None and args.chunk < 1:
-            raise ValueError(f"--chunk: expected a positive integer, got {args.chunk}")
-        if args.workers is not None and args.workers < 1:
-            raise ValueError(f"--workers: expected a positive integer, got {args.workers}")
-        if args.executor == "local" and (args.scheduler is not None or args.workers is not None):
-            raise ValueError("--scheduler/--workers: need --executor dask")
+        _check_execution(args)
         if args.report is not None:
             _check_folder(args.report)
             os.makedirs(args.report, exist_ok=True)
