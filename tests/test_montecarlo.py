@@ -134,11 +134,15 @@ def test_montecarlo_checks_block_functions(tmp_path):
         ResultsStore(tmp_path)
 
 
+def _default_sigint():  # a shell's background job starts with SIGINT ignored; Python then
+    signal.signal(signal.SIGINT, signal.SIG_DFL)  # installs no KeyboardInterrupt handler: restore it
+
+
 def _cli(*args, **kw):
     env = {**os.environ, "PYTHONPATH": os.pathsep.join(filter(None, [os.path.join(os.path.dirname(__file__), "..", "src"),
                                                                      os.environ.get("PYTHONPATH")]))}
     return subprocess.Popen([sys.executable, "-m", "nlfilter.cli", *args], stdout=subprocess.PIPE,
-                            stderr=subprocess.PIPE, text=True, env=env, **kw)
+                            stderr=subprocess.PIPE, text=True, env=env, preexec_fn=_default_sigint, **kw)
 
 
 def test_ctrl_c_exits_130_and_the_rerun_resumes(tmp_path):
