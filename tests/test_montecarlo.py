@@ -58,17 +58,24 @@ def test_dask_workers_give_identical_json(reference):
         assert _json(res) == _json(reference), (workers, chunk)
 
 
-def test_interrupted_run_resumes_only_unfinished_blocks(tmp_path, monkeypatch, reference):
-    real = pt._phase_block
-    calls = []
+def _crash_at(monkeypatch, module, name, n):
+    """Replace the block function ``module.name`` by one that records the rows it is called on
+    and "crashes" the process (KeyboardInterrupt, as Ctrl-C would) at its ``n``-th call, once."""
+    real, calls, armed = getattr(module, name), [], [True]
 
-    def flaky(rows, **kw):  # the third block "crashes" the process (as Ctrl-C would)
+    def flaky(rows, **kw):
         calls.append(rows)
-        if len(calls) == 3:
+        if len(calls) == n and armed[0]:
+            armed[0] = False
             raise KeyboardInterrupt
         return real(rows, **kw)
 
-    monkeypatch.setattr(pt, "_phase_block", flaky)
+    monkeypatch.setattr(module, name, flaky)
+    return calls
+
+
+def test_interrupted_run_resumes_only_unfinished_blocks(tmp_path, monkeypatch, reference):
+    calls = _crash_at(monkeypatch, pt, "_phase_block", 3)
     exp = get("phase-tracking")
     with ResultsStore(tmp_path / "s.sqlite") as st:
         with pytest.raises(KeyboardInterrupt):
@@ -94,17 +101,7 @@ CUBIC = {"q": [2.0], "r": [1.0], "block": 2}  # quick cubic sensor, one (q, r): 
 def test_cubic_sensor_resumes_only_unfinished_blocks(tmp_path, monkeypatch):
     exp = get("cubic-sensor")
     reference = exp.run(CUBIC, quick=True, runs=5, seed=1)
-    real = cs._cubic_block
-    calls, crash = [], [True]
-
-    def flaky(rows, **kw):  # the second block of the first run "crashes" the process (as Ctrl-C would)
-        calls.append(rows)
-        if len(calls) == 2 and crash[0]:
-            crash[0] = False
-            raise KeyboardInterrupt
-        return real(rows, **kw)
-
-    monkeypatch.setattr(cs, "_cubic_block", flaky)
+    calls = _crash_at(monkeypatch, cs, "_cubic_block", 2)
     with ResultsStore(tmp_path / "s.sqlite") as st:
         with pytest.raises(KeyboardInterrupt):
             exp.run(CUBIC, quick=True, runs=5, seed=1, store=st)
