@@ -174,7 +174,29 @@ def test_missing_file_and_bad_options(tmp_path, capsys):
     path.write_text(PENDULUM)
     for opts, what in ((["--paths", "1"], "--paths: got 1; expected an integer ≥ 2"),
                        (["--filters", "ekf,nope"], "filters: expected registry names from"),
-                       (["--filters", "ekf,"], "--filters: got 'ekf,'")):
+                       (["--filters", "ekf,"], "--filters: got 'ekf,'"),
+                       (["--block", "0"], "--block: got 0; expected an integer ≥ 1"),
+                       (["--workers", "2"], "--scheduler/--workers: need --executor dask"),
+                       (["--executor", "dask", "--workers", "0"], "--workers: expected a positive integer"),
+                       (["--chunk", "-1"], "--chunk: expected a positive integer")):
         assert cli.main(["compare", str(path), "--no-progress", *opts]) == 2
         err = capsys.readouterr().err
         assert err.count("\n") == 1 and what in err, err
+
+
+def test_compare_file_on_dask_is_the_local_table(tmp_path, capsys):
+    """``nlfilter compare MODEL.toml --executor dask --workers 2 --block 4`` writes the rows of the
+    local run with the same ``--block`` (bitwise: each block its own batch)."""
+    pytest.importorskip("dask.distributed")
+    path = tmp_path / "pendulum.toml"
+    path.write_text(PENDULUM)
+    rows = {}
+    for ex in (["--executor", "local"], ["--executor", "dask", "--workers", "2"]):
+        out = tmp_path / f"{ex[1]}.json"
+        assert cli.main(["compare", str(path), "--no-progress", "--paths", "8", "--steps", "15", "--filters",
+                         "ekf,ukf", "--block", "4", "--json", str(out), *ex]) == 0
+        d = json.loads(out.read_text())
+        assert d["meta"]["execution"]["executor"] == ex[1] and d["params"]["block"] == 4
+        rows[ex[1]] = d["rows"]
+    capsys.readouterr()
+    assert rows["dask"] == rows["local"] and len(rows["local"]) > 5

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import signal
 import sqlite3
 import subprocess
@@ -272,3 +273,40 @@ def test_a_users_filter_sweep_runs_on_dask():
                                            7, block=3)["mse"] for n in names}
     for n in names:
         assert local[n].shape == (7,) and np.array_equal(local[n], remote[n]), n
+
+
+def _compare_json(res) -> str:
+    d = res.to_dict()
+    d["meta"].pop("timestamp")
+    d["meta"].pop("execution")
+    for r in d["params"]["reference"]["rungs"]:  # the certificate records its own wall time
+        r.pop("seconds", None)
+    d["params"]["reference"].pop("seconds", None)
+    d["notes"] = [re.sub(r", [0-9.]+ s\)", ")", n) for n in d["notes"]]  # and its note
+    return json.dumps(d, sort_keys=True)
+
+
+def test_compare_runs_on_dask_with_identical_json():
+    """``compare`` on a 2-worker LocalCluster — its filters and the reference's rungs as tasks, one
+    per filter and block of paths — writes the JSON of the local run, bitwise; and a block split
+    of the paths changes no number beyond the last bits of a batch's arithmetic."""
+    pytest.importorskip("dask.distributed")
+    import sympy as sp
+
+    from nlfilter import DiscreteModel
+    from nlfilter.comparison import compare
+
+    x = sp.Symbol("x")
+    md = DiscreteModel([x], f=[0.9 * x + 0.2 * sp.sin(x)], h=[x ** 2 / 4 + x], Q=0.1, R=0.3)
+    kw = dict(paths=24, m0=0.5, P0=0.2, rng=3, block=8)
+    from nlfilter.filters import EKF, UKF, ParticleFilter
+    filters = {"ekf": EKF(md), "ukf": UKF(md), "pf": ParticleFilter(md, 300)}  # one that draws
+    local = compare(md, filters, 20, executor="local", **kw)
+    remote = compare(md, filters, 20, executor="dask", workers=2, **kw)
+    assert remote.meta["execution"]["executor"] == "dask" and remote.meta["execution"]["workers"] == 2
+    assert local.params["block"] == 8 and local.params["reference"]["kind"] == "grid"
+    assert _compare_json(remote) == _compare_json(local)
+    one = compare(md, filters, 20, **dict(kw, block=None))  # all paths as one batch
+    for r in local.rows:
+        o = one.get(r.filter, r.quantity, **r.params)
+        assert o.value == pytest.approx(r.value, rel=1e-12, abs=1e-15), (r.filter, r.quantity)

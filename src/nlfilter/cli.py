@@ -81,6 +81,12 @@ def _parser() -> argparse.ArgumentParser:
     c.add_argument("--report", metavar="DIR", default=None,
                    help="write DIR/index.md with the table, the JSON and the figure")
     c.add_argument("--no-progress", action="store_true", help="hide progress bars")
+    c.add_argument("--block", type=int, default=None, metavar="N",
+                   help="run every filter (and the reference) on blocks of N paths, each block a task of the "
+                        "executor (default: all paths in one batch, one task per filter)")
+    c.add_argument("--chunk", type=int, default=None,
+                   help="filter N paths at a time within a task (memory; same numbers for any N)")
+    _executor_options(c)
     return p
 
 
@@ -89,6 +95,10 @@ def _execution_options(r):
                    help="results store (SQLite) that keeps every finished Monte Carlo block, so an interrupted "
                         "run resumes (default $NLFILTER_STORE or ~/.cache/nlfilter/results.sqlite)")
     r.add_argument("--no-store", action="store_true", help="keep nothing: compute every block afresh")
+    _executor_options(r)
+
+
+def _executor_options(r):
     r.add_argument("--executor", choices=("local", "dask"), default="local",
                    help="where the Monte Carlo blocks run: this process (default) or a dask.distributed "
                         "cluster (pip install \"nlfilter[dask]\"); the numbers are the same")
@@ -272,7 +282,9 @@ def _compare(args, argv) -> int:
         _check_output("--plot", args.plot, ".png")
         if args.report is not None:
             _check_folder(args.report)
-        for opt, value, low in (("--paths", args.paths, 2), ("--steps", args.steps, 1), ("--seed", args.seed, 0)):
+        _check_execution(args)
+        for opt, value, low in (("--paths", args.paths, 2), ("--steps", args.steps, 1), ("--seed", args.seed, 0),
+                                ("--block", args.block, 1)):
             if value is not None and value < low:
                 raise ValueError(f"{opt}: got {value}; expected an integer ≥ {low}")
         filters = spec.filters
@@ -288,7 +300,8 @@ def _compare(args, argv) -> int:
         steps = spec.steps if args.steps is None else args.steps
         seed = spec.seed if args.seed is None else args.seed
         result = compare(spec.model, filters if filters == "all" else list(filters), steps, paths=paths, m0=spec.m0,
-                         P0=spec.P0, rng=seed, dt=spec.dt, progress=not args.no_progress)
+                         P0=spec.P0, rng=seed, dt=spec.dt, progress=not args.no_progress, block=args.block,
+                         chunk=args.chunk, executor=args.executor, scheduler=args.scheduler, workers=args.workers)
     except ValueError as exc:  # the file, an option, or a filter the model cannot serve
         return _error(exc)
     result.meta.update(model_file=str(args.model), model_sha256=spec.sha256,

@@ -22,12 +22,18 @@ Randomness: ``compare(rng=seed)`` simulates exactly ``simulate(..., rng=seed)``'
 streams, :mod:`nlfilter.streams`); any filter that draws (``random = True``: a particle filter)
 gets per-path sub-streams of its own, keyed by its name: runs are reproducible from ``rng``, do
 not depend on the other filters, and are the same for any ``chunk`` of paths.
+
+Execution: every filter, and every rung of the reference, runs as tasks — one per filter and
+``block`` of paths — on an executor (:mod:`nlfilter.montecarlo`: this process, or a
+``dask.distributed`` cluster with ``executor="dask"``); each block is its own batch with
+single-threaded BLAS, so the numbers are bitwise the same for any executor and worker count.
 """
 
 from __future__ import annotations
 
 import math
 import numbers
+import time
 import zlib
 
 import numpy as np
@@ -159,7 +165,8 @@ def _component_names(model):
 
 def compare(model, filters, steps, *, paths=200, m0, P0, rng=0, reference="auto", window=0.5, dt=None,
             substeps=10, start="update", progress=False, on_divergence="mark", rtol=0.02, certify_paths=64,
-            max_particles=MAX_PARTICLES, chunk=None, full_output=False, smooth=False):
+            max_particles=MAX_PARTICLES, chunk=None, full_output=False, smooth=False, block=None, executor=None,
+            scheduler=None, workers=None):
     """Run every filter and a near-optimal reference on one shared simulation; a :class:`Result`.
 
     Parameters
@@ -189,6 +196,17 @@ def compare(model, filters, steps, *, paths=200, m0, P0, rng=0, reference="auto"
         most particles the automatic reference may use (:mod:`nlfilter.yardstick`)
     chunk : None, or run every filter on that many paths at a time (memory); the numbers are the
         same for any chunk (per-path streams, :mod:`nlfilter.streams`)
+    block : None (every filter runs on all paths as one batch) or the paths per task: each filter
+        and each rung of the reference runs on blocks of ``block`` consecutive paths, each block as
+        its own batch with single-threaded BLAS (as :func:`nlfilter.montecarlo.montecarlo`'s
+        blocks), so that the numbers are identical, bitwise, for any ``executor`` and ``workers``
+    executor, scheduler, workers : where the tasks — one per filter and block — run:
+        ``None`` (the open :func:`nlfilter.montecarlo.session`'s executor, else this process),
+        ``"local"``, ``"dask"`` (a ``dask.distributed`` cluster at ``scheduler``, or a
+        ``LocalCluster`` of ``workers`` processes; :class:`~nlfilter.montecarlo.DaskExecutor`)
+        or an executor object; the filters run in parallel, and with ``block`` the paths too.
+        The simulation and the statistics are computed here; how it ran is
+        ``Result.meta["execution"]``
     full_output : also return the :class:`~nlfilter.simulate.Simulation` and the dict
         name -> :class:`~nlfilter.filters.base.Estimates` the numbers were computed from (with
         ``smooth``, also ``"<name> (smoothed)"`` -> the smoothed estimates)
@@ -274,154 +292,229 @@ def compare(model, filters, steps, *, paths=200, m0, P0, rng=0, reference="auto"
     if chunk is not None:
         V.positive("chunk", chunk, integer=True)
 
-    sim_kw = {"dt": dt, "substeps": substeps} if kind == "sde" else {"start": start}
-    sim = simulate(model, steps, paths=paths, rng=root, m0=m0v, P0=P0m, **sim_kw)
-
-    params = {"steps": steps, "paths": paths, "window": window, "seed": seed, "start": start,
-              "on_divergence": on_divergence, "m0": m0v.tolist(),
-              "P0": P0m.tolist()}
-    if kind == "sde":
-        params.update(dt=dt, substeps=substeps)
-
-    def run(name, flt, ys, key=None, bar=False, smooth=False):
-        """One filter's estimates on ``ys`` (its own random stream keyed by ``key or name``; a
-        progress bar over its steps with ``bar``; its smoother's with ``smooth``: the same forward
-        pass, draws included); a numerical failure names the filter."""
-        go = flt.smooth if smooth else flt.run
-        kw = {"rng": _run_rng(root, key or name, ys.shape[0])} if getattr(flt, "random", False) else {}
-        if chunk is not None:
-            kw["chunk"] = chunk
-        if bar:
-            kw["progress"] = True
-        try:
-            if getattr(flt, "own_prior", False):  # it starts from a prior of its own
-                return go(ys, on_divergence=on_divergence, **kw)
-            if given is not model and getattr(flt, "model", None) is given:  # a filter of the bilinear model
-                lm0, lP0, cols = _lifted_prior(given, m0v, P0m)
-                e = go(ys, lm0, lP0, on_divergence=on_divergence, **kw)
-                if e.means.shape[-1] != len(cols):  # the whole lifted state: read the base coordinates
-                    e = Estimates(e.means[..., cols], e.covs[..., cols, :][..., :, cols], e.diverged,
-                                  e.diverged_step, e.extras)
-                return e
-            return go(ys, m0v, P0m, on_divergence=on_divergence, **kw)
-        except (DivergenceError, np.linalg.LinAlgError, FloatingPointError, OverflowError) as exc:
-            exc.add_note(f"compare: while {'smoothing with' if smooth else 'running'} filter {name!r} "
-                         f"({type(flt).__name__})")
-            raise
-
+    if block is not None:
+        V.positive("block", block, integer=True)
     from tqdm.auto import tqdm
-    est, failed = {}, {}
-    for name, flt in tqdm(filters.items(), disable=not progress, desc="compare"):
-        try:
-            est[name] = run(name, flt, sim.ys)
-        except (np.linalg.LinAlgError, FloatingPointError, OverflowError) as exc:
-            if on_divergence == "raise" or isinstance(exc, DivergenceError):
-                raise
-            failed[name] = f"{type(exc).__name__}: {str(exc).splitlines()[0] if str(exc) else ''}"
 
-    cert = None
-    if reference is not None:
-        def ref_run(flt, ys, tag):  # the reference's rungs: the main ones share the stream key "optimal"
-            return run(OPTIMAL, flt, ys, key=OPTIMAL if tag.startswith("reference") else tag, bar=progress)
-
-        if reference == "auto":
-            ref_est, cert = certified_reference(model, sim, m0v, P0m, run=ref_run, judged=est, dt=dt, start=start,
-                                                substeps=substeps, window=window, rtol=rtol,
-                                                certify_paths=certify_paths, max_particles=max_particles)
-        else:
-            ref_est = run(OPTIMAL, reference, sim.ys, bar=progress)
-            cert = check_given_reference(reference, ref_est, model, sim, run=ref_run, judged=est, window=window, rtol=rtol,
-                                         certify_paths=certify_paths)
-        params["reference"] = cert.to_dict()
+    from . import montecarlo as mc
+    sess = mc.current()
+    if executor is None and scheduler is None and workers is None and sess is not None:
+        ex = sess.executor  # the open session's
     else:
-        params["reference"] = None
-    ref_name = cert.label if cert is not None else None
-    gap = "gap_to_optimal" if cert is None or cert.certified is not False else "gap_to_reference"
-    if cert is not None:
-        est[ref_name] = ref_est
+        ex = mc.make_executor(executor, scheduler=scheduler, workers=workers)
+    t_start = time.perf_counter()
+    try:
+        sim_kw = {"dt": dt, "substeps": substeps} if kind == "sde" else {"start": start}
+        sim = simulate(model, steps, paths=paths, rng=root, m0=m0v, P0=P0m, **sim_kw)
 
-    if skipped:
-        params["skipped"] = skipped
-    if failed:
-        params["failed"] = failed
-    if smooth:
-        ref_flt = None
+        params = {"steps": steps, "paths": paths, "window": window, "seed": seed, "start": start,
+                  "on_divergence": on_divergence, "m0": m0v.tolist(),
+                  "P0": P0m.tolist()}
+        if kind == "sde":
+            params.update(dt=dt, substeps=substeps)
+        if block is not None:  # the blocks' batches: the last bits of the numbers may depend on it
+            params["block"] = block
+
+        def jobs_of(name, flt, ys, key, smooth, bar):
+            """The tasks of one filter on ``ys``: one per block of paths (its own random stream keyed
+            by ``key or name``, per path: the same draws for any block), with its prior."""
+            go = "smooth" if smooth else "run"
+            B = ys.shape[0]
+            size = B if block is None else block
+            if getattr(flt, "own_prior", False):  # it starts from a prior of its own
+                args = ()
+            elif given is not model and getattr(flt, "model", None) is given:  # a filter of the bilinear model
+                args = _lifted_prior(given, m0v, P0m)[:2]
+            else:
+                args = (m0v, P0m)
+            out = []
+            for lo in range(0, B, size):
+                hi = min(lo + size, B)
+                kw = {"on_divergence": on_divergence}
+                if getattr(flt, "random", False):
+                    kw["rng"] = _run_rng(root, key or name, range(lo, hi))
+                if chunk is not None:
+                    kw["chunk"] = chunk
+                if bar and size == B and ex.name == "local":  # the steps of a run in this process
+                    kw["progress"] = True
+                out.append((go, flt, ys[lo:hi], args, kw))
+            return out
+
+        def execute(groups, desc):
+            """Run the groups ``(name, flt, ys, key, smooth, bar)`` on the executor, all their tasks
+            at once; per group its Estimates (blocks concatenated in path order; a bilinear filter's
+            read at the base state's coordinates) or the exception of its first failed block, noted
+            with the filter's name."""
+            jobs, owner = [], []
+            for g, group in enumerate(groups):
+                js = jobs_of(*group)
+                jobs += js
+                owner += [g] * len(js)
+            done = [None] * len(jobs)
+            with tqdm(total=len(jobs), disable=not progress or len(jobs) < 2, desc=desc, unit="task", leave=False) as pbar:
+                for i, res_ in ex.map_unordered(_filter_task, jobs):
+                    done[i] = res_
+                    pbar.update(1)
+            out = []
+            for g, (name, flt, ys, key, smooth, bar) in enumerate(groups):
+                parts = [done[i] for i in range(len(jobs)) if owner[i] == g]
+                exc = next((p for p in parts if isinstance(p, BaseException)), None)
+                if exc is not None:
+                    if isinstance(exc, (DivergenceError, np.linalg.LinAlgError, FloatingPointError, OverflowError)):
+                        exc.add_note(f"compare: while {'smoothing with' if smooth else 'running'} filter {name!r} "
+                                     f"({type(flt).__name__})")
+                    out.append(exc)
+                    continue
+                e = parts[0] if len(parts) == 1 else Estimates.concatenate(parts)
+                if given is not model and getattr(flt, "model", None) is given and not getattr(flt, "own_prior", False):
+                    cols = _lifted_prior(given, m0v, P0m)[2]
+                    if e.means.shape[-1] != len(cols):  # the whole lifted state: read the base coordinates
+                        e = Estimates(e.means[..., cols], e.covs[..., cols, :][..., :, cols], e.diverged,
+                                      e.diverged_step, e.extras)
+                out.append(e)
+            return out
+
+        def run(name, flt, ys, key=None, bar=False, smooth=False):
+            """One filter's estimates on ``ys`` (:func:`execute`); a failure is raised."""
+            (e,) = execute([(name, flt, ys, key, smooth, bar)], name)
+            if isinstance(e, BaseException):
+                raise e
+            return e
+
+        est, failed = {}, {}
+        for (name, flt), e in zip(filters.items(), execute([(name, flt, sim.ys, None, False, False)
+                                                             for name, flt in filters.items()], "compare")):
+            if isinstance(e, (np.linalg.LinAlgError, FloatingPointError, OverflowError)) and not (
+                    on_divergence == "raise" or isinstance(e, DivergenceError)):
+                failed[name] = f"{type(e).__name__}: {str(e).splitlines()[0] if str(e) else ''}"
+            elif isinstance(e, BaseException):
+                raise e
+            else:
+                est[name] = e
+
+        cert = None
+        if reference is not None:
+            def ref_run(flt, ys, tag):  # the reference's rungs: the main ones share the stream key "optimal"
+                return run(OPTIMAL, flt, ys, key=OPTIMAL if tag.startswith("reference") else tag, bar=progress)
+
+            if reference == "auto":
+                ref_est, cert = certified_reference(model, sim, m0v, P0m, run=ref_run, judged=est, dt=dt, start=start,
+                                                    substeps=substeps, window=window, rtol=rtol,
+                                                    certify_paths=certify_paths, max_particles=max_particles)
+            else:
+                ref_est = run(OPTIMAL, reference, sim.ys, bar=progress)
+                cert = check_given_reference(reference, ref_est, model, sim, run=ref_run, judged=est, window=window, rtol=rtol,
+                                             certify_paths=certify_paths)
+            params["reference"] = cert.to_dict()
+        else:
+            params["reference"] = None
+        ref_name = cert.label if cert is not None else None
+        gap = "gap_to_optimal" if cert is None or cert.certified is not False else "gap_to_reference"
         if cert is not None:
-            ref_flt = (reference_filter(cert, model, dt=dt, start=start, substeps=substeps)
-                       if isinstance(reference, str) else reference)
-        sm, smoothing = _smoothers(filters, est, failed, ref_name, ref_flt, cert, sim, run, on_divergence)
-        params["smoothing"] = smoothing
-    what = getattr(model, "name", "") or repr(model)
-    res = Result("compare", f"{len(filters)} filter(s) against the optimal reference on {what}",
-                 "nlfilter.compare: Monte Carlo on common random numbers", params)
-    res.meta = provenance("compare", seed=seed, runs=paths, paths=paths)
-    comps = _component_names(model)
-    every = dict(filters, **({ref_name: None if isinstance(reference, str) else reference} if cert is not None else {}))
-    for name, e in est.items():
-        if not np.any(~np.asarray(e.diverged, bool)):
-            res.add(name, "divergence_rate", 1.0)
-            res.notes.append(f"{name}: every path diverged (first at step {int(np.min(e.diverged_step))}): no MSE")
-            continue
-        for i in range(model.n):
-            s_ = mse(e, sim.xs, component=i, window=window)
-            res.add(name, "mse", s_.value, s_.stderr, component=i)
-            if cert is not None and name != ref_name and np.any(~(np.asarray(e.diverged, bool)
-                                                                   | np.asarray(est[ref_name].diverged, bool))):
-                d = paired_difference(e, est[ref_name], sim.xs, component=i, window=window)
-                res.add(name, gap, d.value, math.hypot(d.stderr, cert.reference_error(i)), component=i)
-        flt = every.get(name)
-        covariance = getattr(flt, "covariance", "posterior") if flt is not None else "posterior"
-        ok = ~np.asarray(e.diverged, bool)
-        if covariance == "posterior" and ok.any() and np.all(np.isfinite(e.covs[ok])):
-            try:
-                s_ = nees(e, sim.xs, window=window, label=name)
-                res.add(name, "nees", s_.value, s_.stderr)
-            except ValueError as exc:
-                res.notes.append(f"nees of {name} not computed: {exc}")
-        elif covariance == "off-line" and ok.any():
-            w = _window(steps, window)
-            for i in range(model.n):
-                v = np.diagonal(e.covs[ok][..., w, :, :], axis1=-2, axis2=-1)[..., i]
-                if np.all(np.isfinite(v)):
-                    res.add(name, "offline_mse", float(np.mean(v)), component=i)
-        res.add(name, "divergence_rate", float(np.mean(e.diverged)))
-    for name in failed:
-        res.add(name, "divergence_rate", 1.0)
-    if smooth:
-        _smoothed_rows(res, sm, ref_name, cert, sim, model.n, window)
-    if cert is not None:
-        for i, (d, se) in enumerate(cert.error):
-            res.add(ref_name, "reference_error", d, se, component=i)
-        diag = cert.rungs[-1] if cert.rungs else {}
-        if "edge_mass_max" in diag:
-            res.add(ref_name, "edge_mass", diag["edge_mass_max"])
-        if "ess_min" in diag:
-            res.add(ref_name, "ess_min", diag["ess_min"])
-    for i, c in enumerate(comps):
-        lines, bands = {}, {}
+            est[ref_name] = ref_est
+
+        if skipped:
+            params["skipped"] = skipped
+        if failed:
+            params["failed"] = failed
+        if smooth:
+            ref_flt = None
+            if cert is not None:
+                ref_flt = (reference_filter(cert, model, dt=dt, start=start, substeps=substeps)
+                           if isinstance(reference, str) else reference)
+            sm, smoothing = _smoothers(filters, est, failed, ref_name, ref_flt, cert, sim, run, on_divergence)
+            params["smoothing"] = smoothing
+        what = getattr(model, "name", "") or repr(model)
+        res = Result("compare", f"{len(filters)} filter(s) against the optimal reference on {what}",
+                     "nlfilter.compare: Monte Carlo on common random numbers", params)
+        res.meta = provenance("compare", seed=seed, runs=paths, paths=paths)
+        res.meta["execution"] = {"executor": ex.name, "workers": getattr(ex, "workers", 1), "block": block,
+                                 "chunk": chunk, "seconds": round(time.perf_counter() - t_start, 3)}
+        comps = _component_names(model)
+        every = dict(filters, **({ref_name: None if isinstance(reference, str) else reference} if cert is not None else {}))
         for name, e in est.items():
-            if np.sum(~np.asarray(e.diverged, bool)) < 2:
-                continue  # nothing to draw: every path (but one) diverged
-            lines[name], se = mse_per_step(e, sim.xs, component=i)
-            bands[name] = (lines[name] - 2 * se, lines[name] + 2 * se)
-        res.series[f"MSE of {c} per step ({paths} paths)"] = {
-            "x": sim.t, "lines": lines, "bands": bands, "ylabel": f"E ({c} − {c}̂)²",
-            "xlabel": "t" if kind == "sde" else "step k"}
-    if skipped:
-        res.notes.append("not run (the model lacks what they need): " + "; ".join(f"{k}: {v}" for k, v in skipped.items()))
-    if failed:
-        res.notes.append("failed (numerical error): " + "; ".join(f"{k}: {v}" for k, v in failed.items()))
-    if cert is not None:
-        res.notes.append(_certificate_note(cert))
-    if smooth:
-        res.notes.append(_smoothing_note(params["smoothing"]))
-        est.update({f"{k} (smoothed)": v for k, v in sm.items()})
-    res.notes.append(f"window {window!r} of {steps} steps, {paths} paths; {gap} = MSE − MSE({ref_name}) "
-                     f"on the same paths, ± its paired s.e. and the reference's error; NEES ≈ {model.n} for a "
-                     f"consistent filter (posterior covariances only; offline_mse: the off-line error "
-                     f"variance an off-line-gain filter predicts)" if cert is not None else
-                     f"window {window!r} of {steps} steps, {paths} paths; no reference")
-    return (res, sim, est) if full_output else res
+            if not np.any(~np.asarray(e.diverged, bool)):
+                res.add(name, "divergence_rate", 1.0)
+                res.notes.append(f"{name}: every path diverged (first at step {int(np.min(e.diverged_step))}): no MSE")
+                continue
+            for i in range(model.n):
+                s_ = mse(e, sim.xs, component=i, window=window)
+                res.add(name, "mse", s_.value, s_.stderr, component=i)
+                if cert is not None and name != ref_name and np.any(~(np.asarray(e.diverged, bool)
+                                                                       | np.asarray(est[ref_name].diverged, bool))):
+                    d = paired_difference(e, est[ref_name], sim.xs, component=i, window=window)
+                    res.add(name, gap, d.value, math.hypot(d.stderr, cert.reference_error(i)), component=i)
+            flt = every.get(name)
+            covariance = getattr(flt, "covariance", "posterior") if flt is not None else "posterior"
+            ok = ~np.asarray(e.diverged, bool)
+            if covariance == "posterior" and ok.any() and np.all(np.isfinite(e.covs[ok])):
+                try:
+                    s_ = nees(e, sim.xs, window=window, label=name)
+                    res.add(name, "nees", s_.value, s_.stderr)
+                except ValueError as exc:
+                    res.notes.append(f"nees of {name} not computed: {exc}")
+            elif covariance == "off-line" and ok.any():
+                w = _window(steps, window)
+                for i in range(model.n):
+                    v = np.diagonal(e.covs[ok][..., w, :, :], axis1=-2, axis2=-1)[..., i]
+                    if np.all(np.isfinite(v)):
+                        res.add(name, "offline_mse", float(np.mean(v)), component=i)
+            res.add(name, "divergence_rate", float(np.mean(e.diverged)))
+        for name in failed:
+            res.add(name, "divergence_rate", 1.0)
+        if smooth:
+            _smoothed_rows(res, sm, ref_name, cert, sim, model.n, window)
+        if cert is not None:
+            for i, (d, se) in enumerate(cert.error):
+                res.add(ref_name, "reference_error", d, se, component=i)
+            diag = cert.rungs[-1] if cert.rungs else {}
+            if "edge_mass_max" in diag:
+                res.add(ref_name, "edge_mass", diag["edge_mass_max"])
+            if "ess_min" in diag:
+                res.add(ref_name, "ess_min", diag["ess_min"])
+        for i, c in enumerate(comps):
+            lines, bands = {}, {}
+            for name, e in est.items():
+                if np.sum(~np.asarray(e.diverged, bool)) < 2:
+                    continue  # nothing to draw: every path (but one) diverged
+                lines[name], se = mse_per_step(e, sim.xs, component=i)
+                bands[name] = (lines[name] - 2 * se, lines[name] + 2 * se)
+            res.series[f"MSE of {c} per step ({paths} paths)"] = {
+                "x": sim.t, "lines": lines, "bands": bands, "ylabel": f"E ({c} − {c}̂)²",
+                "xlabel": "t" if kind == "sde" else "step k"}
+        if skipped:
+            res.notes.append("not run (the model lacks what they need): " + "; ".join(f"{k}: {v}" for k, v in skipped.items()))
+        if failed:
+            res.notes.append("failed (numerical error): " + "; ".join(f"{k}: {v}" for k, v in failed.items()))
+        if cert is not None:
+            res.notes.append(_certificate_note(cert))
+        if smooth:
+            res.notes.append(_smoothing_note(params["smoothing"]))
+            est.update({f"{k} (smoothed)": v for k, v in sm.items()})
+        res.notes.append(f"window {window!r} of {steps} steps, {paths} paths; {gap} = MSE − MSE({ref_name}) "
+                         f"on the same paths, ± its paired s.e. and the reference's error; NEES ≈ {model.n} for a "
+                         f"consistent filter (posterior covariances only; offline_mse: the off-line error "
+                         f"variance an off-line-gain filter predicts)" if cert is not None else
+                         f"window {window!r} of {steps} steps, {paths} paths; no reference")
+        return (res, sim, est) if full_output else res
+    finally:
+        if ex is not executor and (sess is None or ex is not sess.executor):
+            ex.close()
+
+
+def _filter_task(job):
+    """A task of :func:`compare`: ``(method, filter, ys, prior, keywords)`` -> its Estimates, or
+    the exception it raised (returned, so that the other tasks run on and the caller decides).
+    BLAS runs single-threaded, here as on a Dask worker (:func:`nlfilter.montecarlo._compute`):
+    a block's numbers do not depend on where it ran."""
+    from threadpoolctl import threadpool_limits
+
+    go, flt, ys, args, kw = job
+    with threadpool_limits(limits=1, user_api="blas"):
+        try:
+            return getattr(flt, go)(ys, *args, **kw)
+        except Exception as exc:  # noqa: BLE001 - handed to the caller, which raises or records it
+            return exc
 
 
 def _certificate_note(cert) -> str:
