@@ -143,3 +143,15 @@ def test_readme_table_4_1_quotes_the_committed_run():
             ex = run.get(name, "excess_mse_theta", P=0.129)
             ev, ese = map(float, re.findall(r"([\d.]+) ± ([\d.]+) \|$", line)[0])
             assert (ev, ese) == (round(ex.value, 5), round(ex.stderr, 5)), name
+
+
+def test_readme_hand_tables_quote_the_committed_report():
+    """Every number of the README's hand-written result tables (outside the generated blocks) is
+    a value, standard error or paper value of a row of the committed report — or of a run kept
+    in docs/report/runs — of the experiment its section names, at the number's printed digits
+    (nlfilter.report.unquoted_numbers): a rerun that moves a number, or a typo, fails here."""
+    from nlfilter.report import unquoted_numbers
+    text = (ROOT / "README.md").read_text(encoding="utf-8")
+    assert unquoted_numbers(text, _committed()) == []
+    moved = text.replace("| 0.581 ± 0.013 |", "| 0.582 ± 0.013 |", 1)  # the check sees a moved digit
+    assert moved != text and unquoted_numbers(moved, _committed()) == [("second-order", "0.582 ± 0.013", "0.582")]

@@ -217,3 +217,52 @@ def load_folder(folder) -> dict[str, Result]:
             res = Result.from_json(Path(folder) / name)
             out[res.experiment] = res
     return dict(sorted(out.items()))  # by id, as the registry lists them
+
+
+def _printed_as(token: str, values) -> bool:
+    """Whether the number ``token`` as printed (``0.1858``, ``−6e-11``, ``3.90e4``) is one of
+    ``values`` rounded to its printed digits (half a unit of its last digit), in sign or magnitude."""
+    t = token.replace("−", "-").lstrip("-")
+    mant, _, exp = t.partition("e")
+    dec = len(mant.partition(".")[2])
+    tol = 0.5 * 10.0 ** ((int(exp) if exp else 0) - dec) * (1 + 1e-9)
+    x = float(t)
+    return any(abs(abs(v) - x) <= tol for v in values)
+
+
+def unquoted_numbers(text: str, results: dict[str, Result]) -> list[tuple[str, str, str]]:
+    """The numbers of a README's hand-written result tables that its report does not hold.
+
+    In the section between ``## Experiments and results`` and the next ``## `` heading, outside
+    the generated ``<!-- report:ID -->`` blocks, every number in a table's body cells (not its
+    header row; distances "3.5 s.e." aside) must be the value, standard error or paper value of a
+    row (or its distance to the paper's value), or a percentage of one, of a result whose id starts with an experiment id named in
+    backticks in the table's heading, at the number's printed digits. Returns ``(heading ids,
+    cell, number)`` for each that is not: the README's tables cannot drift from the report."""
+    import re
+    start = text.index("## Experiments and results")
+    end = text.index("\n## ", start + 1)
+    part = re.sub(r"<!-- report:([\w.-]+) -->\n.*?<!-- /report:\1 -->", "", text[start:end], flags=re.S)
+    number = re.compile(r"(?<![\w.])[-−]?\d+(?:\.\d+)?(?:e[-−+]?\d+)?(?![\w.]*\s*s\.e\.)")
+    ids, values, in_table, bad = [], [], False, []
+    for line in part.splitlines():
+        if line.startswith("#"):
+            ids = [i for i in re.findall(r"`([a-z0-9-]+)`", line)]
+            values = [float(v) * s for k, res in results.items() if any(k.startswith(i) for i in ids)
+                      for r in res.rows for v in (r.value, r.stderr, r.paper, _minus(r.value, r.paper))
+                      if isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
+                      for s in (1.0, 100.0)]
+            continue
+        if not (line.startswith("|") and line.rstrip().endswith("|")):
+            in_table = False
+            continue
+        if not in_table or set(line) <= set("|-: "):  # a table's header row, its rule
+            in_table = True
+            continue
+        for cell in [c.strip() for c in line.strip().strip("|").split("|")][1:]:
+            bad += [(",".join(ids), cell, tok) for tok in number.findall(cell) if not _printed_as(tok, values)]
+    return bad
+
+
+def _minus(a, b):
+    return a - b if isinstance(a, (int, float)) and isinstance(b, (int, float)) else None

@@ -2,9 +2,10 @@
 nlfilter.streams): ``Experiment.run(chunk=2)`` (CLI ``--chunk 2``) equals one batch.
 
 Experiments whose Monte Carlo is stated in blocks (nlfilter.montecarlo: ``cubic-sensor``,
-``cubic-sensor-closures``, ``linear-gaussian``, ``oh-shin``, ``phase-tracking``; ``BLOCKS`` below)
+``cubic-sensor-closures``, ``linear-gaussian``, ``oh-shin``, ``phase-tracking``, ``second-order``;
+``BLOCKS`` below)
 compute every block as its own batch whatever the chunk, so their rows for ``chunk=1``,
-``chunk=2`` and no chunk are identical, bitwise. The others (``moment-*``, ``second-order``,
+``chunk=2`` and no chunk are identical, bitwise. The others (``moment-*``,
 ``smoothing``, ``zero-order*``) batch the paths by the chunk: their simulations and random
 filters are bitwise the same (tests/test_streams.py, the contract), but the deterministic
 filters' vectorized arithmetic may round the last bit differently with the batch size (the
@@ -33,7 +34,7 @@ CASES = {
 # Monte Carlo in blocks, bitwise the same for any chunk: the extra parameters of the test (blocks of
 # 2 paths: 2, 2, 1; a chunk of 4 puts two blocks in one task)
 BLOCKS = {"cubic-sensor": {"block": 2}, "cubic-sensor-closures": {"block": 2}, "oh-shin": {"block": 2},
-          "linear-gaussian": {"block": 2}, "phase-tracking": {"block": 2, "sweep": 3}}
+          "linear-gaussian": {"block": 2}, "phase-tracking": {"block": 2, "sweep": 3}, "second-order": {"block": 2}}
 
 
 def _rows(res):

@@ -19,15 +19,24 @@ the second half of the run, ``nees`` (average eᵀX⁻¹e, n for a consistent fi
 ``psd_loss_rate`` (fraction of paths whose state or innovation covariance lost positive
 definiteness or became non-finite; binomial standard error). Seed 004 prints no numerical results,
 so the ``paper`` column is empty: the paper's claims are checked qualitatively (notes).
+
+Each problem's Monte Carlo is computed in blocks of ``block`` paths (0: one block of all its
+paths, the default; :func:`nlfilter.montecarlo.montecarlo`): a block simulates its paths and runs
+every filter on them (:func:`_quadratic_block`, :func:`_state_noise_block`,
+:func:`_falling_body_block`). The grid references' bounds come from every path's simulated
+states, so the problem's paths are simulated once more beforehand to find them (per-path streams:
+the same paths).
 """
 
 from __future__ import annotations
 
+from functools import partial
+
 import numpy as np
-from tqdm.auto import tqdm
 
 from .. import evaluate as ev
 from .. import problems as pb
+from .. import streams
 from ..filters.base import Estimates, GaussianState, ode_step
 from ..filters.ekf import EKF
 from ..filters.reference import GridFilter, ResampleMoveParticleFilter
@@ -35,6 +44,7 @@ from ..filters.second_order import (ContinuousDiscreteSecondOrderFilter, Continu
                                     SecondOrderFilter)
 from ..filters.ukf import UKF
 from ..models import DiscreteModel
+from ..montecarlo import montecarlo
 from ..results import Result
 from ..simulate import simulate, simulate_continuous_discrete
 from . import experiment
@@ -53,11 +63,12 @@ PARAMS = {
     # falling body: measurement noise variance, RK4 substeps per second, particles of the reference
     "fb_r": 1e4, "fb_substeps": 20, "fb_particles": 1000, "fb_pf_runs": 100,
     "grid_size": 401,
+    "block": 0,  # paths per Monte Carlo block; 0: all of a problem's paths in one block (one batch)
 }
 RANGES = {  # what --param accepts (nlfilter.experiments.check_range)
     "steps": ">=0,<=100000", "quad_q": ">0", "quad_r": ">0", "sn_r": ">0", "sn_dt": ">0,<=1",
     "sn_innovation": ("update", "ito"), "fb_r": ">0", "fb_substeps": ">=1,<=10000", "fb_particles": ">=10,<=10000000",
-    "fb_pf_runs": ">=2,<=100000", "grid_size": ">=11,<=100001",
+    "fb_pf_runs": ">=2,<=100000", "grid_size": ">=11,<=100001", "block": ">=0,<=1000000",
 }
 RUNS = {"quadratic": 1000, "state-noise": 400, "falling-body": 500}
 QUICK = {"runs": 24, "steps": {"quadratic": 15, "state-noise": 40, "falling-body": 15},
@@ -82,9 +93,9 @@ def run(params, *, quick, runs, seed, progress):
         if name not in chosen:
             continue
         nruns = _ran(res, "paths", name, runs or (QUICK["runs"] if quick else RUNS[name]))
-        rng = ev.stream(seed, i)
         case = {"quadratic": _quadratic, "state-noise": _state_noise, "falling-body": _falling_body}[name]
-        case(res, params, nruns, rng, quick, progress)
+        block = res.used("block", int(params["block"])) or nruns
+        case(res, params, nruns, seed, quick, block)
     # the paper's point in one panel: which forms lose positive definiteness (binomial 2 s.e.)
     rates = {pr: [res.get(f, "psd_loss_rate", problem=pr) for f in ORDER] for pr in PROBLEMS if pr in chosen}
     res.series["Covariance lost positive definiteness (fraction of runs)"] = {
@@ -132,75 +143,85 @@ def _steps(res, params, name, quick, default):
 
 
 # -- the three problems -------------------------------------------------------------------------
-def _quadratic(res, params, nruns, rng, quick, progress):
-    prob = pb.quadratic(a=params["quad_a"], b=params["quad_b"], c=params["quad_c"], q=params["quad_q"],
-                        r=params["quad_r"])
+def _quadratic(res, params, nruns, seed, quick, block):
+    kw = {k: params[f"quad_{k}"] for k in ("a", "b", "c", "q", "r")}
+    prob = pb.quadratic(**kw)
     steps = _steps(res, params, "quadratic", quick, prob.steps)
-    md = prob.model
-    sim = ev.in_chunks(lambda rows: simulate(md, steps, paths=rows, rng=rng, m0=prob.m0, P0=prob.P0), nruns)
-    filters = {"ekf": EKF(md), "ukf": UKF(md), **{f: SecondOrderFilter(md, form=f) for f in FORMS}}
-    ests = {k: _run(flt, sim.ys, prob.m0, prob.P0) for k, flt in
-            tqdm(filters.items(), disable=not progress, desc="quadratic", leave=False)}
-    lo, hi = float(np.min(sim.xs)), float(np.max(sim.xs))
+    rng = ev.stream(seed, 0)
+    xs = ev.in_chunks(lambda rows: simulate(prob.model, steps, paths=rows, rng=rng, m0=prob.m0, P0=prob.P0).xs, nruns)
+    lo, hi = float(np.min(xs)), float(np.max(xs))
     pad = 6 * np.sqrt(params["quad_q"])
     size = res.used("grid_size", QUICK["grid_size"] if quick else params["grid_size"])
-    grid = GridFilter(md, (min(lo, -3 * np.sqrt(prob.P0[0, 0])) - pad, hi + pad), size)
-    ests["optimal"] = grid.run(sim.ys, prob.m0, prob.P0, on_divergence="mark", progress=progress, chunk=ev.chunk())
-    _report(res, "quadratic", ests, sim.xs, ests["optimal"], slice(None))
+    ident = dict(kw, steps=steps, seed=seed, size=size,
+                 bounds=[min(lo, -3 * np.sqrt(prob.P0[0, 0])) - pad, hi + pad])
+    xs, ests = _estimates(montecarlo("quadratic", partial(_quadratic_block, **ident), nruns, block=block, ident=ident))
+    _report(res, "quadratic", ests, xs, ests["optimal"], slice(None))
     res.notes.append(f"quadratic: x' = {params['quad_a']} x + {params['quad_b']} x² + w (q = "
                      f"{params['quad_q']}), y = x + {params['quad_c']} x² + v (r = {params['quad_r']}), "
                      f"x0 ~ N(0, 1), {steps} steps, {nruns} runs; optimal = grid filter ({size} points).")
 
 
-def _state_noise(res, params, nruns, rng, quick, progress):
-    prob = pb.state_noise(a=params["sn_a"], s0=params["sn_s0"], s1=params["sn_s1"], s2=params["sn_s2"],
-                          c=params["sn_c"], r=params["sn_r"], dt=params["sn_dt"])
+def _quadratic_block(rows, *, a, b, c, q, r, steps, seed, size, bounds):
+    """One Monte Carlo block of the quadratic problem: simulate the paths ``rows`` (per-path
+    streams of case 0 of ``seed``), run the EKF, the UKF, every second-order form and the grid
+    filter on ``bounds``; their estimates per path (:func:`_arrays`)."""
+    prob = pb.quadratic(a=a, b=b, c=c, q=q, r=r)
+    md = prob.model
+    sim = simulate(md, steps, paths=rows, rng=ev.stream(seed, 0), m0=prob.m0, P0=prob.P0)
+    filters = {"ekf": EKF(md), "ukf": UKF(md), **{f: SecondOrderFilter(md, form=f) for f in FORMS}}
+    ests = {k: _run(flt, sim.ys, prob.m0, prob.P0) for k, flt in filters.items()}
+    ests["optimal"] = GridFilter(md, tuple(bounds), size).run(sim.ys, prob.m0, prob.P0, on_divergence="mark")
+    return _arrays(sim.xs, ests)
+
+
+def _state_noise(res, params, nruns, seed, quick, block):
+    kw = {k: params[f"sn_{k}"] for k in ("a", "s0", "s1", "s2", "c", "r", "dt")}
+    prob = pb.state_noise(**kw)
     steps = _steps(res, params, "state-noise", quick, prob.steps)
-    md, dt = prob.model, prob.dt
-    sim = ev.in_chunks(lambda rows: simulate(md, steps, paths=rows, rng=rng, m0=prob.m0, P0=prob.P0, dt=dt,
-                                             substeps=10), nruns)
     inn = params["sn_innovation"]
     if inn not in ("update", "ito"):
         raise ValueError(f"param sn_innovation={inn!r}: expected 'update' or 'ito'")
-    filters = {"ekf": ContinuousSecondOrderFilter(md, dt, form="first-order", innovation=inn),
-               **{f: ContinuousSecondOrderFilter(md, dt, form=f, innovation=inn) for f in FORMS}}
-    ests = {k: _run(flt, sim.ys, prob.m0, prob.P0) for k, flt in
-            tqdm(filters.items(), disable=not progress, desc="state-noise", leave=False)}
-    ests["ukf"] = _ukf_on_euler(md, dt, sim.ys, prob.m0, prob.P0)
-    lo, hi = float(np.min(sim.xs)), float(np.max(sim.xs))
+    rng = ev.stream(seed, 1)
+    xs = ev.in_chunks(lambda rows: simulate(prob.model, steps, paths=rows, rng=rng, m0=prob.m0, P0=prob.P0,
+                                            dt=prob.dt, substeps=10).xs, nruns)
+    lo, hi = float(np.min(xs)), float(np.max(xs))
     size = res.used("grid_size", QUICK["grid_size"] if quick else params["grid_size"])
-    grid = GridFilter(md, (lo - 1.0, hi + 1.0), size, dt=dt)
-    ests["optimal"] = grid.run(sim.ys, prob.m0, prob.P0, on_divergence="mark", progress=progress, chunk=ev.chunk())
-    _report(res, "state-noise", ests, sim.xs, ests["optimal"], slice(None))
+    ident = dict(kw, steps=steps, innovation=inn, seed=seed, size=size, bounds=[lo - 1.0, hi + 1.0])
+    xs, ests = _estimates(montecarlo("state-noise", partial(_state_noise_block, **ident), nruns, block=block,
+                                     ident=ident))
+    _report(res, "state-noise", ests, xs, ests["optimal"], slice(None))
     res.notes.append(f"state-noise: dx = -{params['sn_a']} x dt + ({params['sn_s0']} + {params['sn_s1']} x "
                      f"+ {params['sn_s2']} x²) dβ, dy = (x + {params['sn_c']} x²) dt + dη (r = "
-                     f"{params['sn_r']}), dt = {dt}, {steps} steps, {nruns} runs; innovation = {inn} "
+                     f"{params['sn_r']}), dt = {prob.dt}, {steps} steps, {nruns} runs; innovation = {inn} "
                      "(see ContinuousSecondOrderFilter); ekf = first-order form of the same integrator; ukf = discrete UKF on the Euler discretization; "
                      f"optimal = grid filter ({size} points, Kushner chain).")
 
 
-def _falling_body(res, params, nruns, rng, quick, progress):
+def _state_noise_block(rows, *, a, s0, s1, s2, c, r, dt, steps, innovation, seed, size, bounds):
+    """One Monte Carlo block of the state-noise problem (case 1 of ``seed``): the continuous
+    second-order forms, the UKF on the Euler discretization and the Kushner-chain grid filter."""
+    prob = pb.state_noise(a=a, s0=s0, s1=s1, s2=s2, c=c, r=r, dt=dt)
+    md = prob.model
+    sim = simulate(md, steps, paths=rows, rng=ev.stream(seed, 1), m0=prob.m0, P0=prob.P0, dt=dt, substeps=10)
+    filters = {"ekf": ContinuousSecondOrderFilter(md, dt, form="first-order", innovation=innovation),
+               **{f: ContinuousSecondOrderFilter(md, dt, form=f, innovation=innovation) for f in FORMS}}
+    ests = {k: _run(flt, sim.ys, prob.m0, prob.P0) for k, flt in filters.items()}
+    ests["ukf"] = _ukf_on_euler(md, dt, sim.ys, prob.m0, prob.P0)
+    ests["optimal"] = GridFilter(md, tuple(bounds), size, dt=dt).run(sim.ys, prob.m0, prob.P0, on_divergence="mark")
+    return _arrays(sim.xs, ests)
+
+
+def _falling_body(res, params, nruns, seed, quick, block):
     prob = pb.falling_body(r=params["fb_r"])
     steps = _steps(res, params, "falling-body", quick, prob.steps)
-    md, dt, sub = prob.model, prob.dt, params["fb_substeps"]
-    sim = ev.in_chunks(lambda rows: simulate_continuous_discrete(md, steps, paths=rows, rng=rng, x0=prob.x0, dt=dt,
-                                                                 substeps=sub), nruns)
-    xs, ys = sim.xs, sim.ys
-    mk = lambda form: ContinuousDiscreteSecondOrderFilter(md, dt, form=form, substeps=sub,  # noqa: E731
-                                                          start="predict")
-    filters = {"ekf": mk("first-order"), **{f: mk(f) for f in FORMS}}
-    ests = {k: _run(flt, ys, prob.m0, prob.P0) for k, flt in
-            tqdm(filters.items(), disable=not progress, desc="falling-body", leave=False)}
-    flow = lambda x, k=0: ode_step(md.f, x, k * dt, dt, substeps=sub, scheme="rk4")  # noqa: E731  RK4 flow map
-    ukf_model = DiscreteModel.from_functions(3, 1, flow, md.h, Q=np.zeros((3, 3)),
-                                             R=md.R, name="falling-body flow map")
-    ests["ukf"] = _run(UKF(ukf_model, start="predict"), ys, prob.m0, prob.P0)
+    sub = params["fb_substeps"]
     npf = res.used("fb_pf_runs", min(nruns, QUICK["fb_pf_runs"] if quick else params["fb_pf_runs"]))
     particles = res.used("fb_particles", QUICK["fb_particles"] if quick else params["fb_particles"])
-    pf = ResampleMoveParticleFilter(md, particles, dt=dt, substeps=sub, moves=2, scale=1.0, start="predict").run(
-        ys[:npf], prob.m0, prob.P0, rng=rng, on_divergence="mark", progress=progress, chunk=ev.chunk())
+    ident = {"r": params["fb_r"], "steps": steps, "substeps": sub, "seed": seed, "npf": npf, "particles": particles}
+    xs, ests = _estimates(montecarlo("falling-body", partial(_falling_body_block, **ident), nruns, block=block,
+                                     ident=ident))
+    pf = ests["optimal"] = ests["optimal"].take(slice(0, npf))
     acc = pf.extras["accepted"][:, -1].sum() / max(pf.extras["proposed"][:, -1].sum(), 1)
-    ests["optimal"] = pf
     _report(res, "falling-body", ests, xs, pf, slice(0, npf), late=True)
     res.notes.append(f"falling-body: Athans et al. (1968) as restated by Julier & Uhlmann: x0 = {prob.x0.tolist()}, "
                      f"prior m0 = {prob.m0.tolist()}, P0 = diag({np.diag(prob.P0).tolist()}), r = {params['fb_r']}, "
@@ -214,16 +235,71 @@ def _falling_body(res, params, nruns, rng, quick, progress):
                      "where the prior mean 3e-5 is far from the true 1e-3 until drag makes x3 observable).")
 
 
+def _falling_body_block(rows, *, r, steps, substeps, seed, npf, particles):
+    """One Monte Carlo block of the falling body (case 2 of ``seed``): the continuous-discrete
+    second-order forms, the UKF on the RK4 flow map, and on the rows among the first ``npf`` paths
+    the resample-move particle filter (each path's sub-stream ``streams.FILTER``: the same draws in
+    any block); its rows past ``npf`` are NaN and marked diverged."""
+    prob = pb.falling_body(r=r)
+    md, dt = prob.model, prob.dt
+    rng = ev.stream(seed, 2)
+    sim = simulate_continuous_discrete(md, steps, paths=rows, rng=rng, x0=prob.x0, dt=dt, substeps=substeps)
+    ys = sim.ys
+    mk = lambda form: ContinuousDiscreteSecondOrderFilter(md, dt, form=form, substeps=substeps,  # noqa: E731
+                                                          start="predict")
+    ests = {k: _run(mk(form), ys, prob.m0, prob.P0) for k, form in
+            {"ekf": "first-order", **{f: f for f in FORMS}}.items()}
+    flow = lambda x, k=0: ode_step(md.f, x, k * dt, dt, substeps=substeps, scheme="rk4")  # noqa: E731  RK4 flow map
+    ukf_model = DiscreteModel.from_functions(3, 1, flow, md.h, Q=np.zeros((3, 3)),
+                                             R=md.R, name="falling-body flow map")
+    ests["ukf"] = _run(UKF(ukf_model, start="predict"), ys, prob.m0, prob.P0)
+    k = max(0, min(rows.stop, npf) - rows.start)  # this block's paths of the particle reference
+    B, T = ys.shape[:2]
+    pf = Estimates(np.full((B, T, 3), np.nan), np.full((B, T, 3, 3), np.nan), np.ones(B, bool), np.zeros(B, int),
+                   {"accepted": np.zeros((B, T)), "proposed": np.zeros((B, T))})
+    if k:
+        got = ResampleMoveParticleFilter(md, particles, dt=dt, substeps=substeps, moves=2, scale=1.0,
+                                         start="predict").run(
+            ys[:k], prob.m0, prob.P0, rng=streams.PathRNG(rng, range(rows.start, rows.start + k), key=streams.FILTER),
+            on_divergence="mark")
+        pf = Estimates(*(np.concatenate([g, p[k:]]) for g, p in zip(got[:4], pf[:4])),
+                       {x: np.concatenate([got.extras[x], pf.extras[x][k:]]) for x in pf.extras})
+    ests["optimal"] = pf
+    return _arrays(sim.xs, ests)
+
+
 # -- helpers --------------------------------------------------------------------------------------
 def _run(flt, ys, m0, P0):
-    return flt.run(ys, m0, P0, on_divergence="mark", chunk=ev.chunk())
+    return flt.run(ys, m0, P0, on_divergence="mark")
+
+
+def _arrays(xs, ests) -> dict:
+    """A block's per-path arrays: the true states ``xs`` and every filter's Estimates (the extras
+    the report reads — the particle reference's move counts — included)."""
+    out = {"xs": xs}
+    for name, e in ests.items():
+        out.update({f"{name}:{f}": np.asarray(getattr(e, f)) for f in Estimates._fields[:4]})
+        out.update({f"{name}:extra:{x}": np.asarray(v) for x, v in e.extras.items() if x in ("accepted", "proposed")})
+    return out
+
+
+def _estimates(arrays) -> tuple:
+    """``(xs, {filter: Estimates})`` from the concatenated blocks of :func:`_arrays`."""
+    ests = {}
+    for key in arrays:
+        name, _, field = key.partition(":")
+        if field == "means":
+            ests[name] = Estimates(*(arrays[f"{name}:{f}"] for f in Estimates._fields[:4]),
+                                   {x.rpartition(":")[2]: v for x, v in arrays.items()
+                                    if x.startswith(f"{name}:extra:")})
+    return arrays["xs"], ests
 
 
 def _ukf_on_euler(md, dt, dys, m0, P0):
     """UKF on the Euler discretization, filtered at t_k with dy over [t_k, t_k+1], then predicted
     to t_k+1 (where ``Simulation.xs`` and the continuous filters are)."""
     flt = UKF(pb.euler_discretization(md, dt))
-    est = flt.run(dys / dt, m0, P0, on_divergence="mark", chunk=ev.chunk())
+    est = flt.run(dys / dt, m0, P0, on_divergence="mark")
     d = est.diverged
     safe = GaussianState(np.where(d[:, None, None], 0.0, est.means),
                          np.where(d[:, None, None, None], np.eye(md.n), est.covs))
