@@ -455,6 +455,24 @@ def test_bad_prior_is_refused_naming_the_argument(case):
 
 
 @pytest.mark.parametrize("case", CASES, ids=IDS)
+def test_complex_or_non_finite_input_is_refused_naming_the_argument(case):
+    """Complex ``ys``/``m0``/``P0`` (NumPy would drop the imaginary part with a warning) is a
+    TypeError, NaN in ``m0`` and NaN/inf in ``P0`` a ValueError, each naming the argument."""
+    d = case.data((2,), T, 1)
+    with pytest.raises(TypeError, match=r"^ys: expected real numbers, got complex128"):
+        case.run(d.astype(complex))
+    if case.own_prior:
+        return
+    m0, P0 = np.asarray(case.prior["m0"], float), np.asarray(case.prior["P0"], float)
+    for name, value, err in [("m0", m0 + 0j, TypeError), ("P0", P0 + 0j, TypeError),
+                             ("m0", np.full_like(m0, np.nan), ValueError),
+                             ("P0", np.full_like(P0, np.nan), ValueError),
+                             ("P0", np.where(np.eye(len(P0)) > 0, np.inf, P0), ValueError)]:
+        with pytest.raises(err, match=rf"^{name}\b"):
+            case.run(d, **{name: value})
+
+
+@pytest.mark.parametrize("case", CASES, ids=IDS)
 def test_unknown_options_are_refused_naming_the_option(case):
     options = list(case.options)
     for name, value in options:

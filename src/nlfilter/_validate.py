@@ -14,6 +14,8 @@ def as_float_array(name: str, value, *, ndim_min: int | None = None, ndim: int |
 
     ``shape_tail`` fixes the trailing axes (``None`` entries are free).
     """
+    if np.iscomplexobj(value):  # NumPy would drop the imaginary part with a mere ComplexWarning
+        raise TypeError(f"{name}: expected real numbers, got {np.asarray(value).dtype}")
     try:
         arr = np.asarray(value, dtype=float)
     except (TypeError, ValueError) as exc:
@@ -37,6 +39,16 @@ def finite(name: str, arr: np.ndarray, *, allow_nan: bool = False) -> np.ndarray
     if np.any(bad):
         raise ValueError(f"{name}: expected finite values, got {int(bad.sum())} non-finite entr(y/ies)")
     return arr
+
+
+def mean(name: str, value, n: int, **shape) -> np.ndarray:
+    """A mean vector: a real scalar (repeated ``n`` times) or an array ``(..., n)`` (``shape``:
+    further keywords of :func:`as_float_array`), finite."""
+    if np.ndim(value):
+        arr = as_float_array(name, value, shape_tail=(n,), **shape)
+    else:
+        arr = np.full(n, as_float_array(name, value)[()])
+    return finite(name, arr)
 
 
 def covariance(name: str, value, n: int | None = None, *, batch: bool = False,

@@ -284,9 +284,7 @@ def compare(model, filters, steps, *, paths=200, m0, P0, rng=0, reference="auto"
         _check_filter("reference", reference, model, dt, start)
     filters, skipped = _resolve(filters, given, model, dt, start)
     _check_filters(filters, model, dt, start, reference)
-    m0v = (V.as_float_array("m0", m0, ndim=1, shape_tail=(model.n,)) if np.ndim(m0)
-           else np.full(model.n, float(m0)))
-    V.finite("m0", m0v)
+    m0v = V.mean("m0", m0, model.n, ndim=1)
     P0m = V.covariance("P0", P0, model.n)
     root, seed = _streams(rng)
     if chunk is not None:

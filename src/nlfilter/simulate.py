@@ -46,7 +46,7 @@ def initial_states(n, paths, rng, *, m0=None, P0=None, x0=None, initial: NoiseLa
     ``x0``, or drawn per path (``shape`` draws each) from the law ``initial`` or N(m0, P0)."""
     P = len(rng) if isinstance(rng, PathRNG) else len(as_paths(paths))
     if x0 is not None:
-        x0 = V.as_float_array("x0", x0, shape_tail=(n,))
+        x0 = V.finite("x0", V.as_float_array("x0", x0, shape_tail=(n,)))
         return np.broadcast_to(x0, (P, *shape, n)).copy()
     if initial is not None:
         if not isinstance(initial, NoiseLaw) or initial.dim != n:
@@ -54,7 +54,7 @@ def initial_states(n, paths, rng, *, m0=None, P0=None, x0=None, initial: NoiseLa
         return PathRNG.of(rng, paths).sample(initial, shape)
     if m0 is None or P0 is None:
         raise ValueError("m0/P0: expected the prior mean and covariance (or x0, or initial), got None")
-    m0 = V.as_float_array("m0", m0, shape_tail=(n,)) if np.ndim(m0) else np.full(n, float(m0))
+    m0 = V.mean("m0", m0, n)
     return m0 + PathRNG.of(rng, paths).sample(Gaussian(V.covariance("P0", P0, n)), shape)
 
 

@@ -128,8 +128,7 @@ def gaussian_prior(m0, P0, n: int, batch: tuple, *, data: str = "ys", one: bool 
     refused; ``definite``: ``P0`` must be positive definite (a prior density)."""
     if m0 is None or P0 is None:
         raise ValueError(f"m0/P0: expected the prior mean and covariance, got m0={m0!r}, P0={P0!r}")
-    m0 = V.as_float_array("m0", m0, shape_tail=(n,)) if np.ndim(m0) else np.full(n, float(m0))
-    V.finite("m0", m0)
+    m0 = V.mean("m0", m0, n)
     P0 = V.covariance("P0", P0, n, batch=True)
     if one and (m0.ndim > 1 or P0.ndim > 2):
         raise ValueError(f"m0/P0: this filter takes one prior for all paths, shapes ({n},) and ({n}, {n}); "

@@ -49,7 +49,7 @@ def _prior(n, m0, P0, *, definite: bool = True):
     """One prior ``(m0 (n,), P0 (n, n))`` for all paths (the off-line gains depend on it); P0
     positive definite when ``definite`` (the statistical linearization inverts it)."""
     given = np.shape(m0)
-    m0 = V.as_float_array("m0", m0).reshape(-1) if np.ndim(m0) else np.full(n, float(m0))
+    m0 = V.as_float_array("m0", m0).reshape(-1) if np.ndim(m0) else V.mean("m0", m0, n)
     if m0.shape != (n,):
         raise ValueError(f"m0: the off-line gains need one prior mean of shape ({n},) for all paths, "
                          f"got shape {given}")

@@ -150,7 +150,7 @@ class ResampleMoveParticleFilter(Filter):
         if np.ndim(m0) > 1 or np.ndim(P0) > 2:
             raise ValueError(f"m0: the resample-move filter takes one prior ({n},), ({n}, {n}) for all paths, "
                              f"got shapes {np.shape(m0)}, {np.shape(P0)}")
-        m0 = V.as_float_array("m0", m0, shape_tail=(n,)) if np.ndim(m0) else np.full(n, float(m0))
+        m0 = V.mean("m0", m0, n)
         P0 = V.covariance("P0", P0, n)
         if not np.linalg.eigvalsh(P0)[0] > 1e-12 * max(1.0, float(np.max(np.abs(P0)))):
             raise ValueError(f"P0: the moves need the prior density, expected a positive definite matrix, "
