@@ -472,6 +472,18 @@ def test_complex_or_non_finite_input_is_refused_naming_the_argument(case):
             case.run(d, **{name: value})
 
 
+CONTINUOUS = [c for c in CASES if c.filter().time == "continuous"]
+
+
+@pytest.mark.parametrize("case", CONTINUOUS, ids=[c.name for c in CONTINUOUS])
+def test_non_finite_t0_is_refused_naming_it(case):
+    """``t0`` is a finite real time (NaN made the QLF's off-line solve hang)."""
+    d = case.data((2,), T, 1)
+    for t0, err in [(np.nan, ValueError), (np.inf, ValueError), (-np.inf, ValueError), (1j, TypeError)]:
+        with pytest.raises(err, match=r"^t0: expected a (finite )?real number"):
+            case.run(d, t0=t0)
+
+
 @pytest.mark.parametrize("case", CASES, ids=IDS)
 def test_unknown_options_are_refused_naming_the_option(case):
     options = list(case.options)

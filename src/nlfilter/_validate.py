@@ -79,6 +79,16 @@ def covariance(name: str, value, n: int | None = None, *, batch: bool = False,
     return arr
 
 
+def real(name: str, value) -> float:
+    """A finite real scalar (a time, an offset) as a float."""
+    if isinstance(value, bool) or not isinstance(value, (numbers.Real, np.ndarray)) or np.ndim(value):
+        raise TypeError(f"{name}: expected a real number, got {value!r}")
+    if np.iscomplexobj(value) or not np.isfinite(value):
+        raise (TypeError if np.iscomplexobj(value) else ValueError)(
+            f"{name}: expected a finite real number, got {value!r}")
+    return float(value)
+
+
 def positive(name: str, value, *, strict: bool = True, integer: bool = False):
     """A positive (or non-negative) scalar."""
     if integer:

@@ -458,7 +458,7 @@ class Filter:
         batch, T, m = ys.shape[:-2], ys.shape[-2], ys.shape[-1]
         B = math.prod(batch)
         yf = ys.reshape(B, T, m)
-        t0 = float(t0)
+        t0 = V.real("t0", t0)
         if self.time != "continuous" and t0 != 0.0:
             raise ValueError(f"t0: a discrete-time filter indexes steps by k; expected 0.0, got {t0!r}")
         if self.random:

@@ -324,7 +324,7 @@ class ContinuousDiscreteGaussianFilter(GaussianFilter):
         self.dt = float(V.positive("dt", dt))
         self.scheme = V.choice("scheme", scheme, {"rk4", "euler"})
         self.substeps = V.positive("substeps", substeps, integer=True)
-        self.t0 = float(t0)
+        self.t0 = V.real("t0", t0)
         self._set_rule(rule, by=by)
 
     def _time(self, k):

@@ -185,6 +185,7 @@ class OptimalLinearFilter(OfflineGainFilter):
         (RK4 of eqs. 2.37 and 2.43 with step ``dt/2``). Returns ``(X, P, K)`` of shapes
         ``(2T+1, N, N)``, ``(2T+1, N, N)``, ``(2T+1, N, m)``."""
         model = self.model
+        t0 = V.real("t0", t0)
         _, X, P = augmented_second_moment(model, m0, P0)
         h = self.dt / 2
 

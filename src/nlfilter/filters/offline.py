@@ -60,6 +60,7 @@ from typing import NamedTuple
 
 import numpy as np
 
+from .. import _validate as V
 from .base import Filter, ode_step
 from .linalg import symmetrize
 
@@ -204,7 +205,7 @@ class OfflineGainFilter(Filter):
         hz = self._horizon or (None, 0.0)
         steps = hz[0] if steps is None else steps
         t0 = hz[1] if t0 is None else t0
-        out = self.schedule(m0, P0, batch, steps, float(t0))
+        out = self.schedule(m0, P0, batch, steps, V.real("t0", t0))
         sch, z0, C0 = out[:3]
         B = int(np.prod(batch))
         N = z0.shape[-1]

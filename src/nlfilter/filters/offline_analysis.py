@@ -229,6 +229,7 @@ def gain_error_analysis(model, coefficients, m0, P0, steps: int, *, dt: float | 
                          f"{2 * n} variables (x, x̂)) has at most {MAX_ANALYSIS_MOMENTS} moments, got order={order} "
                          f"with {size}; lower the order")
     m0, P0 = _prior(n, m0, P0, definite=False)  # no linearization here: a known x(t0) is fine
+    t0 = V.real("t0", t0)
     xh0 = m0 if xhat0 is None else V.as_float_array("xhat0", xhat0, shape_tail=(n,)).reshape(n)
     V.finite("xhat0", xh0)
     idx = monomials(2 * n, order, min_degree=1)

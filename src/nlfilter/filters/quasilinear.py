@@ -307,6 +307,7 @@ class QuasilinearFilter(OfflineGainFilter, ContinuousFilter):
         """Solve the prior-moment and Riccati equations (003 eqs. 11, 17) on ``t0 .. t0 + steps·dt``."""
         m0, P0 = self._prior(m0, P0)
         V.positive("steps", steps, integer=True)
+        t0 = V.real("t0", t0)
         key = (m0.tobytes(), P0.tobytes(), int(steps), float(t0))
         if key in self._cache:
             return self._cache[key]

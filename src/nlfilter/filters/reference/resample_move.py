@@ -118,7 +118,7 @@ class ResampleMoveParticleFilter(Filter):
         if not 0.0 <= self.threshold <= 1.0:
             raise ValueError(f"threshold: expected a number in [0, 1], got {threshold!r}")
         self.start = V.choice("start", start, {"update", "predict"})
-        self.t0 = float(t0)
+        self.t0 = V.real("t0", t0)
         self._Rinv = np.linalg.inv(model.R)
 
     def _time(self, k):
