@@ -472,6 +472,23 @@ def test_complex_or_non_finite_input_is_refused_naming_the_argument(case):
             case.run(d, **{name: value})
 
 
+@pytest.mark.parametrize("case", CASES, ids=IDS)
+def test_empty_batch_is_refused_and_tiny_prior_named(case):
+    """An empty batch ``(0, T, m)`` is a ValueError naming ``ys`` for every filter; a numerically
+    singular prior (P0 = 1e-300 I) runs or is refused naming ``P0`` (never a raw LinAlgError)."""
+    d = case.data((2,), T, 1)
+    with pytest.raises(ValueError, match=r"^ys: expected at least one path, got shape \(0, "):
+        case.run(d[:0])
+    if not case.own_prior:
+        tiny = np.eye(len(np.asarray(case.prior["m0"]))) * 1e-300
+        try:
+            res = case.run(d, P0=tiny, on_divergence="mark")
+        except ValueError as e:
+            assert str(e).startswith("P0"), e
+        else:
+            assert res.means.shape == d.shape[:-1] + (res.means.shape[-1],)
+
+
 CONTINUOUS = [c for c in CASES if c.filter().time == "continuous"]
 
 

@@ -457,6 +457,8 @@ class Filter:
         ys = self.check_data(ys)
         batch, T, m = ys.shape[:-2], ys.shape[-2], ys.shape[-1]
         B = math.prod(batch)
+        if B == 0:  # an empty batch: refused alike by every filter (reductions over paths have no identity)
+            raise ValueError(f"ys: expected at least one path, got shape {ys.shape}")
         yf = ys.reshape(B, T, m)
         t0 = V.real("t0", t0)
         if self.time != "continuous" and t0 != 0.0:

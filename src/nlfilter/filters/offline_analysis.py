@@ -45,6 +45,9 @@ def _unit(n, i, k=1):
     return tuple(e)
 
 
+_DEFINITE = 1e-12  # relative floor of the prior's smallest variance (_prior)
+
+
 def _prior(n, m0, P0, *, definite: bool = True):
     """One prior ``(m0 (n,), P0 (n, n))`` for all paths (the off-line gains depend on it); P0
     positive definite when ``definite`` (the statistical linearization inverts it)."""
@@ -55,10 +58,15 @@ def _prior(n, m0, P0, *, definite: bool = True):
                          f"got shape {given}")
     V.finite("m0", m0)
     P0 = V.covariance("P0", P0, n)
-    low = float(np.linalg.eigvalsh(P0)[0])
-    if definite and not low > 0:  # a1 = E[f (x − m)ᵀ] K⁻¹ (003 eqs. 4-5) needs K(t0) = P0 invertible
+    w = np.linalg.eigvalsh(P0)
+    low = float(w[0])
+    # a1 = E[f (x − m)ᵀ] K⁻¹ (003 eqs. 4-5) needs K(t0) = P0 invertible, and K is recomputed from the
+    # raw moments (K = E xxᵀ − m mᵀ): below 1e-12 of E|x|² it is lost to cancellation
+    floor = _DEFINITE * float(m0 @ m0 + w[-1])
+    if definite and not low > floor:
         raise ValueError(f"P0: the statistical linearization (003 eqs. 4-5) needs a positive definite prior "
-                         f"covariance, got smallest eigenvalue {low:.3g}")
+                         f"covariance (smallest eigenvalue > {_DEFINITE:g} · (|m0|² + largest) = {floor:.3g}), "
+                         f"got smallest eigenvalue {low:.3g}")
     return m0, P0
 
 

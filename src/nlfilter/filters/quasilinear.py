@@ -46,6 +46,7 @@ prior pair (x[k], x̂⁻[k]), a polynomial map with time-varying coefficients dr
 
 from __future__ import annotations
 
+import time
 from dataclasses import dataclass
 
 import numpy as np
@@ -254,6 +255,38 @@ class _QLFSchedule(ContinuousSchedule):
         return self.A[i], self.b[i], self.H[i], self.d[i], self.Kg[i], self.Q[i], self.S
 
 
+OFFLINE_SECONDS = 30.0  # wall-clock bound of one off-line solve (a stiff or stalled solve is refused)
+OFFLINE_SCALE = 1e150  # bound of the prior moments and their rates: products of two stay finite in float64
+
+
+class _Stalled(Exception):
+    pass
+
+
+def _bounded_solve(rhs, t, y0, flt, m0, P0):
+    """``solve_ivp`` (LSODA, dense) of the QLF's off-line equations on the times ``t``, stopped with a
+    :class:`ClosureDivergedError` naming the prior when it takes more than :data:`OFFLINE_SECONDS`
+    (the same numbers as an unbounded solve otherwise)."""
+    deadline = time.monotonic() + OFFLINE_SECONDS
+    now = [float(t[0])]
+
+    def bounded(s, y):
+        now[0] = s
+        if time.monotonic() > deadline:
+            raise _Stalled
+        return rhs(s, y)
+
+    try:
+        return solve_ivp(bounded, (t[0], t[-1]), y0, method="LSODA", t_eval=t, dense_output=True,
+                         rtol=flt.rtol, atol=flt.atol)
+    except _Stalled:
+        raise ClosureDivergedError(
+            f"{flt.name}: the off-line moment/Riccati equations did not reach t = {t[-1]:.6g} within "
+            f"{OFFLINE_SECONDS:g} s (stalled at t = {now[0]:.6g}): the prior m0/P0 (max |m0| = "
+            f"{np.max(np.abs(m0)):.3g}, max |P0| = {np.max(np.abs(P0)):.3g}) or the horizon is too stiff for "
+            f"rtol={flt.rtol:g}, atol={flt.atol:g}", time=now[0]) from None
+
+
 class QuasilinearFilter(OfflineGainFilter, ContinuousFilter):
     """QLF / MQLF for an :class:`~nlfilter.models.SDEModel` (003 Theorem 4.1, eqs. 16-17).
 
@@ -321,10 +354,15 @@ class QuasilinearFilter(OfflineGainFilter, ContinuousFilter):
             dP = a1 @ P + P @ a1.T - P @ b1.T @ Rinv @ b1 @ P + sig  # 003 eq. 17
             return np.concatenate([lin.deriv(mu, t, c), dP.ravel()])
 
-        y0 = np.concatenate([lin.init(m0, P0), P0.ravel()])
+        with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
+            y0 = np.concatenate([lin.init(m0, P0), P0.ravel()])
+            size = max(np.max(np.abs(y0)), np.max(np.abs(rhs(t0, y0))))
+        if not size < OFFLINE_SCALE:  # LSODA would retry the first step for ever (P0 = 1e150: 6 P0² ~ 1e301)
+            raise ValueError(f"P0: the off-line moment/Riccati equations of this prior cannot be integrated in "
+                             f"float64: expected its moments and their rates below {OFFLINE_SCALE:g}, got "
+                             f"{size:.3g} (max |m0| = {np.max(np.abs(m0)):.3g}, max |P0| = {np.max(np.abs(P0)):.3g})")
         t = t0 + self.dt * np.arange(steps + 1)
-        sol = solve_ivp(rhs, (t[0], t[-1]), y0, method="LSODA", t_eval=t, dense_output=True,
-                        rtol=self.rtol, atol=self.atol)
+        sol = _bounded_solve(rhs, t, y0, self, m0, P0)
         if sol.status != 0 or not np.all(np.isfinite(sol.y)):
             raise ClosureDivergedError(f"{self.name}: the off-line moment/Riccati equations failed at "
                                        f"t = {sol.t[-1]:.6g}: {sol.message}", time=float(sol.t[-1]))

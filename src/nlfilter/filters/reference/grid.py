@@ -190,10 +190,12 @@ class GridFilter(_ReferenceFilter):
         else:
             prior = gaussian_prior(m0, P0, self.model.n, (), one=True)
             m0, P0 = prior.mean[0], prior.cov[0]
-            if not np.linalg.eigvalsh(P0)[0] > 0:
-                raise ValueError("P0: the grid filter needs a prior density (positive definite P0), got a "
-                                 "singular covariance; pass initial= for another law")
-            logp = Gaussian(P0).logpdf(self.X - m0)
+            law = Gaussian(P0)
+            if law._singular:  # the test of Gaussian.logpdf, named here
+                raise ValueError(f"P0: the grid filter needs a prior density (positive definite P0: smallest "
+                                 f"eigenvalue > 1e-14 · max(1, largest)), got smallest eigenvalue "
+                                 f"{np.linalg.eigvalsh(P0)[0]:.3g}; pass initial= for another law")
+            logp = law.logpdf(self.X - m0)
         p = np.exp(logp - np.max(logp))
         if not np.isfinite(p).all() or p.sum() <= 0:
             raise ValueError("m0/P0: the prior has no mass on the grid; widen bounds")
