@@ -50,3 +50,116 @@ def test_non_finite_t0_of_the_qlf_is_refused(t0):
 def test_numerically_singular_prior_of_the_qlf_names_P0():
     refused(lambda: QLF(CUBIC, 0.01).run(DYS, m0=[0.5], P0=[[1e-300]]), ValueError,
             r"^P0: the statistical linearization .* positive definite .*got smallest eigenvalue 1e-300")
+
+
+# -- simulate: refused up front, screened while running, valid runs bitwise unchanged --------------
+import hashlib  # noqa: E402
+
+from nlfilter import DiscreteModel, problems  # noqa: E402
+from nlfilter.errors import DivergenceError  # noqa: E402
+from nlfilter.simulate import simulate, simulate_continuous_discrete, simulate_ou, simulate_phase  # noqa: E402
+
+D1 = DiscreteModel([x], [0.9 * x - 0.05 * x**3], [x + 0.1 * x**2], Q=0.1, R=0.2)
+S1 = SDEModel([x], [-x**3], [x], Q=0.5, R=0.1)
+CUBE = DiscreteModel([x], [x**3], [x], Q=0.1, R=0.2)
+DOUBLE = DiscreteModel([x], [2 * x], [x], Q=0.1, R=0.2)
+FALL = problems.falling_body()
+
+BAD_SIMULATIONS = [  # (call, exception, message)
+    (lambda: simulate(D1, 3, m0=np.nan, P0=1.0), ValueError, r"^m0: expected finite values"),
+    (lambda: simulate(D1, 3, m0=0.0j, P0=1.0), TypeError, r"^m0: expected real numbers, got complex128"),
+    (lambda: simulate(D1, 3, m0=[0.0], P0=[[1.0 + 0j]]), TypeError, r"^P0: expected real numbers, got complex"),
+    (lambda: simulate(D1, 3, m0=0.0, P0=[[np.inf]]), ValueError, r"^P0: expected finite values"),
+    (lambda: simulate(D1, 3, x0=[np.inf]), ValueError, r"^x0: expected finite values"),
+    (lambda: simulate(D1, 3, x0=[1j]), TypeError, r"^x0: expected real numbers, got complex128"),
+    (lambda: simulate(S1, 3, m0=0.0, P0=1.0, dt=0.1, t0=np.nan), ValueError, r"^t0: expected a finite real number"),
+    (lambda: simulate_continuous_discrete(FALL.model, 3, x0=FALL.x0, dt=FALL.dt, t0=np.inf), ValueError,
+     r"^t0: expected a finite real number"),
+    (lambda: simulate(D1, 2.5, m0=0.0, P0=1.0), TypeError, r"^steps: expected an integer, got 2.5"),
+    (lambda: simulate(D1, 3, paths=2.5, m0=0.0, P0=1.0), TypeError, r"^paths: expected a positive integer"),
+    (lambda: simulate(D1, 3, paths=0, m0=0.0, P0=1.0), ValueError, r"^paths: expected a positive number"),
+    (lambda: simulate(S1, 3, m0=0.0, P0=1.0, dt=0.1, substeps=2.5), TypeError, r"^substeps: expected an integer"),
+    (lambda: simulate(D1, 10**9, paths=10, m0=0.0, P0=1.0), ValueError,
+     r"^steps/paths: steps=1000000000 × paths=10 .* would need 298 GiB, more than the 8 GiB bound"),
+    (lambda: simulate_ou(1.0, 1.0, 0.1, 10**9, 10, 0), ValueError, r"^steps/paths: .* GiB"),
+    (lambda: simulate_phase(np.nan, 1.0, 0.1, 5, 3, 0), ValueError, r"^q: expected a positive number"),
+    (lambda: simulate_phase(1.0, 1.0, 0.1, 5, 3, 0, theta0=np.inf), ValueError, r"^theta0: expected finite"),
+    (lambda: simulate(D1, 3, m0=0.0, P0=1.0, on_divergence="ignore"), ValueError, r"^on_divergence: expected one of"),
+]
+
+
+@pytest.mark.parametrize("call,err,pattern", BAD_SIMULATIONS, ids=range(len(BAD_SIMULATIONS)))
+def test_bad_simulation_input_is_refused_naming_the_argument(call, err, pattern):
+    refused(call, err, pattern)
+
+
+DIVERGING = {  # name: (simulate with on_divergence=..., first step of each path)
+    "cubic map from 1e200": (lambda **k: simulate(CUBE, 5, paths=3, rng=0, x0=[1e200], **k), [1, 1, 1]),
+    "x[k+1] = 2 x[k] + w over 1100 steps": (
+        lambda **k: simulate(DOUBLE, 1100, paths=3, rng=0, m0=0.0, P0=1.0, **k), [1024, 1026, 1024]),
+    "Euler step too large for -x^3": (
+        lambda **k: simulate(S1, 20, paths=4, rng=0, m0=0.0, P0=4.0, dt=1.0, substeps=1, **k), [5, 6, 6, 6]),
+    "continuous-discrete from 1e200": (
+        lambda **k: simulate_continuous_discrete(S1, 5, paths=2, rng=0, x0=[1e200], dt=0.1, **k), [0, 0]),
+    "OU through an h that overflows": (
+        lambda **k: simulate_ou(1.0, 1.0, 0.1, 5, 3, 0, h=lambda v: np.where(v > 0, np.inf, v), **k), None),
+}
+
+
+@pytest.mark.parametrize("name", DIVERGING)
+def test_simulation_that_overflows_raises_or_marks(name):
+    call, first = DIVERGING[name]
+    with pytest.raises(DivergenceError, match=r"became non-finite at step \d+ on \d+ path\(s\), first \[") as e:
+        call()
+    sim = call(on_divergence="mark")
+    d, k = sim.diverged, sim.diverged_step
+    assert e.value.step == k[d].min()
+    if first is not None:
+        assert d.all() and k.tolist() == first
+    for p in np.flatnonzero(d):  # NaN from the step on, finite before: never a silent inf
+        assert np.isnan(sim.xs[p, k[p]:]).all() and np.isnan(sim.ys[p, k[p]:]).all()
+        assert np.isfinite(sim.xs[p, :k[p]]).all() and np.isfinite(sim.ys[p, :k[p]]).all()
+    assert not np.isinf(sim.xs).any() and not np.isinf(sim.ys).any()
+
+
+def test_marked_paths_leave_the_others_unchanged():
+    """A diverging path (x0 = 1e200) beside valid ones: they are the rows of a run without it."""
+    x0 = np.array([[0.1], [1e200], [0.3]])
+    sim = simulate(CUBE, 6, paths=3, rng=1, x0=x0, on_divergence="mark")
+    assert sim.diverged.tolist() == [False, True, False] and sim.diverged_step.tolist() == [-1, 1, -1]
+    for p in (0, 2):
+        alone = simulate(CUBE, 6, paths=range(p, p + 1), rng=1, x0=x0[p])
+        np.testing.assert_array_equal(sim.xs[p], alone.xs[0])
+        np.testing.assert_array_equal(sim.ys[p], alone.ys[0])
+
+
+def _digest(*arrays):
+    h = hashlib.sha256()
+    for a in arrays:
+        h.update(np.ascontiguousarray(a).tobytes())
+    return h.hexdigest()[:32]
+
+
+# computed with the simulators before issue 15 (commit 00edc0f): screening changes no valid number
+REFERENCE = {
+    "discrete": (lambda: simulate(D1, 7, paths=3, rng=1, m0=0.2, P0=0.5), "75d17c3790a74973952897759c8390b3"),
+    "discrete_predict": (lambda: simulate(D1, 7, paths=3, rng=1, m0=0.2, P0=0.5, start="predict"),
+                         "d6530be0aa4e090acb0433bba086eca0"),
+    "sde": (lambda: simulate(S1, 7, paths=3, rng=2, m0=0.2, P0=0.5, dt=0.05, substeps=3),
+            "a06e15a27182b5be252245395714825f"),
+    "sde_range": (lambda: simulate(S1, 5, paths=range(2, 4), rng=2, x0=[0.3], dt=0.05),
+                  "5d011beab063a50b7e7f2692cd5d96c2"),
+    "phase": (lambda: simulate_phase(1.0, 0.5, 0.05, 6, 3, np.random.default_rng(3)), "f8c123c38a4018a3498f73e143a15dc0"),
+    "ou": (lambda: simulate_ou(2.0, 1.0, 0.01, 6, 3, np.random.default_rng(4)), "97d5e0ef946583754cb3a2050756e26f"),
+    "cd": (lambda: simulate_continuous_discrete(FALL.model, 4, paths=2, rng=5, x0=FALL.x0, dt=FALL.dt),
+           "f3590d92090dc51fd367f26d5fbd6e59"),
+}
+
+
+@pytest.mark.parametrize("name", REFERENCE)
+def test_valid_simulations_are_bitwise_unchanged(name):
+    call, digest = REFERENCE[name]
+    out = call()
+    assert _digest(*out) == digest
+    if hasattr(out, "diverged"):
+        assert not out.diverged.any() and (out.diverged_step == -1).all()

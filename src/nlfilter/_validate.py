@@ -89,6 +89,16 @@ def real(name: str, value) -> float:
     return float(value)
 
 
+MEMORY_BOUND = 8 * 2 ** 30  # bytes: a run or simulation that would allocate more is refused up front
+
+
+def memory(name: str, nbytes: float, what: str) -> None:
+    """Refuse, naming ``name``, a call whose arrays (``what``) would take more than :data:`MEMORY_BOUND`."""
+    if nbytes > MEMORY_BOUND:
+        raise ValueError(f"{name}: {what} would need {nbytes / 2 ** 30:.3g} GiB, more than the "
+                         f"{MEMORY_BOUND / 2 ** 30:g} GiB bound; expected fewer (or run them in chunks)")
+
+
 def positive(name: str, value, *, strict: bool = True, integer: bool = False):
     """A positive (or non-negative) scalar."""
     if integer:

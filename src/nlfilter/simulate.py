@@ -18,11 +18,13 @@ over processes.
 
 from __future__ import annotations
 
+import math
 from typing import NamedTuple
 
 import numpy as np
 
 from . import _validate as V
+from .errors import DivergenceError
 from .noise import Gaussian, NoiseLaw
 from .streams import PathRNG, as_paths
 
@@ -31,12 +33,65 @@ _BLOCK = 2 ** 20  # SDE simulators: standard normals drawn per block of steps (b
 
 class Simulation(NamedTuple):
     """``xs (paths, T, n)``, ``ys (paths, T, m)`` (increments ``dy`` for SDEs), ``x0 (paths, n)``,
-    ``t (T,)`` the times (step indices for discrete models) of ``xs``."""
+    ``t (T,)`` the times (step indices for discrete models) of ``xs``.
+
+    A path whose state or measurement became non-finite (``on_divergence="mark"`` of the
+    simulators) has NaN ``xs`` and ``ys`` from that step on: :attr:`diverged` and
+    :attr:`diverged_step` read them back."""
 
     xs: np.ndarray
     ys: np.ndarray
     x0: np.ndarray
     t: np.ndarray
+
+    @property
+    def diverged(self) -> np.ndarray:
+        """``(paths,)`` bool: the paths marked as diverged (NaN states)."""
+        return np.isnan(self.xs).any(axis=(-2, -1))
+
+    @property
+    def diverged_step(self) -> np.ndarray:
+        """``(paths,)`` int: the first step of a diverged path (NaN from it on), −1 elsewhere."""
+        nan = np.isnan(self.xs).any(axis=-1)
+        return np.where(nan.any(axis=-1), nan.argmax(axis=-1), -1)
+
+
+class _Screen:
+    """The divergence screen of a simulation (``on_divergence``): a state or measurement that became
+    non-finite raises a :class:`~nlfilter.errors.DivergenceError` naming the step and the paths, or
+    (``"mark"``) the path is recorded, goes on harmlessly from its initial state, and its ``xs``/``ys``
+    are NaN from that step on (:meth:`finish`). One finite-sum test per check when all is well."""
+
+    def __init__(self, on_divergence, rng, name):
+        self.on = V.choice("on_divergence", on_divergence, {"raise", "mark"})
+        self.paths, self.name = rng.paths, name
+        self.step = np.full(len(rng), -1)
+
+    def check(self, k, *arrays, x=None, restart=None):
+        """Screen step ``k`` of the ``(P, ...)`` arrays; return ``x`` with the diverged paths restarted."""
+        if all(math.isfinite(np.add.reduce(a, axis=None)) for a in arrays):
+            return x
+        P = self.step.size
+        bad = np.zeros(P, bool)
+        for a in arrays:
+            bad |= ~np.isfinite(a.reshape(P, -1)).all(axis=1)
+        new = bad & (self.step < 0)
+        if new.any():
+            idx = np.flatnonzero(new)
+            if self.on == "raise":
+                first = [self.paths[i] for i in idx[:5]]
+                raise DivergenceError(
+                    f"{self.name}: the simulated state or measurement became non-finite at step {k} on {idx.size} "
+                    f"path(s), first {first}; pass on_divergence='mark' to record such paths (NaN from that "
+                    "step on) and go on", step=k, paths=[self.paths[i] for i in idx], what="state")
+            self.step[new] = k
+        return x if x is None else np.where(bad[:, None], restart, x)
+
+    def finish(self, xs, ys):
+        """NaN in ``xs``, ``ys`` of the diverged paths from their step on."""
+        for p in np.flatnonzero(self.step >= 0):
+            xs[p, self.step[p]:] = np.nan
+            ys[p, self.step[p]:] = np.nan
 
 
 def initial_states(n, paths, rng, *, m0=None, P0=None, x0=None, initial: NoiseLaw | None = None,
@@ -58,13 +113,23 @@ def initial_states(n, paths, rng, *, m0=None, P0=None, x0=None, initial: NoiseLa
     return m0 + PathRNG.of(rng, paths).sample(Gaussian(V.covariance("P0", P0, n)), shape)
 
 
-def _start(model, steps, paths, rng, m0, P0, x0, initial):
+def _start(model, steps, paths, rng, m0, P0, x0, initial, width=0):
     """Checked sizes, the per-path generators, the initial states (each path's first draw) and
-    their copy, and the state buffer ``(P, steps, n)`` of a simulation."""
-    V.positive("steps", steps, integer=True)
+    their copy, and the state buffer ``(P, steps, n)`` of a simulation (``width``: the numbers
+    per path and step besides the states, for the memory bound)."""
+    _sizes(steps, paths, model.n + width)
     rng = PathRNG.of(rng, paths)
     x = initial_states(model.n, paths, rng, m0=m0, P0=P0, x0=x0, initial=initial)
     return rng, x, x.copy(), np.empty((len(rng), steps, model.n))
+
+
+def _sizes(steps, paths, width):
+    """``steps`` and ``paths`` checked, and the ``paths × steps × width`` float64 numbers of the
+    outputs and noises bounded (:data:`~nlfilter._validate.MEMORY_BOUND`), before any draw."""
+    V.positive("steps", steps, integer=True)
+    P = len(paths) if isinstance(paths, PathRNG) else len(as_paths(paths))
+    V.memory("steps/paths", 8.0 * P * steps * width,
+             f"steps={steps} × paths={P} ({width} number(s) per path and step: states, measurements, noises)")
 
 
 def _path_rows(model, rng, paths):
@@ -94,7 +159,7 @@ def _blocks(steps, paths, width):
 
 def simulate(model, steps: int, *, paths: int | range = 1, rng=None, m0=None, P0=None, x0=None,
              initial: NoiseLaw | None = None, start: str = "update", dt: float | None = None,
-             substeps: int = 10, t0: float = 0.0) -> Simulation:
+             substeps: int = 10, t0: float = 0.0, on_divergence: str = "raise") -> Simulation:
     """Simulate ``paths`` trajectories of ``steps`` measurement steps.
 
     Parameters
@@ -115,6 +180,11 @@ def simulate(model, steps: int, *, paths: int | range = 1, rng=None, m0=None, P0
     start : discrete models only, ``"update"`` or ``"predict"`` (see :mod:`nlfilter.filters.base`)
     dt, substeps, t0 : SDE models only: measurement step, Euler–Maruyama steps per measurement
         step, initial time
+    on_divergence : ``"raise"`` (default): a state or measurement that becomes non-finite (an
+        unstable map, an Euler step too large for the drift) raises a
+        :class:`~nlfilter.errors.DivergenceError` naming the step and the paths; ``"mark"``: such a
+        path has NaN ``xs``/``ys`` from that step on (:attr:`Simulation.diverged`,
+        :attr:`Simulation.diverged_step`), the other paths are unchanged
 
     A state-dependent measurement noise (``R_of``) draws ``v_k = L(x_k) z_k``, ``L Lᵀ = R(x_k)``
     (Cholesky), ``z_k`` standard normal in the place of the measurement noise. Correlated noise
@@ -135,10 +205,22 @@ def simulate(model, steps: int, *, paths: int | range = 1, rng=None, m0=None, P0
     >>> sim.xs.shape, sim.ys.shape, sim.t.round(2).tolist()
     ((3, 5, 1), (3, 5, 1), [0.1, 0.2, 0.3, 0.4, 0.5])
     """
-    rng, x, x_init, xs = _start(model, steps, paths, rng, m0, P0, x0, initial)
+    t0 = V.real("t0", t0)
+    V.choice("on_divergence", on_divergence, {"raise", "mark"})
+    rng, x, x_init, xs = _start(model, steps, paths, rng, m0, P0, x0, initial,
+                                width=2 * getattr(model, "m", 0) + getattr(model, "r", 0))
+    screen = _Screen(on_divergence, rng, "simulate")
     model = _path_rows(model, rng, paths)
     m, paths = model.m, len(rng)
     ys = np.empty((paths, steps, m))
+    with np.errstate(over="ignore", invalid="ignore", divide="ignore"):  # what overflows is screened
+        sim = _simulate(model, steps, paths, rng, x, x_init, xs, ys, m, start, dt, substeps, t0, screen)
+    screen.finish(sim.xs, sim.ys)
+    return sim
+
+
+def _simulate(model, steps, paths, rng, x, x_init, xs, ys, m, start, dt, substeps, t0, screen):
+    """The loops of :func:`simulate`, its checks done."""
     if model.kind == "discrete":
         if dt is not None:
             raise ValueError(f"dt: a DiscreteModel has no time step; expected None, got {dt!r}")
@@ -156,12 +238,14 @@ def simulate(model, steps: int, *, paths: int | range = 1, rng=None, m0=None, P0
             if k > 0 or offset:
                 j = k + offset - 1
                 x = model.transition(x, w[:, k], j)
+                x = screen.check(k, x, x=x, restart=x_init)
             xs[:, k] = x
             vk = v[:, k]
             if Rx:  # R(x_k) = L Lᵀ (R_of raises where it is not positive definite)
                 vk = np.einsum("...ij,...j->...i", np.linalg.cholesky(model.R_of(x, k + offset)), vk)
             ys[:, k] = (model.h(x, k + offset) + vk if getattr(model, "additive_measurement", True)
                         else model.measurement(x, vk, k + offset))
+            screen.check(k, ys[:, k])
         return Simulation(xs, ys, x_init, np.arange(steps) + offset)
     if model.kind != "sde":
         raise TypeError(f"model: expected a DiscreteModel or SDEModel, got {type(model).__name__}")
@@ -186,6 +270,7 @@ def simulate(model, steps: int, *, paths: int | range = 1, rng=None, m0=None, P0
                 x = x + model.f(x, s) * h + model.Gw(x, dB[:, j], s)
             xs[:, k] = x
             ys[:, k] = ydt + z[:, k - k0, substeps * r:] @ LR.T * np.sqrt(dt)
+            x = screen.check(k, x, ys[:, k], x=x, restart=x_init)
     return Simulation(xs, ys, x_init, t0 + dt * np.arange(1, steps + 1))
 
 
@@ -198,11 +283,17 @@ def simulate_phase(q: float, r: float, dt: float, steps: int, paths: int | range
     ``dn ~ N(0, 2 r dt I)`` (001 eq. 4.14). θ0 uniform on the circle unless ``theta0`` is given.
     ``paths``, ``rng``: as :func:`simulate`. Draws of a path: θ0, then per step the ``substeps``
     normals of θ, then the 2 of ``dn``."""
-    V.positive("steps", steps, integer=True)
+    for nm, v in (("q", q), ("r", r), ("dt", dt)):
+        V.positive(nm, v)
+    _sizes(steps, paths, 3)
     V.positive("substeps", substeps, integer=True)
     rng = PathRNG.of(rng, paths)
     paths = len(rng)
     h = dt / substeps
+    if theta0 is not None:
+        theta0 = V.finite("theta0", V.as_float_array("theta0", theta0))
+        if theta0.ndim > 1 or theta0.size not in (1, paths):
+            raise ValueError(f"theta0: expected a number or one per path ({paths},), got shape {theta0.shape}")
     th = rng.uniform(-np.pi, np.pi, ()) if theta0 is None else np.broadcast_to(theta0, (paths,)).astype(float)
     thetas = np.empty((paths, steps))
     dzs = np.empty((paths, steps, 2))
@@ -225,7 +316,7 @@ def simulate_phase(q: float, r: float, dt: float, steps: int, paths: int | range
 
 
 def simulate_ou(q: float, r: float, dt: float, steps: int, paths: int | range, rng, *, h=None, rate: float = 1.0,
-                substeps: int = 4) -> Simulation:
+                substeps: int = 4, on_divergence: str = "raise") -> Simulation:
     """A stationary Ornstein–Uhlenbeck state ``dx = −rate · x dt + dw`` (``E dw² = q dt``) seen
     through ``dy = h(x) dt + dv`` (``E dv² = r dt``; ``h`` a vectorized function, default the
     cubic sensor's ``x³``, seed 001 eqs. 5.1-5.4), as a :class:`Simulation` (``xs (paths, steps, 1)``
@@ -233,7 +324,7 @@ def simulate_ou(q: float, r: float, dt: float, steps: int, paths: int | range, r
     transition on ``substeps`` sub-intervals (no Euler bias in the state), ``∫ h(x) dt`` by the
     trapezoidal rule on them; ``x0 ~ N(0, q / (2 rate))``, the stationary law. ``paths``, ``rng``:
     as :func:`simulate`. Draws of a path: ``x0``, then per step the ``substeps`` transitions and
-    the measurement noise.
+    the measurement noise. ``on_divergence``: as :func:`simulate` (an ``h`` that overflows).
 
     >>> sim = simulate_ou(2.0, 1.0, 0.01, 5, 3, np.random.default_rng(0))
     >>> sim.xs.shape, sim.ys.shape, sim.x0.shape
@@ -241,9 +332,11 @@ def simulate_ou(q: float, r: float, dt: float, steps: int, paths: int | range, r
     """
     for nm, v in (("q", q), ("r", r), ("dt", dt), ("rate", rate)):
         V.positive(nm, v)
-    V.positive("steps", steps, integer=True)
+    _sizes(steps, paths, 2)
     V.positive("substeps", substeps, integer=True)
+    V.choice("on_divergence", on_divergence, {"raise", "mark"})
     rng = PathRNG.of(rng, paths)
+    screen = _Screen(on_divergence, rng, "simulate_ou")
     paths = len(rng)
     if h is None:
         h = lambda x: x ** 3  # noqa: E731
@@ -255,22 +348,26 @@ def simulate_ou(q: float, r: float, dt: float, steps: int, paths: int | range, r
     x0 = x.copy()
     xs = np.empty((paths, steps))
     dys = np.empty((paths, steps, 1))
-    for k0, k1 in _blocks(steps, paths, substeps + 1):
-        z = rng.standard_normal((k1 - k0, substeps + 1))
-        for k in range(k0, k1):
-            acc = np.zeros(paths)
-            for j in range(substeps):
-                xn = a * x + sd * z[:, k - k0, j]
-                acc += 0.5 * dh * (h(x) + h(xn))
-                x = xn
-            xs[:, k] = x
-            dys[:, k, 0] = acc + np.sqrt(r * dt) * z[:, k - k0, substeps]
-    return Simulation(xs[..., None], dys, x0[:, None], dt * np.arange(1, steps + 1))
+    with np.errstate(over="ignore", invalid="ignore"):  # what overflows is screened
+        for k0, k1 in _blocks(steps, paths, substeps + 1):
+            z = rng.standard_normal((k1 - k0, substeps + 1))
+            for k in range(k0, k1):
+                acc = np.zeros(paths)
+                for j in range(substeps):
+                    xn = a * x + sd * z[:, k - k0, j]
+                    acc += 0.5 * dh * (h(x) + h(xn))
+                    x = xn
+                xs[:, k] = x
+                dys[:, k, 0] = acc + np.sqrt(r * dt) * z[:, k - k0, substeps]
+                screen.check(k, dys[:, k])
+    sim = Simulation(xs[..., None], dys, x0[:, None], dt * np.arange(1, steps + 1))
+    screen.finish(sim.xs, sim.ys)
+    return sim
 
 
 def simulate_continuous_discrete(model, steps: int, *, paths: int | range = 1, rng=None, m0=None, P0=None, x0=None,
                                  initial: NoiseLaw | None = None, dt: float, substeps: int = 20,
-                                 t0: float = 0.0) -> Simulation:
+                                 t0: float = 0.0, on_divergence: str = "raise") -> Simulation:
     """An :class:`~nlfilter.models.SDEModel` with *discrete* measurements (the continuous-discrete
     setting of :class:`~nlfilter.filters.second_order.ContinuousDiscreteSecondOrderFilter`: the
     model's ``h``/``R`` read as ``y_k = h(x(t_k)) + v_k``, ``v_k ~ N(0, R)``, ``t_k = t0 + k dt``,
@@ -281,7 +378,7 @@ def simulate_continuous_discrete(model, steps: int, *, paths: int | range = 1, r
     Returns a :class:`Simulation` with ``xs[:, k] = x(t_{k+1})``, ``ys[:, k]`` its measurement.
     ``paths``, ``rng``: as :func:`simulate`. Draws of a path: its initial state (unless ``x0``),
     the ``steps × r`` standard normals of the process noise (only when ``Q ≠ 0``), then the
-    ``steps × m`` of the measurement noise.
+    ``steps × m`` of the measurement noise. ``on_divergence``: as :func:`simulate`.
 
     >>> from nlfilter import problems
     >>> p = problems.falling_body()
@@ -295,7 +392,10 @@ def simulate_continuous_discrete(model, steps: int, *, paths: int | range = 1, r
         raise TypeError(f"model: expected an SDEModel (continuous dynamics), got {type(model).__name__}")
     dt = float(V.positive("dt", dt))
     V.positive("substeps", substeps, integer=True)
-    rng, x, x_init, xs = _start(model, steps, paths, rng, m0, P0, x0, initial)
+    t0 = V.real("t0", t0)
+    V.choice("on_divergence", on_divergence, {"raise", "mark"})
+    rng, x, x_init, xs = _start(model, steps, paths, rng, m0, P0, x0, initial, width=2 * model.m + model.r)
+    screen = _Screen(on_divergence, rng, "simulate_continuous_discrete")
     model = _path_rows(model, rng, paths)
     m, paths = model.m, len(rng)
     noisy = np.any(model.Q != 0)
@@ -303,15 +403,17 @@ def simulate_continuous_discrete(model, steps: int, *, paths: int | range = 1, r
     SQ = Gaussian(model.Q * dt)._sqrt  # Q dt = SQ SQᵀ (Q may be singular)
     w, v = rng.draw(lambda g, s: (g.standard_normal((*s, model.r)) if noisy else np.empty((*s, 0)),
                                   g.standard_normal((*s, m))), (steps,))
-    for k in range(steps):
-        tk = t0 + k * dt
-        x = ode_step(model.f, x, tk, dt, substeps=substeps, scheme="rk4")
-        if noisy:
-            x = x + np.einsum("pia,pa->pi", model.G(x, tk), w[:, k] @ SQ.T)
-        xs[:, k] = x
     v = v @ L.T
     t = t0 + dt * np.arange(1, steps + 1)
     ys = np.empty((paths, steps, m))
-    for k in range(steps):
-        ys[:, k] = model.h(xs[:, k], t[k]) + v[:, k]
+    with np.errstate(over="ignore", invalid="ignore", divide="ignore"):  # what overflows is screened
+        for k in range(steps):
+            tk = t0 + k * dt
+            x = ode_step(model.f, x, tk, dt, substeps=substeps, scheme="rk4")
+            if noisy:
+                x = x + np.einsum("pia,pa->pi", model.G(x, tk), w[:, k] @ SQ.T)
+            xs[:, k] = x
+            ys[:, k] = model.h(xs[:, k], t[k]) + v[:, k]
+            x = screen.check(k, x, ys[:, k], x=x, restart=x_init)
+    screen.finish(xs, ys)
     return Simulation(xs, ys, x_init, t)

@@ -95,7 +95,10 @@ def as_paths(paths) -> range:
         if paths.step != 1 or paths.start < 0 or len(paths) == 0:
             raise ValueError(f"paths: expected a non-empty range of path indices with step 1 from >= 0, got {paths!r}")
         return paths
-    if isinstance(paths, bool) or not isinstance(paths, numbers.Integral) or paths < 1:
+    if isinstance(paths, bool) or not isinstance(paths, numbers.Integral):
+        raise TypeError(f"paths: expected a positive integer number of paths or a range of path indices, "
+                        f"got {paths!r}")
+    if paths < 1:
         raise ValueError(f"paths: expected a positive number of paths or a range of path indices, got {paths!r}")
     return range(int(paths))
 

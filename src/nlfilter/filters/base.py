@@ -459,6 +459,9 @@ class Filter:
         B = math.prod(batch)
         if B == 0:  # an empty batch: refused alike by every filter (reductions over paths have no identity)
             raise ValueError(f"ys: expected at least one path, got shape {ys.shape}")
+        n = self.state_dim
+        V.memory("ys", 8.0 * B * T * (n + n * n), f"{B} path(s) × {T} step(s) of estimates (means and covariances "
+                 f"of dimension {n})")
         yf = ys.reshape(B, T, m)
         t0 = V.real("t0", t0)
         if self.time != "continuous" and t0 != 0.0:
