@@ -163,3 +163,80 @@ def test_valid_simulations_are_bitwise_unchanged(name):
     assert _digest(*out) == digest
     if hasattr(out, "diverged"):
         assert not out.diverged.any() and (out.diverged_step == -1).all()
+
+
+# -- evaluate: a NaN truth or an empty batch is refused, never a NaN summary -----------------------
+from nlfilter.evaluate import mse, mse_per_step, nees, paired_difference, squared_errors  # noqa: E402
+from nlfilter.filters.base import Estimates  # noqa: E402
+
+XS = np.zeros((4, 5, 1))
+EST = Estimates(np.ones((4, 5, 1)), np.ones((4, 5, 1, 1)), np.zeros(4, bool), np.full(4, -1))
+
+
+def _with(a, idx, v):
+    a = a.copy()
+    a[idx] = v
+    return a
+
+
+BAD_EVALUATIONS = [
+    (lambda: mse(EST, XS * np.nan), ValueError, r"^xs: expected finite values"),
+    (lambda: mse(EST, _with(XS, (1, 2, 0), np.inf)), ValueError, r"^xs: expected finite values"),
+    (lambda: mse_per_step(EST, _with(XS, (0, 0, 0), np.nan)), ValueError, r"^xs: expected finite values"),
+    (lambda: nees(EST, _with(XS, (3, 4, 0), -np.inf)), ValueError, r"^xs: expected finite values"),
+    (lambda: paired_difference(EST, EST, XS * np.nan), ValueError, r"^xs: expected finite values"),
+    (lambda: squared_errors(EST, XS + 0j), TypeError, r"^xs: expected real numbers, got complex128"),
+    (lambda: mse(np.ones((0, 5, 1)), np.zeros((0, 5, 1))), ValueError, r"^xs: expected at least one path"),
+    (lambda: mse(_with(np.ones((4, 5, 1)), (2, 1, 0), np.nan), XS), ValueError,
+     r"^estimates: expected finite means on the paths that did not diverge, got non-finite ones on 1 path\(s\) \(first \[2\]\)"),
+]
+
+
+@pytest.mark.parametrize("call,err,pattern", BAD_EVALUATIONS, ids=range(len(BAD_EVALUATIONS)))
+def test_bad_evaluation_input_is_refused_naming_the_argument(call, err, pattern):
+    refused(call, err, pattern)
+
+
+def test_diverged_paths_are_still_left_out():
+    est = EST._replace(means=_with(EST.means, (1,), np.nan), diverged=np.array([False, True, False, False]))
+    s = mse(est, XS)
+    assert s.value == 1.0 and s.paths == 3 and s.diverged == 1
+
+
+# -- a singular R or G: named, never a raw LinAlgError ----------------------------------------------
+from nlfilter.filters import (ConditionalMomentFilter, ContinuousEKF, ContinuousSecondOrderFilter,  # noqa: E402
+                              GridFilter, KalmanBucy, ParticleFilter)
+
+NOISE_FREE = SDEModel([x], [-x], [x], Q=0.5, R=0.0)
+R_MESSAGE = r"^R: must be positive definite: a noise-free measurement has no continuous-time filter, got \[\[0\.0\]\]"
+
+
+@pytest.mark.parametrize("make", [
+    lambda: ContinuousEKF(NOISE_FREE, 0.05), lambda: KalmanBucy(NOISE_FREE, 0.05),
+    lambda: ContinuousSecondOrderFilter(NOISE_FREE, 0.05), lambda: QLF(NOISE_FREE, 0.05),
+    lambda: ConditionalMomentFilter(NOISE_FREE, 0.05), lambda: GridFilter(NOISE_FREE, (-3, 3), 41, dt=0.05),
+    lambda: ParticleFilter(NOISE_FREE, 50, dt=0.05)], ids=["cekf", "kalman-bucy", "c2", "qlf", "cmf", "grid", "particle"])
+def test_noise_free_continuous_measurement_is_refused_naming_R(make):
+    refused(make, ValueError, R_MESSAGE)
+
+
+def test_grid_with_a_singular_G_on_the_grid_names_G():
+    model = DiscreteModel([x], [0.9 * x], [x], G=[[x]], Q=0.5, R=0.1)
+    flt = GridFilter(model, (-3, 3), 41)  # the grid holds x = 0, where G(x) = x is singular
+    refused(lambda: flt.run(np.zeros((2, 3, 1)), m0=[0.5], P0=[[1.0]]), ValueError,
+            r"^G: the grid filter's transition density needs G\(x\) invertible at every grid point, got a singular "
+            r"one at x = \[0\.0\] \(step 0\)")
+
+
+def test_estimate_memory_is_bounded_up_front():
+    ys = np.broadcast_to(np.zeros(1), (10, 10**9, 1))  # a view: no memory
+    refused(lambda: KalmanBucy(SDEModel([x], [-x], [x], Q=0.5, R=0.1), 0.05).run(ys, m0=[0.0], P0=[[1.0]]),
+            ValueError, r"^ys: 10 path\(s\) × 1000000000 step\(s\) of estimates .* would need 149 GiB, more than "
+                        r"the 8 GiB bound")
+
+
+@pytest.mark.parametrize("chunk", [2.5, 0, True])
+def test_chunk_is_a_positive_integer(chunk):
+    flt = KalmanBucy(SDEModel([x], [-x], [x], Q=0.5, R=0.1), 0.05)
+    refused(lambda: flt.run(np.zeros((3, 4, 1)), m0=[0.0], P0=[[1.0]], chunk=chunk),
+            TypeError if chunk != 0 else ValueError, r"^chunk: expected a positive integer|^chunk: expected an integer")

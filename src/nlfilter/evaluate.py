@@ -29,12 +29,21 @@ class Summary(NamedTuple):
 
 
 def _means_and_mask(est, xs):
-    means = est.means if hasattr(est, "means") else np.asarray(est, dtype=float)
-    xs = np.asarray(xs, dtype=float)
+    """The estimates' means, the truth ``xs (..., T, n)`` and the paths that did not diverge, checked:
+    a truth with NaN/inf (a simulation's diverged paths: drop them first) or an empty batch would
+    give a NaN summary, and a non-finite mean on a path that did not diverge is not an estimate."""
+    means = est.means if hasattr(est, "means") else V.as_float_array("estimates", est)
+    xs = V.finite("xs", V.as_float_array("xs", xs, ndim_min=2))
     if means.shape != xs.shape:
         raise ValueError(f"estimates: expected the shape of xs {xs.shape}, got {means.shape}")
+    if xs.size == 0:
+        raise ValueError(f"xs: expected at least one path and one step, got shape {xs.shape}")
     div = getattr(est, "diverged", None)
     ok = np.ones(means.shape[:-2], dtype=bool) if div is None else ~np.asarray(div)
+    bad = ok & ~np.isfinite(means).all(axis=(-2, -1))
+    if bad.any():
+        raise ValueError(f"estimates: expected finite means on the paths that did not diverge, got non-finite "
+                         f"ones on {int(bad.sum())} path(s) (first {np.argwhere(bad)[0].tolist()})")
     return means, xs, ok
 
 

@@ -375,6 +375,11 @@ class Filter:
     def check_data(self, ys):
         """``ys`` as a float array ``(..., T, m)``; NaN (missing) allowed, ±inf refused."""
         ys = V.as_float_array("ys", ys, ndim_min=2, shape_tail=(None, self.data_dim))
+        B, T, n = math.prod(ys.shape[:-2]), ys.shape[-2], self.state_dim
+        if B == 0:  # an empty batch: refused alike by every filter (reductions over paths have no identity)
+            raise ValueError(f"ys: expected at least one path, got shape {ys.shape}")
+        V.memory("ys", 8.0 * B * T * (n + n * n), f"{B} path(s) × {T} step(s) of estimates (means and covariances "
+                 f"of dimension {n})")
         return V.finite("ys", ys, allow_nan=True)
 
     # -- the one loop ------------------------------------------------------------------------------
@@ -457,11 +462,6 @@ class Filter:
         ys = self.check_data(ys)
         batch, T, m = ys.shape[:-2], ys.shape[-2], ys.shape[-1]
         B = math.prod(batch)
-        if B == 0:  # an empty batch: refused alike by every filter (reductions over paths have no identity)
-            raise ValueError(f"ys: expected at least one path, got shape {ys.shape}")
-        n = self.state_dim
-        V.memory("ys", 8.0 * B * T * (n + n * n), f"{B} path(s) × {T} step(s) of estimates (means and covariances "
-                 f"of dimension {n})")
         yf = ys.reshape(B, T, m)
         t0 = V.real("t0", t0)
         if self.time != "continuous" and t0 != 0.0:
@@ -604,6 +604,18 @@ def ode_step(rhs, x, t: float, dt: float, *, substeps: int = 1, scheme: str = "r
         if finish is not None:
             x = finish(x)
     return x
+
+
+def continuous_precision(model) -> np.ndarray:
+    """``R⁻¹`` of a continuous-time measurement ``dy = h dt + dη`` (``E dη dηᵀ = R dt``): a filter
+    of increments weighs them by it, so R must be positive definite (relative to its largest
+    eigenvalue, as :class:`~nlfilter.noise.Gaussian`'s density)."""
+    R = np.asarray(model.R, dtype=float)
+    w = np.linalg.eigvalsh(R)
+    if not w[0] > 1e-14 * w[-1]:
+        raise ValueError(f"R: must be positive definite: a noise-free measurement has no continuous-time filter, "
+                         f"got {R.tolist()} (smallest eigenvalue {w[0]:.3g})")
+    return np.linalg.inv(R)
 
 
 class ContinuousFilter(Filter):

@@ -50,7 +50,7 @@ from typing import NamedTuple
 import numpy as np
 
 from .. import _validate as V
-from .base import ContinuousFilter, DiscreteFilter, GaussianState, ode_step
+from .base import ContinuousFilter, DiscreteFilter, GaussianState, continuous_precision, ode_step
 from .rules import hessian_trace
 from .smoothing import _solve_right, continuous_rts, rts
 from .linalg import decorrelation, gaussian_update, innovation_info, mm, observed_precision, poison, symmetrize
@@ -406,7 +406,7 @@ class ContinuousGaussianFilter(ContinuousFilter):
         self.rule = rule
         self.model.require("f", "h", "G", *rule.needs(self.model), by=by or type(self).__name__)
         self._second = rule.second
-        self._Rinv = np.linalg.inv(self.model.R)
+        self._Rinv = continuous_precision(self.model)
 
     def _gain_parts(self, m, P, s, obs, Rinv):
         """Gain, P Hᵀ, ĥ and the forcing tensor M R⁻¹; ``Rinv``: the precision of the observed

@@ -49,7 +49,7 @@ from ..moments.quadrature import gaussian_rule
 from ..moments.discrete import PolynomialMap, discrete_moment_equations
 from ..moments.ito import PolynomialSDE, moment_equations
 from ..polynomials import Polynomial, monomials
-from .base import ContinuousFilter, DiscreteFilter, GaussianState, ode_step
+from .base import ContinuousFilter, DiscreteFilter, GaussianState, continuous_precision, ode_step
 from .linalg import innovation_info, measurement_loglik, observed_precision, sqrt_psd
 
 __all__ = ["ConditionalMomentFilter", "DiscreteConditionalMomentFilter", "MomentBelief"]
@@ -226,7 +226,7 @@ class ConditionalMomentFilter(_MomentFilter, ContinuousFilter):
         eqs = moment_equations(sde, monomials(model.n, N, min_degree=1))
         self.closure = closure
         self.set = _MomentSet(eqs, h, closure, model.n)
-        self._Rinv = np.linalg.inv(model.R)
+        self._Rinv = continuous_precision(model)
         self.name = name or (f"{closure.name}-closure" if N == closure.order else f"{closure.name}{N}-closure")
         if self.update_rule == "bayes":
             self.set.quadrature(points, N)

@@ -61,7 +61,7 @@ from ..moments.discrete import PolynomialMap, discrete_moment_equations, gaussia
 from ..moments.ito import PolynomialSDE, moment_equations
 from ..moments.quadrature import expect_gaussian, gaussian_rule
 from ..polynomials import Polynomial, monomials
-from .base import ContinuousFilter, check_structure
+from .base import ContinuousFilter, check_structure, continuous_precision
 from .linalg import symmetrize
 from .offline import ContinuousSchedule, DiscreteSchedule, OfflineGainFilter
 from .offline_analysis import ErrorAnalysis, _prior, gain_error_analysis
@@ -328,7 +328,7 @@ class QuasilinearFilter(OfflineGainFilter, ContinuousFilter):
             raise TypeError(f"closure: expected a Closure instance, got {type(closure).__name__}")
         self.closure = closure
         self.lin = _Linearizer(model, closure, order, "continuous")
-        self._Rinv = np.linalg.inv(model.R)
+        self._Rinv = continuous_precision(model)
         self.rtol, self.atol = float(rtol), float(atol)
         self._cache = {}
 

@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 
 from ... import _validate as V
-from ..base import Filter, check_structure
+from ..base import Filter, check_structure, continuous_precision
 
 
 def _check_time_step(flt, model, dt, who):
@@ -17,7 +17,7 @@ def _check_time_step(flt, model, dt, who):
         if dt is None:
             raise ValueError("dt: expected the measurement step for an SDEModel, got None")
         flt.dt = float(V.positive("dt", dt))
-        flt._Rinv = np.linalg.inv(model.R)
+        flt._Rinv = continuous_precision(model)
         flt.time = "continuous"
     elif dt is not None:
         raise ValueError(f"dt: a DiscreteModel has no time step; expected None, got {dt!r}")

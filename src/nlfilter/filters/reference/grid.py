@@ -57,6 +57,16 @@ def _moments(p, X):
     return mean, 0.5 * (cov + np.swapaxes(cov, -1, -2))
 
 
+def _invertible(det, X, k, what):
+    """Refuse, naming G, a transition whose ``what`` (determinants ``det (N,)`` at the grid points
+    ``X``) is singular somewhere on the grid: the transition has no density there."""
+    bad = ~(np.abs(det) > 0)
+    if bad.any():
+        raise ValueError(f"G: the grid filter's transition density needs {what} invertible at every grid point, "
+                         f"got a singular one at x = {X[np.argmax(bad)].tolist()} (step {k}); move the grid off "
+                         "it (bounds, size) or use ParticleFilter")
+
+
 class GridFilter(_ReferenceFilter):
     """Point-mass Bayesian filter on a regular grid (1-D or 2-D states); see
     :mod:`nlfilter.filters.reference`. Discrete models: ``predict``/``update``; SDE models: ``step``
@@ -130,11 +140,14 @@ class GridFilter(_ReferenceFilter):
         D = X[None, :, :] - f[:, None, :]  # (from i, to j, n)
         law = md.process_noise
         if md.r == md.n and law.has_density:
+            det = np.linalg.det(G)
+            _invertible(det, X, k, "G(x)")
             Ginv = np.linalg.inv(G)
             z = np.einsum("iab,ijb->ija", Ginv, D)
-            logk = law.logpdf(z) - np.log(np.abs(np.linalg.det(G)))[:, None]
+            logk = law.logpdf(z) - np.log(np.abs(det))[:, None]
         elif isinstance(law, Gaussian):
             C = np.einsum("iab,bc,idc->iad", G, md.Q, G)
+            _invertible(np.linalg.det(C), X, k, "G(x) Q G(x)ᵀ")
             Ci = np.linalg.inv(C)
             logk = (-0.5 * np.einsum("ija,iab,ijb->ij", D, Ci, D)
                     - 0.5 * np.log(np.linalg.det(2 * np.pi * C))[:, None])
