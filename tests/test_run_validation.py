@@ -240,3 +240,8 @@ def test_chunk_is_a_positive_integer(chunk):
     flt = KalmanBucy(SDEModel([x], [-x], [x], Q=0.5, R=0.1), 0.05)
     refused(lambda: flt.run(np.zeros((3, 4, 1)), m0=[0.0], P0=[[1.0]], chunk=chunk),
             TypeError if chunk != 0 else ValueError, r"^chunk: expected a positive integer|^chunk: expected an integer")
+
+
+def test_empty_time_axis_gives_empty_estimates_for_the_qlf():
+    est = QLF(CUBIC, 0.01).run(np.zeros((2, 0, 1)), m0=[0.0], P0=[[1.0]])
+    assert est.means.shape == (2, 0, 1) and est.covs.shape == (2, 0, 1, 1)
