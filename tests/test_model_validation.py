@@ -25,7 +25,7 @@ from nlfilter.models import SUPPORTED_FUNCTIONS
 from nlfilter.moments.ito import PolynomialSDE
 from nlfilter.simulate import simulate
 
-x, y, a, t, u = sp.symbols("x y a t u")
+x, y, a, t = sp.symbols("x y a t")
 LIFT = SDEModel([x], [-x], [x**3], Q=1.0, R=1.0)
 BIL = BilinearModel([[-1.0]], [[1.0]], G=[[[0.3]]], B=[[1.0]], R=[[1.0]])
 D1 = DiscreteModel([x], [0.9 * x], [x], Q=0.1, R=0.2)
