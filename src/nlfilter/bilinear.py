@@ -40,7 +40,7 @@ import sympy as sp
 
 from . import _validate as V
 from .errors import NotPolynomialError
-from .models import lambdify_numpy
+from .models import _check_expressions, lambdify_numpy
 from .moments.closed import bilinear_lift
 from .moments.ito import PolynomialSDE
 from .polynomials import Polynomial, monomial_name, monomials
@@ -65,6 +65,7 @@ def _mat(name, value, shape, time):
         M = sp.Matrix(value)
         if M.shape != shape:
             raise ValueError(f"{name}: expected shape {shape}, got {M.shape}")
+        _check_expressions(name, M, True)
         extra = M.free_symbols - ({time} if time is not None else set())
         if extra:
             raise ValueError(f"{name}: uses symbol(s) {sorted(map(str, extra))} other than the time symbol {time}")
@@ -77,6 +78,17 @@ def _mat(name, value, shape, time):
         raise ValueError(f"{name}: expected shape {shape}, got {arr.shape}")
     V.finite(name, arr)
     return arr
+
+
+def _column(name, value, k):
+    """A vector of ``k`` entries (numbers or SymPy expressions) as a ``(k, 1)`` column."""
+    if isinstance(value, sp.MatrixBase):
+        if 1 not in value.shape or value.shape[0] * value.shape[1] != k:
+            raise ValueError(f"{name}: expected a vector of {k} entries, got shape {value.shape}")
+        return value.reshape(k, 1)
+    if np.size(value) != k or np.ndim(value) > 2 or (np.ndim(value) == 2 and 1 not in np.shape(value)):
+        raise ValueError(f"{name}: expected a vector of {k} entries, got shape {np.shape(value)}")
+    return np.reshape(np.array(value, dtype=object), (k, 1)).tolist()
 
 
 def _at(M, t):
@@ -134,8 +146,8 @@ class BilinearModel:
         else:
             self.B, self.Q = None, None
         self.R = None if R is None else V.covariance("R", R, m)
-        self.c = None if c is None else _mat("c", np.reshape(c, (n, 1)) if not isinstance(c, sp.MatrixBase) else c, (n, 1), time)
-        self.d = None if d is None else _mat("d", np.reshape(d, (m, 1)) if not isinstance(d, sp.MatrixBase) else d, (m, 1), time)
+        self.c = None if c is None else _mat("c", _column("c", c, n), (n, 1), time)
+        self.d = None if d is None else _mat("d", _column("d", d, m), (m, 1), time)
         self.augment = any(v is not None for v in (self.B, self.R, self.c, self.d))
         self.N = n + 1 if self.augment else n
         self.names = list(names) if names is not None else [f"x{i + 1}" for i in range(n)]
@@ -304,7 +316,7 @@ class BilinearModel:
                         "gain lift exactly to a bilinear system (the Itô rule then preserves the degree)")
         hpolys = [Polynomial.from_sympy(e, xs, name="model.h", numeric=True) for e in model.sym["h"]]
         hdeg = max((sum(k) for p in hpolys for k in p.terms), default=1)
-        degree = hdeg if degree is None else int(degree)
+        degree = hdeg if degree is None else V.positive("degree", degree, integer=True)
         if degree < hdeg:
             raise ValueError(f"degree: {degree} is below the measurement's degree {hdeg}")
         coords = monomials(nb, degree, min_degree=1)

@@ -455,7 +455,14 @@ def load_model(path) -> ModelSpec:
     try:
         model = cls(list(syms.values()), f, h, G=G, Q=Q, R=R, name=title)
     except (ValueError, TypeError) as exc:  # what the checks above do not anticipate
-        rd.fail("dynamics", None, f"got a model the library refuses ({str(exc).splitlines()[0]}); expected a "
+        text = str(exc).splitlines()[0]
+        # the model's message names its argument (f, h, G, Q, R): the file's key, at its line
+        arg, _, rest = text.partition(": ")
+        where = {"f": ("dynamics", fkey), "G": ("dynamics", gkey), "Q": ("dynamics", "Q"),
+                 "h": ("measurement", "h"), "R": ("measurement", "R")}.get(arg)
+        if where is not None and rest:
+            rd.fail(*where, f"got an expression the library refuses ({rest}); expected a valid {cls.__name__}")
+        rd.fail("dynamics", None, f"got a model the library refuses ({text}); expected a "
                                   f"valid {cls.__name__}", field="model")
     return ModelSpec(model, m0, P0, dt, run["steps"], run["paths"], run["filters"], run["seed"], name,
                      hashlib.sha256(data).hexdigest())

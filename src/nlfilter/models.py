@@ -54,6 +54,21 @@ each filter lists in ``structures`` what it handles and refuses the rest at cons
   (``R`` the ``p x p`` covariance of v); :meth:`Model.measurement` evaluates it (``h_aug``),
   ``model.h`` is ``h(x, 0)``.
 
+Functions (checked at construction, :data:`SUPPORTED_FUNCTIONS`): f, h, G and symbolic Q, R are
+real, finite expressions (no ``I``, ``oo``, ``zoo``, ``nan``; a ``ValueError`` names the field
+and the entry) of ``+ * **`` (``sqrt`` included), ``pi``, ``E`` and ``exp log sin cos tan cot
+sec csc asin acos atan atan2 sinh cosh tanh asinh acosh atanh erf erfc`` (smooth: SymPy's
+derivatives), and the piecewise-smooth ``Abs sign floor ceiling Heaviside Max Min``, evaluated as
+NumPy does, whose derivatives (EKF Jacobians, second-order Hessians) follow one convention, the
+derivative almost everywhere: ``Abs' = sign``; ``sign' = floor' = ceiling' = Heaviside' = 0``
+(no Dirac delta); ``∂Max(a, b)/∂a = Heaviside(a - b)`` and ``∂Min(a, b)/∂a = Heaviside(b - a)``
+(1/2 each at a tie; more arguments fold pairwise). ``Heaviside(0)`` is SymPy's ``H0`` (1/2 by
+default). Any other function (``DiracDelta``, ``Piecewise``, an undefined ``Function("g")``) is
+refused naming it. The compiled backend (``backend="numba"``) does not take the piecewise
+functions. Scalars reach the generated code as NumPy floats, so a singularity (``x/t`` at
+``t = 0``) gives ``inf``/``nan`` with NumPy's warning, which the filters' divergence screening
+then reports, never a ``ZeroDivisionError``.
+
 >>> import sympy as sp
 >>> x, u = sp.symbols("x u")
 >>> m = DiscreteModel([x], [0.5 * x + u], [x], Q=1.0, R=1.0, inputs=[u]).with_inputs([[1.0], [2.0]])
@@ -81,7 +96,9 @@ from types import MappingProxyType
 from typing import Callable
 
 import numpy as np
+import scipy.special
 import sympy as sp
+from sympy.core.function import AppliedUndef
 from sympy.printing.numpy import NumPyPrinter
 from sympy.printing.precedence import precedence
 
@@ -137,6 +154,122 @@ class _Printer(FullPrecisionPrinter):
                 return ("-" if v < 0 else "") + repr(abs(v)) + "*" + self._print(s)
         return super()._print_Mul(expr)
 
+    def _print_erf(self, expr):  # SciPy's ufunc (NumPy has none; math.erf takes no arrays)
+        return f"_erf({self._print(expr.args[0])})"
+
+    def _print_erfc(self, expr):
+        return f"_erfc({self._print(expr.args[0])})"
+
+
+class _PiecewiseFn(sp.Function):
+    """A piecewise-smooth function in the generated code, with the derivative convention of the
+    module docstring ("Functions"): derivatives taken almost everywhere (``fdiff``; zero, that of a
+    step function, unless a subclass says otherwise), printed as the NumPy ufunc ``ufunc``. Used
+    only for code generation (:func:`_code_form`); the model's own expressions keep SymPy's
+    ``Abs``, ``sign``, ..."""
+
+    ufunc = ""
+
+    @classmethod
+    def eval(cls, *args):
+        if all(a.is_Number for a in args):  # numbers: SymPy's own function evaluates them
+            return cls.sympy(*args)
+
+    def fdiff(self, argindex=1):
+        return sp.S.Zero
+
+    def _numpycode(self, printer):
+        return f"{self.ufunc}({', '.join(printer._print(a) for a in self.args)})"
+
+
+def _piecewise_fn(name, nargs, ufunc, sympy_fn, base=_PiecewiseFn, **attrs):
+    return type(name, (base,), {"nargs": nargs, "ufunc": ufunc, "sympy": sympy_fn, **attrs})
+
+
+_Sign = _piecewise_fn("_Sign", 1, "sign", sp.sign)
+_Floor = _piecewise_fn("_Floor", 1, "floor", sp.floor)
+_Ceiling = _piecewise_fn("_Ceiling", 1, "ceil", sp.ceiling)
+_Step = _piecewise_fn("_Step", 2, "heaviside", sp.Heaviside)  # Heaviside(u, H0): H0 at u = 0
+
+
+class _Abs(_PiecewiseFn):
+    nargs, ufunc, sympy = 1, "absolute", sp.Abs
+
+    def fdiff(self, argindex=1):
+        return _Sign(self.args[0])
+
+
+class _Extremum(_PiecewiseFn):
+    """max(a, b) (``side`` 1) or min(a, b) (``side`` -1): the derivative 1 in the argument that
+    wins, 0 in the other, 1/2 in each at a tie."""
+
+    def fdiff(self, argindex=1):
+        a, b = self.args
+        return _Step(self.side * (a - b if argindex == 1 else b - a), sp.S.Half)
+
+
+_Max = _piecewise_fn("_Max", 2, "maximum", sp.Max, _Extremum, side=1)
+_Min = _piecewise_fn("_Min", 2, "minimum", sp.Min, _Extremum, side=-1)
+
+
+def _pairwise(cls, args):
+    out = args[0]
+    for a in args[1:]:
+        out = cls(out, a)
+    return out
+
+
+_PIECEWISE = {sp.Abs: lambda u: _Abs(u), sp.sign: lambda u: _Sign(u), sp.floor: lambda u: _Floor(u),
+              sp.ceiling: lambda u: _Ceiling(u),
+              sp.Heaviside: lambda u, h0=sp.S.Half: _Step(u, sp.S.Half if h0 is None else h0),
+              sp.Max: lambda *a: _pairwise(_Max, a), sp.Min: lambda *a: _pairwise(_Min, a)}
+_SMOOTH = (sp.exp, sp.log, sp.sin, sp.cos, sp.tan, sp.cot, sp.sec, sp.csc, sp.asin, sp.acos, sp.atan,
+           sp.atan2, sp.sinh, sp.cosh, sp.tanh, sp.asinh, sp.acosh, sp.atanh, sp.erf, sp.erfc)
+SUPPORTED_FUNCTIONS = tuple(f.__name__ for f in _SMOOTH + tuple(_PIECEWISE))
+"""The SymPy functions a model's f, h, G (and symbolic Q, R) may use (module docstring,
+"Functions"); powers, ``sqrt`` included, and the constants ``pi``, ``E`` too."""
+
+
+def _code_form(e):
+    """``e`` with SymPy's piecewise functions replaced by their code-generation forms
+    (:class:`_PiecewiseFn`: derivatives by the stated convention); ``e`` itself when it has none."""
+    if not e.has(*_PIECEWISE):
+        return e
+    return e.replace(lambda a: type(a) in _PIECEWISE, lambda a: _PIECEWISE[type(a)](*a.args))
+
+
+def _code_matrix(M):
+    """:func:`_code_form` of every entry of the matrix ``M`` (``M`` itself when none changes)."""
+    return M.applyfunc(_code_form) if any(e.has(*_PIECEWISE) for e in M) else M
+
+
+def _check_expressions(name: str, M, shape_index: bool = False) -> None:
+    """Refuse, naming ``name`` and the entry, an entry of ``M`` that is not a real, finite
+    expression of supported functions (:data:`SUPPORTED_FUNCTIONS`)."""
+    allowed = set(_SMOOTH) | set(_PIECEWISE)
+    for k, e in enumerate(M):
+        where = f"{name}[{k}]" if not shape_index else f"{name}[{k // M.shape[1]}, {k % M.shape[1]}]"
+        if not isinstance(e, sp.Expr):
+            raise TypeError(f"{name}: expected real expressions, got {e!r} ({type(e).__name__}) in {where}")
+        for a in sp.preorder_traversal(e):
+            if a.is_Symbol or a.is_NumberSymbol:
+                continue
+            if a.is_Number or a is sp.I or a in (sp.zoo, sp.oo, -sp.oo, sp.nan):
+                if not (a.is_extended_real and a.is_finite):
+                    raise ValueError(f"{name}: {where} = {e} is not real/finite (it contains {a}); expected "
+                                     "real, finite expressions")
+                continue
+            if isinstance(a, (sp.Add, sp.Mul, sp.Pow)):
+                continue
+            if isinstance(a, AppliedUndef):
+                raise ValueError(f"{name}: undefined function {a} in {where}; a model's functions must be "
+                                 f"SymPy's, one of {', '.join(SUPPORTED_FUNCTIONS)}")
+            if type(a) in allowed:
+                continue
+            raise ValueError(f"{name}: unsupported {'function' if isinstance(a, sp.Function) else 'expression'} "
+                             f"{a} in {where}; supported: {', '.join(SUPPORTED_FUNCTIONS)} (and +, *, powers, "
+                             "sqrt, pi, E)")
+
 
 class _Broadcast:
     """A constant array viewed over a batch shape, the last view kept (filters ask for the same
@@ -168,6 +301,9 @@ class _Values:
         self.arrays = {p for p, v in values.items() if isinstance(v, np.ndarray)}
         self.per_path = {p for p in self.arrays if values[p].ndim > 1}
         self.unset = {p for p, v in values.items() if v is None}
+        # scalars as NumPy floats: the generated code then follows NumPy's semantics (1/0 is inf,
+        # with a RuntimeWarning, for the filters' divergence screening), not Python's ZeroDivisionError
+        self._np = {p: np.float64(v) for p, v in values.items() if isinstance(v, float)}
 
     def scalar(self, syms) -> bool:
         return not any(p in self.arrays or p in self.unset for p in syms)
@@ -187,7 +323,7 @@ class _Values:
             raise ValueError(f"inputs: the model declares input(s) {[str(u) for u in self.inputs]} and none "
                              "were given; evaluate model.with_inputs(u) with u of shape (..., T, p)")
         if p not in self.arrays:
-            return v
+            return self._np.get(p, v)
         k = self.index(p, t, v.shape[-1])
         if v.ndim == 1:
             return v[k]
@@ -254,9 +390,13 @@ class _Kernel:
             self.value = np.array([float(e) for e in flat], dtype=float).reshape(self.shape)
         else:
             args = list(states) + ([time] if time is not None else [sp.Symbol("_t_unused")]) + list(self.params)
-            self.fn = sp.lambdify(args, flat, modules="numpy", cse=not _nothing_to_share(flat),
+            flat = [_code_form(e) for e in flat]
+            self.fn = sp.lambdify(args, flat, modules=[_SCIPY, "numpy"], cse=not _nothing_to_share(flat),
                                   printer=_Printer({"fully_qualified_modules": False, "inline": True,
                                                     "allow_unknown_functions": True}))
+
+
+_SCIPY = {"_erf": scipy.special.erf, "_erfc": scipy.special.erfc}
 
 
 def _d(e, s):
@@ -397,7 +537,7 @@ class _Batched:
         batch = x.shape[:-1]
         kn = self.kernel
         extra = [self.values.at(p, t, batch) for p in kn.params]
-        vals = kn.fn(*(x[..., i] for i in range(kn.n)), t, *extra)
+        vals = kn.fn(*(x[..., i] for i in range(kn.n)), np.float64(t), *extra)
         if len(vals) == 1 and np.shape(vals[0]) == batch:  # one entry: a reshape, no copy
             return np.asarray(vals[0], dtype=float).reshape(*batch, *self.shape)
         out = np.empty((*batch, len(vals)))
@@ -506,6 +646,9 @@ class Model:
             raise ValueError(f"states: expected distinct symbols, got {states!r}")
         if time is not None and not isinstance(time, sp.Symbol):
             raise TypeError(f"time: expected a SymPy symbol or None, got {type(time).__name__}")
+        if time is not None and time in states:
+            raise ValueError(f"time: the time symbol {time} is also a state (states {[str(s) for s in states]}); "
+                             "expected a symbol distinct from the states")
         self.states = states
         self.time = time
         self.name = name
@@ -521,8 +664,11 @@ class Model:
             raise TypeError(f"inputs: expected a list of distinct SymPy symbols, got {list(inputs)!r}")
         clash = (set(inputs) & set(params)) | ((set(inputs) | set(params)) & (set(states) | {time}))
         if clash:
-            raise ValueError(f"params/inputs: symbol(s) {sorted(map(str, clash))} are used twice "
-                             "(as a state, the time, a parameter or an input)")
+            roles = {s: [nm for nm, group in (("a state", states), ("the time", [time]), ("a parameter", params),
+                                              ("an input", inputs)) if s in group] for s in clash}
+            raise ValueError(f"params/inputs: symbol(s) {sorted(map(str, clash))} are used twice ("
+                             + "; ".join(f"{s} is {' and '.join(r)}" for s, r in sorted(roles.items(), key=str))
+                             + "); expected states, the time, parameters and inputs disjoint")
         names = [str(p) for p in list(params) + list(inputs)]
         if len(set(names)) != len(names):
             raise ValueError(f"params/inputs: expected distinct names, got {names}")
@@ -531,6 +677,8 @@ class Model:
 
         fM = _vector("f", f, n)
         hM = _vector("h", h)
+        _check_expressions("f", fM)
+        _check_expressions("h", hM)
         # non-additive noise: x[k+1] = f(x[k], w[k]), y[k] = h(x[k], v[k]) with the noise symbols in f, h
         noise, meas_noise = (tuple([a] if isinstance(a, sp.Symbol) else (a or ())) for a in (noise, meas_noise))
         for nm, syms, other in (("noise", noise, meas_noise), ("meas_noise", meas_noise, noise)):
@@ -551,9 +699,10 @@ class Model:
                 raise ValueError("G: a model with non-additive noise (noise=[...]) states the noise in f; expected "
                                  f"G=None, got {G!r}")
             fw0 = fM.subs({w: 0 for w in noise})
-            GM = fM.jacobian(sp.Matrix(noise)).subs({w: 0 for w in noise})  # the noise gain at w = 0
+            GM = _jacobian(_code_matrix(fM), noise).subs({w: 0 for w in noise})  # the noise gain at w = 0
         else:
             GM = sp.eye(n) if G is None else _matrix("G", G, n, None)
+            _check_expressions("G", GM, True)
         self.additive, self.additive_measurement = not noise, not meas_noise
         self.noise_symbols, self.meas_noise_symbols = noise, meas_noise
         allowed = set(states) | ({time} if time is not None else set()) | set(self._psyms)
@@ -579,6 +728,7 @@ class Model:
                 continue
             M = _matrix(nm, [[val]] if isinstance(val, sp.Basic) and not isinstance(val, sp.MatrixBase) else val,
                         dim, dim)
+            _check_expressions(nm, M, True)
             # R may depend on the state (and the time): R(x, k), evaluated by R_of
             ok = set(self._psyms) | (set(states) | ({time} if time is not None else set()) if nm == "R" else set())
             extra = M.free_symbols - ok
@@ -609,6 +759,10 @@ class Model:
                 raise ValueError(f"{nm}: its covariance {law.cov.tolist()} differs from the given "
                                  f"{key} {cov.tolist()}")
 
+        # derivatives of the code forms (Abs, sign, Max, ...: the convention of the module docstring)
+        self.piecewise = frozenset(type(a).__name__ for M in (fM, hM, GM) for e in M if e.has(*_PIECEWISE)
+                                   for a in sp.preorder_traversal(e) if type(a) in _PIECEWISE)
+        fM, hM, GM = _code_matrix(fM), _code_matrix(hM), _code_matrix(GM)
         fx = _jacobian(fM, states)
         hx = _jacobian(hM, states)
         # the G-constant flag first: a G free of the states has G_x = G_xx = 0 (no SymPy)
@@ -943,6 +1097,7 @@ class Model:
         self.R = V.covariance("R", R, m)
         self.R_constant, self.cross_noise, self.additive, self.noise_symbols = True, None, True, ()
         self.additive_measurement, self.meas_noise_symbols, self.mv = True, (), m
+        self.piecewise = frozenset()
         self.process_noise = as_law("process_noise", process_noise, self.Q)
         self.measurement_noise = as_law("measurement_noise", measurement_noise, self.R)
         for key, fn in (("f", f), ("h", h)):

@@ -122,6 +122,10 @@ class Polynomial:
                 f"{[str(s) for s in states]}; an exact moment method needs polynomial f, GQGᵀ and h "
                 "(use Gauss-Hermite expectations, nlfilter.moments.quadrature, for this model)")
         poly = sp.Poly(expr, *states)
+        for _, c in poly.terms():
+            if c.has(sp.I, sp.zoo, sp.oo, sp.S.NegativeInfinity, sp.nan):
+                raise ValueError(f"{name}: coefficient {c} of {expr} is not real/finite; expected real, finite "
+                                 "coefficients")
         if numeric:
             for _, c in poly.terms():
                 if c.free_symbols:

@@ -91,7 +91,7 @@ class TensorFilter(_SteadyLinearRecursion):
 
     def __init__(self, model: BilinearModel, dt: float, *, targets=None, degree: int = 3, inputs: str = "own",
                  initial: Callable | None = None, X0=None, scheme: str = "rk4"):
-        if degree < 1 or degree % 2 == 0:
+        if V.positive("degree", degree, integer=True) % 2 == 0:
             raise ValueError(f"degree: expected an odd positive integer, got {degree!r}")
         self._linear(model, dt, scheme, X0)
         self.degree = degree

@@ -238,6 +238,9 @@ def unsupported(flt) -> str | None:
         return "the model must be a DiscreteModel stated in SymPy (not from_functions)"
     if not (md.additive and md.additive_measurement):
         return "the model's noise enters f or h non-additively (noise=, meas_noise=)"
+    if md.piecewise:
+        return (f"the model uses {', '.join(sorted(md.piecewise))}, which the compiled code does not take (NumPy evaluates them, "
+                "with the derivative convention of nlfilter.models)")
     if md.cross_noise is not None:
         return "the model has correlated process and measurement noise (cross_noise)"
     if not md.R_constant:

@@ -329,7 +329,7 @@ class QuasilinearFilter(OfflineGainFilter, ContinuousFilter):
         self.closure = closure
         self.lin = _Linearizer(model, closure, order, "continuous")
         self._Rinv = continuous_precision(model)
-        self.rtol, self.atol = float(rtol), float(atol)
+        self.rtol, self.atol = float(V.positive("rtol", rtol)), float(V.positive("atol", atol))
         self._cache = {}
 
     # -- off-line ------------------------------------------------------------------------------

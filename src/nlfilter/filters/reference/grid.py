@@ -115,7 +115,7 @@ class GridFilter(_ReferenceFilter):
                              f"with lo < hi, got {bounds!r}")
         sizes = np.broadcast_to(np.asarray(size), (n,))
         for s in sizes:
-            V.positive("size", int(s), integer=True)
+            V.positive("size", s.item() if isinstance(s, np.generic) else s, integer=True)
             if s < 3:
                 raise ValueError(f"size: expected at least 3 points per axis, got {size!r}")
         self.axes = [np.linspace(lo, hi, int(s)) for (lo, hi), s in zip(b, sizes)]
