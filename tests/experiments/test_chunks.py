@@ -3,10 +3,11 @@ nlfilter.streams): ``Experiment.run(chunk=2)`` (CLI ``--chunk 2``) equals one ba
 
 Experiments whose Monte Carlo is stated in blocks (nlfilter.montecarlo: ``cubic-sensor``,
 ``cubic-sensor-closures``, ``linear-gaussian``, ``oh-shin``, ``phase-tracking``, ``second-order``;
-``smoothing`` through ``compare(block=...)``; ``BLOCKS`` below)
+``smoothing`` through ``compare(block=...)``, ``zero-order``, ``zero-order-adaptive``,
+``zero-order-robustness``; ``BLOCKS`` below)
 compute every block as its own batch whatever the chunk, so their rows for ``chunk=1``,
-``chunk=2`` and no chunk are identical, bitwise. The others (``moment-*``, ``zero-order*``)
-batch the paths by the chunk: their simulations and random
+``chunk=2`` and no chunk are identical, bitwise. The others (``moment-*``) batch the paths by
+the chunk: their simulations and random
 filters are bitwise the same (tests/test_streams.py, the contract), but the deterministic
 filters' vectorized arithmetic may round the last bit differently with the batch size (the
 contract's batch-independence tolerance, 1e-12), so their rows agree to 1e-12."""
@@ -37,7 +38,8 @@ CASES = {
 # 2 paths: 2, 2, 1; a chunk of 4 puts two blocks in one task)
 BLOCKS = {"cubic-sensor": {"block": 2}, "cubic-sensor-closures": {"block": 2}, "oh-shin": {"block": 2},
           "linear-gaussian": {"block": 2}, "phase-tracking": {"block": 2, "sweep": 3}, "second-order": {"block": 2},
-          "smoothing": {"block": 2}}
+          "smoothing": {"block": 2}, "zero-order": {"block": 2}, "zero-order-adaptive": {"block": 2},
+          "zero-order-robustness": {"block": 2}}
 
 
 def _rows(res):
