@@ -353,6 +353,8 @@ def compare(model, filters, steps, *, paths=200, m0, P0, rng=0, reference="auto"
                 for i, res_ in ex.map_unordered(_filter_task, jobs):
                     done[i] = res_
                     pbar.update(1)
+            if sess is not None:  # an experiment's run: its meta["execution"] counts these blocks too
+                sess.computed += len(jobs)
             out = []
             for g, (name, flt, ys, key, smooth, bar) in enumerate(groups):
                 parts = [done[i] for i in range(len(jobs)) if owner[i] == g]

@@ -16,22 +16,31 @@ Filters: ``kalman`` (000 eqs. 1.33-1.36), ``moment{N}`` (input moments known), `
 samples), ``optimal`` (grid on the reachable set, exact for the bounded laws up to the cell width).
 MSE is averaged over the Monte Carlo paths and the steps ``skip <= k < T`` (steady state, 000
 assumption 6), with the standard error over paths; the gap to the optimum is a paired difference.
+
+Each input law's Monte Carlo is computed in blocks of ``block`` paths (0: one block of all the
+run's paths, the default; :func:`nlfilter.montecarlo.montecarlo`): a block simulates its paths
+(per-path streams of the law's case) and runs every filter on them (:func:`_first_order_block`,
+:func:`_second_order_block`; the particle optimum draws from each path's ``streams.FILTER``
+sub-stream, the same in any block).
 """
 
 from __future__ import annotations
 
+from functools import partial
+
 import numpy as np
 import scipy.stats as st
-from tqdm import tqdm
 
 from . import experiment
 from .. import evaluate as ev
+from .. import streams
 from ..filters.kalman import KalmanFilter
 from ..bounded import BoundedNoiseModel
-from ..filters.moment_bayes import FirstOrderMomentFilter, refresh_failure_rate
-from .zero_order import failure_rate_row
+from ..filters.moment_bayes import FirstOrderMomentFilter
+from .zero_order import BLOCK, BLOCK_RANGE, block_arrays, block_estimates, block_size, failure_rate_row
 from ..filters.reference.bounded import BoundedGridFilter1D
 from ..models import DiscreteModel
+from ..montecarlo import montecarlo
 from ..results import Result
 
 LAWS = {"uniform": (1.0, 1.0), "bimodal": (0.3, 0.3), "skewed": (0.5, 5.0), "near-gaussian": (4.0, 4.0)}
@@ -105,9 +114,9 @@ def _horizon(params, quick, T_quick, skip_quick):
 @experiment("moment-first-order", title="First-order system: moment filter vs Kalman vs grid optimum",
             source="seed 000, eqs. 2.4-2.5 (Chapter IV, outlined in the abstract)",
             params={"h": 0.5, "w_bound": 2.0, "N": [2, 4, 6], "laws": list(LAWS), "T": 2000, "skip": 500,
-                    "n0": 100.0, "window": 20, "grid": 400},
+                    "n0": 100.0, "window": 20, "grid": 400, **BLOCK},
             ranges={"h": ">-1,<1", "w_bound": ">0", "N": ">=1,<=12", "laws": tuple(LAWS), "T": ">=2,<=10000000",
-                    "skip": ">=0", "n0": ">0", "window": ">=1,<=100000", "grid": ">=10,<=100000"})
+                    "skip": ">=0", "n0": ">0", "window": ">=1,<=100000", "grid": ">=10,<=100000", **BLOCK_RANGE})
 def run_first_order(params, *, quick, runs, seed, progress):
     h, wb = float(params["h"]), float(params["w_bound"])
     Ns = [int(N) for N in params["N"]]
@@ -118,32 +127,47 @@ def run_first_order(params, *, quick, runs, seed, progress):
                  "seed 000, eqs. 2.4-2.5", params)
     res.params.update(T=T, skip=skip, grid=G, paths=R)  # the values that ran (quick caps included)
     laws = list(params["laws"])
-    c = ev.chunk()
+    block = block_size(res, params, R)
     for i, law_name in enumerate(laws):
-        law = input_law(law_name, wb)
-        truth = BoundedNoiseModel.first_order(h, wb, w_law=law)
-        xs, zs = ev.in_chunks(lambda rows: truth.simulate(T, rows, ev.stream(seed, i), burn=BURN), R)  # stationary: 300 steps of burn-in from 0
-        xs, zs = xs[..., 0], zs[..., 0]
-        grid = BoundedGridFilter1D(truth, G=G)
-        est = {"optimal": grid.run(zs[..., None], chunk=c).means[..., 0],
-               "kalman": kalman_first_order(zs, h, law)}
-        fb = {}
-        model = BoundedNoiseModel.first_order(h, wb)
-        for N in tqdm(Ns, disable=not progress, desc=law_name):
-            r = FirstOrderMomentFilter(model, N, w_moments=raw_moments(law, N)).run(zs[..., None], chunk=c)
-            est[f"moment{N}"] = r.means[..., 0]
-            fb[f"moment{N}"] = r.extras["fallback"].mean()
-            r = FirstOrderMomentFilter(model, N, adaptive=True, n0=params["n0"], window=params["window"],
-                                       invalid_moments="ignore").run(zs[..., None], chunk=c)  # 000's algorithm as is
-            est[f"adaptive{N}"] = r.means[..., 0]
-            fb[f"adaptive{N}"] = r.extras["fallback"].mean()
-            failure_rate_row(res, f"adaptive{N}", refresh_failure_rate(r), law=law_name)
-        per_path = _mse_rows(res, {k: v - xs for k, v in est.items()}, skip, law_name)
+        ident = {"h": h, "wb": wb, "law": law_name, "Ns": Ns, "T": T, "G": G, "n0": params["n0"],
+                 "window": params["window"], "seed": seed, "case": i}
+        mc = montecarlo(law_name, partial(_first_order_block, **ident), R, block=block, ident=ident)
+        est = {k: v[..., 0] for k, v in block_estimates(mc).items()}
+        for N in Ns:
+            failure_rate_row(res, f"adaptive{N}", mc[f"refresh:adaptive{N}"], law=law_name)
+        per_path = _mse_rows(res, {k: v - mc["xs"] for k, v in est.items()}, skip, law_name)
         _claims(res, per_path, law_name, Ns, "first-order")
-        res.notes.append(f"first-order law={law_name}: uniform fallback used in "
-                         + ", ".join(f"{k} {100 * v:.2f}%" for k, v in fb.items()) + " of steps")
+        res.notes.append(f"first-order law={law_name}: uniform fallback used in " + _fallbacks(mc) + " of steps")
     _figure(res, laws, Ns, f"{R} paths × steps {skip}..{T - 1}", "grid filter")
     return res
+
+
+def _first_order_block(rows, *, h, wb, law, Ns, T, G, n0, window, seed, case):
+    """One Monte Carlo block of the first-order system with input law ``law``: the paths ``rows``
+    (per-path streams of case ``case`` of ``seed``; stationary: :data:`BURN` steps of burn-in from
+    0), the grid optimum, the Kalman filter knowing the input's mean and variance, the moment
+    filter with the input's moments ``moment{N}`` and 000's adaptive algorithm as is
+    ``adaptive{N}``; per path ``xs`` and every filter's :func:`~nlfilter.experiments.zero_order.block_arrays`
+    (the moment filters' fallback flags per step)."""
+    w_law = input_law(law, wb)
+    truth = BoundedNoiseModel.first_order(h, wb, w_law=w_law)
+    xs, zs = truth.simulate(T, rows, ev.stream(seed, case), burn=BURN)
+    xs, zs = xs[..., 0], zs[..., 0]
+    out = {"xs": xs, "est:optimal": BoundedGridFilter1D(truth, G=G).run(zs[..., None]).means,
+           "est:kalman": kalman_first_order(zs, h, w_law)[..., None]}
+    model = BoundedNoiseModel.first_order(h, wb)
+    for N in Ns:
+        out.update(block_arrays(f"moment{N}", FirstOrderMomentFilter(model, N, w_moments=raw_moments(w_law, N)).run(
+            zs[..., None]), "fallback"))
+        out.update(block_arrays(f"adaptive{N}", FirstOrderMomentFilter(
+            model, N, adaptive=True, n0=n0, window=window, invalid_moments="ignore").run(zs[..., None]), "fallback"))
+    return out
+
+
+def _fallbacks(mc) -> str:
+    """``"moment2 1.23%, adaptive2 4.56%, ..."``: the share of steps in which each moment filter
+    fell back to the uniform law, over every path of the Monte Carlo ``mc``."""
+    return ", ".join(f"{k.partition(':')[2]} {100 * v.mean():.2f}%" for k, v in mc.items() if k.startswith("fallback:"))
 
 
 def _figure(res, laws, Ns, what, optimal):
@@ -178,13 +202,11 @@ def kalman_second_order(zs, A, b, c, law, noise_halfwidth=1.0):
             source="seed 000, eqs. 2.6-2.8 (Chapter V, outlined in the abstract)",
             params={"h1": 0.6, "h2": -0.5, "d1": 1.0, "d2": 1.0, "w_bound": 1.5, "N": [2, 4, 6],
                     "laws": list(LAWS), "T": 400, "skip": 100, "n0": 100.0, "window": 20,
-                    "particles": 4000, "bounding": "polygon", "directions": 16},
+                    "particles": 4000, "bounding": "polygon", "directions": 16, **BLOCK},
             ranges={"w_bound": ">0", "N": ">=1,<=12", "laws": tuple(LAWS), "T": ">=2,<=1000000", "skip": ">=0",
                     "n0": ">0", "window": ">=1,<=100000", "particles": ">=10,<=10000000", "bounding": ("polygon", "box"),
-                    "directions": ">=4,<=1024"})
+                    "directions": ">=4,<=1024", **BLOCK_RANGE})
 def run_second_order(params, *, quick, runs, seed, progress):
-    from ..filters.moment_bayes import SecondOrderMomentFilter
-    from ..filters.reference.bounded import BoundedParticleFilter
     A = np.diag([float(params["h1"]), float(params["h2"])])
     b = np.array([float(params["d1"]), float(params["d2"])])
     c = b.copy()  # 000 eqs. 2.6-2.7 as the OCR reads them: the same d1, d2 in the input and the output
@@ -198,40 +220,60 @@ def run_second_order(params, *, quick, runs, seed, progress):
                  "seed 000, eqs. 2.6-2.8", params)
     res.params.update(T=T, skip=skip, particles=P, paths=R)  # the values that ran (quick caps included)
     laws = list(params["laws"])
-    ck = ev.chunk()
+    block = block_size(res, params, R)
     for i, law_name in enumerate(laws):
-        law = input_law(law_name, wb)
-        rng = ev.stream(seed, i)  # simulation: the paths' streams; the particle filter: their FILTER sub-streams
-        truth = BoundedNoiseModel(A, b, c, wb, w_law=law)
-        xs, zs = ev.in_chunks(lambda rows: truth.simulate(T, rows, rng, burn=BURN), R)  # stationary: 300 steps of burn-in from 0
-        zs = zs[..., 0]
-
-        def x0_sampler(r, shape, law=law):
-            x = np.zeros((*shape, 2))
-            for _ in range(200):
-                x = x @ A.T + law.rvs(size=shape, random_state=r)[..., None] * b
-            return x
-
-        est = {"optimal": BoundedParticleFilter(truth, particles=P).run(
-                   zs[..., None], initial=x0_sampler, rng=rng, chunk=ck).means,
-               "kalman": kalman_second_order(zs, A, b, c, law)}
-        fb = {}
-        model = BoundedNoiseModel(A, b, c, wb)
-        for N in tqdm(Ns, disable=not progress, desc=law_name):
-            r = SecondOrderMomentFilter(model, N, w_moments=raw_moments(law, N), **bkw).run(zs[..., None], chunk=ck)
-            est[f"moment{N}"], fb[f"moment{N}"] = r.means, r.extras["fallback"].mean()
-            r = SecondOrderMomentFilter(model, N, adaptive=True, n0=params["n0"], window=params["window"],
-                                        invalid_moments="ignore", **bkw).run(zs[..., None], chunk=ck)  # 000's algorithm
-            est[f"adaptive{N}"], fb[f"adaptive{N}"] = r.means, r.extras["fallback"].mean()
-            failure_rate_row(res, f"adaptive{N}", refresh_failure_rate(r), law=law_name)
-        errs = {k: np.sqrt(np.sum((v - xs) ** 2, axis=-1)) for k, v in est.items()}  # |x - x_hat|
+        ident = {"A": A.tolist(), "b": b.tolist(), "c": c.tolist(), "wb": wb, "law": law_name, "Ns": Ns, "T": T,
+                 "P": P, "n0": params["n0"], "window": params["window"], **bkw, "seed": seed, "case": i}
+        mc = montecarlo(law_name, partial(_second_order_block, **ident), R, block=block, ident=ident)
+        for N in Ns:
+            failure_rate_row(res, f"adaptive{N}", mc[f"refresh:adaptive{N}"], law=law_name)
+        errs = {k: np.sqrt(np.sum((v - mc["xs"]) ** 2, axis=-1)) for k, v in block_estimates(mc).items()}  # |x - x_hat|
         per_path = _mse_rows(res, errs, skip, law_name)
         _claims(res, per_path, law_name, Ns, "second-order")
-        res.notes.append(f"second-order law={law_name}: uniform fallback used in "
-                         + ", ".join(f"{k} {100 * v:.2f}%" for k, v in fb.items()) + " of steps")
+        res.notes.append(f"second-order law={law_name}: uniform fallback used in " + _fallbacks(mc) + " of steps")
     _figure(res, laws, Ns, f"{R} paths × steps {skip}..{T - 1}; E|x − x̂|² over both states",
             f"particle filter, {P} particles")
     res.notes.append(f"reachable-set bound: {params['bounding']} ({params['directions']} template directions + "
                      "the measurement's) ; mse = E|x - x_hat|^2 summed over both states; 'optimal' = bootstrap particle filter "
                      f"({P} particles): near-optimal, its own Monte Carlo error is part of its row's noise.")
     return res
+
+
+def _second_order_block(rows, *, A, b, c, wb, law, Ns, T, P, n0, window, bounding, directions, seed, case):
+    """One Monte Carlo block of the second-order system with input law ``law``: the paths ``rows``
+    (per-path streams of case ``case`` of ``seed``; stationary: :data:`BURN` steps of burn-in from
+    0), the bootstrap particle optimum (``P`` particles, x0 from 200 steps of the input from 0;
+    each path's ``streams.FILTER`` sub-stream), the Kalman filter knowing the input's mean and
+    variance, and the moment filters ``moment{N}`` (input moments known) and ``adaptive{N}``
+    (000's algorithm) on the ``bounding`` reachable set; per path ``xs`` and every filter's
+    :func:`~nlfilter.experiments.zero_order.block_arrays` (the moment filters' fallback flags)."""
+    from ..filters.moment_bayes import SecondOrderMomentFilter
+    from ..filters.reference.bounded import BoundedParticleFilter
+    A, b, c = np.asarray(A), np.asarray(b), np.asarray(c)
+    w_law = input_law(law, wb)
+    rng = ev.stream(seed, case)  # simulation: the paths' streams; the particle filter: their FILTER sub-streams
+    truth = BoundedNoiseModel(A, b, c, wb, w_law=w_law)
+    xs, zs = truth.simulate(T, rows, rng, burn=BURN)
+    zs = zs[..., 0]
+    bkw = dict(bounding=bounding, directions=directions)
+    out = {"xs": xs,
+           "est:optimal": BoundedParticleFilter(truth, particles=P).run(
+               zs[..., None], initial=partial(_stationary_x0, A=A, b=b, law=w_law),
+               rng=streams.PathRNG(rng, rows, key=streams.FILTER)).means,
+           "est:kalman": kalman_second_order(zs, A, b, c, w_law)}
+    model = BoundedNoiseModel(A, b, c, wb)
+    for N in Ns:
+        out.update(block_arrays(f"moment{N}", SecondOrderMomentFilter(
+            model, N, w_moments=raw_moments(w_law, N), **bkw).run(zs[..., None]), "fallback"))
+        out.update(block_arrays(f"adaptive{N}", SecondOrderMomentFilter(
+            model, N, adaptive=True, n0=n0, window=window, invalid_moments="ignore", **bkw).run(zs[..., None]),
+            "fallback"))
+    return out
+
+
+def _stationary_x0(r, shape, *, A, b, law):
+    """The particle optimum's initial sampler: x0 after 200 steps of ``x+ = A x + b w`` from 0."""
+    x = np.zeros((*shape, 2))
+    for _ in range(200):
+        x = x @ A.T + law.rvs(size=shape, random_state=r)[..., None] * b
+    return x

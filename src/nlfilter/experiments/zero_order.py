@@ -8,14 +8,22 @@
   point where the estimator switches to its fallback 3.16), plus a Monte Carlo check.
 * ``zero-order-adaptive`` — Fig. 10: time-averaged MSE (eq. 3.17) of the adaptive filter of
   Fig. 7 (initial guess uniform, n0 = 100, refresh every 20 samples) against n, J = 10 and 0.
+* ``zero-order-robustness`` — the adaptive filter when x and v are correlated (Gaussian copula)
+  and when the noise is not additive (``z = x + (1 + beta x) v``).
+
+Their Monte Carlo is computed in blocks of ``block`` paths (0: one block of all the run's paths,
+the default; :func:`nlfilter.montecarlo.montecarlo`): a block simulates its paths (per-path
+streams of the case) and runs every estimator or filter on them (:func:`_table1_block`,
+:func:`_adaptive_block`, :func:`_correlated_block`, :func:`_scaled_noise_block`); the statistics
+are computed from all the blocks' paths.
 """
 
 from __future__ import annotations
 
 import warnings
+from functools import partial
 
 import numpy as np
-from tqdm import tqdm
 
 from . import experiment
 from .. import evaluate as ev
@@ -23,6 +31,7 @@ from ..bounded import ZeroOrderModel
 from ..filters.moment_bayes import (MomentFilterWarning, ZeroOrderMomentFilter, power_density_estimate,
                                     refresh_failure_rate)
 from ..moments.densities import power_density_moments
+from ..montecarlo import montecarlo
 from ..results import Result
 
 # Table 1 of seed 000 (columns e_op, e_2, e_4, e_6, e_linear), read from the OCR.  Cells the OCR
@@ -126,10 +135,29 @@ def _estimators(J, Ns, eps):
     return out
 
 
+BLOCK = {"block": 0}  # paths per Monte Carlo block; 0: all of the run's paths in one block (one batch)
+BLOCK_RANGE = {"block": ">=0,<=1000000"}
+
+
+def block_size(res, params, paths):
+    """The paths per Monte Carlo block that run (recorded in ``res.params``): ``params["block"]``,
+    0 for all ``paths`` in one block."""
+    return res.used("block", int(params["block"])) or paths
+
+
+def _table1_block(rows, *, J, Ns, eps, spp, seed, case):
+    """One block of Table 1's Monte Carlo check: the paths ``rows`` of ``spp`` i.i.d. samples each
+    (per-path streams of case ``case`` of ``seed``) and every estimator of :func:`_estimators` at
+    them, ``{"x": (B, spp), name: (B, spp)}`` (common random numbers across estimators)."""
+    x, z = ZeroOrderModel(J).simulate(spp, rows, ev.stream(seed, case))
+    return {"x": x.reshape(len(rows), -1),
+            **{name: f(z).reshape(len(rows), -1) for name, (f, _) in _estimators(J, Ns, eps).items()}}
+
+
 @experiment("zero-order", title="Zero-order problem: ensemble MSE of optimal, moment and linear estimators",
             source="seed 000, Table 1 (eqs. 3.7, 3.20, 3.21, 3.24)",
-            params={"J": [0, 2, 4, 6, 8, 10], "N": [2, 4, 6], "eps": 1e-6},
-            ranges={"J": ">=0,<=40", "N": ">=1,<=12", "eps": ">0,<1"})
+            params={"J": [0, 2, 4, 6, 8, 10], "N": [2, 4, 6], "eps": 1e-6, **BLOCK},
+            ranges={"J": ">=0,<=40", "N": ">=1,<=12", "eps": ">0,<1", **BLOCK_RANGE})
 def run_table1(params, *, quick, runs, seed, progress):
     Js = [_check_J(J) for J in params["J"]]
     Ns = [_check_N(N) for N in params["N"]]
@@ -154,20 +182,15 @@ def run_table1(params, *, quick, runs, seed, progress):
                 res.add(name, "mse_gap", det[name] - det["optimal"], J=J)
         # Monte Carlo check with common random numbers across estimators: i.i.d. samples, drawn as
         # paths of SPP samples each (per-path streams; a stream per sample would cost more than the
-        # estimators), 200 paths per chunk unless --chunk, the first n_mc samples, the MSE through evaluate
-        model = ZeroOrderModel(J)
+        # estimators), in blocks of paths, the first n_mc samples, the MSE through evaluate
         spp = res.used("samples_per_path", min(SPP, n_mc))
         npaths = res.used("sample_paths", -(-n_mc // spp))
-
-        def chunk(rows, bar):
-            x, z = model.simulate(spp, rows, ev.stream(seed, i))
-            bar.update(len(rows) * spp)
-            return x.reshape(-1, 1, 1), {name: f(z).reshape(-1, 1, 1) for name, (f, _) in ests.items()}
-        with tqdm(total=npaths * spp, disable=not progress, desc=f"J={J}") as bar:
-            xs, est = ev.in_chunks(lambda rows: chunk(rows, bar), npaths, ev.chunk() or 200)
-        xs = xs[:n_mc]
-        for name, e in est.items():
-            sm = ev.mse(e[:n_mc], xs)
+        ident = {"J": J, "Ns": Ns, "eps": eps, "spp": spp, "seed": seed, "case": i}
+        mc = montecarlo(f"J={J}", partial(_table1_block, **ident), npaths, block=block_size(res, params, npaths),
+                        ident=ident)
+        xs = mc["x"].reshape(-1, 1, 1)[:n_mc]
+        for name in ests:
+            sm = ev.mse(mc[name].reshape(-1, 1, 1)[:n_mc], xs)
             res.add(name, "mse_mc", sm.value, stderr=sm.stderr, paper=paper_value(J, name), J=J)
     names = ["optimal"] + [f"moment{N}" for N in Ns] + ["linear"]
     Js = sorted(set(Js))  # the figure's x axis
@@ -200,27 +223,40 @@ def run_table1(params, *, quick, runs, seed, progress):
 
 # ------------------------------------------------------------------ Fig. 10
 
-def adaptive_estimates(J, Ns, *, n_max, runs, n0, window, eps, invalid_moments, rng, progress=False):
-    """``(xs (runs, n_max, 1), estimates {name: (runs, n_max, 1)}, fallback rates {name: (fallback, invalid,
-    refresh failure rate per run)})``
-    of the adaptive filters of Fig. 7, the linear filter with the exact second moment of x and the
-    optimal estimator (eq. 3.20) on one simulation of :class:`~nlfilter.bounded.ZeroOrderModel`."""
-    xs, zs = ev.in_chunks(lambda rows: ZeroOrderModel(J).simulate(n_max, rows, rng), runs)
-    out = {}
-    fb_rate = {}
-    for N in tqdm(Ns, disable=not progress, desc=f"J={J}"):
+def _adaptive_block(rows, *, J, Ns, n_max, n0, window, eps, invalid_moments, seed, case):
+    """One Monte Carlo block of Fig. 10: the paths ``rows`` of :class:`~nlfilter.bounded.ZeroOrderModel`
+    (per-path streams of case ``case`` of ``seed``), ``n_max`` samples each; the adaptive filters
+    of Fig. 7 (``moment{N}``), the linear filter with the exact second moment of x (000: "second
+    moment known exactly") and the optimal estimator (eq. 3.20). Per path: ``xs``, every filter's
+    estimates ``est:{name}``, and per adaptive filter its fallback and invalid-moment flags per
+    step and its refresh failure rate (:func:`block_arrays`)."""
+    xs, zs = ZeroOrderModel(J).simulate(n_max, rows, ev.stream(seed, case))
+    out = {"xs": xs}
+    for N in Ns:
         f = ZeroOrderMomentFilter(N, adaptive=True, n0=n0, window=window, eps=eps,
                                   invalid_moments=invalid_moments)
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", MomentFilterWarning)
-            r = f.run(zs, chunk=ev.chunk())
-        out[f"moment{N}"] = r.means
-        fb_rate[f"moment{N}"] = (float(np.mean(r.extras["fallback"])), float(np.mean(r.extras["invalid"])),
-                                 refresh_failure_rate(r))
-    # linear filter with the exact second moment of x (000: "second moment known exactly")
-    out["linear"] = linear_gain(J) * zs
-    out["optimal"] = power_density_estimate(zs, J)
-    return xs, out, fb_rate
+            out.update(block_arrays(f"moment{N}", f.run(zs), "fallback", "invalid"))
+    out["est:linear"] = linear_gain(J) * zs
+    out["est:optimal"] = power_density_estimate(zs, J)
+    return out
+
+
+def block_arrays(name, run, *extras) -> dict:
+    """A Monte Carlo block's per-path arrays of the seed-000 filter ``name``'s ``run``: its
+    estimates ``est:{name}``, the ``extras`` named (``{extra}:{name}``, per step) and for an
+    adaptive filter its refresh failure rate ``refresh:{name}``
+    (:func:`~nlfilter.filters.moment_bayes.refresh_failure_rate`)."""
+    out = {f"est:{name}": run.means, **{f"{x}:{name}": run.extras[x] for x in extras}}
+    if "refreshed" in run.extras:
+        out[f"refresh:{name}"] = refresh_failure_rate(run)
+    return out
+
+
+def block_estimates(mc) -> dict:
+    """``{name: estimates}`` from the concatenated blocks' ``est:{name}`` arrays, in block order."""
+    return {k.partition(":")[2]: v for k, v in mc.items() if k.startswith("est:")}
 
 
 def failure_rate_row(res, name, rate, **key):
@@ -241,9 +277,9 @@ def _paired(est, xs, a, b, n=None):
 @experiment("zero-order-adaptive", title="Zero-order adaptive moment filter: time-averaged MSE vs n",
             source="seed 000, Fig. 10 (a) J=10, (b) J=0; flow chart Fig. 7",
             params={"J": [10, 0], "N": [2, 4, 6], "n0": 100.0, "window": 20, "n_max": 3000,
-                    "eps": 1e-6, "invalid_moments": "ignore"},
+                    "eps": 1e-6, "invalid_moments": "ignore", **BLOCK},
             ranges={"J": ">=0,<=40", "N": ">=1,<=12", "n0": ">0", "window": ">=1,<=100000", "n_max": ">=2,<=10000000",
-                    "eps": ">0,<1", "invalid_moments": ("warn", "keep", "ignore")})
+                    "eps": ">0,<1", "invalid_moments": ("warn", "keep", "ignore"), **BLOCK_RANGE})
 def run_fig10(params, *, quick, runs, seed, progress):
     Js = [_check_J(J) for J in params["J"]]
     Ns = [_check_N(N) for N in params["N"]]
@@ -255,10 +291,14 @@ def run_fig10(params, *, quick, runs, seed, progress):
                  "seed 000, Fig. 10", params)
     res.params.update(n_max=n_max, paths=R)  # the values that ran (quick caps included)
     grid = np.unique(np.linspace(params["window"], n_max, 60).astype(int))
+    block = block_size(res, params, R)
     for i, J in enumerate(Js):
-        xs, est, fbr = adaptive_estimates(J, Ns, n_max=n_max, runs=R, n0=params["n0"], window=params["window"],
-                                          eps=params["eps"], invalid_moments=params["invalid_moments"],
-                                          rng=ev.stream(seed, i), progress=progress)
+        ident = {"J": J, "Ns": Ns, "n_max": n_max, "n0": params["n0"], "window": params["window"],
+                 "eps": params["eps"], "invalid_moments": params["invalid_moments"], "seed": seed, "case": i}
+        mc = montecarlo(f"J={J}", partial(_adaptive_block, **ident), R, block=block, ident=ident)
+        xs, est = mc["xs"], block_estimates(mc)
+        fbr = {f"moment{N}": (float(np.mean(mc[f"fallback:moment{N}"])), float(np.mean(mc[f"invalid:moment{N}"])),
+                              mc[f"refresh:moment{N}"]) for N in Ns}
         qn = f"mse_n{n_max}"
         for name, e in est.items():
             sm = ev.mse(e, xs)
@@ -349,11 +389,10 @@ def correlated_optimal(z, J: int, r: float, nodes: int = 160):
 @experiment("zero-order-robustness", title="Zero-order filter under input/noise correlation and non-additive noise",
             source="seed 000, Chapter III (abstract: correlation and non-additive measurement)",
             params={"J": 10, "N": [2, 4, 6], "r": [0.0, 0.3, 0.6, 0.9], "beta": [0.0, 0.3, 0.6],
-                    "n": 3000, "n0": 100.0, "window": 20},
+                    "n": 3000, "n0": 100.0, "window": 20, **BLOCK},
             ranges={"J": ">=0,<=40", "N": ">=1,<=12", "r": ">-1,<1", "beta": ">=-10,<=10", "n": ">=2,<=10000000",
-                    "n0": ">0", "window": ">=1,<=100000"})
+                    "n0": ">0", "window": ">=1,<=100000", **BLOCK_RANGE})
 def run_robustness(params, *, quick, runs, seed, progress):
-    from ..filters.moment_bayes import ScaledNoiseZeroOrderFilter
     J = _check_J(params["J"])
     Ns = [_check_N(N) for N in params["N"]]
     n = int(params["n"]) if not quick else min(int(params["n"]), 400)
@@ -361,25 +400,22 @@ def run_robustness(params, *, quick, runs, seed, progress):
     res = Result("zero-order-robustness", "Zero-order filter: correlation and non-additive noise",
                  "seed 000, Chapter III", params)
     res.params.update(n=n, paths=R)  # the values that ran (quick caps included)
-    kw, c = dict(n0=params["n0"], window=params["window"]), ev.chunk()
+    block = block_size(res, params, R)
     m2x = (J + 1) / (J + 3)
     # --- correlation between the signal x and the measurement noise v (Gaussian copula)
     for i, r in enumerate(params["r"]):
         r = float(r)
         if not 0 <= r < 1:
             raise ValueError(f"r: expected a copula correlation 0 <= r < 1, got {r}")
-        xs, zs, v = ev.in_chunks(lambda rows: ZeroOrderModel(J, copula_r=r).simulate(n, rows, ev.stream(seed, i), noise=True), R)
-        z = zs[..., 0]
+        ident = {"J": J, "r": r, "Ns": Ns, "n": n, "n0": params["n0"], "window": params["window"], "seed": seed,
+                 "case": i}
+        mc = montecarlo(f"correlated r={r}", partial(_correlated_block, **ident), R, block=block, ident=ident)
+        xs, zs, est = mc["xs"], mc["zs"], block_estimates(mc)
         rho = copula_corr(J, r)
-        est = {"optimal": np.concatenate([correlated_optimal(zc, J, r) for zc in np.array_split(z, max(1, R // 20))])[..., None]}
-        exv = float(np.mean(xs[..., 0] * v))  # E[xv] (the linear filter is given the true second moments)
-        est["linear"] = (m2x + exv) / (m2x + 2 * exv + 1 / 3) * zs
-        for N in tqdm(Ns, disable=not progress, desc=f"r={r}"):
-            run = ZeroOrderMomentFilter(N, adaptive=True, invalid_moments="ignore", **kw).run(zs, chunk=c)
-            est[f"moment{N}"] = run.means
-            failure_rate_row(res, f"moment{N}", refresh_failure_rate(run), case="correlated", r=r)
-            est[f"moment{N}-known"] = ZeroOrderMomentFilter(N, moments=power_density_moments(N, J),
-                                                            invalid_moments="ignore").run(zs, chunk=c).means
+        exv = float(np.mean(xs[..., 0] * mc["v"]))  # E[xv] over every path (the linear filter is given the true second moments)
+        est = {"optimal": est.pop("optimal"), "linear": (m2x + exv) / (m2x + 2 * exv + 1 / 3) * zs, **est}
+        for N in Ns:
+            failure_rate_row(res, f"moment{N}", mc[f"refresh:moment{N}"], case="correlated", r=r)
         best = _rows(res, est, xs, n, case="correlated", r=r)
         res.notes.append(f"correlated r={r}: corr(x, v) = {rho:.3f}; best adaptive N = "
                          + str(min(Ns, key=lambda N: best[f"moment{N}"])))
@@ -388,19 +424,14 @@ def run_robustness(params, *, quick, runs, seed, progress):
         beta = float(beta)
         if not 0 <= beta < 1:
             raise ValueError(f"beta: expected 0 <= beta < 1, got {beta}")
-        xs, zs = ev.in_chunks(lambda rows: ZeroOrderModel(J, beta=beta).simulate(n, rows, ev.stream(seed, 100 + i)), R)
-        # exact optimum: the same estimator with the true density (a degree-J polynomial, N = J)
-        est = {"optimal": ScaledNoiseZeroOrderFilter(max(J, 1), beta, moments=power_density_moments(max(J, 1), J),
-                                                     nodes=96).run(zs, chunk=c).means}
-        est["linear"] = m2x / (m2x + (1 + beta ** 2 * m2x) / 3) * zs
-        for N in tqdm(Ns, disable=not progress, desc=f"beta={beta}"):
-            run = ScaledNoiseZeroOrderFilter(N, beta, adaptive=True, invalid_moments="ignore", **kw).run(zs, chunk=c)
-            est[f"moment{N}"] = run.means
-            failure_rate_row(res, f"moment{N}", refresh_failure_rate(run), case="scaled-noise", beta=beta)
-            run = ZeroOrderMomentFilter(N, adaptive=True, outside="clip", invalid_moments="ignore", **kw).run(zs, chunk=c)
-            est[f"moment{N}-additive"] = run.means
-            failure_rate_row(res, f"moment{N}-additive", refresh_failure_rate(run), case="scaled-noise", beta=beta)
-        _rows(res, est, xs, n, case="scaled-noise", beta=beta)
+        ident = {"J": J, "beta": beta, "Ns": Ns, "n": n, "n0": params["n0"], "window": params["window"],
+                 "seed": seed, "case": 100 + i}
+        mc = montecarlo(f"scaled-noise beta={beta}", partial(_scaled_noise_block, **ident), R, block=block,
+                        ident=ident)
+        for N in Ns:
+            for name in (f"moment{N}", f"moment{N}-additive"):
+                failure_rate_row(res, name, mc[f"refresh:{name}"], case="scaled-noise", beta=beta)
+        _rows(res, block_estimates(mc), mc["xs"], n, case="scaled-noise", beta=beta)
     _robustness_figure(res, params, Ns, n, R)
     res.notes.append("correlated: x and v keep their laws, coupled by a Gaussian copula of correlation r.  "
                      "moment{N} = adaptive filter of Fig. 7 "
@@ -409,6 +440,47 @@ def run_robustness(params, *, quick, runs, seed, progress):
                      "non-additive likelihood (eqs. 1.10-1.11), -additive = the additive filter of Fig. 7 "
                      "used regardless (impossible z clipped).")
     return res
+
+
+def _correlated_block(rows, *, J, r, Ns, n, n0, window, seed, case):
+    """One Monte Carlo block of the correlated case: the paths ``rows`` (per-path streams of case
+    ``case`` of ``seed``) of ``n`` pairs (x, v) coupled by a Gaussian copula of correlation ``r``;
+    per path ``xs``, ``zs``, the noises ``v`` (the linear filter's E[xv] is taken over every path),
+    the exact ``E[x | z]`` (:func:`correlated_optimal`, 20 paths at a time), and the adaptive
+    filter of Fig. 7 ``moment{N}`` (assumes independence; with its refresh failure rate) and the
+    filter knowing the true moments of x ``moment{N}-known``."""
+    xs, zs, v = ZeroOrderModel(J, copula_r=r).simulate(n, rows, ev.stream(seed, case), noise=True)
+    z = zs[..., 0]
+    out = {"xs": xs, "zs": zs, "v": v, "est:optimal": np.concatenate(
+        [correlated_optimal(zc, J, r) for zc in np.array_split(z, max(1, len(rows) // 20))])[..., None]}
+    for N in Ns:
+        run = ZeroOrderMomentFilter(N, adaptive=True, invalid_moments="ignore", n0=n0, window=window).run(zs)
+        out.update(block_arrays(f"moment{N}", run))
+        out[f"est:moment{N}-known"] = ZeroOrderMomentFilter(N, moments=power_density_moments(N, J),
+                                                            invalid_moments="ignore").run(zs).means
+    return out
+
+
+def _scaled_noise_block(rows, *, J, beta, Ns, n, n0, window, seed, case):
+    """One Monte Carlo block of the non-additive case ``z = x + (1 + beta x) v``: the paths ``rows``
+    (per-path streams of case ``case`` of ``seed``), ``n`` samples each; per path ``xs``, the exact
+    optimum (the same estimator with the true density, a degree-J polynomial: N = J), the linear
+    filter, the adaptive filter with the exact non-additive likelihood ``moment{N}`` and the
+    additive filter of Fig. 7 used regardless ``moment{N}-additive`` (impossible z clipped), with
+    their refresh failure rates."""
+    from ..filters.moment_bayes import ScaledNoiseZeroOrderFilter
+    xs, zs = ZeroOrderModel(J, beta=beta).simulate(n, rows, ev.stream(seed, case))
+    m2x = (J + 1) / (J + 3)
+    out = {"xs": xs,
+           "est:optimal": ScaledNoiseZeroOrderFilter(max(J, 1), beta, moments=power_density_moments(max(J, 1), J),
+                                                     nodes=96).run(zs).means,
+           "est:linear": m2x / (m2x + (1 + beta ** 2 * m2x) / 3) * zs}
+    for N in Ns:
+        out.update(block_arrays(f"moment{N}", ScaledNoiseZeroOrderFilter(
+            N, beta, adaptive=True, invalid_moments="ignore", n0=n0, window=window).run(zs)))
+        out.update(block_arrays(f"moment{N}-additive", ZeroOrderMomentFilter(
+            N, adaptive=True, outside="clip", invalid_moments="ignore", n0=n0, window=window).run(zs)))
+    return out
 
 
 def _rows(res, est, xs, n, **key):
