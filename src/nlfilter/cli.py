@@ -221,8 +221,8 @@ def _main(argv) -> int:
             _check_folder(args.report)
         exp = experiments.get(args.id)
         params = {k: exp.convert(k, v) for k, v in _parse_params(args.param).items()}
-        if args.runs is not None and args.runs < 1:
-            raise ValueError(f"--runs: expected a positive integer, got {args.runs}")
+        if args.runs is not None and not 1 <= args.runs <= experiments.MAX_RUNS:
+            raise ValueError(f"--runs: expected an integer from 1 to {experiments.MAX_RUNS:,}, got {args.runs}")
         _check_execution(args)
         _check_output("--json", args.json, ".json")
         _check_output("--plot", args.plot, ".png")

@@ -47,6 +47,15 @@ def _means_and_mask(est, xs):
     return means, xs, ok
 
 
+def _component(component, n: int) -> int:
+    """``component`` checked as an index of the state's ``n`` components."""
+    if isinstance(component, (bool, np.bool_)) or not isinstance(component, (int, np.integer)):
+        raise TypeError(f"component: expected an integer index of the state, got {component!r}")
+    if not -n <= component < n:
+        raise ValueError(f"component: expected an index from 0 to {n - 1}, got {component}")
+    return int(component)
+
+
 def _window(T, window):
     if window is None:
         return slice(None)
@@ -70,7 +79,7 @@ def squared_errors(est, xs, component=None) -> np.ndarray:
     """Squared errors ``(paths, T)`` of one component (or ``(paths, T, n)`` when ``None``)."""
     means, xs, _ = _means_and_mask(est, xs)
     e2 = (means - xs) ** 2
-    return e2 if component is None else e2[..., component]
+    return e2 if component is None else e2[..., _component(component, e2.shape[-1])]
 
 
 def mse(est, xs, *, component: int = 0, window=None) -> Summary:
@@ -84,6 +93,7 @@ def mse(est, xs, *, component: int = 0, window=None) -> Summary:
     3.5
     """
     means, xs, ok = _means_and_mask(est, xs)
+    component = _component(component, xs.shape[-1])
     e2 = (means[..., component] - xs[..., component]) ** 2
     w = _window(e2.shape[-1], window)
     per_path = np.mean(e2[..., w], axis=-1) if e2.shape[-1] else e2
@@ -93,6 +103,7 @@ def mse(est, xs, *, component: int = 0, window=None) -> Summary:
 def mse_per_step(est, xs, *, component: int = 0):
     """MSE at each step ``(T,)`` and its standard error ``(T,)`` (diverged paths left out)."""
     means, xs, ok = _means_and_mask(est, xs)
+    component = _component(component, xs.shape[-1])
     e2 = ((means[..., component] - xs[..., component]) ** 2).reshape(-1, means.shape[-2])
     return _per_step(e2, np.reshape(ok, -1))
 
@@ -155,6 +166,7 @@ def paired_difference(est_a, est_b, xs, *, component: int = 0, window=None) -> S
     """MSE(a) − MSE(b) on the same paths (common random numbers), with its standard error."""
     ma, xs_, ok_a = _means_and_mask(est_a, xs)
     mb, _, ok_b = _means_and_mask(est_b, xs)
+    component = _component(component, xs_.shape[-1])
     d = (ma[..., component] - xs_[..., component]) ** 2 - (mb[..., component] - xs_[..., component]) ** 2
     w = _window(d.shape[-1], window)
     return _summary(np.reshape(np.mean(d[..., w], axis=-1), -1), np.reshape(ok_a & ok_b, -1))

@@ -49,6 +49,7 @@ from tqdm import tqdm
 from . import _validate as V
 
 BLOCK = 32  # default paths per block
+MAX_BLOCKS = 10**6  # blocks one Monte Carlo task may have
 
 
 @dataclass
@@ -235,6 +236,9 @@ def montecarlo(task: str, fn, paths: int, *, block: int = BLOCK, ident: dict | N
     """
     V.positive("paths", paths, integer=True)
     V.positive("block", block, integer=True)
+    if -(-paths // block) > MAX_BLOCKS:
+        raise ValueError(f"paths: {paths:,} paths in blocks of {block:,} make {-(-paths // block):,} blocks; "
+                         f"expected at most {MAX_BLOCKS:,} blocks (raise block)")
     sess = current() or Session(LocalExecutor())
     ranges = [range(a, min(a + block, paths)) for a in range(0, paths, block)]
     done: dict[int, dict] = {}

@@ -24,6 +24,9 @@ from typing import Callable
 from ..results import Result, _decode, _encode, provenance
 
 
+MAX_RUNS = 10**7  # Monte Carlo paths an experiment takes (a block of them is bounded by memory: _validate.memory)
+
+
 @dataclass(frozen=True)
 class Experiment:
     id: str
@@ -49,6 +52,8 @@ class Experiment:
             full[name] = self.convert(name, value)
         if runs is not None and (isinstance(runs, bool) or not isinstance(runs, int) or runs < 1):
             raise ValueError(f"runs: expected a positive integer, got {runs!r}")
+        if runs is not None and runs > MAX_RUNS:
+            raise ValueError(f"runs: expected at most {MAX_RUNS:,} Monte Carlo paths, got {runs:,}")
         given = {name: full[name] for name in (params or {})}
         from ..evaluate import chunked
         from ..montecarlo import session

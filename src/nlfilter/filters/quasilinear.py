@@ -465,7 +465,9 @@ class _DQLFSchedule(DiscreteSchedule):
         self.rows.append((mean, a0, a1, b0, b1))
         self.mu = self.lin.step(self.mu, k)
         if not np.all(np.isfinite(self.mu)):
-            raise ClosureDivergedError(f"{self.name}: prior moments blew up at k = {k + 1}", time=k + 1)
+            raise ClosureDivergedError(f"{self.name}: prior moments blew up at k = {k + 1}: the off-line moments "
+                                       "from the prior m0, P0 overflowed (expected a prior whose moments the "
+                                       "model's map keeps finite)", time=k + 1)
         return a1, a0 - a1 @ mean, b1, b0 - b1 @ mean, sig, self.R
 
     def gain(self, P, H, S):

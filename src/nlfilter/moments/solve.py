@@ -137,6 +137,8 @@ def propagate(eqs: MomentEquations, mu0, t_eval, *, closure: Closure | None = No
     if eqs.kind != "continuous":
         raise ValueError(f"eqs: expected continuous-time moment equations, got {eqs.kind}; use iterate()")
     _check_closure(eqs, closure)
+    V.positive("rtol", rtol)
+    V.positive("atol", atol)
     t_eval = V.as_float_array("t_eval", t_eval, ndim=1)
     V.finite("t_eval", t_eval)
     if t_eval.size == 0 or np.any(np.diff(t_eval) < 0):

@@ -85,11 +85,23 @@ def input_moments(N, S, mv, initial, n0, acc, n_s):
     cumulants of w (divide by S_i) -> moments of w, blended with the initial guess (eq. 3.15).
     ``n_s`` is per path (``(B,)``) or a number."""
     n_s = np.asarray(n_s, dtype=float)[..., None]
-    my = difference_moments(acc / n_s, mv)  # 000 eq. 3.14
+    my = difference_moments(sample_moments(acc, n_s), mv)  # 000 eq. 3.14
     kw = moments_to_cumulants(my) / S
     mw_hat = cumulants_to_moments(kw)
     w0 = n0 / (n_s + n0)
     return w0 * initial + (1.0 - w0) * mw_hat  # 000 eq. 3.15
+
+
+def sample_moments(acc, n_s) -> np.ndarray:
+    """The sample moments ``acc / n_s`` of the measurements the adaptive learner accumulated,
+    refused naming ``ys`` when their powers overflowed (a measurement of magnitude ~1e300 that no
+    bounded state and noise explain: ``outside="clip"`` clips such measurements instead)."""
+    m = acc / n_s
+    if not np.all(np.isfinite(m)):
+        raise ValueError("ys: the powers of the measurements overflowed the learnt sample moments (a measurement "
+                         "no bounded state and noise explain); expected measurements within the model's bounds, "
+                         "or pass outside='clip'")
+    return m
 
 
 def check_N(N):

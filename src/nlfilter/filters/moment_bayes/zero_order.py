@@ -32,7 +32,7 @@ from ...moments.densities import (LegendreDensity, difference_moments, is_moment
                                   uniform_moments)
 from ...bounded import ZeroOrderModel
 from ._common import (MomentFilter, MomentFilterWarning, check_invalid_moments, check_N, keep_missing, observed,
-                      warn_refresh_failures)
+                      sample_moments, warn_refresh_failures)
 
 
 class ZeroOrderBelief(NamedTuple):
@@ -261,7 +261,7 @@ class ZeroOrderMomentFilter(MomentFilter):
     def recover_moments(self, mz_hat, n_s):
         """Moments of x from sample moments of z after ``n_s`` samples (eqs. 3.14-3.15)."""
         n_s = np.asarray(n_s, dtype=float)[..., None]
-        mx_hat = difference_moments(mz_hat, self.mv)  # 000 eq. 3.14
+        mx_hat = difference_moments(sample_moments(mz_hat, 1.0), self.mv)  # 000 eq. 3.14
         w0 = self.n0 / (n_s + self.n0)
         return w0 * self.initial_moments + (1.0 - w0) * mx_hat  # 000 eq. 3.15
 

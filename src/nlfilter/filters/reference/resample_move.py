@@ -148,7 +148,8 @@ class ResampleMoveParticleFilter(Filter):
                              f"expected None, got {type(initial).__name__}")
         n, m = self.model.n, self.model.m
         if np.ndim(m0) > 1 or np.ndim(P0) > 2:
-            raise ValueError(f"m0: the resample-move filter takes one prior ({n},), ({n}, {n}) for all paths, "
+            raise ValueError(f"{'m0' if np.ndim(m0) > 1 else 'P0'}: the resample-move filter takes one prior ({n},), "
+                             f"({n}, {n}) for all paths, "
                              f"got shapes {np.shape(m0)}, {np.shape(P0)}")
         m0 = V.mean("m0", m0, n)
         P0 = V.covariance("P0", P0, n)

@@ -1,0 +1,242 @@
+"""Fuzz of the model constructors, ``simulate``, the evaluation functions and the moment engine
+(issue 15, item 7): table-driven bad and extreme inputs, and hypothesis over model expressions.
+Each call is classified by the harness (conftest.py)."""
+
+from __future__ import annotations
+
+import sys
+
+import numpy as np
+import pytest
+import sympy as sp
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as hst
+
+from nlfilter import BilinearModel, DiscreteModel, SDEModel, mse, nees, paired_difference
+from nlfilter.filters import EKF, QLF, UKF, ContinuousEKF, GridFilter, KalmanBucy, ParticleFilter, TensorFilter
+from nlfilter.moments import (PolynomialSDE, gauss_hermite_rule, gaussian_moments, monomials, moment_equations,
+                              propagate, steady_state)
+from nlfilter.filters.quasilinear import DiscreteQuasilinearFilter
+
+S = sys.modules["nlfilter.simulate"]
+x, y, t, a = sp.symbols("x y t a")
+nan, inf = float("nan"), float("inf")
+D1 = DiscreteModel([x], [0.9 * x - 0.05 * x**3], [x + 0.1 * x**2], Q=0.1, R=0.2)
+SDE1 = SDEModel([x], [-x], [x], Q=0.5, R=0.1)
+
+
+def _disc(f=(0.9 * x,), h=(x,), **kw):
+    kw = {"Q": 0.1, "R": 0.2, **kw}
+    return lambda: DiscreteModel([x], list(f), list(h), **kw)
+
+
+def _sde(f=(-x,), h=(x,), **kw):
+    kw = {"Q": 0.5, "R": 0.1, **kw}
+    return lambda: SDEModel([x], list(f), list(h), **kw)
+
+
+MODELS = [  # (label, constructor, names an error must carry)
+    ("f imaginary", _disc(f=(sp.I * x,)), "f"),
+    ("f zoo", _disc(f=(sp.zoo,)), "f"),
+    ("f oo*x", _disc(f=(sp.oo * x,)), "f"),
+    ("f nan*x", _disc(f=(sp.nan * x,)), "f"),
+    ("h imaginary", _disc(h=(sp.I * x,)), "h"),
+    ("f undefined function", _disc(f=(sp.Function("g")(x),)), "f"),
+    ("f DiracDelta", _disc(f=(sp.DiracDelta(x),)), "f"),
+    ("f string", _disc(f=("x +",)), "f"),
+    ("f None", lambda: DiscreteModel([x], None, [x], Q=0.1, R=0.2), "f"),
+    ("f length", _disc(f=(x, x)), "f"),
+    ("h empty", _disc(h=()), "h"),
+    ("states empty", lambda: DiscreteModel([], [], [x], Q=0.1, R=0.2), "states"),
+    ("states repeated", lambda: DiscreteModel([x, x], [x, x], [x], Q=np.eye(2), R=0.2), "states"),
+    ("states number", lambda: DiscreteModel([1], [x], [x], Q=0.1, R=0.2), "states"),
+    ("param None", _disc(f=(a * x,), params={a: None}), "a"),
+    ("param nan", _disc(f=(a * x,), params={a: nan}), "a"),
+    ("param inf", _disc(f=(a * x,), params={a: inf}), "a"),
+    ("param complex", _disc(f=(a * x,), params={a: 1j}), "a"),
+    ("param string", _disc(f=(a * x,), params={a: "abc"}), "a"),
+    ("state as parameter", _disc(f=(a * x,), params={a: 0.5, x: 1.0}), "x"),
+    ("time is a state", _disc(f=(x,), time=x), "time"),
+    ("Q nan", _disc(Q=nan), "Q"),
+    ("Q negative", _disc(Q=-1.0), "Q"),
+    ("Q complex", _disc(Q=1j), "Q"),
+    ("Q string", _disc(Q="abc"), "Q"),
+    ("R inf", _disc(R=inf), "R"),
+    ("R negative", _disc(R=-0.2), "R"),
+    ("R not symmetric", lambda: DiscreteModel([x], [x], [x, x], Q=0.1, R=[[1, 2], [0, 1]]), "R"),
+    ("R wrong size", _disc(R=np.eye(3)), "R"),
+    ("G wrong shape", _disc(G=[[1], [1]]), "G"),
+    ("sde f imaginary", _sde(f=(sp.I * x,)), "f"),
+    ("sde Q negative", _sde(Q=-0.5), "Q"),
+    ("bilinear c wrong length", lambda: BilinearModel([[-1.0]], [[1.0]], B=[[1.0]], Q=1.0, R=1.0,
+                                                                   c=[1.0, 2.0]), "c"),
+    ("bilinear degree 3.5", lambda: BilinearModel.from_polynomial(SDE1, degree=3.5), "degree"),
+    ("polynomial sde negative diffusion", lambda: PolynomialSDE.from_sympy([x], [-x], [[-1.0]]), ("sigma", "G", "Q")),
+]
+
+
+@pytest.mark.parametrize("label,make,names", MODELS, ids=[m[0] for m in MODELS])
+def test_bad_model_is_refused_naming_the_field(fuzz, label, make, names):
+    fuzz.check("models", make, names, label=label)
+
+
+def _runs_through(make):
+    """Build a model and run it end to end: simulate 3 paths, EKF and UKF (marking)."""
+    def go():
+        md = make()
+        sim = S.simulate(md, 6, paths=3, rng=1, m0=[0.5], P0=[[0.2]])
+        return [f(md).run(sim.ys, [0.5], [[0.2]], on_divergence="mark") for f in (EKF, UKF)], sim
+    return go
+
+
+NONSMOOTH = [  # supported with a stated derivative convention, or refused naming f
+    ("Abs", sp.Abs(x)), ("sign", sp.sign(x)), ("floor", sp.floor(x)), ("Max", sp.Max(x, 0)),
+    ("Min", sp.Min(x, 1)), ("Heaviside", sp.Heaviside(x)), ("ceiling", sp.ceiling(x)),
+    ("Piecewise", sp.Piecewise((x, x > 0), (0, True))),
+]
+
+
+@pytest.mark.parametrize("label,expr", NONSMOOTH, ids=[n[0] for n in NONSMOOTH])
+def test_nonsmooth_functions_run_or_are_refused(fuzz, label, expr):
+    fuzz.check("models: nonsmooth f", _runs_through(_disc(f=(0.5 * x + 0.1 * expr,))), "f", bad=False, label=label)
+
+
+def test_time_varying_model_singular_at_zero(fuzz):
+    """f = x/t at t = 0: inf, so the simulation raises naming on_divergence (or marks) — never a
+    ZeroDivisionError."""
+    make = lambda: DiscreteModel([x], [x / t], [x], Q=0.1, R=0.2, time=t)  # noqa: E731
+    fuzz.check("models: nonsmooth f", _runs_through(make), ("f", "t", "time", "on_divergence"), bad=False,
+               label="x/t")
+
+
+# -- hypothesis: random expressions with bad atoms -------------------------------------------------
+_ATOMS = [x, x**2, sp.sin(x), sp.exp(-x**2), sp.Float(0.3)]
+_BAD_ATOMS = [sp.I, sp.zoo, sp.oo, sp.nan, sp.Function("u")(x), sp.DiracDelta(x)]
+
+
+@settings(max_examples=30, deadline=None, derandomize=True, suppress_health_check=list(HealthCheck))
+@given(good=hst.lists(hst.sampled_from(_ATOMS), min_size=1, max_size=3), bad=hst.sampled_from(_BAD_ATOMS),
+       where=hst.sampled_from(["f", "h"]))
+def test_random_expressions_with_a_bad_atom(fuzz, good, bad, where):
+    expr = sp.Add(*good) * sp.Float(0.1) + bad * x
+    make = _disc(**{where: (expr,)})
+    fuzz.check("models: random expressions", _runs_through(make), where, label=f"{where} = {expr}")
+
+
+# -- filters built on bad models/options -------------------------------------------------------------
+OPTIONS = [
+    ("ContinuousEKF R = 0", lambda: ContinuousEKF(SDEModel([x], [-x], [x], Q=0.5, R=0.0), 0.05), "R"),
+    ("KalmanBucy R = 0", lambda: KalmanBucy(SDEModel([x], [-x], [x], Q=0.5, R=0.0), 0.05), "R"),
+    ("QLF R = 0", lambda: QLF(SDEModel([x], [-x], [x], Q=0.5, R=0.0), 0.05), "R"),
+    ("grid SDE R = 0", lambda: GridFilter(SDEModel([x], [-x], [x], Q=0.5, R=0.0), (-3, 3), 41, dt=0.05), "R"),
+    ("particle SDE R = 0", lambda: ParticleFilter(SDEModel([x], [-x], [x], Q=0.5, R=0.0), 50, dt=0.05), "R"),
+    ("grid G = x singular at 0", lambda: GridFilter(DiscreteModel([x], [0.9 * x], [x], G=[[x]], Q=0.5, R=0.1),
+                                                    (-3, 3), 41).run(np.zeros((1, 3, 1)), 0.5, 0.2), "G"),
+    ("GridFilter size 30.7", lambda: GridFilter(D1, (-3, 3), 30.7), "size"),
+    ("GridFilter size 0", lambda: GridFilter(D1, (-3, 3), 0), "size"),
+    ("GridFilter bounds reversed", lambda: GridFilter(D1, (3, -3), 41), "bounds"),
+    ("GridFilter bounds nan", lambda: GridFilter(D1, (nan, 3), 41), "bounds"),
+    ("TensorFilter degree 3.0", lambda: TensorFilter(BilinearModel.from_polynomial(SDE1), 0.05, degree=3.0), "degree"),
+    ("QLF rtol -1", lambda: QLF(SDE1, 0.05, rtol=-1.0), "rtol"),
+    ("QLF dt 0", lambda: QLF(SDE1, 0.0), "dt"),
+    ("QLF dt nan", lambda: QLF(SDE1, nan), "dt"),
+    ("QLF substeps 2.5", lambda: QLF(SDE1, 0.05, substeps=2.5), "substeps"),
+    ("ParticleFilter particles 0", lambda: ParticleFilter(D1, 0), "particles"),
+    ("ParticleFilter particles 10.5", lambda: ParticleFilter(D1, 10.5), "particles"),
+    ("EKF model None", lambda: EKF(None), "model"),
+    ("EKF model string", lambda: EKF("model"), "model"),
+    ("dqlf error_analysis order 30", lambda: DiscreteQuasilinearFilter(D1).error_analysis(0.5, 0.2, 3, order=30),
+     "order"),
+    ("dqlf error_analysis steps -1", lambda: DiscreteQuasilinearFilter(D1).error_analysis(0.5, 0.2, -1), "steps"),
+]
+
+
+@pytest.mark.parametrize("label,make,names", OPTIONS, ids=[o[0] for o in OPTIONS])
+def test_bad_filter_construction_is_refused_naming_it(fuzz, label, make, names):
+    fuzz.check("filters: construction", make, names, label=label)
+
+
+# -- simulate ------------------------------------------------------------------------------------------
+def _sim(**kw):
+    kw = {"paths": 2, "rng": 1, "m0": [0.5], "P0": [[0.2]], **kw}
+    steps = kw.pop("steps", 5)
+    model = kw.pop("model", D1)
+    return lambda: S.simulate(model, steps, **kw)
+
+
+SIMULATE = [
+    ("m0 nan", _sim(m0=[nan]), "m0"), ("m0 complex", _sim(m0=[1j]), "m0"), ("P0 complex", _sim(P0=[[1j]]), "P0"),
+    ("P0 negative", _sim(P0=[[-1.0]]), "P0"), ("x0 inf", _sim(m0=None, P0=None, x0=[inf]), "x0"),
+    ("x0 complex", _sim(m0=None, P0=None, x0=[1j]), "x0"), ("t0 nan", _sim(t0=nan), "t0"),
+    ("t0 'abc'", _sim(t0="abc"), "t0"), ("steps 2.5", _sim(steps=2.5), "steps"), ("steps -1", _sim(steps=-1), "steps"),
+    ("paths 0", _sim(paths=0), "paths"), ("paths 2.5", _sim(paths=2.5), "paths"), ("paths 'a'", _sim(paths="a"), "paths"),
+    ("rng 'abc'", _sim(rng="abc"), "rng"), ("huge allocation", _sim(steps=10**9, paths=1000), ("steps", "paths")),
+    ("no prior", _sim(m0=None, P0=None), ("m0", "x0")), ("dt 0 on an SDE", _sim(model=SDE1, dt=0.0), "dt"),
+    ("dt nan on an SDE", _sim(model=SDE1, dt=nan), "dt"), ("substeps 0", _sim(model=SDE1, dt=0.1, substeps=0), "substeps"),
+    ("continuous-discrete t0 nan", lambda: S.simulate_continuous_discrete(SDE1, 5, paths=2, rng=1, m0=[0.5], P0=[[0.2]],
+                                                                          dt=0.1, t0=nan), "t0"),
+]
+
+
+@pytest.mark.parametrize("label,make,names", SIMULATE, ids=[s[0] for s in SIMULATE])
+def test_bad_simulate_input_is_refused_naming_it(fuzz, label, make, names):
+    fuzz.check("simulate", make, names, label=label)
+
+
+DIVERGING = [  # the paths blow up: DivergenceError naming the step (on_divergence), or marked
+    ("cubic map from 1e200", _sim(model=DiscreteModel([x], [x**3], [x], Q=0.1, R=0.1), m0=None, P0=None, x0=[1e200])),
+    ("unstable x+ = 2x + w", _sim(model=DiscreteModel([x], [2 * x], [x], Q=1.0, R=1.0), steps=1100)),
+    ("explicit Euler too coarse for -x^3", _sim(model=SDEModel([x], [-x**3], [x], Q=1.0, R=1.0), m0=None, P0=None,
+                                                x0=[10.0], dt=1.0, substeps=1, steps=50)),
+]
+
+
+@pytest.mark.parametrize("label,make", DIVERGING, ids=[d[0] for d in DIVERGING])
+def test_diverging_simulation_is_named_or_marked(fuzz, label, make):
+    fuzz.check("simulate: diverging", make, ("on_divergence", "x0", "m0"), bad=False, label=label)
+
+
+# -- evaluate ------------------------------------------------------------------------------------------
+_SIM = S.simulate(D1, 6, paths=3, rng=2, m0=[0.5], P0=[[0.2]])
+_EST = EKF(D1).run(_SIM.ys, [0.5], [[0.2]])
+EVALUATE = [
+    ("mse truth nan", lambda: mse(_EST, _SIM.xs * nan), "xs"), ("mse truth inf", lambda: mse(_EST, _SIM.xs * inf), "xs"),
+    ("mse truth complex", lambda: mse(_EST, _SIM.xs * 1j), "xs"), ("mse truth shape", lambda: mse(_EST, _SIM.xs[:1]), "xs"),
+    ("mse component 5", lambda: mse(_EST, _SIM.xs, component=5), "component"),
+    ("mse component 0.5", lambda: mse(_EST, _SIM.xs, component=0.5), "component"),
+    ("mse window reversed", lambda: mse(_EST, _SIM.xs, window=(4, 1)), "window"),
+    ("nees truth nan", lambda: nees(_EST, _SIM.xs * nan), "xs"),
+    ("paired truth nan", lambda: paired_difference(_EST, _EST, _SIM.xs * nan), "xs"),
+    ("mse estimates None", lambda: mse(None, _SIM.xs), ("est", "estimates")),
+]
+
+
+@pytest.mark.parametrize("label,make,names", EVALUATE, ids=[e[0] for e in EVALUATE])
+def test_bad_evaluate_input_is_refused_naming_it(fuzz, label, make, names):
+    fuzz.check("evaluate", make, names, label=label)
+
+
+# -- the moment engine ----------------------------------------------------------------------------------
+_EQ = moment_equations(PolynomialSDE.from_sympy([x], [-x], [[1.0]]), monomials(1, 2, min_degree=1))
+MOMENTS = [
+    ("gauss_hermite 400 points", lambda: gauss_hermite_rule(1, 400), "points"),
+    ("gauss_hermite 0 points", lambda: gauss_hermite_rule(1, 0), "points"),
+    ("gauss_hermite 2.5 points", lambda: gauss_hermite_rule(1, 2.5), "points"),
+    ("gauss_hermite n 0", lambda: gauss_hermite_rule(0, 3), "n"),
+    ("gauss_hermite 10^8 nodes", lambda: gauss_hermite_rule(8, 10), ("points", "n", "nodes")),
+    ("gaussian_moments negative variance", lambda: gaussian_moments([0.0], [[-1.0]], [(2,)]), "cov"),
+    ("gaussian_moments mean nan", lambda: gaussian_moments([nan], [[1.0]], [(2,)]), "mean"),
+    ("steady_state unstable", lambda: steady_state(moment_equations(PolynomialSDE.from_sympy([x], [x], [[1.0]]),
+                                                                    monomials(1, 2, min_degree=1))), "eqs"),
+    ("propagate t0 nan", lambda: propagate(_EQ, [0.5, 0.5], [1.0], t0=nan), "t0"),
+    ("propagate t_eval nan", lambda: propagate(_EQ, [0.5, 0.5], [nan]), "t_eval"),
+    ("propagate mu0 nan", lambda: propagate(_EQ, [nan, 0.5], [1.0]), "mu0"),
+    ("propagate mu0 length", lambda: propagate(_EQ, [0.5], [1.0]), "mu0"),
+    ("propagate mu0 complex", lambda: propagate(_EQ, [0.5j, 0.5], [1.0]), "mu0"),
+    ("propagate rtol -1", lambda: propagate(_EQ, [0.5, 0.5], [1.0], rtol=-1.0), "rtol"),
+]
+
+
+@pytest.mark.parametrize("label,make,names", MOMENTS, ids=[m[0] for m in MOMENTS])
+def test_bad_moment_engine_input_is_refused_naming_it(fuzz, label, make, names):
+    fuzz.check("moment engine", make, names, label=label)
