@@ -209,7 +209,7 @@ def fit(model, ys, params0, *, filter="ukf", m0=None, P0=None, initial=None, bou
     label = label or getattr(first, "name", type(first).__name__)
     if getattr(first, "likelihood", None) is None:
         raise TypeError(f"filter: {label} defines no log-likelihood; use a Gaussian filter, grid or particle")
-    ys = np.asarray(ys, dtype=float)
+    ys = V.finite("ys", V.as_float_array("ys", ys, ndim_min=2), allow_nan=True)
 
     def loglik(theta):
         md = model.with_params(dict(zip(names, theta)))

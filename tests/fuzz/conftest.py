@@ -146,10 +146,10 @@ def pytest_terminal_summary(terminalreporter):
     tr = terminalreporter
     tr.section("fuzz suite: outcomes per area")
     cols = [o for o in OUTCOMES if any(c[o] for c in COUNTS.values())]
-    tr.write_line(f"{'area':<24}{'cases':>7}" + "".join(f"{c:>12}" for c in cols))
+    tr.write_line(f"{'area':<30}{'cases':>7}" + "".join(f"{c:>12}" for c in cols))
     for area in sorted(COUNTS):
         c = COUNTS[area]
-        tr.write_line(f"{area:<24}{sum(c.values()):>7}" + "".join(f"{c[o]:>12}" for o in cols))
+        tr.write_line(f"{area:<30}{sum(c.values()):>7}" + "".join(f"{c[o]:>12}" for o in cols))
     for line in FAILURES[:40]:
         tr.write_line("  " + line)
     path = os.environ.get("NLFILTER_FUZZ_JSON")

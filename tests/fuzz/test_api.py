@@ -234,9 +234,78 @@ MOMENTS = [
     ("propagate mu0 length", lambda: propagate(_EQ, [0.5], [1.0]), "mu0"),
     ("propagate mu0 complex", lambda: propagate(_EQ, [0.5j, 0.5], [1.0]), "mu0"),
     ("propagate rtol -1", lambda: propagate(_EQ, [0.5, 0.5], [1.0], rtol=-1.0), "rtol"),
+    ("monomials n 0", lambda: monomials(0, 2), "n"),
+    ("monomials max_degree -1", lambda: monomials(1, -1), "max_degree"),
+    ("monomials max_degree 2.5", lambda: monomials(1, 2.5), "max_degree"),
+    ("moment_equations bad index", lambda: moment_equations(PolynomialSDE.from_sympy([x], [-x], [[1.0]]), [(1, 2)]),
+     ("indices", "wanted")),
+    ("moment_equations negative power", lambda: moment_equations(PolynomialSDE.from_sympy([x], [-x], [[1.0]]), [(-1,)]),
+     ("indices", "wanted")),
+    ("stationary_moments bad wanted", lambda: __import__("nlfilter").moments.stationary_moments(
+        PolynomialSDE.from_sympy([x], [-x], [[1.0]]), [(1, 1)]), "wanted"),
+    ("closure_by_name bogus", lambda: __import__("nlfilter").moments.closure_by_name("bogus"), "closure"),
+    ("expect_gaussian cov negative", lambda: __import__("nlfilter").moments.expect_gaussian(
+        lambda z: z, [0.0], [[-1.0]]), "cov"),
+    ("expect_gaussian rule bogus", lambda: __import__("nlfilter").moments.expect_gaussian(
+        lambda z: z, [0.0], [[1.0]], rule="bogus"), "rule"),
+    ("iterate steps -1", lambda: __import__("nlfilter").moments.iterate(
+        __import__("nlfilter").moments.discrete_moment_equations(DiscreteModel([x], [0.5 * x], [x], Q=1.0, R=1.0),
+                                                                  monomials(1, 2, min_degree=1)), [0.5, 0.5], -1),
+     "steps"),
 ]
 
 
 @pytest.mark.parametrize("label,make,names", MOMENTS, ids=[m[0] for m in MOMENTS])
 def test_bad_moment_engine_input_is_refused_naming_it(fuzz, label, make, names):
     fuzz.check("moment engine", make, names, label=label)
+
+
+# -- the user-facing compositions: compare, fit, parameters, inputs, smoothing, likelihood ------------
+xa = sp.Symbol("xa")
+DA = DiscreteModel([x], [a * x], [x], Q=0.1, R=0.2, params={a: 0.8})
+DU = DiscreteModel([x], [0.9 * x + sp.Symbol("u")], [x], Q=0.1, R=0.2, inputs=[sp.Symbol("u")])
+_YS = _SIM.ys
+_P = {"m0": [0.5], "P0": [[0.2]]}
+COMPOSE = [
+    ("compare model None", lambda: __import__("nlfilter").compare(None, ["ekf"], 5, paths=4, **_P), "model"),
+    ("compare unknown filter", lambda: __import__("nlfilter").compare(D1, ["no-such"], 5, paths=4, **_P), "filters"),
+    ("compare steps 0", lambda: __import__("nlfilter").compare(D1, ["ekf"], 0, paths=4, **_P), "steps"),
+    ("compare paths 1", lambda: __import__("nlfilter").compare(D1, ["ekf"], 5, paths=1, **_P), "paths"),
+    ("compare paths 2.5", lambda: __import__("nlfilter").compare(D1, ["ekf"], 5, paths=2.5, **_P), "paths"),
+    ("compare m0 nan", lambda: __import__("nlfilter").compare(D1, ["ekf"], 5, paths=4, m0=[nan], P0=[[0.2]]), "m0"),
+    ("compare P0 complex", lambda: __import__("nlfilter").compare(D1, ["ekf"], 5, paths=4, m0=[0.5], P0=[[1j]]), "P0"),
+    ("compare window 2", lambda: __import__("nlfilter").compare(D1, ["ekf"], 5, paths=4, window=2.0, **_P), "window"),
+    ("compare rtol -1", lambda: __import__("nlfilter").compare(D1, ["ekf"], 5, paths=4, rtol=-1.0, **_P), "rtol"),
+    ("compare reference bogus", lambda: __import__("nlfilter").compare(D1, ["ekf"], 5, paths=4, reference="bogus", **_P),
+     "reference"),
+    ("compare block 0", lambda: __import__("nlfilter").compare(D1, ["ekf"], 5, paths=4, block=0, **_P), "block"),
+    ("fit params0 nan", lambda: __import__("nlfilter").fit(DA, _YS, {a: nan}, **_P), ("params0", "a")),
+    ("fit unknown parameter", lambda: __import__("nlfilter").fit(DA, _YS, {xa: 0.5}, **_P), ("params0", "xa")),
+    ("fit ys complex", lambda: __import__("nlfilter").fit(DA, _YS * 1j, {a: 0.5}, **_P), "ys"),
+    ("fit filter bogus", lambda: __import__("nlfilter").fit(DA, _YS, {a: 0.5}, filter="bogus", **_P), "filter"),
+    ("fit bounds reversed", lambda: __import__("nlfilter").fit(DA, _YS, {a: 0.5}, bounds={a: (1.0, 0.0)}, **_P),
+     ("bounds", "a")),
+    ("fit_em iterations 0", lambda: __import__("nlfilter").fit_em(_YS, [[0.9]], [[1.0]], [[0.1]], [[0.2]], [0.5],
+                                                                  [[0.2]], iterations=0), "iterations"),
+    ("fit_em Q negative", lambda: __import__("nlfilter").fit_em(_YS, [[0.9]], [[1.0]], [[-0.1]], [[0.2]], [0.5],
+                                                                [[0.2]]), "Q"),
+    ("with_params nan", lambda: DA.with_params({a: nan}), "a"),
+    ("with_params complex", lambda: DA.with_params({a: 1j}), "a"),
+    ("with_params unknown", lambda: DA.with_params({xa: 1.0}), "xa"),
+    ("with_params per-path wrong shape", lambda: EKF(DA.with_params({a: np.ones((2, 3, 4))})).run(_YS, **_P),
+     ("a", "params")),
+    ("with_inputs nan", lambda: DU.with_inputs(np.full((6, 1), nan)), ("u", "inputs")),
+    ("with_inputs wrong width", lambda: DU.with_inputs(np.zeros((6, 3))), ("u", "inputs")),
+    ("with_inputs too short", lambda: EKF(DU.with_inputs(np.zeros((2, 1)))).run(_YS, **_P), ("u", "inputs")),
+    ("smooth ys complex", lambda: EKF(D1).smooth(_YS * 1j, **_P), "ys"),
+    ("smooth P0 negative", lambda: EKF(D1).smooth(_YS, m0=[0.5], P0=[[-1.0]]), "P0"),
+    ("loglik replicates 0", lambda: __import__("nlfilter").evaluate.loglik(EKF(D1), _YS, replicates=0, **_P),
+     "replicates"),
+    ("load_model missing file", lambda: __import__("nlfilter").load_model("/nonexistent/model.toml"), "model.toml"),
+    ("load_model None", lambda: __import__("nlfilter").load_model(None), "path"),
+]
+
+
+@pytest.mark.parametrize("label,make,names", COMPOSE, ids=[c[0] for c in COMPOSE])
+def test_bad_composition_input_is_refused_naming_it(fuzz, label, make, names):
+    fuzz.check("compare, fit, params, inputs", make, names, label=label)

@@ -125,6 +125,11 @@ def expect_gaussian(func, mean, cov, *, rule: str = "auto", points: int = 7, nod
     n = mean.shape[-1]
     if cov.shape[-2:] != (n, n):
         raise ValueError(f"cov: expected trailing shape ({n}, {n}), got {cov.shape}")
+    diag = np.diagonal(cov, axis1=-2, axis2=-1)
+    if not (np.all(np.isfinite(mean)) and np.all(np.isfinite(diag))):
+        raise ValueError("mean/cov: expected finite values, got NaN or inf")
+    if np.any(diag < 0):
+        raise ValueError(f"cov: expected a covariance (non-negative variances), got a variance {float(diag.min()):.3g}")
     z, w = gaussian_rule(n, rule, points) if nodes is None else nodes
     L = _sqrt(cov)
     x = mean[..., None, :] + np.einsum("...ij,pj->...pi", L, z)  # x_p = m + L z_p

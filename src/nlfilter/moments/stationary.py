@@ -350,6 +350,10 @@ def stationary_moments(sde, wanted, *, initial=None, max_size: int = 20000, resc
     sde = as_polynomial_sde(sde)  # once: the generator's cache serves the hull and the equations
     n = sde.n
     zero = (0,) * n
+    for m in wanted:
+        if (not isinstance(m, (tuple, list)) or len(m) != n
+                or not all(isinstance(a, (int, np.integer)) and not isinstance(a, bool) and a >= 0 for a in m)):
+            raise ValueError(f"wanted: expected multi-indices of {n} non-negative integers (one per state), got {m!r}")
     start = list(dict.fromkeys(tuple(int(a) for a in m) for m in wanted if any(m)))
     out = {zero: 1.0}
     if not start:
