@@ -175,7 +175,7 @@ class _Linearizer:
                 return np.concatenate([f, (f[..., :, None] * x[..., None, :]).reshape(*x.shape[:-1], -1), h,
                                        (h[..., :, None] * x[..., None, :]).reshape(*x.shape[:-1], -1),
                                        md.GQGT(x, t).reshape(*x.shape[:-1], -1)], axis=-1)
-            E = expect_gaussian(fx, mean, K, nodes=self.nodes)
+            E = expect_gaussian(fx, mean, K, nodes=self.nodes, check=False)
         # E = [E f (n), E f xᵀ (n·n), E h (m), E h xᵀ (m·n), E G Q Gᵀ (n·n)] in that order
         b = E.shape[:-1]
         cuts = np.cumsum([n, n * n, m_, m_ * n])
@@ -206,7 +206,7 @@ class _Linearizer:
             f = md.f(x, k)
             return np.concatenate([f, (f[..., :, None] * f[..., None, :]).reshape(*x.shape[:-1], -1),
                                    md.GQGT(x, k).reshape(*x.shape[:-1], -1)], axis=-1)
-        E = expect_gaussian(g, mean, K, nodes=self.nodes)
+        E = expect_gaussian(g, mean, K, nodes=self.nodes, check=False)
         m1 = E[..., :n]
         K1 = E[..., n:n + n * n].reshape(n, n) - np.outer(m1, m1) + E[..., n + n * n:].reshape(n, n)
         return np.concatenate([m1, symmetrize(K1).ravel()])

@@ -115,20 +115,22 @@ def _sqrt(P):
     return U * np.sqrt(np.clip(w, 0.0, None))[..., None, :]
 
 
-def expect_gaussian(func, mean, cov, *, rule: str = "auto", points: int = 7, nodes=None):
+def expect_gaussian(func, mean, cov, *, rule: str = "auto", points: int = 7, nodes=None, check: bool = True):
     """``E[func(x)]`` for ``x ~ N(mean, cov)``, batched: ``mean (..., n)``, ``cov (..., n, n)``;
     ``func`` maps ``(..., P, n)`` to ``(..., P, *out)``; returns ``(..., *out)``.
 
-    ``nodes``: a precomputed ``(z, w)`` pair (from :func:`gaussian_rule`)."""
+    ``nodes``: a precomputed ``(z, w)`` pair (from :func:`gaussian_rule`); ``check``: refuse a
+    non-finite mean or a negative variance (the filters' inner loops, which screen their own
+    moments, pass False)."""
     mean = np.asarray(mean, dtype=float)
     cov = np.asarray(cov, dtype=float)
     n = mean.shape[-1]
     if cov.shape[-2:] != (n, n):
         raise ValueError(f"cov: expected trailing shape ({n}, {n}), got {cov.shape}")
     diag = np.diagonal(cov, axis1=-2, axis2=-1)
-    if not (np.all(np.isfinite(mean)) and np.all(np.isfinite(diag))):
+    if check and not (np.all(np.isfinite(mean)) and np.all(np.isfinite(diag))):
         raise ValueError("mean/cov: expected finite values, got NaN or inf")
-    if np.any(diag < 0):
+    if check and np.any(diag < 0):
         raise ValueError(f"cov: expected a covariance (non-negative variances), got a variance {float(diag.min()):.3g}")
     z, w = gaussian_rule(n, rule, points) if nodes is None else nodes
     L = _sqrt(cov)

@@ -350,6 +350,7 @@ def stationary_moments(sde, wanted, *, initial=None, max_size: int = 20000, resc
     sde = as_polynomial_sde(sde)  # once: the generator's cache serves the hull and the equations
     n = sde.n
     zero = (0,) * n
+    wanted = [tuple(m.tolist()) if isinstance(m, np.ndarray) else m for m in wanted]
     for m in wanted:
         if (not isinstance(m, (tuple, list)) or len(m) != n
                 or not all(isinstance(a, (int, np.integer)) and not isinstance(a, bool) and a >= 0 for a in m)):
