@@ -219,8 +219,7 @@ def _pairwise(cls, args):
     return out
 
 
-_PIECEWISE = {sp.Abs: lambda u: _Abs(u), sp.sign: lambda u: _Sign(u), sp.floor: lambda u: _Floor(u),
-              sp.ceiling: lambda u: _Ceiling(u),
+_PIECEWISE = {sp.Abs: _Abs, sp.sign: _Sign, sp.floor: _Floor, sp.ceiling: _Ceiling,
               sp.Heaviside: lambda u, h0=sp.S.Half: _Step(u, sp.S.Half if h0 is None else h0),
               sp.Max: lambda *a: _pairwise(_Max, a), sp.Min: lambda *a: _pairwise(_Min, a)}
 _SMOOTH = (sp.exp, sp.log, sp.sin, sp.cos, sp.tan, sp.cot, sp.sec, sp.csc, sp.asin, sp.acos, sp.atan,

@@ -37,7 +37,8 @@ from .. import streams
 from ..filters.kalman import KalmanFilter
 from ..bounded import BoundedNoiseModel
 from ..filters.moment_bayes import FirstOrderMomentFilter
-from .zero_order import BLOCK, BLOCK_RANGE, block_arrays, block_estimates, block_size, failure_rate_row
+from ._blocks import BLOCK, BLOCK_RANGE, block_arrays, block_estimates, block_size
+from .zero_order import failure_rate_row
 from ..filters.reference.bounded import BoundedGridFilter1D
 from ..models import DiscreteModel
 from ..montecarlo import montecarlo
@@ -147,7 +148,7 @@ def _first_order_block(rows, *, h, wb, law, Ns, T, G, n0, window, seed, case):
     (per-path streams of case ``case`` of ``seed``; stationary: :data:`BURN` steps of burn-in from
     0), the grid optimum, the Kalman filter knowing the input's mean and variance, the moment
     filter with the input's moments ``moment{N}`` and 000's adaptive algorithm as is
-    ``adaptive{N}``; per path ``xs`` and every filter's :func:`~nlfilter.experiments.zero_order.block_arrays`
+    ``adaptive{N}``; per path ``xs`` and every filter's :func:`~nlfilter.experiments._blocks.block_arrays`
     (the moment filters' fallback flags per step)."""
     w_law = input_law(law, wb)
     truth = BoundedNoiseModel.first_order(h, wb, w_law=w_law)
@@ -246,7 +247,7 @@ def _second_order_block(rows, *, A, b, c, wb, law, Ns, T, P, n0, window, boundin
     each path's ``streams.FILTER`` sub-stream), the Kalman filter knowing the input's mean and
     variance, and the moment filters ``moment{N}`` (input moments known) and ``adaptive{N}``
     (000's algorithm) on the ``bounding`` reachable set; per path ``xs`` and every filter's
-    :func:`~nlfilter.experiments.zero_order.block_arrays` (the moment filters' fallback flags)."""
+    :func:`~nlfilter.experiments._blocks.block_arrays` (the moment filters' fallback flags)."""
     from ..filters.moment_bayes import SecondOrderMomentFilter
     from ..filters.reference.bounded import BoundedParticleFilter
     A, b, c = np.asarray(A), np.asarray(b), np.asarray(c)

@@ -45,6 +45,7 @@ from ..filters.second_order import (ContinuousDiscreteSecondOrderFilter, Continu
 from ..filters.ukf import UKF
 from ..models import DiscreteModel
 from ..montecarlo import montecarlo
+from ._blocks import BLOCK, BLOCK_RANGE, block_size, estimates_arrays, estimates_of
 from ..results import Result
 from ..simulate import simulate, simulate_continuous_discrete
 from . import experiment
@@ -63,12 +64,12 @@ PARAMS = {
     # falling body: measurement noise variance, RK4 substeps per second, particles of the reference
     "fb_r": 1e4, "fb_substeps": 20, "fb_particles": 1000, "fb_pf_runs": 100,
     "grid_size": 401,
-    "block": 0,  # paths per Monte Carlo block; 0: all of a problem's paths in one block (one batch)
+    **BLOCK,
 }
 RANGES = {  # what --param accepts (nlfilter.experiments.check_range)
     "steps": ">=0,<=100000", "quad_q": ">0", "quad_r": ">0", "sn_r": ">0", "sn_dt": ">0,<=1",
     "sn_innovation": ("update", "ito"), "fb_r": ">0", "fb_substeps": ">=1,<=10000", "fb_particles": ">=10,<=10000000",
-    "fb_pf_runs": ">=2,<=100000", "grid_size": ">=11,<=100001", "block": ">=0,<=1000000",
+    "fb_pf_runs": ">=2,<=100000", "grid_size": ">=11,<=100001", **BLOCK_RANGE,
 }
 RUNS = {"quadratic": 1000, "state-noise": 400, "falling-body": 500}
 QUICK = {"runs": 24, "steps": {"quadratic": 15, "state-noise": 40, "falling-body": 15},
@@ -94,7 +95,7 @@ def run(params, *, quick, runs, seed, progress):
             continue
         nruns = _ran(res, "paths", name, runs or (QUICK["runs"] if quick else RUNS[name]))
         case = {"quadratic": _quadratic, "state-noise": _state_noise, "falling-body": _falling_body}[name]
-        block = res.used("block", int(params["block"])) or nruns
+        block = block_size(res, params, nruns)
         case(res, params, nruns, seed, quick, block)
     # the paper's point in one panel: which forms lose positive definiteness (binomial 2 s.e.)
     rates = {pr: [res.get(f, "psd_loss_rate", problem=pr) for f in ORDER] for pr in PROBLEMS if pr in chosen}
@@ -154,7 +155,7 @@ def _quadratic(res, params, nruns, seed, quick, block):
     size = res.used("grid_size", QUICK["grid_size"] if quick else params["grid_size"])
     ident = dict(kw, steps=steps, seed=seed, size=size,
                  bounds=[min(lo, -3 * np.sqrt(prob.P0[0, 0])) - pad, hi + pad])
-    xs, ests = _estimates(montecarlo("quadratic", partial(_quadratic_block, **ident), nruns, block=block, ident=ident))
+    xs, ests = estimates_of(montecarlo("quadratic", partial(_quadratic_block, **ident), nruns, block=block, ident=ident))
     _report(res, "quadratic", ests, xs, ests["optimal"], slice(None))
     res.notes.append(f"quadratic: x' = {params['quad_a']} x + {params['quad_b']} x² + w (q = "
                      f"{params['quad_q']}), y = x + {params['quad_c']} x² + v (r = {params['quad_r']}), "
@@ -164,14 +165,14 @@ def _quadratic(res, params, nruns, seed, quick, block):
 def _quadratic_block(rows, *, a, b, c, q, r, steps, seed, size, bounds):
     """One Monte Carlo block of the quadratic problem: simulate the paths ``rows`` (per-path
     streams of case 0 of ``seed``), run the EKF, the UKF, every second-order form and the grid
-    filter on ``bounds``; their estimates per path (:func:`_arrays`)."""
+    filter on ``bounds``; their estimates per path (:func:`~nlfilter.experiments._blocks.estimates_arrays`)."""
     prob = pb.quadratic(a=a, b=b, c=c, q=q, r=r)
     md = prob.model
     sim = simulate(md, steps, paths=rows, rng=ev.stream(seed, 0), m0=prob.m0, P0=prob.P0)
     filters = {"ekf": EKF(md), "ukf": UKF(md), **{f: SecondOrderFilter(md, form=f) for f in FORMS}}
     ests = {k: _run(flt, sim.ys, prob.m0, prob.P0) for k, flt in filters.items()}
     ests["optimal"] = GridFilter(md, tuple(bounds), size).run(sim.ys, prob.m0, prob.P0, on_divergence="mark")
-    return _arrays(sim.xs, ests)
+    return estimates_arrays(sim.xs, ests)
 
 
 def _state_noise(res, params, nruns, seed, quick, block):
@@ -187,7 +188,7 @@ def _state_noise(res, params, nruns, seed, quick, block):
     lo, hi = float(np.min(xs)), float(np.max(xs))
     size = res.used("grid_size", QUICK["grid_size"] if quick else params["grid_size"])
     ident = dict(kw, steps=steps, innovation=inn, seed=seed, size=size, bounds=[lo - 1.0, hi + 1.0])
-    xs, ests = _estimates(montecarlo("state-noise", partial(_state_noise_block, **ident), nruns, block=block,
+    xs, ests = estimates_of(montecarlo("state-noise", partial(_state_noise_block, **ident), nruns, block=block,
                                      ident=ident))
     _report(res, "state-noise", ests, xs, ests["optimal"], slice(None))
     res.notes.append(f"state-noise: dx = -{params['sn_a']} x dt + ({params['sn_s0']} + {params['sn_s1']} x "
@@ -208,7 +209,7 @@ def _state_noise_block(rows, *, a, s0, s1, s2, c, r, dt, steps, innovation, seed
     ests = {k: _run(flt, sim.ys, prob.m0, prob.P0) for k, flt in filters.items()}
     ests["ukf"] = _ukf_on_euler(md, dt, sim.ys, prob.m0, prob.P0)
     ests["optimal"] = GridFilter(md, tuple(bounds), size, dt=dt).run(sim.ys, prob.m0, prob.P0, on_divergence="mark")
-    return _arrays(sim.xs, ests)
+    return estimates_arrays(sim.xs, ests)
 
 
 def _falling_body(res, params, nruns, seed, quick, block):
@@ -218,7 +219,7 @@ def _falling_body(res, params, nruns, seed, quick, block):
     npf = res.used("fb_pf_runs", min(nruns, QUICK["fb_pf_runs"] if quick else params["fb_pf_runs"]))
     particles = res.used("fb_particles", QUICK["fb_particles"] if quick else params["fb_particles"])
     ident = {"r": params["fb_r"], "steps": steps, "substeps": sub, "seed": seed, "npf": npf, "particles": particles}
-    xs, ests = _estimates(montecarlo("falling-body", partial(_falling_body_block, **ident), nruns, block=block,
+    xs, ests = estimates_of(montecarlo("falling-body", partial(_falling_body_block, **ident), nruns, block=block,
                                      ident=ident))
     pf = ests["optimal"] = ests["optimal"].take(slice(0, npf))
     acc = pf.extras["accepted"][:, -1].sum() / max(pf.extras["proposed"][:, -1].sum(), 1)
@@ -265,34 +266,12 @@ def _falling_body_block(rows, *, r, steps, substeps, seed, npf, particles):
         pf = Estimates(*(np.concatenate([g, p[k:]]) for g, p in zip(got[:4], pf[:4])),
                        {x: np.concatenate([got.extras[x], pf.extras[x][k:]]) for x in pf.extras})
     ests["optimal"] = pf
-    return _arrays(sim.xs, ests)
+    return estimates_arrays(sim.xs, ests)
 
 
 # -- helpers --------------------------------------------------------------------------------------
 def _run(flt, ys, m0, P0):
     return flt.run(ys, m0, P0, on_divergence="mark")
-
-
-def _arrays(xs, ests) -> dict:
-    """A block's per-path arrays: the true states ``xs`` and every filter's Estimates (the extras
-    the report reads — the particle reference's move counts — included)."""
-    out = {"xs": xs}
-    for name, e in ests.items():
-        out.update({f"{name}:{f}": np.asarray(getattr(e, f)) for f in Estimates._fields[:4]})
-        out.update({f"{name}:extra:{x}": np.asarray(v) for x, v in e.extras.items() if x in ("accepted", "proposed")})
-    return out
-
-
-def _estimates(arrays) -> tuple:
-    """``(xs, {filter: Estimates})`` from the concatenated blocks of :func:`_arrays`."""
-    ests = {}
-    for key in arrays:
-        name, _, field = key.partition(":")
-        if field == "means":
-            ests[name] = Estimates(*(arrays[f"{name}:{f}"] for f in Estimates._fields[:4]),
-                                   {x.rpartition(":")[2]: v for x, v in arrays.items()
-                                    if x.startswith(f"{name}:extra:")})
-    return arrays["xs"], ests
 
 
 def _ukf_on_euler(md, dt, dys, m0, P0):

@@ -38,6 +38,7 @@ from ..filters.reference import ParticleFilter
 from ..models import DiscreteModel
 from ..results import Result
 from . import experiment
+from ._blocks import block_size
 
 TITLE = "RTS smoothers of every Gaussian filter against the optimal smoother (cubic sensors)"
 SOURCE = "nlfilter check (no paper): Särkkä 2013 ch. 8-9 (Gaussian RTS smoothers); issue 12"
@@ -67,7 +68,7 @@ def run(params, *, quick=False, runs=None, seed=0, progress=False):
     runs = runs or (16 if quick else 200)
     res = Result("smoothing", TITLE, SOURCE, p)
     res.used("paths", runs)
-    block = res.used("block", int(p["block"])) or runs
+    block = block_size(res, p, runs)
     refs = {}
     for k, (name, (md, m0, P0)) in enumerate(tqdm(cases().items(), disable=not progress, desc="models")):
         # 1-D: the automatic (certified grid) reference; 2-D: a particle filter, refined once to

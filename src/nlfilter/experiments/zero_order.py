@@ -28,10 +28,10 @@ import numpy as np
 from . import experiment
 from .. import evaluate as ev
 from ..bounded import ZeroOrderModel
-from ..filters.moment_bayes import (MomentFilterWarning, ZeroOrderMomentFilter, power_density_estimate,
-                                    refresh_failure_rate)
+from ..filters.moment_bayes import MomentFilterWarning, ZeroOrderMomentFilter, power_density_estimate
 from ..moments.densities import power_density_moments
 from ..montecarlo import montecarlo
+from ._blocks import BLOCK, BLOCK_RANGE, block_arrays, block_estimates, block_size
 from ..results import Result
 
 # Table 1 of seed 000 (columns e_op, e_2, e_4, e_6, e_linear), read from the OCR.  Cells the OCR
@@ -135,16 +135,6 @@ def _estimators(J, Ns, eps):
     return out
 
 
-BLOCK = {"block": 0}  # paths per Monte Carlo block; 0: all of the run's paths in one block (one batch)
-BLOCK_RANGE = {"block": ">=0,<=1000000"}
-
-
-def block_size(res, params, paths):
-    """The paths per Monte Carlo block that run (recorded in ``res.params``): ``params["block"]``,
-    0 for all ``paths`` in one block."""
-    return res.used("block", int(params["block"])) or paths
-
-
 def _table1_block(rows, *, J, Ns, eps, spp, seed, case):
     """One block of Table 1's Monte Carlo check: the paths ``rows`` of ``spp`` i.i.d. samples each
     (per-path streams of case ``case`` of ``seed``) and every estimator of :func:`_estimators` at
@@ -229,7 +219,7 @@ def _adaptive_block(rows, *, J, Ns, n_max, n0, window, eps, invalid_moments, see
     of Fig. 7 (``moment{N}``), the linear filter with the exact second moment of x (000: "second
     moment known exactly") and the optimal estimator (eq. 3.20). Per path: ``xs``, every filter's
     estimates ``est:{name}``, and per adaptive filter its fallback and invalid-moment flags per
-    step and its refresh failure rate (:func:`block_arrays`)."""
+    step and its refresh failure rate (:func:`~nlfilter.experiments._blocks.block_arrays`)."""
     xs, zs = ZeroOrderModel(J).simulate(n_max, rows, ev.stream(seed, case))
     out = {"xs": xs}
     for N in Ns:
@@ -241,22 +231,6 @@ def _adaptive_block(rows, *, J, Ns, n_max, n0, window, eps, invalid_moments, see
     out["est:linear"] = linear_gain(J) * zs
     out["est:optimal"] = power_density_estimate(zs, J)
     return out
-
-
-def block_arrays(name, run, *extras) -> dict:
-    """A Monte Carlo block's per-path arrays of the seed-000 filter ``name``'s ``run``: its
-    estimates ``est:{name}``, the ``extras`` named (``{extra}:{name}``, per step) and for an
-    adaptive filter its refresh failure rate ``refresh:{name}``
-    (:func:`~nlfilter.filters.moment_bayes.refresh_failure_rate`)."""
-    out = {f"est:{name}": run.means, **{f"{x}:{name}": run.extras[x] for x in extras}}
-    if "refreshed" in run.extras:
-        out[f"refresh:{name}"] = refresh_failure_rate(run)
-    return out
-
-
-def block_estimates(mc) -> dict:
-    """``{name: estimates}`` from the concatenated blocks' ``est:{name}`` arrays, in block order."""
-    return {k.partition(":")[2]: v for k, v in mc.items() if k.startswith("est:")}
 
 
 def failure_rate_row(res, name, rate, **key):
