@@ -46,7 +46,7 @@ from .filters.base import Estimates
 from .moments.closures import gaussian_moments
 from .filters.registry import accepting, model_kind
 from .results import Result, provenance
-from .simulate import simulate
+from .simulate import Timing, simulate
 from .errors import DivergenceError
 
 from .yardstick import MAX_PARTICLES, OPTIMAL, certified_reference, check_given_reference, reference_filter
@@ -73,15 +73,19 @@ def _run_rng(root, name, paths):
 
 
 def _check_filter(label, flt, model, dt, start):
-    """``flt`` has ``run`` and the comparison's step convention (discrete) or ``dt`` (SDE)."""
+    """``flt`` has ``run`` and the comparison's step convention (discrete) or ``dt`` (SDE); a
+    filter built without ``start`` takes the comparison's (``Filter.for_timing``): returns it."""
     if not callable(getattr(flt, "run", None)):
         raise TypeError(f"{label}: expected a filter with a run(ys, m0, P0) method, got {type(flt).__name__}")
     fs = getattr(flt, "start", None)
     if model.kind == "discrete" and isinstance(fs, str) and fs != start:
-        raise ValueError(f"{label}: its start={fs!r} differs from start={start!r} of the comparison")
+        if getattr(flt, "start_stated", True) or not callable(getattr(flt, "for_timing", None)):
+            raise ValueError(f"{label}: its start={fs!r} differs from start={start!r} of the comparison")
+        flt = flt.for_timing(Timing("discrete", start, 0.0, None))[0]
     fdt = getattr(flt, "dt", None)
     if model.kind == "sde" and isinstance(fdt, numbers.Real) and not math.isclose(fdt, dt, rel_tol=1e-12):
         raise ValueError(f"{label}: its dt={fdt!r} differs from dt={dt!r} of the comparison")
+    return flt
 
 
 def _applies(cls, model, kind_of_data) -> bool:
@@ -139,7 +143,7 @@ def _check_filters(filters, model, dt, start, reference):
             raise TypeError(f"filters: expected non-empty string names, got {name!r}")
         if name == OPTIMAL and reference is not None:
             raise ValueError(f"filters: the name {OPTIMAL!r} is the reference's; rename that filter")
-        _check_filter(f"filters[{name!r}]", flt, model, dt, start)
+        filters[name] = _check_filter(f"filters[{name!r}]", flt, model, dt, start)
 
 
 def _lifted_prior(lift, m0, P0):
@@ -281,7 +285,7 @@ def compare(model, filters, steps, *, paths=200, m0, P0, rng=0, reference="auto"
     if isinstance(reference, str) and reference != "auto":
         raise ValueError(f"reference: expected 'auto', None or a filter instance, got {reference!r}")
     if not (reference is None or isinstance(reference, str)):
-        _check_filter("reference", reference, model, dt, start)
+        reference = _check_filter("reference", reference, model, dt, start)
     filters, skipped = _resolve(filters, given, model, dt, start)
     _check_filters(filters, model, dt, start, reference)
     m0v = V.mean("m0", m0, model.n, ndim=1)

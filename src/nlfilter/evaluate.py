@@ -184,7 +184,8 @@ class LogLik(NamedTuple):
 
 
 def loglik(flt, ys, m0=None, P0=None, *, replicates: int = 1, rng=0, **run_kw) -> LogLik:
-    """``log p(y_0..y_{T-1})`` of each record ``ys (..., T, m)`` by ``flt`` (``run(..., loglik=True)``).
+    """``log p(y_0..y_{T-1})`` of each record ``ys (..., T, m)`` by ``flt`` (``run(..., loglik=True)``);
+    ``ys`` may be a :class:`~nlfilter.simulate.Simulation` (its timing convention is read).
 
     A random filter (the particle filter: ``Filter.likelihood == "estimate"``) is run
     ``replicates`` times on independent streams in one batch (the records tiled along a new
@@ -198,9 +199,13 @@ def loglik(flt, ys, m0=None, P0=None, *, replicates: int = 1, rng=0, **run_kw) -
     if not flt.random and R != 1:
         raise ValueError(f"replicates: {type(flt).__name__} is deterministic: its log-likelihood has no spread; "
                          f"expected 1, got {R}")
-    ys = np.asarray(ys, dtype=float)
+    from .simulate import Simulation
+
+    sim = ys if isinstance(ys, Simulation) else None  # run reads its timing (Filter.for_timing)
+    ys = np.asarray(sim.ys if sim is not None else ys, dtype=float)
     tiled = np.broadcast_to(ys, (R, *ys.shape)) if R > 1 else ys
-    ll = flt.run(tiled, m0, P0, rng=rng, loglik=True, **run_kw).loglik
+    data = tiled if sim is None else sim._replace(ys=tiled)
+    ll = flt.run(data, m0, P0, rng=rng, loglik=True, **run_kw).loglik
     if R == 1:
         zero = np.zeros(np.shape(ll))
         return LogLik(ll, zero, zero, 1)

@@ -39,6 +39,7 @@ import numpy as np
 from scipy import optimize
 
 from . import _validate as V
+from ._fit_checks import check_options, fit_data, parameter_kinds
 from .errors import DivergenceError
 
 __all__ = ["fit", "FitResult", "fit_em", "EMResult"]
@@ -102,6 +103,16 @@ class _Transform:
                 out.append(math.log(u / (1 - u)))
         return np.array(out)
 
+    def dnatural(self, z, i):
+        """``dθ_i / dz_i`` at the free coordinate ``z`` of parameter ``i``."""
+        kind, lo, hi = self.kinds[i]
+        if kind == "id":
+            return 1.0
+        if kind in ("lo", "hi"):
+            return math.exp(min(z, 700.0))
+        e = math.exp(-abs(max(min(z, 700.0), -700.0)))
+        return (hi - lo) * e / (1 + e) ** 2
+
     def to_natural(self, z):
         out = []
         for v, (kind, lo, hi) in zip(z, self.kinds):
@@ -117,10 +128,14 @@ class _Transform:
 
 
 def _make_filter(filter, filter_options, dt, start):
+    """``(build: model -> Filter, label)`` for :func:`fit`: ``start`` (None: the filter's default,
+    or the data's) and ``dt`` reach the filter with or without ``filter_options``."""
     from .filters import REGISTRY
     from .filters.base import Filter
     from .filters.registry import get
 
+    if filter_options is not None and not isinstance(filter_options, dict):
+        raise TypeError(f"filter_options: expected a dict of the filter's keyword options, got {filter_options!r}")
     opts = dict(filter_options or {})
     if isinstance(filter, str):
         cls = get(REGISTRY, filter)
@@ -128,42 +143,57 @@ def _make_filter(filter, filter_options, dt, start):
     elif isinstance(filter, type) and issubclass(filter, Filter):
         cls, label = filter, filter.__name__
     elif callable(filter):
+        if opts:
+            raise ValueError("filter_options: a callable filter builds its own filter; expected None, got "
+                             f"{filter_options!r}")
         return filter, None  # labelled by the class it builds
     else:
         raise TypeError(f"filter: expected a registry name, a Filter class or a callable model -> Filter, "
                         f"got {type(filter).__name__}")
+    for key, given in (("start", start), ("dt", dt)):
+        if key in opts and given is not None and opts[key] != given:
+            raise ValueError(f"filter_options: {key}={opts[key]!r} differs from {key}={given!r} of fit")
 
     def build(model):
-        if opts:
-            if cls.time == "discrete" and getattr(model, "kind", None) == "discrete":
-                return cls(model, start=start, **opts)
-            return cls(model, dt, **opts) if dt is not None else cls(model, **opts)
-        return cls.for_model(model, dt=dt, start=start)
+        if not opts:
+            return cls.for_model(model, dt=dt, start=start)
+        kw = dict(opts)
+        if cls.time == "discrete" and start is not None:
+            kw.setdefault("start", start)
+        kind = getattr(model, "kind", None)
+        continuous = kind in ("sde", "phase") or (kind == "bilinear" and not getattr(model, "discrete", False))
+        if continuous and dt is not None and "dt" not in kw:
+            return cls(model, dt, **kw)
+        return cls(model, **kw)
 
     return build, label
 
 
 def fit(model, ys, params0, *, filter="ukf", m0=None, P0=None, initial=None, bounds=None, method: str = "L-BFGS-B",
-        dt: float | None = None, start: str = "update", filter_options=None, rng=0, se: bool = True,
+        dt: float | None = None, start: str | None = None, filter_options=None, rng=0, se: bool = True,
         options=None, progress: bool = False, backend: str = "numpy") -> FitResult:
     """Maximum-likelihood estimate of the model parameters named in ``params0``.
 
     Parameters
     ----------
     model : DiscreteModel or SDEModel with parameters (``params=`` at construction)
-    ys : measurements ``(..., T, m)``: independent records that share the parameters
+    ys : measurements ``(..., T, m)``: independent records that share the parameters; or a
+        :class:`~nlfilter.simulate.Simulation`, whose timing convention (``start``, ``t0``, ``dt``)
+        the filter reads (a conflicting ``start`` or ``dt`` given here is a ValueError naming both)
     params0 : ``{name or symbol: starting value}``; the other parameters stay at the model's values
     filter : a registry name (``"kf"``, ``"ukf"``, ``"grid"``, ...), a Filter class, or a callable
         ``model -> Filter`` (e.g. ``lambda md: GridFilter(md, (-5, 5), 201)``); it must define a
         likelihood (``Filter.likelihood``)
     m0, P0, initial : the prior, fixed (as in ``run``)
-    bounds : ``{name: (lo, hi)}`` (``None`` for an open side); positive symbols are bounded below by 0
-    method : a ``scipy.optimize.minimize`` method; ``"L-BFGS-B"`` (default, finite-difference
-        gradient) or ``"Nelder-Mead"`` (for a particle filter's noisy likelihood)
-    dt, start, filter_options : how the filter is built (continuous-time models need ``dt``)
+    bounds : ``{name: (lo, hi)}`` (``None`` or ±inf for an open side); positive symbols are bounded below by 0
+    method : ``"L-BFGS-B"`` (default, finite-difference gradient), ``"Nelder-Mead"`` (for a particle
+        filter's noisy likelihood) or another of :data:`nlfilter._fit_checks.METHODS`
+    dt, start, filter_options : how the filter is built (continuous-time models need ``dt``; a
+        Simulation gives it); ``start`` None: the filter's default, or the Simulation's; both reach
+        the filter with or without ``filter_options``
     rng : the particle filter's seed, the same at every evaluation (common random numbers)
     se : compute standard errors (2p² + 1 more likelihood evaluations)
-    options : passed to ``scipy.optimize.minimize``
+    options : ``scipy.optimize.minimize`` options of ``method`` (checked: names and types)
     progress : show the number of evaluations and the best log-likelihood (tqdm)
     backend : the filter's run loop (``Filter.run``): ``"numba"`` compiles the discrete EKF, UKF,
         CKF, GHKF, SLF and second-order filters once for every parameter value (the parameters
@@ -172,8 +202,16 @@ def fit(model, ys, params0, *, filter="ukf", m0=None, P0=None, initial=None, bou
     Returns
     -------
     FitResult
-        A parameter value where the filter diverges on some path has log-likelihood −∞ for the
-        optimizer (it backs off); an estimate on such a value is never returned as converged.
+        Where the filter diverges on some path, or the model refuses the parameter values (a
+        negative variance), the objective is not flat: it is the start's value plus a penalty
+        growing with the distance from the start, above every value the optimizer has accepted,
+        so that its line search backs off. ``converged`` is True only when the optimizer says so
+        *and* the log-likelihood is at least the start's *and* the gradient is small (with a
+        positive definite observed information: the Newton step would raise log L by less than
+        0.01; otherwise every component of the gradient in the optimizer's coordinates below
+        0.01) *and* no parameter ran to a bound (|free coordinate| > 30: a value within e⁻³⁰ of
+        its bound, e.g. a variance going to 0 with the likelihood unbounded above: ``message``
+        says "degenerate"); ``message`` says which failed.
     """
     t_start = time.perf_counter()
     if not isinstance(params0, dict) or not params0:
@@ -184,41 +222,35 @@ def fit(model, ys, params0, *, filter="ukf", m0=None, P0=None, initial=None, bou
     names = tuple(str(s) for s in syms)
     if len(set(names)) != len(names):
         raise ValueError(f"params0: a parameter is given twice: {list(params0)}")
-    bounds = dict(bounds or {})
-    for k in bounds:
-        if str(k) not in names:
-            raise ValueError(f"bounds: {k!r} is not among the fitted parameters {list(names)}")
-    bounds = {str(k): v for k, v in bounds.items()}
-    kinds = []
-    theta0 = []
-    for s, nm, v in zip(syms, names, params0.values()):
-        v = float(V.finite(nm, np.asarray(v, dtype=float)))
-        lo, hi = bounds.get(nm, (0.0 if s.is_positive else None, None))
-        lo = None if lo is None else float(lo)
-        hi = None if hi is None else float(hi)
-        if lo is not None and hi is not None and not lo < hi:
-            raise ValueError(f"bounds: expected lo < hi for {nm}, got {(lo, hi)}")
-        if (lo is not None and not v > lo) or (hi is not None and not v < hi):
-            raise ValueError(f"params0: {nm} = {v} is outside its bounds ({lo}, {hi})")
-        kinds.append(("id" if lo is None and hi is None else "lo" if hi is None else "hi" if lo is None else "logit",
-                      lo, hi))
-        theta0.append(v)
+    kinds, theta0 = parameter_kinds(syms, names, params0, bounds)
+    options = check_options(method, options)
+    if start is not None:
+        V.choice("start", start, {"update", "predict"})
+    if getattr(model, "kind", None) == "discrete" and dt is not None:
+        raise ValueError(f"dt: a DiscreteModel has no time step; expected None, got {dt!r}")
+    data, ys, dt = fit_data(ys, dt)
     tr = _Transform(kinds)
     build, label = _make_filter(filter, filter_options, dt, start)
     first = build(model)
     label = label or getattr(first, "name", type(first).__name__)
     if getattr(first, "likelihood", None) is None:
         raise TypeError(f"filter: {label} defines no log-likelihood; use a Gaussian filter, grid or particle")
-    ys = V.finite("ys", V.as_float_array("ys", ys, ndim_min=2), allow_nan=True)
+    why = {}
 
     def loglik(theta):
-        md = model.with_params(dict(zip(names, theta)))
+        try:
+            md = model.with_params(dict(zip(names, theta)))
+        except ValueError as exc:  # the model refuses these values (e.g. a negative variance)
+            why["refused"] = str(exc).splitlines()[0]
+            return -np.inf
         flt = build(md)
         try:
-            est = flt.run(ys, m0, P0, initial=initial, rng=rng, on_divergence="mark", loglik=True, backend=backend)
+            est = flt.run(data, m0, P0, initial=initial, rng=rng, on_divergence="mark", loglik=True, backend=backend)
         except (DivergenceError, np.linalg.LinAlgError, FloatingPointError):
+            why["diverged"] = True
             return -np.inf
         if est.diverged.any():
+            why["diverged"] = True
             return -np.inf
         total = float(np.sum(est.loglik))
         return total if math.isfinite(total) else -np.inf
@@ -228,6 +260,12 @@ def fit(model, ys, params0, *, filter="ukf", m0=None, P0=None, initial=None, bou
         from tqdm.auto import tqdm
         bar = tqdm(desc=f"fit ({label})", unit="eval", leave=False)
     best = [-np.inf]
+    ll0 = loglik(theta0)
+    if not math.isfinite(ll0):
+        raise ValueError(f"params0: the filter's log-likelihood at the starting values {dict(zip(names, theta0.tolist()))} "
+                         f"is not finite ({why.get('refused', 'a path diverged')}); start elsewhere")
+    z0 = tr.to_free(theta0)
+    scale = 1.0 + abs(ll0)
 
     def objective(z):
         ll = loglik(tr.to_natural(z))
@@ -235,33 +273,59 @@ def fit(model, ys, params0, *, filter="ukf", m0=None, P0=None, initial=None, bou
             best[0] = max(best[0], ll)
             bar.update(1)
             bar.set_postfix(loglik=f"{best[0]:.6g}")
-        # the optimizer sees a large finite value where the filter fails, so that it backs off
-        return -ll if math.isfinite(ll) else 1e300
+        if math.isfinite(ll):
+            return -ll
+        # not flat: above the start's value, rising away from the start (the optimizer backs off)
+        return -ll0 + scale * (1.0 + float(np.sum((np.asarray(z) - z0) ** 2)))
 
-    z0 = tr.to_free(np.array(theta0))
-    if not math.isfinite(loglik(np.array(theta0))):
-        raise ValueError(f"params0: the filter's log-likelihood at the starting values {dict(zip(names, theta0))} "
-                         "is not finite (a path diverged); start elsewhere")
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)
-        opt = optimize.minimize(objective, z0, method=method, options=options)
+        opt = optimize.minimize(objective, z0, method=method, options=options or None)
     theta = tr.to_natural(opt.x)
     ll_hat = loglik(theta)
-    converged = bool(opt.success) and math.isfinite(ll_hat)
-    message = str(opt.message)
+    if not (math.isfinite(ll_hat) and ll_hat >= ll0):  # the optimizer's point is worse than the start
+        theta, ll_hat = theta0, ll0
+    checks = []  # what keeps the fit from counting as converged
+    if not opt.success:
+        checks.append(f"the optimizer stopped: {opt.message}")
+    if np.array_equal(theta, theta0):
+        checks.append("no point better than the start was found")
+    z_hat = tr.to_free(theta)
+    at_bound = [nm for nm, z, (kind, _, _) in zip(names, z_hat, kinds) if kind != "id" and abs(z) > 30.0]
+    degenerate = bool(at_bound)
+    if degenerate:
+        checks.append(f"degenerate: the likelihood keeps rising as {', '.join(at_bound)} approach(es) a bound "
+                      f"({', '.join(f'{nm} = {t:.3g}' for nm, t in zip(names, theta) if nm in at_bound)}, "
+                      f"log L = {ll_hat:.6g}): it is unbounded there (e.g. a variance going to 0); fix or bound it")
     p = len(names)
     cov = np.full((p, p), np.nan)
     se_ok = False
-    if se and math.isfinite(ll_hat):
-        Hm = _hessian(lambda t: -loglik(t), theta, kinds)
+    grad, Hm = _derivatives(lambda t: -loglik(t), theta, kinds, hessian=se and not degenerate)
+    if Hm is not None:
         if np.all(np.isfinite(Hm)):
             w = np.linalg.eigvalsh(0.5 * (Hm + Hm.T))
             if w.min() > 0:
                 cov = np.linalg.inv(Hm)
                 cov = 0.5 * (cov + cov.T)
                 se_ok = True
-        if not se_ok:
-            message += "; the observed information is not positive definite: no standard errors"
+    if not degenerate:
+        if not np.all(np.isfinite(grad)):
+            checks.append("the log-likelihood is not finite next to the estimate: no gradient check")
+        elif se_ok:
+            gain = 0.5 * float(grad @ cov @ grad)  # what a Newton step would add to log L
+            if not gain < 0.01:
+                checks.append(f"the gradient is not small: a Newton step would raise log L by {gain:.3g}")
+        else:
+            gz = grad * np.array([tr.dnatural(z, i) for i, z in enumerate(z_hat)])
+            if not np.max(np.abs(gz)) < 0.01:
+                checks.append(f"the gradient is not small: |d log L / dz| = {np.max(np.abs(gz)):.3g}")
+    converged = not checks
+    message = str(opt.message) if converged else "; ".join(checks)
+    if "diverged" in why or "refused" in why:  # the penalty made the optimizer back off from them
+        message += ("; the filter diverged at some trial values" if "diverged" in why else
+                    f"; the model refused some trial values ({why['refused']})") + " (backed off)"
+    if Hm is not None and not se_ok:
+        message += "; the observed information is not positive definite: no standard errors"
     if bar is not None:
         bar.close()
     return FitResult(dict(zip(names, map(float, theta))), dict(zip(names, map(float, np.sqrt(np.diag(cov))))),
@@ -269,10 +333,11 @@ def fit(model, ys, params0, *, filter="ukf", m0=None, P0=None, initial=None, bou
                      names, label, method, time.perf_counter() - t_start, model.with_params(dict(zip(names, theta))))
 
 
-def _hessian(f, theta, kinds, rel: float = 1e-4):
-    """Central-difference Hessian of ``f`` at ``theta``: steps ``h_i = rel · max(|θ_i|, 1e-3)``,
-    kept inside the bounds (a one-sided parameter near its bound gets a step of a tenth of the
-    distance); NaN if a value is not finite."""
+def _derivatives(f, theta, kinds, rel: float = 1e-4, hessian: bool = True):
+    """Central-difference gradient and (``hessian``) Hessian of ``f`` at ``theta``: steps
+    ``h_i = rel · max(|θ_i|, 1e-3)``, kept inside the bounds (a one-sided parameter near its
+    bound gets a step of a tenth of the distance); NaN where a value is not finite. The gradient
+    reuses the Hessian's diagonal evaluations."""
     p = len(theta)
     h = np.array([rel * max(abs(t), 1e-3) for t in theta])
     for i, (kind, lo, hi) in enumerate(kinds):
@@ -281,14 +346,21 @@ def _hessian(f, theta, kinds, rel: float = 1e-4):
         if hi is not None:
             h[i] = min(h[i], 0.1 * (hi - theta[i]))
     f0 = f(theta)
-    H = np.empty((p, p))
     E = np.diag(h)
+    fp = np.array([f(theta + E[i]) for i in range(p)])
+    fm = np.array([f(theta - E[i]) for i in range(p)])
+    with np.errstate(invalid="ignore"):
+        g = (fp - fm) / (2 * h)
+        g[~np.isfinite(g)] = np.nan
+    if not hessian:
+        return g, None
+    H = np.empty((p, p))
     for i in range(p):
-        H[i, i] = (f(theta + E[i]) - 2 * f0 + f(theta - E[i])) / h[i] ** 2
+        H[i, i] = (fp[i] - 2 * f0 + fm[i]) / h[i] ** 2
         for j in range(i):
             H[i, j] = H[j, i] = (f(theta + E[i] + E[j]) - f(theta + E[i] - E[j]) - f(theta - E[i] + E[j])
                                  + f(theta - E[i] - E[j])) / (4 * h[i] * h[j])
-    return H
+    return g, H
 
 
 @dataclass(frozen=True)
@@ -345,6 +417,9 @@ def fit_em(ys, F, H, Q, R, m0, P0, *, estimate=("F", "H", "Q", "R"), iterations:
         raise ValueError(f"estimate: expected some of F, H, Q, R, m0, P0, got {sorted(unknown)}")
     Y = ys.reshape(-1, *ys.shape[-2:])
     B, T, m = Y.shape
+    if T < 2 and est & {"F", "Q"}:
+        raise ValueError(f"ys: fit_em estimates {sorted(est & {'F', 'Q'})} from the transitions between steps; "
+                         f"expected at least 2 time steps, got T = {T}")
     hist = []
     converged = False
     steps = range(V.positive("iterations", iterations, integer=True))
@@ -366,14 +441,14 @@ def fit_em(ys, F, H, Q, R, m0, P0, *, estimate=("F", "H", "Q", "R"), iterations:
         S11 = Exx[:, 1:].sum(axis=(0, 1))
         S01 = (C[:, :-1] + xs[:, :-1, :, None] * xs[:, 1:, None, :]).sum(axis=(0, 1))  # Σ E[x_k x_{k+1}ᵀ]
         if "F" in est:
-            F = np.linalg.solve(S00, S01).T  # S_{k+1,k} S_{k,k}⁻¹
+            F = _solve_moments(S00, S01, "F").T  # S_{k+1,k} S_{k,k}⁻¹
         if "Q" in est:
             Qn = (S11 - F @ S01 - S01.T @ F.T + F @ S00 @ F.T) / (B * (T - 1))
             Q = 0.5 * (Qn + Qn.T)
         Sxx = Exx.sum(axis=(0, 1))
         Syx = np.einsum("bti,btj->ij", Y, xs)
         if "H" in est:
-            H = np.linalg.solve(Sxx, Syx.T).T
+            H = _solve_moments(Sxx, Syx.T, "H").T
         if "R" in est:
             Syy = np.einsum("bti,btj->ij", Y, Y)
             Rn = (Syy - H @ Syx.T - Syx @ H.T + H @ Sxx @ H.T) / (B * T)
@@ -384,3 +459,13 @@ def fit_em(ys, F, H, Q, R, m0, P0, *, estimate=("F", "H", "Q", "R"), iterations:
             d = xs[:, 0] - m0
             P0 = Ps[:, 0].mean(axis=0) + np.einsum("bi,bj->ij", d, d) / B
     return EMResult(F, H, Q, R, m0, P0, np.array(hist), converged, it + 1)
+
+
+def _solve_moments(S, rhs, what):
+    """``S⁻¹ rhs`` of the M-step; a singular second-moment matrix (the smoothed states do not span
+    the state space: too little data, or a state the data never inform) is a named error."""
+    try:
+        return np.linalg.solve(S, rhs)
+    except np.linalg.LinAlgError:
+        raise ValueError(f"ys: the smoothed second moments are singular, {what} is not identified by these data "
+                         f"(too few steps or records, or a state the data never inform); fix {what} (estimate=)") from None

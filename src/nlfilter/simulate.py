@@ -31,18 +31,60 @@ from .streams import PathRNG, as_paths
 _BLOCK = 2 ** 20  # SDE simulators: standard normals drawn per block of steps (bounded memory)
 
 
-class Simulation(NamedTuple):
+class Timing(NamedTuple):
+    """Where a :class:`Simulation`'s measurements sit in time: what a filter run on it must assume.
+
+    ``kind``: ``"discrete"`` (a DiscreteModel's samples), ``"increments"`` (an SDE observed
+    continuously: ``ys[..., k, :]`` is ``dy`` over ``[t0 + k dt, t0 + (k+1) dt]``) or
+    ``"continuous-discrete"`` (an SDE observed at ``t_k``: ``y_k = h(x(t_k)) + v_k``);
+    ``start``: ``"update"`` (``ys[..., 0, :]`` measures the state whose prior is ``(m0, P0)``, at
+    ``t0``) or ``"predict"`` (it measures the state one step or ``dt`` after the prior), None for
+    increments; ``t0``: the prior's time (0 for a discrete model); ``dt``: the measurement
+    interval (None for a discrete model). The filters read it (:meth:`nlfilter.filters.base.Filter.for_timing`)."""
+
+    kind: str
+    start: str | None
+    t0: float
+    dt: float | None
+
+
+class _SimulationArrays(NamedTuple):
+    xs: np.ndarray
+    ys: np.ndarray
+    x0: np.ndarray
+    t: np.ndarray
+
+
+class Simulation(_SimulationArrays):
     """``xs (paths, T, n)``, ``ys (paths, T, m)`` (increments ``dy`` for SDEs), ``x0 (paths, n)``,
-    ``t (T,)`` the times (step indices for discrete models) of ``xs``.
+    ``t (T,)`` the times (step indices for discrete models) of ``xs`` — a 4-tuple (``xs, ys, x0, t =
+    sim``) — and :attr:`timing`, the :class:`Timing` convention of its measurements (``None`` for
+    one built by hand without it): ``Filter.run``/``smooth``, :func:`~nlfilter.evaluate.loglik` and
+    :func:`~nlfilter.fitting.fit` take a Simulation in place of ``ys`` and read the step convention
+    ``start``, ``t0`` and ``dt`` from it (a filter built with a conflicting one is refused).
 
     A path whose state or measurement became non-finite (``on_divergence="mark"`` of the
     simulators) has NaN ``xs`` and ``ys`` from that step on: :attr:`diverged` and
     :attr:`diverged_step` read them back."""
 
-    xs: np.ndarray
-    ys: np.ndarray
-    x0: np.ndarray
-    t: np.ndarray
+    def __new__(cls, xs, ys, x0, t, timing: Timing | None = None):
+        self = super().__new__(cls, xs, ys, x0, t)
+        if timing is not None and not isinstance(timing, Timing):
+            raise TypeError(f"timing: expected a Timing or None, got {type(timing).__name__}")
+        self.__dict__["timing"] = timing
+        return self
+
+    timing: Timing | None = None  # a Simulation made by tuple methods (_make) has none
+
+    def _replace(self, **kw):
+        """A copy with some of ``xs, ys, x0, t`` replaced; the timing is kept."""
+        return Simulation(*super()._replace(**kw), timing=self.timing)
+
+    def __reduce__(self):
+        return Simulation, (*self, self.timing)
+
+    def __repr__(self):
+        return f"{super().__repr__()[:-1]}, timing={self.timing!r})"
 
     @property
     def diverged(self) -> np.ndarray:
@@ -246,7 +288,7 @@ def _simulate(model, steps, paths, rng, x, x_init, xs, ys, m, start, dt, substep
             ys[:, k] = (model.h(x, k + offset) + vk if getattr(model, "additive_measurement", True)
                         else model.measurement(x, vk, k + offset))
             screen.check(k, ys[:, k])
-        return Simulation(xs, ys, x_init, np.arange(steps) + offset)
+        return Simulation(xs, ys, x_init, np.arange(steps) + offset, Timing("discrete", start, 0.0, None))
     if model.kind != "sde":
         raise TypeError(f"model: expected a DiscreteModel or SDEModel, got {type(model).__name__}")
     if dt is None:
@@ -271,7 +313,7 @@ def _simulate(model, steps, paths, rng, x, x_init, xs, ys, m, start, dt, substep
             xs[:, k] = x
             ys[:, k] = ydt + z[:, k - k0, substeps * r:] @ LR.T * np.sqrt(dt)
             x = screen.check(k, x, ys[:, k], x=x, restart=x_init)
-    return Simulation(xs, ys, x_init, t0 + dt * np.arange(1, steps + 1))
+    return Simulation(xs, ys, x_init, t0 + dt * np.arange(1, steps + 1), Timing("increments", None, t0, dt))
 
 
 def simulate_phase(q: float, r: float, dt: float, steps: int, paths: int | range, rng, *, substeps: int = 4,
@@ -360,7 +402,7 @@ def simulate_ou(q: float, r: float, dt: float, steps: int, paths: int | range, r
                 xs[:, k] = x
                 dys[:, k, 0] = acc + np.sqrt(r * dt) * z[:, k - k0, substeps]
                 screen.check(k, dys[:, k])
-    sim = Simulation(xs[..., None], dys, x0[:, None], dt * np.arange(1, steps + 1))
+    sim = Simulation(xs[..., None], dys, x0[:, None], dt * np.arange(1, steps + 1), Timing("increments", None, 0.0, float(dt)))
     screen.finish(sim.xs, sim.ys)
     return sim
 
@@ -416,4 +458,4 @@ def simulate_continuous_discrete(model, steps: int, *, paths: int | range = 1, r
             ys[:, k] = model.h(xs[:, k], t[k]) + v[:, k]
             x = screen.check(k, x, ys[:, k], x=x, restart=x_init)
     screen.finish(xs, ys)
-    return Simulation(xs, ys, x_init, t)
+    return Simulation(xs, ys, x_init, t, Timing("continuous-discrete", "predict", t0, dt))

@@ -309,3 +309,91 @@ COMPOSE = [
 @pytest.mark.parametrize("label,make,names", COMPOSE, ids=[c[0] for c in COMPOSE])
 def test_bad_composition_input_is_refused_naming_it(fuzz, label, make, names):
     fuzz.check("compare, fit, params, inputs", make, names, label=label)
+
+
+# -- fit on bad input and bad likelihoods (issue 26 item 3) --------------------------------------------
+def _fit(**kw):
+    """``fit`` of DA's ``a`` on the shared records, the Kalman likelihood; ``kw`` overrides."""
+    args = dict(model=DA, ys=_YS, params0={a: 0.5}, filter="kf", se=False, **_P)
+    args.update(kw)
+    return __import__("nlfilter").fit(args.pop("model"), args.pop("ys"), args.pop("params0"), **args)
+
+
+def _finite_fit(res):
+    """What of a FitResult must be finite (its standard errors only where it says they exist)."""
+    return res.loglik, res.params, (res.se if res.se_ok else None)
+
+
+def _not_converged(res, why):
+    """A fit that must not claim convergence, and must say ``why``: else an AssertionError (raw)."""
+    if res.converged or why not in res.message:
+        raise AssertionError(f"fit claimed {res.converged=} with message {res.message!r}; expected {why!r}")
+    return _finite_fit(res)
+
+
+_q = sp.Symbol("q", positive=True)
+DEG = DiscreteModel([x], [0.9 * x], [x], Q=[[_q]], R=0.0, params={_q: 0.3})
+FIT = [
+    *[(f"fit bounds {b!r}", lambda b=b: _fit(bounds={a: b}), ("bounds", "a"))
+      for b in ((nan, 1.0), (inf, None), (None, -inf), (1.0, 1.0), ("x", None), (0.0, [1]), 3, (0.0,), None,
+                (-1e308, 1e308), (0.5, 1.0), (True, None))],
+    ("fit bounds list", lambda: _fit(bounds=[(0, 1)]), "bounds"),
+    ("fit bounds unknown name", lambda: _fit(bounds={"zz": (0, 1)}), "bounds"),
+    *[(f"fit params0 {v!r}", lambda v=v: _fit(params0={a: v}), ("params0", "a"))
+      for v in ("x", None, [1, 2], 1j, inf, -inf, True, np.array([0.5, 0.6]))],
+    ("fit params0 empty", lambda: _fit(params0={}), "params0"),
+    ("fit params0 list", lambda: _fit(params0=[0.5]), "params0"),
+    *[(f"fit options {o!r}", lambda o=o: _fit(options=o), "options")
+      for o in ({"maxiter": "a"}, {"maxiter": 0}, {"maxiter": 2.5}, {"bogus": 1}, {"xatol": 1e-3}, [1],
+                {"ftol": -1.0}, {"ftol": nan}, {"disp": "yes"}, {"gtol": inf})],
+    ("fit options Nelder-Mead maxfun", lambda: _fit(method="Nelder-Mead", options={"maxfun": 10}), "options"),
+    *[(f"fit method {m!r}", lambda m=m: _fit(method=m), "method") for m in ("bogus", 3, None, "trust-exact")],
+    ("fit filter_options list", lambda: _fit(filter_options=[1]), "filter_options"),
+    ("fit filter_options with a callable", lambda: _fit(filter=lambda md: EKF(md), filter_options={"x": 1}),
+     "filter_options"),
+    ("fit filter_options start conflict", lambda: _fit(filter="ekf", start="predict", filter_options={"start": "update"}),
+     "filter_options"),
+    ("fit start bogus", lambda: _fit(start="bogus"), "start"),
+    ("fit start conflicts with the Simulation", lambda: _fit(ys=_SIM, start="predict"), "start"),
+    ("fit dt on a discrete Simulation", lambda: _fit(ys=_SIM, dt=0.1), "dt"),
+    ("fit ys all missing", lambda: _fit(ys=np.full((3, 6, 1), nan)), "ys"),
+    ("fit ys Simulation all missing", lambda: _fit(ys=_SIM._replace(ys=np.full((3, 6, 1), nan))), "ys"),
+    ("fit ys inf", lambda: _fit(ys=np.full((3, 6, 1), inf)), "ys"),
+    ("fit ys 1-D", lambda: _fit(ys=np.zeros(6)), "ys"),
+    ("fit_em one step", lambda: __import__("nlfilter").fit_em(_YS[:, :1], [[0.9]], [[1.0]], [[0.1]], [[0.2]], [0.5],
+                                                              [[0.2]]), "ys"),
+    ("fit_em F unidentified", lambda: __import__("nlfilter").fit_em(np.zeros((1, 2, 1)), [[0.9]], [[1.0]], [[0.1]],
+                                                                    [[0.2]], [0.0], [[0.0]], iterations=3), ("ys", "F")),
+]
+FIT_EXTREME = [
+    ("fit degenerate likelihood (variance to 0)",
+     lambda: _not_converged(_fit(model=DEG, ys=(2.0 * 0.9 ** np.arange(30))[None, :, None], params0={"q": 0.5},
+                                 m0=[2.0], P0=[[1.0]]), "degenerate"), "q"),
+    ("fit from a start far out", lambda: _finite_fit(_fit(params0={a: 50.0})), "a"),
+    ("fit infinite bounds", lambda: _finite_fit(_fit(bounds={a: (-inf, inf)})), "a"),
+    ("fit half-open infinite bound", lambda: _finite_fit(_fit(bounds={a: (0.0, inf)})), "a"),
+    ("fit huge data", lambda: _finite_fit(_fit(ys=_YS * 1e150)), ("ys", "params0")),
+    ("fit mostly missing", lambda: _finite_fit(_fit(ys=np.where(np.arange(6)[None, :, None] == 2, _YS, nan))), "ys"),
+]
+
+
+@pytest.mark.parametrize("label,make,names", FIT, ids=[c[0] for c in FIT])
+def test_bad_fit_input_is_refused_naming_it(fuzz, label, make, names):
+    fuzz.check("fit", make, names, label=label)
+
+
+@pytest.mark.parametrize("label,make,names", FIT_EXTREME, ids=[c[0] for c in FIT_EXTREME])
+def test_extreme_fit_is_handled_honestly(fuzz, label, make, names):
+    fuzz.check("fit", make, names, bad=False, label=label)
+
+
+_BOUND = hst.one_of(hst.none(), hst.floats(allow_nan=True, allow_infinity=True), hst.integers(-3, 3), hst.text(max_size=2),
+                    hst.booleans())
+
+
+@settings(max_examples=15, deadline=None, suppress_health_check=list(HealthCheck))
+@given(lo=_BOUND, hi=_BOUND, start=hst.one_of(hst.floats(-2, 2), hst.floats(allow_nan=True, allow_infinity=True)))
+def test_fit_bounds_and_starts_fuzzed(fuzz, lo, hi, start):
+    """Any bounds pair and starting value: a named refusal, or a fit whose numbers are finite."""
+    fuzz.check("fit", lambda: _finite_fit(_fit(bounds={a: (lo, hi)}, params0={a: start})), ("bounds", "params0", "a"),
+                 bad=False, label=f"bounds ({lo!r}, {hi!r}), start {start!r}")

@@ -25,6 +25,14 @@ Step convention (discrete time)
 ``(m0, P0)`` is the prior one step *before* the state that ``ys[..., 0, :]`` measures; the filter
 predicts first. ``simulate(..., start=...)`` takes the same option. In both conventions
 ``Estimates.means[..., k, :]`` is the filtered mean of the state measured by ``ys[..., k, :]``.
+The continuous-discrete filters (an SDE measured at discrete times) default to ``"predict"``:
+the prior at ``t0``, the first measurement at ``t0 + dt``, as
+:func:`~nlfilter.simulate.simulate_continuous_discrete` makes them.
+
+The data's convention: ``run``/``smooth`` take a :class:`~nlfilter.simulate.Simulation` in place
+of ``ys`` and read its :class:`~nlfilter.simulate.Timing` (:meth:`Filter.for_timing`): a filter
+built without ``start`` (or, continuous-discrete, ``t0``) takes the Simulation's; one built with
+a different one, or with another ``dt``, is refused (ValueError naming both).
 
 Continuous time: ``ys`` are the measurement increments ``dy = h dt + dη`` over ``[t_k, t_k + dt]``,
 ``t_k = t0 + k dt``; ``means[..., k, :]`` estimates the state at ``t_k + dt`` (aligned with
@@ -56,6 +64,7 @@ import numpy as np
 
 from .. import _validate as V
 from ..errors import DivergenceError
+from ..simulate import Simulation
 from ..streams import FILTER, PathRNG
 from .beliefs import GaussianState, where_paths
 from .linalg import _all_ok, bad_paths, no_information, symmetrize
@@ -279,15 +288,65 @@ class Filter:
     structures: tuple = ()
 
     @classmethod
-    def for_model(cls, model, *, dt: float | None = None, start: str = "update"):
+    def for_model(cls, model, *, dt: float | None = None, start: str | None = None):
         """An instance for ``model`` with the default options (what ``compare(model, "all")``
         builds): ``cls(model, dt)`` on a continuous-time model (an SDE, a continuous bilinear or
         phase model), ``cls(model)`` on a discrete one, with ``start=start`` for discrete-time
-        filters. Filters that need more (bounds, a model-specific option) override it."""
+        filters (None: the filter's default, or the data's when run on a Simulation). Filters that
+        need more (bounds, a model-specific option) override it."""
         continuous = getattr(model, "kind", None) in ("sde", "phase") or (
             getattr(model, "kind", None) == "bilinear" and not getattr(model, "discrete", False))
         args = (model, dt) if continuous else (model,)
         return cls(*args, start=start) if cls.time == "discrete" else cls(*args)
+
+    def for_timing(self, timing, *, t0=None):
+        """``(filter, t0)`` for data of the convention ``timing`` (a
+        :class:`~nlfilter.simulate.Timing`, None: no check) and ``run``'s ``t0`` (None: not given):
+        this filter, or a copy of it with the data's ``start`` (and, continuous-discrete, ``t0``)
+        when it was built without one; the t0 of a continuous run is the data's when not given.
+        A convention stated on both sides that differs — ``start``, ``t0``, ``dt``, or data of
+        another kind (increments for a filter of discrete measurements, or the reverse) — is a
+        ValueError naming both."""
+        name = type(self).__name__
+        if timing is None:
+            return self, t0
+        kind = timing.kind
+        if self.time == "continuous":
+            if kind != "increments":
+                raise ValueError(f"ys: the Simulation holds {kind} measurements; {name} reads the increments dy "
+                                 "of a continuously observed SDE (simulate(sde_model, ..., dt=...))")
+            _same_dt(self, timing)
+            if t0 is None:
+                return self, timing.t0
+            if V.real("t0", t0) != timing.t0:
+                raise ValueError(f"t0: run was given t0={t0!r}, but the Simulation's prior is at t0={timing.t0!r}; "
+                                 "leave t0 unset to take the data's")
+            return self, t0
+        cd = getattr(getattr(self, "model", None), "kind", None) == "sde"
+        if kind == "increments" or (kind == "continuous-discrete") != cd:
+            reads = "an SDE measured at discrete times" if cd else "a discrete model's measurements"
+            raise ValueError(f"ys: the Simulation holds {kind} measurements; {name} reads {reads}")
+        changes = {}
+        if timing.start != self.start:
+            if getattr(self, "start_stated", True):
+                where = {"update": "at the prior's time", "predict": "one step after the prior"}[timing.start]
+                raise ValueError(f"start: {name} was built with start={self.start!r}, but the Simulation's first "
+                                 f"measurement is {where} (start={timing.start!r}); build it with "
+                                 f"start={timing.start!r}, or without start to take the data's")
+            changes["start"] = timing.start
+        if cd:
+            _same_dt(self, timing)
+            if getattr(self, "t0", timing.t0) != timing.t0:
+                if getattr(self, "t0_stated", True):
+                    raise ValueError(f"t0: {name} was built with t0={self.t0!r}, but the Simulation's prior is at "
+                                     f"t0={timing.t0!r}; build it with that t0, or without t0 to take the data's")
+                changes["t0"] = timing.t0
+        if not changes:
+            return self, t0
+        import copy
+        flt = copy.copy(self)
+        flt.__dict__.update(changes)
+        return flt, t0
 
     # -- the belief functions ----------------------------------------------------------------------
     @property
@@ -383,7 +442,7 @@ class Filter:
         return V.finite("ys", ys, allow_nan=True)
 
     # -- the one loop ------------------------------------------------------------------------------
-    def run(self, ys, m0=None, P0=None, *, initial=None, rng=None, t0: float = 0.0,
+    def run(self, ys, m0=None, P0=None, *, initial=None, rng=None, t0: float | None = None,
             on_divergence: str = "raise", progress: bool = False, chunk: int | None = None,
             loglik: bool = False, backend: str = "numpy") -> Estimates:
         """Filter a batch of measurement sequences ``ys (..., T, m)`` (increments for a
@@ -391,7 +450,9 @@ class Filter:
 
         Parameters
         ----------
-        ys : measurements ``(..., T, m)``; the leading axes are independent paths; NaN is missing
+        ys : measurements ``(..., T, m)``; the leading axes are independent paths; NaN is missing;
+            or a :class:`~nlfilter.simulate.Simulation`: its ``ys``, read with its timing convention
+            (``start``, ``t0``, ``dt``; :meth:`for_timing`)
         m0, P0 : prior mean ``(n,)`` or ``(..., n)`` and covariance ``(n, n)`` or ``(..., n, n)``
             (filters with a prior of their own, e.g. a density on the support, take None)
         initial : a law with ``logpdf``/``sample`` for the filters that take a non-Gaussian prior
@@ -402,7 +463,8 @@ class Filter:
             paths (e.g. ``PathRNG(seed, range(100, 200), key=FILTER)``: the streams of paths
             100..199, so the run gives those rows of the run on all paths); deterministic filters
             draw nothing and ignore it, so one call serves every filter
-        t0 : continuous time: the time of the first increment's start
+        t0 : continuous time: the time of the first increment's start (None: 0.0, or a
+            Simulation's)
         on_divergence : ``"raise"`` (default) or ``"mark"``
         progress : show a progress bar over the steps
         chunk : None (all paths at once) or the number of paths per batch: the loop runs the paths
@@ -426,7 +488,7 @@ class Filter:
         """
         return self._drive(ys, m0, P0, initial, rng, t0, on_divergence, progress, chunk, loglik, False, backend)
 
-    def smooth(self, ys, m0=None, P0=None, *, initial=None, rng=None, t0: float = 0.0,
+    def smooth(self, ys, m0=None, P0=None, *, initial=None, rng=None, t0: float | None = None,
                on_divergence: str = "raise", progress: bool = False, chunk: int | None = None,
                backend: str = "numpy") -> Estimates:
         """Smoothed estimates of a batch of measurement sequences: the filter's forward pass, then
@@ -448,6 +510,13 @@ class Filter:
 
     def _drive(self, ys, m0, P0, initial, rng, t0, on_divergence, progress, chunk, loglik, smooth, backend="numpy"):
         """The one loop behind :meth:`run` and :meth:`smooth`."""
+        if isinstance(ys, Simulation):  # the data's convention (for_timing)
+            flt, t0 = self.for_timing(ys.timing, t0=t0)
+            ys = ys.ys
+            if flt is not self:
+                return flt._drive(ys, m0, P0, initial, rng, t0, on_divergence, progress, chunk, loglik, smooth,
+                                  backend)
+        t0 = 0.0 if t0 is None else t0
         on = V.choice("on_divergence", on_divergence, {"raise", "mark"})
         backend = V.choice("backend", backend, {"numpy", "numba"})
         if backend == "numba":
@@ -573,12 +642,33 @@ class DiscreteFilter(Filter):
 
     accepts = ("discrete",)
 
-    def __init__(self, model, *, start: str = "update"):
+    def __init__(self, model, *, start: str | None = None):
         if getattr(model, "kind", None) != "discrete":
             raise TypeError(f"model: {type(self).__name__} expects a DiscreteModel, got {type(model).__name__}")
         check_structure(self, model)
         self.model = model
-        self.start = V.choice("start", start, {"update", "predict"})
+        set_start(self, start)
+
+
+def set_start(flt, start) -> None:
+    """``flt.start``: ``start`` checked, or the class's default when None; ``flt.start_stated``
+    records which (a filter built without ``start`` takes a Simulation's, :meth:`Filter.for_timing`)."""
+    flt.start_stated = start is not None
+    flt.start = type(flt).start if start is None else V.choice("start", start, {"update", "predict"})
+
+
+def set_t0(flt, t0) -> None:
+    """``flt.t0`` of a continuous-discrete filter: ``t0`` checked, or 0.0 when None (``t0_stated``)."""
+    flt.t0_stated = t0 is not None
+    flt.t0 = 0.0 if t0 is None else V.real("t0", t0)
+
+
+def _same_dt(flt, timing) -> None:
+    """Refuse data measured every ``timing.dt`` for a filter built with another ``dt``."""
+    dt = getattr(flt, "dt", None)
+    if dt is not None and timing.dt is not None and not math.isclose(dt, timing.dt, rel_tol=1e-12):
+        raise ValueError(f"dt: {type(flt).__name__} was built with dt={dt!r}, but the Simulation's measurement "
+                         f"step is dt={timing.dt!r}")
 
 
 def ode_step(rhs, x, t: float, dt: float, *, substeps: int = 1, scheme: str = "rk4", finish=None):

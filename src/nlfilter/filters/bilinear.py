@@ -102,7 +102,7 @@ class TensorFilter(_SteadyLinearRecursion):
         self._cov = None
 
     @classmethod
-    def for_model(cls, model, *, dt=None, start="update"):
+    def for_model(cls, model, *, dt=None, start=None):
         """Default instance: the targets are the coordinates of the base state (for a lift, the
         degree-1 monomials), the estimates a comparison reads."""
         nb = len(model.coords[0])

@@ -57,7 +57,7 @@ class CKF(GaussianFilter):
     name = "ckf"
     source = _CKF_SOURCE
 
-    def __init__(self, model, *, start: str = "update"):
+    def __init__(self, model, *, start: str | None = None):
         super().__init__(model, Cubature(), start=start)
 
 
@@ -78,7 +78,7 @@ class GHKF(GaussianFilter):
     name = "ghkf"
     source = _GHKF_SOURCE
 
-    def __init__(self, model, *, order: int = 3, start: str = "update"):
+    def __init__(self, model, *, order: int = 3, start: str | None = None):
         super().__init__(model, GaussHermite(order), start=start)
         self.order = self.rule.order
 
@@ -101,8 +101,8 @@ class ContinuousDiscreteCKF(ContinuousDiscreteGaussianFilter):
     name = "cd-ckf"
     source = _CKF_SOURCE + "; Arasaratnam, Haykin & Hurd 2010, IEEE TSP 58(10) (continuous-discrete)"
 
-    def __init__(self, model, dt: float, *, scheme: str = "rk4", substeps: int = 1, start: str = "update",
-                 t0: float = 0.0):
+    def __init__(self, model, dt: float, *, scheme: str = "rk4", substeps: int = 1, start: str | None = None,
+                 t0: float | None = None):
         super().__init__(model, dt, Cubature(), scheme=scheme, substeps=substeps, start=start, t0=t0)
 
 
@@ -124,7 +124,7 @@ class ContinuousDiscreteGHKF(ContinuousDiscreteGaussianFilter):
     source = _GHKF_SOURCE + "; Särkkä 2007 (continuous-discrete moment equations)"
 
     def __init__(self, model, dt: float, *, order: int = 3, scheme: str = "rk4", substeps: int = 1,
-                 start: str = "update", t0: float = 0.0):
+                 start: str | None = None, t0: float | None = None):
         super().__init__(model, dt, GaussHermite(order), scheme=scheme, substeps=substeps, start=start, t0=t0)
         self.order = self.rule.order
 
@@ -182,7 +182,7 @@ class StatisticallyLinearizedFilter(GaussianFilter):
     source = _SLF_SOURCE
     needs = ("polynomial",)
 
-    def __init__(self, model, *, start: str = "update"):
+    def __init__(self, model, *, start: str | None = None):
         check_structure(self, model)  # a structure it does not take is named before the degrees are read
         super().__init__(model, GaussHermite(exact_order(model)), start=start)
         self.order = self.rule.order
@@ -207,8 +207,8 @@ class ContinuousDiscreteSLF(ContinuousDiscreteGaussianFilter):
     source = _SLF_SOURCE + "; Särkkä 2007 (continuous-discrete moment equations)"
     needs = ("polynomial",)
 
-    def __init__(self, model, dt: float, *, scheme: str = "rk4", substeps: int = 1, start: str = "update",
-                 t0: float = 0.0):
+    def __init__(self, model, dt: float, *, scheme: str = "rk4", substeps: int = 1, start: str | None = None,
+                 t0: float | None = None):
         super().__init__(model, dt, GaussHermite(exact_order(model)), scheme=scheme, substeps=substeps, start=start,
                          t0=t0)
         self.order = self.rule.order

@@ -47,7 +47,7 @@ class EKF(GaussianFilter):
     source = "Jazwinski 1970, Stochastic Processes and Filtering Theory, ch. 8 (extended Kalman filter)"
     needs = ("f_x", "h_x")
 
-    def __init__(self, model, *, start: str = "update"):
+    def __init__(self, model, *, start: str | None = None):
         super().__init__(model, Taylor1(), start=start)
 
 
@@ -80,7 +80,7 @@ class IteratedEKF(_Iterated, EKF):
     name = "iekf"
     source = "Bell & Cathey 1993, The iterated Kalman filter update as a Gauss-Newton method, IEEE TAC 38(2) 294-297"
 
-    def __init__(self, model, *, iterations: int = 10, tol: float = 1e-10, start: str = "update"):
+    def __init__(self, model, *, iterations: int = 10, tol: float = 1e-10, start: str | None = None):
         super().__init__(model, start=start)
         self._set_iterations(iterations, tol)
 
@@ -106,8 +106,8 @@ class ContinuousDiscreteEKF(ContinuousDiscreteGaussianFilter):
     source = "Jazwinski 1970, Stochastic Processes and Filtering Theory, ch. 8 (continuous-discrete EKF)"
     needs = ("f_x", "h_x")
 
-    def __init__(self, model, dt: float, *, scheme: str = "rk4", substeps: int = 1, start: str = "update",
-                 t0: float = 0.0):
+    def __init__(self, model, dt: float, *, scheme: str = "rk4", substeps: int = 1, start: str | None = None,
+                 t0: float | None = None):
         super().__init__(model, dt, Taylor1(), scheme=scheme, substeps=substeps, start=start, t0=t0)
 
 
@@ -127,7 +127,7 @@ class ContinuousDiscreteIEKF(_Iterated, ContinuousDiscreteEKF):
     source = "Bell & Cathey 1993, IEEE TAC 38(2) (iterated update); Jazwinski 1970, ch. 8 (prediction)"
 
     def __init__(self, model, dt: float, *, iterations: int = 10, tol: float = 1e-10, scheme: str = "rk4",
-                 substeps: int = 1, start: str = "update", t0: float = 0.0):
+                 substeps: int = 1, start: str | None = None, t0: float | None = None):
         super().__init__(model, dt, scheme=scheme, substeps=substeps, start=start, t0=t0)
         self._set_iterations(iterations, tol)
 

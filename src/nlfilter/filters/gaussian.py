@@ -50,7 +50,7 @@ from typing import NamedTuple
 import numpy as np
 
 from .. import _validate as V
-from .base import ContinuousFilter, DiscreteFilter, GaussianState, continuous_precision, ode_step
+from .base import ContinuousFilter, DiscreteFilter, GaussianState, continuous_precision, ode_step, set_start, set_t0
 from .rules import hessian_trace
 from .smoothing import _solve_right, continuous_rts, rts
 from .linalg import decorrelation, gaussian_update, innovation_info, mm, observed_precision, poison, symmetrize
@@ -169,7 +169,7 @@ class GaussianFilter(_CrossNoise, DiscreteFilter):
     needs: tuple = ()
     time = "discrete"
 
-    def __init__(self, model, rule, *, start: str = "update"):
+    def __init__(self, model, rule, *, start: str | None = None):
         super().__init__(model, start=start)
         self._set_rule(rule)
 
@@ -300,7 +300,10 @@ class ContinuousDiscreteGaussianFilter(GaussianFilter):
     dt : float — the measurement interval
     rule : a rule of :mod:`nlfilter.filters.rules`
     scheme : ``"rk4"`` (default) or ``"euler"``;  substeps : int — integration steps per interval
-    start : ``"update"`` (``ys[..., 0, :]`` at ``t0``) or ``"predict"`` (at ``t0 + dt``);  t0 : float
+    start : ``"predict"`` (default: ``ys[..., 0, :]`` at ``t0 + dt``, the prior at ``t0``, as
+        :func:`~nlfilter.simulate.simulate_continuous_discrete`) or ``"update"`` (at ``t0``); None:
+        the default, or a Simulation's (:meth:`~nlfilter.filters.base.Filter.for_timing`)
+    t0 : float — the prior's time (None: 0.0, or a Simulation's)
 
     >>> import sympy as sp; from nlfilter import SDEModel
     >>> from nlfilter.filters.rules import Cubature
@@ -314,17 +317,18 @@ class ContinuousDiscreteGaussianFilter(GaussianFilter):
 
     name = "cd-gaussian"
     accepts = ("sde",)
+    start = "predict"  # the default: the prior at t0, y_0 at t0 + dt (as simulate_continuous_discrete)
 
     def __init__(self, model, dt: float, rule, *, scheme: str = "rk4", substeps: int = 1,
-                 start: str = "update", t0: float = 0.0, by: str | None = None):
+                 start: str | None = None, t0: float | None = None, by: str | None = None):
         if getattr(model, "kind", None) != "sde":
             raise TypeError(f"model: {type(self).__name__} expects an SDEModel, got {type(model).__name__}")
         self.model = model
-        self.start = V.choice("start", start, {"update", "predict"})
+        set_start(self, start)
         self.dt = float(V.positive("dt", dt))
         self.scheme = V.choice("scheme", scheme, {"rk4", "euler"})
         self.substeps = V.positive("substeps", substeps, integer=True)
-        self.t0 = V.real("t0", t0)
+        set_t0(self, t0)
         self._set_rule(rule, by=by)
 
     def _time(self, k):

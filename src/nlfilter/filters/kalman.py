@@ -37,7 +37,7 @@ class KalmanFilter(_CrossNoise, DiscreteFilter):
     needs = ("linear",)
     structures = ("cross noise",)
 
-    def __init__(self, model, *, start: str = "update"):
+    def __init__(self, model, *, start: str | None = None):
         super().__init__(model, start=start)
         _require_linear(model, "KalmanFilter")
         self._const = getattr(model, "time_invariant", False)  # else F, b, H, d, GQGᵀ read at every step

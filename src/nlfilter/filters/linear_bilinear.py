@@ -29,7 +29,7 @@ from .. import _validate as V
 from ..bilinear import BilinearModel
 from ..bilinear_analysis import augmented_second_moment, state_second_moments, wonham_condition
 from ..errors import SingularSystemError
-from .base import gaussian_prior
+from .base import gaussian_prior, set_start
 from .linalg import symmetrize
 from .offline import ContinuousSchedule, DiscreteSchedule, OfflineGainFilter
 
@@ -317,11 +317,11 @@ class DiscreteOptimalLinearFilter(OfflineGainFilter):
     accepts = ("bilinear-discrete",)
     time = "discrete"
 
-    def __init__(self, model: BilinearModel, *, start: str = "update"):
+    def __init__(self, model: BilinearModel, *, start: str | None = None):
         if not isinstance(model, BilinearModel) or not model.discrete:
             raise TypeError("model: expected a discrete-time BilinearModel (discrete=True)")
         self.model = model
-        self.start = V.choice("start", start, {"update", "predict"})
+        set_start(self, start)
 
     def schedule(self, m0, P0, batch, steps, t0):
         prior = gaussian_prior(m0, P0, self.model.n, (1,), one=True)

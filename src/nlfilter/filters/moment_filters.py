@@ -312,7 +312,7 @@ class DiscreteConditionalMomentFilter(_MomentFilter, DiscreteFilter):
     source = "seed 003 eqs. 11-12 (discrete moment equations), Bayes update of the assumed density"
 
     def __init__(self, model, *, closure: Closure | None = None, order: int | None = None,
-                 start: str = "update", points: int = 24, name: str | None = None):
+                 start: str | None = None, points: int = 24, name: str | None = None):
         DiscreteFilter.__init__(self, model, start=start)
         closure = GaussianClosure() if closure is None else closure
         N = kept_order(closure, order)

@@ -99,7 +99,7 @@ class PseudoObservablesFilter(OfflineGainFilter):
     own_prior = True  # the law of x0 comes from x_moment: run takes m0 = P0 = None
 
     @classmethod
-    def for_model(cls, model, *, dt=None, start="update"):
+    def for_model(cls, model, *, dt=None, start=None):
         """No default instance: the initial law's moments ``x_moment`` are the user's to give."""
         raise ValueError("x_moment: PseudoObservablesFilter needs the initial law's moments of x (no default); "
                          "build it with PseudoObservablesFilter(model, dt, x_moment=...)")

@@ -61,7 +61,7 @@ from ..moments.discrete import PolynomialMap, discrete_moment_equations, gaussia
 from ..moments.ito import PolynomialSDE, moment_equations
 from ..moments.quadrature import expect_gaussian, gaussian_rule
 from ..polynomials import Polynomial, monomials
-from .base import ContinuousFilter, check_structure, continuous_precision
+from .base import ContinuousFilter, check_structure, continuous_precision, set_start
 from .linalg import symmetrize
 from .offline import ContinuousSchedule, DiscreteSchedule, OfflineGainFilter
 from .offline_analysis import ErrorAnalysis, _prior, gain_error_analysis
@@ -501,13 +501,13 @@ class DiscreteQuasilinearFilter(OfflineGainFilter):
     needs = ("sympy",)
     time = "discrete"
 
-    def __init__(self, model, *, closure: Closure | None = None, order: int | None = None, start: str = "update"):
+    def __init__(self, model, *, closure: Closure | None = None, order: int | None = None, start: str | None = None):
         if getattr(model, "kind", None) != "discrete":
             raise TypeError(f"model: DiscreteQuasilinearFilter expects a DiscreteModel, got {type(model).__name__}")
         check_structure(self, model)
         self.model = model
         self.closure = GaussianClosure() if closure is None else closure
-        self.start = V.choice("start", start, {"update", "predict"})
+        set_start(self, start)
         self.lin = _Linearizer(model, self.closure, order, "discrete")
 
     def schedule(self, m0, P0, batch, steps, t0):

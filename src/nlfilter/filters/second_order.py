@@ -151,7 +151,7 @@ class SecondOrderFilter(_DiscreteFamily, GaussianFilter):
 
     source = "seed 004 eqs. 18-23 (discrete), Henriksen 1979"
 
-    def __init__(self, model, *, form: str = "truncated", start: str = "update"):
+    def __init__(self, model, *, form: str = "truncated", start: str | None = None):
         DiscreteFilter.__init__(self, model, start=start)
         self._set_rule(self._form(form), by=f"SecondOrderFilter(form={form!r})")
 
@@ -170,7 +170,7 @@ class ContinuousDiscreteSecondOrderFilter(_DiscreteFamily, ContinuousDiscreteGau
         dm/dt = f(m) + ½(X f_xx),   dX/dt = F X + X Fᵀ + E[G V Gᵀ]   (second order)
 
     integrated by ``scheme`` (``"rk4"`` default or ``"euler"``) with ``substeps`` steps per interval.
-    ``start="update"`` (default): ``ys[..., 0, :]`` is taken at ``t0``; ``"predict"``: at ``t0 + dt``.
+    ``start="predict"`` (default): ``ys[..., 0, :]`` is taken at ``t0 + dt``; ``"update"``: at ``t0``.
 
     >>> from nlfilter.problems import falling_body
     >>> p = falling_body()
@@ -184,7 +184,7 @@ class ContinuousDiscreteSecondOrderFilter(_DiscreteFamily, ContinuousDiscreteGau
     accepts = ("sde",)
 
     def __init__(self, model, dt: float, *, form: str = "truncated", scheme: str = "rk4",
-                 substeps: int = 1, start: str = "update", t0: float = 0.0):
+                 substeps: int = 1, start: str | None = None, t0: float | None = None):
         # the continuous-discrete skeleton with Taylor2(form)
         ContinuousDiscreteGaussianFilter.__init__(self, model, dt, self._form(form), scheme=scheme,
                                                   substeps=substeps, start=start, t0=t0,

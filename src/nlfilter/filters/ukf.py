@@ -52,7 +52,7 @@ class UKF(GaussianFilter):
     structures = ("state-dependent R", "cross noise", "non-additive noise", "non-additive measurement noise")
 
     def __init__(self, model, *, alpha: float = 1.0, beta: float = 2.0, kappa: float = 0.0,
-                 start: str = "update", augmented: bool | None = None):
+                 start: str | None = None, augmented: bool | None = None):
         DiscreteFilter.__init__(self, model, start=start)
         alpha = float(V.positive("alpha", alpha))
         beta = float(V.positive("beta", beta, strict=False))
@@ -132,7 +132,7 @@ class ContinuousDiscreteUKF(ContinuousDiscreteGaussianFilter):
               "systems, IEEE TAC 52(9)")
 
     def __init__(self, model, dt: float, *, alpha: float = 1.0, beta: float = 2.0, kappa: float = 0.0,
-                 scheme: str = "rk4", substeps: int = 1, start: str = "update", t0: float = 0.0):
+                 scheme: str = "rk4", substeps: int = 1, start: str | None = None, t0: float | None = None):
         if getattr(model, "kind", None) == "sde" and (not np.isfinite(kappa) or model.n + kappa <= 0):
             raise ValueError(f"kappa: expected n + kappa > 0 (n = {model.n}), got {kappa!r}")
         super().__init__(model, dt, Unscented(alpha, beta, kappa), scheme=scheme, substeps=substeps,

@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 
 from ... import _validate as V
-from ..base import Filter, check_structure, continuous_precision
+from ..base import Filter, check_structure, continuous_precision, set_start
 
 
 def _check_time_step(flt, model, dt, who):
@@ -39,7 +39,7 @@ class _ReferenceFilter(Filter):
     def _setup(self, model, dt, start, who):
         check_structure(self, model)
         self.model = model
-        self.start = V.choice("start", start, {"update", "predict"})
+        set_start(self, start)
         _check_time_step(self, model, dt, who)
 
     def _need(self, time, call):

@@ -104,7 +104,7 @@ class GridFilter(_ReferenceFilter):
     needs = ("n ≤ 2", "noise density")
     structures = ("state-dependent R",)
 
-    def __init__(self, model, bounds, size=401, *, dt: float | None = None, start: str = "update",
+    def __init__(self, model, bounds, size=401, *, dt: float | None = None, start: str | None = None,
                  edge_limit: float | None = EDGE_LIMIT):
         if model.n > 2:
             raise ValueError(f"model: the grid filter handles n ≤ 2 states, got n = {model.n}; use ParticleFilter")

@@ -88,7 +88,7 @@ class ParticleFilter(_ReferenceFilter):
     structures = ("state-dependent R", "non-additive noise")
 
     def __init__(self, model, particles: int = 2000, *, dt: float | None = None, substeps: int = 5,
-                 threshold: float = 0.5, start: str = "update"):
+                 threshold: float = 0.5, start: str | None = None):
         self.particles = V.positive("particles", particles, integer=True)
         self.threshold = float(threshold)
         if not 0.0 <= self.threshold <= 1.0:

@@ -28,7 +28,7 @@ import numpy as np
 
 from ... import _validate as V
 from ...streams import FILTER, PathRNG
-from ..base import Filter, ode_step
+from ..base import Filter, ode_step, set_start, set_t0
 from ..linalg import observed_precision
 from .particle import systematic_resample
 
@@ -87,7 +87,8 @@ class ResampleMoveParticleFilter(Filter):
     dt : measurement interval;  substeps : RK4 steps per interval
     moves : Metropolis sweeps after each resampling;  scale : proposal scale
     threshold : resample when ESS < threshold · particles
-    start : ``"update"`` (``ys[..., 0, :]`` at ``t0``) or ``"predict"`` (at ``t0 + dt``);  t0 : float
+    start : ``"predict"`` (default: ``ys[..., 0, :]`` at ``t0 + dt``) or ``"update"`` (at ``t0``); None: the
+        default, or a Simulation's;  t0 : float (None: 0.0, or a Simulation's)
 
     ``Estimates.extras``: ``accepted``, ``proposed (..., T)`` the cumulative numbers of accepted and
     proposed moves per path (the acceptance rate is ``accepted[..., -1].sum() / proposed[..., -1].sum()``).
@@ -101,9 +102,10 @@ class ResampleMoveParticleFilter(Filter):
     needs = ("no process noise",)
     time = "discrete"
     random = True
+    start = "predict"  # the default: the prior at t0, y_0 at t0 + dt (as simulate_continuous_discrete)
 
     def __init__(self, model, particles: int = 1000, *, dt: float, substeps: int = 20, moves: int = 2,
-                 scale: float = 1.0, threshold: float = 0.5, start: str = "update", t0: float = 0.0):
+                 scale: float = 1.0, threshold: float = 0.5, start: str | None = None, t0: float | None = None):
         if getattr(model, "kind", None) != "sde":
             raise TypeError(f"model: {type(self).__name__} expects an SDEModel, got {type(model).__name__}")
         if np.any(model.Q != 0):
@@ -117,8 +119,8 @@ class ResampleMoveParticleFilter(Filter):
         self.threshold = float(threshold)
         if not 0.0 <= self.threshold <= 1.0:
             raise ValueError(f"threshold: expected a number in [0, 1], got {threshold!r}")
-        self.start = V.choice("start", start, {"update", "predict"})
-        self.t0 = V.real("t0", t0)
+        set_start(self, start)
+        set_t0(self, t0)
         self._Rinv = np.linalg.inv(model.R)
 
     def _time(self, k):
