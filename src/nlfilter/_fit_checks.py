@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import math
 import numbers
+import re
 
 import numpy as np
 from scipy import optimize
@@ -29,7 +30,9 @@ def check_options(method, options) -> dict:
     if not isinstance(options, dict):
         raise TypeError(f"options: expected a dict of scipy.optimize.minimize options, got {options!r}")
     doc = optimize.show_options("minimize", method.lower(), disp=False)
-    known = [k for k in OPTION_KINDS if f"\n{k} :" in "\n" + doc.replace("\n    ", "\n")]
+    documented = {name for line in doc.splitlines() for m in [re.match(r"\s*(\w+(?:, \w+)*) :", line)] if m
+                  for name in m.group(1).split(", ")}  # the option headers of SciPy's docs ("maxiter, maxfev : int")
+    known = [k for k in OPTION_KINDS if k in documented]
     for key, value in options.items():
         if key not in known:
             raise ValueError(f"options: {key!r} is not an option fit passes to method {method!r}; expected some of "
@@ -40,11 +43,11 @@ def check_options(method, options) -> dict:
         elif kind == "int":
             ok = isinstance(value, numbers.Integral) and not isinstance(value, bool) and value > 0
         else:
-            ok = (isinstance(value, numbers.Real) and not isinstance(value, bool) and math.isfinite(value)
-                  and (kind == "real" or value > 0))
+            ok = (isinstance(value, numbers.Real) and not isinstance(value, bool) and not math.isnan(value)
+                  and (kind == "real" or (math.isfinite(value) and value > 0)))
         if not ok:
             want = {"bool": "True or False", "int": "a positive integer", "pos": "a positive finite number",
-                    "real": "a finite number"}[kind]
+                    "real": "a number"}[kind]
             raise ValueError(f"options: {key} expected {want}, got {value!r}")
     return dict(options)
 

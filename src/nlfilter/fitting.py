@@ -222,6 +222,9 @@ def fit(model, ys, params0, *, filter="ukf", m0=None, P0=None, initial=None, bou
     names = tuple(str(s) for s in syms)
     if len(set(names)) != len(names):
         raise ValueError(f"params0: a parameter is given twice: {list(params0)}")
+    for nm, flag in (("se", se), ("progress", progress)):
+        if not isinstance(flag, (bool, np.bool_)):
+            raise TypeError(f"{nm}: expected True or False, got {flag!r}")
     kinds, theta0 = parameter_kinds(syms, names, params0, bounds)
     options = check_options(method, options)
     if start is not None:
@@ -281,22 +284,27 @@ def fit(model, ys, params0, *, filter="ukf", m0=None, P0=None, initial=None, bou
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)
         opt = optimize.minimize(objective, z0, method=method, options=options or None)
-    theta = tr.to_natural(opt.x)
+    z_hat = np.asarray(opt.x, dtype=float)
+    theta = tr.to_natural(z_hat)
     ll_hat = loglik(theta)
     if not (math.isfinite(ll_hat) and ll_hat >= ll0):  # the optimizer's point is worse than the start
-        theta, ll_hat = theta0, ll0
+        theta, ll_hat, z_hat = theta0, ll0, z0
     checks = []  # what keeps the fit from counting as converged
     if not opt.success:
         checks.append(f"the optimizer stopped: {opt.message}")
     if np.array_equal(theta, theta0):
         checks.append("no point better than the start was found")
-    z_hat = tr.to_free(theta)
-    at_bound = [nm for nm, z, (kind, _, _) in zip(names, z_hat, kinds) if kind != "id" and abs(z) > 30.0]
+    # a free coordinate past ±30: the parameter within e⁻³⁰ (relative) of a bound, or rounded onto it
+    at_bound = [nm for nm, z, t, (kind, lo, hi) in zip(names, z_hat, theta, kinds)
+                if kind != "id" and (abs(z) > 30.0 or t == lo or t == hi)]
     degenerate = bool(at_bound)
     if degenerate:
-        checks.append(f"degenerate: the likelihood keeps rising as {', '.join(at_bound)} approach(es) a bound "
-                      f"({', '.join(f'{nm} = {t:.3g}' for nm, t in zip(names, theta) if nm in at_bound)}, "
-                      f"log L = {ll_hat:.6g}): it is unbounded there (e.g. a variance going to 0); fix or bound it")
+        near = {"lo": lambda z, lo, hi: lo, "hi": lambda z, lo, hi: hi, "logit": lambda z, lo, hi: lo if z < 0 else hi}
+        where = ", ".join(f"{nm} = {t:.3g}, bound {near[kind](z, lo, hi):g}"
+                          for nm, t, z, (kind, lo, hi) in zip(names, theta, z_hat, kinds) if nm in at_bound)
+        checks.append(f"degenerate: the likelihood keeps rising toward a bound ({where}, log L = {ll_hat:.6g}): the "
+                      "maximum is not inside the parameter space, and the likelihood may be unbounded there (e.g. a "
+                      "variance going to 0); fix that parameter or bound it away")
     p = len(names)
     cov = np.full((p, p), np.nan)
     se_ok = False
@@ -349,7 +357,7 @@ def _derivatives(f, theta, kinds, rel: float = 1e-4, hessian: bool = True):
     E = np.diag(h)
     fp = np.array([f(theta + E[i]) for i in range(p)])
     fm = np.array([f(theta - E[i]) for i in range(p)])
-    with np.errstate(invalid="ignore"):
+    with np.errstate(invalid="ignore", divide="ignore"):
         g = (fp - fm) / (2 * h)
         g[~np.isfinite(g)] = np.nan
     if not hessian:
