@@ -129,3 +129,19 @@ def test_simulation_keeps_its_timing_and_unpacks():
     assert Simulation(xs, ys, x0, t).timing is None  # by hand, no convention: nothing checked
     with pytest.raises(TypeError, match="timing"):
         Simulation(xs, ys, x0, t, "predict")
+
+
+def test_compare_adapts_a_filter_built_without_start():
+    """``compare(start="predict")`` with a filter instance built without ``start``: it runs in the
+    comparison's convention (the same numbers as one built with it); one built with the other
+    convention is refused, as before."""
+    from nlfilter import compare
+
+    x = sp.Symbol("x")
+    md = DiscreteModel([x], [0.9 * x], [x], Q=0.1, R=0.5)
+    kw = dict(paths=4, m0=0.0, P0=0.5, rng=1, start="predict", reference=None)
+    a = compare(md, {"ekf": EKF(md)}, 10, **kw).get("ekf", "mse", component=0).value
+    b = compare(md, {"ekf": EKF(md, start="predict")}, 10, **kw).get("ekf", "mse", component=0).value
+    assert a == b
+    with pytest.raises(ValueError, match=r"filters\['ekf'\]: its start='update' differs from start='predict'"):
+        compare(md, {"ekf": EKF(md, start="update")}, 10, **kw)

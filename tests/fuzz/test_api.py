@@ -401,3 +401,35 @@ def test_fit_bounds_and_starts_fuzzed(fuzz, lo, hi, start):
     """Any bounds pair and starting value: a named refusal, or a fit whose numbers are finite."""
     fuzz.check("fit", lambda: _finite_fit(_fit(bounds={a: (lo, hi)}, params0={a: start})), ("bounds", "params0", "a"),
                  bad=False, label=f"bounds ({lo!r}, {hi!r}), start {start!r}")
+
+
+# -- the data's timing convention against the filter's (issue 25 item 3) -------------------------------
+def _timing_cases():
+    from nlfilter.evaluate import loglik
+    from nlfilter.filters.ekf import ContinuousDiscreteEKF
+    sde_sim = S.simulate(SDE1, 5, paths=2, rng=1, m0=[0.5], P0=[[0.2]], dt=0.1, t0=1.0)
+    cd_sim = S.simulate_continuous_discrete(SDE1, 5, paths=2, rng=1, m0=[0.5], P0=[[0.2]], dt=0.1)
+    return [
+        ("run start conflicts", lambda: EKF(D1, start="predict").run(_SIM, **_P), "start"),
+        ("smooth start conflicts", lambda: EKF(D1, start="predict").smooth(_SIM, **_P), "start"),
+        ("loglik start conflicts", lambda: loglik(EKF(D1, start="predict"), _SIM, **_P), "start"),
+        ("run CD filter on discrete data", lambda: ContinuousDiscreteEKF(SDE1, 0.1).run(_SIM, **_P), "ys"),
+        ("run CD filter on increments", lambda: ContinuousDiscreteEKF(SDE1, 0.1).run(sde_sim, **_P), "ys"),
+        ("run CD filter dt conflicts", lambda: ContinuousDiscreteEKF(SDE1, 0.2).run(cd_sim, **_P), "dt"),
+        ("run CD filter t0 conflicts", lambda: ContinuousDiscreteEKF(SDE1, 0.1, t0=2.0).run(cd_sim, **_P), "t0"),
+        ("run CD filter start conflicts", lambda: ContinuousDiscreteEKF(SDE1, 0.1, start="update").run(cd_sim, **_P),
+         "start"),
+        ("run continuous filter on CD data", lambda: KalmanBucy(SDE1, 0.1).run(cd_sim, **_P), "ys"),
+        ("run continuous filter t0 conflicts", lambda: KalmanBucy(SDE1, 0.1).run(sde_sim, t0=0.0, **_P), "t0"),
+        ("run continuous filter dt conflicts", lambda: KalmanBucy(SDE1, 0.05).run(sde_sim, **_P), "dt"),
+        ("run discrete filter on increments", lambda: EKF(D1).run(sde_sim, **_P), "ys"),
+        ("Simulation timing not a Timing", lambda: S.Simulation(*_SIM, timing="predict"), "timing"),
+    ]
+
+
+TIMING = _timing_cases()
+
+
+@pytest.mark.parametrize("label,make,names", TIMING, ids=[c[0] for c in TIMING])
+def test_conflicting_timing_is_refused_naming_it(fuzz, label, make, names):
+    fuzz.check("timing convention", make, names, label=label)
