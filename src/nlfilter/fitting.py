@@ -209,7 +209,7 @@ def fit(model, ys, params0, *, filter="ukf", m0=None, P0=None, initial=None, bou
         *and* the log-likelihood is at least the start's *and* the gradient is small (with a
         positive definite observed information: the Newton step would raise log L by less than
         0.01; otherwise every component of the gradient in the optimizer's coordinates below
-        0.01) *and* no parameter ran to a bound (|free coordinate| > 30: a value within e⁻³⁰ of
+        0.01) *and* no parameter ran to a bound (a free coordinate beyond ±30: a value within e⁻³⁰ of
         its bound, e.g. a variance going to 0 with the likelihood unbounded above: ``message``
         says "degenerate"); ``message`` says which failed.
     """
@@ -316,7 +316,10 @@ def fit(model, ys, params0, *, filter="ukf", m0=None, P0=None, initial=None, bou
                 cov = np.linalg.inv(Hm)
                 cov = 0.5 * (cov + cov.T)
                 se_ok = True
-    if not degenerate:
+    notes = []  # what the message adds
+    if getattr(first, "random", False):  # a likelihood estimate: its finite differences are noise
+        notes.append("the gradient is not checked (a random likelihood estimate)")
+    elif not degenerate:
         if not np.all(np.isfinite(grad)):
             checks.append("the log-likelihood is not finite next to the estimate: no gradient check")
         elif se_ok:
@@ -327,13 +330,14 @@ def fit(model, ys, params0, *, filter="ukf", m0=None, P0=None, initial=None, bou
             gz = grad * np.array([tr.dnatural(z, i) for i, z in enumerate(z_hat)])
             if not np.max(np.abs(gz)) < 0.01:
                 checks.append(f"the gradient is not small: |d log L / dz| = {np.max(np.abs(gz)):.3g}")
-    converged = not checks
-    message = str(opt.message) if converged else "; ".join(checks)
-    if "diverged" in why or "refused" in why:  # the penalty made the optimizer back off from them
-        message += ("; the filter diverged at some trial values" if "diverged" in why else
-                    f"; the model refused some trial values ({why['refused']})") + " (backed off)"
+    if "diverged" in why:  # the penalty made the optimizer back off from them
+        notes.append("the filter diverged at some trial values (backed off)")
+    if "refused" in why:
+        notes.append(f"the model refused some trial values ({why['refused']}) (backed off)")
     if Hm is not None and not se_ok:
-        message += "; the observed information is not positive definite: no standard errors"
+        notes.append("the observed information is not positive definite: no standard errors")
+    converged = not checks
+    message = "; ".join([str(opt.message)] if converged else checks) + "".join(f"; {n}" for n in notes)
     if bar is not None:
         bar.close()
     return FitResult(dict(zip(names, map(float, theta))), dict(zip(names, map(float, np.sqrt(np.diag(cov))))),
