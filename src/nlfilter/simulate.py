@@ -14,6 +14,10 @@ over processes.
   measurement step ``dt``): ``ys[..., k, :]`` is the increment ``dy`` over ``[t_k, t_{k+1}]``
   and ``xs[..., k, :]`` the state at ``t_{k+1}``, which is what a continuous filter estimates
   after that increment.
+
+Every :class:`Simulation` carries its :class:`Timing` (``sim.timing``: the kind of measurement,
+``start``, ``t0``, ``dt``); a filter run on the Simulation itself (``flt.run(sim, m0, P0)``) reads
+it, so that the data and the filter cannot silently disagree (:meth:`~nlfilter.filters.base.Filter.for_timing`).
 """
 
 from __future__ import annotations
@@ -417,7 +421,9 @@ def simulate_continuous_discrete(model, steps: int, *, paths: int | range = 1, r
     steps (:func:`~nlfilter.filters.base.ode_step`); when ``Q ≠ 0`` one Euler–Maruyama noise
     increment ``G(x, t_k) w``, ``w ~ N(0, Q dt)``, is added per interval after the flow (a coarse
     model of the process noise: meant for nearly deterministic dynamics such as the falling body).
-    Returns a :class:`Simulation` with ``xs[:, k] = x(t_{k+1})``, ``ys[:, k]`` its measurement.
+    Returns a :class:`Simulation` with ``xs[:, k] = x(t_{k+1})``, ``ys[:, k]`` its measurement, and
+    ``timing = Timing("continuous-discrete", "predict", t0, dt)``: the prior at ``t0``, the first
+    measurement one interval later (the continuous-discrete filters' default).
     ``paths``, ``rng``: as :func:`simulate`. Draws of a path: its initial state (unless ``x0``),
     the ``steps × r`` standard normals of the process noise (only when ``Q ≠ 0``), then the
     ``steps × m`` of the measurement noise. ``on_divergence``: as :func:`simulate`.
