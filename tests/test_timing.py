@@ -129,6 +129,13 @@ def test_simulation_keeps_its_timing_and_unpacks():
     assert Simulation(xs, ys, x0, t).timing is None  # by hand, no convention: nothing checked
     with pytest.raises(TypeError, match="timing"):
         Simulation(xs, ys, x0, t, "predict")
+    for bad, match in ((Timing("discrete", None, 0.0, None), "timing.start"),
+                       (Timing("increments", "update", 0.0, 0.1), "timing.start"),
+                       (Timing("continuous-discrete", "predict", 0.0, None), "timing.dt"),
+                       (Timing("discrete", "update", 0.0, 0.1), "timing.dt"),
+                       (Timing("sampled", "update", 0.0, None), "timing.kind")):
+        with pytest.raises((TypeError, ValueError), match=match):
+            Simulation(xs, ys, x0, t, bad)
 
 
 def test_compare_adapts_a_filter_built_without_start():

@@ -52,6 +52,24 @@ class Timing(NamedTuple):
     dt: float | None
 
 
+def _check_timing(timing) -> None:
+    """A :class:`Timing` whose fields agree with each other (named errors otherwise)."""
+    if not isinstance(timing, Timing):
+        raise TypeError(f"timing: expected a Timing or None, got {type(timing).__name__}")
+    V.choice("timing.kind", timing.kind, {"discrete", "increments", "continuous-discrete"})
+    if timing.kind == "increments":
+        if timing.start is not None:
+            raise ValueError(f"timing.start: increments have no step convention; expected None, got {timing.start!r}")
+    else:
+        V.choice("timing.start", timing.start, {"update", "predict"})
+    V.real("timing.t0", timing.t0)
+    if timing.kind == "discrete":
+        if timing.dt is not None:
+            raise ValueError(f"timing.dt: a discrete model has no time step; expected None, got {timing.dt!r}")
+    else:
+        V.positive("timing.dt", timing.dt)
+
+
 class _SimulationArrays(NamedTuple):
     xs: np.ndarray
     ys: np.ndarray
@@ -73,8 +91,8 @@ class Simulation(_SimulationArrays):
 
     def __new__(cls, xs, ys, x0, t, timing: Timing | None = None):
         self = super().__new__(cls, xs, ys, x0, t)
-        if timing is not None and not isinstance(timing, Timing):
-            raise TypeError(f"timing: expected a Timing or None, got {type(timing).__name__}")
+        if timing is not None:
+            _check_timing(timing)
         self.__dict__["timing"] = timing
         return self
 
