@@ -1,3 +1,8 @@
+import collections
+import json
+import os
+from pathlib import Path
+
 import numpy as np
 import pytest
 import sympy as sp
@@ -70,3 +75,56 @@ def check_figure(tmp_path):
 def _private_store(tmp_path, monkeypatch):
     """The command line's results store goes to a temporary file, never the user's cache."""
     monkeypatch.setenv("NLFILTER_STORE", str(tmp_path / "results.sqlite"))
+
+
+# -- the fuzz suite's table (tests/fuzz): counted per area, gathered from every xdist worker ---------
+FUZZ_OUTCOMES = ("named", "handled", "clean", "unnamed", "accepted", "silent nan", "raw", "hang", "unclean")
+
+
+def _fuzz_table():
+    return {"counts": collections.defaultdict(collections.Counter), "failures": []}
+
+
+def pytest_configure(config):
+    config.fuzz_table = _fuzz_table()
+
+
+def pytest_sessionfinish(session):
+    """An xdist worker sends its part of the table to the controller."""
+    out = getattr(session.config, "workeroutput", None)
+    table = getattr(session.config, "fuzz_table", None)
+    if out is not None and table is not None:
+        out["fuzz_table"] = json.dumps({"counts": {a: dict(c) for a, c in table["counts"].items()},
+                                        "failures": table["failures"]})
+
+
+@pytest.hookimpl(optionalhook=True)
+def pytest_testnodedown(node, error):
+    """The controller adds a finished worker's part of the table (pytest-xdist's hook)."""
+    part = getattr(node, "workeroutput", {}).get("fuzz_table")
+    if part:
+        part, table = json.loads(part), node.config.fuzz_table
+        for area, counts in part["counts"].items():
+            table["counts"][area].update(counts)
+        table["failures"].extend(part["failures"])
+
+
+def pytest_terminal_summary(terminalreporter, config):
+    """The fuzz suite's table (issue 15): one row per area, one column per outcome;
+    ``NLFILTER_FUZZ_JSON`` also writes it as JSON."""
+    counts, failures = config.fuzz_table["counts"], config.fuzz_table["failures"]
+    if not counts or hasattr(config, "workerinput"):
+        return
+    tr = terminalreporter
+    tr.section("fuzz suite: outcomes per area")
+    cols = [o for o in FUZZ_OUTCOMES if any(c[o] for c in counts.values())]
+    tr.write_line(f"{'area':<30}{'cases':>7}" + "".join(f"{c:>12}" for c in cols))
+    for area in sorted(counts):
+        c = counts[area]
+        tr.write_line(f"{area:<30}{sum(c.values()):>7}" + "".join(f"{c[o]:>12}" for o in cols))
+    for line in failures[:40]:
+        tr.write_line("  " + line)
+    path = os.environ.get("NLFILTER_FUZZ_JSON")
+    if path:
+        Path(path).write_text(json.dumps({"counts": {a: dict(c) for a, c in counts.items()},
+                                          "failures": failures}, indent=1, sort_keys=True))

@@ -21,8 +21,6 @@ line's cases are ``clean`` (exit 2 or 130 with at most three lines and no traceb
 
 from __future__ import annotations
 
-import collections
-import os
 import re
 import signal
 import traceback
@@ -36,8 +34,6 @@ from nlfilter.errors import NLFilterError
 
 LIMIT = 20.0  # seconds a fuzzed call may take before it counts as a hang (the issue's bound: 60)
 PACKAGE = str(Path(nlfilter.__file__).resolve().parent)
-COUNTS: dict[str, collections.Counter] = collections.defaultdict(collections.Counter)
-FAILURES: list[str] = []
 
 
 class _Hang(BaseException):
@@ -114,46 +110,28 @@ def classify(fn, names, *, bad: bool = True, limit: float = LIMIT) -> tuple[str,
 
 
 class Fuzz:
-    """The fixture: ``fuzz.check(area, fn, names, bad=True)`` classifies, counts and asserts."""
+    """The fixture: ``fuzz.check(area, fn, names, bad=True)`` classifies, counts and asserts.
+    The counts go to the session's table (``tests/conftest.py``: gathered from every xdist worker
+    and printed at the session's end)."""
+
+    def __init__(self, table):
+        self.counts, self.failures = table["counts"], table["failures"]
 
     def check(self, area: str, fn, names, *, bad: bool = True, limit: float = LIMIT, label: str = ""):
         outcome, detail = classify(fn, names, bad=bad, limit=limit)
-        COUNTS[area][outcome] += 1
+        self.counts[area][outcome] += 1
         allowed = {"named"} if bad else {"named", "handled"}
         if outcome not in allowed:
-            FAILURES.append(f"{area}: {label}: {outcome}: {detail}")
+            self.failures.append(f"{area}: {label}: {outcome}: {detail}")
         assert outcome in allowed, f"{label}: {outcome}: {detail}"
         return outcome, detail
 
     def count(self, area: str, outcome: str, ok: bool, label: str = ""):
-        COUNTS[area][outcome] += 1
+        self.counts[area][outcome] += 1
         if not ok:
-            FAILURES.append(f"{area}: {label}: {outcome}")
+            self.failures.append(f"{area}: {label}: {outcome}")
 
 
 @pytest.fixture
-def fuzz():
-    return Fuzz()
-
-
-OUTCOMES = ("named", "handled", "clean", "unnamed", "accepted", "silent nan", "raw", "hang", "unclean")
-
-
-def pytest_terminal_summary(terminalreporter):
-    """The issue's table: one row per area, one column per outcome."""
-    if not COUNTS:
-        return
-    tr = terminalreporter
-    tr.section("fuzz suite: outcomes per area")
-    cols = [o for o in OUTCOMES if any(c[o] for c in COUNTS.values())]
-    tr.write_line(f"{'area':<30}{'cases':>7}" + "".join(f"{c:>12}" for c in cols))
-    for area in sorted(COUNTS):
-        c = COUNTS[area]
-        tr.write_line(f"{area:<30}{sum(c.values()):>7}" + "".join(f"{c[o]:>12}" for o in cols))
-    for line in FAILURES[:40]:
-        tr.write_line("  " + line)
-    path = os.environ.get("NLFILTER_FUZZ_JSON")
-    if path:
-        import json
-        Path(path).write_text(json.dumps({"counts": {a: dict(c) for a, c in COUNTS.items()},
-                                               "failures": FAILURES}, indent=1, sort_keys=True))
+def fuzz(request):
+    return Fuzz(request.config.fuzz_table)
