@@ -81,6 +81,20 @@ def test_a_first_step_into_a_failing_region_backs_off_to_the_optimum():
     assert "refused some trial values" in res.message and "backed off" in res.message
 
 
+def test_a_start_at_the_optimum_is_converged():
+    """Started at its own optimum, fit may not move at all: the small gradient there makes it
+    converged (the "no point better than the start" check only applies where the gradient cannot
+    be checked or is not small)."""
+    ys = simulate(NEG, 100, paths=2, rng=3, **PRIOR).ys
+    first = fit(NEG, ys, {"a": 0.7, "r": 0.3}, filter="kf", se=False, **PRIOR)
+    # gtol 1e-3: L-BFGS-B's projected gradient at the start is below it, so it stops where it began
+    again = fit(NEG, ys, first.params, filter="kf", options={"gtol": 1e-3}, **PRIOR)
+    assert again.params == first.params, "the optimizer was meant not to move"
+    assert first.converged and again.converged and again.se_ok, again.message
+    # the same optimum: within 1e-4 of the first fit's parameters (L-BFGS-B's default tolerances)
+    np.testing.assert_allclose(list(again.params.values()), list(first.params.values()), atol=1e-4)
+
+
 class _DivergesBelow:
     """A filter factory: the Kalman filter, except that every path is marked diverged where
     ``r < 0.5`` (a filter that fails in a region of the parameters, as a continuous-discrete

@@ -292,8 +292,6 @@ def fit(model, ys, params0, *, filter="ukf", m0=None, P0=None, initial=None, bou
     checks = []  # what keeps the fit from counting as converged
     if not opt.success:
         checks.append(f"the optimizer stopped: {opt.message}")
-    if np.array_equal(theta, theta0):
-        checks.append("no point better than the start was found")
     # a free coordinate past ±30: the parameter within e⁻³⁰ (relative) of a bound, or rounded onto it
     at_bound = [nm for nm, z, t, (kind, lo, hi) in zip(names, z_hat, theta, kinds)
                 if kind != "id" and (abs(z) > 30.0 or t == lo or t == hi)]
@@ -330,6 +328,10 @@ def fit(model, ys, params0, *, filter="ukf", m0=None, P0=None, initial=None, bou
             gz = grad * np.array([tr.dnatural(z, i) for i, z in enumerate(z_hat)])
             if not np.max(np.abs(gz)) < 0.01:
                 checks.append(f"the gradient is not small: |d log L / dz| = {np.max(np.abs(gz)):.3g}")
+    if np.array_equal(theta, theta0) and (degenerate or getattr(first, "random", False) or any(
+            c.startswith(("the gradient", "the log-likelihood is not finite next")) for c in checks)):
+        # the start itself may be the optimum (a small gradient there says so); otherwise say it
+        checks.append("no point better than the start was found")
     if "diverged" in why:  # the penalty made the optimizer back off from them
         notes.append("the filter diverged at some trial values (backed off)")
     if "refused" in why:
