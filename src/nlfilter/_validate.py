@@ -83,10 +83,10 @@ def covariance(name: str, value, n: int | None = None, *, batch: bool = False,
 def real(name: str, value) -> float:
     """A finite real scalar (a time, an offset) as a float."""
     if isinstance(value, bool) or not isinstance(value, (numbers.Real, np.ndarray)) or np.ndim(value):
-        raise TypeError(f"{name}: expected a real number, got {value!r}")
+        raise TypeError(f"{name}: expected a real number, got {shown(value)}")
     if np.iscomplexobj(value) or not np.isfinite(value):
         raise (TypeError if np.iscomplexobj(value) else ValueError)(
-            f"{name}: expected a finite real number, got {value!r}")
+            f"{name}: expected a finite real number, got {shown(value)}")
     return float(value)
 
 
@@ -117,12 +117,12 @@ def positive(name: str, value, *, strict: bool = True, integer: bool = False):
     """A positive (or non-negative) scalar."""
     if integer:
         if isinstance(value, bool) or not isinstance(value, numbers.Integral):
-            raise TypeError(f"{name}: expected an integer, got {value!r}")
+            raise TypeError(f"{name}: expected an integer, got {shown(value)}")
     elif isinstance(value, bool) or not isinstance(value, numbers.Real):
-        raise TypeError(f"{name}: expected a real number, got {value!r}")
+        raise TypeError(f"{name}: expected a real number, got {shown(value)}")
     if not np.isfinite(value) or (value <= 0 if strict else value < 0):
         raise ValueError(f"{name}: expected a {'positive' if strict else 'non-negative'} "
-                         f"{'integer' if integer else 'number'}, got {value!r}")
+                         f"{'integer' if integer else 'number'}, got {shown(value)}")
     return value
 
 

@@ -481,7 +481,7 @@ class Filter:
             if reason is not None:
                 raise TypeError(f"backend: 'numba' cannot run {type(self).__name__}: {reason}; use backend='numpy'")
         if not isinstance(loglik, (bool, np.bool_)):
-            raise TypeError(f"loglik: expected True or False, got {loglik!r}")
+            raise TypeError(f"loglik: expected True or False, got {V.shown(loglik)}")
         if loglik and self.likelihood is None:
             Filter._update_info(self, None, None, 0)  # raises the TypeError naming loglik
         ys = self.check_data(ys)

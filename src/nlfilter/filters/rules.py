@@ -409,7 +409,7 @@ class GaussHermite(NodeRule):
 
     def __post_init__(self):
         if isinstance(self.order, bool) or not isinstance(self.order, (int, np.integer)) or self.order < 1:
-            raise ValueError(f"order: expected a positive integer, got {self.order!r}")
+            raise ValueError(f"order: expected a positive integer, got {V.shown(self.order)}")
         object.__setattr__(self, "order", int(self.order))
 
     def check(self, n):
