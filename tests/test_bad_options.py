@@ -21,22 +21,11 @@ YS = 0.3 * np.random.default_rng(0).standard_normal((2, 5, 1))
 P = {"m0": [0.5], "P0": [[0.2]]}
 
 
-class Hostile:
-    """An option whose ``__hash__``, ``__eq__`` and ``__repr__`` all raise."""
-
-    def __hash__(self):
-        raise RuntimeError("no hash")
-
-    def __eq__(self, other):
-        raise RuntimeError("no eq")
-
-    def __repr__(self):
-        raise RuntimeError("no repr")
-
-
-@pytest.mark.parametrize("value", [["mark"], {"mark": 1}, np.array(["mark"]), Hostile(), None, 1, b"mark"],
-                         ids=["list", "dict", "array", "hostile", "None", "int", "bytes"])
+@pytest.mark.parametrize("value", [["mark"], {"mark": 1}, np.array(["mark"]), None, 1, b"mark"],
+                         ids=["list", "dict", "array", "None", "int", "bytes"])
 def test_choice_refuses_any_object_naming_the_option(value):
+    """(tests/fuzz/test_smoothers.py adds an object whose hash, equality and repr raise, for every
+    option of every filter.)"""
     with pytest.raises(ValueError, match=r"^on_divergence: expected one of \['mark', 'raise'\], got "):
         EKF(D1).run(YS, **P, on_divergence=value)
     with pytest.raises(ValueError, match=r"^start: expected one of \['predict', 'update'\], got "):

@@ -127,29 +127,20 @@ def _check_all(fuzz, area, calls):
     assert not failed, "\n".join(failed)
 
 
-@pytest.mark.parametrize("case", SMOOTHING, ids=[c.name for c in SMOOTHING])
-def test_smoothers_refuse_bad_input_naming_it(fuzz, case):
-    _check_all(fuzz, "smoothers: bad input", [(f"{case.name}: {lab}", _call(case, kw, smooth=True), n, True)
-                                             for lab, n, kw in _bad(case, True)])
+ROWS = [(c, True) for c in SMOOTHING] + [(c, False) for c in LIKELIHOOD]  # (case, smooth: else loglik)
+ROW_IDS = [f"{'smooth' if smooth else 'loglik'}-{c.name}" for c, smooth in ROWS]
 
 
-@pytest.mark.parametrize("case", SMOOTHING, ids=[c.name for c in SMOOTHING])
-def test_smoothers_on_extreme_or_degenerate_input_are_finite_marked_or_refused(fuzz, case):
-    _check_all(fuzz, "smoothers: extreme/degenerate",
-               [(f"{case.name}: {lab}", _call(case, kw, smooth=True, make=mk, mark=True), n, False)
-                for lab, n, kw, mk in _extremes(case)])
+@pytest.mark.parametrize("case,smooth", ROWS, ids=ROW_IDS)
+def test_bad_input_is_refused_naming_it(fuzz, case, smooth):
+    _check_all(fuzz, f"{'smoothers' if smooth else 'loglik'}: bad input",
+               [(f"{case.name}: {lab}", _call(case, kw, smooth=smooth), n, True) for lab, n, kw in _bad(case, smooth)])
 
 
-@pytest.mark.parametrize("case", LIKELIHOOD, ids=[c.name for c in LIKELIHOOD])
-def test_logliks_refuse_bad_input_naming_it(fuzz, case):
-    _check_all(fuzz, "loglik: bad input", [(f"{case.name}: {lab}", _call(case, kw, smooth=False), n, True)
-                                          for lab, n, kw in _bad(case, False)])
-
-
-@pytest.mark.parametrize("case", LIKELIHOOD, ids=[c.name for c in LIKELIHOOD])
-def test_logliks_on_extreme_or_degenerate_input_are_finite_marked_or_refused(fuzz, case):
-    _check_all(fuzz, "loglik: extreme/degenerate",
-               [(f"{case.name}: {lab}", _call(case, kw, smooth=False, make=mk, mark=True), n, False)
+@pytest.mark.parametrize("case,smooth", ROWS, ids=ROW_IDS)
+def test_extreme_or_degenerate_input_is_finite_marked_or_refused(fuzz, case, smooth):
+    _check_all(fuzz, f"{'smoothers' if smooth else 'loglik'}: extreme/degenerate",
+               [(f"{case.name}: {lab}", _call(case, kw, smooth=smooth, make=mk, mark=True), n, False)
                 for lab, n, kw, mk in _extremes(case)])
 
 
