@@ -436,8 +436,11 @@ class Filter:
             ``extras["innovation"] (..., T, m)`` and its predicted covariance
             ``extras["innovation_cov"] (..., T, m, m)`` (``Estimates.loglik`` sums them over time;
             missing components drop out exactly: a step's term is the density of its observed
-            components, 0 for a step missing entirely); a filter whose ``likelihood`` is None
-            refuses (TypeError)
+            components, 0 for a step missing entirely; 0 with no step); a term that is not
+            finite (−inf, NaN: data far beyond its predictive law) is a divergence of its path,
+            raised or marked as ``on_divergence`` says, the step flagged in the bool
+            ``extras["loglik_failed"] (..., T)``; a filter whose ``likelihood`` is None refuses
+            (TypeError)
         backend : ``"numpy"`` (default: this loop) or ``"numba"``: the same filter compiled, one
             loop over paths and steps (:mod:`nlfilter.filters.compiled`: the discrete EKF, UKF,
             CKF, GHKF, SLF and second-order filters on SymPy models; the same estimates to
