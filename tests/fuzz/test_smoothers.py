@@ -198,7 +198,9 @@ def _item6():
 
     from nlfilter import DiscreteModel, SDEModel, simulate
     from nlfilter.bilinear import BilinearModel
-    from nlfilter.filters import EKF, QLF, UKF, GridFilter, ParticleFilter, TensorFilter
+    from nlfilter.filters import EKF, QLF, REGISTRY, UKF, GridFilter, ParticleFilter, TensorFilter
+    from nlfilter.filters.registry import get
+    from nlfilter.moments import closure_by_name
     x = sp.Symbol("x")
     D1 = DiscreteModel([x], [0.9 * x - 0.05 * x**3], [x + 0.1 * x**2], Q=0.1, R=0.2)
     S1 = SDEModel([x], [-x**3], [x], Q=0.5, R=0.1)
@@ -222,6 +224,10 @@ def _item6():
         ("QLF t0 1e300", lambda: QLF(S1, 0.05).run(ys, **p, t0=1e300), "t0"),
         ("simulate SDE t0 1e300", lambda: simulate(S1, 5, paths=2, rng=1, dt=0.05, t0=1e300, **p), "t0"),
         ("evaluate.loglik complex ys", lambda: loglik(EKF(D1), ys * (1 + 1j), **p), "ys"),
+        ("registry name hostile", lambda: get(REGISTRY, Hostile()), "filter"),
+        ("registry name list", lambda: get(REGISTRY, ["ekf"]), "filter"),
+        ("closure_by_name hostile", lambda: closure_by_name(Hostile()), "closure"),
+        ("closure_by_name gaussian order hostile", lambda: closure_by_name("gaussian", Hostile()), "order"),
     ]
 
 
