@@ -4,6 +4,7 @@ what was expected (README, "Architecture", `_validate.py`)."""
 from __future__ import annotations
 
 import numbers
+import reprlib
 
 import numpy as np
 
@@ -82,11 +83,24 @@ def covariance(name: str, value, n: int | None = None, *, batch: bool = False,
 def real(name: str, value) -> float:
     """A finite real scalar (a time, an offset) as a float."""
     if isinstance(value, bool) or not isinstance(value, (numbers.Real, np.ndarray)) or np.ndim(value):
-        raise TypeError(f"{name}: expected a real number, got {value!r}")
+        raise TypeError(f"{name}: expected a real number, got {shown(value)}")
     if np.iscomplexobj(value) or not np.isfinite(value):
         raise (TypeError if np.iscomplexobj(value) else ValueError)(
-            f"{name}: expected a finite real number, got {value!r}")
+            f"{name}: expected a finite real number, got {shown(value)}")
     return float(value)
+
+
+def time_grid(t0: float, dt: float, steps: int) -> float:
+    """``t0`` of a time grid ``t0 + k·dt``, ``k = 0..steps``, refused (naming ``t0``) where float64
+    cannot resolve the step: its spacing at the grid's largest ``|t|`` must be at most ``1e-4·dt``
+    (at ``t0 = 1e300`` every ``t0 + k·dt`` is the same number, and an integrator over the grid
+    cannot advance)."""
+    far = abs(t0) + steps * dt
+    if not np.spacing(far) <= 1e-4 * dt:
+        raise ValueError(f"t0: the time grid t0 + k·dt (dt = {dt:g}, {steps} steps) is not resolved in float64 at "
+                         f"t0 = {t0!r} (spacing {np.spacing(far):.3g} there); expected |t0| well below "
+                         f"{1e-4 * dt / np.finfo(float).eps:.3g}")
+    return t0
 
 
 MEMORY_BOUND = 8 * 2 ** 30  # bytes: a run or simulation that would allocate more is refused up front
@@ -103,16 +117,36 @@ def positive(name: str, value, *, strict: bool = True, integer: bool = False):
     """A positive (or non-negative) scalar."""
     if integer:
         if isinstance(value, bool) or not isinstance(value, numbers.Integral):
-            raise TypeError(f"{name}: expected an integer, got {value!r}")
+            raise TypeError(f"{name}: expected an integer, got {shown(value)}")
     elif isinstance(value, bool) or not isinstance(value, numbers.Real):
-        raise TypeError(f"{name}: expected a real number, got {value!r}")
+        raise TypeError(f"{name}: expected a real number, got {shown(value)}")
     if not np.isfinite(value) or (value <= 0 if strict else value < 0):
         raise ValueError(f"{name}: expected a {'positive' if strict else 'non-negative'} "
-                         f"{'integer' if integer else 'number'}, got {value!r}")
+                         f"{'integer' if integer else 'number'}, got {shown(value)}")
     return value
+
+
+def shown(value, limit: int = 80) -> str:
+    """A short ``repr`` of any object for an error message: bounded in length (a large array, a
+    long list) and never failing (an object whose ``__repr__`` raises shows its type)."""
+    try:
+        r = reprlib.Repr()
+        r.maxstring = r.maxother = limit
+        text = r.repr(value)
+    except Exception:  # noqa: BLE001 - a message must not fail on a hostile __repr__
+        text = f"<{type(value).__name__} object>"
+    return text if len(text) <= limit else text[:limit - 3] + "..."
 
 
 def choice(name: str, value, options):
-    if value not in options:
-        raise ValueError(f"{name}: expected one of {sorted(options)!r}, got {value!r}")
-    return value
+    """``value`` if it is one of ``options`` (a set of strings), else a ValueError naming ``name``,
+    for any Python object: an unhashable one (a list, a dict, an array), one whose
+    ``__eq__``/``__hash__``/``__repr__`` raises or returns an array, is refused with that
+    message, never with NumPy's or Python's own error. The option of ``options`` equal to
+    ``value`` is returned (a ``numpy.str_`` becomes the ``str``)."""
+    match = None
+    if isinstance(value, str):  # options are strings: nothing else can match, and str hashing cannot fail
+        match = next((o for o in options if str.__eq__(o, value) is True), None)
+    if match is None:
+        raise ValueError(f"{name}: expected one of {sorted(options)!r}, got {shown(value)}")
+    return match

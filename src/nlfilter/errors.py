@@ -24,7 +24,8 @@ class DivergenceError(NLFilterError, FloatingPointError):
     paths : tuple of int
         Flat indices of the affected Monte Carlo paths (batch axes raveled).
     what : str
-        Which quantity failed (``"covariance"``, ``"mean"`` ...).
+        Which quantity failed (``"covariance"``, ``"mean"``, ``"loglik"``: a log-likelihood
+        term that is not finite, ``"smoother"``: a backward pass ...).
     """
 
     def __init__(self, message: str, *, step: int | None = None, paths=(), what: str = ""):

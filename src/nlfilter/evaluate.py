@@ -175,12 +175,15 @@ def paired_difference(est_a, est_b, xs, *, component: int = 0, window=None) -> S
 class LogLik(NamedTuple):
     """A record's log-likelihood ``value (...,)`` (per path of ``ys``), the standard error of that
     value over ``replicates`` independent runs of a random filter (0 for a deterministic one), and
-    the spread (standard deviation) of a single run's estimate."""
+    the spread (standard deviation) of a single run's estimate; ``diverged (...,)``: the records
+    on which the filter (any replicate) diverged (``run_kw`` ``on_divergence="mark"``: their value
+    is NaN, flagged here; a log-likelihood term that is not finite is such a divergence)."""
 
     value: np.ndarray
     stderr: np.ndarray
     spread: np.ndarray
     replicates: int
+    diverged: np.ndarray | None = None
 
 
 def loglik(flt, ys, m0=None, P0=None, *, replicates: int = 1, rng=0, **run_kw) -> LogLik:
@@ -202,15 +205,16 @@ def loglik(flt, ys, m0=None, P0=None, *, replicates: int = 1, rng=0, **run_kw) -
     from .simulate import Simulation
 
     sim = ys if isinstance(ys, Simulation) else None  # run reads its timing (Filter.for_timing)
-    ys = np.asarray(sim.ys if sim is not None else ys, dtype=float)
+    ys = V.as_float_array("ys", sim.ys if sim is not None else ys)  # complex data is refused, not cut to its real part
     tiled = np.broadcast_to(ys, (R, *ys.shape)) if R > 1 else ys
     data = tiled if sim is None else sim._replace(ys=tiled)
-    ll = flt.run(data, m0, P0, rng=rng, loglik=True, **run_kw).loglik
+    est = flt.run(data, m0, P0, rng=rng, loglik=True, **run_kw)
+    ll = est.loglik
     if R == 1:
         zero = np.zeros(np.shape(ll))
-        return LogLik(ll, zero, zero, 1)
+        return LogLik(ll, zero, zero, 1, est.diverged)
     sd = ll.std(axis=0, ddof=1)
-    return LogLik(ll.mean(axis=0), sd / np.sqrt(R), sd, R)
+    return LogLik(ll.mean(axis=0), sd / np.sqrt(R), sd, R, est.diverged.any(axis=0))
 
 
 def stream(seed: int, k: int) -> np.random.SeedSequence:

@@ -55,6 +55,11 @@ class Gaussian(NoiseLaw):
         z = rng.standard_normal((*shape, self.dim))
         return self.mean + z @ self._sqrt.T
 
+    @property
+    def has_density(self) -> bool:
+        """False when ``cov`` is singular (no density with respect to Lebesgue measure)."""
+        return not self._singular
+
     def logpdf(self, z):
         if self._singular:
             raise ValueError("cov: singular Gaussian has no density")

@@ -164,8 +164,18 @@ def initial_states(n, paths, rng, *, m0=None, P0=None, x0=None, initial: NoiseLa
     a seed, SeedSequence, Generator or a :class:`~nlfilter.streams.PathRNG` over them): given
     ``x0``, or drawn per path (``shape`` draws each) from the law ``initial`` or N(m0, P0)."""
     P = len(rng) if isinstance(rng, PathRNG) else len(as_paths(paths))
+
+    def fits(name, a):  # one for all paths, or one per path: it must broadcast to (P, *shape, n)
+        try:
+            ok = np.broadcast_shapes(a.shape, (P, *shape, n)) == (P, *shape, n)
+        except ValueError:
+            ok = False
+        if not ok:
+            raise ValueError(f"{name}: expected shape ({n},) or one per path ({P}, {n}), got shape {a.shape}")
+        return a
+
     if x0 is not None:
-        x0 = V.finite("x0", V.as_float_array("x0", x0, shape_tail=(n,)))
+        x0 = fits("x0", V.finite("x0", V.as_float_array("x0", x0, shape_tail=(n,))))
         return np.broadcast_to(x0, (P, *shape, n)).copy()
     if initial is not None:
         if not isinstance(initial, NoiseLaw) or initial.dim != n:
@@ -173,7 +183,7 @@ def initial_states(n, paths, rng, *, m0=None, P0=None, x0=None, initial: NoiseLa
         return PathRNG.of(rng, paths).sample(initial, shape)
     if m0 is None or P0 is None:
         raise ValueError("m0/P0: expected the prior mean and covariance (or x0, or initial), got None")
-    m0 = V.mean("m0", m0, n)
+    m0 = fits("m0", V.mean("m0", m0, n))
     return m0 + PathRNG.of(rng, paths).sample(Gaussian(V.covariance("P0", P0, n)), shape)
 
 
@@ -271,6 +281,8 @@ def simulate(model, steps: int, *, paths: int | range = 1, rng=None, m0=None, P0
     """
     t0 = V.real("t0", t0)
     V.choice("on_divergence", on_divergence, {"raise", "mark"})
+    if getattr(model, "kind", None) not in ("discrete", "sde"):
+        raise TypeError(f"model: expected a DiscreteModel or an SDEModel, got {type(model).__name__} {V.shown(model)}")
     rng, x, x_init, xs = _start(model, steps, paths, rng, m0, P0, x0, initial,
                                 width=2 * getattr(model, "m", 0) + getattr(model, "r", 0))
     screen = _Screen(on_divergence, rng, "simulate")
@@ -317,6 +329,7 @@ def _simulate(model, steps, paths, rng, x, x_init, xs, ys, m, start, dt, substep
         raise ValueError("dt: expected the measurement step of the SDE, got None")
     dt = float(V.positive("dt", dt))
     V.positive("substeps", substeps, integer=True)
+    V.time_grid(t0, dt, steps)
     h = dt / substeps
     sq_h = np.sqrt(h)
     LQ = model.process_noise._sqrt
@@ -470,6 +483,7 @@ def simulate_continuous_discrete(model, steps: int, *, paths: int | range = 1, r
     w, v = rng.draw(lambda g, s: (g.standard_normal((*s, model.r)) if noisy else np.empty((*s, 0)),
                                   g.standard_normal((*s, m))), (steps,))
     v = v @ L.T
+    V.time_grid(t0, dt, steps)
     t = t0 + dt * np.arange(1, steps + 1)
     ys = np.empty((paths, steps, m))
     with np.errstate(over="ignore", invalid="ignore", divide="ignore"):  # what overflows is screened

@@ -71,7 +71,7 @@ def data():
 
 
 def close(a, b):
-    a, b = np.asarray(a), np.asarray(b)
+    a, b = np.asarray(a, dtype=float), np.asarray(b, dtype=float)  # bool extras (loglik_failed) too
     assert a.shape == b.shape
     np.testing.assert_array_equal(np.isnan(a), np.isnan(b))
     ok = ~np.isnan(a)

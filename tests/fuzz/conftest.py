@@ -53,15 +53,20 @@ def _raised_by_nlfilter(exc: BaseException) -> bool:
 
 def _nonfinite(value, depth: int = 0) -> bool:
     """Whether ``value`` holds NaN/inf that nothing flags: arrays, numbers, tuples, dicts; an
-    ``Estimates`` or ``Simulation`` only outside the paths it marks diverged."""
+    ``Estimates``, ``Simulation`` or ``LogLik`` only outside the paths it marks diverged (an
+    ``Estimates``' per-step log-likelihood terms ``extras["loglik"]`` included)."""
     if depth > 4 or value is None or isinstance(value, (str, bytes, bool)):
         return False
     diverged = getattr(value, "diverged", None)
     if diverged is not None and hasattr(value, "_fields"):
         ok = ~np.asarray(diverged, dtype=bool)
-        for name in value._fields:
-            arr = getattr(value, name)
-            if name in ("means", "covs", "xs", "ys") and isinstance(arr, np.ndarray) and arr.dtype.kind == "f":
+        fields = {name: getattr(value, name) for name in value._fields}
+        extras = fields.get("extras") or {}
+        if "loglik" in extras:
+            fields["loglik"] = extras["loglik"]
+        for name, arr in fields.items():
+            if name in ("means", "covs", "xs", "ys", "loglik", "value", "stderr", "spread") and \
+                    isinstance(arr, np.ndarray) and arr.dtype.kind == "f":
                 if name == "covs" and np.all(np.isnan(arr)):
                     continue  # a filter that carries no covariance (documented: NaN covs)
                 if not np.all(np.isfinite(arr[ok])):

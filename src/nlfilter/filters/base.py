@@ -153,6 +153,19 @@ def gaussian_prior(m0, P0, n: int, batch: tuple, *, data: str = "ys", one: bool 
     return GaussianState(mean, cov)
 
 
+def loglik_divergence(name: str, k: int, idx) -> DivergenceError:
+    """The error of a run whose log-likelihood term is not finite at step ``k`` on the paths
+    ``idx`` (``what="loglik"``): a term ``−½[eᵀS⁻¹e + log det S + m log 2π]`` that overflows a
+    double (a measurement ~1e200 away from its prediction: the true value, about −1e400, has no
+    float) or is NaN (a non-finite or singular S). ``on_divergence="mark"`` records such paths
+    instead (``diverged``, ``diverged_step``, ``extras["loglik_failed"]``)."""
+    return DivergenceError(
+        f"{name}: the log-likelihood term is not finite (−inf or NaN: the measurement is too far from its "
+        f"predicted law for a double, or its predicted covariance is singular) at step {k} on {len(idx)} path(s), "
+        f"first {list(map(int, idx[:5]))}; pass on_divergence='mark' to record such paths "
+        "(extras['loglik_failed']) and go on", step=k, paths=idx, what="loglik")
+
+
 class _Recorder:
     """Bookkeeping of :meth:`Filter.run`: output arrays (path-major ``(B, T, ...)`` while filling,
     the layout of the result: no transposing copy at the end), the divergence check after each
@@ -194,9 +207,16 @@ class _Recorder:
     def record(self, k, belief, bad, start, *, write: bool = True, info=None):
         """Check step ``k``'s belief (raise or mark), write its summary (and the step's likelihood
         ``info``, a dict of per-path arrays) unless ``write`` is False, and return it with the
-        diverged paths restarted from ``start``."""
+        diverged paths restarted from ``start``. A path whose log-likelihood term ``info["loglik"]``
+        is not finite diverges too (:func:`loglik_divergence`; marked: ``extras["loglik_failed"]``
+        is True at that step)."""
         mean, cov = self.flt.summary(belief)
-        if bad is None and not self.any_diverged and (
+        ll_bad = None
+        if info is not None:
+            if not math.isfinite(np.add.reduce(info["loglik"], axis=None)):
+                ll_bad = ~np.isfinite(info["loglik"])
+            info = {**info, "loglik_failed": np.zeros(self.B, bool)}
+        if bad is None and ll_bad is None and not self.any_diverged and (
                 _all_ok(mean, cov) if cov is not None else math.isfinite(np.add.reduce(mean, axis=None))):
             if write:
                 self._store(k, mean, cov, belief, info=info)
@@ -207,6 +227,11 @@ class _Recorder:
         if bad is not None:
             now = now | bad
         now &= ~self.diverged
+        if ll_bad is not None:  # only the likelihood failed on these paths: say so
+            info["loglik_failed"] = failed = ll_bad & ~now & ~self.diverged
+            if failed.any() and self.on == "raise" and not now.any():
+                raise loglik_divergence(self.flt.name, k, np.flatnonzero(failed))
+            now |= failed
         if now.any():
             if self.on == "raise":
                 idx = np.flatnonzero(now)
@@ -473,8 +498,11 @@ class Filter:
             ``extras["innovation"] (..., T, m)`` and its predicted covariance
             ``extras["innovation_cov"] (..., T, m, m)`` (``Estimates.loglik`` sums them over time;
             missing components drop out exactly: a step's term is the density of its observed
-            components, 0 for a step missing entirely); a filter whose ``likelihood`` is None
-            refuses (TypeError)
+            components, 0 for a step missing entirely; 0 with no step); a term that is not
+            finite (−inf, NaN: data far beyond its predictive law) is a divergence of its path,
+            raised or marked as ``on_divergence`` says, the step flagged in the bool
+            ``extras["loglik_failed"] (..., T)``; a filter whose ``likelihood`` is None refuses
+            (TypeError)
         backend : ``"numpy"`` (default: this loop) or ``"numba"``: the same filter compiled, one
             loop over paths and steps (:mod:`nlfilter.filters.compiled`: the discrete EKF, UKF,
             CKF, GHKF, SLF and second-order filters on SymPy models; the same estimates to
@@ -525,7 +553,7 @@ class Filter:
             if reason is not None:
                 raise TypeError(f"backend: 'numba' cannot run {type(self).__name__}: {reason}; use backend='numpy'")
         if not isinstance(loglik, (bool, np.bool_)):
-            raise TypeError(f"loglik: expected True or False, got {loglik!r}")
+            raise TypeError(f"loglik: expected True or False, got {V.shown(loglik)}")
         if loglik and self.likelihood is None:
             Filter._update_info(self, None, None, 0)  # raises the TypeError naming loglik
         ys = self.check_data(ys)
@@ -535,6 +563,8 @@ class Filter:
         t0 = V.real("t0", t0)
         if self.time != "continuous" and t0 != 0.0:
             raise ValueError(f"t0: a discrete-time filter indexes steps by k; expected 0.0, got {t0!r}")
+        if self.time == "continuous":
+            V.time_grid(t0, self.dt, T)
         if self.random:
             rng = PathRNG.of(rng, B, key=FILTER)
         if chunk is not None and V.positive("chunk", chunk, integer=True) < B:
@@ -552,7 +582,7 @@ class Filter:
         if backend == "numba":
             from .compiled import run_compiled
             est = run_compiled(self, yf, batch if not smooth else (B,), m0, P0, on, loglik, progress)
-            return self._smoothed(est, None, yf, t0, batch) if smooth else est
+            return self._smoothed(est, None, yf, t0, batch, on) if smooth else est
         with _blas_limit(self.blas_threads):
             return self._loop(yf, batch, m, m0, P0, initial, rng, t0, on, progress, loglik, smooth)
 
@@ -594,15 +624,35 @@ class Filter:
                     elif loglik:  # nothing measured: the step adds nothing to the likelihood
                         info = no_information(B, m)
                     belief = rec.record(k, belief, bad, start, info=info)
+        if loglik and T == 0:  # no step: an empty likelihood (Estimates.loglik sums to 0)
+            rec.extras = {k: np.empty((B, 0, *v.shape[1:]), v.dtype)
+                          for k, v in {**no_information(B, m), "loglik_failed": np.zeros(B, bool)}.items()}
         if not smooth:
             return self.output(rec.result(batch))
-        return self._smoothed(rec.result((B,)), rec.beliefs, yf, t0, batch)
+        return self._smoothed(rec.result((B,)), rec.beliefs, yf, t0, batch, on)
 
-    def _smoothed(self, est, beliefs, yf, t0, batch):
-        """The family's backward pass over the forward pass ``est`` (paths flattened)."""
+    def _smoothed(self, est, beliefs, yf, t0, batch, on="raise"):
+        """The family's backward pass over the forward pass ``est`` (paths flattened). A path the
+        backward pass leaves non-finite (where the forward pass did not diverge) is raised or marked
+        as a divergence of the smoother (``on``; ``diverged_step``: the last step it left
+        non-finite) — never returned silently."""
         with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
             means, covs, *more = self._smooth(est, beliefs, yf, t0)
         d = est.diverged
+        lost = ~d & ~(np.all(np.isfinite(means), axis=-1) & np.all(np.isfinite(covs), axis=(-1, -2))).all(axis=-1)
+        if lost.any():
+            idx = np.flatnonzero(lost)
+            bad_k = ~(np.all(np.isfinite(means[idx]), axis=-1) & np.all(np.isfinite(covs[idx]), axis=(-1, -2)))
+            last = bad_k.shape[-1] - 1 - np.argmax(bad_k[:, ::-1], axis=-1)  # the backward pass met it first
+            if on == "raise":
+                raise DivergenceError(
+                    f"{self.name}: the smoother's backward pass became non-finite at step {int(last.max())} on "
+                    f"{idx.size} path(s), first {idx[:5].tolist()}; pass on_divergence='mark' to record such paths "
+                    "and go on", step=int(last.max()), paths=idx, what="smoother")
+            d = d | lost
+            step = est.diverged_step.copy()
+            step[idx] = last
+            est = est._replace(diverged=d, diverged_step=step)
         nan = lambda a: np.where(d.reshape(-1, *(1,) * (a.ndim - 1)), np.nan, a)  # noqa: E731
         out = lambda a: a.reshape(*batch, *a.shape[1:])  # noqa: E731
         extras = {k: out(nan(v)) for k, v in (more[0] if more and more[0] else {}).items()}

@@ -8,6 +8,7 @@ pseudo-observables filter is in :mod:`.pseudo_observables`; all are re-exported 
 
 from __future__ import annotations
 
+import numbers
 from typing import Callable
 
 import numpy as np
@@ -63,6 +64,17 @@ class _SteadyLinearRecursion(OfflineGainFilter):
         return _LinearSchedule(self.linear, t0, steady=ss), z, ss.P
 
 
+def _targets(targets, N: int) -> list:
+    """The ``targets`` of a tensor filter checked: a non-empty sequence of distinct coordinate
+    indices of the augmented state, each in ``[0, N)``."""
+    tg = list(targets) if isinstance(targets, (list, tuple, range, np.ndarray)) else None
+    if not tg or not all(isinstance(k, numbers.Integral) and not isinstance(k, (bool, np.bool_)) and 0 <= k < N
+                         for k in tg) or len(set(int(k) for k in tg)) != len(tg):
+        raise ValueError(f"targets: expected a non-empty list of distinct coordinate indices in [0, {N}), "
+                         f"got {V.shown(targets)}")
+    return [int(k) for k in tg]
+
+
 class TensorFilter(_SteadyLinearRecursion):
     """Optimal linear filter followed by memoryless polynomial post-processors (001 Fig. 3.3,
     §3.3; "tensor filter", 001 §4.3 and ch. 5). All gains are computed off-line from the steady
@@ -96,7 +108,7 @@ class TensorFilter(_SteadyLinearRecursion):
         self._linear(model, dt, scheme, X0)
         self.degree = degree
         self.inputs = V.choice("inputs", inputs, {"own", "cross"})
-        self.targets = list(range(model.n)) if targets is None else list(targets)
+        self.targets = list(range(model.n)) if targets is None else _targets(targets, model.N)
         self.initial = initial
         self._fits = None
         self._cov = None

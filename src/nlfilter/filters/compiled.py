@@ -1277,8 +1277,28 @@ def run_compiled(flt, yf, batch, m0, P0, on, loglik, progress=False):
 
 
 def _finish(flt, on, step, batch, means, covs, want, ll, inn, icov):
-    """Raise or return the :class:`~nlfilter.filters.base.Estimates` of a compiled run."""
-    from .base import Estimates
+    """Raise or return the :class:`~nlfilter.filters.base.Estimates` of a compiled run. As the
+    run loop (:meth:`~nlfilter.filters.base._Recorder.record`), a path whose log-likelihood term is
+    not finite before any other failure diverges there (raised, or marked with
+    ``extras["loglik_failed"]``; its outputs from that step on NaN)."""
+    from .base import Estimates, loglik_divergence
+    failed = None
+    if want:
+        T = ll.shape[1]
+        llbad = ~np.isfinite(ll)
+        first = np.where(llbad.any(axis=1), np.argmax(llbad, axis=1), T)
+        lost = (first < T) & ((step < 0) | (first < step))
+        failed = np.zeros(ll.shape, bool)
+        if lost.any():
+            idx = np.flatnonzero(lost)
+            k = int(first[idx].min())
+            if on == "raise" and not (step[step >= 0] <= k).any():
+                raise loglik_divergence(flt.name, k, idx[first[idx] == k])
+            failed[idx, first[idx]] = True
+            step[idx] = first[idx]
+            after = np.arange(T)[None, :] >= first[idx][:, None]  # (paths, T)
+            for a in (means, covs, ll, inn, icov):
+                a[idx] = np.where(after.reshape(*after.shape, *(1,) * (a.ndim - 2)), np.nan, a[idx])
     diverged = step >= 0
     if on == "raise" and diverged.any():
         k = int(step[diverged].min())
@@ -1292,7 +1312,7 @@ def _finish(flt, on, step, batch, means, covs, want, ll, inn, icov):
         return a.reshape(*batch, *a.shape[1:])
     extras = {}
     if want:
-        extras = {"loglik": out(ll), "innovation": out(inn), "innovation_cov": out(icov)}
+        extras = {"loglik": out(ll), "innovation": out(inn), "innovation_cov": out(icov), "loglik_failed": out(failed)}
     return flt.output(Estimates(out(means), out(covs), diverged.reshape(batch), step.reshape(batch),
                                 MappingProxyType(extras)))
 

@@ -141,7 +141,13 @@ class _MomentSet:
         if self._Z is not None:  # g(z) = Σ a_ν z^ν with Σ_p w_p g(z_p) x_p^γ = E x^γ, |γ| ≤ N
             M = np.einsum("p,pa,...pg->...ga", w, self._Z, X)
             full = np.concatenate([np.ones((*mu.shape[:-1], 1)), mu], axis=-1)
-            a = np.linalg.solve(M, full[..., None])[..., 0]
+            try:
+                a = np.linalg.solve(M, full[..., None])[..., 0]
+            except np.linalg.LinAlgError:  # a degenerate law (P = 0 in a direction: the nodes coincide) has
+                sign, _ = np.linalg.slogdet(np.where(np.isfinite(M), M, 0.0))  # no series: those paths fail
+                sing = ~(np.abs(sign) > 0) | ~np.all(np.isfinite(M), axis=(-1, -2))
+                a = np.linalg.solve(np.where(sing[..., None, None], np.eye(M.shape[-1]), M), full[..., None])[..., 0]
+                bad = bad | sing
             # the truncated series is negative in places (003, after eq. 15): clip it, so the update is
             # the Bayes update of a proper (positive) density with nearly the kept moments
             omega = w * np.maximum(a @ self._Z.T, 0.0)
@@ -314,6 +320,10 @@ class DiscreteConditionalMomentFilter(_MomentFilter, DiscreteFilter):
     def __init__(self, model, *, closure: Closure | None = None, order: int | None = None,
                  start: str | None = None, points: int = 24, name: str | None = None):
         DiscreteFilter.__init__(self, model, start=start)
+        if getattr(model, "R_constant", True) and not model.measurement_noise.has_density:
+            raise ValueError(f"measurement_noise: the discrete conditional-moment filter's Bayes update needs a law "
+                             f"with a density; got {model.measurement_noise!r} (a Gaussian has none when its "
+                             "covariance R is singular)")
         closure = GaussianClosure() if closure is None else closure
         N = kept_order(closure, order)
         h = _model_polys(model, "DiscreteConditionalMomentFilter")

@@ -182,7 +182,7 @@ def _closure_and_order(closure, order):
         if order is None:
             order = 4
         if isinstance(order, bool) or not isinstance(order, int) or order < 2:
-            raise ValueError(f"order: expected an integer ≥ 2 (the MSE needs second moments), got {order!r}")
+            raise ValueError(f"order: expected an integer ≥ 2 (the MSE needs second moments), got {V.shown(order)}")
         return EdgeworthClosure(order), order
     return closure, kept_order(closure, order)
 

@@ -11,13 +11,13 @@ filter cannot skip the contract. Each class declares what the registry shows: ``
 
 from __future__ import annotations
 
+from .. import _validate as V
+
 
 def get(registry: dict, name: str):
-    """The class registered under ``name``; an unknown name is a ValueError listing the choices."""
-    try:
-        return registry[name]
-    except (KeyError, TypeError):
-        raise ValueError(f"filter: expected one of {sorted(registry)!r}, got {name!r}") from None
+    """The class registered under ``name``; an unknown name (any object) is a ValueError listing
+    the choices (:func:`nlfilter._validate.choice`)."""
+    return registry[V.choice("filter", name, set(registry))]
 
 
 def model_kind(model) -> str:

@@ -339,13 +339,26 @@ class Unscented(NodeRule):
     def __post_init__(self):
         object.__setattr__(self, "alpha", float(V.positive("alpha", self.alpha)))
         object.__setattr__(self, "beta", float(V.positive("beta", self.beta, strict=False)))
-        if not np.isfinite(self.kappa):
-            raise ValueError(f"kappa: expected a finite number, got {self.kappa!r}")
-        object.__setattr__(self, "kappa", float(self.kappa))
+        object.__setattr__(self, "kappa", V.real("kappa", self.kappa))
+
+    #: the largest rounding of the weighted sums the weights may cause, ``eps · Σ|Wc_i|``: with
+    #: ``s = α²(n + κ)`` the weights are ~``1/s`` with a centre weight ``≈ 1 − n/s``, so the sums
+    #: of points cancel and lose ``eps·n/s`` of their relative accuracy (``α = 1e-3``, the usual
+    #: small choice, loses ~1e-10 for n = 2)
+    ROUNDING = 1e-6
 
     def check(self, n):
         if n + self.kappa <= 0:
             raise ValueError(f"kappa: expected n + kappa > 0 (n = {n}), got {self.kappa!r}")
+        with np.errstate(over="ignore", divide="ignore", invalid="ignore"):
+            a2 = np.float64(self.alpha) ** 2
+            s = a2 * (n + self.kappa)  # n + λ
+            w = np.abs([(s - n) / s + 1 - a2 + self.beta, *[0.5 / s] * (2 * n)])
+            loss = np.finfo(float).eps * w.sum()
+        if not (s > 0 and np.isfinite(s) and loss <= self.ROUNDING):
+            raise ValueError(f"alpha: expected a sigma-point spread α²(n + κ) whose weights lose at most "
+                             f"{self.ROUNDING:g} to rounding (eps·Σ|W|), got alpha = {self.alpha!r} "
+                             f"(n = {n}, kappa = {self.kappa:g}: α²(n + κ) = {float(s):.3g}, rounding {float(loss):.3g})")
 
     def nodes(self, m, P):
         return sigma_points(m, P, self.alpha, self.beta, self.kappa)
@@ -396,7 +409,7 @@ class GaussHermite(NodeRule):
 
     def __post_init__(self):
         if isinstance(self.order, bool) or not isinstance(self.order, (int, np.integer)) or self.order < 1:
-            raise ValueError(f"order: expected a positive integer, got {self.order!r}")
+            raise ValueError(f"order: expected a positive integer, got {V.shown(self.order)}")
         object.__setattr__(self, "order", int(self.order))
 
     def check(self, n):

@@ -48,21 +48,63 @@ from .linalg import symmetrize
 __all__ = ["rts", "continuous_rts"]
 
 
+#: a predicted covariance is singular on a path where its smallest eigenvalue is at most this
+#: fraction of its largest: below it an eigenvalue is the rounding of the matrix's own entries
+#: (each computed to ~eps·‖P⁻‖ times the few operations forming it; eps ≈ 2.2e-16, so a margin of
+#: ~500 eps), and its inverse would only amplify that rounding into the gain
+SINGULAR_RTOL = 1e-13
+
+
+def _singular(A):
+    """``(singular (...), (w, U) or None)`` for symmetric PSD ``A (..., n, n)``, finite, n ≥ 2:
+    the paths where ``λ_min ≤ SINGULAR_RTOL · λ_max``. A Cholesky screen clears a batch in one
+    call: ``Π_i L_ii² = det A ≤ λ_min λ_max^{n-1}`` and ``λ_max ≤ tr A``, so
+    ``Π_i (L_ii² / tr A) > SINGULAR_RTOL`` on every path implies no path is singular; otherwise
+    the eigendecomposition decides path by path (and serves the pseudo-inverse)."""
+    try:
+        L = np.linalg.cholesky(A)
+        tr = np.trace(A, axis1=-2, axis2=-1)[..., None]
+        piv = np.einsum("...ii->...i", L) ** 2
+        if np.all(np.prod(piv / tr, axis=-1) > SINGULAR_RTOL):
+            return np.zeros(A.shape[:-2], bool), None
+    except np.linalg.LinAlgError:
+        pass
+    w, U = np.linalg.eigh(symmetrize(A))
+    return ~(w[..., 0] > SINGULAR_RTOL * w[..., -1]), (w, U)
+
+
 def _solve_right(A, B):
-    """``B A⁻¹`` for batches ``A (..., n, n)`` symmetric, ``B (..., p, n)``; paths where A is
-    singular or not finite get NaN (their smoothed estimates are then NaN, and such paths are
-    already marked diverged by the forward pass)."""
+    """``B A⁺`` for batches ``A (..., n, n)`` symmetric PSD, ``B (..., p, n)``: ``B A⁻¹`` (one LU
+    solve; a scalar division for n = 1) where A is nonsingular, and where it is singular
+    (:func:`_singular`; a known state component: ``Q = 0`` and ``P0 = 0`` in it, an exact
+    measurement) the Moore–Penrose pseudo-inverse on the range of A, its eigenvalues at most
+    :data:`SINGULAR_RTOL` · λ_max dropped. The pseudo-inverse is the gain of the Gaussian
+    conditional ``E[x_k | x_{k+1}] = m + D P⁻⁺ (x_{k+1} − m⁻)``, exact for a singular joint law
+    (the rows of ``D = Cov[x_k, x_{k+1}]`` lie in the range of ``P⁻`` and ``x_{k+1} − m⁻`` lies
+    there almost surely; Rao 1973, *Linear Statistical Inference*, §8a.2); a nonsingular path's
+    gain is the solve, bitwise the same as without the singular paths. Paths where A or B is not
+    finite get NaN (their smoothed estimates are then NaN, and the smoother marks them)."""
     n = A.shape[-1]
     ok = np.all(np.isfinite(A), axis=(-1, -2)) & np.all(np.isfinite(B), axis=(-1, -2))
     safe = np.where(ok[..., None, None], A, np.eye(n))
-    if n == 1:
-        with np.errstate(divide="ignore", invalid="ignore"):
-            out = B / safe  # (..., p, 1) / (..., 1, 1)
+    Bs = np.where(ok[..., None, None], B, 0.0)
+    if n == 1:  # a scalar variance is singular where it is 0 (or negative by rounding): gain 0
+        a = safe[..., 0, 0]
+        sing = ~(a > 0)
+        out = Bs / np.where(sing, 1.0, a)[..., None, None]  # (..., p, 1) / (..., 1, 1)
+        out = np.where(sing[..., None, None], 0.0, out)
     else:
-        try:
-            out = np.swapaxes(np.linalg.solve(safe, np.swapaxes(np.where(ok[..., None, None], B, 0.0), -1, -2)), -1, -2)
-        except np.linalg.LinAlgError:
-            out = B @ np.linalg.pinv(safe, hermitian=True)
+        sing, eig = _singular(safe)
+        if eig is None:
+            out = np.swapaxes(np.linalg.solve(safe, np.swapaxes(Bs, -1, -2)), -1, -2)
+        else:
+            w, U = eig
+            out = np.swapaxes(np.linalg.solve(np.where(sing[..., None, None], np.eye(n), safe),
+                                              np.swapaxes(Bs, -1, -2)), -1, -2)
+            keep = w > SINGULAR_RTOL * w[..., -1:]
+            inv = np.where(keep, 1.0 / np.where(keep, w, 1.0), 0.0)
+            pinv = (U * inv[..., None, :]) @ np.swapaxes(U, -1, -2)
+            out = np.where(sing[..., None, None], Bs @ pinv, out)
     return np.where(ok[..., None, None] & np.isfinite(out), out, np.nan)
 
 

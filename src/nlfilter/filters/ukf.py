@@ -56,7 +56,8 @@ class UKF(GaussianFilter):
         DiscreteFilter.__init__(self, model, start=start)
         alpha = float(V.positive("alpha", alpha))
         beta = float(V.positive("beta", beta, strict=False))
-        if not np.isfinite(kappa) or model.n + kappa <= 0:
+        kappa = V.real("kappa", kappa)
+        if model.n + kappa <= 0:
             raise ValueError(f"kappa: expected n + kappa > 0 (n = {model.n}), got {kappa!r}")
         add_f, add_h = getattr(model, "additive", True), getattr(model, "additive_measurement", True)
         if augmented is not None and not isinstance(augmented, (bool, np.bool_)):

@@ -32,12 +32,13 @@ complex, so the Jacobian of a closure can be taken by complex step).
 
 from __future__ import annotations
 
+import numbers
 from math import comb
 from typing import Sequence
 
 import numpy as np
 
-from .._validate import as_float_array, covariance, finite
+from .._validate import as_float_array, choice, covariance, finite, shown
 from ..polynomials import monomials
 
 __all__ = ["Closure", "GaussianClosure", "CumulantClosure", "EdgeworthClosure", "closure_by_name",
@@ -331,7 +332,7 @@ class CumulantClosure(Closure):
 
     def __init__(self, order: int = 4):
         if isinstance(order, bool) or not isinstance(order, int) or order < 2:
-            raise ValueError(f"order: expected an integer ≥ 2, got {order!r}")
+            raise ValueError(f"order: expected an integer ≥ 2, got {shown(order)}")
         self.order = order
 
     def _rule(self, P, cm, K, n):
@@ -375,7 +376,7 @@ class EdgeworthClosure(Closure):
 
     def __init__(self, order: int = 4):
         if isinstance(order, bool) or not isinstance(order, int) or order < 2:
-            raise ValueError(f"order: expected an integer ≥ 2, got {order!r}")
+            raise ValueError(f"order: expected an integer ≥ 2, got {shown(order)}")
         self.order = order
 
     def quasi_moments(self, cm: dict, n: int) -> dict:
@@ -424,16 +425,14 @@ class EdgeworthClosure(Closure):
 
 def closure_by_name(name: str, order: int | None = None) -> Closure:
     """``"gaussian"``, ``"cumulant"`` (order N), ``"edgeworth"`` (order N, alias ``"quasi-moment"``)."""
+    name = choice("closure", name, {"gaussian", "cumulant", "edgeworth", "quasi-moment"})
     if name == "gaussian":
-        if order not in (None, 2):
-            raise ValueError(f"order: the gaussian closure has order 2, got {order!r}")
+        if order is not None and not (isinstance(order, numbers.Integral) and order == 2):
+            raise ValueError(f"order: the gaussian closure has order 2, got {shown(order)}")
         return GaussianClosure()
     if name == "cumulant":
         return CumulantClosure(4 if order is None else order)
-    if name in ("edgeworth", "quasi-moment"):
-        return EdgeworthClosure(4 if order is None else order)
-    raise ValueError(f"closure: expected one of ['cumulant', 'edgeworth', 'gaussian', 'quasi-moment'], "
-                     f"got {name!r}")
+    return EdgeworthClosure(4 if order is None else order)  # "edgeworth", "quasi-moment"
 
 
 def kept_order(closure: Closure, order: int | None) -> int:
@@ -450,7 +449,7 @@ def kept_order(closure: Closure, order: int | None) -> int:
     if order is None:
         return closure.order
     if isinstance(order, bool) or not isinstance(order, int):
-        raise ValueError(f"order: expected an integer or None (the closure's order), got {order!r}")
+        raise ValueError(f"order: expected an integer or None (the closure's order), got {shown(order)}")
     if order < closure.order:
         raise ValueError(f"order, closure: expected order ≥ {closure.order}, the order of closure={closure!r} "
                          f"(it reads every moment of degree ≤ {closure.order}), got order={order}")

@@ -22,7 +22,8 @@ def _check_time_step(flt, model, dt, who):
     elif dt is not None:
         raise ValueError(f"dt: a DiscreteModel has no time step; expected None, got {dt!r}")
     elif getattr(model, "R_constant", True) and not model.measurement_noise.has_density:
-        raise ValueError(f"measurement_noise: the {who} needs a law with a density (logpdf)")
+        raise ValueError(f"measurement_noise: the {who} needs a law with a density (logpdf); got "
+                         f"{model.measurement_noise!r} (a Gaussian has none when its covariance R is singular)")
     else:
         flt.time = "discrete"
 

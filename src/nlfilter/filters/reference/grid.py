@@ -109,11 +109,17 @@ class GridFilter(_ReferenceFilter):
         if model.n > 2:
             raise ValueError(f"model: the grid filter handles n ≤ 2 states, got n = {model.n}; use ParticleFilter")
         n = model.n
-        b = np.asarray(bounds, dtype=float).reshape(n, 2) if np.size(bounds) == 2 * n else None
+        try:
+            b = np.asarray(bounds, dtype=float)
+        except (TypeError, ValueError):
+            b = None
+        b = b.reshape(n, 2) if b is not None and b.size == 2 * n else None
         if b is None or np.any(b[:, 1] <= b[:, 0]) or not np.all(np.isfinite(b)):
             raise ValueError(f"bounds: expected {'(lo, hi)' if n == 1 else '[(lo1, hi1), (lo2, hi2)]'} "
                              f"with lo < hi, got {bounds!r}")
-        sizes = np.broadcast_to(np.asarray(size), (n,))
+        sizes = [size] * n if np.ndim(size) == 0 else list(np.asarray(size, dtype=object).ravel())
+        if len(sizes) != n or np.ndim(size) > 1:
+            raise ValueError(f"size: expected points per axis, an int or {n} of them (one per state), got {size!r}")
         for s in sizes:
             V.positive("size", s.item() if isinstance(s, np.generic) else s, integer=True)
             if s < 3:
@@ -385,6 +391,8 @@ class GridFilter(_ReferenceFilter):
         (:func:`~nlfilter.filters.reference.smoothing.grid_smoother`): exact for the grid's chain.
         Keeps every step's density: ``B × T × N`` floats (``smooth(..., chunk=)`` bounds B)."""
         from .smoothing import grid_smoother
+        if not beliefs:  # T = 0: nothing to smooth
+            return est.means, est.covs
         if self.time == "continuous":  # step k's density is at t0 + (k + 1) dt; the next step starts there
             kernel = lambda k: self._kernel(t0 + (k + 1) * self.dt)  # noqa: E731
         else:  # step k + 1 is predicted from step k at model index k + offset (base.run)

@@ -90,7 +90,7 @@ class ParticleFilter(_ReferenceFilter):
     def __init__(self, model, particles: int = 2000, *, dt: float | None = None, substeps: int = 5,
                  threshold: float = 0.5, start: str | None = None):
         self.particles = V.positive("particles", particles, integer=True)
-        self.threshold = float(threshold)
+        self.threshold = V.real("threshold", threshold)
         if not 0.0 <= self.threshold <= 1.0:
             raise ValueError(f"threshold: expected a number in [0, 1], got {threshold!r}")
         self.substeps = V.positive("substeps", substeps, integer=True)
@@ -279,6 +279,8 @@ class ParticleFilter(_ReferenceFilter):
         """FFBSm over the filtered clouds of every step (the belief after each update: the weights
         of that update on the particles before the next resampling)."""
         from .smoothing import ffbsm, transition_logpdf
+        if not beliefs:  # T = 0: nothing to smooth
+            return est.means, est.covs
         md = self.model
         if self.time == "continuous":  # step k's cloud is at t0 + (k + 1) dt: one Euler–Maruyama step on
             logtau = lambda x, x1, k: transition_logpdf(md, x, x1, t0 + (k + 1) * self.dt, dt=self.dt)  # noqa: E731

@@ -116,7 +116,7 @@ class ResampleMoveParticleFilter(Filter):
         self.substeps = V.positive("substeps", substeps, integer=True)
         self.moves = V.positive("moves", moves, integer=True, strict=False)
         self.scale = float(V.positive("scale", scale))
-        self.threshold = float(threshold)
+        self.threshold = V.real("threshold", threshold)
         if not 0.0 <= self.threshold <= 1.0:
             raise ValueError(f"threshold: expected a number in [0, 1], got {threshold!r}")
         set_start(self, start)
