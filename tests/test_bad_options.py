@@ -28,6 +28,10 @@ def test_choice_refuses_any_object_naming_the_option(value):
     option of every filter.)"""
     with pytest.raises(ValueError, match=r"^on_divergence: expected one of \['mark', 'raise'\], got "):
         EKF(D1).run(YS, **P, on_divergence=value)
+    if value is None:  # start=None is the default: the convention of the data (Filter.for_timing)
+        flt = EKF(D1, start=None)
+        assert flt.start == "update" and not flt.start_stated
+        return
     with pytest.raises(ValueError, match=r"^start: expected one of \['predict', 'update'\], got "):
         EKF(D1, start=value)
 
