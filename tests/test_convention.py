@@ -194,3 +194,24 @@ def test_check_given_reference_keeps_its_label_until_contradicted():
     est = run(flt, sim.ys, "")
     cert = check_given_reference(flt, est, LIN, sim, run=run, certify_paths=16)
     assert contradictions(cert, est, {}, sim.xs) == [] and cert.label == OPTIMAL
+
+
+def test_reference_checks_from_per_path_arrays_as_the_experiments_call_them():
+    """The experiments' entry (:func:`reference_checks`, per-path arrays of Monte Carlo blocks):
+    the wrong-R grid's per-path NEES and the KF's paired gap fail and warn, the right grid passes
+    with no warning, and fewer than 16 paths is 'not run' (the note says so)."""
+    from nlfilter.evaluate import mse
+    from nlfilter.filters import KalmanFilter
+    from nlfilter.yardstick import nees_per_component, reference_checks
+    sim = simulate(LIN, 30, paths=32, rng=2, m0=0.0, P0=1.0)
+    kf = KalmanFilter(LIN).run(sim.ys, 0.0, 1.0)
+    for R, fails in ((0.5, False), (0.05, True)):
+        ref = GridFilter(DiscreteModel([x], [0.9 * x], [x], Q=0.5, R=R), (-8, 8), 201).run(sim.ys, 0.0, 1.0)
+        d = paired_difference(kf, ref, sim.xs, window=0.5)
+        gaps = [("kf", "x", d.value, d.stderr, d.paths, mse(ref, sim.xs, window=0.5).value)]
+        with warnings.catch_warnings(record=True) as got:
+            warnings.simplefilter("always", ReferenceWarning)
+            failed, note = reference_checks(nees_per_component(ref, sim.xs), gaps, components=["x"], who="test")
+        assert bool(failed) == fails == bool(got) and note.startswith("reference checks FAILED" if fails else
+                                                                     "reference checks: NEES")
+    assert reference_checks(nees_per_component(ref, sim.xs)[:8], [])[1].startswith("reference checks: not run")
