@@ -190,8 +190,10 @@ def compare(model, filters, steps, *, paths=200, m0, P0, rng=0, reference="auto"
         their own per path
     reference : ``"auto"`` (a certified reference, see the module docstring), a filter instance,
         or ``None`` (no reference, no ``gap_to_optimal`` rows); it is named ``"optimal"`` in rows
-        and figure when certified (or not checkable), else ``"reference (not converged)"``, and
-        its ``gap_*`` rows are then ``gap_to_reference``
+        and figure when certified (or not checkable), else ``"reference (not converged)"`` — or
+        ``"reference (contradicted: ...)"`` when its NEES leaves its band or a filter beats it by
+        more than 2 s.e. (:func:`~nlfilter.yardstick.contradictions`) —, and its ``gap_*`` rows
+        are then ``gap_to_reference``
     rtol, certify_paths, max_particles : the reference's certificate: the largest error bound
         ``|Δ| + 2 se`` of its MSE relative to the MSE, the paths of its refinement run, and the
         most particles the automatic reference may use (:mod:`nlfilter.yardstick`)
