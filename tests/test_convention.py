@@ -215,3 +215,16 @@ def test_reference_checks_from_per_path_arrays_as_the_experiments_call_them():
         assert bool(failed) == fails == bool(got) and note.startswith("reference checks FAILED" if fails else
                                                                      "reference checks: NEES")
     assert reference_checks(nees_per_component(ref, sim.xs)[:8], [])[1].startswith("reference checks: not run")
+
+
+def test_end_point_grid_on_the_fast_double_well_is_certified_by_refinement_but_contradicted():
+    """The issue's failure in one call: a grid (``h`` at the interval's end point) on the fast double
+    well converges in its grid points — refinement certifies it — but reads the wrong likelihood:
+    its NEES is 8.1 ± 0.75 (the same with 401 points), so the certificate withdraws "optimal"."""
+    with pytest.warns(ReferenceWarning, match="contradicted: its NEES of x"):
+        res = compare(WELL, ["continuous-ekf"], 30, paths=32, substeps=5, rng=0, certify_paths=16,
+                      reference=GridFilter(WELL, (-2.5, 2.5), 201, dt=0.2), **WKW)
+    cert = res.params["reference"]
+    assert cert["certified"] is True and cert["label"] == CONTRADICTED.format("NEES, x")
+    (row,) = cert["contradicted"]
+    assert row["check"] == "NEES" and row["nees"] > row["band"][1] + 3
