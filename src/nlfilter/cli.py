@@ -194,7 +194,7 @@ def _main(argv) -> int:
         for row in table(REGISTRY):
             print("\t".join([row["name"], row["class"], row["family"] or "-", row["time"] or "-",
                               row["accepts"] or "-", row["needs"] or "-", row["likelihood"] or "-",
-                              row["smoother"] or "-", row["source"] or "-"]))
+                              row["smoother"] or "-", row["source"] or "-", row["measurement_convention"] or "-"]))
         return 0
     if args.command == "list":
         for exp in experiments.registry().values():

@@ -49,7 +49,8 @@ from .results import Result, provenance
 from .simulate import Timing, simulate
 from .errors import DivergenceError
 
-from .yardstick import MAX_PARTICLES, OPTIMAL, certified_reference, check_given_reference, reference_filter
+from .yardstick import (MAX_PARTICLES, OPTIMAL, certified_reference, check_given_reference, contradiction_note,
+                        contradictions, reference_filter)
 
 
 def _streams(rng):
@@ -193,8 +194,10 @@ def compare(model, filters, steps, *, paths=200, m0, P0, rng=0, reference="auto"
         their own per path
     reference : ``"auto"`` (a certified reference, see the module docstring), a filter instance,
         or ``None`` (no reference, no ``gap_to_optimal`` rows); it is named ``"optimal"`` in rows
-        and figure when certified (or not checkable), else ``"reference (not converged)"``, and
-        its ``gap_*`` rows are then ``gap_to_reference``
+        and figure when certified (or not checkable), else ``"reference (not converged)"`` — or
+        ``"reference (contradicted: ...)"`` when its NEES leaves its band or a filter beats it by
+        more than 2 s.e. (:func:`~nlfilter.yardstick.contradictions`) —, and its ``gap_*`` rows
+        are then ``gap_to_reference``
     rtol, certify_paths, max_particles : the reference's certificate: the largest error bound
         ``|Δ| + 2 se`` of its MSE relative to the MSE, the paths of its refinement run, and the
         most particles the automatic reference may use (:mod:`nlfilter.yardstick`)
@@ -409,11 +412,13 @@ def compare(model, filters, steps, *, paths=200, m0, P0, rng=0, reference="auto"
                 ref_est = run(OPTIMAL, reference, sim.ys, bar=progress)
                 cert = check_given_reference(reference, ref_est, model, sim, run=ref_run, judged=est, window=window, rtol=rtol,
                                              certify_paths=certify_paths)
+            # checks that can fail (NEES band, no filter below −2 s.e.): a failure relabels the reference
+            contradictions(cert, ref_est, est, sim.xs, window=window, components=_component_names(model))
             params["reference"] = cert.to_dict()
         else:
             params["reference"] = None
         ref_name = cert.label if cert is not None else None
-        gap = "gap_to_optimal" if cert is None or cert.certified is not False else "gap_to_reference"
+        gap = "gap_to_optimal" if cert is None or cert.label == OPTIMAL else "gap_to_reference"
         if cert is not None:
             est[ref_name] = ref_est
 
@@ -492,6 +497,7 @@ def compare(model, filters, steps, *, paths=200, m0, P0, rng=0, reference="auto"
             res.notes.append("failed (numerical error): " + "; ".join(f"{k}: {v}" for k, v in failed.items()))
         if cert is not None:
             res.notes.append(_certificate_note(cert))
+            res.notes.append(contradiction_note(cert))
         if smooth:
             res.notes.append(_smoothing_note(params["smoothing"]))
             est.update({f"{k} (smoothed)": v for k, v in sm.items()})
@@ -579,7 +585,7 @@ def _smoothed_rows(res, sm, ref_name, cert, sim, n, window):
     """``smoothed_mse`` per smoother and component; ``smoothed_gap_to_optimal`` (or ``_to_reference``)
     against the reference smoother on the same paths, ± the paired s.e. and the reference's error."""
     ref = sm.get(ref_name)
-    gap = "smoothed_gap_to_optimal" if cert is None or cert.certified is not False else "smoothed_gap_to_reference"
+    gap = "smoothed_gap_to_optimal" if cert is None or cert.label == OPTIMAL else "smoothed_gap_to_reference"
     for name, e in sm.items():
         ok = ~np.asarray(e.diverged, bool)
         if not ok.any():

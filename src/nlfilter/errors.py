@@ -80,4 +80,6 @@ class MomentsNotClosedError(NLFilterError, ValueError):
 class ReferenceWarning(UserWarning):
     """A comparison's reference filter is not converged (its refinement moved its MSE by more
     than the tolerance, its grid bounds cut the density off, or paths diverged): its rows are
-    labelled ``"reference (not converged)"`` (:mod:`nlfilter.yardstick`)."""
+    labelled ``"reference (not converged)"``; or it is contradicted (its NEES outside the band
+    of the exact posterior, or a compared filter beats it by more than 2 s.e.): labelled
+    ``"reference (contradicted: ...)"`` (:mod:`nlfilter.yardstick`)."""

@@ -30,6 +30,7 @@ import numpy as np
 from . import _validate as V
 from .errors import DivergenceError
 from .noise import Gaussian, NoiseLaw
+from .sde_step import euler_maruyama
 from .streams import PathRNG, as_paths
 
 _BLOCK = 2 ** 20  # SDE simulators: standard normals drawn per block of steps (bounded memory)
@@ -330,21 +331,15 @@ def _simulate(model, steps, paths, rng, x, x_init, xs, ys, m, start, dt, substep
     dt = float(V.positive("dt", dt))
     V.positive("substeps", substeps, integer=True)
     V.time_grid(t0, dt, steps)
-    h = dt / substeps
-    sq_h = np.sqrt(h)
+    sq_h = np.sqrt(dt / substeps)
     LQ = model.process_noise._sqrt
     LR = model.measurement_noise._sqrt
     r = model.r
     for k0, k1 in _blocks(steps, paths, substeps * r + m):
         z = rng.standard_normal((k1 - k0, substeps * r + m))  # (paths, K, substeps·r + m)
         for k in range(k0, k1):
-            tk = t0 + k * dt
-            ydt = np.zeros((paths, m))
             dB = z[:, k - k0, :substeps * r].reshape(paths, substeps, r) @ LQ.T * sq_h
-            for j in range(substeps):
-                s = tk + j * h
-                ydt += model.h(x, s) * h  # ∫ h dt, left point
-                x = x + model.f(x, s) * h + model.Gw(x, dB[:, j], s)
+            x, ydt = euler_maruyama(model, x, t0 + k * dt, dt, substeps, dB)  # ∫ h dt, left point
             xs[:, k] = x
             ys[:, k] = ydt + z[:, k - k0, substeps * r:] @ LR.T * np.sqrt(dt)
             x = screen.check(k, x, ys[:, k], x=x, restart=x_init)

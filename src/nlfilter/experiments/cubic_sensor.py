@@ -49,6 +49,7 @@ from ..montecarlo import montecarlo
 from ..moments.closures import GaussianClosure
 from ..results import Result
 from ..simulate import simulate_ou
+from ..yardstick import BEATEN_MAX_DIVERGED, reference_checks
 
 PAPER = {  # seed 001 Tables 5.1 (q=2, r=1) and 5.2 (q=r=1)
     (2.0, 1.0): {("linear", "mse_x"): 0.540, ("linear", "mse_x3"): 5.63, ("tensor", "mse_x"): 0.522,
@@ -284,6 +285,10 @@ def _cubic_block(rows, *, q, r, dt, steps, nb, seed, case, grid):
             out[f"err_{name}"] = np.full(len(rows), "")
             out[f"div_{name}"] = np.asarray(e.diverged, bool)
             ests[name] = (e.means[..., 0], None)
+            if name == "optimal":  # its NEES e²/P per path (issue 25: the reference's check): (m/σ − x/σ)²
+                with np.errstate(divide="ignore", invalid="ignore"):
+                    sd = np.sqrt(e.covs[..., 0, 0])
+                    out["nees_optimal"], out["oknees_optimal"] = _window_mse(e.means[..., 0] / sd, xs / sd, nb)
         except (DivergenceError, ValueError, FloatingPointError) as exc:  # pragma: no cover
             out[f"err_{name}"] = np.full(len(rows), str(exc))
             out[f"div_{name}"] = np.ones(len(rows), bool)
@@ -341,12 +346,20 @@ def _monte_carlo(res, lift, tf, q, r, params, quick, runs, case, seed, row):
             v3, se3, _ = _mc(pp[f"x3_{name}"], pp[f"okx3_{name}"])
             res.add(name, "mse_x3_mc", v3, stderr=se3, **row)
     if "optimal" in names:  # gap to the optimal filter, paired on common noise
+        gaps = []
         for name in names:
             if name == "optimal":
                 continue
             v, se, n = _mc(pp[f"ex_{name}"], pp[f"okex_{name}"])
             if n >= 2:
                 res.add(name, "excess_mse_x_mc", v, stderr=se, **row)
+                if np.mean(pp.get(f"div_{name}", np.zeros(1))) <= BEATEN_MAX_DIVERGED:  # not over selected survivors
+                    gaps.append((name, "x", v, se, n, _mc(pp["x_optimal"], pp["okx_optimal"])[0]))
+        if "nees_optimal" in pp:  # issue 25: the grid through the certificate's checks (a note; no number moves)
+            ok = pp["oknees_optimal"]
+            _, note = reference_checks(pp["nees_optimal"][ok][:, None], gaps, components=["x"],
+                                       who=f"cubic-sensor (q={q:g}, r={r:g})")
+            res.notes.append(f"optimal (q={q:g}, r={r:g}): {note}")
     res.notes.append(f"Monte Carlo q={q:g}, r={r:g}: {paths} stationary paths, T={T:g}, first {burn:g} discarded, "
                      f"dt={dt:.3g}, common noise for all filters")
     if "mqlf" in names and "qlf" in names:

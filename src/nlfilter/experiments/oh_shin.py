@@ -39,6 +39,7 @@ from ..montecarlo import montecarlo
 from ..moments.closures import EdgeworthClosure
 from ..results import Result
 from ..simulate import simulate
+from ..yardstick import BEATEN_MAX_DIVERGED, reference_checks
 from . import experiment
 
 PAPER = {"qlf": 0.0163, "mqlf": 0.015}  # 003 Section 5, text under Fig. 2 (P at t = 1.0)
@@ -84,6 +85,9 @@ def _oh_shin_block(rows, *, Q, R, m0, D0, order, dt, steps, substeps, grid, seed
         est = f.run(sim.ys, mean, cov, on_divergence="mark")
         out[f"e2_{name}"] = ev.squared_errors(est, sim.xs, component=0)
         out[f"ok_{name}"] = ~np.asarray(est.diverged)
+        if name == "optimal":  # issue 25: the grid's NEES e²/P per path at t_end, where the table is (its check)
+            with np.errstate(divide="ignore", invalid="ignore"):
+                out["nees_optimal"] = out["e2_optimal"][:, -1] / est.covs[:, -1, 0, 0]
     return out
 
 
@@ -131,6 +135,12 @@ def run(params, *, quick, runs, seed, progress):
         if name != "optimal":
             v, se, nd = at_end(name, "optimal")
             res.add(name, "mse_t1_gap", v, se, t=p["t_end"])
+    if "nees_optimal" in pp:  # issue 25: the grid through the certificate's checks (a note; no number moves)
+        gaps = [(name, "x", *at_end(name, "optimal")[:2], int(np.sum(ok[name] & ok["optimal"])),
+                 at_end("optimal")[0]) for name in filters if name != "optimal"
+                and np.mean(~ok[name]) <= BEATEN_MAX_DIVERGED]
+        _, note = reference_checks(pp["nees_optimal"][ok["optimal"]][:, None], gaps, components=["x"], who="oh-shin")
+        res.notes.append(f"optimal (grid): {note} (NEES and gaps at t = {p['t_end']:g}, where the table is)")
     v, se, _ = at_end("mqlf", "qlf")
     paper_diff = PAPER["mqlf"] - PAPER["qlf"]
     res.add("mqlf", "mse_t1_diff_vs_qlf", v, se, paper=paper_diff, t=p["t_end"])

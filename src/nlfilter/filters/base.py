@@ -64,6 +64,7 @@ import numpy as np
 
 from .. import _validate as V
 from ..errors import DivergenceError
+from ..sde_step import ITO_EULER
 from ..simulate import Simulation
 from ..streams import FILTER, PathRNG
 from .beliefs import GaussianState, where_paths
@@ -297,6 +298,10 @@ class Filter:
     # moments; exact for a linear-Gaussian model), "exact" (the grid filter: the log-evidence of
     # the grid approximation), "estimate" (the particle filter: log of an unbiased estimate)
     likelihood = None
+    # continuous-time filters: how the increment dy of one interval is read, and to what order in
+    # dt that is the simulator's convention (the constants of :mod:`nlfilter.sde_step`); "" for
+    # discrete-time filters
+    measurement_convention = ""
     # the backward pass of :meth:`smooth`: None (no smoother), "rts" (Rauch–Tung–Striebel through
     # the moment rule), "forward-backward" (grid), "particle" (FFBSm); ``smoother_keeps``: the
     # backward pass needs the forward beliefs of every step (not only their summaries)
@@ -766,6 +771,7 @@ class ContinuousFilter(Filter):
 
     accepts = ("sde",)
     time = "continuous"
+    measurement_convention = ITO_EULER
 
     def __init__(self, model, dt: float, *, scheme: str = "rk4", substeps: int = 1):
         if getattr(model, "kind", None) != "sde":

@@ -16,6 +16,7 @@ import numpy as np
 from .. import _validate as V
 from ..bilinear import BilinearModel
 from ..moments.solve import stationary_moments
+from ..sde_step import HELD
 from .base import gaussian_prior, ode_step
 # the joint analysis and post-processor fits, and the pseudo-observables filter, have modules of their own
 from .post_processors import (JointProcess, PostProcessorFit, fit_post_processor, joint_process,  # noqa: F401
@@ -50,6 +51,7 @@ class _SteadyLinearRecursion(OfflineGainFilter):
     accepts = ("bilinear", "phase")
     needs = ("time-invariant model", "finite steady state (Wonham condition)")
     time = "continuous"
+    measurement_convention = HELD
 
     def _linear(self, model, dt, scheme, X0):
         self.linear = OptimalLinearFilter(model, dt, gains="steady", X0=X0, scheme=scheme)

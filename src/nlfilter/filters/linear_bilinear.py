@@ -27,6 +27,7 @@ import scipy.linalg as sla
 
 from .. import _validate as V
 from ..bilinear import BilinearModel
+from ..sde_step import HELD
 from ..bilinear_analysis import augmented_second_moment, state_second_moments, wonham_condition
 from ..errors import SingularSystemError
 from .base import gaussian_prior, set_start
@@ -132,6 +133,7 @@ class OptimalLinearFilter(OfflineGainFilter):
     source = "seed 001 eqs. 2.31-2.47, 2.54"
     accepts = ("bilinear",)
     time = "continuous"
+    measurement_convention = HELD
     _augmented = False
 
     def __init__(self, model: BilinearModel, dt: float, *, gains: str = "steady", scheme: str = "rk4",

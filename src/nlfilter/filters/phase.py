@@ -28,6 +28,7 @@ from scipy.special import i0e, i1e
 
 from .. import _validate as V
 from ..bilinear import PhaseModel, phase_model
+from ..sde_step import END_POINT, HELD
 from ..simulate import simulate_phase  # noqa: F401  (re-exported: it moved to nlfilter.simulate)
 from .base import Estimates, Filter, gaussian_prior, ode_step
 from .bilinear import TensorFilter, _SteadyLinearRecursion
@@ -113,6 +114,7 @@ class PLL(Filter):
     source = "seed 001 §4.1, eqs. 4.6-4.10"
     accepts = ("phase",)
     time = "continuous"
+    measurement_convention = HELD
 
     def __init__(self, model: PhaseModel, dt: float, *, scheme: str = "rk4", K: float | None = None):
         self.model = _phase_model(model)
@@ -249,6 +251,7 @@ class CircleGridFilter(Filter):
     source = "seed 001 ch. 4 (optimal filter of Table 4.1; eqs. 4.11-4.14)"
     accepts = ("phase",)
     time = "continuous"
+    measurement_convention = END_POINT  # the exact diffusion on the circle (FFT), then h at the end point
 
     def __init__(self, model: PhaseModel, dt: float, *, size: int = 256):
         self.model = _phase_model(model)

@@ -13,6 +13,7 @@ from ..bilinear import BilinearModel
 from ..moments.closed import bilinear_lift, closed_hull
 from ..moments.ito import PolynomialSDE
 from ..polynomials import Polynomial
+from ..sde_step import HELD
 from .linalg import symmetrize
 from .linear_bilinear import _affine_step, _pinv_psd
 from .offline import ContinuousSchedule, OfflineGainFilter
@@ -108,6 +109,7 @@ class PseudoObservablesFilter(OfflineGainFilter):
     accepts = ("bilinear",)
     needs = ("additive measurement noise", "time-invariant model", "moments of x0 (x_moment)")
     time = "continuous"
+    measurement_convention = HELD
 
     def __init__(self, model: BilinearModel, dt: float, *, powers=(1, 3), x_moment=None, scheme: str = "rk4"):
         if model.M:

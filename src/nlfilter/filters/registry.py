@@ -5,8 +5,10 @@
 accept a model (``compare(model, "all", ...)``); ``tests/test_contract.py`` iterates it, so a new
 filter cannot skip the contract. Each class declares what the registry shows: ``family``,
 ``source`` (seed and equations), ``accepts`` (model kinds: ``"discrete"``, ``"sde"``,
-``"bilinear"``, ...), ``needs`` (what the model must offer), ``time``, ``likelihood`` and
-``smoother``.
+``"bilinear"``, ...), ``needs`` (what the model must offer), ``time``, ``likelihood``,
+``smoother`` and, for the filters of continuously measured SDEs, ``measurement_convention``: how
+the increment ``dy`` of one interval is read, and to what order in ``dt`` that is the simulator's
+convention (:mod:`nlfilter.sde_step`; the particle reference reads it exactly).
 """
 
 from __future__ import annotations
@@ -38,9 +40,12 @@ def accepting(registry: dict, model) -> dict:
 
 def table(registry: dict) -> list[dict]:
     """One row per registered filter: name, class, family, time, accepts, needs, likelihood (what
-    ``run(..., loglik=True)`` gives, or ""), smoother (its backward pass, or ""), source."""
+    ``run(..., loglik=True)`` gives, or ""), smoother (its backward pass, or ""), source,
+    measurement_convention (continuous-time filters: how ``dy`` is read and to what order in dt;
+    "" for discrete-time ones)."""
     return [{"name": name, "class": cls.__name__, "family": getattr(cls, "family", ""),
              "time": getattr(cls, "time", ""), "accepts": ", ".join(getattr(cls, "accepts", ())),
              "needs": ", ".join(getattr(cls, "needs", ())), "likelihood": getattr(cls, "likelihood", None) or "",
-             "smoother": getattr(cls, "smoother", None) or "", "source": getattr(cls, "source", "")}
+             "smoother": getattr(cls, "smoother", None) or "", "source": getattr(cls, "source", ""),
+             "measurement_convention": getattr(cls, "measurement_convention", "") or ""}
             for name, cls in registry.items()]

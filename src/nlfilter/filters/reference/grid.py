@@ -14,6 +14,7 @@ from scipy import sparse
 
 from ... import _validate as V
 from ...noise import Gaussian
+from ...sde_step import END_POINT
 from ..base import gaussian_prior
 from ..linalg import gaussian_loglik, innovation_info, measurement_loglik, no_information, observed_precision
 from ._common import _ReferenceFilter
@@ -92,6 +93,14 @@ class GridFilter(_ReferenceFilter):
         outermost points of a density cut at its mode shrinks as the grid is refined (two of 101
         points hold 1-10 % of it), while the ratio stays near 1.
 
+    Measurement convention (SDEs): a density on the grid carries no path within the interval, so
+    not the simulator's ``∫ h ds`` (:mod:`nlfilter.sde_step`): ``dy`` is weighed with ``h`` at the
+    interval's end point, ``exp(h(x)ᵀ R⁻¹ dy − ½ dt h(x)ᵀ R⁻¹ h(x))`` at each grid point after
+    the transition — first order in ``dt``: its error per interval grows with the movement of ``h``
+    within the interval against the measurement noise ``√(R/dt)`` (the automatic reference of
+    :func:`~nlfilter.comparison.compare` takes particles where that movement is not small,
+    :func:`~nlfilter.yardstick.endpoint_error`).
+
     ``Estimates.extras["edge_mass"] (..., T)``: the posterior mass on the outermost grid points
     at each step (:meth:`edge_mass`): when it is not small, the bounds cut the density off (the
     automatic reference of :func:`~nlfilter.comparison.compare` widens them above 1e-3).
@@ -103,6 +112,9 @@ class GridFilter(_ReferenceFilter):
               "Fokker–Planck operator and the Kallianpur–Striebel likelihood")
     needs = ("n ≤ 2", "noise density")
     structures = ("state-dependent R",)
+    # SDEs: a grid density carries no path, so no ∫ h ds: the increment is read with h at the
+    # interval's end point after the chain's transition (the simulator's left-point sum to first order)
+    measurement_convention = END_POINT
 
     def __init__(self, model, bounds, size=401, *, dt: float | None = None, start: str | None = None,
                  edge_limit: float | None = EDGE_LIMIT):

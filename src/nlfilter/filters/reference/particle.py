@@ -13,6 +13,7 @@ from typing import NamedTuple
 import numpy as np
 
 from ... import _validate as V
+from ...sde_step import LEFT_POINT, euler_maruyama, increment_loglik
 from ...streams import FILTER, PathRNG
 from ..linalg import gaussian_loglik, innovation_info, measurement_loglik, no_information, observed_precision
 from ._common import _ReferenceFilter
@@ -86,6 +87,7 @@ class ParticleFilter(_ReferenceFilter):
     needs = ("noise density",)
     random = True
     structures = ("state-dependent R", "non-additive noise")
+    measurement_convention = LEFT_POINT
 
     def __init__(self, model, particles: int = 2000, *, dt: float | None = None, substeps: int = 5,
                  threshold: float = 0.5, start: str | None = None):
@@ -128,7 +130,10 @@ class ParticleFilter(_ReferenceFilter):
 
     def step(self, belief: ParticleBelief, dy, t) -> ParticleBelief:
         """SDE: resample as in ``predict``, Euler–Maruyama over ``[t, t + dt]`` (``substeps``), then
-        weight by the likelihood of the increment ``dy (B, m)``."""
+        weight by the exact likelihood of the increment ``dy (B, m)`` given each particle's path,
+        ``N(dy; ∫ h ds, R dt)`` with the simulator's left-point ``∫ h ds``
+        (:mod:`nlfilter.sde_step`: the same model as :func:`~nlfilter.simulate.simulate` at equal
+        ``substeps``)."""
         belief, bad = self._step_unchecked(belief, dy, t)
         self._raise_dead(bad, f"t = {t}")
         return belief
@@ -154,8 +159,8 @@ class ParticleFilter(_ReferenceFilter):
     def _step_unchecked(self, belief, dy, t):
         self._need("continuous", "step")
         x, logw = self._resample(belief)
-        x = self._propagate(x, t, belief.rng)
-        return self._weigh(belief, x, logw, dy, t + self.dt)
+        x, hbar = self._propagate(x, t, belief.rng)
+        return self._weigh(belief, x, logw, dy, t + self.dt, hbar=hbar)
 
     likelihood = "estimate"
 
@@ -169,22 +174,23 @@ class ParticleFilter(_ReferenceFilter):
 
     def _step_info(self, belief, dy, t):
         """``run(..., loglik=True)``: the step and the estimate of the density of ``dy`` (as
-        :meth:`_update_info`, with ``N(dy; h(x_i) dt, R dt)``)."""
+        :meth:`_update_info`, with ``N(dy; ∫ h ds, R dt)`` along each particle's path)."""
         self._need("continuous", "step")
         x, logw = self._resample(belief)
-        x = self._propagate(x, t, belief.rng)
-        return self._weigh(belief, x, logw, dy, t + self.dt, info=True)
+        x, hbar = self._propagate(x, t, belief.rng)
+        return self._weigh(belief, x, logw, dy, t + self.dt, info=True, hbar=hbar)
 
     # -- the pieces ----------------------------------------------------------------------------
-    def _weigh(self, belief, x, logw, y, k, info: bool = False):
+    def _weigh(self, belief, x, logw, y, k, info: bool = False, hbar=None):
         """The belief after adding the log-likelihood of ``y``; a dead path (no finite log-weight)
         gets equal weights and is returned as bad. With ``info`` also the step's likelihood
-        output (:meth:`_update_info`)."""
+        output (:meth:`_update_info`). ``hbar (B, Np, m)``: SDEs, ``∫ h ds / dt`` along each
+        particle's path of the interval."""
         out = None
         if not np.all(np.isnan(y)):
-            ll = self._loglik(x, y, k)
+            ll = self._loglik(x, y, k, hbar)
             if info:
-                out = self._info(x, logw, ll, y, k)
+                out = self._info(x, logw, ll, y, k, hbar)
             logw = logw + ll
         elif info:
             out = no_information(*y.shape)
@@ -193,14 +199,14 @@ class ParticleFilter(_ReferenceFilter):
             logw = np.where(bad[:, None], 0.0, logw)
         return (ParticleBelief(x, logw, belief.rng), bad) + ((out,) if info else ())
 
-    def _info(self, x, logw, ll, y, k):
+    def _info(self, x, logw, ll, y, k, hbar=None):
         md = self.model
         w = _weights(logw)  # the predictive weights
         a = np.log(w) + ll
         with np.errstate(divide="ignore", invalid="ignore"):
             mx = np.max(a, axis=-1)
             lev = mx + np.log(np.sum(np.exp(a - np.where(np.isfinite(mx), mx, 0.0)[:, None]), axis=-1))
-        hx = md.h(x, k)
+        hx = md.h(x, k) if hbar is None else hbar
         Eh = np.einsum("bp,bpi->bi", w, hx)
         d = hx - Eh[:, None, :]
         Ch = np.einsum("bp,bpi,bpj->bij", w, d, d)
@@ -228,20 +234,19 @@ class ParticleFilter(_ReferenceFilter):
 
     def _propagate(self, x, t, rng):
         """The particles one step on: ``f(x, k) + G(x, k) w`` (discrete, ``t = k``), or
-        Euler–Maruyama substeps over ``[t, t + dt]`` (SDE)."""
+        ``(x, h̄)``: Euler–Maruyama substeps over ``[t, t + dt]`` and ``h̄ = ∫ h ds / dt`` along
+        them (SDE, :func:`~nlfilter.sde_step.euler_maruyama`: the simulator's arithmetic)."""
         md = self.model
         if md.kind == "discrete":
             w = rng.sample(md.process_noise, x.shape[1:-1])
             return md.transition(x, w, t)  # f(x) + G(x) w, or f(x, w) for non-additive noise
-        h = self.dt / self.substeps
+        sq = np.sqrt(self.dt / self.substeps)
         L = md.process_noise._sqrt
-        for j in range(self.substeps):
-            s = t + j * h
-            dB = rng.standard_normal((*x.shape[1:-1], md.r)) @ L.T * np.sqrt(h)
-            x = x + md.f(x, s) * h + md.Gw(x, dB, s)
-        return x
+        x, ih = euler_maruyama(md, x, t, self.dt, self.substeps,
+                               lambda j: rng.standard_normal((*x.shape[1:-1], md.r)) @ L.T * sq)
+        return x, ih / self.dt
 
-    def _loglik(self, x, y, k):
+    def _loglik(self, x, y, k, hbar=None):
         md = self.model
         obs = ~np.isnan(y)
         if md.kind == "discrete":
@@ -249,11 +254,8 @@ class ParticleFilter(_ReferenceFilter):
             if not md.R_constant:  # v ~ N(0, R(x)) exactly at each particle
                 return gaussian_loglik(resid, md.R_of(x, k), obs[..., None, :])
             return measurement_loglik(md.measurement_noise, resid, obs)
-        hx = md.h(x, k)
         Rinv = observed_precision(md.R, self._Rinv, obs)  # partly missing: the observed marginal
-        hR = np.einsum("...pa,...ab->...pb", hx, Rinv)
-        yo = np.where(obs, y, 0.0)
-        return np.einsum("...a,...pa->...p", yo, hR) - 0.5 * self.dt * np.einsum("...pa,...pa->...p", hR, hx)
+        return increment_loglik(md.h(x, k) if hbar is None else hbar, np.where(obs, y, 0.0), Rinv, self.dt)
 
     # -- the smoother ------------------------------------------------------------------------------
     smoother_keeps = True
@@ -282,10 +284,16 @@ class ParticleFilter(_ReferenceFilter):
         if not beliefs:  # T = 0: nothing to smooth
             return est.means, est.covs
         md = self.model
+        logg = None
         if self.time == "continuous":  # step k's cloud is at t0 + (k + 1) dt: one Euler–Maruyama step on
             logtau = lambda x, x1, k: transition_logpdf(md, x, x1, t0 + (k + 1) * self.dt, dt=self.dt)  # noqa: E731
+
+            def logg(x, k, sl):  # the next increment's left-point ∫ h ds = h(x_k) dt (sde_step): it weighs x_k
+                y = ys[sl, k + 1]
+                return np.where(np.isnan(y).all(axis=-1)[:, None], 0.0, self._loglik(x, y, t0 + (k + 1) * self.dt))
         else:
             offset = 0 if self.start == "update" else 1
             logtau = lambda x, x1, k: transition_logpdf(md, x, x1, k + offset)  # noqa: E731
         per_path = bool(getattr(getattr(md, "_values", None), "per_path", ()))  # parameters per path: no blocks
-        return ffbsm([b.x for b in beliefs], [b.logw for b in beliefs], logtau, block=ys.shape[0] if per_path else None)
+        return ffbsm([b.x for b in beliefs], [b.logw for b in beliefs], logtau, block=ys.shape[0] if per_path else None,
+                     logg=logg)

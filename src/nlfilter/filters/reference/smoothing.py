@@ -90,13 +90,17 @@ def _weighted_moments(w, x):
     return mean, np.einsum("bp,bpi,bpj->bij", w, d, d)
 
 
-def ffbsm(xs, logws, logtau, block: int | None = None):
+def ffbsm(xs, logws, logtau, block: int | None = None, logg=None):
     """The forward-filtering backward-smoothing of the marginals (module docstring).
 
     ``xs``, ``logws``: the filtered particles ``(B, Np, n)`` and their (unnormalized) log-weights
     ``(B, Np)`` of steps ``0..T-1``; ``logtau(x, x1, k) -> (b, Np, Np)``: the log transition
     density ``log τ(x1_j | x_i)`` from step ``k`` to ``k + 1`` for a block of paths; ``block``:
-    paths per block (default: as many as keep the pairwise arrays under :data:`BLOCK` elements).
+    paths per block (default: as many as keep the pairwise arrays under :data:`BLOCK` elements);
+    ``logg(x, k, sl) -> (b, Np)`` (optional): where the measurement of step ``k + 1`` depends on
+    the state of step ``k`` (an SDE's increment over ``[t_{k+1}, t_{k+2}]`` with the left-point
+    ``∫ h ds = h(x_k) dt``, one Euler–Maruyama substep), its log-likelihood at the particles
+    ``x`` of step ``k`` (paths ``sl``): the backward kernel is then ``∝ w_k τ g_{k+1}(x_k)``.
     Returns the smoothed ``(means (B, T, n), covs (B, T, n, n))``.
 
     >>> import numpy as np
@@ -121,6 +125,8 @@ def ffbsm(xs, logws, logtau, block: int | None = None):
         for k in range(T - 2, -1, -1):
             w = _weights(logws[k][sl])
             lt = logtau(xs[k][sl], xs[k + 1][sl], k)  # (b, i, j): log τ(x_{k+1,j} | x_k,i)
+            if logg is not None:  # y_{k+1} depends on x_k: p(x_k | x_{k+1}, y_{:k+1}) ∝ w τ g_{k+1}(x_k)
+                lt = lt + logg(xs[k][sl], k, sl)[..., :, None]
             mx = np.max(lt, axis=1, keepdims=True)  # per column j: the ratio τ_ij / Σ_l w_l τ_lj is scale-free
             lt -= np.where(np.isfinite(mx), mx, 0.0)
             A = np.exp(lt, out=lt)
