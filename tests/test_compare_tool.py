@@ -87,3 +87,121 @@ def test_a_filter_diverging_on_most_paths_gets_no_mse_gap_or_nees_row():
     assert all(r.value >= -2 * r.stderr for r in res.rows if r.quantity.startswith("gap"))
     assert "conditional-moment" not in next(iter(res.series.values()))["lines"]
     assert res.get("quasilinear", "gap_to_optimal", component=0).stderr > 0  # the survivor-free filter is judged
+
+
+# -- item 5: nlfilter compare as a tool --------------------------------------------------------------
+TURN = """\
+# Coordinated-turn tracking (5 states: position, velocity, turn rate), range and bearing measured.
+[model]
+name = "coordinated-turn"
+kind = "discrete"
+states = ["px", "py", "vx", "vy", "w"]
+
+[parameters]
+dt = 0.5
+q = 0.05
+
+[dynamics]
+f = ["px + dt*vx", "py + dt*vy", "vx*cos(dt*w) - vy*sin(dt*w)", "vx*sin(dt*w) + vy*cos(dt*w)", "w"]
+G = [["0", "0", "0"], ["0", "0", "0"], ["1", "0", "0"], ["0", "1", "0"], ["0", "0", "1"]]
+Q = [["q", 0, 0], [0, "q", 0], [0, 0, 0.001]]
+
+[measurement]
+h = ["sqrt(px**2 + py**2)", "atan2(py, px)"]
+R = [[0.25, 0], [0, 0.01]]
+
+[prior]
+mean = [10.0, 0.0, 0.0, 1.0, 0.1]
+cov = [1.0, 1.0, 0.1, 0.1, 0.01]
+
+[run]
+steps = 8
+paths = 12
+filters = ["ekf", "ukf"]
+"""
+
+
+@pytest.fixture
+def turn(tmp_path):
+    path = tmp_path / "turn.toml"
+    path.write_text(TURN)
+    return path
+
+
+def test_cli_compare_on_a_five_state_model_keeps_to_its_reference_budget(turn, tmp_path, capsys):
+    """``--reference-budget`` far below what even the smallest particle reference costs: the
+    budget logic cuts the first rung to MIN_PARTICLES, says that it is run anyway, stops the
+    ladder there (labelled not converged), and says so before the run (stderr) and in the notes,
+    ``params["reference_budget"]`` and the report; the run is in the store and ``results list``
+    lists it. (Decisions, not timings, are asserted: the estimate of a 2000-particle reference on
+    a 5-state model exceeds 0.01 s on any machine — its pilot alone takes longer.)"""
+    import json
+
+    from nlfilter import cli
+    from nlfilter.compare_budget import MIN_PARTICLES
+
+    store, out, rep = tmp_path / "s.sqlite", tmp_path / "out.json", tmp_path / "report"
+    assert cli.main(["compare", str(turn), "--reference-budget", "0.01", "--store", str(store), "--json", str(out),
+                     "--report", str(rep)]) == 0
+    captured = capsys.readouterr()
+    assert "compare: reference: 200 particles on 12 paths (est." in captured.err  # said before it ran
+    assert f"not even {MIN_PARTICLES} particles" in captured.err
+    data = json.loads(out.read_text())
+    ref, budget = data["params"]["reference"], data["params"]["reference_budget"]
+    assert ref["kind"] == "particle" and ref["size"] == MIN_PARTICLES and len(ref["rungs"]) == 1
+    assert ref["certified"] is False and "stopped by the reference budget" in ref["reason"]
+    assert budget["seconds"] == 0.01 and budget["capped"] is True
+    assert any("the ladder stops here" in line for line in budget["log"])
+    assert any(n.startswith("reference budget: ") for n in data["notes"])
+    assert cli.main(["results", "list", "--store", str(store)]) == 0
+    listed = capsys.readouterr().out.splitlines()
+    assert listed[1].split("\t")[1:3] == ["compare", "done"] and "--reference-budget 0.01" in listed[1]
+    # the report holds the comparison's own numbers: MSE, gap, NEES with s.e., the certificate
+    index = (rep / "index.md").read_text()
+    rows = {(r["filter"], r["quantity"], r["params"].get("component")): r for r in data["rows"]}
+    from nlfilter.results import _fmt
+    for name in ("ekf", "ukf"):
+        m, g = rows[(name, "mse", 0)], rows[(name, "gap_to_reference", 0)]
+        assert f"| {name} | 0 | {_fmt(m['value'])} ± {_fmt(m['stderr'])} | {_fmt(g['value'])} ± {_fmt(g['stderr'])} |" in index
+        nees = rows[(name, "nees", None)]
+        assert f"| {name} | {_fmt(nees['value'])} ± {_fmt(nees['stderr'])} |" in index
+    assert f"{MIN_PARTICLES} particles, not converged" in index and "Reference budget: 0.01 s" in index
+    assert (rep / "compare.png").stat().st_size > 10_000
+
+
+def test_cli_compare_resumes_after_an_interruption(turn, tmp_path, monkeypatch, capsys):
+    """Ctrl-C during the reference (here: a KeyboardInterrupt raised by the 5th task, as Ctrl-C
+    would) exits 130 with the run marked interrupted; the same command reads the finished tasks
+    back from the store, computes only the others, and writes the numbers of an uninterrupted run."""
+    import json
+
+    from nlfilter import cli, compare_tasks
+    from nlfilter.store import ResultsStore
+
+    opts = ["--no-progress", "--block", "6", "--max-particles", "200", "--filters", "ekf,ukf"]
+    fresh = tmp_path / "fresh.json"
+    assert cli.main(["compare", str(turn), *opts, "--no-store", "--json", str(fresh)]) == 0
+    real, calls = compare_tasks._filter_task, []
+
+    def flaky(job):
+        calls.append(job[0])
+        if len(calls) == 5:
+            raise KeyboardInterrupt
+        return real(job)
+
+    monkeypatch.setattr(compare_tasks, "_filter_task", flaky)
+    store, out = tmp_path / "s.sqlite", tmp_path / "out.json"
+    cmd = ["compare", str(turn), *opts, "--store", str(store), "--json", str(out)]
+    assert cli.main(cmd) == 130
+    assert "interrupted" in capsys.readouterr().err
+    with ResultsStore(store) as st:
+        assert st.runs()[0]["status"] == "interrupted" and st.count_blocks("compare") == 4
+    calls.clear()
+    assert cli.main(cmd) == 0
+    resumed = json.loads(out.read_text())
+    ex = resumed["meta"]["execution"]
+    # 2 filters × 2 blocks, the reference's 2 blocks and its check's 2 (12 paths in blocks of 6)
+    assert (ex["tasks_reused"], ex["tasks_computed"]) == (4, 4) and len(calls) == 4
+    assert resumed["rows"] == json.loads(fresh.read_text())["rows"]
+    with ResultsStore(store) as st:
+        assert [r["status"] for r in st.runs()] == ["done", "interrupted"]

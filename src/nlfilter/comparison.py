@@ -317,7 +317,7 @@ def compare(model, filters, steps, *, paths=200, m0, P0, rng=0, reference="auto"
         if cert is not None:
             res.notes.append(certificate_note(cert))
         if reference_budget is not None and budget.log:
-            res.notes.append("reference budget: " + " ".join(budget.log))
+            res.notes.append("reference budget: " + "; ".join(budget.log))
         if smooth:
             res.notes.append(smoothing_note(params["smoothing"]))
             est.update({f"{k} (smoothed)": v for k, v in sm.items()})
