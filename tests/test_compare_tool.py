@@ -205,3 +205,40 @@ def test_cli_compare_resumes_after_an_interruption(turn, tmp_path, monkeypatch, 
     assert resumed["rows"] == json.loads(fresh.read_text())["rows"]
     with ResultsStore(store) as st:
         assert [r["status"] for r in st.runs()] == ["done", "interrupted"]
+
+
+def test_reference_kinds_and_the_particle_cap():
+    """``reference="particle"`` starts the ladder at particles on a 1-D model (where "auto" takes a
+    grid), no more than ``max_particles``; ``"grid"`` on a model whose grid is too large is a
+    ValueError naming ``reference`` and why; ``None`` gives no reference rows."""
+    import warnings
+
+    from nlfilter.errors import ReferenceWarning
+
+    lin = MODELS["discrete-linear"][0]
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", ReferenceWarning)  # 300 particles on 8 paths: may not certify
+        res = compare(lin, ["kf"], 10, paths=8, m0=0.0, P0=0.5, rng=0, reference="particle", max_particles=300)
+    ref = res.params["reference"]
+    assert ref["kind"] == "particle" and ref["rungs"][0]["size"] == 300 and ref["size"] == 300
+    y = sp.Symbol("y")
+    wide = DiscreteModel([x, y], [0.9 * x, y], [x], Q=0.1 * np.eye(2), R=0.5)
+    with pytest.raises(ValueError, match=r"^reference: 'grid' cannot serve this model \(the grid the model needs"):
+        compare(wide, ["ekf"], 10, paths=4, m0=[0.0, 0.0], P0=np.eye(2), rng=0, reference="grid")
+    with pytest.raises(ValueError, match=r"^reference: expected one of \('auto', 'grid', 'particle'\)"):
+        compare(lin, ["kf"], 10, paths=4, m0=0.0, P0=0.5, rng=0, reference="none")
+    with pytest.raises(ValueError, match=r"^reference_budget: expected a positive"):
+        compare(lin, ["kf"], 10, paths=4, m0=0.0, P0=0.5, rng=0, reference_budget=0)
+
+
+@pytest.mark.parametrize("opts, what", [
+    (["--max-particles", "0"], "--max-particles: got 0; expected an integer ≥ 1"),
+    (["--reference-budget", "-1"], "--reference-budget: got -1.0; expected a positive number of seconds"),
+    (["--reference", "none", "--max-particles", "100"], "--reference none: given with --max-particles"),
+])
+def test_cli_reference_options_are_checked_before_the_run(turn, capsys, opts, what):
+    from nlfilter import cli
+
+    assert cli.main(["compare", str(turn), "--no-progress", *opts]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and what in err, err
