@@ -162,7 +162,8 @@ def test_cli_compare_on_a_five_state_model_keeps_to_its_reference_budget(turn, t
     from nlfilter.results import _fmt
     for name in ("ekf", "ukf"):
         m, g = rows[(name, "mse", 0)], rows[(name, "gap_to_reference", 0)]
-        assert f"| {name} | 0 | {_fmt(m['value'])} ± {_fmt(m['stderr'])} | {_fmt(g['value'])} ± {_fmt(g['stderr'])} |" in index
+        pm = lambda r: f"{_fmt(r['value'])} ± {_fmt(r['stderr'])}"  # noqa: E731
+        assert f"| {name} | 0 | {pm(m)} | {pm(g)} |" in index
         nees = rows[(name, "nees", None)]
         assert f"| {name} | {_fmt(nees['value'])} ± {_fmt(nees['stderr'])} |" in index
     assert f"{MIN_PARTICLES} particles, not converged" in index and "Reference budget: 0.01 s" in index
@@ -242,3 +243,9 @@ def test_cli_reference_options_are_checked_before_the_run(turn, capsys, opts, wh
     assert cli.main(["compare", str(turn), "--no-progress", *opts]) == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and what in err, err
+
+
+def test_a_budget_needs_the_automatic_reference():
+    lin = MODELS["discrete-linear"][0]
+    with pytest.raises(ValueError, match=r"^reference_budget: budgets the automatic reference"):
+        compare(lin, ["kf"], 10, paths=4, m0=0.0, P0=0.5, rng=0, reference=None, reference_budget=5)

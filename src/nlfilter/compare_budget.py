@@ -6,9 +6,10 @@ The cost of a reference run is estimated from a *pilot*: the rung's filter timed
 :data:`PILOT_PATHS` paths of the comparison's data (not kept: its numbers are not used), scaled to
 the paths the run takes — per path for a grid (each grid size has its own pilot), per path and
 particle for a particle filter (one pilot, scaled linearly in the particles: a particle filter's
-work per step is linear in them). On a 5-state model the pilot's estimate was within a factor
-1.5 of the run on 64 paths (the per-path cost of a small batch is higher: the estimate errs on
-the long side). A rung costs its run on all paths plus its check, the refinement (``4×`` the
+work per step is linear in them). The per-path cost of a small batch is higher (fixed costs per
+step), so the estimate errs on the long side: on a 5-state tracking model (200 paths × 40 steps,
+2000 particles and the check at 8000 on 64 paths) a 2-path pilot estimated 55 s for a reference
+that took 30 s, a 4-path pilot 59 s for one that took 60 s on the same, busier, machine. A rung costs its run on all paths plus its check, the refinement (``4×`` the
 particles, ``2×`` the grid points per axis) on the ``certify_paths`` paths.
 
 With ``seconds`` the ladder of :func:`nlfilter.yardstick.certified_reference` is capped:
@@ -20,8 +21,12 @@ With ``seconds`` the ladder of :func:`nlfilter.yardstick.certified_reference` is
   the ladder stops there and the reference is labelled as not converged, the note naming the
   budget.
 
-Every decision is a line of :attr:`ReferenceBudget.log` (printed on stderr before the runs with
-``progress``, and kept in ``Result.params["reference_budget"]`` and a note when a budget was set).
+A budget in seconds makes the reference depend on the machine's speed (its pilot's timing): the
+certificate and ``params["reference_budget"]`` record what was chosen, and a comparison resumed
+from the store (:mod:`nlfilter.compare_tasks`) may choose another reference and compute it afresh
+(the filters' tasks are read back all the same). Every decision is a line of
+:attr:`ReferenceBudget.log` (printed on stderr before the runs with ``progress``, and kept in
+``Result.params["reference_budget"]`` and a note when a budget was set).
 """
 
 from __future__ import annotations
@@ -29,7 +34,7 @@ from __future__ import annotations
 import sys
 import time
 
-PILOT_PATHS = 2          # paths a pilot runs on
+PILOT_PATHS = 4          # paths a pilot runs on
 MIN_PARTICLES = 200      # the smallest particle reference a budget may cut the first rung to
 LONG = 10.0              # seconds: an estimate above it is announced before the reference runs
 

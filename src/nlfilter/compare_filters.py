@@ -167,9 +167,11 @@ def model_ident(model) -> str:
     return h.hexdigest()[:16]
 
 
-def filter_ident(flt) -> dict:
+def filter_ident(flt, _depth: int = 0) -> dict:
     """The settings of a filter instance that fix its numbers, JSON-able (for the keys of stored
-    blocks): its class and every scalar, string or array attribute (arrays by SHA-256)."""
+    blocks): its class and every scalar, string or array attribute (arrays by SHA-256), its model
+    by :func:`model_ident`, and the same of the objects it holds (a rule, a closure), two levels
+    deep."""
     out = {"class": f"{type(flt).__module__}.{type(flt).__qualname__}"}
     for k, v in sorted(vars(flt).items()):
         if isinstance(v, (bool, str, numbers.Number)) or v is None:
@@ -178,8 +180,9 @@ def filter_ident(flt) -> dict:
             out[k] = hashlib.sha256(np.ascontiguousarray(v).tobytes()).hexdigest()[:16]
         elif isinstance(v, (list, tuple)) and all(isinstance(a, (str, numbers.Number)) for a in v):
             out[k] = [a if not isinstance(a, numbers.Number) else float(a) for a in v]
+        elif k != "model" and _depth < 2 and hasattr(v, "__dict__") and not callable(v):
+            out[k] = filter_ident(v, _depth + 1)
     model = getattr(flt, "model", None)
-    if model is not None:
+    if model is not None and _depth == 0:
         out["model"] = model_ident(model)
     return out
-

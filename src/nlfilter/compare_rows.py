@@ -6,8 +6,8 @@ are means over the paths on which it did not diverge. When it diverged on many p
 survivors are a sample selected by the filter's own success — the paths on which it happened to
 do well —, and the paired gap over them is biased by that selection, by more than its standard
 error can say: a filter that diverged on 58 of 60 paths of a fast SDE came out "0.0002 ± 0.00002
-below the optimum" from its 2 survivors. So a filter whose surviving paths are fewer than
-:data:`MIN_SURVIVORS` or than :data:`MIN_SURVIVING_FRACTION` of the paths gets no ``mse``,
+below the optimum" from its 2 survivors. So a filter that diverged on some path and whose surviving paths are
+fewer than :data:`MIN_SURVIVORS` or than :data:`MIN_SURVIVING_FRACTION` of the paths gets no ``mse``,
 ``gap_*``, ``nees`` or ``offline_mse`` row (nor a line in the figure): its ``divergence_rate``
 row and a note say how often it diverged; above that, a note says that its numbers are over its
 surviving paths only.
@@ -35,10 +35,11 @@ paired gap over them measures that selection rather than the filter (module docs
 
 
 def enough_paths(e, paths: int) -> bool:
-    """Whether the estimates ``e`` survived on enough of the ``paths`` paths to be reported
-    (:data:`MIN_SURVIVORS`, :data:`MIN_SURVIVING_FRACTION`)."""
+    """Whether the estimates ``e`` survived on enough of the ``paths`` paths to be reported: on
+    all of them (nothing selected them), or on at least :data:`MIN_SURVIVORS` and at least
+    :data:`MIN_SURVIVING_FRACTION` of them."""
     ok = int(np.sum(~np.asarray(e.diverged, bool)))
-    return ok >= min(MIN_SURVIVORS, paths) and ok >= MIN_SURVIVING_FRACTION * paths
+    return ok == paths or (ok >= MIN_SURVIVORS and ok >= MIN_SURVIVING_FRACTION * paths)
 
 
 def _divergence_note(name, e, paths) -> str | None:

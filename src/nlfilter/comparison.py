@@ -186,6 +186,9 @@ def compare(model, filters, steps, *, paths=200, m0, P0, rng=0, reference="auto"
     V.positive("max_particles", max_particles, integer=True)
     if reference_budget is not None:
         V.positive("reference_budget", reference_budget)
+        if not isinstance(reference, str):
+            raise ValueError(f"reference_budget: budgets the automatic reference ('auto', 'grid', 'particle'); "
+                             f"expected None with reference={reference!r}")
     if isinstance(reference, str) and reference not in REFERENCES:
         raise ValueError(f"reference: expected one of {REFERENCES}, None or a filter instance, got {reference!r}")
     if not (reference is None or isinstance(reference, str)):

@@ -178,8 +178,8 @@ def render_comparison(res: Result) -> str:
                   + (f"; {ref['reason']}" if ref.get("reason") else "") + "."]
     budget = res.params.get("reference_budget")
     if budget:
-        lines += ["", f"Reference budget: {budget['seconds']:g} s" + (" (capped the reference)" if budget["capped"] else "")
-                  + "".join(f"; {t}" for t in budget["log"])]
+        lines += ["", f"Reference budget: {budget['seconds']:g} s"
+                  + (" (capped the reference)" if budget["capped"] else "") + "".join(f"; {t}" for t in budget["log"])]
     return "\n".join(lines)
 
 
