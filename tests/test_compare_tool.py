@@ -226,6 +226,13 @@ def test_reference_kinds_and_the_particle_cap():
     wide = DiscreteModel([x, y], [0.9 * x, y], [x], Q=0.1 * np.eye(2), R=0.5)
     with pytest.raises(ValueError, match=r"^reference: 'grid' cannot serve this model \(the grid the model needs"):
         compare(wide, ["ekf"], 10, paths=4, m0=[0.0, 0.0], P0=np.eye(2), rng=0, reference="grid")
+    # a budget no reference can keep: "grid" stays a grid (said), "auto" falls back to the fewest particles
+    for kind, want in (("grid", "grid"), ("auto", "particle")):
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", ReferenceWarning)
+            res = compare(lin, ["kf"], 10, paths=8, m0=0.0, P0=0.5, rng=0, reference=kind, reference_budget=1e-6)
+        assert res.params["reference"]["kind"] == want and res.params["reference_budget"]["capped"] is True
+        assert "run anyway" in res.params["reference_budget"]["log"][0]
     with pytest.raises(ValueError, match=r"^reference: expected one of \('auto', 'grid', 'particle'\)"):
         compare(lin, ["kf"], 10, paths=4, m0=0.0, P0=0.5, rng=0, reference="none")
     with pytest.raises(ValueError, match=r"^reference_budget: expected a positive"):

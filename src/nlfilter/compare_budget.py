@@ -7,9 +7,10 @@ The cost of a reference run is estimated from a *pilot*: the rung's filter timed
 the paths the run takes — per path for a grid (each grid size has its own pilot), per path and
 particle for a particle filter (one pilot, scaled linearly in the particles: a particle filter's
 work per step is linear in them). The per-path cost of a small batch is higher (fixed costs per
-step), so the estimate errs on the long side: on a 5-state tracking model (200 paths × 40 steps,
-2000 particles and the check at 8000 on 64 paths) a 2-path pilot estimated 55 s for a reference
-that took 30 s, a 4-path pilot 59 s for one that took 60 s on the same, busier, machine. A rung costs its run on all paths plus its check, the refinement (``4×`` the
+step), so the estimate errs on the long side: on a 5-state tracking model (200 paths × 40 steps)
+a 2-path pilot estimated 55 s for a reference (1300 particles, its check at 5200 on 64 paths)
+that took 30 s, a 4-path pilot 59 s for one (2000, its check at 8000) that took 60 s on the same,
+then busier, machine. A rung costs its run on all paths plus its check, the refinement (``4×`` the
 particles, ``2×`` the grid points per axis) on the ``certify_paths`` paths.
 
 With ``seconds`` the ladder of :func:`nlfilter.yardstick.certified_reference` is capped:
@@ -34,13 +35,15 @@ from __future__ import annotations
 import sys
 import time
 
+from .yardstick import PARTICLES
+
 PILOT_PATHS = 4          # paths a pilot runs on
 MIN_PARTICLES = 200      # the smallest particle reference a budget may cut the first rung to
 LONG = 10.0              # seconds: an estimate above it is announced before the reference runs
 
 
 def _fmt_s(s: float) -> str:
-    return f"{s:.0f} s" if s < 120 else f"{s / 60:.1f} min"
+    return f"{s:.2g} s" if s < 10 else f"{s:.0f} s" if s < 120 else f"{s / 60:.1f} min"
 
 
 class ReferenceBudget:
@@ -66,7 +69,7 @@ class ReferenceBudget:
         """Seconds per path of ``rung``'s filter on this comparison's data, from a pilot."""
         if rung.kind == "particle":
             if "particle" not in self._per_path:
-                n = min(int(rung.size), 2000)
+                n = min(int(rung.size), PARTICLES)
                 self._per_path["particle"] = (self._pilot(type(rung)("particle", n)) / n, n)
             rate, _ = self._per_path["particle"]
             return rate * int(rung.size)
@@ -94,16 +97,20 @@ class ReferenceBudget:
             self.say(text)
 
     # -- decisions -----------------------------------------------------------------------------------
-    def first(self, rung, reason):
+    def first(self, rung, reason, *, switch=True):
         """The first rung to run: ``rung`` if its estimated cost fits, else one that does (module
-        docstring); ``(rung, reason)``. Says what the reference will cost."""
+        docstring; a grid is replaced by particles only with ``switch``, else it runs anyway);
+        ``(rung, reason)``. Says what the reference will cost."""
         main, check = self.cost(rung)
         if main + check > self.left() and rung.kind == "grid":
             what = f"{rung.describe()} (est. {_fmt_s(main + check)})"
-            rung = type(rung)("particle", 2000)
-            reason = f"the budget of {self.seconds:g} s does not hold {what}: particles"
             self.capped = True
-            main, check = self.cost(rung)
+            if switch:
+                rung = type(rung)("particle", PARTICLES)
+                reason = f"the budget of {self.seconds:g} s does not hold {what}: particles"
+                main, check = self.cost(rung)
+            else:
+                reason = f"the budget of {self.seconds:g} s does not hold {what}: run anyway (reference='grid')"
         if main + check > self.left() and rung.kind == "particle":
             per = (main + check) / int(rung.size)  # seconds per particle (linear in them)
             fit = int(self.left() / per) if per > 0 else int(rung.size)

@@ -298,7 +298,7 @@ def certified_reference(model, sim, m0, P0, *, run, judged=None, dt=None, start=
     if rung.kind == "particle" and rung.size > max_particles:
         rung = _Rung("particle", max_particles)
     if budget is not None:
-        rung, reason = budget.first(rung, reason)
+        rung, reason = budget.first(rung, reason, switch=first == "auto")
     rungs, widen = [], 1.0
     est = run(rung.build(model, kw), sim.ys, f"reference {rung.kind} {rung.size}")
     while True:
