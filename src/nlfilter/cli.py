@@ -313,6 +313,9 @@ def _compare(args, argv) -> int:
                 raise ValueError(f"--filters: got {args.filters!r}; expected 'all' or comma-separated registry names")
             else:
                 filters = names
+        if filters != "all":  # a typo is refused before a run is recorded
+            from .compare_filters import check_names
+            check_names(filters)
         paths = spec.paths if args.paths is None else args.paths
         steps = spec.steps if args.steps is None else args.steps
         seed = spec.seed if args.seed is None else args.seed

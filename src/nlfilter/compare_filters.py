@@ -68,6 +68,13 @@ def _applies(cls, model, kind_of_data) -> bool:
     return model_kind(model) in getattr(cls, "accepts", ()) and getattr(cls, "time", None) == kind_of_data
 
 
+def check_names(names) -> None:
+    """A ValueError naming ``filters`` for the first of ``names`` not in the registry."""
+    bad = next((n for n in names if n not in REGISTRY), None)
+    if bad is not None:
+        raise ValueError(f"filters: expected registry names from {sorted(REGISTRY)!r}, got {bad!r}")
+
+
 def _resolve(filters, model, sim_model, dt, start):
     """``(dict name -> filter instance, dict name -> reason skipped)`` from a dict of instances,
     ``"all"`` (every registered filter that accepts the kind of ``model`` or of ``sim_model``: it
@@ -94,13 +101,12 @@ def _resolve(filters, model, sim_model, dt, start):
     else:
         raise TypeError(f"filters: expected 'all', a list of registry names or a non-empty dict of name -> filter "
                         f"instance, got {filters!r}")
+    check_names(names)
     out = {}
     for name in names:
         if name in out:
             continue
-        cls = REGISTRY.get(name)
-        if cls is None:
-            raise ValueError(f"filters: expected registry names from {sorted(REGISTRY)!r}, got {name!r}")
+        cls = REGISTRY[name]
         target = next((m for m in models if _applies(cls, m, data)), None)
         try:
             if target is None:
