@@ -119,7 +119,7 @@ def test_given_and_no_reference():
     ({"filters": {"optimal": EKF(LIN)}}, ValueError, "filters"),
     ({"filters": {"ekf": EKF(LIN, start="predict")}}, ValueError, "filters"),
     ({"dt": 0.1}, ValueError, "dt"),
-    ({"reference": "grid"}, ValueError, "reference"),
+    ({"reference": "exact"}, ValueError, "reference"),  # "grid" and "particle" are kinds of the automatic one
     ({"reference": 3}, TypeError, "reference"),
     ({"paths": 1}, ValueError, "paths"),
     ({"paths": 2.5}, TypeError, "paths"),
@@ -177,6 +177,8 @@ def test_diverged_paths_left_out_and_counted():
     assert _row(res, "bad", "divergence_rate").value == 1 / 20
     gap = _row(res, "bad", "gap_to_optimal", component=0)
     assert abs(gap.value) < GRID_TOL  # the KF on the 19 other paths, where it equals the grid
+    assert "bad: diverged on 1 of 20 paths (first at step 3): its MSE, gap and NEES are over its 19 surviving " \
+           "paths only" in res.notes
     lines = next(iter(res.series.values()))["lines"]
     assert np.all(np.isfinite(lines["bad"]))
 
@@ -220,9 +222,9 @@ def test_all_on_a_two_state_discrete_model_runs_every_family_that_accepts_it():
     from nlfilter.filters import REGISTRY
     res = compare(D2, "all", 12, paths=4, m0=[0.3, -0.2], P0=np.diag([0.5, 0.4]), rng=0)
     ran = {r.filter for r in res.rows} - {"optimal"}
-    want = {name for name, cls in REGISTRY.items() if "discrete" in getattr(cls, "accepts", ()) and cls.family != "reference"
-            and getattr(cls, "time", None) == "discrete"}
+    want = {name for name, cls in REGISTRY.items() if "discrete" in getattr(cls, "accepts", ())}
     assert ran | set(res.params.get("skipped", {})) == want  # each one ran, or is skipped with a reason
+    assert "yardstick" in res.params["skipped"]["grid"]  # the reference family: named, not silently left out
     assert {"gaussian", "second-order", "conditional moments"} <= _families(res)
     assert "kf" in res.params["skipped"] and "linear" in res.params["skipped"]["kf"]  # D2 is nonlinear
     for name in ran:  # one shared simulation: every filter's MSE is finite, the paired gap has a stderr

@@ -86,7 +86,16 @@ def _parser() -> argparse.ArgumentParser:
                         "executor (default: all paths in one batch, one task per filter)")
     c.add_argument("--chunk", type=int, default=None,
                    help="filter N paths at a time within a task (memory; same numbers for any N)")
-    _executor_options(c)
+    c.add_argument("--reference", choices=("auto", "grid", "particle", "none"), default="auto",
+                   help="the yardstick: the certified automatic reference (default), its grid or particle "
+                        "ladder only, or none (no gaps)")
+    c.add_argument("--max-particles", type=int, default=None, metavar="N",
+                   help="the most particles the reference runs on all paths (default 32000; its check runs 4×N "
+                        "on 64 paths)")
+    c.add_argument("--reference-budget", type=float, default=None, metavar="SECONDS",
+                   help="cap the reference by its cost estimated from a pilot: fewer particles, or a ladder "
+                        "that stops early (said in a note); the estimate is printed before a long reference")
+    _execution_options(c)
     return p
 
 
@@ -272,10 +281,13 @@ def _error(exc) -> int:
 def _compare(args, argv) -> int:
     """``nlfilter compare MODEL.toml``: :func:`nlfilter.comparison.compare` on the file's model and
     prior, the file's ``[run]`` defaults overridden by the options; the file's path and sha256 in
-    ``meta``."""
+    ``meta``. The run is recorded in the results store (experiment ``compare``) and every finished
+    task is kept there: the same command resumes an interrupted comparison."""
+    from . import montecarlo as mc
     from .comparison import compare
     from .modelfile import load_model
 
+    command = " ".join(["nlfilter", *(sys.argv[1:] if argv is None else argv)])
     try:
         spec = load_model(args.model)
         _check_output("--json", args.json, ".json")
@@ -284,9 +296,14 @@ def _compare(args, argv) -> int:
             _check_folder(args.report)
         _check_execution(args)
         for opt, value, low in (("--paths", args.paths, 2), ("--steps", args.steps, 1), ("--seed", args.seed, 0),
-                                ("--block", args.block, 1)):
+                                ("--block", args.block, 1), ("--max-particles", args.max_particles, 1)):
             if value is not None and value < low:
                 raise ValueError(f"{opt}: got {value}; expected an integer ≥ {low}")
+        if args.reference_budget is not None and not args.reference_budget > 0:
+            raise ValueError(f"--reference-budget: got {args.reference_budget}; expected a positive number of seconds")
+        if args.reference == "none" and (args.max_particles is not None or args.reference_budget is not None):
+            raise ValueError("--reference none: given with --max-particles/--reference-budget; expected a reference "
+                             "to budget")
         filters = spec.filters
         if args.filters is not None:
             names = [f.strip() for f in args.filters.split(",")]
@@ -296,18 +313,56 @@ def _compare(args, argv) -> int:
                 raise ValueError(f"--filters: got {args.filters!r}; expected 'all' or comma-separated registry names")
             else:
                 filters = names
+        if filters != "all":  # a typo is refused before a run is recorded
+            from .compare_filters import check_names
+            check_names(filters)
         paths = spec.paths if args.paths is None else args.paths
         steps = spec.steps if args.steps is None else args.steps
         seed = spec.seed if args.seed is None else args.seed
-        result = compare(spec.model, filters if filters == "all" else list(filters), steps, paths=paths, m0=spec.m0,
-                         P0=spec.P0, rng=seed, dt=spec.dt, progress=not args.no_progress, block=args.block,
-                         chunk=args.chunk, executor=args.executor, scheduler=args.scheduler, workers=args.workers)
-    except ValueError as exc:  # the file, an option, or a filter the model cannot serve
+        ref_kw = {"reference": None if args.reference == "none" else args.reference,
+                  "reference_budget": args.reference_budget}
+        if args.max_particles is not None:
+            ref_kw["max_particles"] = args.max_particles
+        store = _open_store(args)
+    except ValueError as exc:  # the file, an option
         return _error(exc)
+    params = {"model_sha256": spec.sha256, "paths": paths, "steps": steps, "seed": seed,
+              "filters": filters if filters == "all" else list(filters), "block": args.block, **ref_kw}
+    run_id = None
+    if store is not None:
+        run_id = store.start_run("compare", params=params, seed=seed, runs=paths, quick=False, command=command)
+        _KEPT.text = (f"; the finished tasks are kept in {store.path} (run {run_id}): rerun the same command "
+                      "to resume")
+    status = "failed"
+    try:
+        with mc.session(executor=args.executor, store=store, experiment="compare", seed=seed,
+                        scheduler=args.scheduler, workers=args.workers):
+            result = compare(spec.model, filters if filters == "all" else list(filters), steps, paths=paths,
+                             m0=spec.m0, P0=spec.P0, rng=seed, dt=spec.dt, progress=not args.no_progress,
+                             block=args.block, chunk=args.chunk, **ref_kw)
+        status = "done"
+    except KeyboardInterrupt:
+        status = "interrupted"
+        raise
+    except ValueError as exc:  # a filter the model cannot serve, a reference it cannot have
+        return _error(exc)
+    finally:
+        if store is not None and status != "done":
+            store.finish_run(run_id, status)
+            store.close()
     result.meta.update(model_file=str(args.model), model_sha256=spec.sha256,
                        given={k: v for k, v in (("paths", args.paths), ("steps", args.steps),
-                                                ("filters", args.filters), ("seed", args.seed)) if v is not None},
-                       command=" ".join(["nlfilter", *(sys.argv[1:] if argv is None else argv)]))
+                                                ("filters", args.filters), ("seed", args.seed),
+                                                ("reference", None if args.reference == "auto" else args.reference),
+                                                ("max_particles", args.max_particles),
+                                                ("reference_budget", args.reference_budget)) if v is not None},
+                       command=command)
+    if store is not None:
+        store.finish_run(run_id, "done", result)
+        store.close()
+        reused = result.meta.get("execution", {}).get("tasks_reused")
+        if reused:
+            print(f"reused {reused} finished task(s) from {store.path}", file=sys.stderr)
     _write(result, args)
     return 0
 

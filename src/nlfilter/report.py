@@ -129,7 +129,69 @@ def provenance_line(res: Result) -> str:
             + f"; {m.get('timestamp')}" + (f"; `{m['command']}`" if m.get("command") else ""))
 
 
+def _pm(row) -> str:
+    """``value ± s.e.`` of a row (``–`` for none)."""
+    if row is None:
+        return "–"
+    return _fmt(row.value) + ("" if row.stderr is None else f" ± {_fmt(row.stderr)}")
+
+
+def render_comparison(res: Result) -> str:
+    """The Markdown tables of a :func:`nlfilter.compare` result (which has no paper values): per
+    filter and component its MSE and its paired gap to the reference (``gap_to_optimal``, or
+    ``gap_to_reference`` when the reference is not certified), each ± its standard error; per
+    filter its NEES ± s.e. (n for a consistent filter), off-line MSE and divergence rate; and the
+    reference's certificate."""
+    names = list(dict.fromkeys(r.filter for r in res.rows))
+    comps = sorted({r.params["component"] for r in res.rows if "component" in r.params})
+
+    def get(name, quantity, **kw):
+        hits = [r for r in res.rows if r.filter == name and r.quantity == quantity
+                and all(r.params.get(k) == v for k, v in kw.items())]
+        return hits[0] if hits else None
+
+    gap = next((q for q in ("gap_to_optimal", "gap_to_reference") if any(r.quantity == q for r in res.rows)),
+               "gap_to_optimal")
+    lines = [f"| filter | component | MSE ± s.e. | {gap.replace('_', ' ')} ± s.e. |", "|---|---|---|---|"]
+    for name in names:
+        for i in comps:
+            m = get(name, "mse", component=i)
+            if m is not None:
+                lines.append(f"| {name} | {i} | {_pm(m)} | {_pm(get(name, gap, component=i))} |")
+    n = len(comps)
+    lines += ["", f"| filter | NEES ± s.e. (≈ {n} if consistent) | off-line MSE | divergence rate |",
+              "|---|---|---|---|"]
+    for name in names:
+        off = [get(name, "offline_mse", component=i) for i in comps]
+        off_txt = ", ".join(_fmt(r.value) for r in off if r is not None) or "–"
+        dr = get(name, "divergence_rate")
+        lines.append(f"| {name} | {_pm(get(name, 'nees'))} | {off_txt} | {_pm(dr)} |")
+    ref = res.params.get("reference")
+    if ref:
+        kind, size = ref.get("kind"), ref.get("size")
+        size = ("×".join(map(str, size)) + " grid" if kind == "grid" else
+                f"{size} particles" if kind == "particle" else kind)
+        verdict = {True: "certified", False: "not converged", None: "not checked"}[ref.get("certified")]
+        err = ", ".join(f"{d:+.2g} ± {se:.2g}" for d, se in ref.get("error", []))
+        lines += ["", f"Reference (the yardstick, `{ref.get('label')}`): {size}, {verdict}"
+                  + (f"; a finer reference on {ref.get('paths')} paths moved its MSE by {err}" if err else "")
+                  + (f"; {ref['reason']}" if ref.get("reason") else "") + "."]
+    budget = res.params.get("reference_budget")
+    if budget:
+        lines += ["", f"Reference budget: {budget['seconds']:g} s"
+                  + (" (capped the reference)" if budget["capped"] else "") + "".join(f"; {t}" for t in budget["log"])]
+    return "\n".join(lines)
+
+
 def section(res: Result, figure: str | None = None) -> str:
+    if res.experiment == "compare":  # a comparison on the user's model: its own numbers, no paper
+        parts = [f'<a id="{res.experiment}"></a>', "", f"## `{res.experiment}` — {res.title}", "",
+                 f"Source: {res.source}.", "", render_comparison(res), ""]
+        if res.notes:
+            parts += [*(f"- {n}" for n in res.notes), ""]
+        if figure:
+            parts += [f"![{res.experiment}]({figure})", ""]
+        return "\n".join(parts + [f"Provenance: {provenance_line(res)}", ""])
     c = counts(res)
     parts = [f'<a id="{res.experiment}"></a>', "", f"## `{res.experiment}` — {res.title}", "", f"Source: {res.source}. "
              f"Rows with a paper value: {c['reproduced']} reproduced, {c['not reproduced']} not reproduced.", "",
@@ -160,6 +222,12 @@ def write_report(results: list[Result], folder, *, figures: bool = True, title: 
             total[k] += n
         body.append(section(res, fig))
     quick = any(r.meta.get("quick") for r in results)
+    if results and all(r.experiment == "compare" for r in results):  # nlfilter compare --report DIR
+        head = [f"# {title or 'nlfilter: comparison report'}", "",
+                "Every filter against the reference on one shared simulation (`nlfilter.compare`): MSE and the "
+                "paired gap to the reference per component, NEES, divergence, the reference's certificate."]
+        atomic_write(folder / "index.md", "\n".join(head + [""] + body).encode("utf-8"))
+        return folder / "index.md"
     head = [f"# {title or 'nlfilter: reproduction report'}", "",
             f"{len(results)} experiments ({'quick runs: small sizes, same code paths' if quick else 'full runs'}); "
             f"rows with a paper value: {total['reproduced']} reproduced, {total['not reproduced']} not reproduced.",

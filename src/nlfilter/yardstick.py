@@ -343,7 +343,8 @@ def _filter_kw(model, dt, start, substeps):
 
 
 def certified_reference(model, sim, m0, P0, *, run, judged=None, dt=None, start="update", substeps=10,
-                        window=0.5, rtol=0.02, certify_paths=64, max_particles=MAX_PARTICLES):
+                        window=0.5, rtol=0.02, certify_paths=64, max_particles=MAX_PARTICLES, first="auto",
+                        budget=None):
     """``(estimates on all paths, Certificate)`` of the automatic reference (module docstring).
 
     ``run(flt, ys, tag) -> Estimates`` runs a filter on (some of) the simulation's measurements
@@ -352,13 +353,28 @@ def certified_reference(model, sim, m0, P0, *, run, judged=None, dt=None, start=
     (name -> Estimates) whose gaps the reference will judge; the tolerance of the certificate is
     ``rtol`` times the reference's MSE or the smallest standard error of those gaps, whichever is
     larger (rule in the module docstring); ``certify_paths`` the paths of the refinement runs;
-    ``max_particles`` the last rung of the ladder."""
+    ``max_particles`` the last rung of the ladder (and the most particles of the first);
+    ``first``: ``"auto"`` (module docstring), ``"grid"`` (the automatic grid, a ValueError naming
+    ``reference`` when the model cannot have one; no particle rung after it) or ``"particle"``
+    (particles from the first rung); ``budget``: None or a
+    :class:`~nlfilter.compare_budget.ReferenceBudget`, which may replace the first rung and stop
+    the ladder by the estimated cost of each rung."""
     judged = judged or {}
     t_start = time.perf_counter()
     kw = _filter_kw(model, dt, start, substeps)
     sub = slice(0, min(certify_paths, sim.ys.shape[0]))
-    post_sd = _pilot_posterior_sd(model, sim, m0, P0, kw, run) if model.n <= 2 else np.full(model.n, np.nan)
-    rung, reason = _first_rung(model, sim, m0, P0, dt, post_sd)
+    if first == "particle":
+        post_sd = np.full(model.n, np.nan)
+        rung, reason = _Rung("particle", PARTICLES), "reference='particle': particles"
+    else:
+        post_sd = _pilot_posterior_sd(model, sim, m0, P0, kw, run) if model.n <= 2 else np.full(model.n, np.nan)
+        rung, reason = _first_rung(model, sim, m0, P0, dt, post_sd)
+        if first == "grid" and rung.kind != "grid":
+            raise ValueError(f"reference: 'grid' cannot serve this model ({reason}); expected 'auto' or 'particle'")
+    if rung.kind == "particle" and rung.size > max_particles:
+        rung = _Rung("particle", max_particles)
+    if budget is not None:
+        rung, reason = budget.first(rung, reason, switch=first == "auto")
     rungs, widen = [], 1.0
     est = run(rung.build(model, kw), sim.ys, f"reference {rung.kind} {rung.size}")
     while True:
@@ -383,14 +399,16 @@ def certified_reference(model, sim, m0, P0, *, run, judged=None, dt=None, start=
                                [tuple(e) for e in fields["error"]], fields["bound"], rungs,
                                time.perf_counter() - t_start, reason)
             return est, cert
-        nxt = rung.next(max_particles)
-        if nxt is None:
+        nxt = rung.next(max_particles) if first != "grid" else None
+        if nxt is None or (budget is not None and not budget.allows(nxt)):
             break
         rung = nxt
         est = run(rung.build(model, kw), sim.ys, f"reference {rung.kind} {rung.size}")
     last = rungs[-1]
     error = [tuple(e) for e in last.get("error", [])]
     bound = last.get("bound", [])
+    if budget is not None and budget.capped:
+        reason = f"{reason}; stopped by the reference budget ({budget.seconds:g} s)"
     cert = Certificate(rung.kind, False, NOT_CONVERGED, rung.size, rung.bounds, rtol, sub.stop, error, bound,
                        rungs, time.perf_counter() - t_start, reason)
     warnings.warn(
@@ -400,7 +418,8 @@ def certified_reference(model, sim, m0, P0, *, run, judged=None, dt=None, start=
         f"{', '.join(f'{b:.3g}' for b in bound) or '?'}; the tolerance is "
         f"{', '.join(f'{t:.3g}' for t in last.get('tolerance', [])) or '?'}: rtol = {rtol} of the MSE or the "
         f"gaps' smallest s.e.); its rows "
-        f"are labelled {NOT_CONVERGED!r}. Raise max_particles (now {max_particles}) or pass "
+        f"are labelled {NOT_CONVERGED!r}. Raise max_particles (now {max_particles})"
+        f"{' or the reference budget' if budget is not None and budget.capped else ''} or pass "
         f"reference=ParticleFilter(model, {4 * int(rung.size) if rung.kind == 'particle' else PARTICLES}, ...)",
         ReferenceWarning, stacklevel=3)
     return est, cert

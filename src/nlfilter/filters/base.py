@@ -496,7 +496,8 @@ class Filter:
         t0 : continuous time: the time of the first increment's start (None: 0.0, or a
             Simulation's)
         on_divergence : ``"raise"`` (default) or ``"mark"``
-        progress : show a progress bar over the steps
+        progress : show a progress bar over the steps (a string: the bar's label, default the
+            filter's name)
         chunk : None (all paths at once) or the number of paths per batch: the loop runs the paths
             of the flattened batch in chunks and concatenates (the same numbers for any chunk)
         loglik : also record each step's log-likelihood ``extras["loglik"] (..., T)``, innovation
@@ -600,7 +601,7 @@ class Filter:
         steps = range(T)
         if progress:
             from tqdm.auto import tqdm
-            steps = tqdm(steps, desc=self.name, leave=False)
+            steps = tqdm(steps, desc=progress if isinstance(progress, str) else self.name, leave=False)
         with np.errstate(over="ignore", invalid="ignore", divide="ignore"):  # failures are caught by record
             info = None
             if self.time == "continuous":

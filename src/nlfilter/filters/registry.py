@@ -23,11 +23,12 @@ def get(registry: dict, name: str):
 
 
 def model_kind(model) -> str:
-    """The kind of a model as the registry's ``accepts`` names it."""
+    """The kind of a model as the registry's ``accepts`` names it: a ``BilinearModel`` (whose
+    ``kind`` is ``"bilinear"`` in both times) is ``"bilinear"`` in continuous time and
+    ``"bilinear-discrete"`` in discrete time."""
     kind = getattr(model, "kind", None)
-    if kind == "model" or kind is None:  # BilinearModel and other model classes
-        if hasattr(model, "discrete"):
-            return "bilinear-discrete" if model.discrete else "bilinear"
+    if kind in ("bilinear", "model", None) and hasattr(model, "discrete"):  # a BilinearModel: by its time
+        return "bilinear-discrete" if model.discrete else "bilinear"
     return kind
 
 
