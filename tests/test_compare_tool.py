@@ -69,8 +69,10 @@ FAST = SDEModel([x], [-2 * x**3], [x], Q=1.0, R=0.1)  # stiff at dt = 0.2: the m
 
 def test_a_filter_diverging_on_most_paths_gets_no_mse_gap_or_nees_row():
     """The conditional-moment filter diverges on 35 of 40 paths of a fast SDE. Over its 5
-    survivors its paired gap is −0.023 ± 0.010: "better than optimal" by 2.2 s.e., a selection
-    effect. compare reports its divergence rate and a note, and no number with an s.e."""
+    survivors its paired gap was −0.023 ± 0.010 against the end-point particle reference ("better
+    than optimal" by 2.2 s.e.), and is −0.004 ± 0.005 against the reference of the simulator's
+    convention (sde_step): a number over 5 selected paths either way. compare reports its
+    divergence rate and a note, and no number with an s.e."""
     res, sim, est = compare(FAST, ["continuous-ekf", "conditional-moment", "quasilinear"], 20, paths=40, m0=[1.5],
                             P0=[[0.5]], rng=0, dt=0.2, substeps=10, full_output=True)
     assert res.params["reference"]["certified"] is True
@@ -78,7 +80,7 @@ def test_a_filter_diverging_on_most_paths_gets_no_mse_gap_or_nees_row():
     survivors = int(np.sum(~cm.diverged))
     assert survivors < max(MIN_SURVIVORS, MIN_SURVIVING_FRACTION * 40)
     d = paired_difference(cm, est["optimal"], sim.xs, component=0, window=0.5)
-    assert d.value < -2 * d.stderr  # what the old rows printed: below the optimum, from 5 selected paths
+    assert d.paths == survivors  # what the old rows printed: a gap over the few selected survivors
     for name in ("conditional-moment", "continuous-ekf"):
         assert {r.quantity for r in res.rows if r.filter == name} == {"divergence_rate"}
         assert any(n.startswith(f"{name}: diverged on ") and "no MSE, gap or NEES" in n for n in res.notes)
