@@ -90,17 +90,22 @@ from typing import NamedTuple
 
 import numpy as np
 import sympy as sp
-from sympy.parsing.sympy_parser import auto_number, parse_expr
 
+from ._modelexpr import CONSTANTS, FUNCTIONS, MAX_CHARS, ExpressionError, read_expression
 from .models import DiscreteModel, SDEModel
 
-FUNCTIONS = {name: getattr(sp, name) for name in
-             ("sin", "cos", "tan", "asin", "acos", "atan", "atan2", "sinh", "cosh", "tanh", "exp", "log",
-              "sqrt", "Abs", "sign", "erf", "Min", "Max")}
-CONSTANTS = {"pi": sp.pi, "E": sp.E}
-_NUMBERS = {"Integer": sp.Integer, "Float": sp.Float, "Rational": sp.Rational}  # what auto_number writes
+_NUMBERS = {"Integer": sp.Integer, "Float": sp.Float, "Rational": sp.Rational}  # reserved: SymPy's number names
 RESERVED = set(FUNCTIONS) | set(CONSTANTS) | set(_NUMBERS)
 _OPERATORS = {"+", "-", "*", "/", "**", "(", ")", ","}
+
+# The number of states a file may declare: a model generates code for each of its n² Jacobian
+# entries (and n³ second derivatives on first use), so loading grows as n² — 100 states load in
+# about 2 s, 200 in 10 s and more; a model file is a small stated model, not generated output.
+MAX_STATES = 100
+# Σ over the file's expressions of (SymPy nodes × states it uses): the model differentiates each
+# expression by each of its states, once for the Jacobians and again on first use for the second
+# derivatives, and generates code for each; measured, 8,000 loads in about 2-4 s, 32,000 in 8-17 s.
+MAX_WORK = 20_000
 
 DEFAULTS = {"steps": 100, "paths": 200, "filters": "all", "seed": 0}
 
@@ -184,6 +189,8 @@ class _Reader:
 
     def __init__(self, path: str, text: str):
         self.path, self.lines = path, _Lines(text)
+        self.states = ()  # the model's state names, once read (the expressions' degree bounds)
+        self.work = 0  # Σ (SymPy nodes × states used) over the expressions read (MAX_WORK)
 
     def fail(self, table: str, key: str | None, what: str, field: str | None = None):
         field = field or (f"{table}.{key}" if key else table)
@@ -220,8 +227,8 @@ class _Reader:
         ok = (isinstance(value, numbers.Integral) if integer else isinstance(value, numbers.Real))
         if isinstance(value, bool) or not ok:
             self.fail(table, key, f"got {value!r}; expected {'an integer' if integer else 'a number'}")
-        if not math.isfinite(value):
-            self.fail(table, key, f"got {value!r}; expected a finite number")
+        if not _finite(value):
+            self.fail(table, key, f"got {_short(value)}; expected a finite number (a double)")
         if positive and value <= 0:
             self.fail(table, key, f"got {value!r}; expected a positive {'integer' if integer else 'number'}")
         if minimum is not None and value < minimum:
@@ -245,10 +252,12 @@ class _Reader:
         if isinstance(value, bool) or not isinstance(value, (str, numbers.Real)):
             self.fail(table, key, f"got {value!r}; expected an expression (a string) or a number", field)
         if isinstance(value, numbers.Real):
-            if not math.isfinite(value):
-                self.fail(table, key, f"got {value!r}; expected a finite number", field)
+            if not _finite(value):
+                self.fail(table, key, f"got {_short(value)}; expected a finite number (a double)", field)
             return sp.Integer(value) if isinstance(value, numbers.Integral) else sp.Float(value)
         text = value
+        if len(text) > MAX_CHARS:
+            self.fail(table, key, f"got an expression of {len(text)} characters; expected at most {MAX_CHARS}", field)
         try:
             tokens = list(tokenize.generate_tokens(io.StringIO(text).readline))
         except (tokenize.TokenError, SyntaxError, IndentationError) as exc:
@@ -270,17 +279,17 @@ class _Reader:
             if tok.type == tokenize.NUMBER and not re.fullmatch(r"(\d+\.?\d*|\.\d+)([eE][+-]?\d+)?", tok.string):
                 self.fail(table, key, f"got the number {tok.string!r} in {text!r}; expected a real decimal number",
                           field)
-        glob = {"__builtins__": {}, **_NUMBERS, **FUNCTIONS, **CONSTANTS}
-        try:
-            e = parse_expr(text, local_dict=dict(allowed), global_dict=glob, transformations=(auto_number,),
-                           evaluate=True)
-        except Exception as exc:  # sympy's parser reports any syntax as SyntaxError, TypeError, ...
-            msg = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
-            self.fail(table, key, f"got {text!r} ({type(exc).__name__}: {msg}); expected an expression", field)
-        if not isinstance(e, sp.Expr) or isinstance(e, sp.Tuple):
-            self.fail(table, key, f"got {text!r} (a {type(e).__name__}); expected a scalar expression", field)
-        if e.has(sp.zoo, sp.nan, sp.oo, -sp.oo, sp.I):
-            self.fail(table, key, f"got {text!r} = {e}; expected a finite real expression", field)
+        try:  # bounded in time and memory; nothing is evaluated as Python (nlfilter._modelexpr)
+            e = read_expression(text, allowed, self.states)
+        except ExpressionError as exc:
+            self.fail(table, key, str(exc), field)
+        used = len(e.free_symbols)
+        if used:  # what the model's derivatives will cost (MAX_WORK)
+            self.work += used * sum(1 for _ in sp.preorder_traversal(e))
+            if self.work > MAX_WORK:
+                self.fail(table, key, f"got expressions whose size times the states they use totals {self.work:,} "
+                                      f"by this one; expected at most {MAX_WORK:,} in one file (MAX_WORK: the "
+                                      "model differentiates each expression by each of its states)", field)
         return e
 
     def vector(self, table, key, value, n, allowed, what) -> list:
@@ -330,6 +339,19 @@ class _Reader:
             self.fail(table, key, f"got {M.tolist()} (smallest eigenvalue {w:.3g}); expected a positive "
                                   f"{'definite' if definite else 'semi-definite'} matrix")
         return M
+
+
+def _finite(value) -> bool:
+    """Whether a number is a finite double (a TOML integer may have any number of digits)."""
+    try:
+        return math.isfinite(float(value))
+    except OverflowError:
+        return False
+
+
+def _short(value) -> str:
+    text = repr(value)
+    return text if len(text) <= 40 else f"{text[:20]}...({len(text)} characters)"
 
 
 def load_model(path) -> ModelSpec:
@@ -386,6 +408,9 @@ def load_model(path) -> ModelSpec:
     if kind not in _DYNAMICS:
         rd.fail("model", "kind", f"got {kind!r}; expected 'discrete' or 'sde'")
     states = rd.names("model", "states", mt["states"])
+    if len(states) > MAX_STATES:
+        rd.fail("model", "states", f"got {len(states)} states; expected at most {MAX_STATES} (MAX_STATES)")
+    rd.states = tuple(states)
     title = rd.string("model", "name", mt["name"]) if "name" in mt else pathlib.Path(name).stem
     n = len(states)
     syms = {s: sp.Symbol(s) for s in states}
