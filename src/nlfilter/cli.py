@@ -5,18 +5,23 @@ list | show | export`` (the results store, :mod:`nlfilter.store`).
 
 Errors in what the user typed (unknown experiment, unknown or malformed ``--param``, a model file
 that cannot be read, an unknown filter, an output path that cannot be written) print one line on
-stderr and exit with code 2, never a traceback, before any work starts. Ctrl-C prints one line and
-exits with code 130; every Monte Carlo block finished by then is in the store, and the same command
-resumes from there.
+stderr and exit with code 2, never a traceback, before any work starts. Ctrl-C — at any moment,
+from the imports on — prints one line and exits with code 130 (a second Ctrl-C while shutting
+down exits at once); every Monte Carlo block finished by then is in the store, and the same command
+resumes from there. An error nlfilter did not anticipate prints one line naming it and exits with
+code 1 (``NLFILTER_TRACEBACK=1`` shows its traceback).
+
+This module imports only the standard library at its top: :func:`main` installs the Ctrl-C handler
+first, then loads NumPy, SymPy and the filters.
 """
 
 from __future__ import annotations
 
 import argparse
 import os
+import signal
 import sys
-
-from . import experiments
+import threading
 
 
 class _Parser(argparse.ArgumentParser):
@@ -126,14 +131,70 @@ def _show(value) -> str:
 
 
 def main(argv=None) -> int:
+    """The ``nlfilter`` command (``python -m nlfilter.cli`` and the console script both enter
+    here). ``argv`` None: ``sys.argv[1:]``, a program run — the Ctrl-C handler then stays
+    installed through the interpreter's shutdown; given (a test), the caller's handler is put back."""
+    previous = _install_sigint()
     try:
         return _main(argv)
     except BrokenPipeError:  # output piped into e.g. `head`, which closed early: not an error
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())  # no second error at exit
         return 0
     except KeyboardInterrupt:  # Ctrl-C: one line, exit 130 (the store keeps every finished block)
+        _quiet()
         print("nlfilter: interrupted" + _KEPT.get(), file=sys.stderr)
-        return 130
+        if argv is None:  # a program run: its finally blocks have run (the store, the executor); skip the
+            _exit_on_sigint(signal.SIGINT, None)  # atexit hooks of what the interrupt cut short (a half-built
+        return 130  # Dask cluster's close_clusters prints its tracebacks there)
+    except Exception as exc:  # noqa: BLE001 - the command line prints no traceback
+        if os.environ.get("NLFILTER_TRACEBACK"):
+            raise
+        msg = str(exc).splitlines()[0] if str(exc) else ""
+        print(f"nlfilter: internal error: {type(exc).__name__}: {msg} (please report it; NLFILTER_TRACEBACK=1 "
+              "shows the traceback)", file=sys.stderr)
+        return 1
+    finally:
+        if previous is not None:
+            if argv is None:  # a program run: a Ctrl-C from here to the process's end exits quietly
+                signal.signal(signal.SIGINT, _exit_on_sigint)
+            else:
+                signal.signal(signal.SIGINT, previous)
+
+
+def _install_sigint():
+    """Ctrl-C raises KeyboardInterrupt (caught by :func:`main`) once; a second one while the
+    first unwinds (closing a Dask cluster, the store) exits at once with code 130. Returns the
+    previous handler (None outside the main thread, where no handler can be set, and when the
+    process was started with Ctrl-C ignored, which stays so)."""
+    if threading.current_thread() is not threading.main_thread():
+        return None
+    if signal.getsignal(signal.SIGINT) is signal.SIG_IGN:  # started with Ctrl-C ignored (`nohup`, `cmd &`)
+        return None
+    return signal.signal(signal.SIGINT, _on_sigint)
+
+
+def _on_sigint(signum, frame):
+    signal.signal(signal.SIGINT, _exit_on_sigint)
+    _quiet()
+    raise KeyboardInterrupt
+
+
+def _exit_on_sigint(signum, frame):  # pragma: no cover - exercised by the fuzz suite's processes
+    try:
+        sys.stdout.flush()
+        sys.stderr.flush()
+    except (OSError, ValueError):
+        pass
+    finally:
+        os._exit(130)
+
+
+def _quiet() -> None:
+    """Silence what libraries log while an interrupted run unwinds (dask.distributed logs each
+    cancelled task and closing comm at ERROR level)."""
+    import logging
+    for name in ("distributed", "tornado", "asyncio"):
+        logging.getLogger(name).setLevel(logging.CRITICAL + 1)
 
 
 class _Kept:
@@ -159,10 +220,32 @@ def _check_output(option: str, path: str | None, suffix: str | None = None) -> N
         raise ValueError(f"{option} {path!r}: is a folder; expected a file path")
     if not os.path.isdir(folder):
         raise ValueError(f"{option} {path!r}: the folder {folder!r} does not exist")
-    if not os.access(folder, os.W_OK):
+    if not os.access(folder, os.W_OK) or not _can_create(folder):
         raise ValueError(f"{option} {path!r}: the folder {folder!r} is not writable")
     if suffix is not None and not path.lower().endswith(suffix):
         raise ValueError(f"{option} {path!r}: expected a file name ending in {suffix}")
+
+
+def _can_create(folder: str) -> bool:
+    """Whether a file can be created in ``folder`` (``os.access`` says yes to root under /proc)."""
+    import tempfile
+    try:
+        fd, probe = tempfile.mkstemp(dir=folder, prefix=".nlfilter-probe-")
+    except OSError:
+        return False
+    os.close(fd)
+    os.unlink(probe)
+    return True
+
+
+# The largest seed: the results store keeps it as an SQLite INTEGER (a signed 64-bit integer).
+MAX_SEED = 2**63 - 1
+
+
+def _check_seed(seed) -> None:
+    if seed is not None and not 0 <= seed <= MAX_SEED:
+        raise ValueError(f"--seed: got {seed}; expected an integer from 0 to 2**63 - 1 (the store keeps it as a "
+                         "64-bit integer)")
 
 
 def _check_execution(args) -> None:
@@ -187,6 +270,7 @@ def _open_store(args):
 def _main(argv) -> int:
     _KEPT.text = ""  # what a Ctrl-C leaves behind: set once a run has a store
     args = _parser().parse_args(argv)
+    from . import experiments
     if args.command == "list" and args.filters:
         from .filters import REGISTRY
         from .filters.registry import table
@@ -223,6 +307,7 @@ def _main(argv) -> int:
         params = {k: exp.convert(k, v) for k, v in _parse_params(args.param).items()}
         if args.runs is not None and not 1 <= args.runs <= experiments.MAX_RUNS:
             raise ValueError(f"--runs: expected an integer from 1 to {experiments.MAX_RUNS:,}, got {args.runs}")
+        _check_seed(args.seed)
         _check_execution(args)
         _check_output("--json", args.json, ".json")
         _check_output("--plot", args.plot, ".png")
@@ -302,7 +387,7 @@ def _compare(args, argv) -> int:
         result = compare(spec.model, filters if filters == "all" else list(filters), steps, paths=paths, m0=spec.m0,
                          P0=spec.P0, rng=seed, dt=spec.dt, progress=not args.no_progress, block=args.block,
                          chunk=args.chunk, executor=args.executor, scheduler=args.scheduler, workers=args.workers)
-    except ValueError as exc:  # the file, an option, or a filter the model cannot serve
+    except (ValueError, TypeError) as exc:  # the file, an option, or a filter the model cannot serve
         return _error(exc)
     result.meta.update(model_file=str(args.model), model_sha256=spec.sha256,
                        given={k: v for k, v in (("paths", args.paths), ("steps", args.steps),
@@ -344,6 +429,7 @@ def _reproduce_all(args, command) -> int:
     """``nlfilter reproduce all``: every experiment in turn; with a store, an experiment already
     finished with the same settings and code is read back instead of run again, so an interrupted
     ``reproduce all`` resumes (its unfinished experiment from its finished blocks)."""
+    from . import experiments
     from .plots import plot_result
     from .report import write_report
 
@@ -351,6 +437,7 @@ def _reproduce_all(args, command) -> int:
         for opt, val in (("--param", args.param), ("--runs", args.runs), ("--json", args.json), ("--plot", args.plot)):
             if val:
                 raise ValueError(f"{opt}: not with `reproduce all` (each experiment has its own); use --report DIR")
+        _check_seed(args.seed)
         _check_execution(args)
         if args.report is not None:
             _check_folder(args.report)
@@ -427,8 +514,9 @@ def _results(args) -> int:
                 print(run["result"].table())
             return 0
         # export
-        out = args.csv or args.json
-        _check_output("--csv" if args.csv else "--json", out, ".csv" if args.csv else ".json")
+        option = "--csv" if args.csv is not None else "--json"
+        out = args.csv if args.csv is not None else args.json
+        _check_output(option, out, option.replace("--", "."))
         if args.run_ids:
             picked = [st.run(i) for i in args.run_ids]
             bad = [r["id"] for r in picked if r["result"] is None]
@@ -440,8 +528,14 @@ def _results(args) -> int:
                 if r["status"] == "done" and r["experiment"] not in latest:
                     latest[r["experiment"]] = r["id"]
             picked = [st.run(i) for i in sorted(latest.values())]
-        from .results import atomic_write
-        if args.json:
+        from .results import atomic_write as _atomic_write
+
+        def atomic_write(path, data):  # what the up-front check cannot foresee (a full disk): one line
+            try:
+                _atomic_write(path, data)
+            except OSError as exc:
+                raise ValueError(f"{option} {path!r}: cannot write it ({exc.strerror or exc})") from None
+        if args.json is not None:
             import json
             text = json.dumps([{"run": r["id"], **r["result"].to_dict()} for r in picked], indent=2,
                               allow_nan=False, ensure_ascii=False) + "\n"

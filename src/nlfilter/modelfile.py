@@ -91,7 +91,7 @@ from typing import NamedTuple
 import numpy as np
 import sympy as sp
 
-from ._modelexpr import CONSTANTS, FUNCTIONS, MAX_CHARS, ExpressionError, read_expression
+from ._modelexpr import CONSTANTS, FUNCTIONS, MAX_CHARS, ExpressionError, _clip, read_expression
 from .models import DiscreteModel, SDEModel
 
 _NUMBERS = {"Integer": sp.Integer, "Float": sp.Float, "Rational": sp.Rational}  # reserved: SymPy's number names
@@ -261,23 +261,23 @@ class _Reader:
         try:
             tokens = list(tokenize.generate_tokens(io.StringIO(text).readline))
         except (tokenize.TokenError, SyntaxError, IndentationError) as exc:
-            self.fail(table, key, f"got {text!r} ({exc.args[0]}); expected an expression", field)
+            self.fail(table, key, f"got {_clip(text)!r} ({exc.args[0]}); expected an expression", field)
         for tok in tokens:
             if tok.type in (tokenize.NEWLINE, tokenize.NL, tokenize.ENDMARKER, tokenize.NUMBER):
                 continue
             if tok.type == tokenize.NAME:
                 if tok.string not in allowed and tok.string not in FUNCTIONS and tok.string not in CONSTANTS:
-                    self.fail(table, key, f"got the unknown name {tok.string!r} in {text!r}; expected {what}, the "
+                    self.fail(table, key, f"got the unknown name {tok.string!r} in {_clip(text)!r}; expected {what}, the "
                                           f"constants pi, E or the functions {' '.join(FUNCTIONS)}", field)
                 continue
             if tok.type == tokenize.OP and tok.string in _OPERATORS:
                 continue
             hint = " (powers are **)" if tok.string == "^" else ""
-            self.fail(table, key, f"got {tok.string!r} in {text!r}{hint}; expected names, numbers, + - * / ** "
+            self.fail(table, key, f"got {tok.string!r} in {_clip(text)!r}{hint}; expected names, numbers, + - * / ** "
                                   "and parentheses", field)
         for tok in tokens:  # decimal numbers only (no 0x10, 1_000, 2j)
             if tok.type == tokenize.NUMBER and not re.fullmatch(r"(\d+\.?\d*|\.\d+)([eE][+-]?\d+)?", tok.string):
-                self.fail(table, key, f"got the number {tok.string!r} in {text!r}; expected a real decimal number",
+                self.fail(table, key, f"got the number {tok.string!r} in {_clip(text)!r}; expected a real decimal number",
                           field)
         try:  # bounded in time and memory; nothing is evaluated as Python (nlfilter._modelexpr)
             e = read_expression(text, allowed, self.states)
