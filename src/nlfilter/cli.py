@@ -154,6 +154,8 @@ def main(argv=None) -> int:
               "shows the traceback)", file=sys.stderr)
         return 1
     finally:
+        if _HOOK and argv is not None:  # a test's process: its own hook back
+            sys.unraisablehook = _HOOK.pop()
         if previous is not None:
             if argv is None:  # a program run: a Ctrl-C from here to the process's end exits quietly
                 signal.signal(signal.SIGINT, _exit_on_sigint)
@@ -176,7 +178,25 @@ def _install_sigint():
 def _on_sigint(signum, frame):
     signal.signal(signal.SIGINT, _exit_on_sigint)
     _quiet()
+    if sys.unraisablehook is not _unraisable:
+        _HOOK.append(sys.unraisablehook)
+        sys.unraisablehook = _unraisable
     raise KeyboardInterrupt
+
+
+_HOOK: list = []  # the unraisable hook _on_sigint replaced
+
+
+def _unraisable(unraisable):
+    """A KeyboardInterrupt raised where Python ignores exceptions (a weakref callback during an
+    import, a ``__del__``) would print "Exception ignored" and be lost: send the SIGINT again a
+    moment later, once that context is left."""
+    if isinstance(unraisable.exc_value, KeyboardInterrupt) and \
+            threading.current_thread() is threading.main_thread():
+        signal.signal(signal.SIGINT, _on_sigint)
+        threading.Timer(0.01, os.kill, (os.getpid(), signal.SIGINT)).start()  # once this context is left
+        return
+    (_HOOK[-1] if _HOOK else sys.__unraisablehook__)(unraisable)
 
 
 def _exit_on_sigint(signum, frame):  # pragma: no cover - exercised by the fuzz suite's processes

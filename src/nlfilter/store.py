@@ -72,18 +72,24 @@ _TABLES = {"blocks": ["key", "start", "stop", "experiment", "task", "seconds", "
 
 
 def _recognise(path: Path) -> str:
-    """What the file at ``path`` is, read without changing it: ``"ours"`` (an nlfilter store of
-    this schema), ``"new"`` (absent or an empty database), ``"unmarked"`` (exactly nlfilter's tables,
-    made before the store marked its files), or a description of a file that is not ours."""
+    """What the file at ``path`` is, read without changing it (``immutable``: no lock, no journal
+    files created beside it): ``"ours"`` (an nlfilter store of this schema), ``"new"`` (absent or an
+    empty database), ``"unmarked"`` (exactly nlfilter's tables, made before the store marked its
+    files), or a description of a file that is not ours."""
     if not path.exists() or path.stat().st_size == 0:
         return "new"
-    db = sqlite3.connect(f"{path.resolve().as_uri()}?mode=ro", uri=True, timeout=60.0)
+    db = sqlite3.connect(f"{path.resolve().as_uri()}?mode=ro&immutable=1", uri=True)
     try:
-        app, version = (db.execute(f"PRAGMA {p}").fetchone()[0] for p in ("application_id", "user_version"))
-        tables = {name: [c[1] for c in db.execute(f"PRAGMA table_info('{name}')")]
-                  for (name,) in db.execute("SELECT name FROM sqlite_master WHERE type='table'")}
+        return _state(db)
     finally:
         db.close()
+
+
+def _state(db) -> str:
+    """:func:`_recognise` of the database open as ``db``."""
+    app, version = (db.execute(f"PRAGMA {p}").fetchone()[0] for p in ("application_id", "user_version"))
+    tables = {name: [c[1] for c in db.execute(f"PRAGMA table_info('{name}')")]
+              for (name,) in db.execute("SELECT name FROM sqlite_master WHERE type='table'")}
     tables.pop("sqlite_sequence", None)  # SQLite's own (AUTOINCREMENT)
     if app == APPLICATION_ID:
         if version > SCHEMA_VERSION:
@@ -102,7 +108,7 @@ def _initialise(db, where: str) -> None:
     """Create the schema and mark the file (one transaction: a concurrent opener sees all or none)."""
     db.execute("BEGIN IMMEDIATE")
     try:
-        state = _recognise(Path(where))  # again, under the write lock: another process may have done it
+        state = _state(db)  # again, live and under the write lock: another process may have done it
         if state == "ours":
             db.execute("ROLLBACK")
             return
