@@ -34,40 +34,31 @@ def _store(path):
     return key
 
 
+def _sql(path, *statements):
+    with contextlib.closing(sqlite3.connect(path)) as db:
+        for sql in statements:
+            db.execute(sql)
+        db.commit()
+    return path
+
+
 def _foreign(tmp):
     """label -> a file that is not a usable nlfilter store."""
     files = {}
-    p = tmp / "other-app.sqlite"
-    with contextlib.closing(sqlite3.connect(p)) as db:
-        db.execute("CREATE TABLE contacts (name TEXT, phone TEXT)")
-        db.execute("INSERT INTO contacts VALUES ('a', '1')")
-        db.commit()
-    files["another program's tables"] = p
-    p = tmp / "app-id.sqlite"
-    with contextlib.closing(sqlite3.connect(p)) as db:
-        db.execute("PRAGMA application_id = 1179603016")  # a GeoPackage-like id, no tables
-        db.commit()
-    files["another application id"] = p
-    p = tmp / "extra-table.sqlite"
-    _store(p)
-    with contextlib.closing(sqlite3.connect(p)) as db:
-        db.execute("PRAGMA application_id = 0")
-        db.execute("CREATE TABLE mine (x)")
-        db.commit()
-    files["nlfilter's tables and another"] = p
-    p = tmp / "newer.sqlite"
-    _store(p)
-    with contextlib.closing(sqlite3.connect(p)) as db:
-        db.execute("PRAGMA user_version = 99")
-        db.commit()
-    files["a newer schema"] = p
+    files["another program's tables"] = _sql(tmp / "other-app.sqlite", "CREATE TABLE contacts (name TEXT, phone TEXT)",
+                                             "INSERT INTO contacts VALUES ('a', '1')")
+    files["another application id"] = _sql(tmp / "app-id.sqlite", "PRAGMA application_id = 1179603016")  # no tables
+    _store(tmp / "extra-table.sqlite")
+    files["nlfilter's tables and another"] = _sql(tmp / "extra-table.sqlite", "PRAGMA application_id = 0",
+                                                  "CREATE TABLE mine (x)")
+    _store(tmp / "newer.sqlite")
+    files["a newer schema"] = _sql(tmp / "newer.sqlite", "PRAGMA user_version = 99")
     p = tmp / "text.sqlite"
     p.write_text("name,phone\na,1\n" * 200)
     files["a text file"] = p
     p = tmp / "truncated.sqlite"
     _store(tmp / "whole.sqlite")
-    with contextlib.closing(sqlite3.connect(tmp / "whole.sqlite")) as db:  # fold the WAL into the file
-        db.execute("PRAGMA wal_checkpoint(TRUNCATE)")
+    _sql(tmp / "whole.sqlite", "PRAGMA wal_checkpoint(TRUNCATE)")  # fold the WAL into the file
     p.write_bytes((tmp / "whole.sqlite").read_bytes()[:150])
     files["a truncated store"] = p
     p = tmp / "scrambled.sqlite"
