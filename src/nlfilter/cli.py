@@ -21,7 +21,10 @@ import argparse
 import os
 import signal
 import sys
-import threading
+
+from . import _interrupt
+from ._cli_results import check_output as _check_output
+from ._cli_results import results as _results
 
 
 class _Parser(argparse.ArgumentParser):
@@ -134,18 +137,20 @@ def main(argv=None) -> int:
     """The ``nlfilter`` command (``python -m nlfilter.cli`` and the console script both enter
     here). ``argv`` None: ``sys.argv[1:]``, a program run — the Ctrl-C handler then stays
     installed through the interpreter's shutdown; given (a test), the caller's handler is put back."""
-    previous = _install_sigint()
+    previous = _interrupt.install()
     try:
         return _main(argv)
     except BrokenPipeError:  # output piped into e.g. `head`, which closed early: not an error
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())  # no second error at exit
         return 0
     except KeyboardInterrupt:  # Ctrl-C: one line, exit 130 (the store keeps every finished block)
-        _quiet()
+        _interrupt.quiet()
         print("nlfilter: interrupted" + _KEPT.get(), file=sys.stderr)
-        if argv is None:  # a program run: its finally blocks have run (the store, the executor); skip the
-            _exit_on_sigint(signal.SIGINT, None)  # atexit hooks of what the interrupt cut short (a half-built
-        return 130  # Dask cluster's close_clusters prints its tracebacks there)
+        if argv is None:  # a program run: its finally blocks have run (the store, the executor); exit now,
+            # skipping the atexit hooks of what the interrupt cut short (a half-built Dask cluster's
+            # close_clusters prints tracebacks there)
+            _interrupt.exit_on_sigint(signal.SIGINT, None)
+        return 130
     except Exception as exc:  # noqa: BLE001 - the command line prints no traceback
         if os.environ.get("NLFILTER_TRACEBACK"):
             raise
@@ -154,67 +159,13 @@ def main(argv=None) -> int:
               "shows the traceback)", file=sys.stderr)
         return 1
     finally:
-        if _HOOK and argv is not None:  # a test's process: its own hook back
-            sys.unraisablehook = _HOOK.pop()
+        if _interrupt.HOOK and argv is not None:  # a test's process: its own hook back
+            sys.unraisablehook = _interrupt.HOOK.pop()
         if previous is not None:
             if argv is None:  # a program run: a Ctrl-C from here to the process's end exits quietly
-                signal.signal(signal.SIGINT, _exit_on_sigint)
+                signal.signal(signal.SIGINT, _interrupt.exit_on_sigint)
             else:
                 signal.signal(signal.SIGINT, previous)
-
-
-def _install_sigint():
-    """Ctrl-C raises KeyboardInterrupt (caught by :func:`main`) once; a second one while the
-    first unwinds (closing a Dask cluster, the store) exits at once with code 130. Returns the
-    previous handler (None outside the main thread, where no handler can be set, and when the
-    process was started with Ctrl-C ignored, which stays so)."""
-    if threading.current_thread() is not threading.main_thread():
-        return None
-    if signal.getsignal(signal.SIGINT) is signal.SIG_IGN:  # started with Ctrl-C ignored (`nohup`, `cmd &`)
-        return None
-    return signal.signal(signal.SIGINT, _on_sigint)
-
-
-def _on_sigint(signum, frame):
-    signal.signal(signal.SIGINT, _exit_on_sigint)
-    _quiet()
-    if sys.unraisablehook is not _unraisable:
-        _HOOK.append(sys.unraisablehook)
-        sys.unraisablehook = _unraisable
-    raise KeyboardInterrupt
-
-
-_HOOK: list = []  # the unraisable hook _on_sigint replaced
-
-
-def _unraisable(unraisable):
-    """A KeyboardInterrupt raised where Python ignores exceptions (a weakref callback during an
-    import, a ``__del__``) would print "Exception ignored" and be lost: send the SIGINT again a
-    moment later, once that context is left."""
-    if isinstance(unraisable.exc_value, KeyboardInterrupt) and \
-            threading.current_thread() is threading.main_thread():
-        signal.signal(signal.SIGINT, _on_sigint)
-        threading.Timer(0.01, os.kill, (os.getpid(), signal.SIGINT)).start()  # once this context is left
-        return
-    (_HOOK[-1] if _HOOK else sys.__unraisablehook__)(unraisable)
-
-
-def _exit_on_sigint(signum, frame):  # pragma: no cover - exercised by the fuzz suite's processes
-    try:
-        sys.stdout.flush()
-        sys.stderr.flush()
-    except (OSError, ValueError):
-        pass
-    finally:
-        os._exit(130)
-
-
-def _quiet() -> None:
-    """Silence what libraries log while an interrupted run unwinds (dask.distributed logs each
-    cancelled task and closing comm at ERROR level)."""
-    import logging
-    for name in ("distributed", "tornado", "asyncio"):
-        logging.getLogger(name).setLevel(logging.CRITICAL + 1)
 
 
 class _Kept:
@@ -227,35 +178,6 @@ class _Kept:
 
 
 _KEPT = _Kept()
-
-
-def _check_output(option: str, path: str | None, suffix: str | None = None) -> None:
-    """Refuse, before any work, an output path that cannot be written."""
-    if path is None:
-        return
-    if not path.strip():
-        raise ValueError(f"{option}: expected a file path, got an empty string")
-    folder = os.path.dirname(os.path.abspath(path))
-    if os.path.isdir(path):
-        raise ValueError(f"{option} {path!r}: is a folder; expected a file path")
-    if not os.path.isdir(folder):
-        raise ValueError(f"{option} {path!r}: the folder {folder!r} does not exist")
-    if not os.access(folder, os.W_OK) or not _can_create(folder):
-        raise ValueError(f"{option} {path!r}: the folder {folder!r} is not writable")
-    if suffix is not None and not path.lower().endswith(suffix):
-        raise ValueError(f"{option} {path!r}: expected a file name ending in {suffix}")
-
-
-def _can_create(folder: str) -> bool:
-    """Whether a file can be created in ``folder`` (``os.access`` says yes to root under /proc)."""
-    import tempfile
-    try:
-        fd, probe = tempfile.mkstemp(dir=folder, prefix=".nlfilter-probe-")
-    except OSError:
-        return False
-    os.close(fd)
-    os.unlink(probe)
-    return True
 
 
 # The largest seed: the results store keeps it as an SQLite INTEGER (a signed 64-bit integer).
@@ -504,78 +426,6 @@ def _reproduce_all(args, command) -> int:
     if args.report is not None:
         print(f"wrote {write_report(results, args.report, figures=False)}")
     return 0
-
-
-def _results(args) -> int:
-    """``nlfilter results list | show RUN | export [RUN ...] --csv PATH | --json PATH``."""
-    from .store import ResultsStore, default_path
-
-    path = args.store or str(default_path())
-    if not os.path.exists(path):
-        raise ValueError(f"--store {path!r}: no results store there (run `nlfilter reproduce ...` first)")
-    with ResultsStore(path) as st:
-        if args.action == "list":
-            rows = st.runs(args.experiment)
-            print("\t".join(["run", "experiment", "status", "seed", "runs", "quick", "started", "seconds", "command"]))
-            for r in rows:
-                secs = "-" if r["seconds"] is None else f"{r['seconds']:.1f}"
-                print("\t".join(str(v) for v in (r["id"], r["experiment"], r["status"], r["seed"],
-                                                 "-" if r["runs"] is None else r["runs"], bool(r["quick"]),
-                                                 r["started"], secs, r["command"] or "-")))
-            return 0
-        if args.action == "show":
-            run = st.run(args.run_id)
-            print(f"run {run['id']}: {run['experiment']} ({run['status']}, started {run['started']}, "
-                  f"nlfilter {run['version']}, code {run['code']})")
-            if run["result"] is None:
-                print(f"no table: the run is {run['status']}; its finished Monte Carlo blocks are in the store "
-                      f"({st.count_blocks(run['experiment'])} block(s) of {run['experiment']})")
-            else:
-                print(run["result"].table())
-            return 0
-        # export
-        option = "--csv" if args.csv is not None else "--json"
-        out = args.csv if args.csv is not None else args.json
-        _check_output(option, out, option.replace("--", "."))
-        if args.run_ids:
-            picked = [st.run(i) for i in args.run_ids]
-            bad = [r["id"] for r in picked if r["result"] is None]
-            if bad:
-                raise ValueError(f"RUN {bad[0]}: not finished (status {picked[0]['status']}); expected a done run")
-        else:
-            latest = {}
-            for r in st.runs():
-                if r["status"] == "done" and r["experiment"] not in latest:
-                    latest[r["experiment"]] = r["id"]
-            picked = [st.run(i) for i in sorted(latest.values())]
-        from .results import atomic_write as _atomic_write
-
-        def atomic_write(path, data):  # what the up-front check cannot foresee (a full disk): one line
-            try:
-                _atomic_write(path, data)
-            except OSError as exc:
-                raise ValueError(f"{option} {path!r}: cannot write it ({exc.strerror or exc})") from None
-        if args.json is not None:
-            import json
-            text = json.dumps([{"run": r["id"], **r["result"].to_dict()} for r in picked], indent=2,
-                              allow_nan=False, ensure_ascii=False) + "\n"
-            atomic_write(out, text.encode("utf-8"))
-        else:
-            import csv
-            import io
-            import json
-            buf = io.StringIO()
-            w = csv.writer(buf)
-            w.writerow(["run", "experiment", "filter", "quantity", "params", "paper", "value", "stderr"])
-            for r in picked:
-                for row in r["result"].rows:
-                    d = row.to_dict()
-                    w.writerow([r["id"], r["experiment"], d["filter"], d["quantity"],
-                                json.dumps(d["params"], sort_keys=True), "" if d["paper"] is None else d["paper"],
-                                d["value"], "" if d["stderr"] is None else d["stderr"]])
-            atomic_write(out, buf.getvalue().encode("utf-8"))
-        print(f"wrote {out} ({len(picked)} run(s))")
-        return 0
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -91,21 +91,13 @@ from typing import NamedTuple
 import numpy as np
 import sympy as sp
 
-from ._modelexpr import CONSTANTS, FUNCTIONS, MAX_CHARS, ExpressionError, _clip, read_expression
+from ._modelexpr import (CONSTANTS, FUNCTIONS, MAX_CHARS, MAX_STATES, MAX_WORK, ExpressionError, clip,
+                         finite_double, read_expression, short)
 from .models import DiscreteModel, SDEModel
 
 _NUMBERS = {"Integer": sp.Integer, "Float": sp.Float, "Rational": sp.Rational}  # reserved: SymPy's number names
 RESERVED = set(FUNCTIONS) | set(CONSTANTS) | set(_NUMBERS)
 _OPERATORS = {"+", "-", "*", "/", "**", "(", ")", ","}
-
-# The number of states a file may declare: a model generates code for each of its n² Jacobian
-# entries (and n³ second derivatives on first use), so loading grows as n² — 100 states load in
-# about 2 s, 200 in 10 s and more; a model file is a small stated model, not generated output.
-MAX_STATES = 100
-# Σ over the file's expressions of (SymPy nodes × states it uses): the model differentiates each
-# expression by each of its states, once for the Jacobians and again on first use for the second
-# derivatives, and generates code for each; measured, 8,000 loads in about 2-4 s, 32,000 in 8-17 s.
-MAX_WORK = 20_000
 
 DEFAULTS = {"steps": 100, "paths": 200, "filters": "all", "seed": 0}
 
@@ -227,8 +219,8 @@ class _Reader:
         ok = (isinstance(value, numbers.Integral) if integer else isinstance(value, numbers.Real))
         if isinstance(value, bool) or not ok:
             self.fail(table, key, f"got {value!r}; expected {'an integer' if integer else 'a number'}")
-        if not _finite(value):
-            self.fail(table, key, f"got {_short(value)}; expected a finite number (a double)")
+        if not finite_double(value):
+            self.fail(table, key, f"got {short(value)}; expected a finite number (a double)")
         if positive and value <= 0:
             self.fail(table, key, f"got {value!r}; expected a positive {'integer' if integer else 'number'}")
         if minimum is not None and value < minimum:
@@ -252,8 +244,8 @@ class _Reader:
         if isinstance(value, bool) or not isinstance(value, (str, numbers.Real)):
             self.fail(table, key, f"got {value!r}; expected an expression (a string) or a number", field)
         if isinstance(value, numbers.Real):
-            if not _finite(value):
-                self.fail(table, key, f"got {_short(value)}; expected a finite number (a double)", field)
+            if not finite_double(value):
+                self.fail(table, key, f"got {short(value)}; expected a finite number (a double)", field)
             return sp.Integer(value) if isinstance(value, numbers.Integral) else sp.Float(value)
         text = value
         if len(text) > MAX_CHARS:
@@ -261,23 +253,23 @@ class _Reader:
         try:
             tokens = list(tokenize.generate_tokens(io.StringIO(text).readline))
         except (tokenize.TokenError, SyntaxError, IndentationError) as exc:
-            self.fail(table, key, f"got {_clip(text)!r} ({exc.args[0]}); expected an expression", field)
+            self.fail(table, key, f"got {clip(text)!r} ({exc.args[0]}); expected an expression", field)
         for tok in tokens:
             if tok.type in (tokenize.NEWLINE, tokenize.NL, tokenize.ENDMARKER, tokenize.NUMBER):
                 continue
             if tok.type == tokenize.NAME:
                 if tok.string not in allowed and tok.string not in FUNCTIONS and tok.string not in CONSTANTS:
-                    self.fail(table, key, f"got the unknown name {tok.string!r} in {_clip(text)!r}; expected {what}, the "
+                    self.fail(table, key, f"got the unknown name {tok.string!r} in {clip(text)!r}; expected {what}, the "
                                           f"constants pi, E or the functions {' '.join(FUNCTIONS)}", field)
                 continue
             if tok.type == tokenize.OP and tok.string in _OPERATORS:
                 continue
             hint = " (powers are **)" if tok.string == "^" else ""
-            self.fail(table, key, f"got {tok.string!r} in {_clip(text)!r}{hint}; expected names, numbers, + - * / ** "
+            self.fail(table, key, f"got {tok.string!r} in {clip(text)!r}{hint}; expected names, numbers, + - * / ** "
                                   "and parentheses", field)
         for tok in tokens:  # decimal numbers only (no 0x10, 1_000, 2j)
             if tok.type == tokenize.NUMBER and not re.fullmatch(r"(\d+\.?\d*|\.\d+)([eE][+-]?\d+)?", tok.string):
-                self.fail(table, key, f"got the number {tok.string!r} in {_clip(text)!r}; expected a real decimal number",
+                self.fail(table, key, f"got the number {tok.string!r} in {clip(text)!r}; expected a real decimal number",
                           field)
         try:  # bounded in time and memory; nothing is evaluated as Python (nlfilter._modelexpr)
             e = read_expression(text, allowed, self.states)
@@ -339,19 +331,6 @@ class _Reader:
             self.fail(table, key, f"got {M.tolist()} (smallest eigenvalue {w:.3g}); expected a positive "
                                   f"{'definite' if definite else 'semi-definite'} matrix")
         return M
-
-
-def _finite(value) -> bool:
-    """Whether a number is a finite double (a TOML integer may have any number of digits)."""
-    try:
-        return math.isfinite(float(value))
-    except OverflowError:
-        return False
-
-
-def _short(value) -> str:
-    text = repr(value)
-    return text if len(text) <= 40 else f"{text[:20]}...({len(text)} characters)"
 
 
 def load_model(path) -> ModelSpec:
@@ -473,6 +452,8 @@ def load_model(path) -> ModelSpec:
         run["paths"] = int(rd.number("run", "paths", rn["paths"], integer=True, minimum=2))
     if "seed" in rn:
         run["seed"] = int(rd.number("run", "seed", rn["seed"], integer=True, minimum=0))
+        if run["seed"] > 2**63 - 1:  # the results store keeps a seed as a 64-bit SQLite INTEGER
+            rd.fail("run", "seed", f"got {run['seed']}; expected an integer from 0 to 2**63 - 1")
     if "filters" in rn:
         run["filters"] = _filters(rd, rn["filters"])
 
