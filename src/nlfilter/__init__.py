@@ -15,6 +15,7 @@ import importlib
 import os
 import signal
 import sys
+import types
 
 
 def _interrupted_early(signum, frame):  # pragma: no cover - exercised by the fuzz suite's processes
@@ -59,3 +60,16 @@ def __getattr__(name):
 
 def __dir__():
     return sorted(set(globals()) | set(__all__))
+
+
+class _Package(types.ModuleType):
+    """The package, whose ``simulate`` stays the function once the submodule ``nlfilter.simulate``
+    is imported (the import system binds the submodule to the package's attribute of its name)."""
+
+    def __setattr__(self, name, value):
+        if isinstance(value, types.ModuleType) and _WHERE.get(name) == name:
+            value = getattr(value, name)
+        super().__setattr__(name, value)
+
+
+sys.modules[__name__].__class__ = _Package
