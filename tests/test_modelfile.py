@@ -200,3 +200,83 @@ def test_compare_file_on_dask_is_the_local_table(tmp_path, capsys):
         rows[ex[1]] = d["rows"]
     capsys.readouterr()
     assert rows["dask"] == rows["local"] and len(rows["local"]) > 5
+
+
+# -- hostile expressions (issue 26, item 1): bounded, refused in one line naming file, line and key -----
+HOSTILE = {  # id -> (old, new, line, field, words of the message)
+    "tower-of-powers": ('"sin(theta)"', '"9**9**9"', 15, "measurement.h[0]", "exponent 387420489"),
+    "huge-exponent": ('"sin(theta)"', '"theta**(10**10)"', 15, "measurement.h[0]", "exponent 10000000000"),
+    "huge-binomial": ('"sin(theta)"', '"(theta + 1)**100000"', 15, "measurement.h[0]", "exponent 100000"),
+    "exp-exp-exp": ('"sin(theta)"', '"exp(exp(exp(100)))*theta"', 15, "measurement.h[0]", "beyond the largest double"),
+    "float-overflow": ('"sin(theta)"', '"1e400*theta"', 15, "measurement.h[0]", "beyond the largest double"),
+    "int-overflow": ('"sin(theta)"', '"10**400*theta"', 15, "measurement.h[0]", "beyond the largest double"),
+    "exp-overflow": ('"sin(theta)"', '"exp(1000)*theta"', 15, "measurement.h[0]", "beyond the largest double"),
+    "coefficient-overflow": ('"sin(theta)"', '"(1e200*theta)**2"', 15, "measurement.h[0]", "beyond the largest"),
+    "digits": ('"sin(theta)"', '"' + "1" * 400 + '*theta"', 15, "measurement.h[0]", "400 digits"),
+    "exact-bits": ('"sin(theta)"', '"((10**300 + 1)/10**300)**1000*theta"', 15, "measurement.h[0]", "bits"),
+    "degree": ('"sin(theta)"', '"(theta*omega)**60"', 15, "measurement.h[0]", "degree 120"),
+    "unknown-function": ('"sin(theta)"', '"gamma(theta)"', 15, "measurement.h[0]", "unknown name 'gamma'"),
+    "zero-division": ('"sin(theta)"', '"theta/(2 - 2)"', 15, "measurement.h[0]", "division by zero"),
+    "nesting": ('"sin(theta)"', '"' + "sin(" * 60 + "theta" + ")" * 60 + '"', 15, "measurement.h[0]", "nesting"),
+    "size": ('"sin(theta)"', '"' + "+".join(["theta"] * 600) + '"', 15, "measurement.h[0]", "at most 1000"),
+    "domain": ("Q = [[0.01]]", 'Q = [["acos(2)"]]', 12, "dynamics.Q[0][0]", "not a real number"),
+    "toml-integer": ("g = 9.81", "g = 1" + "0" * 400, 6, "parameters.g", "a finite number"),
+    "arity": ('"sin(theta)"', '"sin(theta, omega)"', 15, "measurement.h[0]", "expected 1"),
+}
+
+
+@pytest.mark.parametrize("case", list(HOSTILE))
+def test_hostile_expression_is_refused_in_bounded_time(case, tmp_path):
+    """Each is refused by a stated bound (nlfilter._modelexpr, MAX_*) before SymPy expands or
+    evaluates anything (before the fix: a 370-million-digit integer, a hang, or inf accepted)."""
+    old, new, line, field, words = HOSTILE[case]
+    path = tmp_path / "model.toml"
+    path.write_text(_broken(old, new))
+    with pytest.raises(ModelFileError) as info:
+        load_model(path)
+    msg = str(info.value)
+    assert msg.startswith(f"{path}:{line}: {field}: got ") and "; expected " in msg and "\n" not in msg, msg
+    assert words in msg, msg
+
+
+def test_states_and_work_are_bounded(tmp_path):
+    """More than MAX_STATES states, or expressions whose size × states exceed MAX_WORK, are refused
+    at the key (a 200-state file took 54 s to load)."""
+    from nlfilter.modelfile import MAX_STATES, MAX_WORK
+
+    n = MAX_STATES + 1
+    names = [f"x{i}" for i in range(n)]
+    text = (f'[model]\nkind = "discrete"\nstates = {json.dumps(names)}\n[dynamics]\nf = {json.dumps(names)}\n'
+            f'[measurement]\nh = ["x0"]\nR = [1]\n[prior]\nmean = {[0] * n}\ncov = {[1] * n}\n')
+    path = tmp_path / "big.toml"
+    path.write_text(text)
+    with pytest.raises(ModelFileError, match=rf"^{path}:3: model.states: got {n} states; expected at most {MAX_STATES}"):
+        load_model(path)
+    names = names[:10]  # 10 entries of ~250 nodes in 10 states: about 25,000
+    f = [" + ".join(f"sin({a}*{b} + {k})" for k, (a, b) in enumerate(zip(names * 4, (names[1:] + names[:1]) * 4)))
+         for _ in names]
+    path.write_text(text.replace(text[text.index("states"):text.index("[measurement]")],
+                                 f"states = {json.dumps(names)}\n[dynamics]\nf = {json.dumps(f)}\n")
+                    .replace(f"{[0] * n}", f"{[0] * 10}").replace(f"{[1] * n}", f"{[1] * 10}"))
+    with pytest.raises(ModelFileError, match=rf"^{path}:5: dynamics.f\[\d\]: got expressions whose size .* {MAX_WORK:,}"):
+        load_model(path)
+
+
+def test_injection_strings_run_nothing(tmp_path):
+    """Python in any field of a file is refused as text: nothing runs (no file appears)."""
+    flag = tmp_path / "PWNED"
+    payloads = [f"__import__('os').system('touch {flag}')", f"open('{flag}', 'w')",
+                "().__class__.__base__.__subclasses__()", "lambda: 0", "[c for c in ()]", "exec('1')", "x if 1 else 0"]
+    fields = [('"sin(theta)"', '"{}"'), ('Q = [[0.01]]', 'Q = [["{}"]]'), ('mean = [1.0, 0.0]', 'mean = ["{}", 0.0]'),
+              ('kind = "discrete"', 'kind = "{}"'), ('filters = ["ekf", "ukf"]', 'filters = ["{}"]'),
+              ('states = ["theta", "omega"]', 'states = ["theta", "{}"]'), ('g = 9.81', '"{}" = 9.81'),
+              ('G = [["0"], ["1"]]', 'G = [["{}"], ["1"]]'), ("[model]", '[model]\nname = "{}"')]
+    for payload in payloads:
+        for old, new in fields:
+            path = tmp_path / "evil.toml"
+            path.write_text(PENDULUM.replace(old, new.format(payload.replace('"', "'"))))
+            try:
+                load_model(path)
+            except ModelFileError as exc:
+                assert str(exc).startswith(f"{path}:"), exc
+    assert not flag.exists()

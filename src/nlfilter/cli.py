@@ -5,18 +5,26 @@ list | show | export`` (the results store, :mod:`nlfilter.store`).
 
 Errors in what the user typed (unknown experiment, unknown or malformed ``--param``, a model file
 that cannot be read, an unknown filter, an output path that cannot be written) print one line on
-stderr and exit with code 2, never a traceback, before any work starts. Ctrl-C prints one line and
-exits with code 130; every Monte Carlo block finished by then is in the store, and the same command
-resumes from there.
+stderr and exit with code 2, never a traceback, before any work starts. Ctrl-C — at any moment,
+from the imports on — prints one line and exits with code 130 (a second Ctrl-C while shutting
+down exits at once); every Monte Carlo block finished by then is in the store, and the same command
+resumes from there. An error nlfilter did not anticipate prints one line naming it and exits with
+code 1 (``NLFILTER_TRACEBACK=1`` shows its traceback).
+
+This module imports only the standard library at its top: :func:`main` installs the Ctrl-C handler
+first, then loads NumPy, SymPy and the filters.
 """
 
 from __future__ import annotations
 
 import argparse
 import os
+import signal
 import sys
 
-from . import experiments
+from . import _interrupt
+from ._cli_results import check_output as _check_output
+from ._cli_results import results as _results
 
 
 class _Parser(argparse.ArgumentParser):
@@ -135,14 +143,38 @@ def _show(value) -> str:
 
 
 def main(argv=None) -> int:
+    """The ``nlfilter`` command (``python -m nlfilter.cli`` and the console script both enter
+    here). ``argv`` None: ``sys.argv[1:]``, a program run — the Ctrl-C handler then stays
+    installed through the interpreter's shutdown; given (a test), the caller's handler is put back."""
+    previous = _interrupt.install()
     try:
         return _main(argv)
     except BrokenPipeError:  # output piped into e.g. `head`, which closed early: not an error
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())  # no second error at exit
         return 0
     except KeyboardInterrupt:  # Ctrl-C: one line, exit 130 (the store keeps every finished block)
+        _interrupt.quiet()
         print("nlfilter: interrupted" + _KEPT.get(), file=sys.stderr)
+        if argv is None:  # a program run: its finally blocks have run (the store, the executor); exit now,
+            # skipping the atexit hooks of what the interrupt cut short (a half-built Dask cluster's
+            # close_clusters prints tracebacks there)
+            _interrupt.exit_on_sigint(signal.SIGINT, None)
         return 130
+    except Exception as exc:  # noqa: BLE001 - the command line prints no traceback
+        if os.environ.get("NLFILTER_TRACEBACK"):
+            raise
+        msg = str(exc).splitlines()[0] if str(exc) else ""
+        print(f"nlfilter: internal error: {type(exc).__name__}: {msg} (please report it; NLFILTER_TRACEBACK=1 "
+              "shows the traceback)", file=sys.stderr)
+        return 1
+    finally:
+        if _interrupt.HOOK and argv is not None:  # a test's process: its own hook back
+            sys.unraisablehook = _interrupt.HOOK.pop()
+        if previous is not None:
+            if argv is None:  # a program run: a Ctrl-C from here to the process's end exits quietly
+                signal.signal(signal.SIGINT, _interrupt.exit_on_sigint)
+            else:
+                signal.signal(signal.SIGINT, previous)
 
 
 class _Kept:
@@ -157,21 +189,14 @@ class _Kept:
 _KEPT = _Kept()
 
 
-def _check_output(option: str, path: str | None, suffix: str | None = None) -> None:
-    """Refuse, before any work, an output path that cannot be written."""
-    if path is None:
-        return
-    if not path.strip():
-        raise ValueError(f"{option}: expected a file path, got an empty string")
-    folder = os.path.dirname(os.path.abspath(path))
-    if os.path.isdir(path):
-        raise ValueError(f"{option} {path!r}: is a folder; expected a file path")
-    if not os.path.isdir(folder):
-        raise ValueError(f"{option} {path!r}: the folder {folder!r} does not exist")
-    if not os.access(folder, os.W_OK):
-        raise ValueError(f"{option} {path!r}: the folder {folder!r} is not writable")
-    if suffix is not None and not path.lower().endswith(suffix):
-        raise ValueError(f"{option} {path!r}: expected a file name ending in {suffix}")
+# The largest seed: the results store keeps it as an SQLite INTEGER (a signed 64-bit integer).
+MAX_SEED = 2**63 - 1
+
+
+def _check_seed(seed) -> None:
+    if seed is not None and not 0 <= seed <= MAX_SEED:
+        raise ValueError(f"--seed: got {seed}; expected an integer from 0 to 2**63 - 1 (the store keeps it as a "
+                         "64-bit integer)")
 
 
 def _check_execution(args) -> None:
@@ -196,6 +221,7 @@ def _open_store(args):
 def _main(argv) -> int:
     _KEPT.text = ""  # what a Ctrl-C leaves behind: set once a run has a store
     args = _parser().parse_args(argv)
+    from . import experiments
     if args.command == "list" and args.filters:
         from .filters import REGISTRY
         from .filters.registry import table
@@ -232,6 +258,7 @@ def _main(argv) -> int:
         params = {k: exp.convert(k, v) for k, v in _parse_params(args.param).items()}
         if args.runs is not None and not 1 <= args.runs <= experiments.MAX_RUNS:
             raise ValueError(f"--runs: expected an integer from 1 to {experiments.MAX_RUNS:,}, got {args.runs}")
+        _check_seed(args.seed)
         _check_execution(args)
         _check_output("--json", args.json, ".json")
         _check_output("--plot", args.plot, ".png")
@@ -319,12 +346,13 @@ def _compare(args, argv) -> int:
         paths = spec.paths if args.paths is None else args.paths
         steps = spec.steps if args.steps is None else args.steps
         seed = spec.seed if args.seed is None else args.seed
+        _check_seed(seed)
         ref_kw = {"reference": None if args.reference == "none" else args.reference,
                   "reference_budget": args.reference_budget}
         if args.max_particles is not None:
             ref_kw["max_particles"] = args.max_particles
         store = _open_store(args)
-    except ValueError as exc:  # the file, an option
+    except (ValueError, TypeError) as exc:  # the file, an option
         return _error(exc)
     params = {"model_sha256": spec.sha256, "paths": paths, "steps": steps, "seed": seed,
               "filters": filters if filters == "all" else list(filters), "block": args.block, **ref_kw}
@@ -344,7 +372,7 @@ def _compare(args, argv) -> int:
     except KeyboardInterrupt:
         status = "interrupted"
         raise
-    except ValueError as exc:  # a filter the model cannot serve, a reference it cannot have
+    except (ValueError, TypeError) as exc:  # a filter the model cannot serve, a reference it cannot have
         return _error(exc)
     finally:
         if store is not None and status != "done":
@@ -399,6 +427,7 @@ def _reproduce_all(args, command) -> int:
     """``nlfilter reproduce all``: every experiment in turn; with a store, an experiment already
     finished with the same settings and code is read back instead of run again, so an interrupted
     ``reproduce all`` resumes (its unfinished experiment from its finished blocks)."""
+    from . import experiments
     from .plots import plot_result
     from .report import write_report
 
@@ -406,6 +435,7 @@ def _reproduce_all(args, command) -> int:
         for opt, val in (("--param", args.param), ("--runs", args.runs), ("--json", args.json), ("--plot", args.plot)):
             if val:
                 raise ValueError(f"{opt}: not with `reproduce all` (each experiment has its own); use --report DIR")
+        _check_seed(args.seed)
         _check_execution(args)
         if args.report is not None:
             _check_folder(args.report)
@@ -452,71 +482,6 @@ def _reproduce_all(args, command) -> int:
     if args.report is not None:
         print(f"wrote {write_report(results, args.report, figures=False)}")
     return 0
-
-
-def _results(args) -> int:
-    """``nlfilter results list | show RUN | export [RUN ...] --csv PATH | --json PATH``."""
-    from .store import ResultsStore, default_path
-
-    path = args.store or str(default_path())
-    if not os.path.exists(path):
-        raise ValueError(f"--store {path!r}: no results store there (run `nlfilter reproduce ...` first)")
-    with ResultsStore(path) as st:
-        if args.action == "list":
-            rows = st.runs(args.experiment)
-            print("\t".join(["run", "experiment", "status", "seed", "runs", "quick", "started", "seconds", "command"]))
-            for r in rows:
-                secs = "-" if r["seconds"] is None else f"{r['seconds']:.1f}"
-                print("\t".join(str(v) for v in (r["id"], r["experiment"], r["status"], r["seed"],
-                                                 "-" if r["runs"] is None else r["runs"], bool(r["quick"]),
-                                                 r["started"], secs, r["command"] or "-")))
-            return 0
-        if args.action == "show":
-            run = st.run(args.run_id)
-            print(f"run {run['id']}: {run['experiment']} ({run['status']}, started {run['started']}, "
-                  f"nlfilter {run['version']}, code {run['code']})")
-            if run["result"] is None:
-                print(f"no table: the run is {run['status']}; its finished Monte Carlo blocks are in the store "
-                      f"({st.count_blocks(run['experiment'])} block(s) of {run['experiment']})")
-            else:
-                print(run["result"].table())
-            return 0
-        # export
-        out = args.csv or args.json
-        _check_output("--csv" if args.csv else "--json", out, ".csv" if args.csv else ".json")
-        if args.run_ids:
-            picked = [st.run(i) for i in args.run_ids]
-            bad = [r["id"] for r in picked if r["result"] is None]
-            if bad:
-                raise ValueError(f"RUN {bad[0]}: not finished (status {picked[0]['status']}); expected a done run")
-        else:
-            latest = {}
-            for r in st.runs():
-                if r["status"] == "done" and r["experiment"] not in latest:
-                    latest[r["experiment"]] = r["id"]
-            picked = [st.run(i) for i in sorted(latest.values())]
-        from .results import atomic_write
-        if args.json:
-            import json
-            text = json.dumps([{"run": r["id"], **r["result"].to_dict()} for r in picked], indent=2,
-                              allow_nan=False, ensure_ascii=False) + "\n"
-            atomic_write(out, text.encode("utf-8"))
-        else:
-            import csv
-            import io
-            import json
-            buf = io.StringIO()
-            w = csv.writer(buf)
-            w.writerow(["run", "experiment", "filter", "quantity", "params", "paper", "value", "stderr"])
-            for r in picked:
-                for row in r["result"].rows:
-                    d = row.to_dict()
-                    w.writerow([r["id"], r["experiment"], d["filter"], d["quantity"],
-                                json.dumps(d["params"], sort_keys=True), "" if d["paper"] is None else d["paper"],
-                                d["value"], "" if d["stderr"] is None else d["stderr"]])
-            atomic_write(out, buf.getvalue().encode("utf-8"))
-        print(f"wrote {out} ({len(picked)} run(s))")
-        return 0
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -90,15 +90,12 @@ from typing import NamedTuple
 
 import numpy as np
 import sympy as sp
-from sympy.parsing.sympy_parser import auto_number, parse_expr
 
+from ._modelexpr import (CONSTANTS, FUNCTIONS, MAX_CHARS, MAX_STATES, MAX_WORK, ExpressionError, clip,
+                         finite_double, read_expression, short)
 from .models import DiscreteModel, SDEModel
 
-FUNCTIONS = {name: getattr(sp, name) for name in
-             ("sin", "cos", "tan", "asin", "acos", "atan", "atan2", "sinh", "cosh", "tanh", "exp", "log",
-              "sqrt", "Abs", "sign", "erf", "Min", "Max")}
-CONSTANTS = {"pi": sp.pi, "E": sp.E}
-_NUMBERS = {"Integer": sp.Integer, "Float": sp.Float, "Rational": sp.Rational}  # what auto_number writes
+_NUMBERS = {"Integer": sp.Integer, "Float": sp.Float, "Rational": sp.Rational}  # reserved: SymPy's number names
 RESERVED = set(FUNCTIONS) | set(CONSTANTS) | set(_NUMBERS)
 _OPERATORS = {"+", "-", "*", "/", "**", "(", ")", ","}
 
@@ -184,6 +181,8 @@ class _Reader:
 
     def __init__(self, path: str, text: str):
         self.path, self.lines = path, _Lines(text)
+        self.states = ()  # the model's state names, once read (the expressions' degree bounds)
+        self.work = 0  # Σ (SymPy nodes × states used) over the expressions read (MAX_WORK)
 
     def fail(self, table: str, key: str | None, what: str, field: str | None = None):
         field = field or (f"{table}.{key}" if key else table)
@@ -220,8 +219,8 @@ class _Reader:
         ok = (isinstance(value, numbers.Integral) if integer else isinstance(value, numbers.Real))
         if isinstance(value, bool) or not ok:
             self.fail(table, key, f"got {value!r}; expected {'an integer' if integer else 'a number'}")
-        if not math.isfinite(value):
-            self.fail(table, key, f"got {value!r}; expected a finite number")
+        if not finite_double(value):
+            self.fail(table, key, f"got {short(value)}; expected a finite number (a double)")
         if positive and value <= 0:
             self.fail(table, key, f"got {value!r}; expected a positive {'integer' if integer else 'number'}")
         if minimum is not None and value < minimum:
@@ -245,42 +244,44 @@ class _Reader:
         if isinstance(value, bool) or not isinstance(value, (str, numbers.Real)):
             self.fail(table, key, f"got {value!r}; expected an expression (a string) or a number", field)
         if isinstance(value, numbers.Real):
-            if not math.isfinite(value):
-                self.fail(table, key, f"got {value!r}; expected a finite number", field)
+            if not finite_double(value):
+                self.fail(table, key, f"got {short(value)}; expected a finite number (a double)", field)
             return sp.Integer(value) if isinstance(value, numbers.Integral) else sp.Float(value)
         text = value
+        if len(text) > MAX_CHARS:
+            self.fail(table, key, f"got an expression of {len(text)} characters; expected at most {MAX_CHARS}", field)
         try:
             tokens = list(tokenize.generate_tokens(io.StringIO(text).readline))
         except (tokenize.TokenError, SyntaxError, IndentationError) as exc:
-            self.fail(table, key, f"got {text!r} ({exc.args[0]}); expected an expression", field)
+            self.fail(table, key, f"got {clip(text)!r} ({exc.args[0]}); expected an expression", field)
         for tok in tokens:
             if tok.type in (tokenize.NEWLINE, tokenize.NL, tokenize.ENDMARKER, tokenize.NUMBER):
                 continue
             if tok.type == tokenize.NAME:
                 if tok.string not in allowed and tok.string not in FUNCTIONS and tok.string not in CONSTANTS:
-                    self.fail(table, key, f"got the unknown name {tok.string!r} in {text!r}; expected {what}, the "
+                    self.fail(table, key, f"got the unknown name {tok.string!r} in {clip(text)!r}; expected {what}, the "
                                           f"constants pi, E or the functions {' '.join(FUNCTIONS)}", field)
                 continue
             if tok.type == tokenize.OP and tok.string in _OPERATORS:
                 continue
             hint = " (powers are **)" if tok.string == "^" else ""
-            self.fail(table, key, f"got {tok.string!r} in {text!r}{hint}; expected names, numbers, + - * / ** "
+            self.fail(table, key, f"got {tok.string!r} in {clip(text)!r}{hint}; expected names, numbers, + - * / ** "
                                   "and parentheses", field)
         for tok in tokens:  # decimal numbers only (no 0x10, 1_000, 2j)
             if tok.type == tokenize.NUMBER and not re.fullmatch(r"(\d+\.?\d*|\.\d+)([eE][+-]?\d+)?", tok.string):
-                self.fail(table, key, f"got the number {tok.string!r} in {text!r}; expected a real decimal number",
+                self.fail(table, key, f"got the number {tok.string!r} in {clip(text)!r}; expected a real decimal number",
                           field)
-        glob = {"__builtins__": {}, **_NUMBERS, **FUNCTIONS, **CONSTANTS}
-        try:
-            e = parse_expr(text, local_dict=dict(allowed), global_dict=glob, transformations=(auto_number,),
-                           evaluate=True)
-        except Exception as exc:  # sympy's parser reports any syntax as SyntaxError, TypeError, ...
-            msg = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
-            self.fail(table, key, f"got {text!r} ({type(exc).__name__}: {msg}); expected an expression", field)
-        if not isinstance(e, sp.Expr) or isinstance(e, sp.Tuple):
-            self.fail(table, key, f"got {text!r} (a {type(e).__name__}); expected a scalar expression", field)
-        if e.has(sp.zoo, sp.nan, sp.oo, -sp.oo, sp.I):
-            self.fail(table, key, f"got {text!r} = {e}; expected a finite real expression", field)
+        try:  # bounded in time and memory; nothing is evaluated as Python (nlfilter._modelexpr)
+            e = read_expression(text, allowed, self.states)
+        except ExpressionError as exc:
+            self.fail(table, key, str(exc), field)
+        used = len(e.free_symbols)
+        if used:  # what the model's derivatives will cost (MAX_WORK)
+            self.work += used * sum(1 for _ in sp.preorder_traversal(e))
+            if self.work > MAX_WORK:
+                self.fail(table, key, f"got expressions whose size times the states they use totals {self.work:,} "
+                                      f"by this one; expected at most {MAX_WORK:,} in one file (MAX_WORK: the "
+                                      "model differentiates each expression by each of its states)", field)
         return e
 
     def vector(self, table, key, value, n, allowed, what) -> list:
@@ -386,6 +387,9 @@ def load_model(path) -> ModelSpec:
     if kind not in _DYNAMICS:
         rd.fail("model", "kind", f"got {kind!r}; expected 'discrete' or 'sde'")
     states = rd.names("model", "states", mt["states"])
+    if len(states) > MAX_STATES:
+        rd.fail("model", "states", f"got {len(states)} states; expected at most {MAX_STATES} (MAX_STATES)")
+    rd.states = tuple(states)
     title = rd.string("model", "name", mt["name"]) if "name" in mt else pathlib.Path(name).stem
     n = len(states)
     syms = {s: sp.Symbol(s) for s in states}
@@ -448,6 +452,8 @@ def load_model(path) -> ModelSpec:
         run["paths"] = int(rd.number("run", "paths", rn["paths"], integer=True, minimum=2))
     if "seed" in rn:
         run["seed"] = int(rd.number("run", "seed", rn["seed"], integer=True, minimum=0))
+        if run["seed"] > 2**63 - 1:  # the results store keeps a seed as a 64-bit SQLite INTEGER
+            rd.fail("run", "seed", f"got {run['seed']}; expected an integer from 0 to 2**63 - 1")
     if "filters" in rn:
         run["filters"] = _filters(rd, rn["filters"])
 

@@ -440,7 +440,8 @@ def _affine(e, grad, states) -> bool:
     polynomial whose gradient is free of the states is affine; otherwise SymPy's ``Poly`` decides."""
     if not e.is_polynomial(*states):
         return False
-    if all(g.free_symbols.isdisjoint(states) for g in grad):
+    ss = frozenset(states)
+    if all(g.free_symbols.isdisjoint(ss) for g in grad):
         return True
     return sp.Poly(e, *states).total_degree() <= 1
 
@@ -765,7 +766,8 @@ class Model:
         fx = _jacobian(fM, states)
         hx = _jacobian(hM, states)
         # the G-constant flag first: a G free of the states has G_x = G_xx = 0 (no SymPy)
-        self.G_constant = all(e.free_symbols.isdisjoint(states) for e in GM)
+        sset = frozenset(states)  # (one set: n² entries are tested against it)
+        self.G_constant = all(e.free_symbols.isdisjoint(sset) for e in GM)
         specs = {"f": (list(fM), (n,)), "f_x": (list(fx), (n, n)),
                  "h": (list(hM), (self.m,)), "h_x": (list(hx), (self.m, n)),
                  "G": (list(GM), (n, self.r))}
@@ -786,7 +788,7 @@ class Model:
             self._kernels["h_aug"] = _Kernel(list(h_aug), states + list(meas_noise), time, (self.m,), self._psyms)
         self.given = set(_DERIVS)
         # structure flags (for every parameter value), read by filters that can exploit them
-        self._G_fixed = all(e.free_symbols.isdisjoint(set(states) | {time}) for e in GM)
+        self._G_fixed = all(e.free_symbols.isdisjoint(sset | {time}) for e in GM)
         self.is_linear = self.additive and self.additive_measurement and self.G_constant and all(  # f and h affine in the state
             _affine(e, row, states) for e, row in zip(list(fM) + list(hM), fx.tolist() + hx.tolist()))
         self._timed = time is not None and any(M.has(time) for M in (fM, hM, GM) + ((f_aug,) if noise else ())

@@ -98,6 +98,19 @@ class LocalExecutor:
         pass
 
 
+def _stderr_to_devnull():
+    """Point file descriptor 2 at /dev/null (processes started meanwhile inherit it); returns a
+    duplicate of the old one to restore, or None if stderr is not a file descriptor here."""
+    try:
+        saved = os.dup(2)
+    except OSError:  # pragma: no cover - no fd 2
+        return None
+    devnull = os.open(os.devnull, os.O_WRONLY)
+    os.dup2(devnull, 2)
+    os.close(devnull)
+    return saved
+
+
 class DaskExecutor:
     """Run the tasks on a ``dask.distributed`` cluster: the scheduler at ``address``, or a
     ``LocalCluster`` of ``workers`` single-threaded worker processes (default 2) started here and
@@ -118,6 +131,11 @@ class DaskExecutor:
         self._cluster = None
         if address is None:
             environ = dict(os.environ)  # distributed sets OMP/MKL/OPENBLAS_NUM_THREADS=1, PYTHONHASHSEED ... here
+            # the processes started here (workers, multiprocessing's resource tracker) write their stderr to
+            # /dev/null: a terminal's Ctrl-C reaches the whole process group, and each would print its own
+            # KeyboardInterrupt traceback; this process reports the interrupt (and a task's error, which
+            # comes back through its future) in one line
+            saved = _stderr_to_devnull()
             try:
                 self._cluster = LocalCluster(n_workers=workers or 2, threads_per_worker=1, processes=True,
                                              dashboard_address=":0")
@@ -125,6 +143,9 @@ class DaskExecutor:
             finally:  # for its workers; this process (and what it starts) keeps its own environment
                 os.environ.clear()
                 os.environ.update(environ)
+                if saved is not None:
+                    os.dup2(saved, 2)
+                    os.close(saved)
         else:
             try:
                 self.client = Client(address, timeout="10s")

@@ -18,6 +18,13 @@ Two tables:
     ``interrupted``, ``failed``), start and finish times, wall seconds, the command, and, when
     done, the result's JSON (:meth:`nlfilter.results.Result.to_dict`).
 
+The file knows it is a store: SQLite's ``PRAGMA application_id`` holds :data:`APPLICATION_ID` and
+``PRAGMA user_version`` the schema version :data:`SCHEMA_VERSION`. A new or empty file is
+initialised (in one transaction); a store made before the mark (exactly these two tables) is
+marked; any other file — another program's database, one with other tables, a newer schema, not
+SQLite at all — is refused with one line naming it, read only and left unchanged. A block whose
+bytes are damaged is recomputed (with a warning), never served.
+
 The default file is ``$NLFILTER_STORE``, else ``$XDG_CACHE_HOME/nlfilter/results.sqlite`` (``~/.cache``
 when ``XDG_CACHE_HOME`` is unset). Several processes may share one file (SQLite's locking, WAL
 journal); only the process that runs an experiment writes, never a Dask worker.
@@ -40,6 +47,7 @@ import json
 import os
 import sqlite3
 import time
+import warnings
 from datetime import datetime, timezone
 from pathlib import Path
 
@@ -56,6 +64,86 @@ CREATE TABLE IF NOT EXISTS runs (
     finished TEXT, seconds REAL, command TEXT, result TEXT);
 """
 STATUSES = ("running", "done", "interrupted", "failed")
+APPLICATION_ID = 0x6E6C6672  # "nlfr" in SQLite's header (PRAGMA application_id): the file is an nlfilter store
+SCHEMA_VERSION = 1  # PRAGMA user_version: this module's schema (_SCHEMA)
+_TABLES = {"blocks": ["key", "start", "stop", "experiment", "task", "seconds", "created", "data"],
+           "runs": ["id", "experiment", "params", "seed", "runs", "quick", "version", "code", "status", "started",
+                    "finished", "seconds", "command", "result"]}
+
+
+def _recognise(path: Path) -> str:
+    """What the file at ``path`` is, read without changing it (``immutable``: no lock, no journal
+    files created beside it): ``"ours"`` (an nlfilter store of this schema), ``"new"`` (absent or an
+    empty database), ``"unmarked"`` (exactly nlfilter's tables, made before the store marked its
+    files), or a description of a file that is not ours."""
+    if not path.exists() or path.stat().st_size == 0:
+        return "new"
+    db = sqlite3.connect(f"{path.resolve().as_uri()}?mode=ro&immutable=1", uri=True)
+    try:
+        return _state(db)
+    finally:
+        db.close()
+
+
+def _state(db) -> str:
+    """:func:`_recognise` of the database open as ``db``."""
+    app, version = (db.execute(f"PRAGMA {p}").fetchone()[0] for p in ("application_id", "user_version"))
+    tables = {name: [c[1] for c in db.execute(f"PRAGMA table_info('{name}')")]
+              for (name,) in db.execute("SELECT name FROM sqlite_master WHERE type='table'")}
+    tables.pop("sqlite_sequence", None)  # SQLite's own (AUTOINCREMENT)
+    if app == APPLICATION_ID:
+        if version > SCHEMA_VERSION:
+            return f"schema version {version}, made by a newer nlfilter than this one ({SCHEMA_VERSION})"
+        return "ours"
+    if app != 0:
+        return f"application id {app:#x}, another program's"
+    if not tables:
+        return "new"
+    if tables == _TABLES:
+        return "unmarked"
+    return f"tables {sorted(tables)}"
+
+
+def _initialise(db, where: str) -> None:
+    """Create the schema and mark the file (one transaction: a concurrent opener sees all or none)."""
+    db.execute("BEGIN IMMEDIATE")
+    try:
+        state = _state(db)  # again, live and under the write lock: another process may have done it
+        if state == "ours":
+            db.execute("ROLLBACK")
+            return
+        if state not in ("new", "unmarked"):
+            raise ValueError(f"store: {where!r} is not an nlfilter results store ({state}); expected an nlfilter "
+                             "store or a new file (nothing was changed)")
+        for statement in filter(str.strip, _SCHEMA.split(";")):
+            db.execute(statement)
+        db.execute(f"PRAGMA application_id={APPLICATION_ID}")
+        db.execute(f"PRAGMA user_version={SCHEMA_VERSION}")
+        db.execute("COMMIT")
+    except BaseException:
+        if db.in_transaction:
+            db.execute("ROLLBACK")
+        raise
+
+
+class _Guarded:
+    """The connection, its errors as one-line ``ValueError``s naming the file (a file damaged after
+    it was opened: ``database disk image is malformed``)."""
+
+    def __init__(self, db, where: str):
+        self._db, self._where = db, where
+
+    def execute(self, sql: str, args=()):
+        try:
+            return self._db.execute(sql, args)
+        except sqlite3.OperationalError as exc:
+            raise ValueError(f"store {self._where!r}: {exc}") from None
+        except sqlite3.DatabaseError as exc:
+            raise ValueError(f"store {self._where!r}: the file is damaged ({exc}); expected a readable nlfilter "
+                             "store (move it away to start a new one)") from None
+
+    def close(self) -> None:
+        self._db.close()
 
 
 def default_path() -> Path:
@@ -117,13 +205,20 @@ class ResultsStore:
         self.path = Path(default_path() if path is None else path).expanduser()
         if self.path.exists() and self.path.is_dir():
             raise ValueError(f"store: {str(self.path)!r} is a folder; expected the path of an SQLite file")
+        where = str(self.path)
         try:
+            state = _recognise(self.path)  # read-only: a file that is not ours is left untouched
+            if state not in ("ours", "new", "unmarked"):
+                raise ValueError(f"store: {where!r} is not an nlfilter results store ({state}); expected an "
+                                 "nlfilter store or a new file (nothing was changed)")
             self.path.parent.mkdir(parents=True, exist_ok=True)
-            self._db = sqlite3.connect(str(self.path), timeout=60.0, isolation_level=None)
-            self._db.execute("PRAGMA journal_mode=WAL")
-            self._db.executescript(_SCHEMA)
-        except (OSError, sqlite3.DatabaseError) as exc:
-            raise ValueError(f"store: cannot open {str(self.path)!r} as an SQLite results store ({exc})") from None
+            db = sqlite3.connect(where, timeout=60.0, isolation_level=None)
+            if state != "ours":
+                _initialise(db, where)
+            db.execute("PRAGMA journal_mode=WAL")
+        except (OSError, sqlite3.Error) as exc:
+            raise ValueError(f"store: cannot open {where!r} as an SQLite results store ({exc})") from None
+        self._db = _Guarded(db, where)
 
     def __enter__(self):
         return self
@@ -139,7 +234,14 @@ class ResultsStore:
         """The arrays of block ``[start, stop)`` under ``key``, or None if it has not finished."""
         row = self._db.execute("SELECT data FROM blocks WHERE key=? AND start=? AND stop=?",
                                (key, start, stop)).fetchone()
-        return None if row is None else _unpack(row[0])
+        if row is None:
+            return None
+        try:
+            return _unpack(row[0])
+        except Exception as exc:  # noqa: BLE001 - a damaged block (any reader error) is recomputed
+            warnings.warn(f"store {str(self.path)!r}: the block [{start}, {stop}) of {key[:12]} is damaged "
+                          f"({type(exc).__name__}: {exc}); recomputing it", RuntimeWarning, stacklevel=2)
+            return None
 
     def put_block(self, key: str, start: int, stop: int, arrays: dict, *, experiment: str = "",
                   task: str = "", seconds: float | None = None) -> None:
@@ -155,6 +257,9 @@ class ResultsStore:
     # -- runs --------------------------------------------------------------------------------------
     def start_run(self, experiment: str, *, params: dict, seed, runs, quick: bool, command: str | None) -> int:
         from . import __version__
+        if seed is not None and not (isinstance(seed, int) and 0 <= seed < 2**63):
+            raise ValueError(f"seed: got {seed!r}; expected None or an integer from 0 to 2**63 - 1 (kept as an "
+                             "SQLite INTEGER)")
         cur = self._db.execute(
             "INSERT INTO runs (experiment, params, seed, runs, quick, version, code, status, started, command) "
             "VALUES (?,?,?,?,?,?,?,?,?,?)",
@@ -182,7 +287,14 @@ class ResultsStore:
             "SELECT result FROM runs WHERE experiment=? AND params=? AND seed IS ? AND runs IS ? AND quick=? "
             "AND version=? AND code=? AND status='done' ORDER BY id DESC LIMIT 1",
             (experiment, _canon(params), seed, runs, int(bool(quick)), __version__, code_fingerprint())).fetchone()
-        return None if row is None else Result.from_json(json.loads(row[0]))
+        if row is None:
+            return None
+        try:
+            return Result.from_json(json.loads(row[0]))
+        except Exception as exc:  # noqa: BLE001 - a damaged result is run again
+            warnings.warn(f"store {str(self.path)!r}: the stored result of {experiment} is damaged "
+                          f"({type(exc).__name__}: {exc}); running it again", RuntimeWarning, stacklevel=2)
+            return None
 
     def runs(self, experiment: str | None = None) -> list[dict]:
         """Every run (latest first) as a dict of the ``runs`` columns (``result`` left out)."""
@@ -204,4 +316,9 @@ class ResultsStore:
             raise ValueError(f"run id {run_id}: not in the store {str(self.path)!r}; expected one of "
                              f"{ids or 'none (the store is empty)'}")
         text = self._db.execute("SELECT result FROM runs WHERE id=?", (run_id,)).fetchone()[0]
-        return {**hits[0], "result": None if text is None else Result.from_json(json.loads(text))}
+        try:
+            result = None if text is None else Result.from_json(json.loads(text))
+        except Exception as exc:  # noqa: BLE001 - any reader error: the run's stored table is damaged
+            raise ValueError(f"run id {run_id}: its stored result in {str(self.path)!r} is damaged "
+                             f"({type(exc).__name__}: {exc}); expected a readable result") from None
+        return {**hits[0], "result": result}

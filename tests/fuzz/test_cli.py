@@ -13,6 +13,7 @@ import pytest
 from nlfilter import cli
 
 MODEL = "examples/models/cubic-sensor.toml"
+_PENDULUM = (__import__("pathlib").Path(__file__).parents[2] / "examples" / "models" / "pendulum.toml").read_text()
 
 
 def _invocations(tmp):
@@ -24,6 +25,19 @@ def _invocations(tmp):
     bad_toml.write_text("[model\nname = 1\n")
     empty_toml = tmp / "empty.toml"
     empty_toml.write_text("")
+    acos = tmp / "acos.toml"  # issue 26: a SymPy TypeError and an OverflowError reached the command line
+    acos.write_text(_PENDULUM.replace("Q = [[0.001]]", 'Q = [["acos(2)"]]'))
+    digits = tmp / "digits.toml"
+    digits.write_text(_PENDULUM.replace("g = 9.81", "g = 1" + "0" * 400))
+    tower = tmp / "tower.toml"
+    tower.write_text(_PENDULUM.replace('"sin(theta)"', '"9**9**9"'))
+    store = tmp / "st.sqlite"
+    from nlfilter.store import ResultsStore
+    ResultsStore(store).close()
+    foreign = tmp / "other.sqlite"
+    import sqlite3
+    with sqlite3.connect(foreign) as db:
+        db.execute("CREATE TABLE notes (x)")
     q = ["reproduce", "cubic-sensor", "--quick", "--no-progress", "--no-store"]
     c = ["compare", MODEL, "--no-progress", "--paths", "4", "--steps", "3"]
     return [
@@ -68,6 +82,15 @@ def _invocations(tmp):
                                                   "--store", str(tmp / "s.sqlite")]),
         ("results store is a folder", ["results", "list", "--store", str(d)]),
         ("list unknown flag", ["list", "--bogus"]),
+        ("compare acos(2) in Q", ["compare", str(acos), "--no-progress"]),
+        ("compare a 400-digit parameter", ["compare", str(digits), "--no-progress"]),
+        ("compare 9**9**9", ["compare", str(tower), "--no-progress"]),
+        ("seed 2**70", q + ["--seed", str(2**70)]),
+        ("seed 2**70 with a store", q[:-1] + ["--store", str(store), "--seed", str(2**70)]),
+        ("results export csv empty path", ["results", "export", "--csv", "", "--store", str(store)]),
+        ("results export json under the proc folder", ["results", "export", "--json", "/proc/nlfilter-x.json", "--store",
+                                             str(store)]),
+        ("results list on another program's database", ["results", "list", "--store", str(foreign)]),
     ]
 
 
