@@ -54,8 +54,8 @@ from .evaluate import _window
 from .filters.registry import model_kind
 from .results import Result, provenance
 from .simulate import simulate
-from .yardstick import (MAX_PARTICLES, OPTIMAL, certified_reference, check_given_reference, contradiction_note,
-                        contradictions, reference_filter)
+from .certificate_checks import contradiction_note, contradictions
+from .yardstick import MAX_PARTICLES, OPTIMAL, certified_reference, check_given_reference, reference_filter
 
 REFERENCES = ("auto", "grid", "particle")  # the automatic reference's kinds (compare's reference=)
 
@@ -90,7 +90,7 @@ def compare(model, filters, steps, *, paths=200, m0, P0, rng=0, reference="auto"
         is named ``"optimal"`` in rows and figure when certified (or not checkable), else
         ``"reference (not converged)"`` — or ``"reference (contradicted: ...)"`` when its NEES
         leaves its band or a filter beats it by more than 2 s.e.
-        (:func:`~nlfilter.yardstick.contradictions`) —, and its ``gap_*`` rows are then
+        (:func:`~nlfilter.certificate_checks.contradictions`) —, and its ``gap_*`` rows are then
         ``gap_to_reference``
     rtol, certify_paths, max_particles : the reference's certificate: the largest error bound
         ``|Δ| + 2 se`` of its MSE relative to the MSE, the paths of its refinement run, and the
