@@ -61,6 +61,7 @@ import numpy as np
 from .errors import ReferenceWarning
 from .evaluate import mse, paired_difference
 from .filters.reference import GridFilter, ParticleFilter
+from .sde_step import SUBSTEPS
 
 RESOLUTION = 4          # grid points per (smallest) scale
 POSTERIOR_QUANTILE = 0.1
@@ -309,7 +310,7 @@ def _filter_kw(model, dt, start, substeps):
             "particle": ({"dt": dt, "substeps": substeps} if model.kind == "sde" else {"start": start})}
 
 
-def certified_reference(model, sim, m0, P0, *, run, judged=None, dt=None, start="update", substeps=10,
+def certified_reference(model, sim, m0, P0, *, run, judged=None, dt=None, start="update", substeps=SUBSTEPS,
                         window=0.5, rtol=0.02, certify_paths=64, max_particles=MAX_PARTICLES, first="auto",
                         budget=None):
     """``(estimates on all paths, Certificate)`` of the automatic reference (module docstring).
@@ -392,7 +393,7 @@ def certified_reference(model, sim, m0, P0, *, run, judged=None, dt=None, start=
     return est, cert
 
 
-def reference_filter(cert, model, *, dt=None, start="update", substeps=10):
+def reference_filter(cert, model, *, dt=None, start="update", substeps=SUBSTEPS):
     """The filter of the rung a :class:`Certificate` of :func:`certified_reference` names (kind,
     size, bounds), built again on ``model`` with the comparison's options: what a smoother of the
     reference runs (the same grid, or the same particles on the same streams)."""
@@ -409,14 +410,17 @@ def check_given_reference(flt, est, model, sim, *, run, judged=None, window=0.5,
     points is checked against ``4 × PARTICLES`` particles instead); other kinds are taken as
     given (``certified = None``, named ``"optimal"``). Edge mass and effective sample size are reported either way; a grid whose
     edge mass exceeds :data:`EDGE_MASS` or a refinement that moves the MSE beyond ``rtol``
-    warns."""
+    warns. A particle reference on an SDE whose ``substeps`` differ from the simulation's
+    (``sim.timing.substeps``) has another model than the simulator's: the certificate's
+    ``reason`` says so."""
     t_start = time.perf_counter()
     diag = _diagnostics(est)
     sub = slice(0, min(certify_paths, sim.ys.shape[0]))
     reason = "given by the caller"
+    data_substeps = getattr(getattr(sim, "timing", None), "substeps", None)
     if isinstance(flt, GridFilter):
         md = flt.model
-        kw = _filter_kw(md, getattr(flt, "dt", None), flt.start, 10)
+        kw = _filter_kw(md, getattr(flt, "dt", None), flt.start, data_substeps or SUBSTEPS)
         kind, size = "grid", [len(a) for a in flt.axes]
         rung = _Rung("grid", size, [(float(a[0]), float(a[-1])) for a in flt.axes]).refined()
         finer = rung.build(md, kw)
@@ -428,6 +432,10 @@ def check_given_reference(flt, est, model, sim, *, run, judged=None, window=0.5,
         kw = {"dt": flt.dt, "substeps": flt.substeps} if flt.model.kind == "sde" else {"start": flt.start}
         finer = ParticleFilter(flt.model, 4 * flt.particles, threshold=flt.threshold, **kw)
         kind, size = "particle", flt.particles
+        if flt.model.kind == "sde" and data_substeps is not None and flt.substeps != data_substeps:
+            reason = (f"given by the caller, with substeps={flt.substeps} where the simulation has {data_substeps}: "
+                      f"the posterior of a {'finer' if flt.substeps > data_substeps else 'coarser'} Euler–Maruyama "
+                      "model than the simulator's (equal substeps: its model exactly; sde_step)")
     else:
         return Certificate(type(flt).__name__, None, OPTIMAL, rungs=[diag], reason="given by the caller: not checked",
                            seconds=time.perf_counter() - t_start)
