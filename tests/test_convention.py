@@ -22,8 +22,8 @@ from nlfilter.evaluate import paired_difference
 from nlfilter.filters import GridFilter, ParticleFilter
 from nlfilter.streams import PathRNG
 from nlfilter.sde_step import euler_maruyama, increment_loglik
-from nlfilter.yardstick import (CONTRADICTED, OPTIMAL, Certificate, beaten_check, check_given_reference,
-                                contradictions, endpoint_error, nees_check)
+from nlfilter.certificate_checks import CONTRADICTED, beaten_check, contradictions, nees_check
+from nlfilter.yardstick import OPTIMAL, Certificate, check_given_reference, endpoint_error
 
 x, y, z = sp.symbols("x y z")
 WELL = SDEModel([x], [5 * (x - x**3)], [x], Q=1.0, R=0.002, name="double-well")
@@ -202,7 +202,7 @@ def test_reference_checks_from_per_path_arrays_as_the_experiments_call_them():
     with no warning, and fewer than 16 paths is 'not run' (the note says so)."""
     from nlfilter.evaluate import mse
     from nlfilter.filters import KalmanFilter
-    from nlfilter.yardstick import nees_per_component, reference_checks
+    from nlfilter.certificate_checks import nees_per_component, reference_checks
     sim = simulate(LIN, 30, paths=32, rng=2, m0=0.0, P0=1.0)
     kf = KalmanFilter(LIN).run(sim.ys, 0.0, 1.0)
     for R, fails in ((0.5, False), (0.05, True)):

@@ -109,7 +109,7 @@ def test_continuous_t0_and_dt():
     x = sp.Symbol("x")
     md = SDEModel([x], [-x], [x], Q=1.0, R=0.5)
     sim = simulate(md, 8, paths=2, rng=3, m0=[0.0], P0=[[1.0]], dt=0.05, t0=2.0)
-    assert sim.timing == Timing("increments", None, 2.0, 0.05)
+    assert sim.timing == Timing("increments", None, 2.0, 0.05, 10)  # substeps: simulate's default
     a = KalmanBucy(md, 0.05).run(sim, [0.0], [[1.0]])
     np.testing.assert_array_equal(a.means, KalmanBucy(md, 0.05).run(sim.ys, [0.0], [[1.0]], t0=2.0).means)
     with pytest.raises(ValueError, match=r"t0: run was given t0=0.0.*t0=2.0"):
@@ -133,7 +133,9 @@ def test_simulation_keeps_its_timing_and_unpacks():
                        (Timing("increments", "update", 0.0, 0.1), "timing.start"),
                        (Timing("continuous-discrete", "predict", 0.0, None), "timing.dt"),
                        (Timing("discrete", "update", 0.0, 0.1), "timing.dt"),
-                       (Timing("sampled", "update", 0.0, None), "timing.kind")):
+                       (Timing("sampled", "update", 0.0, None), "timing.kind"),
+                       (Timing("discrete", "update", 0.0, None, 5), "timing.substeps"),
+                       (Timing("increments", None, 0.0, 0.1, 0), "timing.substeps")):
         with pytest.raises((TypeError, ValueError), match=match):
             Simulation(xs, ys, x0, t, bad)
 

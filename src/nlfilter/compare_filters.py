@@ -51,9 +51,10 @@ def _run_rng(root, name, paths):
     return streams.PathRNG(root, paths, key=key)
 
 
-def _check_filter(label, flt, model, dt, start):
+def _check_filter(label, flt, model, dt, start, substeps=None):
     """``flt`` has ``run`` and the comparison's step convention (discrete) or ``dt`` (SDE); a
-    filter built without ``start`` takes the comparison's (``Filter.for_timing``): returns it."""
+    filter built without ``start`` takes the comparison's, a particle filter on an SDE built
+    without ``substeps`` the simulation's ``substeps`` (``Filter.for_timing``): returns it."""
     if not callable(getattr(flt, "run", None)):
         raise TypeError(f"{label}: expected a filter with a run(ys, m0, P0) method, got {type(flt).__name__}")
     fs = getattr(flt, "start", None)
@@ -64,6 +65,8 @@ def _check_filter(label, flt, model, dt, start):
     fdt = getattr(flt, "dt", None)
     if model.kind == "sde" and isinstance(fdt, numbers.Real) and not math.isclose(fdt, dt, rel_tol=1e-12):
         raise ValueError(f"{label}: its dt={fdt!r} differs from dt={dt!r} of the comparison")
+    if model.kind == "sde" and substeps is not None and getattr(flt, "substeps_stated", True) is False:
+        flt = flt.for_timing(Timing("increments", None, 0.0, dt, substeps))[0]
     return flt
 
 
@@ -129,7 +132,7 @@ def _resolve(filters, model, sim_model, dt, start):
     return out, skipped
 
 
-def _check_filters(filters, model, dt, start, reference):
+def _check_filters(filters, model, dt, start, reference, substeps=None):
     if not isinstance(filters, dict) or not filters:
         raise TypeError(f"filters: expected a non-empty dict of name -> filter instance, got {filters!r}")
     for name, flt in filters.items():
@@ -137,7 +140,7 @@ def _check_filters(filters, model, dt, start, reference):
             raise TypeError(f"filters: expected non-empty string names, got {name!r}")
         if name == OPTIMAL and reference is not None:
             raise ValueError(f"filters: the name {OPTIMAL!r} is the reference's; rename that filter")
-        filters[name] = _check_filter(f"filters[{name!r}]", flt, model, dt, start)
+        filters[name] = _check_filter(f"filters[{name!r}]", flt, model, dt, start, substeps)
 
 
 def _lifted_prior(lift, m0, P0):

@@ -53,15 +53,16 @@ from .errors import DivergenceError
 from .evaluate import _window
 from .filters.registry import model_kind
 from .results import Result, provenance
+from .sde_step import SUBSTEPS
 from .simulate import simulate
-from .yardstick import (MAX_PARTICLES, OPTIMAL, certified_reference, check_given_reference, contradiction_note,
-                        contradictions, reference_filter)
+from .certificate_checks import contradiction_note, contradictions
+from .yardstick import MAX_PARTICLES, OPTIMAL, certified_reference, check_given_reference, reference_filter
 
 REFERENCES = ("auto", "grid", "particle")  # the automatic reference's kinds (compare's reference=)
 
 
 def compare(model, filters, steps, *, paths=200, m0, P0, rng=0, reference="auto", window=0.5, dt=None,
-            substeps=10, start="update", progress=False, on_divergence="mark", rtol=0.02, certify_paths=64,
+            substeps=SUBSTEPS, start="update", progress=False, on_divergence="mark", rtol=0.02, certify_paths=64,
             max_particles=MAX_PARTICLES, reference_budget=None, chunk=None, full_output=False, smooth=False,
             block=None, executor=None, scheduler=None, workers=None):
     """Run every filter and a near-optimal reference on one shared simulation; a :class:`Result`.
@@ -90,7 +91,7 @@ def compare(model, filters, steps, *, paths=200, m0, P0, rng=0, reference="auto"
         is named ``"optimal"`` in rows and figure when certified (or not checkable), else
         ``"reference (not converged)"`` — or ``"reference (contradicted: ...)"`` when its NEES
         leaves its band or a filter beats it by more than 2 s.e.
-        (:func:`~nlfilter.yardstick.contradictions`) —, and its ``gap_*`` rows are then
+        (:func:`~nlfilter.certificate_checks.contradictions`) —, and its ``gap_*`` rows are then
         ``gap_to_reference``
     rtol, certify_paths, max_particles : the reference's certificate: the largest error bound
         ``|Δ| + 2 se`` of its MSE relative to the MSE, the paths of its refinement run, and the
@@ -128,7 +129,8 @@ def compare(model, filters, steps, *, paths=200, m0, P0, rng=0, reference="auto"
         smoother: then no smoothed gaps, and a note
     window : what :func:`~nlfilter.evaluate.mse` averages over (``0.5``: the second half)
     dt, substeps : SDE models only: measurement step (required) and Euler–Maruyama substeps of
-        the simulation (and of an automatic particle reference)
+        the simulation (default :data:`~nlfilter.sde_step.SUBSTEPS`), of an automatic particle
+        reference and of any particle filter given without ``substeps``
     start : discrete models: step convention (see :mod:`nlfilter.filters.base`)
     progress : show progress bars naming what runs (the filters, each rung and check of the
         reference, with their paths), and print the reference's estimated cost before a long
@@ -182,6 +184,8 @@ def compare(model, filters, steps, *, paths=200, m0, P0, rng=0, reference="auto"
         raise ValueError(f"dt: a DiscreteModel has no time step; expected None, got {dt!r}")
     if dt is not None:
         dt = float(V.positive("dt", dt))
+    if kind == "sde":
+        V.positive("substeps", substeps, integer=True)
     V.choice("start", start, {"update", "predict"})
     V.choice("on_divergence", on_divergence, {"raise", "mark"})
     _window(steps, window)  # raises TypeError naming window
@@ -196,9 +200,9 @@ def compare(model, filters, steps, *, paths=200, m0, P0, rng=0, reference="auto"
     if isinstance(reference, str) and reference not in REFERENCES:
         raise ValueError(f"reference: expected one of {REFERENCES}, None or a filter instance, got {reference!r}")
     if not (reference is None or isinstance(reference, str)):
-        reference = _check_filter("reference", reference, model, dt, start)
+        reference = _check_filter("reference", reference, model, dt, start, substeps)
     filters, skipped = _resolve(filters, given, model, dt, start)
-    _check_filters(filters, model, dt, start, reference)
+    _check_filters(filters, model, dt, start, reference, substeps)
     m0v = V.mean("m0", m0, model.n, ndim=1)
     P0m = V.covariance("P0", P0, model.n)
     root, seed = _streams(rng)

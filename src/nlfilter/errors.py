@@ -82,4 +82,4 @@ class ReferenceWarning(UserWarning):
     than the tolerance, its grid bounds cut the density off, or paths diverged): its rows are
     labelled ``"reference (not converged)"``; or it is contradicted (its NEES outside the band
     of the exact posterior, or a compared filter beats it by more than 2 s.e.): labelled
-    ``"reference (contradicted: ...)"`` (:mod:`nlfilter.yardstick`)."""
+    ``"reference (contradicted: ...)"`` (:mod:`nlfilter.yardstick`, :mod:`nlfilter.certificate_checks`)."""

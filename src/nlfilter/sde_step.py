@@ -16,13 +16,21 @@ that propagates its particles with :func:`euler_maruyama` at the simulator's ``s
 weighs ``dy`` with that ratio has the simulator's model exactly (not only to an order in ``dt``).
 
 :func:`~nlfilter.simulate.simulate` and :class:`~nlfilter.filters.reference.ParticleFilter`
-call :func:`euler_maruyama`; the other continuous filters approximate this convention to a stated
+call :func:`euler_maruyama`, both with :data:`SUBSTEPS` steps per interval unless told otherwise
+(a particle filter built without ``substeps`` and run on a Simulation takes the simulator's:
+``sim.timing.substeps``); the other continuous filters approximate this convention to a stated
 order (their ``measurement_convention`` attribute, shown by ``nlfilter list --filters``).
 """
 
 from __future__ import annotations
 
 import numpy as np
+
+# Euler–Maruyama steps per measurement interval when none is given: the default of both
+# :func:`~nlfilter.simulate.simulate` (and ``compare``) and :class:`~nlfilter.filters.reference.ParticleFilter`,
+# so that a particle reference built without ``substeps`` has the simulator's model; a Simulation
+# records the substeps it was made with (``sim.timing.substeps``), which such a filter takes.
+SUBSTEPS = 10
 
 # What each continuous filter's ``measurement_convention`` says (``nlfilter list --filters``): how it
 # reads the increment dy of one interval, and to what order in dt it is the simulator's convention.

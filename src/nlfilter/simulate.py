@@ -30,7 +30,7 @@ import numpy as np
 from . import _validate as V
 from .errors import DivergenceError
 from .noise import Gaussian, NoiseLaw
-from .sde_step import euler_maruyama
+from .sde_step import SUBSTEPS, euler_maruyama
 from .streams import PathRNG, as_paths
 
 _BLOCK = 2 ** 20  # SDE simulators: standard normals drawn per block of steps (bounded memory)
@@ -45,12 +45,17 @@ class Timing(NamedTuple):
     ``start``: ``"update"`` (``ys[..., 0, :]`` measures the state whose prior is ``(m0, P0)``, at
     ``t0``) or ``"predict"`` (it measures the state one step or ``dt`` after the prior), None for
     increments; ``t0``: the prior's time (0 for a discrete model); ``dt``: the measurement
-    interval (None for a discrete model). The filters read it (:meth:`nlfilter.filters.base.Filter.for_timing`)."""
+    interval (None for a discrete model); ``substeps``: increments only, the Euler–Maruyama steps
+    per interval of :func:`simulate` (:mod:`nlfilter.sde_step`: the model a particle reference
+    must share to have the simulator's), None when not made by them (a 4-field Timing, the
+    exact-transition simulators). The filters read it (:meth:`nlfilter.filters.base.Filter.for_timing`;
+    a ParticleFilter built without ``substeps`` takes these)."""
 
     kind: str
     start: str | None
     t0: float
     dt: float | None
+    substeps: int | None = None
 
 
 def _check_timing(timing) -> None:
@@ -69,6 +74,11 @@ def _check_timing(timing) -> None:
             raise ValueError(f"timing.dt: a discrete model has no time step; expected None, got {timing.dt!r}")
     else:
         V.positive("timing.dt", timing.dt)
+    if timing.substeps is not None:
+        if timing.kind != "increments":
+            raise ValueError(f"timing.substeps: only increments are made by Euler–Maruyama substeps; expected None "
+                             f"for {timing.kind} measurements, got {timing.substeps!r}")
+        V.positive("timing.substeps", timing.substeps, integer=True)
 
 
 class _SimulationArrays(NamedTuple):
@@ -234,7 +244,7 @@ def _blocks(steps, paths, width):
 
 def simulate(model, steps: int, *, paths: int | range = 1, rng=None, m0=None, P0=None, x0=None,
              initial: NoiseLaw | None = None, start: str = "update", dt: float | None = None,
-             substeps: int = 10, t0: float = 0.0, on_divergence: str = "raise") -> Simulation:
+             substeps: int = SUBSTEPS, t0: float = 0.0, on_divergence: str = "raise") -> Simulation:
     """Simulate ``paths`` trajectories of ``steps`` measurement steps.
 
     Parameters
@@ -254,7 +264,8 @@ def simulate(model, steps: int, *, paths: int | range = 1, rng=None, m0=None, P0
         the noise law ``initial`` (a non-Gaussian prior)
     start : discrete models only, ``"update"`` or ``"predict"`` (see :mod:`nlfilter.filters.base`)
     dt, substeps, t0 : SDE models only: measurement step, Euler–Maruyama steps per measurement
-        step, initial time
+        step (default :data:`~nlfilter.sde_step.SUBSTEPS`, recorded in ``sim.timing.substeps``),
+        initial time
     on_divergence : ``"raise"`` (default): a state or measurement that becomes non-finite (an
         unstable map, an Euler step too large for the drift) raises a
         :class:`~nlfilter.errors.DivergenceError` naming the step and the paths; ``"mark"``: such a
@@ -343,7 +354,7 @@ def _simulate(model, steps, paths, rng, x, x_init, xs, ys, m, start, dt, substep
             xs[:, k] = x
             ys[:, k] = ydt + z[:, k - k0, substeps * r:] @ LR.T * np.sqrt(dt)
             x = screen.check(k, x, ys[:, k], x=x, restart=x_init)
-    return Simulation(xs, ys, x_init, t0 + dt * np.arange(1, steps + 1), Timing("increments", None, t0, dt))
+    return Simulation(xs, ys, x_init, t0 + dt * np.arange(1, steps + 1), Timing("increments", None, t0, dt, int(substeps)))
 
 
 def simulate_phase(q: float, r: float, dt: float, steps: int, paths: int | range, rng, *, substeps: int = 4,

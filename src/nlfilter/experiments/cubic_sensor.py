@@ -49,7 +49,7 @@ from ..montecarlo import montecarlo
 from ..moments.closures import GaussianClosure
 from ..results import Result
 from ..simulate import simulate_ou
-from ..yardstick import BEATEN_MAX_DIVERGED, reference_checks
+from ..certificate_checks import BEATEN_MAX_DIVERGED, reference_checks
 
 PAPER = {  # seed 001 Tables 5.1 (q=2, r=1) and 5.2 (q=r=1)
     (2.0, 1.0): {("linear", "mse_x"): 0.540, ("linear", "mse_x3"): 5.63, ("tensor", "mse_x"): 0.522,

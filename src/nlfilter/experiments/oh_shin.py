@@ -39,7 +39,7 @@ from ..montecarlo import montecarlo
 from ..moments.closures import EdgeworthClosure
 from ..results import Result
 from ..simulate import simulate
-from ..yardstick import BEATEN_MAX_DIVERGED, reference_checks
+from ..certificate_checks import BEATEN_MAX_DIVERGED, reference_checks
 from . import experiment
 
 PAPER = {"qlf": 0.0163, "mqlf": 0.015}  # 003 Section 5, text under Fig. 2 (P at t = 1.0)

@@ -48,7 +48,7 @@ from ..montecarlo import montecarlo
 from ._blocks import BLOCK, BLOCK_RANGE, block_size, estimates_arrays, estimates_of
 from ..results import Result
 from ..simulate import simulate, simulate_continuous_discrete
-from ..yardstick import estimates_checks
+from ..certificate_checks import estimates_checks
 from . import experiment
 
 PROBLEMS = ("quadratic", "state-noise", "falling-body")

@@ -13,7 +13,7 @@ from typing import NamedTuple
 import numpy as np
 
 from ... import _validate as V
-from ...sde_step import LEFT_POINT, euler_maruyama, increment_loglik
+from ...sde_step import LEFT_POINT, SUBSTEPS, euler_maruyama, increment_loglik
 from ...streams import FILTER, PathRNG
 from ..linalg import gaussian_loglik, innovation_info, measurement_loglik, no_information, observed_precision
 from ._common import _ReferenceFilter
@@ -75,7 +75,13 @@ class ParticleFilter(_ReferenceFilter):
     ----------
     model : DiscreteModel or SDEModel
     particles : number of particles per path
-    dt, substeps : SDE models: measurement step and Euler–Maruyama steps per measurement step
+    dt, substeps : SDE models: measurement step and Euler–Maruyama steps per measurement step;
+        ``substeps`` None (default): the data's when run on a Simulation (``sim.timing.substeps``:
+        the simulator's model, :meth:`for_timing`), else :data:`~nlfilter.sde_step.SUBSTEPS` (the
+        default of :func:`~nlfilter.simulate.simulate` and ``compare``); one given explicitly is
+        kept whatever the data's (a finer one is a legitimate choice: nearer the SDE than the
+        simulator's Euler scheme, but not the simulator's model exactly; ``compare`` records the
+        difference in its certificate)
     threshold : resample when ESS < threshold · particles
     start : discrete models: step convention
 
@@ -89,16 +95,38 @@ class ParticleFilter(_ReferenceFilter):
     structures = ("state-dependent R", "non-additive noise")
     measurement_convention = LEFT_POINT
 
-    def __init__(self, model, particles: int = 2000, *, dt: float | None = None, substeps: int = 5,
+    def __init__(self, model, particles: int = 2000, *, dt: float | None = None, substeps: int | None = None,
                  threshold: float = 0.5, start: str | None = None):
         self.particles = V.positive("particles", particles, integer=True)
         self.threshold = V.real("threshold", threshold)
         if not 0.0 <= self.threshold <= 1.0:
             raise ValueError(f"threshold: expected a number in [0, 1], got {threshold!r}")
-        self.substeps = V.positive("substeps", substeps, integer=True)
+        self.substeps_stated = substeps is not None
+        self.substeps = SUBSTEPS if substeps is None else V.positive("substeps", substeps, integer=True)
         self._setup(model, dt, start, "particle filter")
+        self._set_smoother()
+
+    def _set_smoother(self):
+        """No smoother on an SDE with ``substeps > 1``: it needs the transition density of one
+        Euler–Maruyama step (the class's FFBSm otherwise)."""
         if self.time == "continuous" and self.substeps != 1:
-            self.smoother = None  # the smoother needs the transition density of one Euler–Maruyama step
+            self.smoother = None
+        else:
+            self.__dict__.pop("smoother", None)
+
+    def for_timing(self, timing, *, t0=None):
+        """As :meth:`~nlfilter.filters.base.Filter.for_timing`; on an SDE, a filter built without
+        ``substeps`` also takes the data's Euler–Maruyama substeps (``timing.substeps``: the
+        simulator's model, :mod:`nlfilter.sde_step`); one built with ``substeps`` keeps its own."""
+        flt, t0 = super().for_timing(timing, t0=t0)
+        sub = getattr(timing, "substeps", None)
+        if self.time != "continuous" or getattr(self, "substeps_stated", True) or sub is None or sub == flt.substeps:
+            return flt, t0
+        import copy
+        flt = copy.copy(flt)
+        flt.substeps = int(sub)
+        flt._set_smoother()
+        return flt, t0
 
     # -- the belief functions ----------------------------------------------------------------
     def init(self, m0, P0, batch, *, initial=None, rng=None) -> ParticleBelief:
@@ -270,12 +298,14 @@ class ParticleFilter(_ReferenceFilter):
         path (lower ``particles`` for long records). On an SDE model the transition density is
         that of the filter's own Euler–Maruyama step, so it needs ``substeps=1``. Arguments and
         result as :meth:`~nlfilter.filters.base.Filter.smooth`."""
-        if self.time == "continuous" and self.substeps != 1:
+        from ...simulate import Simulation
+        flt = self.for_timing(ys.timing)[0] if isinstance(ys, Simulation) else self  # the data's substeps
+        if flt.time == "continuous" and flt.substeps != 1:
             raise TypeError(f"smooth: the particle smoother needs the transition density of the filter's step; on "
                             f"an SDEModel that is the Gaussian Euler–Maruyama step, substeps=1; got "
-                            f"substeps={self.substeps} (build ParticleFilter(model, ..., substeps=1), or smooth with "
+                            f"substeps={flt.substeps} (build ParticleFilter(model, ..., substeps=1), or smooth with "
                             "the grid filter)")
-        return super().smooth(ys, m0, P0, **kw)
+        return super(ParticleFilter, flt).smooth(ys, m0, P0, **kw)
 
     def _smooth(self, est, beliefs, ys, t0):
         """FFBSm over the filtered clouds of every step (the belief after each update: the weights
