@@ -104,7 +104,7 @@ def parameter_kinds(syms, names, params0, bounds):
 def fit_data(ys, dt):
     """``(data for run, the checked array, dt)``: a Simulation passes through (its timing is read by
     the filter's run, :meth:`~nlfilter.filters.base.Filter.for_timing`) and gives ``dt``."""
-    from .simulate import Simulation
+    from .simulation import Simulation
 
     sim = ys if isinstance(ys, Simulation) else None
     arr = V.finite("ys", V.as_float_array("ys", sim.ys if sim is not None else ys, ndim_min=2), allow_nan=True)

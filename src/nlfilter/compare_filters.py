@@ -24,7 +24,7 @@ from . import streams
 from .filters import REGISTRY
 from .filters.registry import accepting, model_kind
 from .moments.closures import gaussian_moments
-from .simulate import Timing
+from .simulation import Timing
 from .yardstick import OPTIMAL
 
 REFERENCE_FAMILY = ("the reference family: the yardstick of the comparison, not judged by it (pass one as "

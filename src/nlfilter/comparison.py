@@ -114,7 +114,7 @@ def compare(model, filters, steps, *, paths=200, m0, P0, rng=0, reference="auto"
         or an executor object; the filters run in parallel, and with ``block`` the paths too.
         The simulation and the statistics are computed here; how it ran is
         ``Result.meta["execution"]``
-    full_output : also return the :class:`~nlfilter.simulate.Simulation` and the dict
+    full_output : also return the :class:`~nlfilter.simulation.Simulation` and the dict
         name -> :class:`~nlfilter.filters.base.Estimates` the numbers were computed from (with
         ``smooth``, also ``"<name> (smoothed)"`` -> the smoothed estimates)
     smooth : also run the smoother (``Filter.smooth``) of every filter that has one (``smoother``

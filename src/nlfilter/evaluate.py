@@ -188,7 +188,7 @@ class LogLik(NamedTuple):
 
 def loglik(flt, ys, m0=None, P0=None, *, replicates: int = 1, rng=0, **run_kw) -> LogLik:
     """``log p(y_0..y_{T-1})`` of each record ``ys (..., T, m)`` by ``flt`` (``run(..., loglik=True)``);
-    ``ys`` may be a :class:`~nlfilter.simulate.Simulation` (its timing convention is read).
+    ``ys`` may be a :class:`~nlfilter.simulation.Simulation` (its timing convention is read).
 
     A random filter (the particle filter: ``Filter.likelihood == "estimate"``) is run
     ``replicates`` times on independent streams in one batch (the records tiled along a new
@@ -202,7 +202,7 @@ def loglik(flt, ys, m0=None, P0=None, *, replicates: int = 1, rng=0, **run_kw) -
     if not flt.random and R != 1:
         raise ValueError(f"replicates: {type(flt).__name__} is deterministic: its log-likelihood has no spread; "
                          f"expected 1, got {R}")
-    from .simulate import Simulation
+    from .simulation import Simulation
 
     sim = ys if isinstance(ys, Simulation) else None  # run reads its timing (Filter.for_timing)
     ys = V.as_float_array("ys", sim.ys if sim is not None else ys)  # complex data is refused, not cut to its real part
@@ -251,7 +251,7 @@ def chunked(n: int | None):
 
 def _concat(parts):
     from .filters.base import Estimates
-    from .simulate import Simulation
+    from .simulation import Simulation
     first = parts[0]
     if isinstance(first, np.ndarray):
         return np.concatenate(parts)
@@ -269,7 +269,7 @@ def _concat(parts):
 def in_chunks(fn, paths: int, size: int | None = None):
     """``fn(rows)`` for the path ranges ``rows = range(a, b)`` of ``paths`` paths in chunks of
     ``size`` (default :func:`chunk`; None: one range), concatenated along the paths axis (arrays,
-    :class:`~nlfilter.simulate.Simulation`, Estimates, and tuples or dicts of them). With per-path
+    :class:`~nlfilter.simulation.Simulation`, Estimates, and tuples or dicts of them). With per-path
     streams (``simulate(paths=rows, rng=root)``) the result does not depend on ``size``."""
     V.positive("paths", paths, integer=True)
     size = chunk() if size is None else V.positive("size", size, integer=True)

@@ -178,7 +178,7 @@ def fit(model, ys, params0, *, filter="ukf", m0=None, P0=None, initial=None, bou
     ----------
     model : DiscreteModel or SDEModel with parameters (``params=`` at construction)
     ys : measurements ``(..., T, m)``: independent records that share the parameters; or a
-        :class:`~nlfilter.simulate.Simulation`, whose timing convention (``start``, ``t0``, ``dt``)
+        :class:`~nlfilter.simulation.Simulation`, whose timing convention (``start``, ``t0``, ``dt``)
         the filter reads (a conflicting ``start`` or ``dt`` given here is a ValueError naming both)
     params0 : ``{name or symbol: starting value}``; the other parameters stay at the model's values
     filter : a registry name (``"kf"``, ``"ukf"``, ``"grid"``, ...), a Filter class, or a callable

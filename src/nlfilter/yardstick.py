@@ -317,7 +317,7 @@ def certified_reference(model, sim, m0, P0, *, run, judged=None, dt=None, start=
 
     ``run(flt, ys, tag) -> Estimates`` runs a filter on (some of) the simulation's measurements
     (the comparison supplies it, with the filter's own random stream keyed by ``tag``);
-    ``sim`` the shared :class:`~nlfilter.simulate.Simulation`; ``judged`` the filters' estimates
+    ``sim`` the shared :class:`~nlfilter.simulation.Simulation`; ``judged`` the filters' estimates
     (name -> Estimates) whose gaps the reference will judge; the tolerance of the certificate is
     ``rtol`` times the reference's MSE or the smallest standard error of those gaps, whichever is
     larger (rule in the module docstring); ``certify_paths`` the paths of the refinement runs;

@@ -29,8 +29,8 @@ The continuous-discrete filters (an SDE measured at discrete times) default to `
 the prior at ``t0``, the first measurement at ``t0 + dt``, as
 :func:`~nlfilter.simulate.simulate_continuous_discrete` makes them.
 
-The data's convention: ``run``/``smooth`` take a :class:`~nlfilter.simulate.Simulation` in place
-of ``ys`` and read its :class:`~nlfilter.simulate.Timing` (:meth:`Filter.for_timing`): a filter
+The data's convention: ``run``/``smooth`` take a :class:`~nlfilter.simulation.Simulation` in place
+of ``ys`` and read its :class:`~nlfilter.simulation.Timing` (:meth:`Filter.for_timing`): a filter
 built without ``start`` (or, continuous-discrete, ``t0``) takes the Simulation's; one built with
 a different one, or with another ``dt``, is refused (ValueError naming both).
 
@@ -65,7 +65,7 @@ import numpy as np
 from .. import _validate as V
 from ..errors import DivergenceError
 from ..sde_step import ITO_EULER
-from ..simulate import Simulation
+from ..simulation import Simulation
 from ..streams import FILTER, PathRNG
 from .beliefs import GaussianState, where_paths
 from .linalg import _all_ok, bad_paths, no_information, symmetrize
@@ -331,7 +331,7 @@ class Filter:
 
     def for_timing(self, timing, *, t0=None):
         """``(filter, t0)`` for data of the convention ``timing`` (a
-        :class:`~nlfilter.simulate.Timing`, None: no check) and ``run``'s ``t0`` (None: not given):
+        :class:`~nlfilter.simulation.Timing`, None: no check) and ``run``'s ``t0`` (None: not given):
         this filter, or a copy of it with the data's ``start`` (and, continuous-discrete, ``t0``)
         when it was built without one; the t0 of a continuous run is the data's when not given.
         A convention stated on both sides that differs — ``start``, ``t0``, ``dt``, or data of
@@ -481,7 +481,7 @@ class Filter:
         Parameters
         ----------
         ys : measurements ``(..., T, m)``; the leading axes are independent paths; NaN is missing;
-            or a :class:`~nlfilter.simulate.Simulation`: its ``ys``, read with its timing convention
+            or a :class:`~nlfilter.simulation.Simulation`: its ``ys``, read with its timing convention
             (``start``, ``t0``, ``dt``; :meth:`for_timing`)
         m0, P0 : prior mean ``(n,)`` or ``(..., n)`` and covariance ``(n, n)`` or ``(..., n, n)``
             (filters with a prior of their own, e.g. a density on the support, take None)

@@ -298,7 +298,7 @@ class ParticleFilter(_ReferenceFilter):
         path (lower ``particles`` for long records). On an SDE model the transition density is
         that of the filter's own Euler–Maruyama step, so it needs ``substeps=1``. Arguments and
         result as :meth:`~nlfilter.filters.base.Filter.smooth`."""
-        from ...simulate import Simulation
+        from ...simulation import Simulation
         flt = self.for_timing(ys.timing)[0] if isinstance(ys, Simulation) else self  # the data's substeps
         if flt.time == "continuous" and flt.substeps != 1:
             raise TypeError(f"smooth: the particle smoother needs the transition density of the filter's step; on "
