@@ -74,3 +74,26 @@ def test_usual_options_still_pass():
     assert [len(a) for a in GridFilter(D1, (-4.0, 4.0), [11]).axes] == [11]
     sim = simulate(D1, 5, paths=2, rng=1, m0=np.array([[0.1], [0.2]]), P0=[[0.2]])
     assert sim.xs.shape == (2, 5, 1)
+
+
+class _ReprRaises(str):
+    """A filter name (a str) whose ``repr`` raises: the message shows its type instead."""
+
+    def __repr__(self):
+        raise RuntimeError("repr")
+
+
+class _Unshowable:
+    def __repr__(self):
+        raise RuntimeError("repr")
+
+
+def test_compare_names_a_hostile_filters_or_reference_argument():
+    from nlfilter import compare
+    kw = dict(paths=2, m0=[0.5], P0=[[0.2]], reference=None)
+    with pytest.raises(TypeError, match=r"^filters: expected 'all', a list"):
+        compare(D1, _Unshowable(), 3, **kw)
+    with pytest.raises(ValueError, match=r"^filters: expected registry names"):
+        compare(D1, [_ReprRaises("no-such-filter")], 3, **kw)
+    with pytest.raises(ValueError, match=r"^reference: expected one of"):
+        compare(D1, ["ekf"], 3, **{**kw, "reference": _ReprRaises("no-such-reference")})

@@ -20,6 +20,7 @@ import zlib
 
 import numpy as np
 
+from . import _validate as V
 from . import streams
 from .filters import REGISTRY
 from .filters.registry import accepting, model_kind
@@ -37,7 +38,7 @@ def _streams(rng):
     sub-streams of the same root (:mod:`nlfilter.streams`)."""
     if rng is None or isinstance(rng, bool):  # a comparison is reproducible: no fresh entropy
         raise TypeError(f"rng: expected a non-negative integer seed, a numpy.random.SeedSequence or a "
-                        f"numpy.random.Generator, got {rng!r}")
+                        f"numpy.random.Generator, got {V.shown(rng)}")
     return streams.root(rng), (int(rng) if isinstance(rng, numbers.Integral) else None)  # root checks the rest
 
 
@@ -80,7 +81,7 @@ def check_names(names) -> None:
     """A ValueError naming ``filters`` for the first of ``names`` not in the registry."""
     bad = next((n for n in names if n not in REGISTRY), None)
     if bad is not None:
-        raise ValueError(f"filters: expected registry names from {sorted(REGISTRY)!r}, got {bad!r}")
+        raise ValueError(f"filters: expected registry names from {sorted(REGISTRY)!r}, got {V.shown(bad)}")
 
 
 def _resolve(filters, model, sim_model, dt, start):
@@ -108,7 +109,7 @@ def _resolve(filters, model, sim_model, dt, start):
         explicit = True
     else:
         raise TypeError(f"filters: expected 'all', a list of registry names or a non-empty dict of name -> filter "
-                        f"instance, got {filters!r}")
+                        f"instance, got {V.shown(filters)}")
     check_names(names)
     out = {}
     for name in names:
@@ -134,10 +135,10 @@ def _resolve(filters, model, sim_model, dt, start):
 
 def _check_filters(filters, model, dt, start, reference, substeps=None):
     if not isinstance(filters, dict) or not filters:
-        raise TypeError(f"filters: expected a non-empty dict of name -> filter instance, got {filters!r}")
+        raise TypeError(f"filters: expected a non-empty dict of name -> filter instance, got {V.shown(filters)}")
     for name, flt in filters.items():
         if not isinstance(name, str) or not name:
-            raise TypeError(f"filters: expected non-empty string names, got {name!r}")
+            raise TypeError(f"filters: expected non-empty string names, got {V.shown(name)}")
         if name == OPTIMAL and reference is not None:
             raise ValueError(f"filters: the name {OPTIMAL!r} is the reference's; rename that filter")
         filters[name] = _check_filter(f"filters[{name!r}]", flt, model, dt, start, substeps)

@@ -196,9 +196,9 @@ def compare(model, filters, steps, *, paths=200, m0, P0, rng=0, reference="auto"
         V.positive("reference_budget", reference_budget)
         if not isinstance(reference, str):
             raise ValueError(f"reference_budget: budgets the automatic reference ('auto', 'grid', 'particle'); "
-                             f"expected None with reference={reference!r}")
+                             f"expected None with reference={V.shown(reference)}")
     if isinstance(reference, str) and reference not in REFERENCES:
-        raise ValueError(f"reference: expected one of {REFERENCES}, None or a filter instance, got {reference!r}")
+        raise ValueError(f"reference: expected one of {REFERENCES}, None or a filter instance, got {V.shown(reference)}")
     if not (reference is None or isinstance(reference, str)):
         reference = _check_filter("reference", reference, model, dt, start, substeps)
     filters, skipped = _resolve(filters, given, model, dt, start)
