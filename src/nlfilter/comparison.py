@@ -78,7 +78,7 @@ def compare(model, filters, steps, *, paths=200, m0, P0, rng=0, reference="auto"
         a nonlinear model) are listed with the reason in ``params["skipped"]`` and a note —, a list
         of registry names (built the same way; one that cannot be built is an error), or a dict
         name -> filter instance (anything with ``run(ys, m0, P0, on_divergence=...)`` returning
-        :class:`~nlfilter.filters.base.Estimates`), built for ``model`` (and ``dt``)
+        :class:`~nlfilter.filters.estimates.Estimates`), built for ``model`` (and ``dt``)
     steps, paths : measurement steps and Monte Carlo paths (``paths ≥ 2``)
     m0, P0 : the prior: true initial states are drawn from N(m0, P0); every filter starts there
     rng : an integer seed, a ``SeedSequence`` or a ``numpy.random.Generator``: the root of the
@@ -115,7 +115,7 @@ def compare(model, filters, steps, *, paths=200, m0, P0, rng=0, reference="auto"
         The simulation and the statistics are computed here; how it ran is
         ``Result.meta["execution"]``
     full_output : also return the :class:`~nlfilter.simulation.Simulation` and the dict
-        name -> :class:`~nlfilter.filters.base.Estimates` the numbers were computed from (with
+        name -> :class:`~nlfilter.filters.estimates.Estimates` the numbers were computed from (with
         ``smooth``, also ``"<name> (smoothed)"`` -> the smoothed estimates)
     smooth : also run the smoother (``Filter.smooth``) of every filter that has one (``smoother``
         not None; the others are listed in ``params["smoothing"]["no_smoother"]``) and of the

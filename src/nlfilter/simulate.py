@@ -28,6 +28,7 @@ import numpy as np
 from . import _validate as V
 from .errors import DivergenceError
 from .noise import Gaussian, NoiseLaw
+from .ode import ode_step
 from .sde_step import SUBSTEPS, euler_maruyama
 from .simulation import Simulation, Timing
 from .streams import PathRNG, as_paths
@@ -359,7 +360,7 @@ def simulate_continuous_discrete(model, steps: int, *, paths: int | range = 1, r
     setting of :class:`~nlfilter.filters.second_order.ContinuousDiscreteSecondOrderFilter`: the
     model's ``h``/``R`` read as ``y_k = h(x(t_k)) + v_k``, ``v_k ~ N(0, R)``, ``t_k = t0 + k dt``,
     k = 1..steps). Between measurements the drift is integrated by classical RK4 in ``substeps``
-    steps (:func:`~nlfilter.filters.base.ode_step`); when ``Q ≠ 0`` one Euler–Maruyama noise
+    steps (:func:`~nlfilter.ode.ode_step`); when ``Q ≠ 0`` one Euler–Maruyama noise
     increment ``G(x, t_k) w``, ``w ~ N(0, Q dt)``, is added per interval after the flow (a coarse
     model of the process noise: meant for nearly deterministic dynamics such as the falling body).
     Returns a :class:`Simulation` with ``xs[:, k] = x(t_{k+1})``, ``ys[:, k]`` its measurement, and
@@ -375,7 +376,6 @@ def simulate_continuous_discrete(model, steps: int, *, paths: int | range = 1, r
     >>> sim.xs.shape, sim.ys.shape, sim.t.tolist()
     ((2, 4, 3), (2, 4, 1), [1.0, 2.0, 3.0, 4.0])
     """
-    from .filters.base import ode_step
 
     if getattr(model, "kind", None) != "sde":
         raise TypeError(f"model: expected an SDEModel (continuous dynamics), got {type(model).__name__}")

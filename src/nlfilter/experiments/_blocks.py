@@ -1,7 +1,7 @@
 """What the experiments' Monte Carlo blocks share (:func:`nlfilter.montecarlo.montecarlo`): the
 ``block`` parameter (paths per block; 0, the default, puts all of a run's paths in one block, so a
 default run is one batch) and the per-path arrays a block returns — the seed-000 filters' means and
-extras (:func:`block_arrays`), or whole :class:`~nlfilter.filters.base.Estimates`
+extras (:func:`block_arrays`), or whole :class:`~nlfilter.filters.estimates.Estimates`
 (:func:`estimates_arrays`) — read back from the concatenated blocks."""
 
 from __future__ import annotations

@@ -58,77 +58,21 @@ from __future__ import annotations
 
 import math
 from types import MappingProxyType
-from typing import Mapping, NamedTuple
+
 
 import numpy as np
 
 from .. import _validate as V
 from ..errors import DivergenceError
 from ..sde_step import ITO_EULER
+from ..ode import ode_step  # noqa: F401  (re-exported: it moved to nlfilter.ode)
 from ..simulation import Simulation
 from ..streams import FILTER, PathRNG
 from .beliefs import GaussianState, where_paths
-from .linalg import _all_ok, bad_paths, no_information, symmetrize
-
-_NO_EXTRAS = MappingProxyType({})
-
-
-class Estimates(NamedTuple):
-    """Filter output over a batch.
-
-    ``means (..., T, n)``, ``covs (..., T, n, n)`` (NaN where a filter carries no covariance, as
-    documented by that filter), ``diverged (...,)`` bool, ``diverged_step (...,)`` int (−1 where
-    not diverged), and ``extras``: family-specific per-step outputs ``{name: (..., T, ...)}``
-    (for example the phase estimate ``theta`` of the phase filters, the fallback flags of the
-    method-of-moments filters), documented by each filter; empty for most."""
-
-    means: np.ndarray
-    covs: np.ndarray
-    diverged: np.ndarray
-    diverged_step: np.ndarray
-    extras: Mapping = _NO_EXTRAS
-
-    @property
-    def divergence_rate(self) -> float:
-        return float(np.mean(self.diverged)) if self.diverged.size else 0.0
-
-    def _extra(self, name):
-        try:
-            return self.extras[name]
-        except KeyError:
-            raise ValueError(f"estimates: no {name!r} here; run the filter with loglik=True "
-                             "(filters whose likelihood attribute is None give none)") from None
-
-    @property
-    def loglik(self) -> np.ndarray:
-        """The log-likelihood ``log p(y_0, ..., y_{T-1})`` of each path ``(...,)``: the sum of the
-        per-step terms ``extras["loglik"] (..., T)`` (``run(..., loglik=True)``); NaN on the paths
-        that diverged (``diverged``)."""
-        return self._extra("loglik").sum(axis=-1)
-
-    @property
-    def innovations(self) -> np.ndarray:
-        """The innovations ``y_k − E[y_k | y_0..y_{k-1}]`` ``(..., T, m)`` (NaN where missing)."""
-        return self._extra("innovation")
-
-    @property
-    def innovation_covs(self) -> np.ndarray:
-        """Their predicted covariances ``(..., T, m, m)`` (NaN where nothing was measured)."""
-        return self._extra("innovation_cov")
-
-    def take(self, idx) -> "Estimates":
-        """The estimates of the paths ``idx`` (any index of the batch axes)."""
-        return Estimates(self.means[idx], self.covs[idx], self.diverged[idx], self.diverged_step[idx],
-                         MappingProxyType({k: v[idx] for k, v in self.extras.items()}))
-
-    @staticmethod
-    def concatenate(parts) -> "Estimates":
-        """Estimates of several runs stacked along the (first) batch axis."""
-        parts = list(parts)
-        keys = parts[0].extras.keys()
-        return Estimates(*(np.concatenate([getattr(p, f) for p in parts]) for f in Estimates._fields[:4]),
-                         MappingProxyType({k: np.concatenate([p.extras[k] for p in parts]) for k in keys}))
-
+from .estimates import Estimates
+from .linalg import no_information, symmetrize
+from .recorder import Recorder, loglik_divergence  # noqa: F401  (loglik_divergence re-exported)
+from .timing import for_timing, set_start, set_t0  # noqa: F401  (re-exported)
 
 def gaussian_prior(m0, P0, n: int, batch: tuple, *, data: str = "ys", one: bool = False,
                    definite: bool = False) -> GaussianState:
@@ -152,118 +96,6 @@ def gaussian_prior(m0, P0, n: int, batch: tuple, *, data: str = "ys", one: bool 
     except ValueError:
         raise ValueError(f"m0/P0: shapes {m0.shape}, {P0.shape} do not broadcast to the batch {batch} of {data}") from None
     return GaussianState(mean, cov)
-
-
-def loglik_divergence(name: str, k: int, idx) -> DivergenceError:
-    """The error of a run whose log-likelihood term is not finite at step ``k`` on the paths
-    ``idx`` (``what="loglik"``): a term ``−½[eᵀS⁻¹e + log det S + m log 2π]`` that overflows a
-    double (a measurement ~1e200 away from its prediction: the true value, about −1e400, has no
-    float) or is NaN (a non-finite or singular S). ``on_divergence="mark"`` records such paths
-    instead (``diverged``, ``diverged_step``, ``extras["loglik_failed"]``)."""
-    return DivergenceError(
-        f"{name}: the log-likelihood term is not finite (−inf or NaN: the measurement is too far from its "
-        f"predicted law for a double, or its predicted covariance is singular) at step {k} on {len(idx)} path(s), "
-        f"first {list(map(int, idx[:5]))}; pass on_divergence='mark' to record such paths "
-        "(extras['loglik_failed']) and go on", step=k, paths=idx, what="loglik")
-
-
-class _Recorder:
-    """Bookkeeping of :meth:`Filter.run`: output arrays (path-major ``(B, T, ...)`` while filling,
-    the layout of the result: no transposing copy at the end), the divergence check after each
-    step (raise or mark), the restart of marked paths."""
-
-    def __init__(self, flt, B, T, on_divergence, keep: bool = False):
-        self.flt, self.B, self.T = flt, B, T
-        self.beliefs = [] if keep else None  # every step's belief, for a smoother's backward pass
-        self.on = on_divergence
-        self.means = self.covs = None
-        self.extras = {}
-        self.diverged = np.zeros(B, dtype=bool)
-        self.step = np.full(B, -1)
-        self.any_diverged = False
-
-    def _store(self, k, mean, cov, belief, d=None, info=None):
-        if self.means is None:
-            n = mean.shape[-1]
-            self.means = np.empty((self.B, self.T, n))
-            self.covs = np.empty((self.B, self.T, n, n))
-        if d is None:
-            self.means[:, k] = mean
-            self.covs[:, k] = np.nan if cov is None else cov
-        else:
-            self.means[:, k] = np.where(d[:, None], np.nan, mean)
-            self.covs[:, k] = np.nan if cov is None else np.where(d[:, None, None], np.nan, cov)
-        ex = self.flt.extras(belief)
-        if info is not None:
-            ex = {**(ex or {}), **info}
-        if ex:
-            for name, v in ex.items():
-                v = np.asarray(v)
-                if d is not None and v.dtype.kind == "f":
-                    v = np.where(d.reshape(-1, *(1,) * (v.ndim - 1)), np.nan, v)
-                if name not in self.extras:
-                    self.extras[name] = np.empty((v.shape[0], self.T, *v.shape[1:]), v.dtype)
-                self.extras[name][:, k] = v
-
-    def record(self, k, belief, bad, start, *, write: bool = True, info=None):
-        """Check step ``k``'s belief (raise or mark), write its summary (and the step's likelihood
-        ``info``, a dict of per-path arrays) unless ``write`` is False, and return it with the
-        diverged paths restarted from ``start``. A path whose log-likelihood term ``info["loglik"]``
-        is not finite diverges too (:func:`loglik_divergence`; marked: ``extras["loglik_failed"]``
-        is True at that step)."""
-        mean, cov = self.flt.summary(belief)
-        ll_bad = None
-        if info is not None:
-            if not math.isfinite(np.add.reduce(info["loglik"], axis=None)):
-                ll_bad = ~np.isfinite(info["loglik"])
-            info = {**info, "loglik_failed": np.zeros(self.B, bool)}
-        if bad is None and ll_bad is None and not self.any_diverged and (
-                _all_ok(mean, cov) if cov is not None else math.isfinite(np.add.reduce(mean, axis=None))):
-            if write:
-                self._store(k, mean, cov, belief, info=info)
-                if self.beliefs is not None:
-                    self.beliefs.append(belief)
-            return belief
-        now = bad_paths(mean, cov) if cov is not None else ~np.all(np.isfinite(mean), axis=-1)
-        if bad is not None:
-            now = now | bad
-        now &= ~self.diverged
-        if ll_bad is not None:  # only the likelihood failed on these paths: say so
-            info["loglik_failed"] = failed = ll_bad & ~now & ~self.diverged
-            if failed.any() and self.on == "raise" and not now.any():
-                raise loglik_divergence(self.flt.name, k, np.flatnonzero(failed))
-            now |= failed
-        if now.any():
-            if self.on == "raise":
-                idx = np.flatnonzero(now)
-                why = self.flt._divergence_reason(belief, now)
-                if why is not None:  # the filter says what failed (e.g. the grid filter: left the grid)
-                    text, what, idx = why
-                    raise DivergenceError(f"{self.flt.name}: {text} at step {k} on {idx.size} path(s), first "
-                                          f"{idx[:5].tolist()}; pass on_divergence='mark' to record such paths "
-                                          "and go on", step=k, paths=idx, what=what)
-                raise DivergenceError(
-                    f"{self.flt.name}: covariance lost positive definiteness or a value became non-finite "
-                    f"at step {k} on {idx.size} path(s), first {idx[:5].tolist()}; pass "
-                    "on_divergence='mark' to record such paths and go on", step=k, paths=idx, what="covariance")
-            self.diverged |= now
-            self.step[now] = k
-            self.any_diverged = True
-        belief = self.flt.reset(belief, self.diverged, start)  # restart harmlessly; outputs NaN (flagged)
-        if write:
-            self._store(k, mean, cov, belief, self.diverged, info)
-            if self.beliefs is not None:
-                self.beliefs.append(belief)
-        return belief
-
-    def result(self, batch) -> Estimates:
-        def out(a):  # (B, T, ...) -> (*batch, T, ...), a view
-            return a.reshape(*batch, *a.shape[1:])
-        if self.means is None:  # T = 0
-            n = self.flt.state_dim
-            self.means, self.covs = np.empty((self.B, 0, n)), np.empty((self.B, 0, n, n))
-        extras = MappingProxyType({k: out(v) for k, v in self.extras.items()})
-        return Estimates(out(self.means), out(self.covs), self.diverged.reshape(batch), self.step.reshape(batch), extras)
 
 
 class Filter:
@@ -337,46 +169,7 @@ class Filter:
         A convention stated on both sides that differs — ``start``, ``t0``, ``dt``, or data of
         another kind (increments for a filter of discrete measurements, or the reverse) — is a
         ValueError naming both."""
-        name = type(self).__name__
-        if timing is None:
-            return self, t0
-        kind = timing.kind
-        if self.time == "continuous":
-            if kind != "increments":
-                raise ValueError(f"ys: the Simulation holds {kind} measurements; {name} reads the increments dy "
-                                 "of a continuously observed SDE (simulate(sde_model, ..., dt=...))")
-            _same_dt(self, timing)
-            if t0 is None:
-                return self, timing.t0
-            if V.real("t0", t0) != timing.t0:
-                raise ValueError(f"t0: run was given t0={t0!r}, but the Simulation's prior is at t0={timing.t0!r}; "
-                                 "leave t0 unset to take the data's")
-            return self, t0
-        cd = getattr(getattr(self, "model", None), "kind", None) == "sde"
-        if kind == "increments" or (kind == "continuous-discrete") != cd:
-            reads = "an SDE measured at discrete times" if cd else "a discrete model's measurements"
-            raise ValueError(f"ys: the Simulation holds {kind} measurements; {name} reads {reads}")
-        changes = {}
-        if timing.start != self.start:
-            if getattr(self, "start_stated", True):
-                where = {"update": "at the prior's time", "predict": "one step after the prior"}[timing.start]
-                raise ValueError(f"start: {name} was built with start={self.start!r}, but the Simulation's first "
-                                 f"measurement is {where} (start={timing.start!r}); build it with "
-                                 f"start={timing.start!r}, or without start to take the data's")
-            changes["start"] = timing.start
-        if cd:
-            _same_dt(self, timing)
-            if getattr(self, "t0", timing.t0) != timing.t0:
-                if getattr(self, "t0_stated", True):
-                    raise ValueError(f"t0: {name} was built with t0={self.t0!r}, but the Simulation's prior is at "
-                                     f"t0={timing.t0!r}; build it with that t0, or without t0 to take the data's")
-                changes["t0"] = timing.t0
-        if not changes:
-            return self, t0
-        import copy
-        flt = copy.copy(self)
-        flt.__dict__.update(changes)
-        return flt, t0
+        return for_timing(self, timing, t0=t0)
 
     # -- the belief functions ----------------------------------------------------------------------
     @property
@@ -597,7 +390,7 @@ class Filter:
         B, T = yf.shape[:2]
         belief = self.init(m0, P0, batch, initial=initial, rng=rng)
         start = belief
-        rec = _Recorder(self, B, T, on, keep=smooth and self.smoother_keeps)
+        rec = Recorder(self, B, T, on, keep=smooth and self.smoother_keeps)
         steps = range(T)
         if progress:
             from tqdm.auto import tqdm
@@ -704,52 +497,6 @@ class DiscreteFilter(Filter):
         check_structure(self, model)
         self.model = model
         set_start(self, start)
-
-
-def set_start(flt, start) -> None:
-    """``flt.start``: ``start`` checked, or the class's default when None; ``flt.start_stated``
-    records which (a filter built without ``start`` takes a Simulation's, :meth:`Filter.for_timing`)."""
-    flt.start_stated = start is not None
-    flt.start = type(flt).start if start is None else V.choice("start", start, {"update", "predict"})
-
-
-def set_t0(flt, t0) -> None:
-    """``flt.t0`` of a continuous-discrete filter: ``t0`` checked, or 0.0 when None (``t0_stated``)."""
-    flt.t0_stated = t0 is not None
-    flt.t0 = 0.0 if t0 is None else V.real("t0", t0)
-
-
-def _same_dt(flt, timing) -> None:
-    """Refuse data measured every ``timing.dt`` for a filter built with another ``dt``."""
-    dt = getattr(flt, "dt", None)
-    if dt is not None and timing.dt is not None and not math.isclose(dt, timing.dt, rel_tol=1e-12):
-        raise ValueError(f"dt: {type(flt).__name__} was built with dt={dt!r}, but the Simulation's measurement "
-                         f"step is dt={timing.dt!r}")
-
-
-def ode_step(rhs, x, t: float, dt: float, *, substeps: int = 1, scheme: str = "rk4", finish=None):
-    """Integrate ``dx/dt = rhs(x, t)`` over ``[t, t + dt]`` in ``substeps`` steps: ``"euler"``
-    (order 1) or classical ``"rk4"`` (order 4). ``x`` is an array or a tuple of arrays (``rhs``
-    returns the same structure); ``finish(x)`` is applied after every substep (e.g. symmetrize)."""
-    h = dt / substeps
-    tup = isinstance(x, tuple)
-    add = (lambda a, b, c: tuple(ai + c * bi for ai, bi in zip(a, b))) if tup else (lambda a, b, c: a + c * b)
-    for j in range(substeps):
-        s = t + j * h
-        if scheme == "euler":
-            x = add(x, rhs(x, s), h)
-        else:
-            k1 = rhs(x, s)
-            k2 = rhs(add(x, k1, 0.5 * h), s + 0.5 * h)
-            k3 = rhs(add(x, k2, 0.5 * h), s + 0.5 * h)
-            k4 = rhs(add(x, k3, h), s + h)
-            if tup:
-                x = tuple(xi + h / 6 * (a + 2 * b + 2 * c + d) for xi, a, b, c, d in zip(x, k1, k2, k3, k4))
-            else:
-                x = x + h / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
-        if finish is not None:
-            x = finish(x)
-    return x
 
 
 def continuous_precision(model) -> np.ndarray:

@@ -1188,7 +1188,7 @@ def _plain(a):
 
 def run_compiled(flt, yf, batch, m0, P0, on, loglik, progress=False):
     """:meth:`Filter.run` of ``flt`` on ``yf (B, T, m)`` by the compiled loop: the same
-    :class:`~nlfilter.filters.base.Estimates` (path-major ``(B, T, ...)``, reshaped to ``batch``);
+    :class:`~nlfilter.filters.estimates.Estimates` (path-major ``(B, T, ...)``, reshaped to ``batch``);
     ``progress``: a bar over blocks of paths."""
     from .rules import _SPEC
     reason = unsupported(flt)
@@ -1277,8 +1277,8 @@ def run_compiled(flt, yf, batch, m0, P0, on, loglik, progress=False):
 
 
 def _finish(flt, on, step, batch, means, covs, want, ll, inn, icov):
-    """Raise or return the :class:`~nlfilter.filters.base.Estimates` of a compiled run. As the
-    run loop (:meth:`~nlfilter.filters.base._Recorder.record`), a path whose log-likelihood term is
+    """Raise or return the :class:`~nlfilter.filters.estimates.Estimates` of a compiled run. As the
+    run loop (:meth:`~nlfilter.filters.recorder.Recorder.record`), a path whose log-likelihood term is
     not finite before any other failure diverges there (raised, or marked with
     ``extras["loglik_failed"]``; its outputs from that step on NaN)."""
     from .base import Estimates, loglik_divergence

@@ -116,7 +116,7 @@ class OptimalLinearFilter(OfflineGainFilter):
     X0 : optional (N, N) initial second moment of z, needed by ``"steady"`` when the dynamics
         conserve second moments (the circle); otherwise taken from ``(m0, P0)``
 
-    ``run(ys, m0, P0)`` (increments ``ys``) returns :class:`~nlfilter.filters.base.Estimates` in the
+    ``run(ys, m0, P0)`` (increments ``ys``) returns :class:`~nlfilter.filters.estimates.Estimates` in the
     coordinates of x (the constant coordinate dropped; ``return_augmented=True``: all of z).
     ``m0``/``P0`` must be common to all paths (the gains are computed once for the whole batch).
     The on-line step is the affine runner of :mod:`.offline` (convention ``"held"``); NaN

@@ -27,7 +27,7 @@ lazily along k (the same numbers for any horizon)::
 
 Continuous time (:class:`ContinuousSchedule`): ``dm = (A m + b) dt + K (dy − (H m + d) dt)`` with the
 schedule's coefficients on the stage grid of the scheme (``t_k + i h/2``, ``h = dt/substeps``),
-integrated by :func:`~nlfilter.filters.base.ode_step`; a missing increment component contributes
+integrated by :func:`~nlfilter.ode.ode_step`; a missing increment component contributes
 nothing (its column of K is dropped, in the drift term too). Two conventions, as the filters were
 published and validated: ``"ito"`` (the quasilinear filters: the dt terms by the scheme, the
 innovation ``K(t_k) dy`` added as an Itô increment with the gain at the step's start) and

@@ -12,7 +12,7 @@
 All are :class:`~nlfilter.filters.base.Filter` s on a :class:`~nlfilter.bounded.BoundedNoiseModel`
 (``kind = "bounded"``; the zero-order estimator takes its support and noise width directly):
 ``run(ys)`` with scalar measurements ``ys (..., T, 1)`` (NaN: missing) returns
-:class:`~nlfilter.filters.base.Estimates` whose ``means`` are the posterior means, ``covs`` the
+:class:`~nlfilter.filters.estimates.Estimates` whose ``means`` are the posterior means, ``covs`` the
 posterior covariances from the carried moments (NaN where none: N = 1, and the zero-order
 estimator), and ``extras`` the family's flags and bounds (``fallback``, ``invalid``, ``lower``,
 ``upper``, the moments in use, and for the adaptive filters the refresh flags ``refreshed`` and

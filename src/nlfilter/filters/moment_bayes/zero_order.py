@@ -152,7 +152,7 @@ def _from_model(flt, model, N, support, noise_halfwidth, moments, adaptive):
 class ZeroOrderMomentFilter(MomentFilter):
     """Method-of-moments estimator for ``z = x + v`` (000 Chapter III, Fig. 7).
 
-    ``run(ys)`` with ``ys (..., T, 1)`` returns :class:`~nlfilter.filters.base.Estimates`: ``means``
+    ``run(ys)`` with ``ys (..., T, 1)`` returns :class:`~nlfilter.filters.estimates.Estimates`: ``means``
     the estimates of x_k, ``covs`` NaN (documented: the estimator carries no posterior second
     moment), ``extras["fallback"]`` (True where eq. 3.16 was used), ``extras["invalid"]`` (True where
     the moments in use failed the moment-sequence test) and, adaptive, ``extras["moments"] (..., T, N)``

@@ -27,7 +27,7 @@ The conditional density is kept on a fixed grid ``x_1 .. x_N`` (a regular grid o
   likelihood of the increment ``exp(hᵀ R⁻¹ dy − ½ hᵀ R⁻¹ h dt)`` at the grid points. In 2-D the
   diffusion ``G Q Gᵀ`` must be diagonal.
 
-The mean and covariance of ``p`` are returned as :class:`~nlfilter.filters.base.Estimates`.
+The mean and covariance of ``p`` are returned as :class:`~nlfilter.filters.estimates.Estimates`.
 Choose ``bounds`` to cover the states with margin and ``size`` so that the grid spacing is small
 against the noise: the filter is exact as the grid is refined.
 

@@ -8,7 +8,7 @@ the method-of-moments filters (``nlfilter reproduce moment-first-order``, ``mome
 
 Both are :class:`~nlfilter.filters.base.Filter` s on a :class:`~nlfilter.bounded.BoundedNoiseModel`
 whose ``w_law`` (a frozen ``scipy.stats`` law) is known to them: ``run(ys)`` with ``ys (..., T, 1)``
-returns :class:`~nlfilter.filters.base.Estimates` (posterior means and covariances). A missing
+returns :class:`~nlfilter.filters.estimates.Estimates` (posterior means and covariances). A missing
 measurement: predict only.
 
 (To move into the ``filters/reference/`` package as ``reference/bounded.py``.)

@@ -8,7 +8,7 @@ whose posterior given ``y_1 .. y_k`` is known exactly,
 
     p(x0 | y_1..y_k) ∝ N(x0; m0, P0) · Π_j N(y_j; h(Φ_j(x0)), R),
 
-``Φ_j`` the RK4 flow (:func:`~nlfilter.filters.base.ode_step`) of the drift to the j-th
+``Φ_j`` the RK4 flow (:func:`~nlfilter.ode.ode_step`) of the drift to the j-th
 measurement. The moves restore the diversity without changing the target. The proposal is
 ``x0' = x0 + scale · L z`` with ``L Lᵀ`` the cloud's covariance of ``x0`` (in prior-scaled units,
 regularized by 1e-12); a move at step k re-integrates the proposal over k intervals, so the

@@ -1,0 +1,126 @@
+"""The bookkeeping of :meth:`~nlfilter.filters.base.Filter.run`: the output arrays, the divergence
+check after every step (raise or mark: divergence as data), the restart of marked paths, and a
+log-likelihood term that is not finite treated as a divergence with its reason."""
+
+from __future__ import annotations
+
+import math
+from types import MappingProxyType
+
+import numpy as np
+
+from ..errors import DivergenceError
+from .estimates import Estimates
+from .linalg import _all_ok, bad_paths
+
+
+def loglik_divergence(name: str, k: int, idx) -> DivergenceError:
+    """The error of a run whose log-likelihood term is not finite at step ``k`` on the paths
+    ``idx`` (``what="loglik"``): a term ``−½[eᵀS⁻¹e + log det S + m log 2π]`` that overflows a
+    double (a measurement ~1e200 away from its prediction: the true value, about −1e400, has no
+    float) or is NaN (a non-finite or singular S). ``on_divergence="mark"`` records such paths
+    instead (``diverged``, ``diverged_step``, ``extras["loglik_failed"]``)."""
+    return DivergenceError(
+        f"{name}: the log-likelihood term is not finite (−inf or NaN: the measurement is too far from its "
+        f"predicted law for a double, or its predicted covariance is singular) at step {k} on {len(idx)} path(s), "
+        f"first {list(map(int, idx[:5]))}; pass on_divergence='mark' to record such paths "
+        "(extras['loglik_failed']) and go on", step=k, paths=idx, what="loglik")
+
+
+class Recorder:
+    """Bookkeeping of :meth:`Filter.run`: output arrays (path-major ``(B, T, ...)`` while filling,
+    the layout of the result: no transposing copy at the end), the divergence check after each
+    step (raise or mark), the restart of marked paths."""
+
+    def __init__(self, flt, B, T, on_divergence, keep: bool = False):
+        self.flt, self.B, self.T = flt, B, T
+        self.beliefs = [] if keep else None  # every step's belief, for a smoother's backward pass
+        self.on = on_divergence
+        self.means = self.covs = None
+        self.extras = {}
+        self.diverged = np.zeros(B, dtype=bool)
+        self.step = np.full(B, -1)
+        self.any_diverged = False
+
+    def _store(self, k, mean, cov, belief, d=None, info=None):
+        if self.means is None:
+            n = mean.shape[-1]
+            self.means = np.empty((self.B, self.T, n))
+            self.covs = np.empty((self.B, self.T, n, n))
+        if d is None:
+            self.means[:, k] = mean
+            self.covs[:, k] = np.nan if cov is None else cov
+        else:
+            self.means[:, k] = np.where(d[:, None], np.nan, mean)
+            self.covs[:, k] = np.nan if cov is None else np.where(d[:, None, None], np.nan, cov)
+        ex = self.flt.extras(belief)
+        if info is not None:
+            ex = {**(ex or {}), **info}
+        if ex:
+            for name, v in ex.items():
+                v = np.asarray(v)
+                if d is not None and v.dtype.kind == "f":
+                    v = np.where(d.reshape(-1, *(1,) * (v.ndim - 1)), np.nan, v)
+                if name not in self.extras:
+                    self.extras[name] = np.empty((v.shape[0], self.T, *v.shape[1:]), v.dtype)
+                self.extras[name][:, k] = v
+
+    def record(self, k, belief, bad, start, *, write: bool = True, info=None):
+        """Check step ``k``'s belief (raise or mark), write its summary (and the step's likelihood
+        ``info``, a dict of per-path arrays) unless ``write`` is False, and return it with the
+        diverged paths restarted from ``start``. A path whose log-likelihood term ``info["loglik"]``
+        is not finite diverges too (:func:`loglik_divergence`; marked: ``extras["loglik_failed"]``
+        is True at that step)."""
+        mean, cov = self.flt.summary(belief)
+        ll_bad = None
+        if info is not None:
+            if not math.isfinite(np.add.reduce(info["loglik"], axis=None)):
+                ll_bad = ~np.isfinite(info["loglik"])
+            info = {**info, "loglik_failed": np.zeros(self.B, bool)}
+        if bad is None and ll_bad is None and not self.any_diverged and (
+                _all_ok(mean, cov) if cov is not None else math.isfinite(np.add.reduce(mean, axis=None))):
+            if write:
+                self._store(k, mean, cov, belief, info=info)
+                if self.beliefs is not None:
+                    self.beliefs.append(belief)
+            return belief
+        now = bad_paths(mean, cov) if cov is not None else ~np.all(np.isfinite(mean), axis=-1)
+        if bad is not None:
+            now = now | bad
+        now &= ~self.diverged
+        if ll_bad is not None:  # only the likelihood failed on these paths: say so
+            info["loglik_failed"] = failed = ll_bad & ~now & ~self.diverged
+            if failed.any() and self.on == "raise" and not now.any():
+                raise loglik_divergence(self.flt.name, k, np.flatnonzero(failed))
+            now |= failed
+        if now.any():
+            if self.on == "raise":
+                idx = np.flatnonzero(now)
+                why = self.flt._divergence_reason(belief, now)
+                if why is not None:  # the filter says what failed (e.g. the grid filter: left the grid)
+                    text, what, idx = why
+                    raise DivergenceError(f"{self.flt.name}: {text} at step {k} on {idx.size} path(s), first "
+                                          f"{idx[:5].tolist()}; pass on_divergence='mark' to record such paths "
+                                          "and go on", step=k, paths=idx, what=what)
+                raise DivergenceError(
+                    f"{self.flt.name}: covariance lost positive definiteness or a value became non-finite "
+                    f"at step {k} on {idx.size} path(s), first {idx[:5].tolist()}; pass "
+                    "on_divergence='mark' to record such paths and go on", step=k, paths=idx, what="covariance")
+            self.diverged |= now
+            self.step[now] = k
+            self.any_diverged = True
+        belief = self.flt.reset(belief, self.diverged, start)  # restart harmlessly; outputs NaN (flagged)
+        if write:
+            self._store(k, mean, cov, belief, self.diverged, info)
+            if self.beliefs is not None:
+                self.beliefs.append(belief)
+        return belief
+
+    def result(self, batch) -> Estimates:
+        def out(a):  # (B, T, ...) -> (*batch, T, ...), a view
+            return a.reshape(*batch, *a.shape[1:])
+        if self.means is None:  # T = 0
+            n = self.flt.state_dim
+            self.means, self.covs = np.empty((self.B, 0, n)), np.empty((self.B, 0, n, n))
+        extras = MappingProxyType({k: out(v) for k, v in self.extras.items()})
+        return Estimates(out(self.means), out(self.covs), self.diverged.reshape(batch), self.step.reshape(batch), extras)
