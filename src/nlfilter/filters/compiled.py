@@ -208,15 +208,9 @@ def model_kernels(model, *, second: bool = False) -> dict:
 # what the compiled loop takes
 # ---------------------------------------------------------------------------------------------
 def _rule_kind(flt):
-    from .rules import Cubature, GaussHermite, Taylor1, Taylor2, Unscented
-    rule = getattr(flt, "rule", None)
-    if isinstance(rule, Taylor1):
-        return "taylor1"
-    if isinstance(rule, Taylor2):
-        return "taylor2"
-    if isinstance(rule, (Unscented, Cubature, GaussHermite)):
-        return "nodes"
-    return None
+    """The rule's step kernel (``rule.kind``: ``"taylor1"``, ``"nodes"``, ``"taylor2"``), or None."""
+    kind = getattr(getattr(flt, "rule", None), "kind", None)
+    return kind if kind in _FUNCTION_ARGS else None
 
 
 def unsupported(flt) -> str | None:
@@ -1157,26 +1151,9 @@ _FORCE = {"none": 0, "truncated": 1, "gaussian": 2}
 
 
 def _nodes(flt, n):
-    """``(z (N, n), w (N,), wc (N,))``: the rule's nodes ``X_i = m + L z_i`` and weights."""
-    from .rules import Cubature, GaussHermite, Unscented, _cubature_weights, _gh_rule
-    rule = flt.rule
-    if isinstance(rule, Unscented):
-        lam = rule.alpha ** 2 * (n + rule.kappa) - n
-        c = math.sqrt(n + lam)
-        z = np.concatenate([np.zeros((1, n)), c * np.eye(n), -c * np.eye(n)])
-        wm = np.full(2 * n + 1, 0.5 / (n + lam))
-        wc = wm.copy()
-        wm[0] = lam / (n + lam)
-        wc[0] = lam / (n + lam) + 1 - rule.alpha ** 2 + rule.beta
-        return z, wm, wc
-    if isinstance(rule, Cubature):
-        c = math.sqrt(n)
-        w = np.array(_cubature_weights(n))
-        return np.concatenate([c * np.eye(n), -c * np.eye(n)]), w, w
-    if isinstance(rule, GaussHermite):
-        z, w = _gh_rule(n, rule.order)
-        return np.array(z, float), np.array(w, float), np.array(w, float)  # writeable copies: one numba type for all rules
-    raise TypeError(f"rule: no compiled nodes for {type(rule).__name__}")  # pragma: no cover
+    """``(z (N, n), w (N,), wc (N,))``: the rule's table (:meth:`~nlfilter.filters.rules.NodeRule.unit_nodes`),
+    as writeable copies (one numba type for every rule)."""
+    return tuple(np.array(a, float) for a in flt.rule.unit_nodes(n))
 
 
 def _plain(a):
@@ -1190,7 +1167,7 @@ def run_compiled(flt, yf, batch, m0, P0, on, loglik, progress=False):
     """:meth:`Filter.run` of ``flt`` on ``yf (B, T, m)`` by the compiled loop: the same
     :class:`~nlfilter.filters.estimates.Estimates` (path-major ``(B, T, ...)``, reshaped to ``batch``);
     ``progress``: a bar over blocks of paths."""
-    from .rules import _SPEC
+    from .rules import FORM_TABLE
     reason = unsupported(flt)
     if reason is not None:
         raise TypeError(f"backend: 'numba' cannot run {type(flt).__name__} here: {reason}; use backend='numpy'")
@@ -1246,7 +1223,7 @@ def run_compiled(flt, yf, batch, m0, P0, on, loglik, progress=False):
         head = (Q, R, GQG0, G_const)
     else:
         rule = flt.rule
-        spec = _SPEC[rule.form]
+        spec = FORM_TABLE[rule.form]
         second = rule.second
         # first-order: the Hessian slots are never called; a compiled no-op fills them
         fxx, hxx = (fns["f_xx"], fns["h_xx"]) if second else (_unused3, _unused3)

@@ -64,7 +64,7 @@ from .. import _validate as V
 from ..moments.quadrature import gauss_hermite_rule
 from .linalg import mm, sqrt_psd
 
-__all__ = ["GaussMoments", "Taylor1", "Taylor2", "FORMS", "Unscented", "Cubature", "GaussHermite", "NodeRule",
+__all__ = ["GaussMoments", "Taylor1", "Taylor2", "FORMS", "Form", "FORM_TABLE", "Unscented", "Cubature", "GaussHermite", "NodeRule",
            "sigma_points", "hessian_trace", "quarter_outer", "gaussian_quartic", "noise_covariance"]
 
 
@@ -139,6 +139,7 @@ class Taylor1:
     with ``J = g_x(m)``; ``E[G Q Gᵀ] = G(m) Q G(m)ᵀ``. Exact when g is affine (and G constant)."""
 
     name = "taylor1"
+    kind = "taylor1"  # the compiled loop's step kernel (nlfilter.filters.compiled)
     second = False  # no second-order terms (for the continuous skeleton)
 
     def noise(self, model, m, P, t):
@@ -169,16 +170,33 @@ class Taylor1:
 
 FORMS = ("truncated", "truncated-jazwinski", "modified", "gaussian", "modified-gaussian", "first-order")
 
-# per form of seed 004 (see :mod:`nlfilter.filters.second_order`): the fourth-moment term of Cov[f]
-# (the prediction), of Cov[h] (the innovation covariance), the forcing (C tensor) kind, and whether
-# the Gaussian fourth-moment term of E[G V Gᵀ] is kept
-_SPEC = {
-    "truncated": ("none", "none", "none", False),
-    "truncated-jazwinski": ("-quarter", "-quarter", "truncated", False),
-    "modified": ("none", "-quarter", "none", False),
-    "gaussian": ("gaussian", "gaussian", "gaussian", True),
-    "modified-gaussian": ("gaussian", "gaussian", "none", True),
-    "first-order": ("none", "none", "none", False),
+
+class Form(NamedTuple):
+    """One row of :data:`FORM_TABLE`: what a second-order form of seed 004 keeps.
+
+    ``prediction`` / ``innovation``: the fourth-moment term of Cov[f] (the predicted covariance) and
+    of Cov[h] (the innovation covariance) — ``"none"``, ``"-quarter"`` (−¼(P g_xx)(P g_xx)ᵀ, 004
+    eq. 11 and after eq. 23) or ``"gaussian"`` (½ tr(g_xx⁽ⁱ⁾ P g_xx⁽ʲ⁾ P)); ``forcing``: the
+    covariance forcing tensor of the update (004 eq. 33) — ``"none"``, ``"truncated"`` or
+    ``"gaussian"``; ``gaussian_noise``: whether E[G V Gᵀ] keeps its Gaussian fourth moments
+    (004 eq. 19); ``second``: whether any second-order term is kept (``False``: the EKF's arithmetic)."""
+
+    prediction: str
+    innovation: str
+    forcing: str
+    gaussian_noise: bool
+    second: bool = True
+
+
+#: seed 004's forms as data (Henriksen 1979; :mod:`nlfilter.filters.second_order`): the NumPy
+#: skeleton and the compiled loop both read this table
+FORM_TABLE = {
+    "truncated": Form("none", "none", "none", False),
+    "truncated-jazwinski": Form("-quarter", "-quarter", "truncated", False),
+    "modified": Form("none", "-quarter", "none", False),
+    "gaussian": Form("gaussian", "gaussian", "gaussian", True),
+    "modified-gaussian": Form("gaussian", "gaussian", "none", True),
+    "first-order": Form("none", "none", "none", False, second=False),
 }
 
 
@@ -209,6 +227,7 @@ class Taylor2:
 
     form: str = "modified-gaussian"
     name = "taylor2"
+    kind = "taylor2"  # the compiled loop's step kernel
     symmetrize = True  # the skeleton symmetrizes the predicted covariance (as 004's filters do)
     screen = True  # the skeleton screens the innovation covariance for positive definiteness
 
@@ -217,7 +236,7 @@ class Taylor2:
 
     @property
     def second(self) -> bool:
-        return self.form != "first-order"
+        return FORM_TABLE[self.form].second
 
     def needs(self, model):
         if not self.second:
@@ -229,14 +248,14 @@ class Taylor2:
         G = model.G(m, t)
         if model.G_constant or not self.second:
             return np.einsum("...ia,ab,...qb->...iq", G, model.Q, G)
-        return noise_covariance(P, model.Q, G, model.G_x(m, t), model.G_xx(m, t), gaussian=_SPEC[self.form][3])
+        return noise_covariance(P, model.Q, G, model.G_x(m, t), model.G_xx(m, t), gaussian=FORM_TABLE[self.form].gaussian_noise)
 
     def forcing(self, P, A):
         """The covariance forcing tensor ``M (..., n, n, p)`` with ``dP = Σ_k M_ijk [·]_k``, or None.
 
         truncated-Jazwinski (004 eq. 33, the retained term): ``M_ijk = −½ P_ij (P h_xx)_k``;
         Gaussian (fourth moments of a Gaussian in eq. 33): ``M_ijk = (P h_xx⁽ᵏ⁾ P)_ij``."""
-        kind = _SPEC[self.form][2]
+        kind = FORM_TABLE[self.form].forcing
         if kind == "truncated":
             return -0.5 * P[..., :, :, None] * hessian_trace(P, A)[..., None, None, :]
         if kind == "gaussian":
@@ -252,8 +271,8 @@ class Taylor2:
         if self.second:
             A = hess(m, t)
             mean = mean + 0.5 * hessian_trace(P, A)  # 004 eqs. 18, 20
-        spec = _SPEC[self.form]
-        kind = spec[0] if role == "dynamics" else spec[1] if role == "measurement" else "gaussian"
+        form = FORM_TABLE[self.form]
+        kind = form.prediction if role == "dynamics" else form.innovation if role == "measurement" else "gaussian"
         quartic = None
         if A is not None and cov:
             if kind == "-quarter":
@@ -274,15 +293,37 @@ class Taylor2:
             S, quartic = S + quartic, None
         Q = None if noise_of is None else self.noise(noise_of, m, P, t)
         forcing = self.forcing(P, A) if role == "measurement" and A is not None else None
-        jac_out = J if role == "measurement" and spec[1] == "none" else None
+        jac_out = J if role == "measurement" and form.innovation == "none" else None
         return GaussMoments(mean, C if cross else None, S, jac_out, None, Q, quartic, forcing)
 
 
 class NodeRule:
-    """Base of the node rules: subclasses give ``nodes(m, P) -> (X (..., N, n), w (N,), wc (N,), bad)``."""
+    """Base of the node rules: a rule *is* its table of unit nodes and weights.
 
-    def nodes(self, m, P):  # pragma: no cover
+    A subclass gives :meth:`unit_nodes` ``(n) -> (z (N, n), wm (N,), wc (N,))``: the nodes of
+    N(0, I_n) with the mean and covariance weights (read-only arrays, cached per n). The points
+    under ``N(m, P)`` are ``X_i = m + L z_i`` with ``L`` the square root of P
+    (:func:`~nlfilter.filters.linalg.sqrt_psd`); the NumPy skeleton (:meth:`moments`) and the
+    compiled loop (:mod:`nlfilter.filters.compiled`) both read this one table, so a new node rule
+    is a table (and a registry line). ``check(n)``, when defined, refuses a dimension the table
+    cannot serve (a ValueError naming the rule's argument)."""
+
+    kind = "nodes"  # the compiled loop's step kernel
+
+    def unit_nodes(self, n: int):  # pragma: no cover
         raise NotImplementedError
+
+    def nodes(self, m, P):
+        """``(X (..., N, n), wm (N,), wc (N,), bad (...))``: the points ``m + L z_i`` and weights;
+        ``bad``: paths whose P has no square root (their points are drawn from the identity and
+        must be discarded: the filter poisons them so that ``run`` raises or marks them)."""
+        z, wm, wc = self.unit_nodes(m.shape[-1])
+        L, bad = sqrt_psd(P)
+        if m.shape[-1] < 4:
+            X = m[..., None, :] + np.einsum("...ij,pj->...pi", L, z)  # X_p = m + L z_p
+        else:  # the same as a matmul (rows z_pᵀ Lᵀ), several times faster at many nodes
+            X = m[..., None, :] + z @ np.swapaxes(L, -1, -2)
+        return X, wm, wc, bad
 
     def needs(self, model):
         return ()
@@ -311,25 +352,33 @@ class NodeRule:
 
 def sigma_points(m, P, alpha, beta, kappa):
     """Sigma points ``(..., 2n+1, n)``, weights ``(Wm, Wc)`` of shape ``(2n+1,)``, and the paths
-    ``(...)`` whose covariance is not PSD (their points are drawn from the identity and must be
-    discarded: the filter poisons them so that ``run`` raises or marks them). The square root is the
-    Cholesky factor, or the eigen root where P is only semi-definite (:func:`sqrt_psd`)."""
-    n = m.shape[-1]
-    lam = alpha**2 * (n + kappa) - n
-    L, bad = sqrt_psd((n + lam) * P)
-    Lt = np.swapaxes(L, -1, -2)  # rows = columns of L
-    X = np.concatenate([m[..., None, :], m[..., None, :] + Lt, m[..., None, :] - Lt], axis=-2)
-    Wm = np.full(2 * n + 1, 0.5 / (n + lam))
-    Wc = Wm.copy()
-    Wm[0] = lam / (n + lam)
-    Wc[0] = lam / (n + lam) + 1 - alpha**2 + beta
-    return X, Wm, Wc, bad
+    ``(...)`` whose covariance is not PSD: the nodes of :class:`Unscented` ``(alpha, beta, kappa)``
+    (:meth:`NodeRule.nodes`)."""
+    return Unscented(alpha, beta, kappa).nodes(m, P)
 
+
+def _frozen(*arrays):
+    out = tuple(np.array(a, float) for a in arrays)
+    for a in out:
+        a.flags.writeable = False
+    return out
+
+
+@functools.lru_cache(maxsize=None)
+def _unscented_table(n, alpha, beta, kappa):
+    lam = alpha**2 * (n + kappa) - n
+    c = math.sqrt(n + lam)
+    z = np.concatenate([np.zeros((1, n)), c * np.eye(n), -c * np.eye(n)])
+    wm = np.full(2 * n + 1, 0.5 / (n + lam))
+    wc = wm.copy()
+    wm[0] = lam / (n + lam)
+    wc[0] = lam / (n + lam) + 1 - alpha**2 + beta
+    return _frozen(z, wm, wc)
 
 
 @dataclass(frozen=True)
 class Unscented(NodeRule):
-    """Scaled unscented transform (van der Merwe), nodes of :func:`~nlfilter.filters.ukf.sigma_points`."""
+    """Scaled unscented transform (van der Merwe): ``2n + 1`` sigma points (:meth:`unit_nodes`)."""
 
     alpha: float = 1.0
     beta: float = 2.0
@@ -360,26 +409,22 @@ class Unscented(NodeRule):
                              f"{self.ROUNDING:g} to rounding (eps·Σ|W|), got alpha = {self.alpha!r} "
                              f"(n = {n}, kappa = {self.kappa:g}: α²(n + κ) = {float(s):.3g}, rounding {float(loss):.3g})")
 
-    def nodes(self, m, P):
-        return sigma_points(m, P, self.alpha, self.beta, self.kappa)
-
-
-def _weights(w):
-    w = np.asarray(w, float)
-    w.flags.writeable = False
-    return w
+    def unit_nodes(self, n):
+        """``z_0 = 0``, ``z_{±i} = ±√(n + λ) e_i`` (``λ = α²(n + κ) − n``); ``Wm_0 = λ/(n + λ)``,
+        ``Wc_0 = Wm_0 + 1 − α² + β``, the others ``1/(2(n + λ))`` (van der Merwe 2004)."""
+        return _unscented_table(n, self.alpha, self.beta, self.kappa)
 
 
 @functools.lru_cache(maxsize=None)
-def _cubature_weights(n):
-    return _weights(np.full(2 * n, 0.5 / n))
+def _cubature_table(n):
+    return _frozen(math.sqrt(n) * np.concatenate([np.eye(n), -np.eye(n)]), np.full(2 * n, 0.5 / n),
+                   np.full(2 * n, 0.5 / n))
 
 
 @functools.lru_cache(maxsize=None)
-def _gh_rule(n, order):
+def _gh_table(n, order):
     z, w = gauss_hermite_rule(n, order)
-    z.flags.writeable = False
-    return z, _weights(w)
+    return _frozen(z, w, w)
 
 
 @dataclass(frozen=True)
@@ -390,13 +435,9 @@ class Cubature(NodeRule):
 
     name = "cubature"
 
-    def nodes(self, m, P):
-        n = m.shape[-1]
-        L, bad = sqrt_psd(P)
-        Lt = math.sqrt(n) * np.swapaxes(L, -1, -2)  # rows: √n × the columns of L
-        X = np.concatenate([m[..., None, :] + Lt, m[..., None, :] - Lt], axis=-2)
-        w = _cubature_weights(n)
-        return X, w, w, bad
+    def unit_nodes(self, n):
+        """``z_{±i} = ±√n e_i``, weights ``1/(2n)`` (Arasaratnam & Haykin 2009)."""
+        return _cubature_table(n)
 
 
 @dataclass(frozen=True)
@@ -417,11 +458,6 @@ class GaussHermite(NodeRule):
             raise ValueError(f"order: {self.order}**{n} = {self.order ** n} nodes per expectation exceed "
                              f"{MAX_NODES}; expected a lower order, or the Cubature rule for n = {n}")
 
-    def nodes(self, m, P):
-        z, w = _gh_rule(m.shape[-1], self.order)
-        L, bad = sqrt_psd(P)
-        if m.shape[-1] < 4:
-            X = m[..., None, :] + np.einsum("...ij,pj->...pi", L, z)  # X_p = m + L z_p
-        else:  # the same as a matmul (rows z_pᵀ Lᵀ), several times faster at order**n nodes
-            X = m[..., None, :] + z @ np.swapaxes(L, -1, -2)
-        return X, w, w, bad
+    def unit_nodes(self, n):
+        """The probabilists' Hermite nodes on a tensor grid, product weights (Ito & Xiong 2000)."""
+        return _gh_table(n, self.order)
