@@ -11,7 +11,8 @@ from sympy.printing.numpy import NumPyPrinter
 from nlfilter import DiscreteModel, SDEModel
 from nlfilter.filters.ekf import EKF
 from nlfilter.filters.second_order import SecondOrderFilter
-from nlfilter.models import _Batched, _Kernel, _LazyKernels, _nothing_to_share, _Printer
+from nlfilter.codegen import ArrayPrinter, nothing_to_share
+from nlfilter.models import _Batched, _Kernel, _LazyKernels
 
 LAZY = ("f_xx", "h_xx", "G_x", "G_xx")
 ALL = ("f", "f_x", "f_xx", "h", "h_x", "h_xx", "G", "G_x", "G_xx")
@@ -174,30 +175,30 @@ def test_code_without_cse_only_when_cse_finds_nothing():
         cases.append(list(M))
     cases += [[xs[0] + xs[1], xs[0] + xs[1] + xs[2]], [2.0 * xs[0] + xs[1], -2.0 * xs[0]], [xs[0] * xs[1]],
               [xs[0] + 1, xs[1] + 1], [-xs[0] - xs[1], xs[0] + xs[1] + xs[2]]]
-    printer = lambda: _Printer({"fully_qualified_modules": False, "inline": True,  # noqa: E731
+    printer = lambda: ArrayPrinter({"fully_qualified_modules": False, "inline": True,  # noqa: E731
                                 "allow_unknown_functions": True})
     skipped = 0
     for exprs in cases:
         with_cse = sp.cse(exprs)[0]
-        if _nothing_to_share(exprs):
+        if nothing_to_share(exprs):
             skipped += 1
             assert not with_cse, exprs
             a = inspect.getsource(sp.lambdify(list(xs), exprs, modules="numpy", cse=True, printer=printer()))
             b = inspect.getsource(sp.lambdify(list(xs), exprs, modules="numpy", cse=False, printer=printer()))
             assert a == b, exprs
     assert skipped >= 8
-    assert not _nothing_to_share([xs[0] + xs[1], xs[0] + xs[1] + xs[2]])
-    assert not _nothing_to_share([xs[0] ** 2])
+    assert not nothing_to_share([xs[0] + xs[1], xs[0] + xs[1] + xs[2]])
+    assert not nothing_to_share([xs[0] ** 2])
 
 
-class _Reference(_Printer):
+class _Reference(ArrayPrinter):
     def _print_Mul(self, expr):  # the printer without the c*s shortcut
         return NumPyPrinter._print_Mul(self, expr)
 
 
 def test_printer_shortcut_writes_the_same_text():
     settings = {"fully_qualified_modules": False, "inline": True, "allow_unknown_functions": True}
-    p, ref = _Printer(settings), _Reference(settings)
+    p, ref = ArrayPrinter(settings), _Reference(settings)
     x, y, lam = sp.symbols("x y lambda")
     rng = np.random.default_rng(7)
     coeffs = list(rng.standard_normal(20) * 10.0 ** rng.integers(-12, 12, 20)) + [1.0, -1.0, 0.5, -2.0, 1e300, -5e-324]

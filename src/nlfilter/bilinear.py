@@ -40,7 +40,8 @@ import sympy as sp
 
 from . import _validate as V
 from .errors import NotPolynomialError
-from .models import _check_expressions, lambdify_numpy
+from .codegen import lambdify_numpy
+from .models import _check_expressions
 from .moments.closed import bilinear_lift
 from .moments.ito import PolynomialSDE
 from .polynomials import Polynomial, monomial_name, monomials

@@ -96,13 +96,11 @@ from types import MappingProxyType
 from typing import Callable
 
 import numpy as np
-import scipy.special
 import sympy as sp
 from sympy.core.function import AppliedUndef
-from sympy.printing.numpy import NumPyPrinter
-from sympy.printing.precedence import precedence
 
 from . import _validate as V
+from .codegen import first_derivatives, is_affine, jacobian, lambdify_arrays
 from .noise import Gaussian, NoiseLaw, as_law
 
 _DERIVS = ("f", "f_x", "f_xx", "h", "h_x", "h_xx", "G", "G_x", "G_xx")
@@ -112,53 +110,6 @@ _STATE_R = ("model.R: this model's measurement noise covariance depends on the s
             "filter, continuous-time filters) cannot take it. Use a Gaussian filter (EKF, UKF, CKF, GHKF, "
             "second-order: R at the predicted mean), GridFilter or ParticleFilter (R(x) exactly); "
             "model.R_of(x, k) evaluates it")
-
-
-class FullPrecisionPrinter(NumPyPrinter):
-    """NumPy code whose float constants carry full double precision: ``repr(float(c))``, the
-    shortest text that reads back to the same double (up to 17 significant digits). SymPy's own
-    printer writes 15 (``0.1 + 2**-50`` would become ``0.100000000000001``)."""
-
-    def _print_Float(self, expr):
-        value = float(expr)
-        if np.isfinite(value):
-            return repr(value)
-        return super()._print_Float(expr)
-
-
-def lambdify_numpy(args, exprs, **kw):
-    """``sympy.lambdify`` to NumPy with :class:`FullPrecisionPrinter` (the one code generator of
-    the library; ``kw`` such as ``cse=True`` pass through)."""
-    return sp.lambdify(args, exprs, modules="numpy",
-                       printer=FullPrecisionPrinter({"fully_qualified_modules": False, "inline": True,
-                                                     "allow_unknown_functions": True}), **kw)
-
-
-class _Printer(FullPrecisionPrinter):
-    """NumPy code with small integer powers written as products (``x*x*x`` is several times
-    faster than ``x**3`` on arrays), float constants in full precision."""
-
-    def _print_Pow(self, expr, rational=False):
-        if expr.exp.is_Integer and 2 <= int(expr.exp) <= 4:
-            base = self.parenthesize(expr.base, precedence(expr))
-            return "(" + "*".join([base] * int(expr.exp)) + ")"  # parenthesized: a product, not a power
-        return super()._print_Pow(expr, rational=rational)
-
-    def _print_Mul(self, expr):
-        # c*s (a finite float times a symbol, the terms of a linear model): the text NumPyPrinter
-        # writes, without its general factor ordering (a third of a dense linear model's build)
-        if len(expr.args) == 2:
-            c, s = expr.args
-            if c.is_Float and s.is_Symbol and np.isfinite(float(c)):
-                v = float(c)
-                return ("-" if v < 0 else "") + repr(abs(v)) + "*" + self._print(s)
-        return super()._print_Mul(expr)
-
-    def _print_erf(self, expr):  # SciPy's ufunc (NumPy has none; math.erf takes no arrays)
-        return f"_erf({self._print(expr.args[0])})"
-
-    def _print_erfc(self, expr):
-        return f"_erfc({self._print(expr.args[0])})"
 
 
 class _PiecewiseFn(sp.Function):
@@ -338,32 +289,6 @@ class _Values:
 _NO_VALUES = _Values({}, (), None, 0.0)
 
 
-def _nothing_to_share(exprs) -> bool:
-    """Whether common-subexpression elimination can find nothing in ``exprs`` (then ``lambdify``
-    without it writes the same code, without its cost: seconds for a dense 42-state linear model).
-
-    Decided for sums of terms ``c*s``, ``s`` and ``c`` (``c`` a number, ``s`` a symbol) only: no
-    term, up to its sign, may occur twice in the whole list (so no subexpression repeats and no two
-    sums, nor their negations, share two terms); anything else answers ``False`` (use CSE)."""
-    seen = set()
-    for e in exprs:
-        for a in (e.args if e.is_Add else (e,)):
-            if a.is_Mul:
-                if len(a.args) != 2 or not (a.args[0].is_Number and a.args[1].is_Symbol):
-                    return False
-                key = (abs(a.args[0]), a.args[1])
-            elif a.is_Symbol:
-                key = (sp.S.One, a)
-            elif a.is_Number:
-                key = (abs(a), None)
-            else:
-                return False
-            if key in seen:
-                return False
-            seen.add(key)
-    return True
-
-
 class _Kernel:
     """A SymPy array expression compiled once (``lambdify`` with ``cse=True``) into a function of
     the state components, the time and the parameters it uses; shared by every
@@ -390,68 +315,12 @@ class _Kernel:
         else:
             args = list(states) + ([time] if time is not None else [sp.Symbol("_t_unused")]) + list(self.params)
             flat = [_code_form(e) for e in flat]
-            self.fn = sp.lambdify(args, flat, modules=[_SCIPY, "numpy"], cse=not _nothing_to_share(flat),
-                                  printer=_Printer({"fully_qualified_modules": False, "inline": True,
-                                                    "allow_unknown_functions": True}))
+            self.fn = lambdify_arrays(args, flat)
 
 
-_SCIPY = {"_erf": scipy.special.erf, "_erfc": scipy.special.erfc}
-
-
-def _d(e, s):
-    """``∂e/∂s`` as ``sp.diff`` gives it (the same expression), a sum differentiated term by term
-    over the terms that contain ``s`` only (``Add._eval_derivative`` differentiates every term: the
-    n³ cost of a dense n-state Jacobian)."""
-    if e.is_Add:
-        return e.func(*[_d(a, s) for a in e.args if s in a.free_symbols])
-    if e is s:
-        return sp.S.One
-    if e.is_Mul and len(e.args) == 2 and e.args[1] is s and e.args[0].is_Number:  # c*s: c, as Mul's rule gives
-        return e.args[0]
-    return e.diff(s)
-
-
-def _gradients(exprs, states) -> list:
-    """``[[∂e/∂s for s in states] for e in exprs]``, each entry the expression ``sp.diff`` gives; a
-    sum is differentiated over the terms that contain ``s`` (in the sum's order), an entry free of
-    ``s`` is zero."""
-    rows = []
-    for e in exprs:
-        if e.is_Add:
-            terms = {}
-            for a in e.args:
-                for s in a.free_symbols:
-                    terms.setdefault(s, []).append(a)
-            rows.append([e.func(*[_d(a, s) for a in terms[s]]) if s in terms else sp.S.Zero for s in states])
-        else:
-            fs = e.free_symbols
-            rows.append([_d(e, s) if s in fs else sp.S.Zero for s in states])
-    return rows
-
-
-def _jacobian(M, states) -> sp.Matrix:
-    """``M.jacobian(states)`` (the same entries)."""
-    rows = _gradients(M, states)
-    return sp.Matrix(len(rows), len(states), [d for row in rows for d in row]) if rows else sp.zeros(0, len(states))
-
-
-def _affine(e, grad, states) -> bool:
-    """Whether ``e`` is a polynomial of total degree ≤ 1 in ``states`` (``grad`` its gradient): a
-    polynomial whose gradient is free of the states is affine; otherwise SymPy's ``Poly`` decides."""
-    if not e.is_polynomial(*states):
-        return False
-    ss = frozenset(states)
-    if all(g.free_symbols.isdisjoint(ss) for g in grad):
-        return True
-    return sp.Poly(e, *states).total_degree() <= 1
-
-
-def _first(M, states) -> list:
-    """``[∂e/∂s for e in M for s in states]`` (row-major over ``M``, the states last): G's
-    derivatives ``[i, a, j]``, and from first derivatives ``[..., j]`` the Hessian entries
-    ``[..., j, k]`` (the same ``sp.diff`` per entry as the nested loops of before, so the generated
-    code is the same)."""
-    return [d for row in _gradients(list(M), states) for d in row]
+# the derivatives of the generated code (:mod:`nlfilter.codegen`); the private names are kept for the
+# compiled loop (filters/compiled.py), which imports them from here
+_jacobian, _first = jacobian, first_derivatives
 
 
 class _LazyKernels:
@@ -699,7 +568,7 @@ class Model:
                 raise ValueError("G: a model with non-additive noise (noise=[...]) states the noise in f; expected "
                                  f"G=None, got {G!r}")
             fw0 = fM.subs({w: 0 for w in noise})
-            GM = _jacobian(_code_matrix(fM), noise).subs({w: 0 for w in noise})  # the noise gain at w = 0
+            GM = jacobian(_code_matrix(fM), noise).subs({w: 0 for w in noise})  # the noise gain at w = 0
         else:
             GM = sp.eye(n) if G is None else _matrix("G", G, n, None)
             _check_expressions("G", GM, True)
@@ -763,8 +632,8 @@ class Model:
         self.piecewise = frozenset(type(a).__name__ for M in (fM, hM, GM) for e in M if e.has(*_PIECEWISE)
                                    for a in sp.preorder_traversal(e) if type(a) in _PIECEWISE)
         fM, hM, GM = _code_matrix(fM), _code_matrix(hM), _code_matrix(GM)
-        fx = _jacobian(fM, states)
-        hx = _jacobian(hM, states)
+        fx = jacobian(fM, states)
+        hx = jacobian(hM, states)
         # the G-constant flag first: a G free of the states has G_x = G_xx = 0 (no SymPy)
         sset = frozenset(states)  # (one set: n² entries are tested against it)
         self.G_constant = all(e.free_symbols.isdisjoint(sset) for e in GM)
@@ -775,12 +644,12 @@ class Model:
         # second derivatives (and G's derivatives) are generated on first call, once for every copy
         r, m, Gc, ps = self.r, self.m, self.G_constant, self._psyms
         self._lazy = _LazyKernels({
-            "f_xx": ((n, n, n), lambda: _Kernel(_first(list(fx), states), states, time, (n, n, n), ps)),
-            "h_xx": ((m, n, n), lambda: _Kernel(_first(list(hx), states), states, time, (m, n, n), ps)),
+            "f_xx": ((n, n, n), lambda: _Kernel(first_derivatives(list(fx), states), states, time, (n, n, n), ps)),
+            "h_xx": ((m, n, n), lambda: _Kernel(first_derivatives(list(hx), states), states, time, (m, n, n), ps)),
             "G_x": ((n, r, n), lambda: _Kernel.zeros((n, r, n), n) if Gc else
-                    _Kernel(_first(GM, states), states, time, (n, r, n), ps)),
+                    _Kernel(first_derivatives(GM, states), states, time, (n, r, n), ps)),
             "G_xx": ((n, r, n, n), lambda: _Kernel.zeros((n, r, n, n), n) if Gc else
-                     _Kernel(_first(_first(GM, states), states), states, time, (n, r, n, n), ps)),
+                     _Kernel(first_derivatives(first_derivatives(GM, states), states), states, time, (n, r, n, n), ps)),
         })
         if noise:  # f(x, w) on the augmented vector (x, w) (..., n + r)
             self._kernels["f_aug"] = _Kernel(list(f_aug), states + list(noise), time, (n,), self._psyms)
@@ -790,7 +659,7 @@ class Model:
         # structure flags (for every parameter value), read by filters that can exploit them
         self._G_fixed = all(e.free_symbols.isdisjoint(sset | {time}) for e in GM)
         self.is_linear = self.additive and self.additive_measurement and self.G_constant and all(  # f and h affine in the state
-            _affine(e, row, states) for e, row in zip(list(fM) + list(hM), fx.tolist() + hx.tolist()))
+            is_affine(e, row, states) for e, row in zip(list(fM) + list(hM), fx.tolist() + hx.tolist()))
         self._timed = time is not None and any(M.has(time) for M in (fM, hM, GM) + ((f_aug,) if noise else ())
                                                + ((h_aug,) if meas_noise else ()))
         self._uses = {k: set(self._kernels[k].params) for k in ("f", "h", "G")}

@@ -24,7 +24,7 @@ import numpy as np
 import scipy.sparse as sps
 import sympy as sp
 
-from ..models import lambdify_numpy
+from ..codegen import lambdify_numpy
 from ..polynomials import Polynomial
 
 __all__ = ["MomentEquations", "degree_order", "matvec"]

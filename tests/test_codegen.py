@@ -1,0 +1,72 @@
+"""The one code generator (issue 27, item 4): nlfilter.codegen writes the compiled loop's kernels
+with the same text as filters/compiled.py's own generators did, and every printer follows one float
+policy (repr of a finite double)."""
+
+import math
+
+import numpy as np
+import pytest
+import sympy as sp
+
+from nlfilter import DiscreteModel
+from nlfilter import codegen
+from nlfilter.codegen import (ArrayPrinter, FullPrecisionPrinter, ScalarPrinter, array_source, first_derivatives,
+                              jacobian, lambdify_numpy, scalar_source)
+
+
+def _models():
+    x1, x2, x3, a, k, q = sp.symbols("x1 x2 x3 a k q")
+    chain = DiscreteModel([x1, x2, x3], [0.9 * x1, 0.9 * x2 + a * x1**2, 0.9 * x3 + 0.1 * x2**2],
+                          [x1, x3**2 / 2 + x1 * x2], Q=0.01 * np.eye(3), R=0.1 * np.eye(2), params={a: 0.1})
+    timed = DiscreteModel([x1, x2], [x1 + 0.1 * sp.sin(k) * x2, 0.95 * x2 - 0.05 * x1**3],
+                          [x1 * x2 + k, sp.cos(x1)], G=[[1 + 0.1 * x1**2], [sp.sin(x2) * x1]], Q=[[q]],
+                          R=0.2 * np.eye(2), params={q: 0.3}, time=k)
+    erf = DiscreteModel([x1, x2], [x1 + 0.1 * sp.erf(x2), sp.exp(-0.3 * x1) * x2 + 1 / 3.0],
+                        [sp.atan2(x2, 1 + x1**2)], Q=np.eye(2), R=[[0.5]])
+    return {"chain": chain, "timed": timed, "erf": erf}
+
+
+@pytest.mark.parametrize("name", ["chain", "timed", "erf"])
+def test_array_source_is_compiled_loops_text(name):
+    """codegen.array_source writes, character for character, the source filters/compiled.py's
+    _source writes today for f, f_x, f_xx, h, h_x, h_xx and G (the chain's f_xx has 27 entries
+    with more than 8 zeros: the loop of zeros); the lead points the compiled loop at codegen."""
+    compiled = pytest.importorskip("nlfilter.filters.compiled")
+    model = _models()[name]
+    ex, states, time, ps = model.expressions, model.states, model.time, model._psyms
+    n, m, r = model.n, model.m, model.r
+    fx, hx = jacobian(ex["f"], states), jacobian(ex["h"], states)
+    specs = {"f": (list(ex["f"]), (n,)), "f_x": (list(fx), (n, n)), "h": (list(ex["h"]), (m,)),
+             "h_x": (list(hx), (m, n)), "G": (list(ex["G"]), (n, r)),
+             "f_xx": (first_derivatives(list(fx), states), (n, n, n)),
+             "h_xx": (first_derivatives(list(hx), states), (m, n, n))}
+    for w, (exprs, shape) in specs.items():
+        new = array_source("g_" + w, exprs, shape, states, time, ps)
+        assert new == compiled._source("g_" + w, exprs, shape, states, time, ps), w
+    zero_loop = array_source("g", specs["f_xx"][0], (n, n, n), states, time, ps)
+    assert ("for i0 in range" in zero_loop) == (name == "chain")
+
+
+def test_scalar_source_is_compiled_loops_text():
+    compiled = pytest.importorskip("nlfilter.filters.compiled")
+    x, k, a = sp.symbols("x k a")
+    exprs = [a * x + 0.1 * sp.sin(k), x**3 / (1 + x**2), sp.Float(0.1 + 2**-50) * sp.exp(-a * x), sp.Integer(1)]
+    for e in exprs:
+        assert scalar_source("s_f", e, x, k, [a]) == compiled._scalar_source("s_f", e, x, k, [a]), e
+
+
+def test_one_float_policy():
+    """Every printer writes a finite float as repr(float): the shortest text that reads back to the
+    same double (so the generated NumPy function returns the constant exactly: tolerance 0)."""
+    x = sp.Symbol("x")
+    values = [0.1 + 2**-50, 1 / 3, -2.5e-300, 1e300, 5e-324, math.pi, 123456789.12345679]
+    for v in values:
+        c = sp.Float(v)
+        want = repr(abs(v))
+        for pr in (FullPrecisionPrinter(), ArrayPrinter(), ScalarPrinter()):
+            assert pr.doprint(sp.Float(abs(v))) == want
+            assert want in pr.doprint(c * x), (type(pr).__name__, v)
+        assert float(lambdify_numpy([x], c + 0 * x)(0.0)) == v
+        assert codegen.float_text(v) == repr(v)
+    assert codegen.float_text(float("inf")) is None
+    assert ScalarPrinter().doprint(sp.oo) == "math.inf"
