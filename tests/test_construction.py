@@ -12,7 +12,7 @@ from nlfilter import DiscreteModel, SDEModel
 from nlfilter.filters.ekf import EKF
 from nlfilter.filters.second_order import SecondOrderFilter
 from nlfilter.codegen import ArrayPrinter, nothing_to_share
-from nlfilter.models import _Batched, _Kernel, _LazyKernels
+from nlfilter.model_functions import Batched, Kernel, LazyKernels
 
 LAZY = ("f_xx", "h_xx", "G_x", "G_xx")
 ALL = ("f", "f_x", "f_xx", "h", "h_x", "h_xx", "G", "G_x", "G_xx")
@@ -36,8 +36,8 @@ def eager(model):
              "G": (list(GM), (n, r)), "G_x": (flat(Gx), (n, r, n)), "G_xx": (flat(Gxx), (n, r, n, n))}
     ref = copy.copy(model)
     ref._kernels = dict(model._kernels)
-    ref._kernels.update({k: _Kernel(e, states, time, shape, ps) for k, (e, shape) in specs.items()})
-    ref._lazy = _LazyKernels({})
+    ref._kernels.update({k: Kernel(e, states, time, shape, ps) for k, (e, shape) in specs.items()})
+    ref._lazy = LazyKernels({})
     ref._bind(model._values)
     return ref
 
@@ -104,7 +104,7 @@ def test_lazy_derivatives_equal_eager_bitwise(name):
                 np.testing.assert_array_equal(model.R_of(x, t), ref.R_of(x, t))
     for key in LAZY:  # after the first call, the model holds the generated function itself
         fn = getattr(model, key)
-        assert isinstance(fn, _Batched) or type(fn).__name__ == "_Folded", key
+        assert isinstance(fn, Batched) or type(fn).__name__ == "Folded", key
     assert model.is_linear == (name == "linear") and model.G_constant == (name not in ("timed-state-G", "sde-folded-Q", "non-additive"))
 
 

@@ -8,7 +8,7 @@ import sympy as sp
 
 from nlfilter import DiscreteModel, SDEModel, simulate
 from nlfilter.filters import CKF, EKF, UKF, GridFilter, KalmanFilter
-from nlfilter.models import _DERIVS
+from nlfilter.model_functions import DERIVS
 
 x1, x2, a, b, q, r, k = sp.symbols("x1 x2 a b q r k")
 F_ = [a * x1 + sp.sin(b * x2) + k / 10, x2 - a * b * x1 ** 2]
@@ -27,7 +27,7 @@ def _substituted(values):
 
 def _assert_same_functions(mA, mB, tol=1e-15):
     X = np.random.default_rng(1).normal(size=(4, 3, 2))
-    for key in _DERIVS:
+    for key in DERIVS:
         A, B = getattr(mA, key)(X, 2), getattr(mB, key)(X, 2)
         assert A.shape == B.shape, key
         np.testing.assert_allclose(A, B, rtol=tol, atol=tol, err_msg=key)

@@ -39,9 +39,9 @@ import numpy as np
 import sympy as sp
 
 from . import _validate as V
-from .errors import NotPolynomialError
 from .codegen import lambdify_numpy
-from .models import _check_expressions
+from .errors import NotPolynomialError
+from .model_expressions import check_expressions
 from .moments.closed import bilinear_lift
 from .moments.ito import PolynomialSDE
 from .polynomials import Polynomial, monomial_name, monomials
@@ -66,7 +66,7 @@ def _mat(name, value, shape, time):
         M = sp.Matrix(value)
         if M.shape != shape:
             raise ValueError(f"{name}: expected shape {shape}, got {M.shape}")
-        _check_expressions(name, M, True)
+        check_expressions(name, M, True)
         extra = M.free_symbols - ({time} if time is not None else set())
         if extra:
             raise ValueError(f"{name}: uses symbol(s) {sorted(map(str, extra))} other than the time symbol {time}")
