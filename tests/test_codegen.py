@@ -26,12 +26,72 @@ def _models():
     return {"chain": chain, "timed": timed, "erf": erf}
 
 
+def _compiled():
+    """filters/compiled.py with its own generators (before the compiled loop generates through
+    codegen; after, the golden texts below hold the same text)."""
+    compiled = pytest.importorskip("nlfilter.filters.compiled")
+    if not hasattr(compiled, "_source") or compiled._source is array_source:
+        pytest.skip("the compiled loop generates its kernels with nlfilter.codegen")
+    return compiled
+
+
+# the text filters/compiled.py's _source/_scalar_source wrote at main ba07295 (the numba kernels)
+GOLDEN = {
+    "g_G": """def g_G(x, t, p, out):
+    x_0 = x[0]
+    x_1 = x[1]
+    out[0, 0] = 0.1*x_0**2 + 1
+    out[1, 0] = x_0*math.sin(x_1)""",
+    "g_fx": """def g_fx(x, t, p, out):
+    x_0 = x[0]
+    t_ = t
+    out[0, 0] = 1
+    out[0, 1] = 0.1*math.sin(t_)
+    out[1, 0] = -0.15000000000000002*x_0**2
+    out[1, 1] = 0.95""",
+    "g_fxx": """def g_fxx(x, t, p, out):
+    p_0 = p[0]
+    for i0 in range(3):
+        for i1 in range(3):
+            for i2 in range(3):
+                out[i0, i1, i2] = 0.0
+    out[1, 0, 0] = 2*p_0
+    out[2, 1, 1] = 0.2""",
+    "s_f": """def s_f(x_0, t, p):
+    p_0 = p[0]
+    t_ = t
+    return float(p_0*x_0 + x_0**3/(x_0**2 + 1) + 0.1*math.sin(t_))""",
+}
+
+
+def test_sources_keep_the_compiled_loops_text():
+    """The kernels' text as the compiled loop wrote it (sparse zeros in one loop, CSE, full-precision
+    floats: -0.15000000000000002 = 3 * -0.05, not SymPy's 15 digits)."""
+    models = _models()
+    m, ex = models["timed"], models["timed"].expressions
+    assert array_source("g_G", list(ex["G"]), (2, 1), m.states, m.time, m._psyms) == GOLDEN["g_G"]
+    assert array_source("g_fx", list(jacobian(ex["f"], m.states)), (2, 2), m.states, m.time,
+                        m._psyms) == GOLDEN["g_fx"]
+    m, ex = models["chain"], models["chain"].expressions
+    fxx = first_derivatives(list(jacobian(ex["f"], m.states)), m.states)
+    assert array_source("g_fxx", fxx, (3, 3, 3), m.states, m.time, m._psyms) == GOLDEN["g_fxx"]
+    x, k, a = sp.symbols("x k a")
+    assert scalar_source("s_f", a * x + 0.1 * sp.sin(k) + x**3 / (1 + x**2), x, k, [a]) == GOLDEN["s_f"]
+    ns = {"math": math}
+    exec(GOLDEN["g_fx"], ns)  # the text runs: f_x of the timed model at x = (2, 0), k = 1
+    out = np.empty((2, 2))
+    ns["g_fx"](np.array([2.0, 0.0]), 1.0, np.array([0.3]), out)
+    # the model's NumPy f_x: the same arithmetic but NumPy's sin for math.sin (1 ulp apart at most)
+    np.testing.assert_allclose(out, models["timed"].f_x(np.array([2.0, 0.0]), 1), rtol=1e-15, atol=0)
+    assert out[1, 0] == -0.15000000000000002 * 4.0
+
+
 @pytest.mark.parametrize("name", ["chain", "timed", "erf"])
 def test_array_source_is_compiled_loops_text(name):
     """codegen.array_source writes, character for character, the source filters/compiled.py's
     _source writes today for f, f_x, f_xx, h, h_x, h_xx and G (the chain's f_xx has 27 entries
     with more than 8 zeros: the loop of zeros); the lead points the compiled loop at codegen."""
-    compiled = pytest.importorskip("nlfilter.filters.compiled")
+    compiled = _compiled()
     model = _models()[name]
     ex, states, time, ps = model.expressions, model.states, model.time, model._psyms
     n, m, r = model.n, model.m, model.r
@@ -48,7 +108,7 @@ def test_array_source_is_compiled_loops_text(name):
 
 
 def test_scalar_source_is_compiled_loops_text():
-    compiled = pytest.importorskip("nlfilter.filters.compiled")
+    compiled = _compiled()
     x, k, a = sp.symbols("x k a")
     exprs = [a * x + 0.1 * sp.sin(k), x**3 / (1 + x**2), sp.Float(0.1 + 2**-50) * sp.exp(-a * x), sp.Integer(1)]
     for e in exprs:
