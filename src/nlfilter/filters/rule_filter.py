@@ -29,8 +29,6 @@ user's module) pickles in the processes that make it too, as a class defined the
 
 from __future__ import annotations
 
-import numpy as np  # noqa: F401  (the doctests use it)
-
 from .gaussian import GaussianFilter
 
 __all__ = ["rule_filter", "RuleFilter"]
