@@ -14,6 +14,7 @@ from __future__ import annotations
 import inspect
 import itertools
 import math
+import pickle
 
 import numpy as np
 import pytest
@@ -259,6 +260,12 @@ def test_rule_filter_class_is_a_registry_entry():
     assert rule_filter(Cubature5(), name="ckf5", source=cls.source) is cls  # the same arguments: the same class
     flt = cls.for_model(LIN, start="predict")
     assert flt.rule == Cubature5() and flt.start == "predict"
+    # pickles by reference (importing nlfilter.filters makes the class in any process), the instance
+    # with its model's generated functions as the other filters do (cloudpickle: Dask, the store)
+    import cloudpickle
+    assert pickle.loads(pickle.dumps(cls)) is cls
+    again = cloudpickle.loads(cloudpickle.dumps(flt))
+    assert type(again) is cls and again.rule == flt.rule
     with pytest.raises(ValueError, match="^cls_name"):
         rule_filter(Cubature(), name="ckf5", source="x")  # CKF5 is another rule's class
     with pytest.raises(TypeError, match="^rule"):
