@@ -112,7 +112,8 @@ def rule_filter(rule, *, name: str, source: str, cls_name: str | None = None, ne
     doc = (f"The discrete Gaussian filter over the rule ``{rule!r}`` (registry name ``{name!r}``; made by\n"
            f":func:`~nlfilter.filters.rule_filter.rule_filter`).\n\nSource: {source}.\n")
     cls = type(cls_name, (RuleFilter,), {"__module__": __name__, "__qualname__": cls_name, "__doc__": doc,
-                                         "rule": rule, "name": name, "source": source, "needs": needs})
+                                         "rule": rule, "name": name, "source": source, "needs": needs,
+                                         "compiled": True})  # declared by the class itself
     _MADE[cls_name] = (key, cls)
     globals()[cls_name] = cls  # reachable by import: pickles by reference
     return cls
