@@ -83,5 +83,27 @@ def _choosing_tables(app):
     choosing_tables.write(HERE / "_generated")
 
 
+def _implementing_code(app):
+    """The worked node rule of ``implementing.rst``, from the library's own source (one source of
+    truth): the ``Cubature5`` table and the ``"ckf5"`` registry entry, written to ``_generated``."""
+    import inspect
+
+    from nlfilter import filters
+    from nlfilter.filters import rules
+
+    lines = inspect.getsource(filters).splitlines()
+    first = next(i for i, line in enumerate(lines) if line.lstrip().startswith('"ckf5": rule_filter('))
+    last = first
+    while "".join(lines[first:last + 1]).count("(") > "".join(lines[first:last + 1]).count(")"):
+        last += 1
+    entry = "\n".join(lines[first:last + 1])
+    code = (inspect.getsource(rules._cubature5_table) + "\n\n" + inspect.getsource(rules.Cubature5)
+            + "\n\n# nlfilter/filters/__init__.py\nREGISTRY = {\n    ...\n" + entry + "\n    ...\n}\n")
+    out = HERE / "_generated"
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "implementing_ckf5.py").write_text(code, encoding="utf-8")
+
+
 def setup(app):
     app.connect("builder-inited", _choosing_tables)
+    app.connect("builder-inited", _implementing_code)

@@ -32,6 +32,7 @@ from nlfilter.filters import (CKF, REGISTRY, EKF, FORMS, GHKF, MQLF, PLL, QLF, U
 from nlfilter.filters import (ContinuousDiscreteCKF, ContinuousDiscreteEKF, ContinuousDiscreteGaussianFilter,
                               ContinuousDiscreteGHKF, ContinuousDiscreteIEKF, ContinuousDiscreteUKF, GaussianFilter,
                               IteratedEKF, StatisticallyLinearizedFilter, ContinuousDiscreteSLF)
+from nlfilter.filters.rule_filter import RuleFilter
 from nlfilter.filters.rules import Taylor2
 from nlfilter.filters.reference import ResampleMoveParticleFilter
 from nlfilter.bounded import BoundedNoiseModel
@@ -206,6 +207,10 @@ CASES = [
            options=(("order", "bogus"), ("order", 0), ("start", "bogus"))),
     _gauss("slf", lambda model=D2, **k: StatisticallyLinearizedFilter(model, **k), D2, M2, P2,
            options=(("start", "bogus"),)),
+    # every filter made by rule_filter (a rule and its registry line): built generically, so a new rule
+    # needs no line here
+    *[_gauss(name, lambda cls=cls, model=D2, **k: cls(model, **k), D2, M2, P2, options=(("start", "bogus"),))
+      for name, cls in REGISTRY.items() if issubclass(cls, RuleFilter)],
     _gauss("cd-slf", lambda model=S2, **k: ContinuousDiscreteSLF(model, DT, **k), euler_discretization(S2, DT),
            M2, P2, options=(("scheme", "bogus"), ("start", "bogus"))),
     _gauss("iekf", lambda model=D2, **k: IteratedEKF(model, **k), D2, M2, P2,

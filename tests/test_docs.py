@@ -36,7 +36,7 @@ def built(tmp_path_factory):
 def test_docs_build_without_warnings(built):
     html, proc = built
     assert proc.returncode == 0, proc.stdout[-5000:] + proc.stderr[-5000:]
-    for page in ("index", "notation", "choosing", "api", "theory/gaussian", "theory/second_order",
+    for page in ("index", "notation", "choosing", "implementing", "api", "theory/gaussian", "theory/second_order",
                  "theory/quasilinear", "theory/bilinear", "theory/moment_bayes", "theory/reference",
                  "auto_examples/index"):
         assert (html / f"{page}.html").is_file(), page

@@ -19,10 +19,11 @@ from hypothesis import strategies as hst
 
 from nlfilter import DiscreteModel, SDEModel
 from nlfilter.errors import DivergenceError
-from nlfilter.filters import compiled
+from nlfilter.filters import REGISTRY, compiled
 from nlfilter.filters.cubature import CKF, GHKF, StatisticallyLinearizedFilter
 from nlfilter.filters.ekf import EKF, ContinuousDiscreteEKF, IteratedEKF
 from nlfilter.filters.linalg import PSD_TOL, _bad_paths_exact
+from nlfilter.filters.rule_filter import RuleFilter
 from nlfilter.filters.rules import FORMS
 from nlfilter.filters.second_order import SecondOrderFilter
 from nlfilter.filters.ukf import UKF
@@ -92,6 +93,7 @@ def same(e1, e2):
 
 MAKERS = {"ekf": EKF, "ukf": UKF, "ckf": CKF, "ghkf": lambda md, **kw: GHKF(md, order=3, **kw),
           "ukf-scaled": lambda md, **kw: UKF(md, alpha=0.5, beta=2.0, kappa=1.0, **kw)}
+MAKERS.update({name: cls for name, cls in REGISTRY.items() if issubclass(cls, RuleFilter)})  # rule_filter lines
 
 
 @pytest.mark.parametrize("name", list(MAKERS))

@@ -3,13 +3,21 @@ over a belief that is not Gaussian, ``Estimates`` helpers."""
 
 from __future__ import annotations
 
-from typing import NamedTuple
+import importlib.util
+import pathlib
 
 import numpy as np
 import pytest
 
 from nlfilter.errors import DivergenceError
-from nlfilter.filters.base import Estimates, Filter, ode_step
+from nlfilter.filters.base import Estimates, ode_step
+
+# the coin-flip belief of docs/implementing.rst, imported from the file the page shows (one source)
+_spec = importlib.util.spec_from_file_location(
+    "implementing_coin", pathlib.Path(__file__).resolve().parents[2] / "docs" / "implementing_coin.py")
+_coin = importlib.util.module_from_spec(_spec)
+_spec.loader.exec_module(_coin)
+Coin = _coin.Coin
 
 
 @pytest.mark.parametrize("scheme, order", [("euler", 1), ("rk4", 4)])
@@ -28,47 +36,9 @@ def test_ode_step_converges_at_its_stated_order(scheme, order):
     assert tup[0] == ode_step(rhs, np.array(1.0), 0.0, 1.0, substeps=16, scheme=scheme)
 
 
-class _Counts(NamedTuple):
-    """A belief that is not Gaussian: a Beta(a, b) posterior of a coin's bias per path."""
-
-    a: np.ndarray
-    b: np.ndarray
-
-
-class _Coin(Filter):
-    """Bernoulli observations y ∈ {0, 1} of a fixed bias with a Beta prior: the conjugate filter
-    (the loop must handle any belief; ``predict`` is the identity: the bias does not move)."""
-
-    name = "coin"
-
-    class model:  # noqa: N801 - a stand-in model with the two dimensions the loop reads
-        n = m = 1
-
-    def init(self, m0, P0, batch, *, initial=None, rng=None):
-        B = int(np.prod(batch))
-        return _Counts(np.ones(B), np.ones(B))
-
-    def predict(self, belief, k):
-        return belief
-
-    def update(self, belief, y, k):
-        obs = ~np.isnan(y[:, 0])
-        y0 = np.where(obs, y[:, 0], 0.0)
-        a = np.where(y0 > 1, np.nan, belief.a + y0 * obs)  # an impossible count: that path fails
-        return _Counts(a, belief.b + (1 - y0) * obs)
-
-    def summary(self, belief):
-        s = belief.a + belief.b
-        mean = belief.a / s
-        return mean[:, None], (mean * (1 - mean) / (s + 1))[:, None, None]
-
-    def extras(self, belief):
-        return {"count": belief.a + belief.b - 2}
-
-
 def test_run_loop_over_a_non_gaussian_belief():
     ys = np.array([[1, 0, 1, np.nan, 1], [0, 0, np.nan, 1, 1]], float)[..., None]
-    est = _Coin().run(ys)
+    est = Coin().run(ys)
     a = 1 + np.nancumsum(ys[..., 0], axis=1)
     b = 1 + np.nancumsum(1 - ys[..., 0], axis=1)
     np.testing.assert_allclose(est.means[..., 0], a / (a + b), rtol=1e-15)
@@ -77,18 +47,29 @@ def test_run_loop_over_a_non_gaussian_belief():
     bad = ys.copy()
     bad[1, 2, 0] = 5.0
     with pytest.raises(DivergenceError) as info:
-        _Coin().run(bad)
+        Coin().run(bad)
     assert info.value.step == 2 and info.value.paths == (1,)
-    marked = _Coin().run(bad, on_divergence="mark")
+    marked = Coin().run(bad, on_divergence="mark")
     assert marked.diverged.tolist() == [False, True] and marked.diverged_step[1] == 2
     assert np.isnan(marked.means[1, 2:]).all() and np.isnan(marked.extras["count"][1, 2:]).all()
     np.testing.assert_array_equal(marked.means[0], est.means[0])
     with pytest.raises(ValueError, match=r"^t0\b"):
-        _Coin().run(ys, t0=1.0)
+        Coin().run(ys, t0=1.0)
+
+
+def test_the_documented_example():
+    """``example`` of docs/implementing.rst: Beta(1, 1) prior, so after k flips with h heads the mean
+    is (1 + h) / (2 + k); a flip of 5 is impossible: that path is marked at step 0."""
+    est, marked = _coin.example()
+    heads = np.nancumsum([[1, 0, 1, np.nan, 1], [0, 0, np.nan, 1, 1]], axis=1)
+    flips = np.array([[1, 2, 3, 3, 4], [1, 2, 2, 3, 4]])
+    np.testing.assert_allclose(est.means[..., 0], (1 + heads) / (2 + flips), rtol=1e-15)
+    np.testing.assert_array_equal(est.extras["count"], flips)
+    assert marked.diverged.tolist() == [True] and marked.diverged_step.tolist() == [0]
 
 
 def test_estimates_take_and_concatenate_keep_extras():
-    est = _Coin().run(np.ones((3, 4, 1)))
+    est = Coin().run(np.ones((3, 4, 1)))
     parts = [est.take(slice(0, 1)), est.take(slice(1, 3))]
     both = Estimates.concatenate(parts)
     for f in ("means", "covs", "diverged", "diverged_step"):

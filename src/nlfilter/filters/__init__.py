@@ -9,7 +9,8 @@ kalman, ekf, ukf          KalmanFilter, KalmanBucy, EKF, IteratedEKF, Continuous
 cubature                  CKF, GHKF, ContinuousDiscreteCKF, ContinuousDiscreteGHKF, the statistically
                           linearized filters (exact Gaussian moments of polynomial models)
 gaussian, rules           GaussianFilter, ContinuousDiscreteGaussianFilter over a moment rule
-                          (Taylor1, Unscented, Cubature, GaussHermite)
+                          (Taylor1, Unscented, Cubature, GaussHermite, Cubature5)
+rule_filter               rule_filter: a registered filter class from a rule (the ckf5 line)
 second_order              SecondOrderFilter, ContinuousSecondOrderFilter,
                           ContinuousDiscreteSecondOrderFilter (seed 004; ``form=`` FORMS)
 offline                   the off-line-gain runner (schedule + affine recursion) of every off-line-gain
@@ -45,6 +46,8 @@ from .reference.bounded import BoundedGridFilter1D, BoundedParticleFilter
 from .second_order import (FORMS, ContinuousDiscreteSecondOrderFilter, ContinuousSecondOrderFilter,
                            SecondOrderFilter)
 from .ukf import UKF, ContinuousDiscreteUKF
+from .rule_filter import rule_filter
+from .rules import Cubature5
 
 from . import registry as _registry
 
@@ -52,6 +55,8 @@ from . import registry as _registry
 REGISTRY = {
     "kf": KalmanFilter, "kalman-bucy": KalmanBucy,
     "ekf": EKF, "iekf": IteratedEKF, "ukf": UKF, "ckf": CKF, "ghkf": GHKF, "slf": StatisticallyLinearizedFilter,
+    "ckf5": rule_filter(Cubature5(), name="ckf5", source="Jia, Xin & Cheng 2013, High-degree cubature Kalman filter, "
+                        "Automatica 49; Stroud 1971, Approximate calculation of multiple integrals (degree-5 rule)"),
     "continuous-ekf": ContinuousEKF,
     "continuous-discrete-ekf": ContinuousDiscreteEKF, "continuous-discrete-iekf": ContinuousDiscreteIEKF,
     "continuous-discrete-ukf": ContinuousDiscreteUKF, "continuous-discrete-ckf": ContinuousDiscreteCKF,
@@ -88,4 +93,4 @@ __all__ = ["REGISTRY", "get", "GaussianState", "Estimates", "DiscreteFilter", "C
            "ParticleFilter", "BoundedGridFilter1D", "BoundedParticleFilter", "ResampleMoveParticleFilter",
            "CKF", "GHKF", "IteratedEKF", "ContinuousDiscreteEKF", "ContinuousDiscreteIEKF", "ContinuousDiscreteUKF",
            "ContinuousDiscreteCKF", "ContinuousDiscreteGHKF", "GaussianFilter", "ContinuousDiscreteGaussianFilter",
-           "StatisticallyLinearizedFilter", "ContinuousDiscreteSLF"]
+           "StatisticallyLinearizedFilter", "ContinuousDiscreteSLF", "rule_filter"]

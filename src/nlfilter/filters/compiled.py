@@ -849,7 +849,7 @@ def _alloc_nodes(ys, m0, Q, N=0):
     return (m, P, L, W, L2, ev, V, X, GX, D, mean, Cov, Cross, Gm, GQ, Nz, S, C, yhat, H0, M0, yk, l1, i1, c1, w)
 
 
-def _steps_nodes_(f, h, G, z, wm, wc, ys, m0, P0, p, Q, R, GQG0, G_const, offset, absent, tol, means, covs, ll, inn, icov, want, step, m, P, L, W, L2, ev, V, X, GX, D, mean, Cov, Cross, Gm, GQ, Nz, S, C, yhat, H0, M0, yk, l1, i1, c1, w):
+def _steps_nodes_(f, h, G, z, wm, wc, ys, m0, P0, p, Q, R, GQG0, G_const, screen, offset, absent, tol, means, covs, ll, inn, icov, want, step, m, P, L, W, L2, ev, V, X, GX, D, mean, Cov, Cross, Gm, GQ, Nz, S, C, yhat, H0, M0, yk, l1, i1, c1, w):
     B, T, mdim = ys.shape
     n = m0.shape[1]
     r = Q.shape[0]
@@ -910,7 +910,7 @@ def _steps_nodes_(f, h, G, z, wm, wc, ys, m0, P0, p, Q, R, GQG0, G_const, offset
                             C[j, a] = Cross[j, a]
                     for a in range(mdim):
                         yk[a] = ys[b, k, a]
-                    ok = _condition(m, P, yk, yhat, S, C, H0, R, False, M0, False, False, n, mdim, w, want, l1, i1, c1)
+                    ok = _condition(m, P, yk, yhat, S, C, H0, R, False, M0, False, screen, n, mdim, w, want, l1, i1, c1)
                     if not ok or not _psd_check(m, P, n, tol, W, L2, ev):
                         fail = k
                         break
@@ -1220,7 +1220,7 @@ def run_compiled(flt, yf, batch, m0, P0, on, loglik, progress=False):
         z, wm, wc = _nodes(flt, n)
         steps = _steps(kind, {"f": fns["f"], "h": fns["h"], "G": fns["G"]}, key, dims=dims(None))
         ws = _alloc_nodes(ys, mean0, Q, z.shape[0])
-        head = (Q, R, GQG0, G_const)
+        head = (Q, R, GQG0, G_const, bool(getattr(flt.rule, "screen", False)))  # a table with negative weights
     else:
         rule = flt.rule
         spec = FORM_TABLE[rule.form]

@@ -32,6 +32,7 @@ rule                   approximation
 :class:`GaussHermite`  tensor-product Gauss–Hermite rule with ``order`` points per axis
                        (``order**n`` points; exact for polynomials of degree ``2·order − 1`` in
                        each variable; Ito & Xiong 2000)
+:class:`Cubature5`     Stroud's fifth-degree rule (``2n² + 1`` points; Jia, Xin & Cheng 2013)
 =====================  ===========================================================================
 
 Node rules share one implementation: points ``X_i = m + L z_i`` with mean weights ``w_i`` and
@@ -61,7 +62,7 @@ from typing import NamedTuple
 import numpy as np
 
 from .. import _validate as V
-from ..moments.quadrature import gauss_hermite_rule
+from ..moments.quadrature import MAX_ENTRIES, cubature5_rule, gauss_hermite_rule
 from .linalg import mm, sqrt_psd
 
 __all__ = ["GaussMoments", "Taylor1", "Taylor2", "FORMS", "Form", "FORM_TABLE", "Unscented", "Cubature", "GaussHermite", "NodeRule",
@@ -461,3 +462,62 @@ class GaussHermite(NodeRule):
     def unit_nodes(self, n):
         """The probabilists' Hermite nodes on a tensor grid, product weights (Ito & Xiong 2000)."""
         return _gh_table(n, self.order)
+
+
+@functools.lru_cache(maxsize=None)
+def _cubature5_table(n):
+    z, w = cubature5_rule(n)
+    return _frozen(z, w, w)
+
+
+@dataclass(frozen=True)
+class Cubature5(NodeRule):
+    """Fifth-degree cubature rule for N(0, I_n) (Stroud 1971, *Approximate calculation of multiple
+    integrals*, the fully symmetric degree-5 formula; as the fifth-degree cubature Kalman filter of
+    Jia, Xin & Cheng 2013, "High-degree cubature Kalman filter", Automatica 49): ``2n² + 1`` nodes::
+
+        z_0 = 0                          w_0 = 2/(n + 2)
+        z = ±√(n + 2) e_i                w = (4 − n)/(2(n + 2)²)      (2n nodes)
+        z = √((n + 2)/2)(±e_i ± e_j)     w = 1/(n + 2)²               (i < j: 2n(n − 1) nodes)
+
+    (the nodes and weights of :func:`nlfilter.moments.quadrature.cubature5_rule`). The weights sum to
+    1 and the rule is exact for every polynomial of total degree ≤ 5 under N(0, I_n): so ``wc = wm``
+    gives the exact mean and covariance of any g of degree ≤ 2 (products of degree ≤ 4) and, like
+    every node rule, the Kalman filter on a linear model. For n = 1 it is the 3-point Gauss–Hermite
+    rule.
+
+    Negative weights: for n = 4 the axis nodes have weight 0, for n ≥ 5 a negative one. The means
+    stay exact to degree 5, but ``Σ w_i (g_i − ĝ)(g_i − ĝ)ᵀ`` is then no sum of PSD terms: for a g
+    far from quadratic the predicted or innovation covariance can come out indefinite (it is PSD
+    wherever it is exact, e.g. for affine g; in n = 6, ``g = x₁⁴`` under N(0, I) gets the variance
+    −57 for 96). The filter does not go on silently: the run loop's PSD check raises or marks a path
+    whose predicted covariance is not PSD (``on_divergence``), and the rule asks the skeleton to
+    screen the innovation covariance (``screen``; NumPy and compiled loops alike): an S that is not
+    positive definite fails that path's update. Use :class:`Cubature` (positive weights, degree 3)
+    or :class:`GaussHermite` where that happens.
+
+    >>> z, wm, wc = Cubature5().unit_nodes(2)
+    >>> z.shape, float(wm.sum()), bool(wm.flags.writeable)
+    ((9, 2), 1.0, False)
+    >>> round(float(np.einsum("i,i,i,i,i->", wm, *z.T, *z.T)), 12)    # E[z₁² z₂²] = 1, a degree-4 moment
+    1.0
+    """
+
+    name = "cubature5"
+    screen = True  # negative weights (n ≥ 5): the skeleton checks S for positive definiteness
+
+    def check(self, n):
+        """Refuse an n whose ``2n² + 1`` nodes exceed :data:`MAX_NODES` per expectation, or whose
+        table would exceed the node coordinates :func:`cubature5_rule` builds (n > 215)."""
+        nodes = 2 * n * n + 1
+        if nodes > MAX_NODES or nodes * n > MAX_ENTRIES:
+            raise ValueError(f"rule: Cubature5 in n = {n} dimensions needs 2n² + 1 = {nodes} nodes per expectation; "
+                             f"expected at most {MAX_NODES} nodes and {MAX_ENTRIES:.0e} node coordinates, or the "
+                             f"third-degree Cubature rule (2n nodes)")
+
+    def unit_nodes(self, n):
+        """Stroud's degree-5 nodes and weights (``wc = wm``; cached, read-only)."""
+        return _cubature5_table(n)
+
+
+__all__ += ["Cubature5"]
