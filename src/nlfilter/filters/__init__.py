@@ -9,7 +9,8 @@ kalman, ekf, ukf          KalmanFilter, KalmanBucy, EKF, IteratedEKF, Continuous
 cubature                  CKF, GHKF, ContinuousDiscreteCKF, ContinuousDiscreteGHKF, the statistically
                           linearized filters (exact Gaussian moments of polynomial models)
 gaussian, rules           GaussianFilter, ContinuousDiscreteGaussianFilter over a moment rule
-                          (Taylor1, Unscented, Cubature, GaussHermite)
+                          (Taylor1, Unscented, Cubature, GaussHermite): configurations of the
+                          skeleton's functions (skeleton: predict, condition, moment_rhs)
 second_order              SecondOrderFilter, ContinuousSecondOrderFilter,
                           ContinuousDiscreteSecondOrderFilter (seed 004; ``form=`` FORMS)
 offline                   the off-line-gain runner (schedule + affine recursion) of every off-line-gain
