@@ -57,10 +57,9 @@ import numpy as np
 
 from .. import _validate as V
 from .base import ContinuousFilter, DiscreteFilter, GaussianState, continuous_precision, set_start, set_t0
-from .linalg import innovation_info, mm, observed_precision, poison, symmetrize
-from .rules import hessian_trace
-from .skeleton import (CrossNoise, MeasuredState, as_belief, check_paths, condition, iterated_update, predict,
-                       propagate)
+from .linalg import innovation_info, observed_precision, poison, symmetrize
+from .skeleton import (CrossNoise, MeasuredState, as_belief, check_paths, condition, ito_gain, ito_rhs,
+                       iterated_update, predict, propagate)
 from .smoothing import continuous_rts, rts
 
 __all__ = ["GaussianFilter", "ContinuousDiscreteGaussianFilter", "ContinuousGaussianFilter", "iterated_update",
@@ -274,42 +273,11 @@ class ContinuousGaussianFilter(ContinuousFilter):
                             f"got {type(rule).__name__}")
         self.rule = rule
         self.model.require("f", "h", "G", *rule.needs(self.model), by=by or type(self).__name__)
-        self._second = rule.second
         self._Rinv = continuous_precision(self.model)
 
-    def _gain_parts(self, m, P, s, obs, Rinv):
-        """Gain, P Hᵀ, ĥ and the forcing tensor M R⁻¹; ``Rinv``: the precision of the observed
-        components (:func:`~nlfilter.filters.linalg.observed_precision`; missing ones do not update)."""
-        md = self.model
-        H = md.h_x(m, s) * obs[..., :, None]
-        PHt = mm(P, np.swapaxes(H, -1, -2))
-        K = mm(PHt, Rinv)  # 004 eq. 37
-        hhat = md.h(m, s)
-        M = None
-        if self._second:
-            h_xx = md.h_xx(m, s)
-            hhat = hhat + 0.5 * hessian_trace(P, h_xx)  # 004 eq. 35
-            M = self.rule.forcing(P, h_xx)
-            if M is not None:
-                M = np.einsum("...ijk,...kl->...ijl", M * obs[..., None, None, :], Rinv)  # M R⁻¹
-        return K, PHt, hhat * obs, M
-
-    def _rhs_factory(self, obs, Rinv):
-        md = self.model
-
-        def rhs(m, P, z, s):
-            F = md.f_x(m, s)
-            K, PHt, hhat, M = self._gain_parts(m, P, s, obs, Rinv)
-            dm = md.f(m, s) - np.einsum("...ij,...j->...i", K, hhat)
-            if self._second:
-                dm = dm + 0.5 * hessian_trace(P, md.f_xx(m, s))  # 004 eq. 35, drift part
-            FP = mm(F, P)
-            dP = FP + np.swapaxes(FP, -1, -2) + self.rule.noise(md, m, P, s) - mm(K, np.swapaxes(PHt, -1, -2))
-            if M is not None:
-                dP = dP - np.einsum("...ijk,...k->...ij", M, hhat)  # forcing term, its dt part
-            return dm, dP
-
-        return rhs
+    def _drift(self, obs, Rinv):
+        """``rhs(m, P, z, s)`` of the ``dt`` terms for the run loop's integrator (:func:`ito_rhs`)."""
+        return lambda m, P, z, s: ito_rhs(self.rule, self.model, m, P, s, obs, Rinv)
 
     def _step_info(self, state, dy, t):
         """``run(..., loglik=True)``: the step with the density of the increment under the
@@ -330,13 +298,13 @@ class ContinuousGaussianFilter(ContinuousFilter):
         if self.innovation == "update":
             new = new if bad is None else poison(new, bad)
             none = np.zeros_like(obs)
-            new = self.integrate(self._rhs_factory(none, np.zeros_like(self._Rinv)), new, None, t)
+            new = self.integrate(self._drift(none, np.zeros_like(self._Rinv)), new, None, t)
             return (new, bad, out) if info else (new, bad)
         dy0 = np.where(obs, dy, 0.0)
         m, P = state
         Rinv = observed_precision(self.model.R, self._Rinv, obs)
-        K, _, _, M = self._gain_parts(m, P, t, obs, Rinv)  # Itô: gain at the start of the step
-        new = self.integrate(self._rhs_factory(obs, Rinv), GaussianState(m, P), None, t)
+        K, _, _, M = ito_gain(self.rule, self.model, m, P, t, obs, Rinv)  # Itô: gain at the start of the step
+        new = self.integrate(self._drift(obs, Rinv), GaussianState(m, P), None, t)
         mean = new.mean + np.einsum("...ij,...j->...i", K, dy0)
         cov = new.cov
         if M is not None:

@@ -12,6 +12,8 @@ path::
     condition:  ŷ = E[h],    S = Cov[h] + R [+ quartic]   [screened],   C = Cov[x, h],   K = C S⁻¹,
                 m⁺ = m⁻ + K (y − ŷ),   P⁺ = P⁻ − K S Kᵀ (Joseph with the rule's H)  [+ Σ_k M_k [S⁻¹(y − ŷ)]_k]
     moment_rhs: dm/dt = E[f],   dP/dt = Cov[x, f] + Cov[f, x] + E[G Q Gᵀ]   (Särkkä 2007)
+    ito_rhs:    dm = [f + ½(P f_xx)] dt + K {dy − ĥ dt},  dP = [F P + P Fᵀ + E[G Q Gᵀ] − K R Kᵀ] dt   (seed 004
+                eqs. 35-37: the continuous-time filter over a Taylor rule; its dt terms)
 
 (:func:`~nlfilter.filters.linalg.gaussian_update` conditions on the observed components of a partly
 missing ``y``; the forcing tensor M is the discrete C tensor of seed 004 eq. 17, see
@@ -40,10 +42,11 @@ import numpy as np
 from ..errors import DivergenceError
 from .base import GaussianState, ode_step
 from .linalg import bad_paths, decorrelation, gaussian_update, mm, poison, symmetrize
+from .rules import hessian_trace
 from .smoothing import _solve_right
 
-__all__ = ["predict", "condition", "moment_rhs", "propagate", "iterated_update", "CrossNoise", "MeasuredState",
-           "as_belief", "check_paths"]
+__all__ = ["predict", "condition", "moment_rhs", "propagate", "ito_gain", "ito_rhs", "iterated_update", "CrossNoise",
+           "MeasuredState", "as_belief", "check_paths"]
 
 
 class MeasuredState(NamedTuple):
@@ -236,6 +239,42 @@ def propagate(rule, model, belief, t, dt, *, substeps: int = 1, scheme: str = "r
     m, P, C = ode_step(lambda x, s: moment_rhs(rule, model, x[0], x[1], s, C=x[2]), (m, P, P), t, dt,
                        substeps=substeps, scheme=scheme, finish=lambda x: (x[0], symmetrize(x[1]), x[2]))
     return GaussianState(m, P), C
+
+
+def ito_gain(rule, model, m, P, t, obs, Rinv):
+    """The measurement terms of the continuous-time (Itô) filter at ``(m, P)`` (seed 004 eqs. 35-37):
+    ``(K = P Hᵀ R⁻¹, P Hᵀ, ĥ, M R⁻¹)`` with ``ĥ = h + ½(P h_xx)`` and the forcing tensor M of a
+    second-order rule (``rule.second``; else ``ĥ = h``, M None). ``obs (..., m)``: the observed
+    components, ``Rinv`` their precision (:func:`~nlfilter.filters.linalg.observed_precision`;
+    missing ones do not update)."""
+    H = model.h_x(m, t) * obs[..., :, None]
+    PHt = mm(P, np.swapaxes(H, -1, -2))
+    K = mm(PHt, Rinv)  # 004 eq. 37
+    hhat = model.h(m, t)
+    M = None
+    if rule.second:
+        h_xx = model.h_xx(m, t)
+        hhat = hhat + 0.5 * hessian_trace(P, h_xx)  # 004 eq. 35
+        M = rule.forcing(P, h_xx)
+        if M is not None:
+            M = np.einsum("...ijk,...kl->...ijl", M * obs[..., None, None, :], Rinv)  # M R⁻¹
+    return K, PHt, hhat * obs, M
+
+
+def ito_rhs(rule, model, m, P, t, obs, Rinv):
+    """The ``dt`` terms of the continuous-time (Itô) filter (seed 004 eqs. 35-36; Taylor rules):
+    ``dm/dt = f [+ ½(P f_xx)] − K ĥ``, ``dP/dt = F P + P Fᵀ + E[G Q Gᵀ] − K R Kᵀ [− Σ_k M_k (R⁻¹ ĥ)_k]``
+    (:func:`ito_gain`; ``K R Kᵀ = K (P Hᵀ)ᵀ``)."""
+    F = model.f_x(m, t)
+    K, PHt, hhat, M = ito_gain(rule, model, m, P, t, obs, Rinv)
+    dm = model.f(m, t) - np.einsum("...ij,...j->...i", K, hhat)
+    if rule.second:
+        dm = dm + 0.5 * hessian_trace(P, model.f_xx(m, t))  # 004 eq. 35, drift part
+    FP = mm(F, P)
+    dP = FP + np.swapaxes(FP, -1, -2) + rule.noise(model, m, P, t) - mm(K, np.swapaxes(PHt, -1, -2))
+    if M is not None:
+        dP = dP - np.einsum("...ijk,...k->...ij", M, hhat)  # forcing term, its dt part
+    return dm, dP
 
 
 def iterated_update(model, state, y, t, iterations: int, tol: float, *, info: bool = False):
