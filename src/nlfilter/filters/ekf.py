@@ -23,10 +23,10 @@ discrete measurements. The discrete and continuous-discrete ones are the skeleto
 
 from __future__ import annotations
 
-import numpy as np
+import numpy as np  # noqa: F401  (the doctests use it)
 
 from .. import _validate as V
-from .base import ContinuousFilter, GaussianState
+from .base import ContinuousFilter, GaussianState  # noqa: F401  (GaussianState: the doctests)
 from .gaussian import ContinuousDiscreteGaussianFilter, ContinuousGaussianFilter, GaussianFilter
 from .rules import Taylor1
 from .skeleton import iterated_update
@@ -96,6 +96,7 @@ class IteratedEKF(GaussianFilter):
     name = "iekf"
     source = "Bell & Cathey 1993, The iterated Kalman filter update as a Gauss-Newton method, IEEE TAC 38(2) 294-297"
     needs = ("f_x", "h_x")
+    compiled = False  # the iterated update (its _condition) has no compiled loop
 
     def __init__(self, model, *, iterations: int = 10, tol: float = 1e-10, start: str | None = None):
         super().__init__(model, Taylor1(), start=start)
