@@ -9,10 +9,11 @@ kalman, ekf, ukf          KalmanFilter, KalmanBucy, EKF, IteratedEKF, Continuous
 cubature                  CKF, GHKF, ContinuousDiscreteCKF, ContinuousDiscreteGHKF, the statistically
                           linearized filters (exact Gaussian moments of polynomial models)
 gaussian, rules           GaussianFilter, ContinuousDiscreteGaussianFilter over a moment rule
-                          (Taylor1, Unscented, Cubature, GaussHermite): configurations of the
-                          skeleton's functions (skeleton: predict, condition, moment_rhs)
+                          (Taylor1, Unscented, Cubature, GaussHermite)
 second_order              SecondOrderFilter, ContinuousSecondOrderFilter,
                           ContinuousDiscreteSecondOrderFilter (seed 004; ``form=`` FORMS)
+skeleton                  the Gaussian steps as functions (predict, condition, moment_rhs, ito_rhs) that
+                          the classes of gaussian, ekf, ukf, cubature, second_order configure
 offline                   the off-line-gain runner (schedule + affine recursion) of every off-line-gain
                           filter below but the PLL
 quasilinear               QLF, MQLF, QuasilinearFilter, DiscreteQuasilinearFilter (seed 003)
