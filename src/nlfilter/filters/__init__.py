@@ -13,6 +13,8 @@ gaussian, rules           GaussianFilter, ContinuousDiscreteGaussianFilter over 
 rule_filter               rule_filter: a registered filter class from a rule (the ckf5 line)
 second_order              SecondOrderFilter, ContinuousSecondOrderFilter,
                           ContinuousDiscreteSecondOrderFilter (seed 004; ``form=`` FORMS)
+skeleton                  the Gaussian steps as functions (predict, condition, moment_rhs, ito_rhs) that
+                          the classes of gaussian, ekf, ukf, cubature, second_order configure
 offline                   the off-line-gain runner (schedule + affine recursion) of every off-line-gain
                           filter below but the PLL
 quasilinear               QLF, MQLF, QuasilinearFilter, DiscreteQuasilinearFilter (seed 003)

@@ -215,11 +215,12 @@ def _rule_kind(flt):
 
 def unsupported(flt) -> str | None:
     """Why ``flt`` cannot run on the compiled loop, or None when it can."""
-    from .gaussian import ContinuousDiscreteGaussianFilter, GaussianFilter, _Iterated
+    from .gaussian import ContinuousDiscreteGaussianFilter, GaussianFilter
     if _nb is None:
         return f"numba does not import here ({_IMPORT_ERROR!r})"
     name = type(flt).__name__
-    if not isinstance(flt, GaussianFilter) or isinstance(flt, (ContinuousDiscreteGaussianFilter, _Iterated)):
+    if (not isinstance(flt, GaussianFilter) or isinstance(flt, ContinuousDiscreteGaussianFilter)
+            or hasattr(flt, "iterations")):  # the iterated update (IteratedEKF) is not compiled
         return (f"{name} has no compiled loop; it runs the discrete Gaussian filters (ekf, ukf, ckf, ghkf, slf, "
                 "the discrete second-order forms)")
     kind = _rule_kind(flt)

@@ -23,11 +23,27 @@ discrete measurements. The discrete and continuous-discrete ones are the skeleto
 
 from __future__ import annotations
 
-import numpy as np
+import numpy as np  # noqa: F401  (the doctests use it)
 
-from .base import ContinuousFilter, GaussianState
-from .gaussian import ContinuousDiscreteGaussianFilter, ContinuousGaussianFilter, GaussianFilter, _Iterated
+from .. import _validate as V
+from .base import ContinuousFilter, GaussianState  # noqa: F401  (GaussianState: the doctests)
+from .gaussian import ContinuousDiscreteGaussianFilter, ContinuousGaussianFilter, GaussianFilter
 from .rules import Taylor1
+from .skeleton import iterated_update
+
+
+def _iterations(flt, iterations, tol):
+    """The iterated update's options (:func:`~nlfilter.filters.skeleton.iterated_update`)."""
+    flt.iterations = V.positive("iterations", iterations, integer=True)
+    flt.tol = float(V.positive("tol", tol, strict=False))
+
+
+def _iterated_condition(flt, state, y, t, R=None):
+    """The update step of the iterated filters (their ``_condition``): the iterated update, and the
+    likelihood's ``(ŷ, S)`` of the first (EKF) linearization at the predicted mean (the predictive
+    law of y is not changed by iterating the posterior mode)."""
+    new, moments = iterated_update(flt.model, state, y, t, flt.iterations, flt.tol, info=True)
+    return new, None, moments
 
 
 class EKF(GaussianFilter):
@@ -51,11 +67,11 @@ class EKF(GaussianFilter):
         super().__init__(model, Taylor1(), start=start)
 
 
-class IteratedEKF(_Iterated, EKF):
+class IteratedEKF(GaussianFilter):
     """Iterated extended Kalman filter (Bell & Cathey 1993).
 
-    The EKF prediction, and an update that repeats the linearization of h at the latest estimate
-    (Gauss–Newton on the MAP problem)::
+    The EKF prediction (the skeleton with the Taylor-1 rule), and an update that repeats the
+    linearization of h at the latest estimate (Gauss–Newton on the MAP problem)::
 
         x_0 = m⁻,  H_i = h_x(x_i),  K_i = P⁻ H_iᵀ (H_i P⁻ H_iᵀ + R)⁻¹
         x_{i+1} = m⁻ + K_i (y − h(x_i) − H_i (m⁻ − x_i)),    m⁺ = x_N
@@ -79,10 +95,14 @@ class IteratedEKF(_Iterated, EKF):
 
     name = "iekf"
     source = "Bell & Cathey 1993, The iterated Kalman filter update as a Gauss-Newton method, IEEE TAC 38(2) 294-297"
+    needs = ("f_x", "h_x")
+    compiled = False  # the iterated update (its _condition) has no compiled loop
 
     def __init__(self, model, *, iterations: int = 10, tol: float = 1e-10, start: str | None = None):
-        super().__init__(model, start=start)
-        self._set_iterations(iterations, tol)
+        super().__init__(model, Taylor1(), start=start)
+        _iterations(self, iterations, tol)
+
+    _condition = _iterated_condition
 
 
 class ContinuousDiscreteEKF(ContinuousDiscreteGaussianFilter):
@@ -111,7 +131,7 @@ class ContinuousDiscreteEKF(ContinuousDiscreteGaussianFilter):
         super().__init__(model, dt, Taylor1(), scheme=scheme, substeps=substeps, start=start, t0=t0)
 
 
-class ContinuousDiscreteIEKF(_Iterated, ContinuousDiscreteEKF):
+class ContinuousDiscreteIEKF(ContinuousDiscreteGaussianFilter):
     """Continuous-discrete iterated EKF: the prediction of :class:`ContinuousDiscreteEKF`, the
     iterated update of :class:`IteratedEKF` (Bell & Cathey 1993) at the measurements.
 
@@ -125,11 +145,14 @@ class ContinuousDiscreteIEKF(_Iterated, ContinuousDiscreteEKF):
 
     name = "cd-iekf"
     source = "Bell & Cathey 1993, IEEE TAC 38(2) (iterated update); Jazwinski 1970, ch. 8 (prediction)"
+    needs = ("f_x", "h_x")
 
     def __init__(self, model, dt: float, *, iterations: int = 10, tol: float = 1e-10, scheme: str = "rk4",
                  substeps: int = 1, start: str | None = None, t0: float | None = None):
-        super().__init__(model, dt, scheme=scheme, substeps=substeps, start=start, t0=t0)
-        self._set_iterations(iterations, tol)
+        super().__init__(model, dt, Taylor1(), scheme=scheme, substeps=substeps, start=start, t0=t0)
+        _iterations(self, iterations, tol)
+
+    _condition = _iterated_condition
 
 
 class ContinuousEKF(ContinuousGaussianFilter):

@@ -17,7 +17,7 @@ convention, as filterpy's radar example passes ``R=`` at each update; the exact 
 ``E[R(x)]``, which the reference filters use implicitly). The log-likelihood output uses this S.
 Correlated process and measurement noise (``cross_noise``, ``E[w_k v_kᵀ] = S``): the prediction
 from step k uses the decorrelated dynamics ``f(x) + G S R⁻¹ (y_k − h(x))`` and the noise
-``Q − S R⁻¹ Sᵀ`` (:class:`_CrossNoise`; the belief, a :class:`MeasuredState`, carries ``y_k``). A linearizing rule (Taylor-1) also hands its ``H = h_x(m)``
+``Q − S R⁻¹ Sᵀ`` (:class:`~nlfilter.filters.skeleton.CrossNoise`; the belief, a :class:`MeasuredState`, carries ``y_k``). A linearizing rule (Taylor-1) also hands its ``H = h_x(m)``
 to the update, which then uses the Joseph form ``(I − K H) P (I − K H)ᵀ + K R Kᵀ``.
 
 Continuous-discrete time (an :class:`~nlfilter.models.SDEModel` ``dx = f dt + G dβ`` measured at
@@ -39,107 +39,34 @@ fourth-moment term is added last (``quartic``), the predicted covariance symmetr
 covariance screened for positive definiteness (``screen``), and the forcing tensor of the forms
 that have one added to the updated covariance.
 
-The iterated update (:func:`iterated_update`, Bell & Cathey 1993) is the Gauss–Newton
-maximization of the posterior density in place of the single Taylor-1 update.
+The iterated update (:func:`~nlfilter.filters.skeleton.iterated_update`, Bell & Cathey 1993) is
+the Gauss–Newton maximization of the posterior density in place of the single Taylor-1 update.
+
+The steps themselves are the pure functions of :mod:`nlfilter.filters.skeleton` (``predict``,
+``condition``, ``moment_rhs``, ``propagate``); the classes here and their subclasses (EKF, UKF,
+CKF, GHKF, SLF, IEKF, the second-order filters) are configurations of them: a rule, a time
+setting, and two switches — ``raises`` (the step functions raise
+:class:`~nlfilter.errors.DivergenceError` on a failed path instead of returning it poisoned: the
+second-order filters) and the update a configuration may replace (``_condition``: the iterated
+update, the UKF's augmented points).
 """
 
 from __future__ import annotations
 
-from typing import NamedTuple
-
 import numpy as np
 
 from .. import _validate as V
-from .base import ContinuousFilter, DiscreteFilter, GaussianState, continuous_precision, ode_step, set_start, set_t0
-from .rules import hessian_trace
-from .smoothing import _solve_right, continuous_rts, rts
-from .linalg import decorrelation, gaussian_update, innovation_info, mm, observed_precision, poison, symmetrize
+from .base import ContinuousFilter, DiscreteFilter, GaussianState, continuous_precision, set_start, set_t0
+from .linalg import innovation_info, observed_precision, poison, symmetrize
+from .skeleton import (CrossNoise, MeasuredState, as_belief, check_paths, condition, ito_gain, ito_rhs,
+                       iterated_update, predict, propagate)
+from .smoothing import continuous_rts, rts
 
 __all__ = ["GaussianFilter", "ContinuousDiscreteGaussianFilter", "ContinuousGaussianFilter", "iterated_update",
-           "MeasuredState"]
+           "MeasuredState", "as_belief"]
 
 
-class MeasuredState(NamedTuple):
-    """A Gaussian belief with the measurement ``y (..., m)`` it was last conditioned on (NaN:
-    none, as after a prediction): the belief of the filters on a model with correlated process
-    and measurement noise (``cross_noise``), whose prediction from step k needs ``y_k``."""
-
-    mean: np.ndarray
-    cov: np.ndarray
-    y: np.ndarray
-
-
-class _CrossNoise:
-    """Correlated noise ``E[w_k v_kᵀ] = S`` (``model.cross_noise``) for a discrete Gaussian filter,
-    the standard decorrelation (Anderson & Moore 1979, §5.5; Simon 2006, §7.1): with ``y_k``
-    measuring ``x_k`` and ``w_k`` driving ``x_{k+1}``, write ``w_k = K_w v_k + w̃_k``,
-    ``K_w = S R⁻¹``, ``w̃_k ⊥ v_k``::
-
-        x_{k+1} = f(x_k) + G K_w (y_k − h(x_k)) + G w̃_k,    Cov[w̃] = Q − S R⁻¹ Sᵀ
-
-    a model without correlation whose dynamics depend on ``y_k``: the prediction from the
-    filtered belief of step k takes the moments of ``f̃(x) = f(x) + G K_w (y_k − h(x))`` (its
-    Jacobian ``f_x − G K_w h_x``, Hessian ``f_xx − G K_w h_xx``) by the filter's rule, and the noise
-    ``E[G Q Gᵀ] − G K_w Sᵀ Gᵀ`` (G does not depend on the state). The belief carries ``y_k``
-    (:class:`MeasuredState`, frozen: the update returns it, the prediction reads it); with
-    components of ``y_k`` missing only the observed ones decorrelate (``S_o R_oo⁻¹``), with none
-    (the first prediction of ``start="predict"``, a step missing on a path, a plain
-    :class:`GaussianState`) the prediction is the uncorrelated one."""
-
-    def _set_cross(self):
-        self._cross = getattr(self.model, "cross_noise", None)
-        if self._cross is not None:
-            self._Rinv_c = np.linalg.inv(self.model.R)
-
-    def init(self, m0, P0, batch, *, initial=None, rng=None):
-        s = super().init(m0, P0, batch, initial=initial, rng=rng)
-        if self._cross is None:
-            return s
-        return MeasuredState(s.mean, s.cov, np.full((*s.mean.shape[:-1], self.model.m), np.nan))
-
-    def _carry(self, new, y):
-        """The updated belief, with the measurement it saw when the noise is correlated."""
-        if self._cross is None:
-            return new
-        return MeasuredState(new.mean, new.cov, np.broadcast_to(y, new.mean.shape[:-1] + y.shape[-1:]))
-
-    def _predicted(self, new):
-        return new if self._cross is None else MeasuredState(
-            new.mean, new.cov, np.full((*new.mean.shape[:-1], self.model.m), np.nan))
-
-    def _decorrelation(self, state, k):
-        """``(D = G K_w, e, G K_w Sᵀ Gᵀ)``: the gain of ``y_k − h``, the observed ``y_k`` (0 where
-        missing), the noise covariance removed; ``None`` without a measurement."""
-        y = getattr(state, "y", None)
-        if y is None:
-            return None
-        md = self.model
-        obs = ~np.isnan(y)
-        Kw, KS = decorrelation(self._cross, md.R, self._Rinv_c, obs)
-        G = md.G(np.zeros(md.n), k)
-        return G @ Kw, np.where(obs, y, 0.0), G @ KS @ G.T
-
-    def _smooth_predict(self, ys, offset):
-        """The smoother's prediction from step ``j`` (model index) with that step's measurement."""
-        if self._cross is None:
-            return self._predict_cross
-        return lambda st, j: self._predict_cross(MeasuredState(st.mean, st.cov, ys[:, j - offset]), j)
-
-
-def as_belief(state):
-    """A Gaussian belief from a ``(mean, cov)`` pair (a :class:`MeasuredState` as it is)."""
-    return state if isinstance(state, MeasuredState) else GaussianState(*state)
-
-
-def _lift(A, nb, X, tail):
-    """``A (*batch, *tail)`` viewed against ``X (*batch, *nodes, n)`` (nodes of a rule); a shared
-    ``A (*tail)`` as is."""
-    if A.ndim == tail:
-        return A
-    return A.reshape(A.shape[:nb] + (1,) * (X.ndim - 1 - nb) + A.shape[nb:])
-
-
-class GaussianFilter(_CrossNoise, DiscreteFilter):
+class GaussianFilter(DiscreteFilter):
     """Discrete-time Gaussian filter over a moment ``rule`` (see the module docstring).
 
     Parameters
@@ -150,7 +77,8 @@ class GaussianFilter(_CrossNoise, DiscreteFilter):
     start : ``"update"`` or ``"predict"`` (see :mod:`nlfilter.filters.base`)
 
     ``predict``/``update`` return NaN on the paths whose covariance has no square root (poisoned:
-    ``run`` raises or marks them).
+    ``run`` raises or marks them); with ``raises`` (a configuration's class attribute) they raise
+    :class:`~nlfilter.errors.DivergenceError` instead.
 
     >>> import sympy as sp; from nlfilter import DiscreteModel
     >>> from nlfilter.filters.rules import Cubature
@@ -168,6 +96,9 @@ class GaussianFilter(_CrossNoise, DiscreteFilter):
     structures = ("state-dependent R", "cross noise")
     needs: tuple = ()
     time = "discrete"
+    raises = False  # True: predict/update raise DivergenceError on a failed path (the second-order filters)
+    smoother = "rts"
+    likelihood = "prediction-error"
 
     def __init__(self, model, rule, *, start: str | None = None):
         super().__init__(model, start=start)
@@ -182,112 +113,63 @@ class GaussianFilter(_CrossNoise, DiscreteFilter):
             check(self.model.n)
         self.rule = rule
         self.model.require("f", "h", "G", *rule.needs(self.model), by=by or type(self).__name__)
-        self._set_cross()
+        self._cross = CrossNoise(self.model)
+
+    def init(self, m0, P0, batch, *, initial=None, rng=None):
+        return self._cross.unmeasured(super().init(m0, P0, batch, initial=initial, rng=rng))
 
     def _time(self, k):
         return k
 
+    # -- the steps: the skeleton's functions with this configuration's rule and time ---------------
     def _predict(self, state, k, cross: bool = False):
-        """``m⁻ = E[f]``, ``P⁻ = Cov[f] + E[G Q Gᵀ]`` (+ the rule's fourth-moment term, added last;
-        symmetrized for a rule that asks), poisoned where the rule's nodes failed; with ``cross``
-        also ``Cov[x_k, f(x_k)]`` (the smoother's cross-covariance)."""
-        md = self.model
-        f, f_x, f_xx, sub = md.f, md.f_x, md.f_xx, None
-        if self._cross is not None:  # correlated noise: the decorrelated dynamics f̃ (_CrossNoise)
-            dec = self._decorrelation(state, k)
-            state = GaussianState(state.mean, state.cov)
-            if dec is not None:
-                D, e, sub = dec
-                nb = e.ndim - 1
-
-                def f(X, t):
-                    return md.f(X, t) + np.einsum("...ij,...j->...i", _lift(D, nb, X, 2), _lift(e, nb, X, 1) - md.h(X, t))
-
-                def f_x(X, t):
-                    return md.f_x(X, t) - _lift(D, nb, X, 2) @ md.h_x(X, t)
-
-                def f_xx(X, t):
-                    return md.f_xx(X, t) - np.einsum("...ij,...jkl->...ikl", _lift(D, nb, X, 2), md.h_xx(X, t))
-        mo = self.rule.moments(state, f, self._time(k), jac=f_x, hess=f_xx, cross=cross, noise_of=md,
-                               role="dynamics")
-        P = mo.cov + mo.noise  # P⁻ = Cov[f] + E[G Q Gᵀ]
-        if sub is not None:  # Cov[w̃] = Q − S R⁻¹ Sᵀ
-            P = P - sub
-        if mo.quartic is not None:
-            P = P + mo.quartic
-        if getattr(self.rule, "symmetrize", False):
-            P = symmetrize(P)
-        new = GaussianState(mo.mean, P)
-        new = self._predicted(new if mo.bad is None else poison(new, mo.bad))
-        return (new, mo.cross) if cross else new
-
-    smoother = "rts"
+        """:func:`~nlfilter.filters.skeleton.predict` from step ``k`` (correlated noise: with the
+        decorrelation of the belief's measurement); with ``cross`` also ``Cov[x_k, f(x_k)]``."""
+        out = predict(self.rule, self.model, state, self._time(k), decorrelation=self._cross.decorrelation(state, k),
+                      cross=cross)
+        return (self._cross.unmeasured(out[0]), out[1]) if cross else self._cross.unmeasured(out)
 
     def _predict_cross(self, state, k):
         return self._predict(state, k, cross=True)
 
-    def _smooth(self, est, beliefs, ys, t0):
-        """The RTS backward pass through the rule (:func:`~nlfilter.filters.smoothing.rts`)."""
-        off = 0 if self.start == "update" else 1
-        ms, Ps, lag = rts(est.means, est.covs, self._smooth_predict(ys, off), off)
-        return ms, Ps, {"lag_one_cov": lag}
+    def _condition(self, state, y, t, R=None):
+        """``(updated, failed paths or None, (ŷ, S))``: :func:`~nlfilter.filters.skeleton.condition`
+        (the step a configuration may replace: the iterated update, the UKF's augmented points)."""
+        return condition(self.rule, self.model, state, y, t, R=R)
+
+    def _conditioned(self, state, y, k):
+        """The update of step ``k``: ``(belief poisoned on the failed paths, with its measurement,
+        failed paths, (ŷ, S))``."""
+        y = np.asarray(y, dtype=float)
+        new, bad, moments = self._condition(GaussianState(state[0], state[1]), y, self._time(k))
+        return self._cross.carry(poison(new, bad), y), bad, moments
 
     def predict(self, state, k):
-        return self._predict(state, k)
-
-    def _update(self, state, y, t, R=None, info: bool = False):
-        """``(updated belief, failed paths or None)`` at time ``t``; ``R`` defaults to the model's;
-        with ``info``, also the predicted measurement moments ``(ŷ, S)``.
-
-        ``S = Cov[h] + R`` (+ the rule's fourth-moment term); a rule with ``screen`` has S checked
-        for positive definiteness (failed paths get a harmless S and are reported); a rule's forcing
-        tensor adds ``Σ_k M_k [S⁻¹(y − ŷ)]_k`` to the covariance (the discrete C tensor of seed 004
-        eq. 17, see :mod:`nlfilter.filters.second_order`)."""
-        md = self.model
-        if R is None:  # a state-dependent R(x) at the predicted mean (the EKF convention)
-            R = md.R if getattr(md, "R_constant", True) else md.R_of(state.mean, t)
-        mo = self.rule.moments(state, md.h, t, jac=md.h_x, hess=md.h_xx, role="measurement")
-        S = mo.cov + R
-        if mo.quartic is not None:
-            S = S + mo.quartic
-        bad = mo.bad
-        if getattr(self.rule, "screen", False):
-            nd = _pd_mask(S)
-            if nd.any():  # keep the algebra finite; these paths are reported as diverged
-                S = np.where(nd[..., None, None], np.eye(S.shape[-1]) * np.abs(S).max(initial=1.0) + R, S)
-            bad = nd if bad is None else bad | nd
-        if mo.jac is not None:  # S = H P Hᵀ + R exactly: Joseph form with the linearization
-            new = gaussian_update(state, y, mo.mean, S, mo.cross, H=mo.jac, R=R)
-        else:
-            new = gaussian_update(state, y, mo.mean, S, mo.cross)
-        if mo.forcing is not None:  # P⁺ += Σ_k M_k [S⁻¹(y − ŷ)]_k
-            miss = np.isnan(y)
-            e = np.where(miss, 0.0, y - mo.mean)
-            Sm = np.where(miss[..., :, None] | miss[..., None, :], np.eye(S.shape[-1]), S)
-            u = np.linalg.solve(Sm, e[..., None])[..., 0]
-            new = GaussianState(new.mean, symmetrize(new.cov + np.einsum("...ijk,...k->...ij", mo.forcing, u)))
-        return (new, bad, (mo.mean, S)) if info else (new, bad)
+        new = self._predict(state, k)
+        return check_paths(self, new, None, "predicted covariance", k) if self.raises else new
 
     def update(self, state, y, k):
-        if self._cross is not None:
-            state = GaussianState(state.mean, state.cov)
-        new, bad = self._update(state, y, self._time(k))
-        return self._carry(new if bad is None else poison(new, bad), y)
+        new, bad, _ = self._conditioned(state, y, k)
+        return check_paths(self, new, bad, "updated (or innovation) covariance", k) if self.raises else new
 
-    likelihood = "prediction-error"
+    def _predict_unchecked(self, state, k):
+        return self._predict(state, k), None
+
+    def _update_unchecked(self, state, y, k):
+        new, bad, _ = self._conditioned(state, y, k)
+        return new, bad
 
     def _update_info(self, state, y, k):
         """``run(..., loglik=True)``: the update with the step's log N(y; ŷ, S) and innovation
         (:func:`~nlfilter.filters.linalg.innovation_info`; S with the rule's fourth-moment term)."""
-        new, bad, (yhat, S) = self._update(GaussianState(state[0], state[1]), y, self._time(k), info=True)
-        return self._carry(new if bad is None else poison(new, bad), y), bad, innovation_info(y, yhat, S)
+        new, bad, (yhat, S) = self._conditioned(state, y, k)
+        return new, bad, innovation_info(np.asarray(y, dtype=float), yhat, S)
 
-
-def _pd_mask(S):
-    """Boolean ``(...)``: innovation covariances that are not positive definite."""
-    if S.shape[-1] == 1:
-        return ~(S[..., 0, 0] > 0)
-    return ~np.all(np.linalg.eigvalsh(symmetrize(S)) > 0, axis=-1)
+    def _smooth(self, est, beliefs, ys, t0):
+        """The RTS backward pass through the rule (:func:`~nlfilter.filters.smoothing.rts`)."""
+        off = 0 if self.start == "update" else 1
+        ms, Ps, lag = rts(est.means, est.covs, self._cross.smooth_predict(self._predict_cross, ys, off), off)
+        return ms, Ps, {"lag_one_cov": lag}
 
 
 class ContinuousDiscreteGaussianFilter(GaussianFilter):
@@ -334,34 +216,12 @@ class ContinuousDiscreteGaussianFilter(GaussianFilter):
     def _time(self, k):
         return self.t0 + k * self.dt
 
-    def _rhs(self, m, P, z, s):
-        md = self.model
-        mo = self.rule.moments(GaussianState(m, P), md.f, s, jac=md.f_x, hess=md.f_xx, cov=False, noise_of=md,
-                               role="dynamics")
-        dP = mo.cross + np.swapaxes(mo.cross, -1, -2) + mo.noise  # Cov[x, f] + Cov[f, x] + E[G Q Gᵀ]
-        dm = mo.mean if mo.bad is None else np.where(mo.bad[..., None], np.nan, mo.mean)  # poisoned paths
-        return dm, dP
-
-    def _predict(self, state, k):
-        """The belief at ``t_{k+1}`` from the belief at ``t_k = t0 + k dt`` (no measurement)."""
-        return ContinuousFilter.integrate(self, self._rhs, GaussianState(*state), None, self._time(k))
-
-    def _predict_cross(self, state, k):
-        """The prediction and ``C(t_{k+1}) = Cov[x(t_k), x(t_{k+1})]``: the moment equations with
-        ``dC/dt = C P⁻¹ Cov[x, f]`` (:mod:`~nlfilter.filters.smoothing`), ``C(t_k) = P_k``."""
-        md = self.model
-
-        def rhs(x, s):
-            m, P, C = x
-            mo = self.rule.moments(GaussianState(m, P), md.f, s, jac=md.f_x, hess=md.f_xx, cov=False,
-                                   noise_of=md, role="dynamics")
-            dP = mo.cross + np.swapaxes(mo.cross, -1, -2) + mo.noise
-            return mo.mean, dP, C @ _solve_right(P, np.swapaxes(mo.cross, -1, -2)).swapaxes(-1, -2)
-
-        state = GaussianState(*state)
-        m, P, C = ode_step(rhs, (state.mean, state.cov, state.cov), self._time(k), self.dt, substeps=self.substeps,
-                           scheme=self.scheme, finish=lambda x: (x[0], symmetrize(x[1]), x[2]))
-        return GaussianState(m, P), C
+    def _predict(self, state, k, cross: bool = False):
+        """The belief at ``t_{k+1}`` from the belief at ``t_k = t0 + k dt`` (no measurement):
+        :func:`~nlfilter.filters.skeleton.propagate`; with ``cross`` also
+        ``C(t_{k+1}) = Cov[x(t_k), x(t_{k+1})]`` (``dC/dt = C P⁻¹ Cov[x, f]``, ``C(t_k) = P_k``)."""
+        return propagate(self.rule, self.model, state, self._time(k), self.dt, substeps=self.substeps,
+                         scheme=self.scheme, cross=cross)
 
 
 class ContinuousGaussianFilter(ContinuousFilter):
@@ -381,8 +241,9 @@ class ContinuousGaussianFilter(ContinuousFilter):
     the start of the step (with Euler: the Euler–Maruyama step; holding ``dy/dt`` constant inside RK4
     stages would converge to the Stratonovich reading whenever the gain depends on the state).
     ``innovation="update"``: the increment is first absorbed by the discrete update of the rule
-    (:meth:`GaussianFilter._update` with ``y = dy/dt``, ``R = R/dt``), then the moments are propagated
+    (:func:`~nlfilter.filters.skeleton.condition` with ``y = dy/dt``, ``R = R/dt``), then the moments are propagated
     over ``dt`` without measurement terms. Missing components of ``dy`` do not update.
+    ``step`` returns NaN on a failed path, or raises with ``raises`` (the second-order filters).
 
     >>> import sympy as sp; from nlfilter import SDEModel
     >>> from nlfilter.filters.rules import Taylor1
@@ -397,6 +258,9 @@ class ContinuousGaussianFilter(ContinuousFilter):
     name = "continuous-gaussian"
     family = "gaussian"
     source = "seed 004 eqs. 35-37 (Henriksen 1979); Jazwinski 1970, ch. 9"
+    raises = False  # True: step raises DivergenceError on a failed path (the second-order filters)
+    likelihood = "prediction-error"
+    smoother = "rts"
 
     def __init__(self, model, dt, rule, *, scheme: str = "rk4", substeps: int = 1, innovation: str = "ito"):
         super().__init__(model, dt, scheme=scheme, substeps=substeps)
@@ -409,44 +273,11 @@ class ContinuousGaussianFilter(ContinuousFilter):
                             f"got {type(rule).__name__}")
         self.rule = rule
         self.model.require("f", "h", "G", *rule.needs(self.model), by=by or type(self).__name__)
-        self._second = rule.second
         self._Rinv = continuous_precision(self.model)
 
-    def _gain_parts(self, m, P, s, obs, Rinv):
-        """Gain, P Hᵀ, ĥ and the forcing tensor M R⁻¹; ``Rinv``: the precision of the observed
-        components (:func:`~nlfilter.filters.linalg.observed_precision`; missing ones do not update)."""
-        md = self.model
-        H = md.h_x(m, s) * obs[..., :, None]
-        PHt = mm(P, np.swapaxes(H, -1, -2))
-        K = mm(PHt, Rinv)  # 004 eq. 37
-        hhat = md.h(m, s)
-        M = None
-        if self._second:
-            h_xx = md.h_xx(m, s)
-            hhat = hhat + 0.5 * hessian_trace(P, h_xx)  # 004 eq. 35
-            M = self.rule.forcing(P, h_xx)
-            if M is not None:
-                M = np.einsum("...ijk,...kl->...ijl", M * obs[..., None, None, :], Rinv)  # M R⁻¹
-        return K, PHt, hhat * obs, M
-
-    def _rhs_factory(self, obs, Rinv):
-        md = self.model
-
-        def rhs(m, P, z, s):
-            F = md.f_x(m, s)
-            K, PHt, hhat, M = self._gain_parts(m, P, s, obs, Rinv)
-            dm = md.f(m, s) - np.einsum("...ij,...j->...i", K, hhat)
-            if self._second:
-                dm = dm + 0.5 * hessian_trace(P, md.f_xx(m, s))  # 004 eq. 35, drift part
-            FP = mm(F, P)
-            dP = FP + np.swapaxes(FP, -1, -2) + self.rule.noise(md, m, P, s) - mm(K, np.swapaxes(PHt, -1, -2))
-            if M is not None:
-                dP = dP - np.einsum("...ijk,...k->...ij", M, hhat)  # forcing term, its dt part
-            return dm, dP
-
-        return rhs
-
-    likelihood = "prediction-error"
+    def _drift(self, obs, Rinv):
+        """``rhs(m, P, z, s)`` of the ``dt`` terms for the run loop's integrator (:func:`ito_rhs`)."""
+        return lambda m, P, z, s: ito_rhs(self.rule, self.model, m, P, s, obs, Rinv)
 
     def _step_info(self, state, dy, t):
         """``run(..., loglik=True)``: the step with the density of the increment under the
@@ -462,19 +293,18 @@ class ContinuousGaussianFilter(ContinuousFilter):
         """``(state at t + dt, bad paths or None)`` (and the step's likelihood output with ``info``)."""
         obs = ~np.isnan(dy)
         if self.innovation == "update" or info:
-            new, bad, (yhat, S) = GaussianFilter._update(self, state, dy / self.dt, t, R=self.model.R / self.dt,
-                                                         info=True)
+            new, bad, (yhat, S) = condition(self.rule, self.model, state, dy / self.dt, t, R=self.model.R / self.dt)
             out = innovation_info(dy / self.dt, yhat, S, scale=self.dt) if info else None
         if self.innovation == "update":
             new = new if bad is None else poison(new, bad)
             none = np.zeros_like(obs)
-            new = self.integrate(self._rhs_factory(none, np.zeros_like(self._Rinv)), new, None, t)
+            new = self.integrate(self._drift(none, np.zeros_like(self._Rinv)), new, None, t)
             return (new, bad, out) if info else (new, bad)
         dy0 = np.where(obs, dy, 0.0)
         m, P = state
         Rinv = observed_precision(self.model.R, self._Rinv, obs)
-        K, _, _, M = self._gain_parts(m, P, t, obs, Rinv)  # Itô: gain at the start of the step
-        new = self.integrate(self._rhs_factory(obs, Rinv), GaussianState(m, P), None, t)
+        K, _, _, M = ito_gain(self.rule, self.model, m, P, t, obs, Rinv)  # Itô: gain at the start of the step
+        new = self.integrate(self._drift(obs, Rinv), GaussianState(m, P), None, t)
         mean = new.mean + np.einsum("...ij,...j->...i", K, dy0)
         cov = new.cov
         if M is not None:
@@ -482,71 +312,18 @@ class ContinuousGaussianFilter(ContinuousFilter):
         return (GaussianState(mean, cov), None, out) if info else (GaussianState(mean, cov), None)
 
     def step(self, state, dy, t):
-        """The belief at ``t + dt`` from the belief at ``t`` and the increment ``dy (..., m)``."""
-        new, bad = self._step(GaussianState(*state), np.asarray(dy, dtype=float), t)
-        return new if bad is None else poison(new, bad)
-
-    smoother = "rts"
+        """The belief at ``t + dt`` from the belief at ``t`` and the increment ``dy (..., m)`` (NaN on
+        a failed path; with ``raises``, a :class:`~nlfilter.errors.DivergenceError`)."""
+        if not self.raises:
+            new, bad = self._step_unchecked(state, dy, t)
+            return poison(new, bad)
+        with np.errstate(over="ignore", invalid="ignore"):
+            new, bad = self._step_unchecked(state, dy, t)
+        return check_paths(self, new, bad, "covariance", t)
 
     def _smooth(self, est, beliefs, ys, t0):
         """The continuous RTS smoother (:func:`~nlfilter.filters.smoothing.continuous_rts`)."""
         return continuous_rts(self, est.means, est.covs, t0)
 
     def _step_unchecked(self, state, dy, t):
-        return self._step(state, dy, t)
-
-
-def iterated_update(model, state, y, t, iterations: int, tol: float) -> GaussianState:
-    """Iterated EKF update (Bell & Cathey 1993, IEEE TAC 38(2): Gauss–Newton on the MAP problem)::
-
-        x_0 = m⁻,   H_i = h_x(x_i),   S_i = H_i P⁻ H_iᵀ + R,   K_i = P⁻ H_iᵀ S_i⁻¹
-        x_{i+1} = m⁻ + K_i (y − h(x_i) − H_i (m⁻ − x_i))
-        P⁺ = (I − K H) P⁻ (I − K H)ᵀ + K R Kᵀ   with the last K_i, H_i (Joseph form)
-
-    Each path stops when ``|x_{i+1} − x_i| ≤ tol (1 + |x_i|)`` componentwise, or after
-    ``iterations`` updates (one iteration is the EKF update, exactly). Missing components of ``y``
-    take no part (their rows of the innovation and gain are zero, :func:`gaussian_update`), so only
-    the observed components are iterated. A path's result does not depend on the other paths.
-    """
-    md = model
-    m, P = state
-    R = md.R if getattr(md, "R_constant", True) else md.R_of(m, t)  # R(x) at the predicted mean, as the first update
-
-    def linear_update(x, first):
-        H = md.h_x(x, t)
-        C = mm(P, np.swapaxes(H, -1, -2))
-        S = mm(H, C) + R
-        y_pred = md.h(x, t) if first else md.h(x, t) + np.einsum("...ij,...j->...i", H, m - x)
-        return gaussian_update(state, y, y_pred, S, C, H=H, R=R)
-
-    new = linear_update(m, True)
-    done = np.zeros(m.shape[:-1], bool)
-    for _ in range(iterations - 1):
-        x = new.mean
-        cand = linear_update(x, False)
-        step_small = np.all(np.abs(cand.mean - x) <= tol * (1.0 + np.abs(x)), axis=-1)
-        new = GaussianState(np.where(done[..., None], new.mean, cand.mean),
-                            np.where(done[..., None, None], new.cov, cand.cov))
-        done = done | step_small
-        if done.all():
-            break
-    return new
-
-
-class _Iterated:
-    """The iterated update for a Taylor-1 skeleton (``IteratedEKF``, ``ContinuousDiscreteIEKF``)."""
-
-    def _set_iterations(self, iterations, tol):
-        self.iterations = V.positive("iterations", iterations, integer=True)
-        self.tol = float(V.positive("tol", tol, strict=False))
-
-    def update(self, state, y, k):
-        new = iterated_update(self.model, GaussianState(state[0], state[1]), y, self._time(k), self.iterations, self.tol)
-        return self._carry(new, y)
-
-    def _update_info(self, state, y, k):
-        """The iterated update, with the likelihood of the first (EKF) linearization at the
-        predicted mean: the predictive law of y is not changed by iterating the posterior mode."""
-        state = GaussianState(state[0], state[1])
-        _, _, (yhat, S) = GaussianFilter._update(self, state, y, self._time(k), info=True)
-        return self.update(state, y, k), None, innovation_info(y, yhat, S)
+        return self._step(GaussianState(*state), np.asarray(dy, dtype=float), t)

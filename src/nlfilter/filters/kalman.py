@@ -14,7 +14,7 @@ import scipy.linalg as sla
 from .base import ContinuousFilter, DiscreteFilter, GaussianState
 from .linalg import gaussian_update, innovation_info
 from .ekf import ContinuousEKF
-from .gaussian import _CrossNoise
+from .skeleton import CrossNoise
 from .smoothing import rts
 
 
@@ -24,10 +24,10 @@ def _require_linear(model, who):
                          f"got {model!r}; use EKF, UKF or a second-order filter")
 
 
-class KalmanFilter(_CrossNoise, DiscreteFilter):
+class KalmanFilter(DiscreteFilter):
     """Discrete Kalman filter on a linear :class:`DiscreteModel` (batched, Joseph-form update).
 
-    Correlated noise ``E[w_k v_kᵀ] = S`` (``cross_noise``; :class:`~nlfilter.filters.gaussian._CrossNoise`):
+    Correlated noise ``E[w_k v_kᵀ] = S`` (``cross_noise``; :class:`~nlfilter.filters.skeleton.CrossNoise`):
     the prediction ``m⁻ = F m + b + G K_w (y_k − H m − d)``, ``P⁻ = F̃ P F̃ᵀ + G (Q − K_w Sᵀ) Gᵀ``,
     ``F̃ = F − G K_w H``, ``K_w = S R⁻¹`` (Anderson & Moore 1979, §5.5), exact."""
 
@@ -43,7 +43,10 @@ class KalmanFilter(_CrossNoise, DiscreteFilter):
         self._const = getattr(model, "time_invariant", False)  # else F, b, H, d, GQGᵀ read at every step
         if self._const:
             self._mats = self._matrices(0)
-        self._set_cross()
+        self._cross = CrossNoise(model)
+
+    def init(self, m0, P0, batch, *, initial=None, rng=None):
+        return self._cross.unmeasured(super().init(m0, P0, batch, initial=initial, rng=rng))
 
     def _matrices(self, k):
         md = self.model
@@ -52,14 +55,14 @@ class KalmanFilter(_CrossNoise, DiscreteFilter):
         return md.f_x(z, k), md.f(z, k), md.h_x(z, k), md.h(z, k), G @ md.Q @ G.T
 
     def predict(self, state, k):
-        if self._cross is None:
+        if self._cross.S is None:
             F, b, _, _, GQG = self._mats if self._const else self._matrices(k)
             m, P = state
             return GaussianState(m @ F.T + b, F @ P @ F.T + GQG)
         return self._predict_cross(state, k)[0]
 
     def update(self, state, y, k):
-        return self._carry(self._update(state, y, k)[0], y)
+        return self._cross.carry(self._update(state, y, k)[0], y)
 
     smoother = "rts"
 
@@ -67,19 +70,19 @@ class KalmanFilter(_CrossNoise, DiscreteFilter):
         """The prediction and ``Cov[x_k, x_{k+1}] = P F̃ᵀ`` (``F̃ = F`` without correlated noise)."""
         F, b, H, d, GQG = self._mats if self._const else self._matrices(k)
         m, P = state[0], state[1]
-        dec = self._decorrelation(state, k) if self._cross is not None else None
+        dec = self._cross.decorrelation(state, k)
         if dec is None:
-            return self._predicted(GaussianState(m @ F.T + b, F @ P @ F.T + GQG)), P @ F.T
+            return self._cross.unmeasured(GaussianState(m @ F.T + b, F @ P @ F.T + GQG)), P @ F.T
         D, e, sub = dec
         Ft = F - D @ H  # F̃ = F − G K_w H
         mean = np.einsum("...ij,...j->...i", Ft, m) + b + np.einsum("...ij,...j->...i", D, e - d)
         cov = Ft @ P @ np.swapaxes(Ft, -1, -2) + GQG - sub
-        return self._predicted(GaussianState(mean, 0.5 * (cov + np.swapaxes(cov, -1, -2)))), P @ np.swapaxes(Ft, -1, -2)
+        return self._cross.unmeasured(GaussianState(mean, 0.5 * (cov + np.swapaxes(cov, -1, -2)))), P @ np.swapaxes(Ft, -1, -2)
 
     def _smooth(self, est, beliefs, ys, t0):
         """The Rauch–Tung–Striebel smoother (Rauch, Tung & Striebel 1965; :func:`~nlfilter.filters.smoothing.rts`)."""
         off = 0 if self.start == "update" else 1
-        ms, Ps, lag = rts(est.means, est.covs, self._smooth_predict(ys, off), off)
+        ms, Ps, lag = rts(est.means, est.covs, self._cross.smooth_predict(self._predict_cross, ys, off), off)
         return ms, Ps, {"lag_one_cov": lag}
 
     likelihood = "prediction-error"
@@ -97,7 +100,7 @@ class KalmanFilter(_CrossNoise, DiscreteFilter):
     def _update_info(self, state, y, k):
         """The update and the step's log N(y; H m⁻ + d, H P⁻ Hᵀ + R) (prediction-error decomposition)."""
         new, yhat, S = self._update(state, y, k)
-        return self._carry(new, y), None, innovation_info(y, yhat, S)
+        return self._cross.carry(new, y), None, innovation_info(y, yhat, S)
 
 
 def steady_state(model, k: int = 0):

@@ -12,9 +12,13 @@ A rule is a small frozen object. Given a batch of Gaussian beliefs ``x ~ N(m, P)
     quartic = the fourth-moment part of Cov[g], kept apart (Taylor-2 under the skeleton), else None
     forcing = the covariance forcing tensor M (..., n, n, p) of seed 004 eq. 33 (Taylor-2), else None
 
-(the noise term uses the same nodes as the moments of ``g``). The skeleton says which function it
+(the noise term uses the same nodes as the moments of ``g``; the skeleton applies every term that is
+not None). Two table entries of every rule tell the skeleton what to do with the sums:
+``symmetrize`` (the predicted covariance) and ``screen`` (the innovation covariance checked for
+positive definiteness, failed paths reported). The skeleton says which function it
 asks about (``role="dynamics"`` for f, ``"measurement"`` for h): the forms of seed 004 differ there. The filters of
-:mod:`nlfilter.filters.gaussian` are one predict/update skeleton over a rule, as in dynamax's
+:mod:`nlfilter.filters.gaussian` configure one predict/condition skeleton over a rule
+(:mod:`nlfilter.filters.skeleton`), as in dynamax's
 generalized Gaussian filter (its ``EKFIntegrals``, ``UKFIntegrals``, ``GHKFIntegrals``):
 
 =====================  ===========================================================================
@@ -142,6 +146,8 @@ class Taylor1:
     name = "taylor1"
     kind = "taylor1"  # the compiled loop's step kernel (nlfilter.filters.compiled)
     second = False  # no second-order terms (for the continuous skeleton)
+    symmetrize = False  # the skeleton's table entries (nlfilter.filters.skeleton): P⁻ as computed,
+    screen = False  # S not screened (H P Hᵀ + R is PSD by construction)
 
     def noise(self, model, m, P, t):
         """``E[G Q Gᵀ] ≈ G(m) Q G(m)ᵀ``."""
@@ -229,7 +235,7 @@ class Taylor2:
     form: str = "modified-gaussian"
     name = "taylor2"
     kind = "taylor2"  # the compiled loop's step kernel
-    symmetrize = True  # the skeleton symmetrizes the predicted covariance (as 004's filters do)
+    symmetrize = True  # the skeleton (nlfilter.filters.skeleton) symmetrizes the predicted covariance (as 004's filters do)
     screen = True  # the skeleton screens the innovation covariance for positive definiteness
 
     def __post_init__(self):
@@ -310,6 +316,8 @@ class NodeRule:
     cannot serve (a ValueError naming the rule's argument)."""
 
     kind = "nodes"  # the compiled loop's step kernel
+    symmetrize = False  # the skeleton's table entries (nlfilter.filters.skeleton): P⁻ as the sums give it,
+    screen = False  # S not screened (a weighted sum of outer products plus R)
 
     def unit_nodes(self, n: int):  # pragma: no cover
         raise NotImplementedError

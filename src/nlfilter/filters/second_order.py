@@ -64,13 +64,11 @@ Example
 
 from __future__ import annotations
 
-import numpy as np
+import numpy as np  # noqa: F401  (the doctests use it)
 
 from .. import _validate as V
-from ..errors import DivergenceError
-from .base import ContinuousFilter, DiscreteFilter, GaussianState
-from .gaussian import ContinuousDiscreteGaussianFilter, ContinuousGaussianFilter, GaussianFilter, as_belief
-from .linalg import bad_paths
+from .base import ContinuousFilter, DiscreteFilter, GaussianState  # noqa: F401  (GaussianState: the doctests)
+from .gaussian import ContinuousDiscreteGaussianFilter, ContinuousGaussianFilter, GaussianFilter
 from .rules import FORMS, Taylor2, gaussian_quartic, hessian_trace, noise_covariance, quarter_outer
 
 
@@ -79,49 +77,15 @@ def _forcing(form, X, h_xx):
     return Taylor2(form).forcing(X, h_xx)
 
 
-class _Family:
-    """Configuration shared by the three time settings: the form, its Taylor-2 rule, the checks."""
-
-    family = "second-order"
-    needs = ("f_x", "f_xx", "h_x", "h_xx")
-
-    def _form(self, form):
-        self.form = V.choice("form", form, set(FORMS))
-        self.name = "ekf" if form == "first-order" else form
-        return Taylor2(form)
-
-    def _checked(self, state, bad, what, t):
-        bad = bad | bad_paths(state.mean, state.cov)
-        if bad.any():
-            idx = np.flatnonzero(np.broadcast_to(bad, bad.shape).ravel())
-            raise DivergenceError(f"{self.name}: {what} at {self.model.time_name}={t} lost positive "
-                                  f"definiteness or became non-finite on {idx.size} path(s), first "
-                                  f"{idx[:5].tolist()}", step=None, paths=idx, what="covariance")
-        return state
+def _form(flt, form):
+    """The form checked and named on the filter ``flt``, and its Taylor-2 rule (the configuration
+    shared by the three time settings)."""
+    flt.form = V.choice("form", form, set(FORMS))
+    flt.name = "ekf" if form == "first-order" else form
+    return Taylor2(form)
 
 
-class _DiscreteFamily(_Family):
-    """Discrete-time step functions of the discrete and continuous-discrete filters (over the
-    skeletons of :mod:`nlfilter.filters.gaussian`): ``predict``/``update`` raise on a failed path;
-    ``run`` uses the unchecked forms and marks."""
-
-    def predict(self, state, k):
-        return self._checked(self._predict(as_belief(state), k), False, "predicted covariance", k)
-
-    def update(self, state, y, k):
-        y = np.asarray(y, dtype=float)
-        new, bad = self._update(GaussianState(state[0], state[1]), y, self._time(k))
-        return self._carry(self._checked(new, bad, "updated (or innovation) covariance", k), y)
-
-    def _predict_unchecked(self, state, k):
-        return self._predict(as_belief(state), k), None
-
-    def _update_unchecked(self, state, y, k):
-        new, bad = self._update(GaussianState(state[0], state[1]), y, self._time(k))
-        return self._carry(new, y), bad
-
-
-class SecondOrderFilter(_DiscreteFamily, GaussianFilter):
+class SecondOrderFilter(GaussianFilter):
     """Second-order filter for a :class:`~nlfilter.models.DiscreteModel` (batched): the
     :class:`~nlfilter.filters.gaussian.GaussianFilter` skeleton with the rule
     :class:`Taylor2(form) <nlfilter.filters.rules.Taylor2>`.
@@ -150,13 +114,16 @@ class SecondOrderFilter(_DiscreteFamily, GaussianFilter):
     """
 
     source = "seed 004 eqs. 18-23 (discrete), Henriksen 1979"
+    family = "second-order"
+    needs = ("f_x", "f_xx", "h_x", "h_xx")
+    raises = True
 
     def __init__(self, model, *, form: str = "truncated", start: str | None = None):
         DiscreteFilter.__init__(self, model, start=start)
-        self._set_rule(self._form(form), by=f"SecondOrderFilter(form={form!r})")
+        self._set_rule(_form(self, form), by=f"SecondOrderFilter(form={form!r})")
 
 
-class ContinuousDiscreteSecondOrderFilter(_DiscreteFamily, ContinuousDiscreteGaussianFilter):
+class ContinuousDiscreteSecondOrderFilter(ContinuousDiscreteGaussianFilter):
     """Continuous dynamics, discrete measurements: the moment ODEs of 004 eqs. 35-36 without their
     measurement terms between measurements, the discrete update of 004 eqs. 20-22 at them (the
     :class:`~nlfilter.filters.gaussian.ContinuousDiscreteGaussianFilter` skeleton with the rule
@@ -182,16 +149,18 @@ class ContinuousDiscreteSecondOrderFilter(_DiscreteFamily, ContinuousDiscreteGau
 
     source = "seed 004 eqs. 35-36 between measurements, eqs. 20-22 at them"
     accepts = ("sde",)
+    family = "second-order"
+    needs = ("f_x", "f_xx", "h_x", "h_xx")
+    raises = True
 
     def __init__(self, model, dt: float, *, form: str = "truncated", scheme: str = "rk4",
                  substeps: int = 1, start: str | None = None, t0: float | None = None):
         # the continuous-discrete skeleton with Taylor2(form)
-        ContinuousDiscreteGaussianFilter.__init__(self, model, dt, self._form(form), scheme=scheme,
-                                                  substeps=substeps, start=start, t0=t0,
-                                                  by=f"ContinuousDiscreteSecondOrderFilter(form={form!r})")
+        super().__init__(model, dt, _form(self, form), scheme=scheme, substeps=substeps, start=start, t0=t0,
+                         by=f"ContinuousDiscreteSecondOrderFilter(form={form!r})")
 
 
-class ContinuousSecondOrderFilter(_Family, ContinuousGaussianFilter):
+class ContinuousSecondOrderFilter(ContinuousGaussianFilter):
     """Second-order filter for an Itô :class:`~nlfilter.models.SDEModel` observed through increments
     ``dy`` (004 eqs. 35-37): the :class:`~nlfilter.filters.gaussian.ContinuousGaussianFilter`
     skeleton with the rule :class:`Taylor2(form) <nlfilter.filters.rules.Taylor2>`::
@@ -220,26 +189,18 @@ class ContinuousSecondOrderFilter(_Family, ContinuousGaussianFilter):
     """
 
     source = "seed 004 eqs. 35-37 (continuous), Henriksen 1979"
+    family = "second-order"
+    needs = ("f_x", "f_xx", "h_x", "h_xx")
+    raises = True
 
     def __init__(self, model, dt, *, form: str = "truncated", scheme: str = "rk4", substeps: int = 1,
                  innovation: str = "ito"):
         ContinuousFilter.__init__(self, model, dt, scheme=scheme, substeps=substeps)
         self.innovation = V.choice("innovation", innovation, {"ito", "update"})
-        self._form(form)
+        _form(self, form)
         # 004 sec. 3: no −¼ term exists in continuous time, "modified" is the truncated filter
         self._set_rule(Taylor2("truncated" if form == "modified" else form),
                        by=f"ContinuousSecondOrderFilter(form={form!r})")
-
-    def _step_unchecked(self, state, dy, t):
-        new, bad = self._step(GaussianState(*state), np.asarray(dy, dtype=float), t)
-        return new, np.zeros(np.shape(dy)[:-1], bool) if bad is None else bad
-
-    def step(self, state, dy, t):
-        """The belief at ``t + dt`` from the belief at ``t`` and the increment ``dy (..., m)``;
-        raises :class:`~nlfilter.errors.DivergenceError` on a failed path."""
-        with np.errstate(over="ignore", invalid="ignore"):
-            new, bad = self._step_unchecked(state, dy, t)
-        return self._checked(new, bad, "covariance", t)
 
 
 __all__ = ["FORMS", "SecondOrderFilter", "ContinuousSecondOrderFilter",

@@ -93,15 +93,15 @@ class UKF(GaussianFilter):
         new = new if mo.bad is None else poison(new, mo.bad)
         return (new, mo.cross[..., :n, :]) if cross else new
 
-    def _update(self, state, y, t, R=None, info: bool = False):
+    def _condition(self, state, y, t, R=None):
         """A non-additive measurement noise: the update over the sigma points of ``(x, v)`` (class
         docstring); otherwise the skeleton's."""
         md = self.model
         if getattr(md, "additive_measurement", True) or R is not None:
-            return super()._update(state, y, t, R=R, info=info)
+            return super()._condition(state, y, t, R=R)
         mo = self._aug_rule.moments(_augmented(state, md.R), md.h_aug, t)
         new = gaussian_update(state, y, mo.mean, mo.cov, mo.cross[..., :md.n, :])  # S = Cov[h(x, v)], C = Cov[x, h]
-        return (new, mo.bad, (mo.mean, mo.cov)) if info else (new, mo.bad)
+        return new, mo.bad, (mo.mean, mo.cov)
 
 
 def _augmented(state, C) -> GaussianState:
