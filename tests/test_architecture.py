@@ -49,11 +49,8 @@ LAYERS = (
 # - helper "skeleton": filters/gaussian.py becomes the skeleton's functions (<= 500 lines).
 PENDING_SIZE = {"nlfilter.filters.compiled", "nlfilter.models", "nlfilter.filters.gaussian",
                 "nlfilter.filters.base", "nlfilter.filters.quasilinear"}  # these two: this branch, next commits
-PENDING_CYCLES = {frozenset({"nlfilter.filters.base", "nlfilter.filters.compiled", "nlfilter.filters.gaussian"}),
-                  frozenset({"nlfilter.filters.reference.grid", "nlfilter.filters.reference.particle",
-                             "nlfilter.filters.reference.smoothing"})}  # this branch, next commit
-PENDING_UPWARD = {("nlfilter.filters.phase", "nlfilter.simulate"),  # this branch, next commit
-                  ("nlfilter.filters.reference.particle", "nlfilter.simulate")}
+PENDING_CYCLES = {frozenset({"nlfilter.filters.base", "nlfilter.filters.compiled", "nlfilter.filters.gaussian"})}
+PENDING_UPWARD: set[tuple[str, str]] = set()
 
 MAX_LINES = 500
 MAX_LINES_COMPILED = 400  # inside filters/compiled/ (issue 27, item 3)
