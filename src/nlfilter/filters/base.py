@@ -167,6 +167,11 @@ class Filter:
                              f"expected None, got {type(initial).__name__}")
         return gaussian_prior(m0, P0, self.state_dim, batch)
 
+    def _run_init(self, m0, P0, batch, initial, rng, steps, t0):
+        """The run loop's start: :meth:`init`; a filter whose start depends on the run's horizon
+        (``steps`` measurements from ``t0``: the off-line gains) overrides it to pass them on."""
+        return self.init(m0, P0, batch, initial=initial, rng=rng)
+
     def predict(self, belief, k):  # pragma: no cover - abstract
         """Predict: the belief of step ``k + 1`` from the (filtered) belief of step ``k``."""
         raise NotImplementedError
@@ -366,7 +371,7 @@ class Filter:
     def _loop(self, yf, batch, m, m0, P0, initial, rng, t0, on, progress, loglik, smooth):
         """The steps of :meth:`_drive` over ``yf (B, T, m)``, its checks done."""
         B, T = yf.shape[:2]
-        belief = self.init(m0, P0, batch, initial=initial, rng=rng)
+        belief = self._run_init(m0, P0, batch, initial, rng, T, t0)
         start = belief
         rec = Recorder(self, B, T, on, keep=smooth and self.smoother_keeps)
         steps = range(T)
