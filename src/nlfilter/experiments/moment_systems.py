@@ -38,7 +38,7 @@ from ..filters.kalman import KalmanFilter
 from ..bounded import BoundedNoiseModel
 from ..filters.moment_bayes import FirstOrderMomentFilter
 from ._blocks import BLOCK, BLOCK_RANGE, block_arrays, block_estimates, block_size
-from .zero_order import failure_rate_row
+from .zero_order_problem import failure_rate_row
 from ..filters.reference.bounded import BoundedGridFilter1D
 from ..models import DiscreteModel
 from ..montecarlo import montecarlo

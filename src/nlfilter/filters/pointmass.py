@@ -7,7 +7,7 @@ the cells of the bounded-noise grid (:class:`~nlfilter.filters.reference.bounded
 (:class:`~nlfilter.filters.phase.CircleGridFilter`, :func:`circle_points`, with ``X = (sin θ, cos θ)``).
 A weighted cloud holds points per path, ``x (B, Np, n)`` with weights ``w (B, Np)`` (the particle
 filters and the particle smoother). This module is below all of them and their smoothers
-(:mod:`nlfilter.filters.reference.smoothing`), which is what breaks the grid/particle/smoother
+(:mod:`nlfilter.filters.reference.forward_backward`), which is what breaks the grid/particle/smoother
 import cycle; it imports nothing of nlfilter.
 """
 

@@ -18,8 +18,8 @@ from ...sde_step import END_POINT
 from ..base import gaussian_prior
 from ..pointmass import apply_kernel, axis_points, moments, normalize
 from ..linalg import gaussian_loglik, innovation_info, measurement_loglik, no_information, observed_precision
-from ._common import _ReferenceFilter
-from .smoothing import grid_smoother
+from ._reference_base import _ReferenceFilter
+from .forward_backward import grid_smoother
 
 
 EDGE_LIMIT = 0.9
@@ -384,7 +384,7 @@ class GridFilter(_ReferenceFilter):
 
     def _smooth(self, est, beliefs, ys, t0):
         """The forward–backward smoother on the grid with the filter's own kernel
-        (:func:`~nlfilter.filters.reference.smoothing.grid_smoother`): exact for the grid's chain.
+        (:func:`~nlfilter.filters.reference.forward_backward.grid_smoother`): exact for the grid's chain.
         Keeps every step's density: ``B × T × N`` floats (``smooth(..., chunk=)`` bounds B)."""
         if not beliefs:  # T = 0: nothing to smooth
             return est.means, est.covs

@@ -18,8 +18,8 @@ from ...noise import initial_states
 from ...streams import FILTER, PathRNG
 from ..pointmass import cloud_moments, weights
 from ..linalg import gaussian_loglik, innovation_info, measurement_loglik, no_information, observed_precision
-from ._common import _ReferenceFilter
-from .smoothing import ffbsm, transition_logpdf
+from ._reference_base import _ReferenceFilter
+from .forward_backward import ffbsm, transition_logpdf
 
 
 class ParticleBelief(NamedTuple):
@@ -279,7 +279,7 @@ class ParticleFilter(_ReferenceFilter):
 
     def smooth(self, ys, m0=None, P0=None, **kw):
         """The forward-filtering backward-smoothing particle smoother (Doucet, Godsill & Andrieu
-        2000; :func:`~nlfilter.filters.reference.smoothing.ffbsm`): the filter's run, then its
+        2000; :func:`~nlfilter.filters.reference.forward_backward.ffbsm`): the filter's run, then its
         clouds reweighted backwards by the transition density — ``O(particles²)`` per step and
         path (lower ``particles`` for long records). On an SDE model the transition density is
         that of the filter's own Euler–Maruyama step, so it needs ``substeps=1``. Arguments and
