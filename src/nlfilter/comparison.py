@@ -121,7 +121,7 @@ def compare(model, filters, steps, *, paths=200, m0, P0, rng=0, reference="auto"
         not None; the others are listed in ``params["smoothing"]["no_smoother"]``) and of the
         reference (the forward–backward grid smoother or the particle smoother, at the
         reference's own resolution: its certificate is the filter's, no second one is built;
-        :mod:`nlfilter.filters.reference.smoothing`), and report per filter and component
+        :mod:`nlfilter.filters.reference.forward_backward`), and report per filter and component
         ``smoothed_mse`` and ``smoothed_gap_to_optimal`` (the paired difference to the reference
         smoother on the same paths, ± its paired s.e. and the reference's certified error in
         quadrature); the filters' rows are the same as without it. A particle reference costs

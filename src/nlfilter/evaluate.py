@@ -17,6 +17,8 @@ import numpy as np
 
 from . import _validate as V
 from . import streams
+from .filters.estimates import Estimates
+from .simulation import Simulation
 
 
 class Summary(NamedTuple):
@@ -202,8 +204,6 @@ def loglik(flt, ys, m0=None, P0=None, *, replicates: int = 1, rng=0, **run_kw) -
     if not flt.random and R != 1:
         raise ValueError(f"replicates: {type(flt).__name__} is deterministic: its log-likelihood has no spread; "
                          f"expected 1, got {R}")
-    from .simulation import Simulation
-
     sim = ys if isinstance(ys, Simulation) else None  # run reads its timing (Filter.for_timing)
     ys = V.as_float_array("ys", sim.ys if sim is not None else ys)  # complex data is refused, not cut to its real part
     tiled = np.broadcast_to(ys, (R, *ys.shape)) if R > 1 else ys
@@ -250,8 +250,6 @@ def chunked(n: int | None):
 
 
 def _concat(parts):
-    from .filters.base import Estimates
-    from .simulation import Simulation
     first = parts[0]
     if isinstance(first, np.ndarray):
         return np.concatenate(parts)

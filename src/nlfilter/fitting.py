@@ -83,6 +83,23 @@ class FitResult:
         return "\n".join(lines)
 
 
+def _logit(t, lo, hi):
+    u = (t - lo) / (hi - lo)
+    return math.log(u / (1 - u))
+
+
+def _clip(z):
+    """``z`` bounded to ±700: ``exp`` of it stays finite."""
+    return max(min(z, 700.0), -700.0)
+
+
+#: per kind of parameter: ``(θ -> z, z -> θ)`` given the bounds ``lo``, ``hi`` (see :class:`_Transform`)
+_MAPS = {"id": (lambda t, lo, hi: t, lambda z, lo, hi: z),
+         "lo": (lambda t, lo, hi: math.log(t - lo), lambda z, lo, hi: lo + math.exp(min(z, 700.0))),
+         "hi": (lambda t, lo, hi: math.log(hi - t), lambda z, lo, hi: hi - math.exp(min(z, 700.0))),
+         "logit": (_logit, lambda z, lo, hi: lo + (hi - lo) / (1 + math.exp(-_clip(z))))}
+
+
 class _Transform:
     """Per parameter: identity, log(θ − lo), log(hi − θ) or logit on (lo, hi)."""
 
@@ -90,18 +107,7 @@ class _Transform:
         self.kinds = kinds  # list of (kind, lo, hi)
 
     def to_free(self, theta):
-        out = []
-        for t, (kind, lo, hi) in zip(theta, self.kinds):
-            if kind == "id":
-                out.append(t)
-            elif kind == "lo":
-                out.append(math.log(t - lo))
-            elif kind == "hi":
-                out.append(math.log(hi - t))
-            else:
-                u = (t - lo) / (hi - lo)
-                out.append(math.log(u / (1 - u)))
-        return np.array(out)
+        return np.array([_MAPS[kind][0](t, lo, hi) for t, (kind, lo, hi) in zip(theta, self.kinds)])
 
     def dnatural(self, z, i):
         """``dθ_i / dz_i`` at the free coordinate ``z`` of parameter ``i``."""
@@ -110,21 +116,11 @@ class _Transform:
             return 1.0
         if kind in ("lo", "hi"):
             return math.exp(min(z, 700.0))
-        e = math.exp(-abs(max(min(z, 700.0), -700.0)))
+        e = math.exp(-abs(_clip(z)))
         return (hi - lo) * e / (1 + e) ** 2
 
     def to_natural(self, z):
-        out = []
-        for v, (kind, lo, hi) in zip(z, self.kinds):
-            if kind == "id":
-                out.append(v)
-            elif kind == "lo":
-                out.append(lo + math.exp(min(v, 700.0)))
-            elif kind == "hi":
-                out.append(hi - math.exp(min(v, 700.0)))
-            else:
-                out.append(lo + (hi - lo) / (1 + math.exp(-max(min(v, 700.0), -700.0))))
-        return np.array(out)
+        return np.array([_MAPS[kind][1](v, lo, hi) for v, (kind, lo, hi) in zip(z, self.kinds)])
 
 
 def _make_filter(filter, filter_options, dt, start):

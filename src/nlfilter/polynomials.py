@@ -33,7 +33,7 @@ import sympy as sp
 
 from .errors import NotPolynomialError
 
-__all__ = ["Polynomial", "monomials", "monomial_name", "as_polynomial", "add_exp", "sub_exp"]
+__all__ = ["Polynomial", "monomials", "monomial_name", "as_polynomial", "add_exp", "sub_exp", "unit_exp"]
 
 
 def add_exp(a: tuple, b: tuple) -> tuple:
@@ -42,6 +42,17 @@ def add_exp(a: tuple, b: tuple) -> tuple:
 
 def sub_exp(a: tuple, b: tuple) -> tuple:
     return tuple(i - j for i, j in zip(a, b))
+
+
+def unit_exp(n: int, i: int, k: int = 1) -> tuple:
+    """The exponent tuple of ``x_i^k`` among ``n`` variables: ``(0, .., k, .., 0)``.
+
+    >>> unit_exp(3, 1, 2)
+    (0, 2, 0)
+    """
+    e = [0] * n
+    e[i] = k
+    return tuple(e)
 
 
 def _clean(c):

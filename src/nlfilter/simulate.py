@@ -27,7 +27,7 @@ import numpy as np
 
 from . import _validate as V
 from .errors import DivergenceError
-from .noise import Gaussian, NoiseLaw
+from .noise import Gaussian, NoiseLaw, initial_states  # noqa: F401  (initial_states: the simulators' first draw)
 from .ode import ode_step
 from .sde_step import SUBSTEPS, euler_maruyama
 from .simulation import Simulation, Timing
@@ -72,35 +72,6 @@ class _Screen:
         for p in np.flatnonzero(self.step >= 0):
             xs[p, self.step[p]:] = np.nan
             ys[p, self.step[p]:] = np.nan
-
-
-def initial_states(n, paths, rng, *, m0=None, P0=None, x0=None, initial: NoiseLaw | None = None,
-                   shape=()):
-    """``(P, *shape, n)`` initial states of the paths ``paths`` (an int ``P`` or a ``range``; ``rng``
-    a seed, SeedSequence, Generator or a :class:`~nlfilter.streams.PathRNG` over them): given
-    ``x0``, or drawn per path (``shape`` draws each) from the law ``initial`` or N(m0, P0)."""
-    P = len(rng) if isinstance(rng, PathRNG) else len(as_paths(paths))
-
-    def fits(name, a):  # one for all paths, or one per path: it must broadcast to (P, *shape, n)
-        try:
-            ok = np.broadcast_shapes(a.shape, (P, *shape, n)) == (P, *shape, n)
-        except ValueError:
-            ok = False
-        if not ok:
-            raise ValueError(f"{name}: expected shape ({n},) or one per path ({P}, {n}), got shape {a.shape}")
-        return a
-
-    if x0 is not None:
-        x0 = fits("x0", V.finite("x0", V.as_float_array("x0", x0, shape_tail=(n,))))
-        return np.broadcast_to(x0, (P, *shape, n)).copy()
-    if initial is not None:
-        if not isinstance(initial, NoiseLaw) or initial.dim != n:
-            raise TypeError(f"initial: expected a noise law of dimension {n}, got {initial!r}")
-        return PathRNG.of(rng, paths).sample(initial, shape)
-    if m0 is None or P0 is None:
-        raise ValueError("m0/P0: expected the prior mean and covariance (or x0, or initial), got None")
-    m0 = fits("m0", V.mean("m0", m0, n))
-    return m0 + PathRNG.of(rng, paths).sample(Gaussian(V.covariance("P0", P0, n)), shape)
 
 
 def _start(model, steps, paths, rng, m0, P0, x0, initial, width=0):

@@ -5,7 +5,7 @@ differences with their own standard errors (16 paths)."""
 import pytest
 
 from nlfilter.experiments import get
-from nlfilter.experiments.smoothing import FILTERS
+from nlfilter.experiments.rts_smoothing import FILTERS
 
 MODELS = {"cubic": 1, "rotating-cubic": 2}
 CONSISTENT = ("ukf", "ckf", "ghkf")  # NEES near n: their smoothers are trusted to help

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from nlfilter.experiments import get
-from nlfilter.experiments.zero_order import (ILLEGIBLE_TABLE1, PAPER_TABLE1, exact_mse, linear_gain,
+from nlfilter.experiments.zero_order_problem import (ILLEGIBLE_TABLE1, PAPER_TABLE1, exact_mse, linear_gain,
                                              paper_value, sample_power_density)
 from nlfilter.filters.moment_bayes import ZeroOrderMomentFilter, power_density_estimate
 from nlfilter.moments.densities import power_density_moments
@@ -135,7 +135,7 @@ def test_adaptive_quick_rows(check_figure):
 
 # ------------------------------------------------------------------ robustness (Chapter III)
 
-from nlfilter.experiments.zero_order import copula_corr, correlated_optimal, correlated_pair  # noqa: E402
+from nlfilter.experiments.zero_order_problem import copula_corr, correlated_optimal, correlated_pair  # noqa: E402
 
 
 def test_correlated_optimal_reference():

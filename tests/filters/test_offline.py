@@ -177,3 +177,17 @@ def test_every_off_line_gain_filter_runs_on_the_one_runner():
     off = {n for n, c in REGISTRY.items() if c.family == "off-line gains"}
     assert {"tensor", "updated-innovations", "pseudo-observables", "lqf", "phase-tensor"} <= off
     assert {n for n in off if not issubclass(REGISTRY[n], OfflineGainFilter)} == {"pll"}
+
+
+def test_run_leaves_the_filter_unchanged_and_the_horizon_reaches_init():
+    """A run passes its horizon (steps, t0) to ``init`` instead of storing it on the filter (issue
+    27): the filter's attributes are the same objects after a run, and a time-varying schedule
+    built by ``init`` for that horizon gives the run's covariances bit for bit (same code path)."""
+    model = BilinearModel([[-1.0]], [[1.0]], G=[[[0.3]]], B=[[1.0]], R=[[1.0]])
+    flt = OptimalLinearFilter(model, 0.01, gains="time-varying")
+    before = dict(vars(flt))
+    dys = np.random.default_rng(4).normal(scale=0.1, size=(2, 5, 1))
+    est = flt.run(dys, [0.0], [[0.5]], t0=0.2)
+    assert vars(flt).keys() == before.keys() and all(vars(flt)[k] is v for k, v in before.items())
+    sch = flt.init([0.0], [[0.5]], (1,), steps=5, t0=0.2).schedule
+    np.testing.assert_array_equal(est.covs[0, -1], sch.cov(5)[:1, :1])

@@ -1,5 +1,5 @@
 """The optimal smoothers (issue 12): the forward–backward grid smoother and the particle smoother
-(FFBSm) of :mod:`nlfilter.filters.reference.smoothing` against the Rauch–Tung–Striebel smoother on
+(FFBSm) of :mod:`nlfilter.filters.reference.forward_backward` against the Rauch–Tung–Striebel smoother on
 linear-Gaussian models (1-D and 2-D, missing data, both start conventions; an Ornstein–Uhlenbeck
 SDE), and against their own filters on a nonlinear model."""
 

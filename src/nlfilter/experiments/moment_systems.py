@@ -38,7 +38,7 @@ from ..filters.kalman import KalmanFilter
 from ..bounded import BoundedNoiseModel
 from ..filters.moment_bayes import FirstOrderMomentFilter
 from ._blocks import BLOCK, BLOCK_RANGE, block_arrays, block_estimates, block_size
-from .zero_order import failure_rate_row
+from .zero_order_problem import failure_rate_row
 from ..filters.reference.bounded import BoundedGridFilter1D
 from ..models import DiscreteModel
 from ..montecarlo import montecarlo
@@ -112,6 +112,24 @@ def _horizon(params, quick, T_quick, skip_quick):
     return T, skip
 
 
+def _per_law(res, params, R, skip, Ns, kind, block_fn, ident, errors):
+    """The Monte Carlo of every input law of ``params["laws"]`` (``R`` paths of ``block_fn`` with
+    ``ident(law, i)``) and its rows in ``res``: the adaptive filters' refresh failures, the MSE
+    after ``skip`` of the errors ``errors(estimates, xs)``, the claims, the fallback note. Returns
+    the laws."""
+    laws = list(params["laws"])
+    block = block_size(res, params, R)
+    for i, law_name in enumerate(laws):
+        idt = ident(law_name, i)
+        mc = montecarlo(law_name, partial(block_fn, **idt), R, block=block, ident=idt)
+        for N in Ns:
+            failure_rate_row(res, f"adaptive{N}", mc[f"refresh:adaptive{N}"], law=law_name)
+        per_path = _mse_rows(res, errors(block_estimates(mc), mc["xs"]), skip, law_name)
+        _claims(res, per_path, law_name, Ns, kind)
+        res.notes.append(f"{kind} law={law_name}: uniform fallback used in " + _fallbacks(mc) + " of steps")
+    return laws
+
+
 @experiment("moment-first-order", title="First-order system: moment filter vs Kalman vs grid optimum",
             source="seed 000, eqs. 2.4-2.5 (Chapter IV, outlined in the abstract)",
             params={"h": 0.5, "w_bound": 2.0, "N": [2, 4, 6], "laws": list(LAWS), "T": 2000, "skip": 500,
@@ -127,18 +145,10 @@ def run_first_order(params, *, quick, runs, seed, progress):
     res = Result("moment-first-order", "First-order system x+ = h x + w, z = x + v",
                  "seed 000, eqs. 2.4-2.5", params)
     res.params.update(T=T, skip=skip, grid=G, paths=R)  # the values that ran (quick caps included)
-    laws = list(params["laws"])
-    block = block_size(res, params, R)
-    for i, law_name in enumerate(laws):
-        ident = {"h": h, "wb": wb, "law": law_name, "Ns": Ns, "T": T, "G": G, "n0": params["n0"],
-                 "window": params["window"], "seed": seed, "case": i}
-        mc = montecarlo(law_name, partial(_first_order_block, **ident), R, block=block, ident=ident)
-        est = {k: v[..., 0] for k, v in block_estimates(mc).items()}
-        for N in Ns:
-            failure_rate_row(res, f"adaptive{N}", mc[f"refresh:adaptive{N}"], law=law_name)
-        per_path = _mse_rows(res, {k: v - mc["xs"] for k, v in est.items()}, skip, law_name)
-        _claims(res, per_path, law_name, Ns, "first-order")
-        res.notes.append(f"first-order law={law_name}: uniform fallback used in " + _fallbacks(mc) + " of steps")
+    laws = _per_law(res, params, R, skip, Ns, "first-order", _first_order_block,
+                    lambda law, i: {"h": h, "wb": wb, "law": law, "Ns": Ns, "T": T, "G": G, "n0": params["n0"],
+                                    "window": params["window"], "seed": seed, "case": i},
+                    lambda est, xs: {k: v[..., 0] - xs for k, v in est.items()})
     _figure(res, laws, Ns, f"{R} paths × steps {skip}..{T - 1}", "grid filter")
     return res
 
@@ -220,18 +230,11 @@ def run_second_order(params, *, quick, runs, seed, progress):
     res = Result("moment-second-order", "Second-order system x+ = A x + b w, z = c.x + v",
                  "seed 000, eqs. 2.6-2.8", params)
     res.params.update(T=T, skip=skip, particles=P, paths=R)  # the values that ran (quick caps included)
-    laws = list(params["laws"])
-    block = block_size(res, params, R)
-    for i, law_name in enumerate(laws):
-        ident = {"A": A.tolist(), "b": b.tolist(), "c": c.tolist(), "wb": wb, "law": law_name, "Ns": Ns, "T": T,
-                 "P": P, "n0": params["n0"], "window": params["window"], **bkw, "seed": seed, "case": i}
-        mc = montecarlo(law_name, partial(_second_order_block, **ident), R, block=block, ident=ident)
-        for N in Ns:
-            failure_rate_row(res, f"adaptive{N}", mc[f"refresh:adaptive{N}"], law=law_name)
-        errs = {k: np.sqrt(np.sum((v - mc["xs"]) ** 2, axis=-1)) for k, v in block_estimates(mc).items()}  # |x - x_hat|
-        per_path = _mse_rows(res, errs, skip, law_name)
-        _claims(res, per_path, law_name, Ns, "second-order")
-        res.notes.append(f"second-order law={law_name}: uniform fallback used in " + _fallbacks(mc) + " of steps")
+    laws = _per_law(res, params, R, skip, Ns, "second-order", _second_order_block,
+                    lambda law, i: {"A": A.tolist(), "b": b.tolist(), "c": c.tolist(), "wb": wb, "law": law, "Ns": Ns,
+                                    "T": T, "P": P, "n0": params["n0"], "window": params["window"], **bkw,
+                                    "seed": seed, "case": i},
+                    lambda est, xs: {k: np.sqrt(np.sum((v - xs) ** 2, axis=-1)) for k, v in est.items()})  # |x - x_hat|
     _figure(res, laws, Ns, f"{R} paths × steps {skip}..{T - 1}; E|x − x̂|² over both states",
             f"particle filter, {P} particles")
     res.notes.append(f"reachable-set bound: {params['bounding']} ({params['directions']} template directions + "

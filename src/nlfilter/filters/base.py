@@ -69,33 +69,11 @@ from ..ode import ode_step  # noqa: F401  (re-exported: it moved to nlfilter.ode
 from ..simulation import Simulation
 from ..streams import FILTER, PathRNG
 from .beliefs import GaussianState, where_paths
+from .checks import check_structure, continuous_precision, gaussian_prior  # noqa: F401  (re-exported)
 from .estimates import Estimates
 from .linalg import no_information, symmetrize
 from .recorder import Recorder, loglik_divergence  # noqa: F401  (loglik_divergence re-exported)
 from .timing import for_timing, set_start, set_t0  # noqa: F401  (re-exported)
-
-def gaussian_prior(m0, P0, n: int, batch: tuple, *, data: str = "ys", one: bool = False,
-                   definite: bool = False) -> GaussianState:
-    """The prior ``N(m0, P0)`` checked and broadcast to ``B = prod(batch)`` paths: ``m0`` a scalar,
-    ``(n,)`` or per path ``(*batch, n)``; ``P0`` ``(n, n)`` (a scalar for n = 1) or per path.
-    ``one``: the filter takes one prior for all paths (off-line gains), so a per-path ``m0`` is
-    refused; ``definite``: ``P0`` must be positive definite (a prior density)."""
-    if m0 is None or P0 is None:
-        raise ValueError(f"m0/P0: expected the prior mean and covariance, got m0={m0!r}, P0={P0!r}")
-    m0 = V.mean("m0", m0, n)
-    P0 = V.covariance("P0", P0, n, batch=True)
-    if one and (m0.ndim > 1 or P0.ndim > 2):
-        raise ValueError(f"m0/P0: this filter takes one prior for all paths, shapes ({n},) and ({n}, {n}); "
-                         f"got shapes {m0.shape}, {P0.shape}".replace("m0/P0", "m0" if m0.ndim > 1 else "P0", 1))
-    if definite and not np.all(np.linalg.eigvalsh(P0)[..., 0] > 0):
-        raise ValueError("P0: expected a positive definite covariance (a prior density), got a singular one")
-    B = math.prod(batch)
-    try:
-        mean = np.broadcast_to(m0, (*batch, n)).reshape(B, n).copy()
-        cov = np.broadcast_to(P0, (*batch, n, n)).reshape(B, n, n).copy()
-    except ValueError:
-        raise ValueError(f"m0/P0: shapes {m0.shape}, {P0.shape} do not broadcast to the batch {batch} of {data}") from None
-    return GaussianState(mean, cov)
 
 
 class Filter:
@@ -188,6 +166,11 @@ class Filter:
             raise ValueError(f"initial: {type(self).__name__} starts from a Gaussian prior (m0, P0); "
                              f"expected None, got {type(initial).__name__}")
         return gaussian_prior(m0, P0, self.state_dim, batch)
+
+    def _run_init(self, m0, P0, batch, initial, rng, steps, t0):
+        """The run loop's start: :meth:`init`; a filter whose start depends on the run's horizon
+        (``steps`` measurements from ``t0``: the off-line gains) overrides it to pass them on."""
+        return self.init(m0, P0, batch, initial=initial, rng=rng)
 
     def predict(self, belief, k):  # pragma: no cover - abstract
         """Predict: the belief of step ``k + 1`` from the (filtered) belief of step ``k``."""
@@ -388,7 +371,7 @@ class Filter:
     def _loop(self, yf, batch, m, m0, P0, initial, rng, t0, on, progress, loglik, smooth):
         """The steps of :meth:`_drive` over ``yf (B, T, m)``, its checks done."""
         B, T = yf.shape[:2]
-        belief = self.init(m0, P0, batch, initial=initial, rng=rng)
+        belief = self._run_init(m0, P0, batch, initial, rng, T, t0)
         start = belief
         rec = Recorder(self, B, T, on, keep=smooth and self.smoother_keeps)
         steps = range(T)
@@ -468,23 +451,6 @@ def _blas_limit(threads):
     return threadpool_limits(limits=threads, user_api="blas")
 
 
-def check_structure(flt, model) -> None:
-    """Refuse, naming it, a model structure (:attr:`~nlfilter.models.Model.structure`: a
-    state-dependent R, correlated process and measurement noise, non-additive noise) that the
-    filter ``flt`` does not handle (its ``structures``): a filter never ignores one silently."""
-    has = getattr(model, "structure", frozenset())
-    missing = sorted(set(has) - set(flt.structures))
-    if missing:
-        what = {"state-dependent R": "R: the model's measurement noise covariance depends on the state (R(x))",
-                "cross noise": "cross_noise: the model's process and measurement noises are correlated",
-                "non-additive noise": "noise: the model's process noise enters f non-additively",
-                "non-additive measurement noise": "meas_noise: the model's measurement noise enters h non-additively"}
-        raise ValueError(f"{'; '.join(what[k] for k in missing)}; {type(flt).__name__} handles "
-                         f"{list(flt.structures) or 'none of these'} (see each filter's structures attribute: "
-                         "the Gaussian filters take R(x) and cross noise, the UKF non-additive noise (augmented "
-                         "sigma points), GridFilter and ParticleFilter R(x), ParticleFilter non-additive process noise)")
-
-
 class DiscreteFilter(Filter):
     """Base of discrete-time filters on a :class:`~nlfilter.models.DiscreteModel`: subclasses give
     ``predict(state, k)`` and ``update(state, y, k)`` over a :class:`GaussianState`."""
@@ -497,18 +463,6 @@ class DiscreteFilter(Filter):
         check_structure(self, model)
         self.model = model
         set_start(self, start)
-
-
-def continuous_precision(model) -> np.ndarray:
-    """``R⁻¹`` of a continuous-time measurement ``dy = h dt + dη`` (``E dη dηᵀ = R dt``): a filter
-    of increments weighs them by it, so R must be positive definite (relative to its largest
-    eigenvalue, as :class:`~nlfilter.noise.Gaussian`'s density)."""
-    R = np.asarray(model.R, dtype=float)
-    w = np.linalg.eigvalsh(R)
-    if not w[0] > 1e-14 * w[-1]:
-        raise ValueError(f"R: must be positive definite: a noise-free measurement has no continuous-time filter, "
-                         f"got {R.tolist()} (smallest eigenvalue {w[0]:.3g})")
-    return np.linalg.inv(R)
 
 
 class ContinuousFilter(Filter):

@@ -30,6 +30,7 @@ from ..bilinear import BilinearModel
 from ..sde_step import HELD
 from ..bilinear_analysis import augmented_second_moment, state_second_moments, wonham_condition
 from ..errors import SingularSystemError
+from ..ode import ode_step
 from .base import gaussian_prior, set_start
 from .linalg import symmetrize
 from .offline import ContinuousSchedule, DiscreteSchedule, OfflineGainFilter
@@ -200,20 +201,7 @@ class OptimalLinearFilter(OfflineGainFilter):
             dP = a.F @ P + P @ a.F.T + Pi - K @ Sv @ K.T        # 001 eq. 2.43
             return dX, dP, K
 
-        Xs, Ps, Ks = [X], [P], []
-        for j in range(2 * T):
-            t = t0 + j * h
-            k1 = rhs(X, P, t)
-            Ks.append(k1[2])
-            k2 = rhs(X + h / 2 * k1[0], P + h / 2 * k1[1], t + h / 2)
-            k3 = rhs(X + h / 2 * k2[0], P + h / 2 * k2[1], t + h / 2)
-            k4 = rhs(X + h * k3[0], P + h * k3[1], t + h)
-            X = symmetrize(X + h / 6 * (k1[0] + 2 * k2[0] + 2 * k3[0] + k4[0]))
-            P = symmetrize(P + h / 6 * (k1[1] + 2 * k2[1] + 2 * k3[1] + k4[1]))
-            Xs.append(X)
-            Ps.append(P)
-        Ks.append(rhs(X, P, t0 + 2 * T * h)[2])
-        return np.array(Xs), np.array(Ps), np.array(Ks)
+        return _riccati_path(rhs, X, P, t0, h, 2 * T)
 
     # -- on-line ------------------------------------------------------------------------------------
     def _step_maps(self, K0, K1, K2, t):
@@ -252,6 +240,30 @@ class OptimalLinearFilter(OfflineGainFilter):
     def _conserves(self) -> bool:
         rep = wonham_condition(self.model)
         return rep.abscissa > -1e-9 * max(1.0, abs(rep.abscissa))
+
+
+def _riccati_path(rhs, X, P, t0, h, steps):
+    """``(X, P, K)`` on the grid ``t0 + j h``, ``j = 0..steps``: the second moment ``X`` and the
+    Riccati covariance ``P`` by classical RK4 steps of ``h`` (:func:`~nlfilter.ode.ode_step`, the one
+    schedule integrator; both symmetrized after each step), ``rhs(X, P, t) -> (dX, dP, K)``; the
+    gain ``K`` at each grid point is the one of the step's first stage (at its start), the last
+    from one more evaluation at the end."""
+    Xs, Ps, Ks = [X], [P], []
+    for j in range(steps):
+        first = []
+
+        def f(x, t):
+            dX, dP, K = rhs(x[0], x[1], t)
+            if not first:  # the first stage is at the step's start (ode_step, rk4 and euler)
+                first.append(K)
+            return dX, dP
+
+        X, P = ode_step(f, (X, P), t0 + j * h, h, finish=lambda x: (symmetrize(x[0]), symmetrize(x[1])))
+        Ks.append(first[0])
+        Xs.append(X)
+        Ps.append(P)
+    Ks.append(rhs(X, P, t0 + steps * h)[2])
+    return np.array(Xs), np.array(Ps), np.array(Ks)
 
 
 def _affine_step(A0, A1, A2, K0, K1, K2, h, scheme):

@@ -48,7 +48,7 @@ from ..moments.expect import PolynomialExpectations
 from ..moments.quadrature import gaussian_rule
 from ..moments.discrete import PolynomialMap, discrete_moment_equations
 from ..moments.ito import PolynomialSDE, moment_equations
-from ..polynomials import Polynomial, monomials
+from ..polynomials import Polynomial, add_exp, monomials, unit_exp
 from .base import ContinuousFilter, DiscreteFilter, GaussianState, continuous_precision, ode_step
 from .linalg import innovation_info, measurement_loglik, observed_precision, sqrt_psd
 
@@ -76,12 +76,6 @@ class _MomentFilter:
         return tuple(self.set.gaussian_state(belief.mu))
 
 
-def _unit(n, i, k=1):
-    e = [0] * n
-    e[i] = k
-    return tuple(e)
-
-
 class _MomentSet:
     """Kept monomials, their equations, and the expectations a conditional-moment filter needs."""
 
@@ -95,8 +89,8 @@ class _MomentSet:
         self.pe = PolynomialExpectations(self.indices, polys, closure)
         self.K = K
         idx = eqs.index
-        self.pos1 = [idx[_unit(n, i)] for i in range(n)]
-        self.pos2 = [[idx[tuple(a + b for a, b in zip(_unit(n, i), _unit(n, j)))] for j in range(n)] for i in range(n)]
+        self.pos1 = [idx[unit_exp(n, i)] for i in range(n)]
+        self.pos2 = [[idx[add_exp(unit_exp(n, i), unit_exp(n, j))] for j in range(n)] for i in range(n)]
 
     def split(self, mu):
         E = self.pe(mu)

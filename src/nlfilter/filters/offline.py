@@ -185,27 +185,17 @@ class OfflineGainFilter(Filter):
     the start of the schedule's input map), and set ``time``. ``family`` is ``"off-line gains"``."""
 
     family = "off-line gains"
-    _horizon = None  # (steps, t0) of the current run: the continuous schedules are solved for it
 
-    def run(self, ys, m0=None, P0=None, *, t0: float = 0.0, **kw):
-        try:
-            shape = np.shape(ys) if not isinstance(ys, str) else ()
-        except ValueError:  # ragged: check_data names it
-            shape = ()
-        self._horizon = (int(shape[-2]) if len(shape) >= 2 else None, t0)
-        try:
-            return Filter.run(self, ys, m0, P0, t0=t0, **kw)
-        finally:
-            self._horizon = None
+    def _run_init(self, m0, P0, batch, initial, rng, steps, t0):
+        """The run's horizon (``steps`` from ``t0``) reaches :meth:`init`: the continuous schedules
+        are solved for it."""
+        return self.init(m0, P0, batch, initial=initial, rng=rng, steps=steps, t0=t0)
 
     def init(self, m0, P0, batch, *, initial=None, rng=None, steps=None, t0=None):
         if initial is not None:
             raise ValueError(f"initial: {type(self).__name__} starts from a Gaussian prior (m0, P0); "
                              f"expected None, got {type(initial).__name__}")
-        hz = self._horizon or (None, 0.0)
-        steps = hz[0] if steps is None else steps
-        t0 = hz[1] if t0 is None else t0
-        out = self.schedule(m0, P0, batch, steps, V.real("t0", t0))
+        out = self.schedule(m0, P0, batch, steps, V.real("t0", 0.0 if t0 is None else t0))
         sch, z0, C0 = out[:3]
         B = int(np.prod(batch))
         N = z0.shape[-1]

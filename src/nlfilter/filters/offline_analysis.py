@@ -27,7 +27,7 @@ from ..moments.discrete import PolynomialMap, discrete_moment_equations, gaussia
 from ..moments.ito import PolynomialSDE, _symbolic, moment_equations
 from ..moments.solve import MomentSolution, iterate, propagate
 from ..noise import Gaussian
-from ..polynomials import Polynomial, monomials
+from ..polynomials import Polynomial, add_exp, monomials, unit_exp
 
 __all__ = ["ErrorAnalysis", "gain_error_analysis", "joint_sde", "MAX_ANALYSIS_MOMENTS"]
 
@@ -37,12 +37,6 @@ __all__ = ["ErrorAnalysis", "gain_error_analysis", "joint_sde", "MAX_ANALYSIS_MO
 #: model order 10 (65 moments) takes ~5 s, order 14 (119) ~30 s. 120 allows order 14 for n = 1,
 #: 4 for n = 2, 3 for n = 3.
 MAX_ANALYSIS_MOMENTS = 120
-
-
-def _unit(n, i, k=1):
-    e = [0] * n
-    e[i] = k
-    return tuple(e)
 
 
 _DEFINITE = 1e-12  # relative floor of the prior's smallest variance (_prior)
@@ -100,9 +94,9 @@ def _mse(sol, n):
     """``E(x − x̂)² (T, n) = E x² − 2 E x x̂ + E x̂²`` from the joint moments of ``(x, x̂)`` (2n states)."""
     mse = np.empty((sol.t.size, n))
     for i in range(n):
-        xi, hi = _unit(2 * n, i), _unit(2 * n, n + i)
-        mse[:, i] = (sol.moment(_unit(2 * n, i, 2)) - 2 * sol.moment(tuple(a + b for a, b in zip(xi, hi)))
-                     + sol.moment(_unit(2 * n, n + i, 2)))
+        xi, hi = unit_exp(2 * n, i), unit_exp(2 * n, n + i)
+        mse[:, i] = (sol.moment(unit_exp(2 * n, i, 2)) - 2 * sol.moment(add_exp(xi, hi))
+                     + sol.moment(unit_exp(2 * n, n + i, 2)))
     return mse
 
 

@@ -29,9 +29,9 @@ from scipy.special import i0e, i1e
 from .. import _validate as V
 from ..bilinear import PhaseModel, phase_model
 from ..sde_step import END_POINT, HELD
-from ..simulate import simulate_phase  # noqa: F401  (re-exported: it moved to nlfilter.simulate)
 from .base import Estimates, Filter, gaussian_prior, ode_step
 from .bilinear import TensorFilter, _SteadyLinearRecursion
+from .pointmass import circle_points, moments, normalize
 
 X0_CIRCLE = np.diag([0.5, 0.5, 1.0])  # E[z zᵀ] of z = (sin θ, cos θ, 1), θ uniform: fixes the conserved |x|²
 
@@ -258,8 +258,9 @@ class CircleGridFilter(Filter):
         self.q, self.r = model.q, model.r
         self.dt = float(V.positive("dt", dt))
         self.size = int(V.positive("size", size, integer=True))
-        self.theta = 2 * np.pi * np.arange(self.size) / self.size
+        self.theta = circle_points(self.size)
         self._sc = np.sin(self.theta), np.cos(self.theta)
+        self._X = np.stack(self._sc, axis=-1)  # the points (sin θ, cos θ) of x
         k = np.fft.rfftfreq(self.size, d=1.0 / self.size)
         self._decay = np.exp(-0.5 * self.q * k ** 2 * self.dt)
 
@@ -276,7 +277,7 @@ class CircleGridFilter(Filter):
                                  f"of ys, got shape {arr.shape}") from None
             if np.any(p < 0) or np.any(~(p.sum(axis=-1) > 0)):
                 raise ValueError("initial: expected non-negative weights with a positive sum on every path")
-            return CircleDensity(p / p.sum(axis=-1, keepdims=True))
+            return CircleDensity(normalize(p))
         if m0 is None and P0 is None:
             return CircleDensity(np.full((B, self.size), 1.0 / self.size))
         g = gaussian_prior(m0, P0, 2, batch)
@@ -287,7 +288,7 @@ class CircleGridFilter(Filter):
         kappa = _von_mises_concentration(rho)
         mu = np.arctan2(g.mean[:, 0], g.mean[:, 1])
         w = np.exp(kappa[:, None] * (np.cos(self.theta[None, :] - mu[:, None]) - 1.0))
-        return CircleDensity(w / w.sum(axis=-1, keepdims=True))
+        return CircleDensity(normalize(w))
 
     def step(self, belief, dy, t):
         s, c = self._sc
@@ -296,21 +297,15 @@ class CircleGridFilter(Filter):
         if np.isnan(dy).any():
             dy = np.where(np.isnan(dy), 0.0, dy)  # a missing component: flat likelihood
         a = (dy[..., 0, None] * s + dy[..., 1, None] * c) / (2 * self.r)
-        w = p * np.exp(a - a.max(axis=-1, keepdims=True))
-        return CircleDensity(w / w.sum(axis=-1, keepdims=True))
+        return CircleDensity(normalize(p * np.exp(a - a.max(axis=-1, keepdims=True))))
 
     def summary(self, belief):
-        s, c = self._sc
-        p = belief.p
-        m = np.stack([p @ s, p @ c], axis=-1)
-        ss, sc, cc = p @ (s * s), p @ (s * c), p @ (c * c)
-        cov = np.stack([np.stack([ss, sc], -1), np.stack([sc, cc], -1)], -2) - m[:, :, None] * m[:, None, :]
-        return m, 0.5 * (cov + np.swapaxes(cov, -1, -2))
+        return moments(belief.p, self._X)
 
     def output(self, est):
         return _with_theta(est)
 
 
 __all__ = ["PLL", "LinearQuadratureFilter", "PhaseTensorFilter", "CircleGridFilter", "PhaseEstimate",
-           "CircleDensity", "post_processor", "circle_moment", "qr_from_P", "lqf_gain", "pll_gain", "simulate_phase",
+           "CircleDensity", "post_processor", "circle_moment", "qr_from_P", "lqf_gain", "pll_gain",
            "wrap", "phase_model"]

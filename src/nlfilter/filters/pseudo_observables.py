@@ -14,8 +14,7 @@ from ..moments.closed import bilinear_lift, closed_hull
 from ..moments.ito import PolynomialSDE
 from ..polynomials import Polynomial
 from ..sde_step import HELD
-from .linalg import symmetrize
-from .linear_bilinear import _affine_step, _pinv_psd
+from .linear_bilinear import _affine_step, _pinv_psd, _riccati_path
 from .offline import ContinuousSchedule, OfflineGainFilter
 
 
@@ -191,26 +190,14 @@ class PseudoObservablesFilter(OfflineGainFilter):
         A, Bs, H, Ms = self.A, self.B, self.H, self.M
         h = self.dt / 2
 
-        def rhs(X, P):
+        def rhs(X, P, t):  # time-invariant
             Pi = np.einsum("aij,jk,alk->il", Bs, X, Bs)
             C = np.einsum("aij,jk,alk->il", Bs, X, Ms)
             Sv = np.einsum("aij,jk,alk->il", Ms, X, Ms)
             K = (P @ H.T + C) @ _pinv_psd(Sv, tol=1e-10)
             return A @ X + X @ A.T + Pi, A @ P + P @ A.T + Pi - K @ Sv @ K.T, K
 
-        Xs, Ps, Ks = [X], [P], []
-        for _ in range(2 * T_):
-            k1 = rhs(X, P)
-            Ks.append(k1[2])
-            k2 = rhs(X + h / 2 * k1[0], P + h / 2 * k1[1])
-            k3 = rhs(X + h / 2 * k2[0], P + h / 2 * k2[1])
-            k4 = rhs(X + h * k3[0], P + h * k3[1])
-            X = symmetrize(X + h / 6 * (k1[0] + 2 * k2[0] + 2 * k3[0] + k4[0]))
-            P = symmetrize(P + h / 6 * (k1[1] + 2 * k2[1] + 2 * k3[1] + k4[1]))
-            Xs.append(X)
-            Ps.append(P)
-        Ks.append(rhs(X, P)[2])
-        return np.array(Xs), np.array(Ps), np.array(Ks)
+        return _riccati_path(rhs, X, P, 0.0, h, 2 * T_)
 
     def error_variance(self, T_: int) -> np.ndarray:
         """Off-line ``E[(x_i − x̂_i)²]`` at ``t_k = k dt``, k = 0..T, shape ``(T+1, n_base)``."""

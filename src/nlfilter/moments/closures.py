@@ -39,7 +39,7 @@ from typing import Sequence
 import numpy as np
 
 from .._validate import as_float_array, choice, covariance, finite, shown
-from ..polynomials import monomials
+from ..polynomials import add_exp, monomials, unit_exp
 
 __all__ = ["Closure", "GaussianClosure", "CumulantClosure", "EdgeworthClosure", "closure_by_name",
            "kept_order", "gaussian_moments", "raw_to_central", "central_to_raw"]
@@ -239,7 +239,7 @@ class Closure:
         if need:
             raise ValueError(f"indices: the {self.name} closure of order {N} needs every moment of "
                              f"degree ≤ {N}; missing {need[:5]}")
-        mean = [reg[_unit(n, i)] for i in range(n)]
+        mean = [reg[unit_exp(n, i)] for i in range(n)]
         mp = {zero: P.ONE}
 
         def mpow(a):  # m^a
@@ -250,14 +250,14 @@ class Closure:
 
         cm = {zero: P.ONE}
         for i in range(n):
-            cm[_unit(n, i)] = P.ZERO
+            cm[unit_exp(n, i)] = P.ZERO
         for g in monomials(n, N, min_degree=2):  # E[(x-m)^g] = Σ_β C(g,β) (-m)^(g-β) E[x^β]
             terms = []
             for b, w in _below(g):
                 d = tuple(x - y for x, y in zip(g, b))
                 terms.append((w * (-1) ** sum(d), mpow(d), reg[b]))
             cm[g] = P.sumprod(terms)
-        K = [[cm[_add(_unit(n, i), _unit(n, j))] for j in range(n)] for i in range(n)]
+        K = [[cm[add_exp(unit_exp(n, i), unit_exp(n, j))] for j in range(n)] for i in range(n)]
         memo = dict(cm)
         rule = self._rule(P, memo, K, n)
 
@@ -286,14 +286,11 @@ class Closure:
         return f"{type(self).__name__}(order={self.order})"
 
 
-def _unit(n, i):
-    e = [0] * n
-    e[i] = 1
-    return tuple(e)
-
-
-def _add(a, b):
-    return tuple(x + y for x, y in zip(a, b))
+def _closure_order(order) -> int:
+    """The order N of a cumulant or Edgeworth closure, checked: an integer ≥ 2."""
+    if isinstance(order, bool) or not isinstance(order, int) or order < 2:
+        raise ValueError(f"order: expected an integer ≥ 2, got {shown(order)}")
+    return order
 
 
 def _isserlis(P, K, n):
@@ -331,9 +328,7 @@ class CumulantClosure(Closure):
     name = "cumulant"
 
     def __init__(self, order: int = 4):
-        if isinstance(order, bool) or not isinstance(order, int) or order < 2:
-            raise ValueError(f"order: expected an integer ≥ 2, got {shown(order)}")
-        self.order = order
+        self.order = _closure_order(order)
 
     def _rule(self, P, cm, K, n):
         N = self.order
@@ -352,7 +347,7 @@ class CumulantClosure(Closure):
             for b, w in _below(ap):
                 if b == ap:
                     continue
-                terms.append((-w, kappa(_add(b, _unit(n, i))), cm[tuple(x - y for x, y in zip(ap, b))]))
+                terms.append((-w, kappa(add_exp(b, unit_exp(n, i))), cm[tuple(x - y for x, y in zip(ap, b))]))
             kap[a] = P.sumprod(terms)
             return kap[a]
 
@@ -363,7 +358,7 @@ class CumulantClosure(Closure):
             for b, w in _below(ap):
                 if not 1 <= sum(b) <= N - 1:
                     continue  # κ_{β+e_i} vanishes unless 2 ≤ |β|+1 ≤ N
-                terms.append((w, kappa(_add(b, _unit(n, i))), central(tuple(x - y for x, y in zip(ap, b)))))
+                terms.append((w, kappa(add_exp(b, unit_exp(n, i))), central(tuple(x - y for x, y in zip(ap, b)))))
             return P.sumprod(terms)
 
         return rule
@@ -375,9 +370,7 @@ class EdgeworthClosure(Closure):
     name = "edgeworth"
 
     def __init__(self, order: int = 4):
-        if isinstance(order, bool) or not isinstance(order, int) or order < 2:
-            raise ValueError(f"order: expected an integer ≥ 2, got {shown(order)}")
-        self.order = order
+        self.order = _closure_order(order)
 
     def quasi_moments(self, cm: dict, n: int) -> dict:
         """``c_ν`` for ``3 ≤ |ν| ≤ N`` (003 eq. 15) from central moments ``cm`` {γ: value} of every
@@ -386,7 +379,7 @@ class EdgeworthClosure(Closure):
         keys = sorted(cm, key=lambda g: (sum(g), g))
         P = _Plan(len(keys))
         reg = {g: i for i, g in enumerate(keys)}
-        Kr = [[reg[_add(_unit(n, i), _unit(n, j))] for j in range(n)] for i in range(n)]
+        Kr = [[reg[add_exp(unit_exp(n, i), unit_exp(n, j))] for j in range(n)] for i in range(n)]
         creg = self._quasi(P, reg, Kr, n)[0]
         P.compile()
         V = P.run(np.stack(np.broadcast_arrays(*[np.asarray(cm[g], dtype=float) for g in keys]), axis=-1))
@@ -479,9 +472,9 @@ def gaussian_moments(mean, cov, indices: Sequence[tuple]) -> np.ndarray:
     cov = np.broadcast_to(cov, (*batch, n, n))
     raw = {(0,) * n: np.ones(batch)}
     for i in range(n):
-        raw[_unit(n, i)] = mean[..., i]
+        raw[unit_exp(n, i)] = mean[..., i]
     for i in range(n):
         for j in range(i, n):
-            raw[_add(_unit(n, i), _unit(n, j))] = cov[..., i, j] + mean[..., i] * mean[..., j]
+            raw[add_exp(unit_exp(n, i), unit_exp(n, j))] = cov[..., i, j] + mean[..., i] * mean[..., j]
     out = GaussianClosure().complete(raw, [tuple(g) for g in indices])
     return np.stack([np.broadcast_to(o, batch) for o in out], axis=-1)

@@ -35,12 +35,6 @@ def degree_order(e: tuple):
     return (sum(e), tuple(-i for i in e))
 
 
-def _unit(n, i, k=1):
-    e = [0] * n
-    e[i] = k
-    return tuple(e)
-
-
 # ---------------------------------------------------------------------------------------------
 # coefficient groups: a coefficient c = Σ_j w_j g_j with numbers w_j and symbolic factors g_j
 # ---------------------------------------------------------------------------------------------

@@ -36,9 +36,9 @@ from scipy.integrate import solve_ivp
 
 from .. import _validate as V
 from ..errors import ClosureDivergedError, NoStationaryLawError, SingularSystemError
-from ..polynomials import monomial_name
+from ..polynomials import add_exp, monomial_name, unit_exp
 from .closures import Closure
-from .equations import MomentEquations, _unit
+from .equations import MomentEquations
 from .stationary import (describe_mode, gaussian_scale, linear_steady_state, moment_space_violation,
                          nondecaying_modes, stationary_moments)
 
@@ -54,7 +54,7 @@ def variance_positions(eqs: MomentEquations):
     n = len(eqs.indices[0])
     out = []
     for i in range(n):
-        a, b = _unit(n, i), _unit(n, i, 2)
+        a, b = unit_exp(n, i), unit_exp(n, i, 2)
         if a in eqs.index and b in eqs.index:
             out.append((i, eqs.index[a], eqs.index[b]))
     return out
@@ -88,7 +88,7 @@ class MomentSolution:
 
     def mean(self) -> np.ndarray:
         n = len(self.eqs.indices[0])
-        return np.stack([self.moment(_unit(n, i)) for i in range(n)], axis=-1)
+        return np.stack([self.moment(unit_exp(n, i)) for i in range(n)], axis=-1)
 
     def cov(self) -> np.ndarray:
         n = len(self.eqs.indices[0])
@@ -96,7 +96,7 @@ class MomentSolution:
         out = np.empty((*m.shape, n))
         for i in range(n):
             for j in range(n):
-                e = tuple(a + b for a, b in zip(_unit(n, i), _unit(n, j)))
+                e = add_exp(unit_exp(n, i), unit_exp(n, j))
                 out[..., i, j] = self.moment(e) - m[..., i] * m[..., j]
         return out
 

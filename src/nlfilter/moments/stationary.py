@@ -18,9 +18,8 @@ import scipy.sparse.linalg as spla
 from scipy.sparse.csgraph import connected_components
 
 from ..errors import NoStationaryLawError, SingularSystemError
-from ..polynomials import monomial_name
+from ..polynomials import monomial_name, unit_exp
 from .closed import closed_hull
-from .equations import _unit
 from .ito import as_polynomial_sde, moment_equations
 
 __all__ = ["linear_steady_state", "gaussian_scale", "stationary_moments", "nondecaying_modes",
@@ -362,7 +361,7 @@ def stationary_moments(sde, wanted, *, initial=None, max_size: int = 20000, resc
     eqs = moment_equations(sde, closed_hull(sde, start, max_size=max_size))
     scale = None
     if rescale and max(sum(m) for m in eqs.indices) > 4:  # typical magnitudes from the second moments first
-        sq = [_unit(n, v, 2) for v in range(n)]
+        sq = [unit_exp(n, v, 2) for v in range(n)]
         m2 = stationary_moments(sde, sq, initial=initial, max_size=max_size, rescale=False)
         sigma = np.sqrt(np.maximum([m2[e] for e in sq], 1e-300))
         sigma = np.where(sigma > 1e-150, sigma, 1.0)

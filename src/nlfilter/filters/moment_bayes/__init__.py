@@ -4,8 +4,8 @@
 ``zero_order``         :class:`ZeroOrderMomentFilter` (000 Chapter III, Fig. 7) and the non-additive
                        :class:`ScaledNoiseZeroOrderFilter`; ``zero_order_estimate``, ``power_density_estimate``
 ``first_order``        :class:`FirstOrderMomentFilter`: ``x' = h x + w``, ``z = x + v`` (000 eqs. 2.4-2.5)
-``second_order``       :class:`SecondOrderMomentFilter`: ``x' = A x + b w``, ``z = c.x + v`` (eqs. 2.6-2.8)
-``_common``            option checks, the (pure) adaptive-input learner, :class:`MomentFilterWarning`,
+``two_state``          :class:`SecondOrderMomentFilter`: ``x' = A x + b w``, ``z = c.x + v`` (eqs. 2.6-2.8)
+``_moment_base``       option checks, the (pure) adaptive-input learner, :class:`MomentFilterWarning`,
                        :data:`INVALID_MOMENTS` and :func:`refresh_failure_rate`
 =====================  =============================================================================
 
@@ -24,9 +24,9 @@ belief: a filter object never changes.
 The reference (grid/particle) yardsticks are in :mod:`nlfilter.filters.reference.bounded`.
 """
 
-from ._common import INVALID_MOMENTS, MomentFilterWarning, impulse_power_sums, refresh_failure_rate
+from ._moment_base import INVALID_MOMENTS, MomentFilterWarning, impulse_power_sums, refresh_failure_rate
 from .first_order import FirstOrderMomentFilter, IntervalBelief
-from .second_order import PolygonBelief, SecondOrderMomentFilter, linear_map_moments, moment_map_tensor
+from .two_state import PolygonBelief, SecondOrderMomentFilter, linear_map_moments, moment_map_tensor
 from .zero_order import (ScaledNoiseZeroOrderFilter, ZeroOrderBelief, ZeroOrderMomentFilter, power_density_estimate,
                          zero_order_estimate)
 

@@ -31,7 +31,7 @@ import numpy as np
 
 from ...moments.densities import (LegendreDensity, affine_moments, cumulants_to_moments, moments_to_cumulants,
                                   sum_moments)
-from ._common import MomentFilter, configure_input, keep_missing, observed
+from ._moment_base import MomentFilter, configure_input, keep_missing, observed
 
 
 class IntervalBelief(NamedTuple):
@@ -39,7 +39,7 @@ class IntervalBelief(NamedTuple):
     ``fallback (B,)`` flag, the input moments in use ``mw (B, N)``, the learner's power sums
     ``acc (B, N)`` and sample count ``count (B,)``, the moments ``hm (B, N)`` of ``h x_{k-1}``,
     ``predicted (B,)`` (whether ``m`` is a prediction from them, to redo after a refresh) and the
-    flags ``refreshed``/``refresh_failed (B,)`` of this step's refresh (:data:`._common.INVALID_MOMENTS`)."""
+    flags ``refreshed``/``refresh_failed (B,)`` of this step's refresh (:data:`._moment_base.INVALID_MOMENTS`)."""
 
     m: np.ndarray
     lo: np.ndarray
@@ -100,7 +100,7 @@ class FirstOrderMomentFilter(MomentFilter):
     invalid_moments : {"warn", "keep", "ignore"}
         A refresh that learns input moments no law on ``[-w_b, w_b]`` has: use the uniform law's
         instead and warn, keep the previous ones and warn, or use them silently (000's algorithm);
-        see :data:`nlfilter.filters.moment_bayes._common.INVALID_MOMENTS`. Default "warn" (until
+        see :data:`nlfilter.filters.moment_bayes._moment_base.INVALID_MOMENTS`. Default "warn" (until
         this option the filter used them silently).
 
     Step convention: ``ys[..., 0, :]`` measures ``x_0``, whose prior is the stationary law implied by

@@ -31,7 +31,7 @@ from ...moments.densities import (LegendreDensity, difference_moments, is_moment
                                   legendre_antiderivative, legendre_values, pdf_batched_1d, series_times_x,
                                   uniform_moments)
 from ...bounded import ZeroOrderModel
-from ._common import (MomentFilter, MomentFilterWarning, check_invalid_moments, check_N, keep_missing, observed,
+from ._moment_base import (MomentFilter, MomentFilterWarning, check_invalid_moments, check_N, keep_missing, observed,
                       sample_moments, warn_refresh_failures)
 
 
@@ -43,7 +43,7 @@ class ZeroOrderBelief(NamedTuple):
     x times it (refreshed with ``coef``; ``(B, 0)`` with the known moments); the learner's power sums
     ``acc (B, N)`` (completed windows) and ``part (B, N)`` (current window), ``count (B,)``
     samples learnt; ``refreshed``/``refresh_failed (B,)`` the flags of this step's refresh
-    (:data:`._common.INVALID_MOMENTS`)."""
+    (:data:`._moment_base.INVALID_MOMENTS`)."""
 
     mean: np.ndarray
     fallback: np.ndarray
@@ -189,7 +189,7 @@ class ZeroOrderMomentFilter(MomentFilter):
         :class:`MomentFilterWarning` per run; "keep" rejects a refresh that learns such moments
         (the previous ones stay; impossible known or initial moments: as "warn") and warns;
         "ignore" uses the polynomial anyway (000's own algorithm, guarded only by ``eps``). The
-        same meaning in every seed-000 filter: :data:`nlfilter.filters.moment_bayes._common.INVALID_MOMENTS`.
+        same meaning in every seed-000 filter: :data:`nlfilter.filters.moment_bayes._moment_base.INVALID_MOMENTS`.
     """
 
     name = "zero-order-moment"

@@ -4,14 +4,16 @@ bootstrap particle filter, both batched over Monte Carlo paths and both on the o
 
 Every experiment reports the gap of each suboptimal filter to the MSE of one of these.
 
-=============  ==========================================================================
-module         contents
-=============  ==========================================================================
-grid           :class:`GridFilter` over a :class:`GridBelief` (probability vectors on a grid)
-particle       :class:`ParticleFilter` over a :class:`ParticleBelief` (weighted particles)
-resample_move  :class:`ResampleMoveParticleFilter`: noise-free continuous dynamics, moves on x0
-_common        what both share: the time-step check, the registry attributes
-=============  ==========================================================================
+================  ==========================================================================
+module            contents
+================  ==========================================================================
+grid              :class:`GridFilter` over a :class:`GridBelief` (probability vectors on a grid)
+particle          :class:`ParticleFilter` over a :class:`ParticleBelief` (weighted particles)
+resample_move     :class:`ResampleMoveParticleFilter`: noise-free continuous dynamics, moves on x0
+bounded           the grid and particle yardsticks of the bounded-noise problems (seed 000)
+forward_backward  their optimal smoothers: forward–backward on the grid, FFBSm on particles
+_reference_base   what both share: the time-step check, the registry attributes
+================  ==========================================================================
 
 Grid filter
 -----------

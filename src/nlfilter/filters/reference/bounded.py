@@ -25,6 +25,7 @@ from ... import _validate as V
 from ...bounded import BoundedNoiseModel
 from ...streams import FILTER, PathRNG
 from ..base import Filter
+from ..pointmass import cells, moments
 
 __all__ = ["BoundedGridFilter1D", "BoundedParticleFilter", "GridBelief", "ParticleBelief"]
 
@@ -86,8 +87,7 @@ class BoundedGridFilter1D(_BoundedReference):
         self.h = model.h
         self.G = int(V.positive("G", G, integer=True))
         B = model.w_bound / (1.0 - abs(self.h))
-        self.edges = np.linspace(-B, B, self.G + 1)
-        self.x = 0.5 * (self.edges[1:] + self.edges[:-1])
+        self.edges, self.x = cells(-B, B, self.G)
         # T[i, j] = P(h x_i + w in cell j)
         hi = self.edges[None, 1:] - self.h * self.x[:, None]
         lo = self.edges[None, :-1] - self.h * self.x[:, None]
@@ -123,9 +123,8 @@ class BoundedGridFilter1D(_BoundedReference):
         return GridBelief(np.where(obs[:, None], p, belief.p))
 
     def summary(self, belief):
-        mean = belief.p @ self.x
-        var = np.maximum(belief.p @ self.x ** 2 - mean ** 2, 0.0)
-        return mean[:, None], var[:, None, None]
+        mean, cov = moments(belief.p, self.x[:, None])
+        return mean, np.maximum(cov, 0.0)  # 1-D: a variance below 0 by rounding is 0
 
 
 class ParticleBelief(NamedTuple):

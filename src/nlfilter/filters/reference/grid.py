@@ -16,8 +16,10 @@ from ... import _validate as V
 from ...noise import Gaussian
 from ...sde_step import END_POINT
 from ..base import gaussian_prior
+from ..pointmass import apply_kernel, axis_points, moments, normalize
 from ..linalg import gaussian_loglik, innovation_info, measurement_loglik, no_information, observed_precision
-from ._common import _ReferenceFilter
+from ._reference_base import _ReferenceFilter
+from .forward_backward import grid_smoother
 
 
 EDGE_LIMIT = 0.9
@@ -39,23 +41,6 @@ def _maybe_sparse(K, rel: float = 1e-13):
     K = np.where(K >= rel * K.max(axis=1, keepdims=True), K, 0.0)
     nnz = np.count_nonzero(K)
     return sparse.csr_array(K) if nnz < 0.05 * K.size else K
-
-
-def _apply(p, K):
-    """``p @ K`` for a batch ``p (..., N)`` and a dense or sparse kernel."""
-    if isinstance(K, np.ndarray):
-        return p @ K
-    flat = p.reshape(-1, p.shape[-1])
-    return np.asarray((K.T @ flat.T).T).reshape(p.shape)
-
-
-def _moments(p, X):
-    """Mean (..., n) and covariance (..., n, n) of probability vectors p (..., N) on points X (N, n)."""
-    n = X.shape[-1]
-    mean = p @ X
-    second = (p @ (X[:, :, None] * X[:, None, :]).reshape(-1, n * n)).reshape(*p.shape[:-1], n, n)
-    cov = second - mean[..., :, None] * mean[..., None, :]
-    return mean, 0.5 * (cov + np.swapaxes(cov, -1, -2))
 
 
 def _invertible(det, X, k, what):
@@ -136,7 +121,7 @@ class GridFilter(_ReferenceFilter):
             V.positive("size", s.item() if isinstance(s, np.generic) else s, integer=True)
             if s < 3:
                 raise ValueError(f"size: expected at least 3 points per axis, got {size!r}")
-        self.axes = [np.linspace(lo, hi, int(s)) for (lo, hi), s in zip(b, sizes)]
+        self.axes = [axis_points(lo, hi, s) for (lo, hi), s in zip(b, sizes)]
         self.steps = np.array([ax[1] - ax[0] for ax in self.axes])
         mesh = np.meshgrid(*self.axes, indexing="ij")
         self.X = np.stack([g.ravel() for g in mesh], axis=-1)  # (N, n), first axis slowest
@@ -236,8 +221,7 @@ class GridFilter(_ReferenceFilter):
     def predict(self, belief: GridBelief, k) -> GridBelief:
         """Discrete time: ``p⁻ ∝ p · τ(k)``, the belief of step ``k + 1``."""
         self._need("discrete", "predict")
-        p = _apply(belief.p, self._kernel(k))
-        return GridBelief(p / p.sum(axis=-1, keepdims=True))
+        return GridBelief(normalize(apply_kernel(belief.p, self._kernel(k))))
 
     def update(self, belief: GridBelief, y, k) -> GridBelief:
         """Discrete time: ``p⁺ ∝ p · p_v(y − h(x, k))`` for ``y (B, m)`` (NaN components missing);
@@ -254,7 +238,7 @@ class GridFilter(_ReferenceFilter):
 
     def summary(self, belief: GridBelief):
         """Mean and covariance of the grid density."""
-        return _moments(belief.p, self.X)
+        return moments(belief.p, self.X)
 
     def edge_mass(self, p) -> np.ndarray:
         """The probability ``(B,)`` on the grid's outermost points (any axis at its first or last
@@ -327,7 +311,7 @@ class GridFilter(_ReferenceFilter):
 
     def _step_unchecked(self, belief, dy, t):
         self._need("continuous", "step")
-        p = _apply(belief.p, self._kernel(t))
+        p = apply_kernel(belief.p, self._kernel(t))
         p, bad = self._update(p, dy, t + self.dt)
         return GridBelief(p), self._bad(p, bad)
 
@@ -346,7 +330,7 @@ class GridFilter(_ReferenceFilter):
         ``log Σ_i p⁻_i N(dy; h(x_i) dt, R dt)`` (the Kallianpur–Striebel ratio times the density of
         ``dη``), with the innovation ``dy − E[h] dt`` and its covariance ``(Cov[h] dt + R) dt``."""
         self._need("continuous", "step")
-        p = _apply(belief.p, self._kernel(t))
+        p = apply_kernel(belief.p, self._kernel(t))
         p, bad, info = self._update(p, dy, t + self.dt, info=True)
         return GridBelief(p), self._bad(p, bad), info
 
@@ -386,7 +370,7 @@ class GridFilter(_ReferenceFilter):
         if md.kind != "discrete":  # times the density of dy under pure noise, N(dy; 0, R dt)
             ll = ll + innovation_info(y, np.zeros_like(y), md.R * self.dt)["loglik"]
         scale = 1.0 if md.kind == "discrete" else self.dt
-        Eh, Ch = _moments(p, hX)  # predictive moments of h
+        Eh, Ch = moments(p, hX)  # predictive moments of h
         # dy/dt: Cov[h] + R/dt, times dt² below; a state-dependent R: Cov[h] + E[R(x)]
         S = Ch * scale + (md.R if RX is None else np.einsum("...k,kij->...ij", p, RX) / p.sum(axis=-1)[..., None, None])
         ll = np.where(dead, -np.inf, np.where(obs.any(axis=-1), ll, 0.0))  # nothing measured: exactly 0
@@ -400,9 +384,8 @@ class GridFilter(_ReferenceFilter):
 
     def _smooth(self, est, beliefs, ys, t0):
         """The forward–backward smoother on the grid with the filter's own kernel
-        (:func:`~nlfilter.filters.reference.smoothing.grid_smoother`): exact for the grid's chain.
+        (:func:`~nlfilter.filters.reference.forward_backward.grid_smoother`): exact for the grid's chain.
         Keeps every step's density: ``B × T × N`` floats (``smooth(..., chunk=)`` bounds B)."""
-        from .smoothing import grid_smoother
         if not beliefs:  # T = 0: nothing to smooth
             return est.means, est.covs
         if self.time == "continuous":  # step k's density is at t0 + (k + 1) dt; the next step starts there

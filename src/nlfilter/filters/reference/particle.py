@@ -14,9 +14,12 @@ import numpy as np
 
 from ... import _validate as V
 from ...sde_step import LEFT_POINT, SUBSTEPS, euler_maruyama, increment_loglik
+from ...noise import initial_states
 from ...streams import FILTER, PathRNG
+from ..pointmass import cloud_moments, weights
 from ..linalg import gaussian_loglik, innovation_info, measurement_loglik, no_information, observed_precision
-from ._common import _ReferenceFilter
+from ._reference_base import _ReferenceFilter
+from .forward_backward import ffbsm, transition_logpdf
 
 
 class ParticleBelief(NamedTuple):
@@ -38,16 +41,6 @@ def _dead_paths(logw):
     mx = np.max(logw, axis=-1)
     dead = ~np.isfinite(mx)
     return dead if dead.any() else None
-
-
-def _weights(logw):
-    """Normalized weights ``(B, Np)``; uniform on a path without a finite log-weight."""
-    Np = logw.shape[1]
-    mx = logw.max(axis=1, keepdims=True)
-    dead = ~np.isfinite(mx[:, 0])
-    w = np.exp(logw - np.where(np.isfinite(mx), mx, 0.0))
-    w /= w.sum(axis=1, keepdims=True)
-    return np.where(dead[:, None], 1.0 / Np, w)
 
 
 def systematic_resample(w, rng):
@@ -132,7 +125,6 @@ class ParticleFilter(_ReferenceFilter):
     def init(self, m0, P0, batch, *, initial=None, rng=None) -> ParticleBelief:
         """``particles`` draws per path from N(m0, P0) (one prior for all paths) or the law
         ``initial``, each path from its own stream; equal weights."""
-        from ...simulate import initial_states
         md = self.model
         if initial is None and np.ndim(m0) > 1:
             raise ValueError(f"m0: the particle filter takes one prior mean ({md.n},) for all paths, "
@@ -168,16 +160,12 @@ class ParticleFilter(_ReferenceFilter):
 
     def summary(self, belief: ParticleBelief):
         """Weighted mean and covariance of the particles."""
-        x = belief.x
-        w = _weights(belief.logw)
-        mean = np.einsum("bp,bpi->bi", w, x)
-        d = x - mean[:, None, :]
-        return mean, np.einsum("bp,bpi,bpj->bij", w, d, d)
+        return cloud_moments(weights(belief.logw), belief.x)
 
     def extras(self, belief: ParticleBelief):
         """``ess (B,)`` per step: the effective sample size ``1 / Σ w²`` of the weights after the
         step's update (``particles`` right after a resampling with no measurement)."""
-        w = _weights(belief.logw)
+        w = weights(belief.logw)
         return {"ess": 1.0 / np.sum(w * w, axis=1)}
 
     def _update_unchecked(self, belief, y, k):
@@ -229,15 +217,13 @@ class ParticleFilter(_ReferenceFilter):
 
     def _info(self, x, logw, ll, y, k, hbar=None):
         md = self.model
-        w = _weights(logw)  # the predictive weights
+        w = weights(logw)  # the predictive weights
         a = np.log(w) + ll
         with np.errstate(divide="ignore", invalid="ignore"):
             mx = np.max(a, axis=-1)
             lev = mx + np.log(np.sum(np.exp(a - np.where(np.isfinite(mx), mx, 0.0)[:, None]), axis=-1))
         hx = md.h(x, k) if hbar is None else hbar
-        Eh = np.einsum("bp,bpi->bi", w, hx)
-        d = hx - Eh[:, None, :]
-        Ch = np.einsum("bp,bpi,bpj->bij", w, d, d)
+        Eh, Ch = cloud_moments(w, hx)
         if md.kind == "discrete":  # Cov[y] = Cov[h] + E[R(x)]
             res = innovation_info(y, Eh, Ch + (md.R if md.R_constant else np.einsum("bp,bpij->bij", w, md.R_of(x, k))))
         else:  # the Kallianpur–Striebel ratio times the density of dy under pure noise N(0, R dt)
@@ -250,7 +236,7 @@ class ParticleFilter(_ReferenceFilter):
         """``(x, logw)`` with the paths whose ESS < threshold · particles resampled (systematic)."""
         x, logw = belief.x, belief.logw
         Np = self.particles
-        w = _weights(logw)
+        w = weights(logw)
         ess = 1.0 / np.sum(w**2, axis=1)
         rs = ess < self.threshold * Np
         if rs.any():
@@ -293,7 +279,7 @@ class ParticleFilter(_ReferenceFilter):
 
     def smooth(self, ys, m0=None, P0=None, **kw):
         """The forward-filtering backward-smoothing particle smoother (Doucet, Godsill & Andrieu
-        2000; :func:`~nlfilter.filters.reference.smoothing.ffbsm`): the filter's run, then its
+        2000; :func:`~nlfilter.filters.reference.forward_backward.ffbsm`): the filter's run, then its
         clouds reweighted backwards by the transition density — ``O(particles²)`` per step and
         path (lower ``particles`` for long records). On an SDE model the transition density is
         that of the filter's own Euler–Maruyama step, so it needs ``substeps=1``. Arguments and
@@ -310,7 +296,6 @@ class ParticleFilter(_ReferenceFilter):
     def _smooth(self, est, beliefs, ys, t0):
         """FFBSm over the filtered clouds of every step (the belief after each update: the weights
         of that update on the particles before the next resampling)."""
-        from .smoothing import ffbsm, transition_logpdf
         if not beliefs:  # T = 0: nothing to smooth
             return est.means, est.covs
         md = self.model

@@ -30,6 +30,7 @@ from ... import _validate as V
 from ...streams import FILTER, PathRNG
 from ..base import Filter, ode_step, set_start, set_t0
 from ..linalg import observed_precision
+from ..pointmass import cloud_moments
 from .particle import systematic_resample
 
 
@@ -221,9 +222,7 @@ class ResampleMoveParticleFilter(Filter):
         logw = np.where((alive & ~gone)[:, None], logw, 0.0)
         w = np.exp(logw - logw.max(axis=1, keepdims=True))
         w /= w.sum(axis=1, keepdims=True)
-        mu = np.einsum("bp,bpi->bi", w, x)
-        d = x - mu[:, None, :]
-        cov = np.einsum("bp,bpi,bpj->bij", w, d, d)
+        mu, cov = cloud_moments(w, x)
         ys = np.concatenate([belief.ys, y[:, None, :]], axis=1)
         ks = belief.ks + (int(k),)
         x0 = belief.x0

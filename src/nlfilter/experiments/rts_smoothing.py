@@ -12,7 +12,7 @@ For each, :func:`~nlfilter.compare` with ``smooth=True`` runs the EKF, iterated 
 GHKF and the Gaussian second-order filter and their RTS smoothers
 (:mod:`nlfilter.filters.smoothing`: one backward pass through each filter's moment rule) on one
 simulation, beside the certified reference and its smoother (the forward–backward grid smoother
-in 1-D, the FFBSm particle smoother in 2-D: :mod:`nlfilter.filters.reference.smoothing`). Rows
+in 1-D, the FFBSm particle smoother in 2-D: :mod:`nlfilter.filters.reference.forward_backward`). Rows
 per filter and component, the MSE over the whole record: ``mse`` (filter), ``smoothed_mse``,
 ``smoothing_gain`` (filter MSE − smoothed MSE on the same paths, paired s.e.) and
 ``smoothed_gap_to_optimal`` (smoothed MSE − the optimal smoother's, paired s.e. and the

@@ -236,7 +236,7 @@ def _adaptive_block(rows, *, J, Ns, n_max, n0, window, eps, invalid_moments, see
 def failure_rate_row(res, name, rate, **key):
     """The row ``refresh_failure_rate`` of an adaptive seed-000 filter: the fraction of its refreshes
     whose moments no law on the support has (per run ``rate``, from
-    :func:`~nlfilter.filters.moment_bayes._common.refresh_failure_rate`; mean and se over runs)."""
+    :func:`~nlfilter.filters.moment_bayes._moment_base.refresh_failure_rate`; mean and se over runs)."""
     rate = np.asarray(rate, dtype=float)
     res.add(name, "refresh_failure_rate", float(rate.mean()),
             stderr=float(rate.std(ddof=1) / np.sqrt(rate.size)) if rate.size > 1 else None, **key)

@@ -39,8 +39,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .grid import _apply, _moments
-from .particle import _weights
+from ..pointmass import apply_kernel, cloud_moments, moments, weights
 
 __all__ = ["grid_smoother", "ffbsm", "transition_logpdf"]
 
@@ -69,25 +68,19 @@ def grid_smoother(filtered, kernel, X):
     if T == 0:
         return means, covs
     ps = filtered[-1]
-    means[:, -1], covs[:, -1] = _moments(ps, X)
+    means[:, -1], covs[:, -1] = moments(ps, X)
     for k in range(T - 2, -1, -1):
         p = filtered[k]
         K = kernel(k)
-        pred = _apply(p, K)
+        pred = apply_kernel(p, K)
         pred = pred / pred.sum(axis=-1, keepdims=True)
         with np.errstate(divide="ignore", invalid="ignore"):
             r = np.where(pred > 0, ps / pred, 0.0)  # 0/0 = 0: no predicted mass, no smoothed mass
-        ps = p * _apply(r, K.T)  # K r, for each path: r @ Kᵀ
+        ps = p * apply_kernel(r, K.T)  # K r, for each path: r @ Kᵀ
         s = ps.sum(axis=-1, keepdims=True)
         ps = np.where(s > 0, ps / np.where(s > 0, s, 1.0), p)  # a dead path keeps its filtered density
-        means[:, k], covs[:, k] = _moments(ps, X)
+        means[:, k], covs[:, k] = moments(ps, X)
     return means, covs
-
-
-def _weighted_moments(w, x):
-    mean = np.einsum("bp,bpi->bi", w, x)
-    d = x - mean[:, None, :]
-    return mean, np.einsum("bp,bpi,bpj->bij", w, d, d)
 
 
 def ffbsm(xs, logws, logtau, block: int | None = None, logg=None):
@@ -120,10 +113,10 @@ def ffbsm(xs, logws, logtau, block: int | None = None, logg=None):
         block = max(1, BLOCK // (Np * Np * n))
     for lo in range(0, B, block):
         sl = slice(lo, min(lo + block, B))
-        ws = _weights(logws[-1][sl])
-        means[sl, -1], covs[sl, -1] = _weighted_moments(ws, xs[-1][sl])
+        ws = weights(logws[-1][sl])
+        means[sl, -1], covs[sl, -1] = cloud_moments(ws, xs[-1][sl])
         for k in range(T - 2, -1, -1):
-            w = _weights(logws[k][sl])
+            w = weights(logws[k][sl])
             lt = logtau(xs[k][sl], xs[k + 1][sl], k)  # (b, i, j): log τ(x_{k+1,j} | x_k,i)
             if logg is not None:  # y_{k+1} depends on x_k: p(x_k | x_{k+1}, y_{:k+1}) ∝ w τ g_{k+1}(x_k)
                 lt = lt + logg(xs[k][sl], k, sl)[..., :, None]
@@ -136,7 +129,7 @@ def ffbsm(xs, logws, logtau, block: int | None = None, logg=None):
             new = w * np.einsum("bij,bj->bi", A, v)
             s = new.sum(axis=-1, keepdims=True)
             ws = np.where(s > 0, new / np.where(s > 0, s, 1.0), w)  # no support at all: keep the filter's
-            means[sl, k], covs[sl, k] = _weighted_moments(ws, xs[k][sl])
+            means[sl, k], covs[sl, k] = cloud_moments(ws, xs[k][sl])
     return means, covs
 
 

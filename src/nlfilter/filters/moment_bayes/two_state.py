@@ -31,7 +31,7 @@ from ... import _validate as V
 from ...moments.densities import LegendreDensity2D, pdf_batched_2d
 from ...moments.polygons import clip_halfplane, pad_polygons, polygon_quadrature, trim_polygon
 from ..beliefs import where_paths
-from ._common import MomentFilter, configure_input, impulse_power_sums, observed
+from ._moment_base import MomentFilter, configure_input, impulse_power_sums, observed
 from .first_order import _raw_model
 
 
@@ -42,7 +42,7 @@ class PolygonBelief(NamedTuple):
     ``fallback (B,)`` flag, the input moments in use ``mw (B, N)``, the learner's power sums
     ``acc (B, N)`` and ``count (B,)``, the previous posterior ``prev (B, N+1, N+1)``,
     ``predicted (B,)`` (whether ``M`` is its prediction, to redo after a refresh) and the flags
-    ``refreshed``/``refresh_failed (B,)`` of this step's refresh (:data:`._common.INVALID_MOMENTS`)."""
+    ``refreshed``/``refresh_failed (B,)`` of this step's refresh (:data:`._moment_base.INVALID_MOMENTS`)."""
 
     M: np.ndarray
     verts: np.ndarray
