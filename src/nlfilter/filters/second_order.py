@@ -69,7 +69,8 @@ import numpy as np  # noqa: F401  (the doctests use it)
 from .. import _validate as V
 from .base import ContinuousFilter, DiscreteFilter, GaussianState  # noqa: F401  (GaussianState: the doctests)
 from .gaussian import ContinuousDiscreteGaussianFilter, ContinuousGaussianFilter, GaussianFilter
-from .rules import FORMS, Taylor2, gaussian_quartic, hessian_trace, noise_covariance, quarter_outer
+from .contractions import gaussian_quartic, hessian_trace, noise_covariance, quarter_outer
+from .rules import FORMS, Taylor2
 
 
 def _forcing(form, X, h_xx):

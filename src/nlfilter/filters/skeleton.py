@@ -42,7 +42,7 @@ import numpy as np
 from ..errors import DivergenceError
 from .base import GaussianState, ode_step
 from .linalg import bad_paths, decorrelation, gaussian_update, mm, poison, symmetrize
-from .rules import hessian_trace
+from .contractions import hessian_trace
 from .smoothing import _solve_right
 
 __all__ = ["predict", "condition", "moment_rhs", "propagate", "ito_gain", "ito_rhs", "iterated_update", "CrossNoise",
