@@ -38,6 +38,13 @@ class MomentFilterWarning(UserWarning):
 #: time axis are the refresh count and the failed-refresh count.
 INVALID_MOMENTS = ("warn", "keep", "ignore")
 
+#: the fields the beliefs of the first- and second-order filters share, in their order: the
+#: support box, the fallback flag, the input moments in use and the learner's power sums and count
+#: (``BOX_AND_LEARNER``), then whether the belief is a prediction and the flags of this step's
+#: refresh (``REFRESH``)
+BOX_AND_LEARNER = tuple((f, np.ndarray) for f in ("lo", "hi", "fallback", "mw", "acc", "count"))
+REFRESH = tuple((f, np.ndarray) for f in ("predicted", "refreshed", "refresh_failed"))
+
 
 def check_invalid_moments(value) -> str:
     return V.choice("invalid_moments", value, set(INVALID_MOMENTS))

@@ -31,27 +31,15 @@ import numpy as np
 
 from ...moments.densities import (LegendreDensity, affine_moments, cumulants_to_moments, moments_to_cumulants,
                                   sum_moments)
-from ._moment_base import MomentFilter, configure_input, keep_missing, observed
+from ._moment_base import BOX_AND_LEARNER, REFRESH, MomentFilter, configure_input, keep_missing, observed
 
 
-class IntervalBelief(NamedTuple):
-    """Per path: posterior moments ``m (B, N)`` of x_k and support ``[lo, hi] (B,)``, the
+IntervalBelief = NamedTuple("IntervalBelief", [("m", np.ndarray), *BOX_AND_LEARNER, ("hm", np.ndarray), *REFRESH])
+IntervalBelief.__doc__ = """Per path: posterior moments ``m (B, N)`` of x_k and support ``[lo, hi] (B,)``, the
     ``fallback (B,)`` flag, the input moments in use ``mw (B, N)``, the learner's power sums
     ``acc (B, N)`` and sample count ``count (B,)``, the moments ``hm (B, N)`` of ``h x_{k-1}``,
     ``predicted (B,)`` (whether ``m`` is a prediction from them, to redo after a refresh) and the
     flags ``refreshed``/``refresh_failed (B,)`` of this step's refresh (:data:`._moment_base.INVALID_MOMENTS`)."""
-
-    m: np.ndarray
-    lo: np.ndarray
-    hi: np.ndarray
-    fallback: np.ndarray
-    mw: np.ndarray
-    acc: np.ndarray
-    count: np.ndarray
-    hm: np.ndarray
-    predicted: np.ndarray
-    refreshed: np.ndarray
-    refresh_failed: np.ndarray
 
 
 def _raw_model(model, args, kind):

@@ -31,31 +31,19 @@ from ... import _validate as V
 from ...moments.densities import LegendreDensity2D, pdf_batched_2d
 from ...moments.polygons import clip_halfplane, pad_polygons, polygon_quadrature, trim_polygon
 from ..beliefs import where_paths
-from ._moment_base import MomentFilter, configure_input, impulse_power_sums, observed
+from ._moment_base import BOX_AND_LEARNER, REFRESH, MomentFilter, configure_input, impulse_power_sums, observed
 from .first_order import _raw_model
 
 
-class PolygonBelief(NamedTuple):
-    """Per path: posterior mixed moments ``M (B, N+1, N+1)`` (``M[i, j] = E[x0^i x1^j]``, total
+PolygonBelief = NamedTuple("PolygonBelief", [("M", np.ndarray), ("verts", np.ndarray), *BOX_AND_LEARNER,
+                                              ("prev", np.ndarray), *REFRESH])
+PolygonBelief.__doc__ = """Per path: posterior mixed moments ``M (B, N+1, N+1)`` (``M[i, j] = E[x0^i x1^j]``, total
     order <= N), the reachable polygon ``verts (B, V, 2)`` (``bounding="polygon"``; a common vertex
     capacity V, padded with repeated vertices) and bounding box ``lo``/``hi (B, 2)``, the
     ``fallback (B,)`` flag, the input moments in use ``mw (B, N)``, the learner's power sums
     ``acc (B, N)`` and ``count (B,)``, the previous posterior ``prev (B, N+1, N+1)``,
     ``predicted (B,)`` (whether ``M`` is its prediction, to redo after a refresh) and the flags
     ``refreshed``/``refresh_failed (B,)`` of this step's refresh (:data:`._moment_base.INVALID_MOMENTS`)."""
-
-    M: np.ndarray
-    verts: np.ndarray
-    lo: np.ndarray
-    hi: np.ndarray
-    fallback: np.ndarray
-    mw: np.ndarray
-    acc: np.ndarray
-    count: np.ndarray
-    prev: np.ndarray
-    predicted: np.ndarray
-    refreshed: np.ndarray
-    refresh_failed: np.ndarray
 
 
 def _merge(paths, new, old):
