@@ -168,6 +168,7 @@ class GaussianFilter(_CrossNoise, DiscreteFilter):
     structures = ("state-dependent R", "cross noise")
     needs: tuple = ()
     time = "discrete"
+    compiled = True  # its steps run on the compiled loop (backend="numba"; a subclass changing one loses it)
 
     def __init__(self, model, rule, *, start: str | None = None):
         super().__init__(model, start=start)
@@ -316,6 +317,7 @@ class ContinuousDiscreteGaussianFilter(GaussianFilter):
     """
 
     name = "cd-gaussian"
+    compiled = False  # continuous dynamics: no compiled loop
     accepts = ("sde",)
     start = "predict"  # the default: the prior at t0, y_0 at t0 + dt (as simulate_continuous_discrete)
 
@@ -535,6 +537,7 @@ def iterated_update(model, state, y, t, iterations: int, tol: float) -> Gaussian
 
 class _Iterated:
     """The iterated update for a Taylor-1 skeleton (``IteratedEKF``, ``ContinuousDiscreteIEKF``)."""
+    compiled = False  # the iterated update has no compiled loop
 
     def _set_iterations(self, iterations, tol):
         self.iterations = V.positive("iterations", iterations, integer=True)

@@ -150,6 +150,7 @@ class SecondOrderFilter(_DiscreteFamily, GaussianFilter):
     """
 
     source = "seed 004 eqs. 18-23 (discrete), Henriksen 1979"
+    compiled = True  # its steps are the family's (backend="numba"), _DiscreteFamily's checks included
 
     def __init__(self, model, *, form: str = "truncated", start: str | None = None):
         DiscreteFilter.__init__(self, model, start=start)
