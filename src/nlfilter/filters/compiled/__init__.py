@@ -48,8 +48,9 @@ The package, one concept a module:
 :mod:`.kernels`         the model's functions as numba scalar code (:func:`model_kernels`)
 :mod:`.path_linalg`     one-path linear algebra: Cholesky, the divergence test, Jacobi, LU, products
 :mod:`.step_kernels`    one-path step pieces: covariances, node moments, Taylor-2 terms, the update
-:mod:`.loops`           the time loops, one per rule kind, and their work arrays
-:mod:`.build`           the loops compiled with the model's functions, cached per model and kind
+:mod:`.rule_kernels`    one predict and one update kernel per rule kind, and their work arrays
+:mod:`.loops`           one loop template for every rule kind; the scalar EKF's batch loop
+:mod:`.build`           the template compiled with a kind's kernels and the model's functions, cached
 :mod:`.run`             :func:`run_compiled` and :func:`~.run.finish`
 ======================  ============================================================================
 """

@@ -1,5 +1,6 @@
-"""Assembling and caching the compiled loops: the loop of a rule kind (:mod:`.loops`) compiled with
-the model's functions (:mod:`.kernels`) bound as globals, once per model and kind.
+"""Assembling and caching the compiled loops: the one loop template (:mod:`.loops`) compiled with
+the predict and update kernels of the rule's kind (:mod:`.rule_kernels`), and those with the
+model's functions (:mod:`.kernels`), bound as globals; once per model and kind.
 
 The loops are compiled from their source text in a namespace built here, explicitly, from the
 kernels of :mod:`.path_linalg` and :mod:`.step_kernels` (:func:`namespace`); the specialized
@@ -15,19 +16,23 @@ import math
 
 import numpy as np
 
-from . import loops, path_linalg, step_kernels
+from . import loops, path_linalg, rule_kernels, step_kernels
 from .kernels import KERNELS
 from .support import jit
 
 __all__ = ["FUNCTION_ARGS", "namespace", "inlined", "steps", "unused3"]
 
-#: the model's functions each loop takes first (bound as globals by :func:`steps`)
-FUNCTION_ARGS = {"taylor1": ("f", "fx", "h", "hx", "G"), "nodes": ("f", "h", "G"),
-                 "taylor2": ("f", "fx", "fxx", "h", "hx", "hxx")}
+#: the functions a source takes first (bound as globals by :func:`steps`): the model's functions
+#: of each kernel, the kernels of the template
+FUNCTION_ARGS = {"steps_scalar_": ("f", "fx", "h", "hx", "G"), "steps_": ("predict", "update"),
+                 "predict_taylor1_": ("f", "fx", "G"), "update_taylor1_": ("h", "hx"),
+                 "predict_nodes_": ("f", "G"), "update_nodes_": ("h",),
+                 "predict_taylor2_": ("f", "fx", "fxx"), "update_taylor2_": ("h", "hx", "hxx")}
 
 _KERNEL_MODULES = (path_linalg, step_kernels)
 _SOURCE = {f.__name__: inspect.getsource(f)  # read once, at import
-           for f in (*path_linalg.SOURCES, *step_kernels.SOURCES, *loops.SOURCES.values())}
+           for f in (*path_linalg.SOURCES, *step_kernels.SOURCES, *loops.SOURCES.values(),
+                     *(k for pair in rule_kernels.KERNELS_BY_KIND.values() for k in pair))}
 
 
 def namespace() -> dict:
@@ -47,37 +52,61 @@ def inlined() -> dict:
         exec(compile(_SOURCE[h], f"<nlfilter.compiled {h}>", "exec"), ns)  # noqa: S102 - this package's code
     for h in names:
         ns[h[:-1]] = jit(ns[h], _nrt=False, inline="always")
+    ns["jacobi"] = path_linalg.jacobi  # called: only where the Cholesky screens cannot decide (rare, long code)
     return ns
 
 
+def _bind(name, fns, dims):
+    """The source of ``name`` with its leading parameters that name entries of ``fns`` dropped (they
+    are bound as globals) and, with ``dims = (n, m, r, N)``, the dimensions read from the arrays
+    replaced by constants (``N`` None: read from the nodes). Returns ``(source, dropped names)``."""
+    head, rest = _SOURCE[name].split("(", 1)
+    params, body = rest.split("):\n", 1)
+    plist = [x.strip() for x in params.replace("\n", " ").split(",") if x.strip()]
+    drop = []
+    while plist[len(drop)] in fns:
+        drop.append(plist[len(drop)])
+    if dims is not None:
+        n, m, r, N = dims
+        for old, new in (("    B, T, mdim = ys.shape\n", f"    B, T = ys.shape[0], ys.shape[1]\n    mdim = {m}\n"),
+                         ("    n = m0.shape[1]\n", f"    n = {n}\n"), ("    r = Q.shape[0]\n", f"    r = {r}\n"),
+                         ("    N = z.shape[0]\n", f"    N = {N}\n" if N is not None else "    N = z.shape[0]\n")):
+            body = body.replace(old, new, 1)
+    return head + "(" + ", ".join(plist[len(drop):]) + "):\n" + body, drop
+
+
+def _compile(name, fns, dims, ns, **kw):
+    """``name``'s source compiled in ``ns`` with ``fns`` bound as its globals (:func:`_bind`)."""
+    src, drop = _bind(name, fns, dims)
+    missing = [a for a in FUNCTION_ARGS.get(name, ()) if a not in drop]
+    if missing:  # pragma: no cover - a guard on this package's own code
+        raise RuntimeError(f"steps: {name} does not start with {missing}")
+    ns.update({a: fns[a] for a in drop})
+    exec(compile(src, f"<nlfilter.compiled {name}>", "exec"), ns)  # noqa: S102 - this package's code
+    return jit(ns[name], _nrt=False, **kw)
+
+
 def steps(kind: str, fns: dict, key, scalar: bool = False, dims=None):
-    """The raw steps of ``kind`` with the model's functions bound as globals (numba then calls
-    them directly and can inline them; passed as arguments they would be first-class function
-    pointers), compiled once per model (``key``: its kernel store) and kind. ``dims``: ``(n, m,
-    r, N)`` compiled in as constants (``N`` None: read from the nodes), with the helpers inlined
-    (:data:`~nlfilter.filters.compiled.run.SPECIALIZE_UP_TO`)."""
+    """The raw loop of rule ``kind``: the template (:func:`.loops.steps_`) with the kind's predict
+    and update kernels (:mod:`.rule_kernels`) bound as globals, and in those the model's functions
+    ``fns`` (``{"f", "fx", "h", "hx", "G"[, "fxx", "hxx"]}``; numba then calls them directly and can
+    inline them; passed as arguments they would be first-class function pointers); ``scalar``: the
+    scalar batch loop. Compiled once per model (``key``: its kernel store) and kind. ``dims``:
+    ``(n, m, r, N)`` compiled in as constants (``N`` None: read from the nodes), with the helpers
+    inlined (:data:`~nlfilter.filters.compiled.run.SPECIALIZE_UP_TO`); the kernels are always
+    inlined into the template (one call site each)."""
     store = KERNELS[key]
     name = ("steps", kind, fns["fxx"] is unused3 if kind == "taylor2" else scalar, dims)
     if name not in store:
-        py = loops.SOURCES["scalar" if scalar else kind].__name__
-        src = _SOURCE[py]
-        head, rest = src.split("(", 1)
-        params, body = rest.split("):\n", 1)
-        plist = [x.strip() for x in params.replace("\n", " ").split(",") if x.strip()]
-        drop = FUNCTION_ARGS[kind]
-        if tuple(plist[:len(drop)]) != drop:  # pragma: no cover - a guard on this package's own code
-            raise RuntimeError(f"steps: {py} does not start with {drop}")
-        if dims is not None:
-            n, m, r, N = dims
-            for old, new in (("    B, T, mdim = ys.shape\n", f"    B, T = ys.shape[0], ys.shape[1]\n    mdim = {m}\n"),
-                             ("    n = m0.shape[1]\n", f"    n = {n}\n"), ("    r = Q.shape[0]\n", f"    r = {r}\n"),
-                             ("    N = z.shape[0]\n", f"    N = {N}\n" if N is not None else "    N = z.shape[0]\n")):
-                body = body.replace(old, new, 1)
-        src = head + "(" + ", ".join(plist[len(drop):]) + "):\n" + body
         ns = inlined() if dims is not None else namespace()
-        ns.update({a: fns[{"fx": "f_x", "hx": "h_x"}.get(a, a)] if scalar else fns[a] for a in drop})
-        exec(compile(src, f"<nlfilter.compiled steps {kind}>", "exec"), ns)  # noqa: S102 - this package's code
-        store[name] = jit(ns[py], _nrt=False)
+        if scalar:
+            fns = {{"f_x": "fx", "h_x": "hx"}.get(w, w): fn for w, fn in fns.items()}  # scalar_kernels' names
+            store[name] = _compile(loops.steps_scalar_.__name__, fns, dims, ns)
+        else:
+            predict, update = (f.__name__ for f in rule_kernels.KERNELS_BY_KIND[kind])
+            ns["predict"] = _compile(predict, fns, dims, ns, inline="always")
+            ns["update"] = _compile(update, fns, dims, ns, inline="always")
+            store[name] = _compile(loops.steps_.__name__, {"predict": ns["predict"], "update": ns["update"]}, dims, ns)
     return store[name]
 
 

@@ -1,12 +1,11 @@
-"""The time loops of the compiled run, one per rule kind, each over paths and steps: Taylor-1
-(:func:`steps_taylor1_`, the EKF), the scalar batch loop (:func:`steps_scalar_`: the EKF on
-``n = m = r = 1``, every path at each step), node rules (:func:`steps_nodes_`) and Taylor-2
-(:func:`steps_taylor2_`, seed 004's forms), with their work arrays (``alloc_*``, allocated once per
-run in NumPy).
+"""The time loops of the compiled run: one template over paths and steps for every rule kind
+(:func:`steps_`: the prior, the predict and update kernels of the rule's kind —
+:mod:`.rule_kernels` — the divergence bookkeeping, writing or marking the outputs), and the EKF's
+scalar batch loop (:func:`steps_scalar_`: ``n = m = r = 1``, every path at each step).
 
-These are sources, never called as Python: :func:`.build.steps` compiles each with the model's
-functions (its first parameters, :data:`.build.FUNCTION_ARGS`) bound as globals, in a namespace of
-the kernels of :mod:`.path_linalg` and :mod:`.step_kernels`.
+These are sources, never called as Python: :func:`.build.steps` compiles each with its first
+parameters (the kernels; the scalar loop: the model's functions, :data:`.build.FUNCTION_ARGS`)
+bound as globals, in a namespace of the kernels of :mod:`.path_linalg` and :mod:`.step_kernels`.
 """
 
 from __future__ import annotations
@@ -15,34 +14,24 @@ import math
 
 import numpy as np
 
-from .path_linalg import psd_check, sqrt_check, transpose
-from .step_kernels import (LOG_2PI, add_gqg, condition, hess_trace, mark, meas_cov, nodes_moments, predict_cov,
-                           quartic, work, write)
+from .step_kernels import LOG_2PI, mark, write
 
-__all__ = ["SOURCES", "alloc_taylor1", "alloc_nodes", "alloc_taylor2", "steps_taylor1_", "steps_scalar_",
-           "steps_nodes_", "steps_taylor2_"]
+__all__ = ["SOURCES", "alloc_path", "steps_", "steps_scalar_"]
 
 
-def alloc_taylor1(ys, m0, Q, N=0):
-    """The work arrays of :func:`steps_taylor1_` (allocated once per run, in NumPy)."""
+def alloc_path(n, mdim):
+    """The template's own work arrays: ``m``, ``P``, the step's measurement and likelihood outputs."""
+    return np.empty(n), np.empty((n, n)), np.empty(mdim), np.empty(1), np.empty(mdim), np.empty((mdim, mdim))
+
+
+def steps_(predict, update, ys, m0, P0, p, Q, R, GQG0, G_const, offset, absent, tol, means, covs, ll, inn, icov, want,
+           step, ks, ws, m, P, yk, l1, i1, c1):
+    """The loop of every rule kind, one path at a time: from the path's prior, at each step
+    ``predict`` (after the first step, or at every step with ``offset``: ``start="predict"``) and
+    ``update`` (unless no path measures the step), each returning False where the path fails;
+    then its outputs written, or NaN from the failed step on (``step[b]``: that step, or −1)."""
     B, T, mdim = ys.shape
     n = m0.shape[1]
-    r = Q.shape[0]
-    m, P, mp = np.empty(n), np.empty((n, n)), np.empty(n)
-    F, C, Hm, S = np.empty((n, n)), np.empty((n, mdim)), np.empty((mdim, n)), np.empty((mdim, mdim))
-    Gm, GQ, N = np.empty((n, r)), np.empty((n, r)), np.empty((n, n))
-    yhat, FP = np.empty(mdim), np.empty((n, n))
-    W, L, ev, V = np.empty((n, n)), np.empty((n, n)), np.empty(n), np.empty((n, n))
-    w = work(n, mdim)
-    M0 = np.empty((1, 1, 1))
-    yk, l1, i1, c1 = np.empty(mdim), np.empty(1), np.empty(mdim), np.empty((mdim, mdim))
-    return (m, P, mp, F, C, Hm, S, Gm, GQ, N, yhat, FP, W, L, ev, V, w, M0, yk, l1, i1, c1, np.empty((n, mdim)))
-
-
-def steps_taylor1_(f, fx, h, hx, G, ys, m0, P0, p, Q, R, GQG0, G_const, offset, absent, tol, means, covs, ll, inn, icov, want, step, m, P, mp, F, C, Hm, S, Gm, GQ, N, yhat, FP, W, L, ev, V, w, M0, yk, l1, i1, c1, Ht):
-    B, T, mdim = ys.shape
-    n = m0.shape[1]
-    r = Q.shape[0]
     for b in range(B):
         for i in range(n):
             m[i] = m0[b, i]
@@ -51,34 +40,13 @@ def steps_taylor1_(f, fx, h, hx, G, ys, m0, P0, p, Q, R, GQG0, G_const, offset, 
         fail = -1
         for k in range(T):
             if k > 0 or offset:
-                t = float(k + offset - 1)
-                f(m, t, p, mp)
-                fx(m, t, p, F)
-                if G_const:
-                    for i in range(n):
-                        for j in range(n):
-                            N[i, j] = GQG0[i, j]
-                else:  # G(m) Q G(m)ᵀ
-                    G(m, t, p, Gm)
-                    for i in range(n):
-                        for j in range(n):
-                            N[i, j] = 0.0
-                    add_gqg(Gm, Q, GQ, N, 1.0, n, r)
-                predict_cov(F, P, N, P, FP, W, n)  # F P Fᵀ + G Q Gᵀ
-                for i in range(n):
-                    m[i] = mp[i]
-                if not psd_check(m, P, n, tol, W, L, ev):
+                if not predict(m, P, float(k + offset - 1), p, Q, GQG0, G_const, tol, ks, ws, n, mdim):
                     fail = k
                     break
             if not absent[k]:
-                t = float(k + offset)
-                h(m, t, p, yhat)
-                hx(m, t, p, Hm)
-                meas_cov(P, Hm, R, Ht, C, S, n, mdim)  # C = P Hᵀ, S = H C + R
                 for a in range(mdim):
                     yk[a] = ys[b, k, a]
-                ok = condition(m, P, yk, yhat, S, C, Hm, R, True, M0, False, False, n, mdim, w, want, l1, i1, c1)
-                if not ok or not psd_check(m, P, n, tol, W, L, ev):
+                if not update(m, P, yk, float(k + offset), p, R, tol, want, l1, i1, c1, ks, ws, n, mdim):
                     fail = k
                     break
             write(means, covs, ll, inn, icov, b, k, m, P, want, absent[k], l1, i1, c1)
@@ -155,188 +123,7 @@ def steps_scalar_(f, fx, h, hx, G, ys, m0, P0, p, Q, R, GQG0, G_const, offset, a
                 ll[k, b] = lk
                 inn[k, b] = ek
                 icov[k, b] = sk
-def alloc_nodes(ys, m0, Q, N=0):
-    """The work arrays of :func:`steps_nodes_` (allocated once per run, in NumPy)."""
-    B, T, mdim = ys.shape
-    n = m0.shape[1]
-    r = Q.shape[0]
-    pmax = max(n, mdim)
-    m, P, L, W, L2 = np.empty(n), np.empty((n, n)), np.empty((n, n)), np.empty((n, n)), np.empty((n, n))
-    ev, V = np.empty(n), np.empty((n, n))
-    X, GX, D = np.empty((N, n)), np.empty((N, pmax)), np.empty((N, pmax))
-    mean, Cov, Cross = np.empty(pmax), np.empty((pmax, pmax)), np.empty((n, pmax))
-    Gm, GQ, Nz = np.empty((n, r)), np.empty((n, r)), np.empty((n, n))
-    S, C, yhat = np.empty((mdim, mdim)), np.empty((n, mdim)), np.empty(mdim)
-    H0, M0 = np.empty((1, 1)), np.empty((1, 1, 1))
-    yk, l1, i1, c1 = np.empty(mdim), np.empty(1), np.empty(mdim), np.empty((mdim, mdim))
-    w = work(n, mdim)
-    return (m, P, L, W, L2, ev, V, X, GX, D, mean, Cov, Cross, Gm, GQ, Nz, S, C, yhat, H0, M0, yk, l1, i1, c1, w)
 
 
-def steps_nodes_(f, h, G, z, wm, wc, ys, m0, P0, p, Q, R, GQG0, G_const, offset, absent, tol, means, covs, ll, inn, icov, want, step, m, P, L, W, L2, ev, V, X, GX, D, mean, Cov, Cross, Gm, GQ, Nz, S, C, yhat, H0, M0, yk, l1, i1, c1, w):
-    B, T, mdim = ys.shape
-    n = m0.shape[1]
-    r = Q.shape[0]
-    N = z.shape[0]
-    for b in range(B):
-        for i in range(n):
-            m[i] = m0[b, i]
-            for j in range(n):
-                P[i, j] = P0[b, i, j]
-        fail = -1
-        for k in range(T):
-            for phase in range(2):
-                if phase == 0 and not (k > 0 or offset):
-                    continue
-                if phase == 1 and absent[k]:
-                    continue
-                if not sqrt_check(P, L, n, tol, W, ev, V):
-                    fail = k
-                    break
-                transpose(L, W, n, n)  # the columns of L as rows (W as scratch)
-                for i in range(N):  # X_i = m + L z_i (the sigma and cubature z_i have one nonzero)
-                    for j in range(n):
-                        X[i, j] = m[j]
-                    for q in range(n):
-                        v = z[i, q]
-                        if v != 0.0:
-                            for j in range(n):
-                                X[i, j] += v * W[q, j]
-                if phase == 0:
-                    t = float(k + offset - 1)
-                    nodes_moments(f, X, GX, wm, wc, m, t, p, N, n, n, mean, D, Cov, Cross, False)
-                    if G_const:
-                        for i in range(n):
-                            for j in range(n):
-                                Nz[i, j] = GQG0[i, j]
-                    else:  # Σ w_i G(X_i) Q G(X_i)ᵀ
-                        for i in range(n):
-                            for j in range(n):
-                                Nz[i, j] = 0.0
-                        for i2 in range(N):
-                            G(X[i2], t, p, Gm)
-                            add_gqg(Gm, Q, GQ, Nz, wm[i2], n, r)
-                    for i in range(n):
-                        m[i] = mean[i]
-                        for j in range(n):
-                            P[i, j] = Cov[i, j] + Nz[i, j]
-                    if not psd_check(m, P, n, tol, W, L2, ev):
-                        fail = k
-                        break
-                else:
-                    t = float(k + offset)
-                    nodes_moments(h, X, GX, wm, wc, m, t, p, N, mdim, n, mean, D, Cov, Cross, True)
-                    for a in range(mdim):
-                        yhat[a] = mean[a]
-                        for c in range(mdim):
-                            S[a, c] = Cov[a, c] + R[a, c]
-                        for j in range(n):
-                            C[j, a] = Cross[j, a]
-                    for a in range(mdim):
-                        yk[a] = ys[b, k, a]
-                    ok = condition(m, P, yk, yhat, S, C, H0, R, False, M0, False, False, n, mdim, w, want, l1, i1, c1)
-                    if not ok or not psd_check(m, P, n, tol, W, L2, ev):
-                        fail = k
-                        break
-            if fail >= 0:
-                break
-            write(means, covs, ll, inn, icov, b, k, m, P, want, absent[k], l1, i1, c1)
-        step[b] = fail
-        if fail >= 0:
-            mark(means, covs, ll, inn, icov, want, b, fail)
-def alloc_taylor2(ys, m0, Q, N=0):
-    """The work arrays of :func:`steps_taylor2_` (allocated once per run, in NumPy)."""
-    B, T, mdim = ys.shape
-    n = m0.shape[1]
-    pmax = max(n, mdim)
-    m, P, mp = np.empty(n), np.empty((n, n)), np.empty(n)
-    F, Hm, C, S, FP = np.empty((n, n)), np.empty((mdim, n)), np.empty((n, mdim)), np.empty((mdim, mdim)), np.empty((n, n))
-    Af, Ah = np.empty((n, n, n)), np.empty((mdim, n, n))
-    tr, AP = np.empty(pmax), np.empty((pmax, n, n))
-    Cf = np.empty((n, n))
-    M = np.empty((n, n, mdim))
-    yhat = np.empty(mdim)
-    W, L, ev, V = np.empty((n, n)), np.empty((n, n)), np.empty(n), np.empty((n, n))
-    w = work(n, mdim)
-    yk, l1, i1, c1 = np.empty(mdim), np.empty(1), np.empty(mdim), np.empty((mdim, mdim))
-    return (m, P, mp, F, Hm, C, S, FP, Af, Ah, tr, AP, Cf, M, yhat, W, L, ev, V, w, yk, l1, i1, c1, np.empty((n, mdim)))
-
-
-def steps_taylor2_(f, fx, fxx, h, hx, hxx, ys, m0, P0, p, R, GQG0, second, dyn_kind, meas_kind, force_kind, joseph, offset, absent, tol, means, covs, ll, inn, icov, want, step, m, P, mp, F, Hm, C, S, FP, Af, Ah, tr, AP, Cf, M, yhat, W, L, ev, V, w, yk, l1, i1, c1, Ht):
-    B, T, mdim = ys.shape
-    n = m0.shape[1]
-    for b in range(B):
-        for i in range(n):
-            m[i] = m0[b, i]
-            for j in range(n):
-                P[i, j] = P0[b, i, j]
-        fail = -1
-        for k in range(T):
-            if k > 0 or offset:
-                t = float(k + offset - 1)
-                f(m, t, p, mp)
-                fx(m, t, p, F)
-                if second:
-                    fxx(m, t, p, Af)
-                    hess_trace(P, Af, n, n, tr)
-                    for i in range(n):
-                        mp[i] += 0.5 * tr[i]
-                predict_cov(F, P, GQG0, Cf, FP, W, n)  # F P Fᵀ + G Q Gᵀ (004 eq. 19)
-                if second:
-                    quartic(dyn_kind, P, Af, tr, n, n, AP, Cf)
-                for i in range(n):  # symmetrized (Taylor-2)
-                    for j in range(n):
-                        P[i, j] = 0.5 * (Cf[i, j] + Cf[j, i])
-                for i in range(n):
-                    m[i] = mp[i]
-                if not psd_check(m, P, n, tol, W, L, ev):
-                    fail = k
-                    break
-            if not absent[k]:
-                t = float(k + offset)
-                h(m, t, p, yhat)
-                hx(m, t, p, Hm)
-                if second:
-                    hxx(m, t, p, Ah)
-                    hess_trace(P, Ah, n, mdim, tr)
-                    for a in range(mdim):
-                        yhat[a] += 0.5 * tr[a]
-                meas_cov(P, Hm, R, Ht, C, S, n, mdim)  # C = P Hᵀ, S = H C + R
-                force = False
-                if second:
-                    quartic(meas_kind, P, Ah, tr, n, mdim, AP, S)
-                    if force_kind == 1:  # M_ijk = −½ P_ij (P h_xx)_k
-                        force = True
-                        for i in range(n):
-                            for j in range(n):
-                                for a in range(mdim):
-                                    M[i, j, a] = -0.5 * P[i, j] * tr[a]
-                    elif force_kind == 2:  # M_ijk = (P h_xx^(k) P)_ij
-                        force = True
-                        for a in range(mdim):
-                            for i in range(n):
-                                for c in range(n):
-                                    s = 0.0
-                                    for q in range(n):
-                                        s += P[i, q] * Ah[a, q, c]
-                                    FP[i, c] = s
-                            for i in range(n):
-                                for j in range(n):
-                                    s = 0.0
-                                    for c in range(n):
-                                        s += FP[i, c] * P[c, j]
-                                    M[i, j, a] = s
-                for a in range(mdim):
-                    yk[a] = ys[b, k, a]
-                ok = condition(m, P, yk, yhat, S, C, Hm, R, joseph, M, force, True, n, mdim, w, want, l1, i1, c1)
-                if not ok or not psd_check(m, P, n, tol, W, L, ev):
-                    fail = k
-                    break
-            write(means, covs, ll, inn, icov, b, k, m, P, want, absent[k], l1, i1, c1)
-        step[b] = fail
-        if fail >= 0:
-            mark(means, covs, ll, inn, icov, want, b, fail)
-
-
-#: the loops' sources, by rule kind (``"scalar"``: the scalar batch loop)
-SOURCES = {"taylor1": steps_taylor1_, "nodes": steps_nodes_, "taylor2": steps_taylor2_, "scalar": steps_scalar_}
+#: the loops' sources: the template and the scalar batch loop
+SOURCES = {"template": steps_, "scalar": steps_scalar_}

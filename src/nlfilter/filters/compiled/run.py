@@ -18,7 +18,8 @@ from ..rules import FORM_TABLE
 from . import build
 from .build import unused3
 from .kernels import model_kernels, scalar_kernels
-from .loops import alloc_nodes, alloc_taylor1, alloc_taylor2
+from .loops import alloc_path
+from .rule_kernels import ALLOC
 from .support import nb, rule_kind, unsupported
 
 __all__ = ["SPECIALIZE_UP_TO", "run_compiled", "finish"]
@@ -94,16 +95,14 @@ def run_compiled(flt, yf, batch, m0, P0, on, loglik, progress=False):
         if want:
             ll, inn, icov = sll.T, sinn.T[:, :, None], sicov.T[:, :, None, None]
         return finish(flt, on, step, batch, means, covs, want, ll, inn, icov)
-    if kind == "taylor1":
-        steps = build.steps(kind, {"f": fns["f"], "fx": fns["f_x"], "h": fns["h"], "hx": fns["h_x"], "G": fns["G"]}, key,
-                       dims=dims(0))
-        ws = alloc_taylor1(ys, mean0, Q)
-        head = (Q, R, GQG0, G_const)
-    elif kind == "nodes":
+    if kind == "nodes":
         z, wm, wc = _nodes(flt, n)
+        ks, N = (z, wm, wc), z.shape[0]
         steps = build.steps(kind, {"f": fns["f"], "h": fns["h"], "G": fns["G"]}, key, dims=dims(None))
-        ws = alloc_nodes(ys, mean0, Q, z.shape[0])
-        head = (Q, R, GQG0, G_const)
+    elif kind == "taylor1":
+        ks, N = (), 0
+        steps = build.steps(kind, {"f": fns["f"], "fx": fns["f_x"], "h": fns["h"], "hx": fns["h_x"], "G": fns["G"]},
+                            key, dims=dims(0))
     else:
         rule = flt.rule
         spec = FORM_TABLE[rule.form]
@@ -111,16 +110,16 @@ def run_compiled(flt, yf, batch, m0, P0, on, loglik, progress=False):
         # first-order: the Hessian slots are never called; a compiled no-op fills them
         fxx, hxx = (fns["f_xx"], fns["h_xx"]) if second else (unused3, unused3)
         kinds = ((_KIND[spec[0]], _KIND[spec[1]], _FORCE[spec[2]]) if second else (0, 0, 0))
+        ks, N = (second, *kinds, spec[1] == "none"), 0
         steps = build.steps(kind, {"f": fns["f"], "fx": fns["f_x"], "fxx": fxx, "h": fns["h"], "hx": fns["h_x"],
-                              "hxx": hxx}, key, dims=dims(0))
-        ws = alloc_taylor2(ys, mean0, Q)
-        head = (R, GQG0, second, *kinds, spec[1] == "none")
+                                   "hxx": hxx}, key, dims=dims(0))
+    ws = ALLOC[kind](n, mdim, md.r, N)
+    own = alloc_path(n, mdim)
 
     def block(lo, hi):
         common = (offset, absent, PSD_TOL, means[lo:hi], covs[lo:hi], ll[lo:hi] if want else ll,
                   inn[lo:hi] if want else inn, icov[lo:hi] if want else icov, want, step[lo:hi])
-        pre = (z, wm, wc) if kind == "nodes" else ()
-        steps(*pre, ys[lo:hi], mean0[lo:hi], cov0[lo:hi], p, *head, *common, *ws)
+        steps(ys[lo:hi], mean0[lo:hi], cov0[lo:hi], p, Q, R, GQG0, G_const, *common, ks, ws, *own)
 
     try:
         if progress and B > 1:

@@ -1,5 +1,5 @@
 """One-path step kernels of the compiled loop (allocating nothing): the predicted and measurement
-covariances of the Taylor rules, the node rules' weighted moments, the second-order terms of seed
+covariances of the Taylor rules, the node rules' points and weighted moments, the second-order terms of seed
 004 (eqs. 9, 18-23), the update of :func:`~nlfilter.filters.linalg.gaussian_update` with partly
 missing measurements, and writing or marking (NaN) a path's outputs.
 
@@ -13,11 +13,11 @@ import math
 
 import numpy as np
 
-from .path_linalg import chol, lu, lu_solve, mm, transpose
+from .path_linalg import chol, lu, lu_solve, mm, sqrt_check, transpose
 from .support import jit
 
 __all__ = ["SOURCES", "LOG_2PI", "work", "predict_cov", "meas_cov", "add_gqg", "condition", "write", "mark",
-           "nodes_moments", "hess_trace", "quartic"]
+           "nodes_moments", "nodes_points", "hess_trace", "quartic"]
 
 
 def predict_cov_(F, P, N, out, T1, T2, n):
@@ -212,6 +212,23 @@ def nodes_moments_(g, X, GX, wm, wc, m, t, p, N, pdim, n, mean, D, Cov, Cross, c
                         Cross[j, a] += v * D[i, a]
 
 
+def nodes_points_(m, P, z, X, L, W, ev, V, n, N, tol):
+    """``X_i = m + L z_i`` (``L Lᵀ = P``: Cholesky, the eigen root where P is only semi-definite);
+    False where P has no root."""
+    if not sqrt_check(P, L, n, tol, W, ev, V):
+        return False
+    transpose(L, W, n, n)  # the columns of L as rows (W as scratch)
+    for i in range(N):  # X_i = m + L z_i (the sigma and cubature z_i have one nonzero)
+        for j in range(n):
+            X[i, j] = m[j]
+        for q in range(n):
+            v = z[i, q]
+            if v != 0.0:
+                for j in range(n):
+                    X[i, j] += v * W[q, j]
+    return True
+
+
 def hess_trace_(P, A, n, pdim, out):
     """``out_i = Σ_jl P_jl A_ijl`` (004 eqs. 9, 23)."""
     for i in range(pdim):
@@ -289,7 +306,8 @@ def work(n, mdim):
 
 
 #: the Python sources of this module's kernels (compiled below; inlined by :mod:`.build`)
-SOURCES = (predict_cov_, meas_cov_, add_gqg_, condition_, write_, mark_, nodes_moments_, hess_trace_, quartic_)
+SOURCES = (predict_cov_, meas_cov_, add_gqg_, condition_, write_, mark_, nodes_moments_, nodes_points_, hess_trace_,
+           quartic_)
 
 # raw functions (no reference counting, as path_linalg's); not inlined here (numba's
 # inline="always" gains 30 % at n ≤ 2, nothing from n = 4, and triples the compile time: 10-20 s
@@ -301,5 +319,6 @@ condition = jit(condition_, _nrt=False)
 write = jit(write_, _nrt=False)
 mark = jit(mark_, _nrt=False)
 nodes_moments = jit(nodes_moments_, _nrt=False)
+nodes_points = jit(nodes_points_, _nrt=False)
 hess_trace = jit(hess_trace_, _nrt=False)
 quartic = jit(quartic_, _nrt=False)
