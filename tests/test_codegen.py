@@ -26,15 +26,6 @@ def _models():
     return {"chain": chain, "timed": timed, "erf": erf}
 
 
-def _compiled():
-    """filters/compiled.py with its own generators (before the compiled loop generates through
-    codegen; after, the golden texts below hold the same text)."""
-    compiled = pytest.importorskip("nlfilter.filters.compiled")
-    if not hasattr(compiled, "_source") or compiled._source is array_source:
-        pytest.skip("the compiled loop generates its kernels with nlfilter.codegen")
-    return compiled
-
-
 # the text filters/compiled.py's _source/_scalar_source wrote at main ba07295 (the numba kernels)
 GOLDEN = {
     "g_G": """def g_G(x, t, p, out):
@@ -87,12 +78,15 @@ def test_sources_keep_the_compiled_loops_text():
 
 
 @pytest.mark.parametrize("name", ["chain", "timed", "erf"])
-def test_array_source_is_compiled_loops_text(name):
-    """codegen.array_source writes, character for character, the source filters/compiled.py's
-    _source writes today for f, f_x, f_xx, h, h_x, h_xx and G (the chain's f_xx has 27 entries
-    with more than 8 zeros: the loop of zeros); the lead points the compiled loop at codegen."""
-    compiled = _compiled()
+def test_compiled_loop_generates_through_codegen(name):
+    """The compiled loop's kernels are codegen's text (one generator): the source it compiles for
+    f, f_x, f_xx, h, h_x, h_xx and G is ``array_source``'s, character for character (the chain's
+    f_xx has 27 entries with more than 8 zeros: the loop of zeros). numba compiles lazily: nothing
+    is compiled here."""
+    from nlfilter.filters.compiled.kernels import KERNELS, model_kernels
     model = _models()[name]
+    model_kernels(model, second=True)
+    store = KERNELS[model._kernels["f"]]
     ex, states, time, ps = model.expressions, model.states, model.time, model._psyms
     n, m, r = model.n, model.m, model.r
     fx, hx = jacobian(ex["f"], states), jacobian(ex["h"], states)
@@ -101,18 +95,9 @@ def test_array_source_is_compiled_loops_text(name):
              "f_xx": (first_derivatives(list(fx), states), (n, n, n)),
              "h_xx": (first_derivatives(list(hx), states), (m, n, n))}
     for w, (exprs, shape) in specs.items():
-        new = array_source("g_" + w, exprs, shape, states, time, ps)
-        assert new == compiled._source("g_" + w, exprs, shape, states, time, ps), w
+        assert store["src_" + w] == array_source("g_" + w.replace("_", ""), exprs, shape, states, time, ps), w
     zero_loop = array_source("g", specs["f_xx"][0], (n, n, n), states, time, ps)
     assert ("for i0 in range" in zero_loop) == (name == "chain")
-
-
-def test_scalar_source_is_compiled_loops_text():
-    compiled = _compiled()
-    x, k, a = sp.symbols("x k a")
-    exprs = [a * x + 0.1 * sp.sin(k), x**3 / (1 + x**2), sp.Float(0.1 + 2**-50) * sp.exp(-a * x), sp.Integer(1)]
-    for e in exprs:
-        assert scalar_source("s_f", e, x, k, [a]) == compiled._scalar_source("s_f", e, x, k, [a]), e
 
 
 def test_one_float_policy():

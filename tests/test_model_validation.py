@@ -194,7 +194,7 @@ def test_compiled_backend_refuses_piecewise_functions_naming_backend():
     with pytest.raises(TypeError, match=r"^backend: 'numba' cannot run EKF"):
         EKF(PW).run(ys, m0=np.ones(2), P0=np.eye(2), backend="numba")
     from nlfilter.filters import compiled
-    if compiled._nb is not None:
+    if compiled.available():
         assert "Abs" in compiled.unsupported(EKF(PW))
 
 

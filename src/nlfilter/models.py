@@ -97,7 +97,7 @@ import numpy as np
 import sympy as sp
 
 from . import _validate as V
-from .codegen import first_derivatives, jacobian
+from .codegen import jacobian
 from .model_builders import from_functions, linear
 from .model_expressions import (SUPPORTED_FUNCTIONS, check_expressions, check_free_symbols, code_matrix, matrix,
                                 model_symbols, noise_symbols, vector)
@@ -107,10 +107,6 @@ from .model_values import NO_VALUES, Broadcast, Values, param_value
 from .noise import Gaussian, NoiseLaw
 
 __all__ = ["Model", "DiscreteModel", "SDEModel", "SUPPORTED_FUNCTIONS"]
-
-# the derivatives of the generated code (nlfilter.codegen) under the names filters/compiled.py imports
-_jacobian, _first = jacobian, first_derivatives
-
 
 class Model:
     """Common part of :class:`DiscreteModel` and :class:`SDEModel` (see the module docstring).

@@ -20,6 +20,10 @@ from hypothesis import strategies as hst
 from nlfilter import DiscreteModel, SDEModel
 from nlfilter.errors import DivergenceError
 from nlfilter.filters import REGISTRY, compiled
+from nlfilter.filters.beliefs import GaussianState
+from nlfilter.filters.compiled import run as compiled_run
+from nlfilter.filters.compiled.kernels import KERNELS
+from nlfilter.filters.compiled.path_linalg import psd_check, sqrt_check
 from nlfilter.filters.cubature import CKF, GHKF, StatisticallyLinearizedFilter
 from nlfilter.filters.ekf import EKF, ContinuousDiscreteEKF, IteratedEKF
 from nlfilter.filters.linalg import PSD_TOL, _bad_paths_exact
@@ -40,7 +44,7 @@ def general_loops(monkeypatch):
     """The general (not dimension-specialized) loops: 3-7 s of compilation per model and rule kind
     instead of 15-45 s; the specialized loops do the same arithmetic, which
     :func:`test_specialized_loops_give_the_same_numbers` checks to the last bit."""
-    monkeypatch.setattr(compiled, "SPECIALIZE_UP_TO", 0)
+    monkeypatch.setattr(compiled_run, "SPECIALIZE_UP_TO", 0)
 
 x1, x2, a, k = sp.symbols("x1 x2 a k")
 
@@ -230,12 +234,12 @@ def test_compiled_screen_is_the_eigenvalue_test(n, seed, kind, log_scale):
     P = _matrix(rng, n, kind, 10.0**log_scale)
     m = rng.standard_normal(n)
     W, L, ev = np.empty((n, n)), np.empty((n, n)), np.empty(n)
-    ok = compiled._psd_check(m, P, n, PSD_TOL, W, L, ev)
+    ok = psd_check(m, P, n, PSD_TOL, W, L, ev)
     assert ok == (not _bad_paths_exact(m[None], P[None])[0])
     if ok and kind not in ("nan", "asymmetric"):  # L Lᵀ = P (the eigen root where Cholesky fails: up to
         # the clipped negatives); an asymmetric P: Cholesky reads its lower triangle, as NumPy's
         V = np.empty((n, n))
-        assert compiled._sqrt_check(P, L, n, PSD_TOL, W, ev, V)
+        assert sqrt_check(P, L, n, PSD_TOL, W, ev, V)
         np.testing.assert_allclose(L @ L.T, 0.5 * (P + P.T), rtol=0, atol=1e-8 * max(1.0, np.abs(P).max()))
 
 
@@ -246,10 +250,68 @@ def test_specialized_loops_give_the_same_numbers(data, make, monkeypatch):
     md, ys = data
     flt = make(md)
     general = flt.run(ys, [0.2, -0.1], 0.3 * np.eye(2), loglik=True, backend="numba")
-    monkeypatch.setattr(compiled, "SPECIALIZE_UP_TO", 4)
+    monkeypatch.setattr(compiled_run, "SPECIALIZE_UP_TO", 4)
     special = flt.run(ys, [0.2, -0.1], 0.3 * np.eye(2), loglik=True, backend="numba")
-    store = compiled._KERNELS[md._kernels["f"]]
+    store = KERNELS[md._kernels["f"]]
     assert any(key[0] == "steps" and key[-1] == (2, 2, 2, None) for key in store if isinstance(key, tuple))
     for a_, b_ in ((general.means, special.means), (general.covs, special.covs),
                    (general.extras["loglik"], special.extras["loglik"])):
         np.testing.assert_array_equal(a_, b_)
+
+
+class InflatedEKF(EKF):
+    """An EKF whose prediction inflates the covariance (``P⁻ · 1.38``): a step of its own, which the
+    compiled loop (the family's steps) would not run — issue 27's example."""
+
+    def predict(self, state, k):
+        s = super().predict(state, k)
+        return GaussianState(s.mean, 1.38 * s.cov)
+
+
+def test_a_subclass_that_changes_a_step_is_refused_and_runs_its_own_steps_on_numpy():
+    """Never silently run as its parent: ``backend="numba"`` refuses it naming the class and the
+    method; the NumPy loop runs its own steps. Checked against the recursion written out
+    (``P⁻ = 1.38 (0.81 P + 0.1)``, Joseph update): the same scalar operations in another order, so
+    the tolerance is rounding (1e-12 relative, as the rest of this file)."""
+    x = sp.Symbol("x")
+    md = DiscreteModel([x], [0.9 * x], [x], Q=0.1, R=0.5)
+    ys = np.array([[[0.3], [-0.2], [0.5], [0.1], [0.4]]])
+    with pytest.raises(TypeError, match=r"^backend: 'numba' cannot run InflatedEKF: InflatedEKF overrides predict of EKF"):
+        InflatedEKF(md).run(ys, [0.0], [[1.0]], backend="numba")
+    est = InflatedEKF(md).run(ys, [0.0], [[1.0]])
+    m, P, means, covs = 0.0, 1.0, [], []
+    for k, y in enumerate(ys[0, :, 0]):
+        if k > 0:
+            m, P = 0.9 * m, 1.38 * (0.81 * P + 0.1)
+        K = P / (P + 0.5)
+        m, P = m + K * (y - m), (1 - K) ** 2 * P + K**2 * 0.5
+        means.append(m)
+        covs.append(P)
+    close(est.means[0, :, 0], means)
+    close(est.covs[0, :, 0, 0], covs)
+    plain = EKF(md).run(ys, [0.0], [[1.0]])
+    assert est.covs[0, -1, 0, 0] > 1.3 * plain.covs[0, -1, 0, 0]  # 0.2172 against the plain EKF's 0.1586
+    patched = EKF(md)
+    patched.predict = lambda state, k: state  # an instance's own step: refused too
+    assert "predict" in compiled.unsupported(patched)
+
+
+def test_a_subclass_that_overrides_no_step_runs_compiled(data):
+    class Labelled(EKF):
+        """An EKF under another name: its steps are EKF's."""
+
+        name = "labelled-ekf"
+
+    md, ys = data
+    assert compiled.unsupported(Labelled(md)) is None
+    same(Labelled(md).run(ys, [0.2, -0.1], 0.3 * np.eye(2), backend="numba"),
+         EKF(md).run(ys, [0.2, -0.1], 0.3 * np.eye(2)))
+
+
+def test_a_subclass_that_sets_compiled_false_is_refused(data):
+    class NoLoop(UKF):
+        compiled = False
+
+    md, ys = data
+    with pytest.raises(TypeError, match=r"^backend: 'numba' cannot run NoLoop: NoLoop has no compiled loop \(NoLoop sets"):
+        NoLoop(md).run(ys, [0.2, -0.1], 0.3 * np.eye(2), backend="numba")

@@ -188,11 +188,11 @@ def test_a_smoother_that_leaves_a_path_non_finite_marks_it():
 
 
 def test_the_compiled_loop_marks_a_loglik_failure_as_the_run_loop():
-    """``compiled._finish`` (pure Python: no compilation here) on outputs where path 1's term at
+    """``compiled.run.finish`` (pure Python: no compilation here) on outputs where path 1's term at
     step 2 is −inf: marked there with ``loglik_failed``, its outputs from step 2 on NaN, the others
     untouched; with ``on_divergence="raise"`` the run loop's error. A covariance failure at an
     earlier step keeps its own reason."""
-    from nlfilter.filters.compiled import _finish
+    from nlfilter.filters.compiled.run import finish
     flt = KalmanFilter(_model(KalmanFilter))
     B, K = 3, 4
 
@@ -202,13 +202,13 @@ def test_the_compiled_loop_marks_a_loglik_failure_as_the_run_loop():
         return np.ones((B, K, 1)), np.ones((B, K, 1, 1)), ll, np.zeros((B, K, 1)), np.ones((B, K, 1, 1))
 
     m, P, ll, inn, icov = outputs()
-    est = _finish(flt, "mark", np.full(B, -1), (B,), m, P, True, ll, inn, icov)
+    est = finish(flt, "mark", np.full(B, -1), (B,), m, P, True, ll, inn, icov)
     assert est.diverged.tolist() == [False, True, False] and est.diverged_step.tolist() == [-1, 2, -1]
     assert np.argwhere(est.extras["loglik_failed"]).tolist() == [[1, 2]]
     assert np.isnan(est.means[1, 2:]).all() and np.all(est.means[1, :2] == 1) and np.all(est.means[[0, 2]] == 1)
     assert np.isnan(est.extras["loglik"][1, 2:]).all() and np.all(est.extras["loglik"][[0, 2]] == 0)
     with pytest.raises(DivergenceError, match="log-likelihood term is not finite .* at step 2") as err:
-        _finish(flt, "raise", np.full(B, -1), (B,), *outputs()[:2], True, *outputs()[2:])
+        finish(flt, "raise", np.full(B, -1), (B,), *outputs()[:2], True, *outputs()[2:])
     assert err.value.what == "loglik"
     with pytest.raises(DivergenceError, match="covariance lost positive definiteness .* at step 1"):
-        _finish(flt, "raise", np.array([-1, -1, 1]), (B,), *outputs()[:2], True, *outputs()[2:])
+        finish(flt, "raise", np.array([-1, -1, 1]), (B,), *outputs()[:2], True, *outputs()[2:])

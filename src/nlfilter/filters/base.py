@@ -68,6 +68,7 @@ from ..sde_step import ITO_EULER
 from ..ode import ode_step  # noqa: F401  (re-exported: it moved to nlfilter.ode)
 from ..simulation import Simulation
 from ..streams import FILTER, PathRNG
+from .backends import BACKENDS, load, refusal
 from .beliefs import GaussianState, where_paths
 from .checks import check_structure, continuous_precision, gaussian_prior  # noqa: F401  (re-exported)
 from .estimates import Estimates
@@ -328,12 +329,11 @@ class Filter:
                                   backend)
         t0 = 0.0 if t0 is None else t0
         on = V.choice("on_divergence", on_divergence, {"raise", "mark"})
-        backend = V.choice("backend", backend, {"numpy", "numba"})
-        if backend == "numba":
-            from .compiled import unsupported
-            reason = unsupported(self)
+        backend = V.choice("backend", backend, set(BACKENDS))
+        if backend != "numpy":
+            reason = refusal(backend, self)
             if reason is not None:
-                raise TypeError(f"backend: 'numba' cannot run {type(self).__name__}: {reason}; use backend='numpy'")
+                raise TypeError(f"backend: {backend!r} cannot run {type(self).__name__}: {reason}; use backend='numpy'")
         if not isinstance(loglik, (bool, np.bool_)):
             raise TypeError(f"loglik: expected True or False, got {V.shown(loglik)}")
         if loglik and self.likelihood is None:
@@ -361,9 +361,8 @@ class Filter:
             est = Estimates.concatenate(parts)
             out = lambda a: a.reshape(*batch, *a.shape[1:])  # noqa: E731
             return Estimates(*(out(a) for a in est[:4]), MappingProxyType({k: out(v) for k, v in est.extras.items()}))
-        if backend == "numba":
-            from .compiled import run_compiled
-            est = run_compiled(self, yf, batch if not smooth else (B,), m0, P0, on, loglik, progress)
+        if backend != "numpy":
+            est = load(BACKENDS[backend].run)(self, yf, batch if not smooth else (B,), m0, P0, on, loglik, progress)
             return self._smoothed(est, None, yf, t0, batch, on) if smooth else est
         with _blas_limit(self.blas_threads):
             return self._loop(yf, batch, m, m0, P0, initial, rng, t0, on, progress, loglik, smooth)

@@ -55,6 +55,7 @@ class CKF(GaussianFilter):
     """
 
     name = "ckf"
+    compiled = True  # its steps are the family's (backend="numba")
     source = _CKF_SOURCE
 
     def __init__(self, model, *, start: str | None = None):
@@ -76,6 +77,7 @@ class GHKF(GaussianFilter):
     """
 
     name = "ghkf"
+    compiled = True  # its steps are the family's (backend="numba")
     source = _GHKF_SOURCE
 
     def __init__(self, model, *, order: int = 3, start: str | None = None):
@@ -179,6 +181,7 @@ class StatisticallyLinearizedFilter(GaussianFilter):
     """
 
     name = "slf"
+    compiled = True  # its steps are the family's (backend="numba")
     source = _SLF_SOURCE
     needs = ("polynomial",)
 

@@ -61,6 +61,7 @@ class EKF(GaussianFilter):
 
     name = "ekf"
     source = "Jazwinski 1970, Stochastic Processes and Filtering Theory, ch. 8 (extended Kalman filter)"
+    compiled = True  # its steps are the family's (backend="numba")
     needs = ("f_x", "h_x")
 
     def __init__(self, model, *, start: str | None = None):

@@ -99,6 +99,7 @@ class GaussianFilter(DiscreteFilter):
     raises = False  # True: predict/update raise DivergenceError on a failed path (the second-order filters)
     smoother = "rts"
     likelihood = "prediction-error"
+    compiled = True  # its steps run on the compiled loop (backend="numba"; a subclass changing one loses it)
 
     def __init__(self, model, rule, *, start: str | None = None):
         super().__init__(model, start=start)
@@ -198,6 +199,7 @@ class ContinuousDiscreteGaussianFilter(GaussianFilter):
     """
 
     name = "cd-gaussian"
+    compiled = False  # continuous dynamics: no compiled loop
     accepts = ("sde",)
     start = "predict"  # the default: the prior at t0, y_0 at t0 + dt (as simulate_continuous_discrete)
 

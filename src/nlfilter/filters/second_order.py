@@ -68,8 +68,8 @@ import numpy as np  # noqa: F401  (the doctests use it)
 
 from .. import _validate as V
 from .base import ContinuousFilter, DiscreteFilter, GaussianState  # noqa: F401  (GaussianState: the doctests)
-from .gaussian import ContinuousDiscreteGaussianFilter, ContinuousGaussianFilter, GaussianFilter
 from .contractions import gaussian_quartic, hessian_trace, noise_covariance, quarter_outer
+from .gaussian import ContinuousDiscreteGaussianFilter, ContinuousGaussianFilter, GaussianFilter
 from .rules import FORMS, Taylor2
 
 
@@ -118,6 +118,7 @@ class SecondOrderFilter(GaussianFilter):
     family = "second-order"
     needs = ("f_x", "f_xx", "h_x", "h_xx")
     raises = True
+    compiled = True  # its steps are the family's (backend="numba")
 
     def __init__(self, model, *, form: str = "truncated", start: str | None = None):
         DiscreteFilter.__init__(self, model, start=start)

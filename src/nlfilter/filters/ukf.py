@@ -48,6 +48,7 @@ class UKF(GaussianFilter):
     linear model every choice is the Kalman filter. ``augmented`` (attribute): whether either is."""
 
     name = "ukf"
+    compiled = True  # its steps are the family's (backend="numba"; augmented sigma points: refused)
     source = "Julier & Uhlmann 1997; van der Merwe 2004 (scaled sigma points); Wan & van der Merwe 2000 (augmented)"
     structures = ("state-dependent R", "cross noise", "non-additive noise", "non-additive measurement noise")
 

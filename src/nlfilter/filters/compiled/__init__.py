@@ -1,0 +1,65 @@
+"""The compiled run loop (``run(..., backend="numba")``): the discrete Gaussian filters in one
+numba-compiled loop over paths and steps.
+
+The NumPy loop of :meth:`~nlfilter.filters.base.Filter.run` is the reference; this is the same
+filter, step for step, with the model's f, h, G and their derivatives generated from its SymPy
+expressions as scalar code (:func:`model_kernels`) and the predict/update of the skeleton of
+:mod:`nlfilter.filters.gaussian` written out for one path at a time, without temporaries:
+
+==============================  ================================================================
+rule (filters)                  compiled step
+==============================  ================================================================
+Taylor-1 (``ekf``)              ``m⁻ = f(m)``, ``P⁻ = F P Fᵀ + G Q Gᵀ``; Joseph-form update
+node rules (``ukf``, ``ckf``,   ``X_i = m + L z_i`` (``P = L Lᵀ``, Cholesky; eigen root where P is
+``ghkf``, ``slf``)              only semi-definite), weighted sums as :class:`~nlfilter.filters.rules.NodeRule`
+Taylor-2 (``truncated``, …,     seed 004 eqs. 18-23 in every form of :data:`~nlfilter.filters.rules.FORMS`:
+``modified-gaussian``)          ½(P g_xx), the fourth-moment terms, the forcing tensor, S screened
+==============================  ================================================================
+
+A model with one state, one measurement and one noise runs the EKF's scalar batch loop
+(:func:`~.loops.steps_scalar_`: every path at each step, the arithmetic of NumPy's scalar branch, bit for
+bit); models up to :data:`~.run.SPECIALIZE_UP_TO` states and measurements get loops with their
+dimensions compiled in and the helpers inlined (the same bits, faster, longer to compile).
+
+The same conventions as the NumPy loop, which the tests hold it to (1e-12): both starts, partly
+missing measurements (the observed block, exactly; a step missing on every path only predicts),
+the divergence test after each predict and update (finite, smallest eigenvalue of the
+symmetrized covariance ≥ −1e-9·max(1, max|P|); a failed square root, a singular or, for Taylor-2,
+indefinite innovation covariance), ``on_divergence`` raise/mark with NaN from the step on, and
+``loglik=True`` (:func:`~nlfilter.filters.linalg.innovation_info`'s outputs). Where a covariance
+is only semi-definite the node rules take the eigen root ``U √w`` of cyclic Jacobi rotations
+(:func:`~.path_linalg.jacobi_`, no LAPACK inside the loop): the same points as NumPy's root up to the signs of
+the eigenvectors, which a symmetric rule does not see; only repeated nonzero eigenvalues leave a
+rotation free (then any root is as right, and the moments agree to the rule's exactness).
+
+What it takes: a filter whose class declares ``compiled = True`` (the discrete Gaussian filters
+above), with no step overridden below it (:func:`steps_refusal`); a :class:`~nlfilter.models.DiscreteModel` stated in SymPy, additive noise, constant
+Q and R, no correlated noise, parameters with one value each (arrays over time, inputs: the NumPy
+loop); Taylor-2 also a G free of the states. :func:`unsupported` names what a filter or model
+lacks; ``run`` then raises a TypeError naming ``backend``. Compilation (numba) happens at the first
+run of each model and rule kind (seconds), shared by every :meth:`~nlfilter.models.Model.with_params`
+copy; later runs reuse it.
+
+The package, one concept a module:
+
+======================  ============================================================================
+:mod:`.support`         numba, the filter's declaration (``compiled = True``, :func:`steps_refusal`)
+                        and :func:`unsupported`
+:mod:`.kernels`         the model's functions as numba scalar code (:func:`model_kernels`)
+:mod:`.path_linalg`     one-path linear algebra: Cholesky, the divergence test, Jacobi, LU, products
+:mod:`.step_kernels`    one-path step pieces: covariances, node moments, Taylor-2 terms, the update
+:mod:`.rule_kernels`    one predict and one update kernel per rule kind, and their work arrays
+:mod:`.loops`           one loop template for every rule kind; the scalar EKF's batch loop
+:mod:`.build`           the template compiled with a kind's kernels and the model's functions, cached
+:mod:`.run`             :func:`run_compiled` and :func:`~.run.finish`
+======================  ============================================================================
+"""
+
+from __future__ import annotations
+
+from .kernels import model_kernels, scalar_kernels
+from .run import run_compiled
+from .support import ALLOWED_OVERRIDES, available, steps_refusal, unsupported
+
+__all__ = ["available", "unsupported", "steps_refusal", "ALLOWED_OVERRIDES", "model_kernels", "scalar_kernels",
+           "run_compiled"]

@@ -1,0 +1,109 @@
+"""What the compiled loop takes: numba, the filter's declaration (``compiled = True`` on the class
+whose steps are the family's, overridden by no subclass) and the model's structure.
+
+:func:`steps_refusal` is the declaration rule alone (the rule a backend that chooses by itself
+reuses); :func:`unsupported` adds numba, the rule and the model.
+"""
+
+from __future__ import annotations
+
+try:  # numba is a core dependency; a broken install leaves the NumPy loop
+    import numba as nb
+except Exception as _exc:  # pragma: no cover - exercised only without numba
+    nb, IMPORT_ERROR = None, _exc
+else:
+    IMPORT_ERROR = None
+
+#: the rule kinds (``rule.kind``) the compiled loop has a step kernel for
+KINDS = ("taylor1", "nodes", "taylor2")
+
+#: what a subclass of a class declaring ``compiled = True`` may redefine and still run compiled:
+#: its constructor and representation. Any other method of the family it redefines (``predict``,
+#: ``update``, ``_condition``, ``_predict``, ``init``, ``summary``, ``output``, ... — the NumPy loop's
+#: steps, whatever their names become) would run as the declaring class's on the compiled loop,
+#: silently, so the filter is refused there (and runs on the NumPy loop)
+ALLOWED_OVERRIDES = ("__init__", "__repr__", "__str__", "__init_subclass__", "__getstate__", "__setstate__",
+                     "__reduce__", "__reduce_ex__")
+
+
+def _methods(cls) -> set:
+    """The names of the methods (functions, static/class methods, properties) ``cls`` defines itself."""
+    return {k for k, v in vars(cls).items() if callable(v) or isinstance(v, (staticmethod, classmethod, property))}
+
+
+def available() -> bool:
+    """Whether numba imports (the ``"numba"`` backend can run)."""
+    return nb is not None
+
+
+def jit(fn, **kw):
+    """``fn`` compiled by numba (lazily, at its first call); ``fn`` itself without numba."""
+    if nb is None:  # pragma: no cover - exercised only without numba
+        return fn
+    # error_model="numpy": a division by zero gives inf/NaN (caught by the divergence test), as in
+    # NumPy, instead of raising ZeroDivisionError
+    return nb.njit(error_model="numpy", nogil=True, **kw)(fn)
+
+
+def steps_refusal(flt) -> str | None:
+    """Why ``flt``'s steps are not those of a class declaring ``compiled = True``, or None.
+
+    The class nearest ``type(flt)`` in its MRO that sets ``compiled`` in its own body must set it
+    True, and no class before it (a user's subclass) nor the instance may redefine a method of the
+    family but those of :data:`ALLOWED_OVERRIDES`: a subclass that changes a step never runs as its parent.
+    """
+    cls = type(flt)
+    mro = cls.__mro__
+    at = next((i for i, c in enumerate(mro) if "compiled" in vars(c)), None)
+    if at is None or not vars(mro[at])["compiled"]:
+        by = "" if at is None else f" ({mro[at].__name__} sets compiled = False)"
+        return (f"{cls.__name__} has no compiled loop{by}; it runs the discrete Gaussian filters (ekf, ukf, ckf, "
+                "ghkf, slf, the discrete second-order forms)")
+    family = set().union(*(_methods(c) for c in mro[at:])) - set(ALLOWED_OVERRIDES)
+    for c in mro[:at]:
+        for meth in sorted(_methods(c) & family):
+            return (f"{c.__name__} overrides {meth} of {mro[at].__name__}, whose steps the compiled loop runs "
+                    f"(a subclass that changes a step runs on the NumPy loop; set compiled = True in "
+                    f"{c.__name__} only if its steps are still {mro[at].__name__}'s)")
+    for meth in sorted(family & set(vars(flt))):
+        return f"the filter's own attribute {meth} replaces the step of {mro[at].__name__}"
+    return None
+
+
+def rule_kind(flt):
+    """The rule's step kernel (``rule.kind``: ``"taylor1"``, ``"nodes"``, ``"taylor2"``), or None."""
+    kind = getattr(getattr(flt, "rule", None), "kind", None)
+    return kind if kind in KINDS else None
+
+
+def unsupported(flt) -> str | None:
+    """Why ``flt`` cannot run on the compiled loop, or None when it can."""
+    if nb is None:
+        return f"numba does not import here ({IMPORT_ERROR!r})"
+    name = type(flt).__name__
+    reason = steps_refusal(flt)
+    if reason is not None:
+        return reason
+    kind = rule_kind(flt)
+    if kind is None:
+        return f"{name}'s rule {type(getattr(flt, 'rule', None)).__name__} has no compiled form"
+    if getattr(flt, "augmented", False):
+        return f"{name} with augmented sigma points has no compiled form"
+    md = flt.model
+    if getattr(md, "kind", None) != "discrete" or md.expressions is None:
+        return "the model must be a DiscreteModel stated in SymPy (not from_functions)"
+    if not (md.additive and md.additive_measurement):
+        return "the model's noise enters f or h non-additively (noise=, meas_noise=)"
+    if md.piecewise:
+        return (f"the model uses {', '.join(sorted(md.piecewise))}, which the compiled code does not take (NumPy evaluates them, "
+                "with the derivative convention of nlfilter.models)")
+    if md.cross_noise is not None:
+        return "the model has correlated process and measurement noise (cross_noise)"
+    if not md.R_constant:
+        return "the model's R depends on the state"
+    vals = md._values
+    if vals.arrays or vals.unset or md._fold:
+        return "the model has parameters or inputs that vary over time (arrays) or are not given"
+    if kind == "taylor2" and not md._G_fixed:
+        return "the second-order filters' compiled loop needs a G that depends on neither the state nor the time"
+    return None
