@@ -153,10 +153,14 @@ class GaussianFilter(DiscreteFilter):
         new, bad, _ = self._conditioned(state, y, k)
         return check_paths(self, new, bad, "updated (or innovation) covariance", k) if self.raises else new
 
+    # the run loop's steps: ``predict``/``update`` themselves (so that a subclass redefining one is
+    # run with it), except where they raise (``raises``): then the failed paths come back as data
     def _predict_unchecked(self, state, k):
-        return self._predict(state, k), None
+        return (self._predict(state, k) if self.raises else self.predict(state, k)), None
 
     def _update_unchecked(self, state, y, k):
+        if not self.raises:
+            return self.update(state, y, k), None
         new, bad, _ = self._conditioned(state, y, k)
         return new, bad
 

@@ -75,18 +75,11 @@ def steps_scalar_(f, fx, h, hx, G, ys, m0, P0, p, Q, R, GQG0, G_const, offset, a
         tp = float(k + offset - 1)
         tu = float(k + offset)
         for b in range(B):
-            if step[b] >= 0:  # diverged earlier: NaN from its step on
-                outm[k, b] = nan
-                outP[k, b] = nan
-                if want:
-                    ll[k, b] = nan
-                    inn[k, b] = nan
-                    icov[k, b] = nan
-                continue
+            alive = step[b] < 0  # a path that diverged earlier: NaN from its step on
             m = mB[b]
             P = PB[b]
-            ok = True
-            if pred:
+            ok = alive
+            if ok and pred:
                 F = fx(m, tp, p)
                 if G_const:
                     N = GQG0[0, 0]
@@ -113,7 +106,8 @@ def steps_scalar_(f, fx, h, hx, G, ys, m0, P0, p, Q, R, GQG0, G_const, offset, a
                         lk = -0.5 * (e * e / S + math.log(S) + LOG_2PI) if S > 0.0 else nan
                         ek, sk = e, S
             if not ok:
-                step[b] = k
+                if alive:
+                    step[b] = k
                 m, P, lk, ek, sk = nan, nan, nan, nan, nan
             mB[b] = m
             PB[b] = P

@@ -13,7 +13,7 @@ import math
 
 from .support import jit
 
-__all__ = ["SOURCES", "chol", "psd_ok", "jacobi", "psd_check", "sqrt_check", "sqrt_psd", "lu", "lu_solve", "mm",
+__all__ = ["SOURCES", "chol", "psd_ok", "jacobi", "psd_check", "sqrt_check", "sqrt_psd", "lu", "lu_solve", "mm", "symmetrize",
            "transpose"]
 
 
@@ -221,6 +221,15 @@ def mm_(A, B, C, ni, nk, nj, acc):
                     C[i, j] += v * B[q, j]
 
 
+def symmetrize_(P, n):
+    """``P[:n, :n] = ½ (P + Pᵀ)`` in place."""
+    for i in range(n):
+        for j in range(i):
+            v = 0.5 * (P[i, j] + P[j, i])
+            P[i, j] = v
+            P[j, i] = v
+
+
 def transpose_(A, At, ni, nj):
     """``At[:nj, :ni] = A[:ni, :nj]ᵀ``."""
     for i in range(ni):
@@ -229,7 +238,7 @@ def transpose_(A, At, ni, nj):
 
 
 #: the Python sources of this module's kernels (compiled below; inlined by :mod:`.build`)
-SOURCES = (chol_, psd_ok_, jacobi_, psd_check_, sqrt_check_, sqrt_psd_, lu_, lu_solve_, mm_, transpose_)
+SOURCES = (chol_, psd_ok_, jacobi_, psd_check_, sqrt_check_, sqrt_psd_, lu_, lu_solve_, mm_, symmetrize_, transpose_)
 
 # raw functions (_nrt=False): no reference counting; with it, every array argument of a call costs
 # an atomic incref/decref pair (~60 ns a call, measured), and a raw function can call raw ones only
@@ -242,4 +251,5 @@ sqrt_psd = jit(sqrt_psd_, _nrt=False)
 lu = jit(lu_, _nrt=False)
 lu_solve = jit(lu_solve_, _nrt=False)
 mm = jit(mm_, _nrt=False)
+symmetrize = jit(symmetrize_, _nrt=False)
 transpose = jit(transpose_, _nrt=False)

@@ -23,8 +23,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from .path_linalg import psd_check
-from .step_kernels import (add_gqg, condition, hess_trace, meas_cov, nodes_moments, nodes_points, predict_cov,
+from .path_linalg import mm, psd_check
+from .step_kernels import (add_gqg, add_half_trace, condition, meas_cov, nodes_moments, nodes_points, predict_cov,
                            quartic, work)
 
 __all__ = ["KERNELS_BY_KIND", "ALLOC", "alloc_taylor1", "alloc_nodes", "alloc_taylor2"]
@@ -141,15 +141,13 @@ def alloc_taylor2(n, mdim, r, N=0):
 def predict_taylor2_(f, fx, fxx, m, P, t, p, Q, GQG0, G_const, tol, ks, ws, n, mdim):
     """``m⁻ = f + ½(P f_xx)``, ``P⁻ = F P Fᵀ + G Q Gᵀ`` + the form's fourth-moment term (004 eqs.
     18-19), symmetrized."""
-    second, dyn_kind, meas_kind, force_kind, joseph = ks
-    mp, F, Hm, C, S, FP, Af, Ah, tr, AP, Cf, M, yhat, W, L, ev, w, Ht = ws
+    second, dyn_kind = ks[0], ks[1]  # the prediction reads the form's prediction kind only
+    mp, F, FP, Af, tr, AP, Cf, W, L, ev = ws[0], ws[1], ws[5], ws[6], ws[8], ws[9], ws[10], ws[13], ws[14], ws[15]
     f(m, t, p, mp)
     fx(m, t, p, F)
     if second:
         fxx(m, t, p, Af)
-        hess_trace(P, Af, n, n, tr)
-        for i in range(n):
-            mp[i] += 0.5 * tr[i]
+        add_half_trace(P, Af, n, n, tr, mp)
     predict_cov(F, P, GQG0, Cf, FP, W, n)  # F P Fᵀ + G Q Gᵀ (004 eq. 19)
     if second:
         quartic(dyn_kind, P, Af, tr, n, n, AP, Cf)
@@ -170,9 +168,7 @@ def update_taylor2_(h, hx, hxx, m, P, y, t, p, R, tol, want, l1, i1, c1, ks, ws,
     hx(m, t, p, Hm)
     if second:
         hxx(m, t, p, Ah)
-        hess_trace(P, Ah, n, mdim, tr)
-        for a in range(mdim):
-            yhat[a] += 0.5 * tr[a]
+        add_half_trace(P, Ah, n, mdim, tr, yhat)
     meas_cov(P, Hm, R, Ht, C, S, n, mdim)  # C = P Hᵀ, S = H C + R
     force = False
     if second:
@@ -186,18 +182,11 @@ def update_taylor2_(h, hx, hxx, m, P, y, t, p, R, tol, want, l1, i1, c1, ks, ws,
         elif force_kind == 2:  # M_ijk = (P h_xx^(k) P)_ij
             force = True
             for a in range(mdim):
-                for i in range(n):
-                    for c in range(n):
-                        s = 0.0
-                        for q in range(n):
-                            s += P[i, q] * Ah[a, q, c]
-                        FP[i, c] = s
+                mm(P, Ah[a], FP, n, n, n, False)  # P h_xx^(a)
+                mm(FP, P, Cf, n, n, n, False)  # (P h_xx^(a)) P
                 for i in range(n):
                     for j in range(n):
-                        s = 0.0
-                        for c in range(n):
-                            s += FP[i, c] * P[c, j]
-                        M[i, j, a] = s
+                        M[i, j, a] = Cf[i, j]
     ok = condition(m, P, y, yhat, S, C, Hm, R, joseph, M, force, True, n, mdim, w, want, l1, i1, c1)
     return ok and psd_check(m, P, n, tol, W, L, ev)
 

@@ -13,11 +13,11 @@ import math
 
 import numpy as np
 
-from .path_linalg import chol, lu, lu_solve, mm, sqrt_check, transpose
+from .path_linalg import chol, lu, lu_solve, mm, sqrt_check, symmetrize, transpose
 from .support import jit
 
 __all__ = ["SOURCES", "LOG_2PI", "work", "predict_cov", "meas_cov", "add_gqg", "condition", "write", "mark",
-           "nodes_moments", "nodes_points", "hess_trace", "quartic"]
+           "nodes_moments", "nodes_points", "hess_trace", "add_half_trace", "quartic"]
 
 
 def predict_cov_(F, P, N, out, T1, T2, n):
@@ -95,11 +95,7 @@ def condition_(m, P, y, yhat, S, C, H, R, joseph, M, forcing, screen, n, mdim, w
     if mo == 0:  # nothing measured on this path: K = 0 (P symmetrized, as the batched update does)
         if want:
             ll_out[0] = 0.0
-        for i in range(n):
-            for j in range(i):
-                v = 0.5 * (P[i, j] + P[j, i])
-                P[i, j] = v
-                P[j, i] = v
+        symmetrize(P, n)
         return True
     for a in range(mo):  # the observed blocks
         ia = idx[a]
@@ -167,11 +163,7 @@ def condition_(m, P, y, yhat, S, C, H, R, joseph, M, forcing, screen, n, mdim, w
                 for a in range(mo):
                     v += M[i, j, idx[a]] * u[a]
                 P[i, j] += v
-    for i in range(n):
-        for j in range(i):
-            v = 0.5 * (P[i, j] + P[j, i])
-            P[i, j] = v
-            P[j, i] = v
+    symmetrize(P, n)
     return True
 
 
@@ -237,6 +229,13 @@ def hess_trace_(P, A, n, pdim, out):
             for q in range(n):
                 s += P[j, q] * A[i, j, q]
         out[i] = s
+
+
+def add_half_trace_(P, A, n, pdim, tr, mean):
+    """``mean += ½ (P A)`` (the second-order mean of 004 eqs. 18, 20; ``tr`` keeps ``(P A)``)."""
+    hess_trace(P, A, n, pdim, tr)
+    for i in range(pdim):
+        mean[i] += 0.5 * tr[i]
 
 
 def quartic_(kind, P, A, tr, n, pdim, AP, out):
@@ -307,7 +306,7 @@ def work(n, mdim):
 
 #: the Python sources of this module's kernels (compiled below; inlined by :mod:`.build`)
 SOURCES = (predict_cov_, meas_cov_, add_gqg_, condition_, write_, mark_, nodes_moments_, nodes_points_, hess_trace_,
-           quartic_)
+           add_half_trace_, quartic_)
 
 # raw functions (no reference counting, as path_linalg's); not inlined here (numba's
 # inline="always" gains 30 % at n ≤ 2, nothing from n = 4, and triples the compile time: 10-20 s
@@ -321,4 +320,5 @@ mark = jit(mark_, _nrt=False)
 nodes_moments = jit(nodes_moments_, _nrt=False)
 nodes_points = jit(nodes_points_, _nrt=False)
 hess_trace = jit(hess_trace_, _nrt=False)
+add_half_trace = jit(add_half_trace_, _nrt=False)
 quartic = jit(quartic_, _nrt=False)
