@@ -280,10 +280,12 @@ class NodeRule:
         must be discarded: the filter poisons them so that ``run`` raises or marks them)."""
         z, wm, wc = self.unit_nodes(m.shape[-1])
         L, bad = sqrt_psd(P)
-        if m.shape[-1] < 4:
-            X = m[..., None, :] + np.einsum("...ij,pj->...pi", L, z)  # X_p = m + L z_p
-        else:  # the same as a matmul (rows z_pᵀ Lᵀ), several times faster at many nodes
-            X = m[..., None, :] + z @ np.swapaxes(L, -1, -2)
+        Lt = np.swapaxes(L, -1, -2)  # rows: the columns of L
+        if (np.count_nonzero(z, axis=1) <= 1).all():  # nodes on the axes (unscented, cubature):
+            col = np.argmax(z != 0, axis=1)  # X_p = m + z_pj L e_j, a gather (the same numbers as the
+            X = m[..., None, :] + Lt[..., col, :] * z[np.arange(len(z)), col][:, None]  # product, faster)
+        else:  # X_p = m + L z_p as one batched product (an einsum over the nodes is a naive loop)
+            X = m[..., None, :] + z @ Lt
         return X, wm, wc, bad
 
     def needs(self, model):
