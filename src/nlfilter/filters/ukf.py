@@ -26,7 +26,7 @@ from .. import _validate as V
 from .base import DiscreteFilter, GaussianState  # noqa: F401  (GaussianState: the doctests)
 from .gaussian import ContinuousDiscreteGaussianFilter, GaussianFilter
 from .linalg import gaussian_update, poison
-from .rules import Unscented, sigma_points
+from .rules import Unscented
 
 
 class UKF(GaussianFilter):
@@ -74,10 +74,6 @@ class UKF(GaussianFilter):
         self.augmented = self._aug_predict or not add_h
         self._set_rule(Unscented(alpha, beta, float(kappa)))
         self.alpha, self.beta, self.kappa = self.rule.alpha, self.rule.beta, self.rule.kappa
-        self._aug_rule = Unscented(alpha, beta, float(kappa))  # n + κ > 0 holds in any larger dimension
-
-    def _points(self, state):
-        return sigma_points(state.mean, state.cov, self.alpha, self.beta, self.kappa)
 
     def _predict(self, state, k, cross: bool = False):
         """With ``augmented``: the prediction over the sigma points of ``(x, w)`` (class docstring)."""
@@ -89,7 +85,8 @@ class UKF(GaussianFilter):
         def f(Z, t):  # x⁺ = f(x, w) on augmented points Z = (x, w)
             return md.f_aug(Z, t) if not getattr(md, "additive", True) else md.transition(Z[..., :n], Z[..., n:], t)
 
-        mo = self._aug_rule.moments(_augmented(state, md.Q), f, self._time(k), cross=cross)
+        # the filter's own rule on (x, w): its n + κ > 0 holds in any larger dimension
+        mo = self.rule.moments(_augmented(state, md.Q), f, self._time(k), cross=cross)
         new = GaussianState(mo.mean, mo.cov)
         new = new if mo.bad is None else poison(new, mo.bad)
         return (new, mo.cross[..., :n, :]) if cross else new
@@ -100,7 +97,7 @@ class UKF(GaussianFilter):
         md = self.model
         if getattr(md, "additive_measurement", True) or R is not None:
             return super()._condition(state, y, t, R=R)
-        mo = self._aug_rule.moments(_augmented(state, md.R), md.h_aug, t)
+        mo = self.rule.moments(_augmented(state, md.R), md.h_aug, t)
         new = gaussian_update(state, y, mo.mean, mo.cov, mo.cross[..., :md.n, :])  # S = Cov[h(x, v)], C = Cov[x, h]
         return new, mo.bad, (mo.mean, mo.cov)
 
