@@ -87,6 +87,20 @@ def _fuzz_table():
 
 def pytest_configure(config):
     config.fuzz_table = _fuzz_table()
+    # the compiled loops' disk cache: one folder for the whole run, the xdist workers included (they
+    # inherit the controller's environment), so a loop one worker compiled is loaded by the others;
+    # never the user's cache, and removed at the end (pytest_unconfigure)
+    if "NLFILTER_CACHE" not in os.environ and not hasattr(config, "workerinput"):
+        import tempfile
+        config.compiled_cache = os.environ["NLFILTER_CACHE"] = tempfile.mkdtemp(prefix="nlfilter-test-compiled-")
+
+
+def pytest_unconfigure(config):
+    where = getattr(config, "compiled_cache", None)
+    if where is not None:
+        import shutil
+        shutil.rmtree(where, ignore_errors=True)
+        os.environ.pop("NLFILTER_CACHE", None)
 
 
 def pytest_sessionfinish(session):

@@ -95,7 +95,7 @@ def test_compiled_loop_generates_through_codegen(name):
              "f_xx": (first_derivatives(list(fx), states), (n, n, n)),
              "h_xx": (first_derivatives(list(hx), states), (m, n, n))}
     for w, (exprs, shape) in specs.items():
-        assert store["src_" + w] == array_source("g_" + w.replace("_", ""), exprs, shape, states, time, ps), w
+        assert store[w].source == array_source("g_" + w.replace("_", ""), exprs, shape, states, time, ps), w
     zero_loop = array_source("g", specs["f_xx"][0], (n, n, n), states, time, ps)
     assert ("for i0 in range" in zero_loop) == (name == "chain")
 

@@ -167,7 +167,7 @@ def _make_filter(filter, filter_options, dt, start):
 
 def fit(model, ys, params0, *, filter="ukf", m0=None, P0=None, initial=None, bounds=None, method: str = "L-BFGS-B",
         dt: float | None = None, start: str | None = None, filter_options=None, rng=0, se: bool = True,
-        options=None, progress: bool = False, backend: str = "numpy") -> FitResult:
+        options=None, progress: bool = False, backend: str = "auto") -> FitResult:
     """Maximum-likelihood estimate of the model parameters named in ``params0``.
 
     Parameters
@@ -193,7 +193,8 @@ def fit(model, ys, params0, *, filter="ukf", m0=None, P0=None, initial=None, bou
     progress : show the number of evaluations and the best log-likelihood (tqdm)
     backend : the filter's run loop (``Filter.run``): ``"numba"`` compiles the discrete EKF, UKF,
         CKF, GHKF, SLF and second-order filters once for every parameter value (the parameters
-        are read at run time), often 2-10× faster per evaluation
+        are read at run time), often 2-10× faster per evaluation; ``"auto"`` (default) chooses
+        once for the whole fit, counting its evaluations (:meth:`Filter.backend_for`)
 
     Returns
     -------
@@ -234,6 +235,10 @@ def fit(model, ys, params0, *, filter="ukf", m0=None, P0=None, initial=None, bou
     label = label or getattr(first, "name", type(first).__name__)
     if getattr(first, "likelihood", None) is None:
         raise TypeError(f"filter: {label} defines no log-likelihood; use a Gaussian filter, grid or particle")
+    if backend == "auto":  # one choice for the fit, counting its evaluations (L-BFGS-B: ~20 gradients)
+        p = len(names)
+        B, T = int(np.prod(np.shape(ys)[:-2])), np.shape(ys)[-2]
+        backend = first.backend_for(B, T, repeats=20 * (p + 1) + (2 * p * p + 1 if se else 0))[0]
     why = {}
 
     def loglik(theta):

@@ -21,7 +21,7 @@ from nlfilter import DiscreteModel, SDEModel
 from nlfilter.errors import DivergenceError
 from nlfilter.filters import REGISTRY, compiled
 from nlfilter.filters.beliefs import GaussianState
-from nlfilter.filters.compiled import run as compiled_run
+from nlfilter.filters.compiled import build as compiled_build
 from nlfilter.filters.compiled.kernels import KERNELS
 from nlfilter.filters.compiled.path_linalg import psd_check, sqrt_check
 from nlfilter.filters.cubature import CKF, GHKF, StatisticallyLinearizedFilter
@@ -44,7 +44,7 @@ def general_loops(monkeypatch):
     """The general (not dimension-specialized) loops: 3-7 s of compilation per model and rule kind
     instead of 15-45 s; the specialized loops do the same arithmetic, which
     :func:`test_specialized_loops_give_the_same_numbers` checks to the last bit."""
-    monkeypatch.setattr(compiled_run, "SPECIALIZE_UP_TO", 0)
+    monkeypatch.setattr(compiled_build, "SPECIALIZE_UP_TO", 0)
 
 x1, x2, a, k = sp.symbols("x1 x2 a k")
 
@@ -250,7 +250,7 @@ def test_specialized_loops_give_the_same_numbers(data, make, monkeypatch):
     md, ys = data
     flt = make(md)
     general = flt.run(ys, [0.2, -0.1], 0.3 * np.eye(2), loglik=True, backend="numba")
-    monkeypatch.setattr(compiled_run, "SPECIALIZE_UP_TO", 4)
+    monkeypatch.setattr(compiled_build, "SPECIALIZE_UP_TO", 4)
     special = flt.run(ys, [0.2, -0.1], 0.3 * np.eye(2), loglik=True, backend="numba")
     store = KERNELS[md._kernels["f"]]
     assert any(key[0] == "steps" and key[-1] == (2, 2, 2, None) for key in store if isinstance(key, tuple))

@@ -13,7 +13,7 @@ from __future__ import annotations
 from importlib import import_module
 from typing import NamedTuple
 
-__all__ = ["Backend", "BACKENDS", "load", "refusal"]
+__all__ = ["Backend", "BACKENDS", "AUTO", "load", "refusal"]
 
 
 class Backend(NamedTuple):
@@ -29,6 +29,9 @@ BACKENDS = {
     "numpy": Backend("nlfilter.filters.base:Filter._loop", None),
     "numba": Backend("nlfilter.filters.compiled:run_compiled", "nlfilter.filters.compiled:unsupported"),
 }
+
+#: ``backend="auto"``: ``"module:function"`` of ``(flt, B, T, repeats) -> (backend, why)``
+AUTO = "nlfilter.filters.compiled.choice:choose"
 
 
 def load(path: str):

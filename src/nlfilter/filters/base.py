@@ -68,7 +68,7 @@ from ..sde_step import ITO_EULER
 from ..ode import ode_step  # noqa: F401  (re-exported: it moved to nlfilter.ode)
 from ..simulation import Simulation
 from ..streams import FILTER, PathRNG
-from .backends import BACKENDS, load, refusal
+from .backends import AUTO, BACKENDS, load, refusal
 from .beliefs import GaussianState, where_paths
 from .checks import check_structure, continuous_precision, gaussian_prior  # noqa: F401  (re-exported)
 from .estimates import Estimates
@@ -251,7 +251,7 @@ class Filter:
     # -- the one loop ------------------------------------------------------------------------------
     def run(self, ys, m0=None, P0=None, *, initial=None, rng=None, t0: float | None = None,
             on_divergence: str = "raise", progress: bool = False, chunk: int | None = None,
-            loglik: bool = False, backend: str = "numpy") -> Estimates:
+            loglik: bool = False, backend: str = "auto") -> Estimates:
         """Filter a batch of measurement sequences ``ys (..., T, m)`` (increments for a
         continuous-time filter) from the prior ``(m0, P0)``.
 
@@ -286,11 +286,15 @@ class Filter:
             raised or marked as ``on_divergence`` says, the step flagged in the bool
             ``extras["loglik_failed"] (..., T)``; a filter whose ``likelihood`` is None refuses
             (TypeError)
-        backend : ``"numpy"`` (default: this loop) or ``"numba"``: the same filter compiled, one
-            loop over paths and steps (:mod:`nlfilter.filters.compiled`: the discrete EKF, UKF,
-            CKF, GHKF, SLF and second-order filters on SymPy models; the same estimates to
-            rounding, tested to 1e-12; compiled at the first run of a model, seconds); a filter
-            or model it does not take raises a TypeError naming backend
+        backend : ``"auto"`` (default), ``"numpy"`` (this loop) or ``"numba"``: the same filter
+            compiled, one loop over paths and steps (:mod:`nlfilter.filters.compiled`: the discrete
+            EKF, UKF, CKF, GHKF, SLF and second-order filters on SymPy models; the same estimates
+            to rounding, tested to 1e-12; compiled at the first run of a model, seconds, and kept
+            on disk for the next process, ``NLFILTER_CACHE``); ``"numba"`` refuses a filter or
+            model it does not take with a TypeError naming backend. ``"auto"`` runs compiled
+            where the loop is loaded, in the disk cache, or repaid by the run's size, the NumPy
+            loop otherwise (:func:`~nlfilter.filters.compiled.choice.choose`; which one it takes:
+            :meth:`backend_for`)
 
         Returns
         -------
@@ -301,7 +305,7 @@ class Filter:
 
     def smooth(self, ys, m0=None, P0=None, *, initial=None, rng=None, t0: float | None = None,
                on_divergence: str = "raise", progress: bool = False, chunk: int | None = None,
-               backend: str = "numpy") -> Estimates:
+               backend: str = "auto") -> Estimates:
         """Smoothed estimates of a batch of measurement sequences: the filter's forward pass, then
         its family's backward pass (``smoother``: the Rauch–Tung–Striebel recursion of the Gaussian
         filters through their moment rule, the forward–backward grid smoother, the particle
@@ -319,7 +323,15 @@ class Filter:
                             "the Gaussian filters, the grid and the particle filters have one")
         return self._drive(ys, m0, P0, initial, rng, t0, on_divergence, progress, chunk, False, True, backend)
 
-    def _drive(self, ys, m0, P0, initial, rng, t0, on_divergence, progress, chunk, loglik, smooth, backend="numpy"):
+    def backend_for(self, B: int, T: int, *, repeats: int = 1) -> tuple:
+        """``(backend, why)``: the loop ``backend="auto"`` runs for ``B`` paths × ``T`` steps
+        (``repeats``: runs of that size to come, as a fit's evaluations);
+        :func:`~nlfilter.filters.compiled.choice.choose` states the rule."""
+        if not getattr(self, "compiled", False):  # no class of this filter's declares a compiled loop
+            return "numpy", f"{type(self).__name__} has no compiled loop"
+        return tuple(load(AUTO)(self, B, T, repeats))
+
+    def _drive(self, ys, m0, P0, initial, rng, t0, on_divergence, progress, chunk, loglik, smooth, backend="auto"):
         """The one loop behind :meth:`run` and :meth:`smooth`."""
         if isinstance(ys, Simulation):  # the data's convention (for_timing)
             flt, t0 = self.for_timing(ys.timing, t0=t0)
@@ -329,8 +341,8 @@ class Filter:
                                   backend)
         t0 = 0.0 if t0 is None else t0
         on = V.choice("on_divergence", on_divergence, {"raise", "mark"})
-        backend = V.choice("backend", backend, set(BACKENDS))
-        if backend != "numpy":
+        backend = V.choice("backend", backend, {*BACKENDS, "auto"})
+        if backend not in ("numpy", "auto"):
             reason = refusal(backend, self)
             if reason is not None:
                 raise TypeError(f"backend: {backend!r} cannot run {type(self).__name__}: {reason}; use backend='numpy'")
@@ -342,6 +354,8 @@ class Filter:
         batch, T, m = ys.shape[:-2], ys.shape[-2], ys.shape[-1]
         B = math.prod(batch)
         yf = ys.reshape(B, T, m)
+        if backend == "auto":  # after the data's checks: a run that fails them fails alike on either loop
+            backend = "numpy" if initial is not None else self.backend_for(B, T)[0]
         t0 = V.real("t0", t0)
         if self.time != "continuous" and t0 != 0.0:
             raise ValueError(f"t0: a discrete-time filter indexes steps by k; expected 0.0, got {t0!r}")

@@ -18,7 +18,7 @@ Taylor-2 (``truncated``, …,     seed 004 eqs. 18-23 in every form of :data:`~n
 
 A model with one state, one measurement and one noise runs the EKF's scalar batch loop
 (:func:`~.loops.steps_scalar_`: every path at each step, the arithmetic of NumPy's scalar branch, bit for
-bit); models up to :data:`~.run.SPECIALIZE_UP_TO` states and measurements get loops with their
+bit); models up to :data:`~.build.SPECIALIZE_UP_TO` states and measurements get loops with their
 dimensions compiled in and the helpers inlined (the same bits, faster, longer to compile).
 
 The same conventions as the NumPy loop, which the tests hold it to (1e-12): both starts, partly
@@ -50,16 +50,28 @@ The package, one concept a module:
 :mod:`.step_kernels`    one-path step pieces: covariances, node moments, Taylor-2 terms, the update
 :mod:`.rule_kernels`    one predict and one update kernel per rule kind, and their work arrays
 :mod:`.loops`           one loop template for every rule kind; the scalar EKF's batch loop
-:mod:`.build`           the template compiled with a kind's kernels and the model's functions, cached
+:mod:`.build`           the template with a kind's kernels and the model's functions, as one module's text
+:mod:`.cache`           that module written to the disk cache and imported, numba's code kept beside it
 :mod:`.run`             :func:`run_compiled` and :func:`~.run.finish`
+:mod:`.choice`          ``backend="auto"``: compiled when loaded, cached or repaid (:func:`choose`)
 ======================  ============================================================================
 """
 
 from __future__ import annotations
 
-from .kernels import model_kernels, scalar_kernels
-from .run import run_compiled
-from .support import ALLOWED_OVERRIDES, available, steps_refusal, unsupported
+import importlib
+
+# the names below are imported on first use (PEP 562): the automatic backend reads the declaration
+# rule (.support), the cost rule (.choice) and the disk cache (.cache) without importing numba
+_WHERE = {"available": "support", "unsupported": "support", "steps_refusal": "support",
+          "ALLOWED_OVERRIDES": "support", "model_kernels": "kernels", "scalar_kernels": "kernels",
+          "run_compiled": "run", "choose": "choice"}
 
 __all__ = ["available", "unsupported", "steps_refusal", "ALLOWED_OVERRIDES", "model_kernels", "scalar_kernels",
-           "run_compiled"]
+           "run_compiled", "choose"]
+
+
+def __getattr__(name):
+    if name not in _WHERE:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    return getattr(importlib.import_module(f".{_WHERE[name]}", __name__), name)

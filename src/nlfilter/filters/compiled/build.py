@@ -1,26 +1,25 @@
-"""Assembling and caching the compiled loops: the one loop template (:mod:`.loops`) compiled with
-the predict and update kernels of the rule's kind (:mod:`.rule_kernels`), and those with the
-model's functions (:mod:`.kernels`), bound as globals; once per model and kind.
+"""Assembling the compiled loops: the one loop template (:mod:`.loops`) with the predict and
+update kernels of the rule's kind (:mod:`.rule_kernels`), and those with the model's functions
+(:mod:`.kernels`), bound as globals; once per model and kind.
 
-The loops are compiled from their source text in a namespace built here, explicitly, from the
-kernels of :mod:`.path_linalg` and :mod:`.step_kernels` (:func:`namespace`); the specialized
-loops (:data:`~nlfilter.filters.compiled.run.SPECIALIZE_UP_TO`) get the dimensions as constants
-and every kernel compiled again ``inline="always"`` (:func:`inlined`). The sources are read once,
-at import: later edits of the files cannot skew the compiled code.
+Each loop is one generated module (:func:`source`): the kernels of :mod:`.path_linalg` and
+:mod:`.step_kernels`, the model's functions, the kind's kernels and the loop, as text, written to
+the disk cache and imported from there (:mod:`.cache`), so numba keeps its machine code for the
+next process. The specialized loops (:data:`SPECIALIZE_UP_TO`) get
+the dimensions as constants and every kernel ``inline="always"``. The sources are read once, at
+import: later edits of the files cannot skew the compiled code.
 """
 
 from __future__ import annotations
 
 import inspect
-import math
-
-import numpy as np
 
 from . import loops, path_linalg, rule_kernels, step_kernels
-from .kernels import KERNELS
-from .support import jit
+from .cache import load_source
+from .kernels import KERNELS, model_kernels, scalar_kernels
+from .support import rule_kind
 
-__all__ = ["FUNCTION_ARGS", "namespace", "inlined", "steps", "unused3"]
+__all__ = ["FUNCTION_ARGS", "SPECIALIZE_UP_TO", "loop_of", "source", "steps", "text_of", "loaded"]
 
 #: the functions a source takes first (bound as globals by :func:`steps`): the model's functions
 #: of each kernel, the kernels of the template
@@ -29,31 +28,35 @@ FUNCTION_ARGS = {"steps_scalar_": ("f", "fx", "h", "hx", "G"), "steps_": ("predi
                  "predict_nodes_": ("f", "G"), "update_nodes_": ("h",),
                  "predict_taylor2_": ("f", "fx", "fxx"), "update_taylor2_": ("h", "hx", "hxx")}
 
+#: loops of models up to this state and measurement dimension are specialized: the dimensions
+#: compiled in as constants and the helpers inlined (the compiler then unrolls the small loops:
+#: 2-5× faster at n ≤ 4 than the general loop, at a compile time of 15-45 s per model and rule
+#: kind instead of 3-7 s); larger models take the general loop. The arithmetic is the same
+#: (no fast-math), so both give the same numbers to the last bit.
+SPECIALIZE_UP_TO = 4
+
 _KERNEL_MODULES = (path_linalg, step_kernels)
 _SOURCE = {f.__name__: inspect.getsource(f)  # read once, at import
            for f in (*path_linalg.SOURCES, *step_kernels.SOURCES, *loops.SOURCES.values(),
                      *(k for pair in rule_kernels.KERNELS_BY_KIND.values() for k in pair))}
 
 
-def namespace() -> dict:
-    """The globals the loops and kernels are compiled in: ``math``, ``np``, ``LOG_2PI`` and every
-    compiled kernel of :mod:`.path_linalg` and :mod:`.step_kernels` by name."""
-    ns = {"math": math, "np": np, "LOG_2PI": step_kernels.LOG_2PI}
+def _jit_line(name: str, src_name: str, **kw) -> str:
+    args = "".join(f", {k}={v!r}" for k, v in kw.items())
+    return f"{name} = _jit({src_name}{args})\n"
+
+
+def _helpers(inline: bool) -> list:
+    """The kernels of :mod:`.path_linalg` and :mod:`.step_kernels` as source, each jitted under its
+    name (``chol_`` as ``chol``); ``inline``: ``inline="always"`` (the specialized loops) but for
+    ``jacobi``, called only where the Cholesky screens cannot decide (rare, long code)."""
+    out = []
     for mod in _KERNEL_MODULES:
-        ns.update({f.__name__[:-1]: getattr(mod, f.__name__[:-1]) for f in mod.SOURCES})
-    return ns
-
-
-def inlined() -> dict:
-    """:func:`namespace` with every kernel compiled ``inline="always"`` (calling each other inlined)."""
-    ns = namespace()
-    names = [f.__name__ for mod in _KERNEL_MODULES for f in mod.SOURCES]
-    for h in names:
-        exec(compile(_SOURCE[h], f"<nlfilter.compiled {h}>", "exec"), ns)  # noqa: S102 - this package's code
-    for h in names:
-        ns[h[:-1]] = jit(ns[h], _nrt=False, inline="always")
-    ns["jacobi"] = path_linalg.jacobi  # called: only where the Cholesky screens cannot decide (rare, long code)
-    return ns
+        for f in mod.SOURCES:
+            h = f.__name__
+            kw = {"inline": "always"} if inline and h != "jacobi_" else {}
+            out += [_SOURCE[h], _jit_line(h[:-1], h, **kw)]
+    return out
 
 
 def _bind(name, fns, dims):
@@ -72,47 +75,107 @@ def _bind(name, fns, dims):
                          ("    n = m0.shape[1]\n", f"    n = {n}\n"), ("    r = Q.shape[0]\n", f"    r = {r}\n"),
                          ("    N = z.shape[0]\n", f"    N = {N}\n" if N is not None else "    N = z.shape[0]\n")):
             body = body.replace(old, new, 1)
-    return head + "(" + ", ".join(plist[len(drop):]) + "):\n" + body, drop
-
-
-def _compile(name, fns, dims, ns, **kw):
-    """``name``'s source compiled in ``ns`` with ``fns`` bound as its globals (:func:`_bind`)."""
-    src, drop = _bind(name, fns, dims)
     missing = [a for a in FUNCTION_ARGS.get(name, ()) if a not in drop]
     if missing:  # pragma: no cover - a guard on this package's own code
         raise RuntimeError(f"steps: {name} does not start with {missing}")
-    ns.update({a: fns[a] for a in drop})
-    exec(compile(src, f"<nlfilter.compiled {name}>", "exec"), ns)  # noqa: S102 - this package's code
-    return jit(ns[name], _nrt=False, **kw)
+    return head + "(" + ", ".join(plist[len(drop):]) + "):\n" + body
+
+
+_HEADER = """# nlfilter: a compiled loop, generated (nlfilter.filters.compiled.build); not to be edited: the
+# cache compares this file with the source it must hold and writes it again where they differ.
+import math
+
+import numpy as np
+from numba import njit
+
+
+def _jit(fn, **kw):
+    return njit(error_model="numpy", nogil=True, _nrt=False, **kw)(fn)
+
+
+LOG_2PI = {log2pi!r}
+
+
+def unused3_(x, t, p, out):  # the Hessian slots of a first-order Taylor-2 form: never called
+    pass
+
+
+unused3 = _jit(unused3_)
+"""
+
+
+def source(kind: str, fns: dict, scalar: bool = False, dims=None) -> str:
+    """The module text of the loop of rule ``kind`` (see :func:`steps`): one file holding all it
+    runs — the kernels of :mod:`.path_linalg` and :mod:`.step_kernels`, the model's functions
+    ``fns`` (``{arg name: Kernel}``; ``None`` for an unused Hessian slot), the kind's predict and
+    update kernels with the model's functions bound as globals, and the loop, ``steps``, whose
+    machine code numba keeps on disk (``cache=True``; :mod:`.cache`)."""
+    inline = dims is not None
+    parts = [_HEADER.format(log2pi=step_kernels.LOG_2PI), *_helpers(inline)]
+    for arg, k in fns.items():
+        if k is None:
+            parts.append(f"{arg} = unused3\n")
+        else:
+            parts += [k.source, _jit_line(arg, k.name, **({"inline": "always"} if k.inline else {}))]
+    if scalar:
+        loop = loops.steps_scalar_.__name__
+    else:
+        loop = loops.steps_.__name__
+        for role, f in zip(("predict", "update"), rule_kernels.KERNELS_BY_KIND[kind]):
+            parts += [_bind(f.__name__, fns, dims), _jit_line(role, f.__name__, inline="always")]
+        fns = {"predict": None, "update": None}
+    parts += [_bind(loop, fns, dims), _jit_line("steps", loop, cache=True)]
+    return "\n\n".join(p.rstrip("\n") + "\n" for p in parts)
+
+
+def loop_of(flt):
+    """``(kind, fns, scalar, dims)``: the loop that runs ``flt`` (:func:`.build.steps`' arguments):
+    its rule kind, the model's functions (:mod:`.kernels`, generated once per model), whether it is
+    the scalar batch loop (the EKF on one state, measurement and noise), the dimensions compiled
+    in (models up to :data:`SPECIALIZE_UP_TO`) or None."""
+    md = flt.model
+    n, mdim, r = md.n, md.m, md.r
+    kind = rule_kind(flt)
+    if kind == "taylor1" and n == mdim == r == 1:
+        return kind, scalar_kernels(md), True, None
+    dims = (n, mdim, r, None) if max(n, mdim) <= SPECIALIZE_UP_TO else None  # N stays: UKF/CKF/GHKF share
+    second = kind == "taylor2" and flt.rule.second
+    fns = model_kernels(md, second=second)
+    # the kernels' parameter names -> model_kernels' (first-order Taylor-2: the Hessian slots are
+    # never called; None, a compiled no-op, fills them)
+    args = {"taylor1": {"f": "f", "fx": "f_x", "h": "h", "hx": "h_x", "G": "G"}, "nodes": {"f": "f", "h": "h", "G": "G"},
+            "taylor2": {"f": "f", "fx": "f_x", "fxx": "f_xx", "h": "h", "hx": "h_x", "hxx": "h_xx"}}[kind]
+    return kind, {a: fns.get(w) for a, w in args.items()}, False, dims
 
 
 def steps(kind: str, fns: dict, key, scalar: bool = False, dims=None):
     """The raw loop of rule ``kind``: the template (:func:`.loops.steps_`) with the kind's predict
     and update kernels (:mod:`.rule_kernels`) bound as globals, and in those the model's functions
-    ``fns`` (``{"f", "fx", "h", "hx", "G"[, "fxx", "hxx"]}``; numba then calls them directly and can
-    inline them; passed as arguments they would be first-class function pointers); ``scalar``: the
-    scalar batch loop. Compiled once per model (``key``: its kernel store) and kind. ``dims``:
-    ``(n, m, r, N)`` compiled in as constants (``N`` None: read from the nodes), with the helpers
-    inlined (:data:`~nlfilter.filters.compiled.run.SPECIALIZE_UP_TO`); the kernels are always
-    inlined into the template (one call site each)."""
+    ``fns`` (``{"f", "fx", "h", "hx", "G"[, "fxx", "hxx"]}`` as :class:`~.kernels.Kernel` sources;
+    numba then calls them directly and can inline them; passed as arguments they would be
+    first-class function pointers); ``scalar``: the scalar batch loop. ``dims``: ``(n, m, r, N)``
+    compiled in as constants (``N`` None: read from the nodes), with the helpers inlined
+    (:data:`SPECIALIZE_UP_TO`); the kernels are always inlined into
+    the template (one call site each). Made once per model (``key``: its kernel store) and kind in a
+    process, and loaded from the disk cache (:mod:`.cache`) where another process compiled it.
+    Returns ``(loop, cache entry)``."""
     store = KERNELS[key]
-    name = ("steps", kind, fns["fxx"] is unused3 if kind == "taylor2" else scalar, dims)
+    name = _name(kind, fns, scalar, dims)
     if name not in store:
-        ns = inlined() if dims is not None else namespace()
-        if scalar:
-            fns = {{"f_x": "fx", "h_x": "hx"}.get(w, w): fn for w, fn in fns.items()}  # scalar_kernels' names
-            store[name] = _compile(loops.steps_scalar_.__name__, fns, dims, ns)
-        else:
-            predict, update = (f.__name__ for f in rule_kernels.KERNELS_BY_KIND[kind])
-            ns["predict"] = _compile(predict, fns, dims, ns, inline="always")
-            ns["update"] = _compile(update, fns, dims, ns, inline="always")
-            store[name] = _compile(loops.steps_.__name__, {"predict": ns["predict"], "update": ns["update"]}, dims, ns)
+        module, entry = load_source(*text_of(kind, fns, scalar, dims))
+        store[name] = (module.steps, entry)
     return store[name]
 
 
-def unused3_(x, t, p, out):  # pragma: no cover - never called (first-order form)
-    pass
+def _name(kind, fns, scalar, dims):
+    return ("steps", kind, fns.get("fxx") is None if kind == "taylor2" else scalar, dims)
 
 
-#: the Hessian slots of a first-order Taylor-2 form: never called, a compiled no-op fills them
-unused3 = jit(unused3_, _nrt=False)
+def text_of(kind: str, fns: dict, scalar: bool = False, dims=None) -> tuple:
+    """``(module text, cache tag)`` of the loop :func:`steps` makes (:func:`source`)."""
+    return source(kind, fns, scalar, dims), f"{kind}{'-scalar' if scalar else ''}"
+
+
+def loaded(kind: str, fns: dict, key, scalar: bool = False, dims=None) -> bool:
+    """Whether :func:`steps` has this loop for the model of kernel store ``key`` in this process."""
+    return _name(kind, fns, scalar, dims) in KERNELS.get(key, {})

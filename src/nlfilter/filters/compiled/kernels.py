@@ -8,32 +8,36 @@ globals (:mod:`.build`).
 
 from __future__ import annotations
 
-import math
 import weakref
+from typing import NamedTuple
 
 from ...codegen import array_source, first_derivatives, jacobian, scalar_source
-from .support import jit
 
-__all__ = ["KERNELS", "model_kernels", "scalar_kernels"]
+__all__ = ["KERNELS", "Kernel", "model_kernels", "scalar_kernels"]
+
+
+class Kernel(NamedTuple):
+    """A model's function as generated source: ``def name(...)`` in ``source``; ``inline``: numba
+    inlines it into the loops (small functions; a Hessian of 16 states, 4096 entries, inlined
+    took 18 minutes to compile)."""
+
+    name: str
+    source: str
+    inline: bool
 
 
 def scalar_kernels(model) -> dict:
-    """``{"f", "f_x", "h", "h_x", "G"}`` of a model with one state, one measurement and one noise
-    as numba functions ``fn(x, t, p) -> float`` (the scalar batch loop's)."""
+    """``{"f", "fx", "h", "hx", "G"}`` of a model with one state, one measurement and one noise
+    as :class:`Kernel` sources of ``fn(x, t, p) -> float`` (the scalar batch loop's)."""
     key = model._kernels["f"]
     store = KERNELS.setdefault(key, {})
     if "scalar" not in store:
         ex = model.expressions
         (x,), time, psyms = model.states, model.time, model._psyms
-        exprs = {"f": ex["f"][0], "f_x": jacobian(ex["f"], [x])[0, 0], "h": ex["h"][0],
-                 "h_x": jacobian(ex["h"], [x])[0, 0], "G": ex["G"][0, 0]}
-        out = {}
-        for w, e in exprs.items():
-            name = "s_" + w.replace("_", "")
-            ns = {"math": math}
-            exec(compile(scalar_source(name, e, x, time, psyms), f"<nlfilter.compiled scalar {w}>", "exec"), ns)  # noqa: S102
-            out[w] = jit(ns[name], _nrt=False, inline="always")
-        store["scalar"] = out
+        exprs = {"f": ex["f"][0], "fx": jacobian(ex["f"], [x])[0, 0], "h": ex["h"][0],
+                 "hx": jacobian(ex["h"], [x])[0, 0], "G": ex["G"][0, 0]}
+        store["scalar"] = {w: Kernel("s_" + w, scalar_source("s_" + w, e, x, time, psyms), True)
+                           for w, e in exprs.items()}
     return store["scalar"]
 
 
@@ -41,9 +45,9 @@ KERNELS: "weakref.WeakKeyDictionary" = weakref.WeakKeyDictionary()
 
 
 def model_kernels(model, *, second: bool = False) -> dict:
-    """``{"f", "f_x", "h", "h_x", "G"[, "f_xx", "h_xx"]}``: the model's functions compiled by numba
-    as ``fn(x (n,), t, p, out)`` writing ``out`` (shape as the model's function, one path), the
-    parameters read from ``p`` in the order of the model's parameter symbols. Generated once per
+    """``{"f", "f_x", "h", "h_x", "G"[, "f_xx", "h_xx"]}``: the model's functions for numba as
+    :class:`Kernel` sources of ``fn(x (n,), t, p, out)`` writing ``out`` (shape as the model's
+    function, one path), the parameters read from ``p`` in the order of the model's parameter symbols. Generated once per
     model (shared by its :meth:`~nlfilter.models.Model.with_params` copies); ``second`` adds the
     Hessians (the Taylor-2 rule)."""
     key = model._kernels["f"]  # shared by every with_params copy
@@ -66,13 +70,7 @@ def model_kernels(model, *, second: bool = False) -> dict:
         for w in missing:
             exprs, shape = specs[w]
             name = "g_" + w.replace("_", "")
-            src = array_source(name, exprs, shape, states, time, psyms)
-            ns = {"math": math}
-            exec(compile(src, f"<nlfilter.compiled {w}>", "exec"), ns)  # noqa: S102 - code we generated
-            # scalar code: no reference counting; small functions inlined into the loops (a
-            # Hessian of 16 states, 4096 entries, inlined took 18 minutes to compile)
-            store[w] = jit(ns[name], _nrt=False, inline="always" if len(exprs) <= 64 else "never")
-            store["src_" + w] = src
+            store[w] = Kernel(name, array_source(name, exprs, shape, states, time, psyms), len(exprs) <= 64)
     return {w: store[w] for w in want}
 
 

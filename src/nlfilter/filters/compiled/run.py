@@ -16,20 +16,12 @@ from ..linalg import PSD_TOL
 from ..recorder import loglik_divergence
 from ..rules import FORM_TABLE
 from . import build
-from .build import unused3
-from .kernels import model_kernels, scalar_kernels
+from .cache import seal
 from .loops import alloc_path
 from .rule_kernels import ALLOC
-from .support import nb, rule_kind, unsupported
+from .support import unsupported
 
-__all__ = ["SPECIALIZE_UP_TO", "run_compiled", "finish"]
-
-#: loops of models up to this state and measurement dimension are specialized: the dimensions
-#: compiled in as constants and the helpers inlined (the compiler then unrolls the small loops:
-#: 2-5× faster at n ≤ 4 than the general loop, at a compile time of 15-45 s per model and rule
-#: kind instead of 3-7 s); larger models take the general loop. The arithmetic is the same
-#: (no fast-math), so both give the same numbers to the last bit.
-SPECIALIZE_UP_TO = 4
+__all__ = ["run_compiled", "finish"]
 
 _KIND = {"none": 0, "-quarter": 1, "gaussian": 2}
 _FORCE = {"none": 0, "truncated": 1, "gaussian": 2}
@@ -55,6 +47,7 @@ def run_compiled(flt, yf, batch, m0, P0, on, loglik, progress=False):
     reason = unsupported(flt)
     if reason is not None:
         raise TypeError(f"backend: 'numba' cannot run {type(flt).__name__} here: {reason}; use backend='numpy'")
+    from numba.core.errors import TypingError
     md = flt.model
     B, T, mdim = yf.shape
     n = md.n
@@ -77,20 +70,14 @@ def run_compiled(flt, yf, batch, m0, P0, on, loglik, progress=False):
     inn = np.empty((B, T, mdim) if want else (0, 0, 0))
     icov = np.empty((B, T, mdim, mdim) if want else (0, 0, 0, 0))
     step = np.full(B, -1, np.int64)
-    kind = rule_kind(flt)
-    fns = model_kernels(md, second=kind == "taylor2" and flt.rule.second)
-    key = md._kernels["f"]
-
-    def dims(N):
-        return (n, mdim, md.r, None) if max(n, mdim) <= SPECIALIZE_UP_TO else None  # N stays: UKF/CKF/GHKF share
-
-    if kind == "taylor1" and n == mdim == md.r == 1:  # the scalar batch loop, time-major outputs
-        sk = scalar_kernels(md)
-        steps = build.steps(kind, sk, key, scalar=True)
+    kind, fns, scalar, dims = build.loop_of(flt)
+    steps, entry = build.steps(kind, fns, md._kernels["f"], scalar=scalar, dims=dims)
+    if scalar:  # the scalar batch loop, time-major outputs
         outm, outP = np.empty((T, B)), np.empty((T, B))
         sll, sinn, sicov = (np.empty((T, B)), np.empty((T, B)), np.empty((T, B))) if want else (ll, ll, ll)
         steps(ys, mean0, cov0, p, Q, R, GQG0, G_const, offset, absent, PSD_TOL, outm, outP, sll, sinn, sicov, want,
               step, np.empty(B), np.empty(B))
+        seal(entry)
         means, covs = outm.T[:, :, None], outP.T[:, :, None, None]  # (B, T, 1) views
         if want:
             ll, inn, icov = sll.T, sinn.T[:, :, None], sicov.T[:, :, None, None]
@@ -98,21 +85,13 @@ def run_compiled(flt, yf, batch, m0, P0, on, loglik, progress=False):
     if kind == "nodes":
         z, wm, wc = _nodes(flt, n)
         ks, N = (z, wm, wc), z.shape[0]
-        steps = build.steps(kind, {"f": fns["f"], "h": fns["h"], "G": fns["G"]}, key, dims=dims(None))
     elif kind == "taylor1":
         ks, N = (), 0
-        steps = build.steps(kind, {"f": fns["f"], "fx": fns["f_x"], "h": fns["h"], "hx": fns["h_x"], "G": fns["G"]},
-                            key, dims=dims(0))
     else:
         rule = flt.rule
         spec = FORM_TABLE[rule.form]
-        second = rule.second
-        # first-order: the Hessian slots are never called; a compiled no-op fills them
-        fxx, hxx = (fns["f_xx"], fns["h_xx"]) if second else (unused3, unused3)
-        kinds = ((_KIND[spec[0]], _KIND[spec[1]], _FORCE[spec[2]]) if second else (0, 0, 0))
-        ks, N = (second, *kinds, spec[1] == "none"), 0
-        steps = build.steps(kind, {"f": fns["f"], "fx": fns["f_x"], "fxx": fxx, "h": fns["h"], "hx": fns["h_x"],
-                                   "hxx": hxx}, key, dims=dims(0))
+        kinds = ((_KIND[spec[0]], _KIND[spec[1]], _FORCE[spec[2]]) if rule.second else (0, 0, 0))
+        ks, N = (rule.second, *kinds, spec[1] == "none"), 0
     ws = ALLOC[kind](n, mdim, md.r, N)
     own = alloc_path(n, mdim)
 
@@ -129,9 +108,10 @@ def run_compiled(flt, yf, batch, m0, P0, on, loglik, progress=False):
                 block(lo, min(B, lo + size))
         else:
             block(0, B)
-    except nb.core.errors.TypingError as exc:  # a function of the model numba cannot compile
+    except TypingError as exc:  # a function of the model numba cannot compile
         raise TypeError(f"backend: numba cannot compile {type(flt).__name__} on this model ({str(exc).splitlines()[0]}); "
                         "use backend='numpy'") from exc
+    seal(entry)
     return finish(flt, on, step, batch, means, covs, want, ll, inn, icov)
 
 

@@ -7,12 +7,19 @@ reuses); :func:`unsupported` adds numba, the rule and the model.
 
 from __future__ import annotations
 
-try:  # numba is a core dependency; a broken install leaves the NumPy loop
-    import numba as nb
-except Exception as _exc:  # pragma: no cover - exercised only without numba
-    nb, IMPORT_ERROR = None, _exc
-else:
-    IMPORT_ERROR = None
+import functools
+
+
+@functools.lru_cache(maxsize=1)
+def numba():
+    """``(numba module or None, the import's error or None)``: numba imported on first need (it
+    costs a second; the automatic backend decides most small runs without it). numba is a core
+    dependency; a broken install leaves the NumPy loop."""
+    try:
+        import numba as nb
+    except Exception as exc:  # pragma: no cover - exercised only without numba
+        return None, exc
+    return nb, None
 
 #: the rule kinds (``rule.kind``) the compiled loop has a step kernel for
 KINDS = ("taylor1", "nodes", "taylor2")
@@ -33,16 +40,29 @@ def _methods(cls) -> set:
 
 def available() -> bool:
     """Whether numba imports (the ``"numba"`` backend can run)."""
-    return nb is not None
+    return numba()[0] is not None
+
+
+class _Jit:
+    """``fn`` compiled by numba at its first call, numba imported then (not at the import of the
+    module that defines it); ``fn`` itself without numba."""
+
+    def __init__(self, fn, kw):
+        self.py_func, self._kw, self._compiled = fn, kw, None
+
+    def __call__(self, *args):
+        if self._compiled is None:
+            nb = numba()[0]
+            # error_model="numpy": a division by zero gives inf/NaN (caught by the divergence
+            # test), as in NumPy, instead of raising ZeroDivisionError
+            self._compiled = self.py_func if nb is None else nb.njit(error_model="numpy", nogil=True, **self._kw)(self.py_func)
+        return self._compiled(*args)
 
 
 def jit(fn, **kw):
-    """``fn`` compiled by numba (lazily, at its first call); ``fn`` itself without numba."""
-    if nb is None:  # pragma: no cover - exercised only without numba
-        return fn
-    # error_model="numpy": a division by zero gives inf/NaN (caught by the divergence test), as in
-    # NumPy, instead of raising ZeroDivisionError
-    return nb.njit(error_model="numpy", nogil=True, **kw)(fn)
+    """``fn`` compiled by numba at its first call from Python (the kernels' own versions, for direct
+    use and tests; the loops compile the kernels' sources in their generated modules, :mod:`.build`)."""
+    return _Jit(fn, kw)
 
 
 def steps_refusal(flt) -> str | None:
@@ -78,8 +98,14 @@ def rule_kind(flt):
 
 def unsupported(flt) -> str | None:
     """Why ``flt`` cannot run on the compiled loop, or None when it can."""
-    if nb is None:
-        return f"numba does not import here ({IMPORT_ERROR!r})"
+    reason = static_refusal(flt)
+    if reason is None and not available():
+        reason = f"numba does not import here ({numba()[1]!r})"
+    return reason
+
+
+def static_refusal(flt) -> str | None:
+    """:func:`unsupported` but for numba itself (nothing imported: the automatic backend's first test)."""
     name = type(flt).__name__
     reason = steps_refusal(flt)
     if reason is not None:

@@ -1,0 +1,122 @@
+"""``backend="auto"``, the default of ``run``/``smooth``/``fit``
+(:mod:`nlfilter.filters.compiled.choice`): the NumPy loop for short runs and for what the compiled
+loop does not take, the compiled loop where it is loaded, cached on disk or repaid by the run.
+
+The rule is tested by what it chooses (:meth:`Filter.backend_for`) and by what the default call
+then gives (bit for bit the chosen loop's numbers), never by a clock.
+"""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+import textwrap
+
+import numpy as np
+import pytest
+import sympy as sp
+
+from nlfilter import DiscreteModel
+from nlfilter.filters import compiled
+from nlfilter.filters.compiled import cache, choice
+from nlfilter.filters.ekf import EKF, IteratedEKF
+from nlfilter.filters.ukf import UKF
+
+needs_numba = pytest.mark.skipif(not compiled.available(), reason="numba does not import")
+
+
+def _scalar(a=0.9):
+    x = sp.Symbol("x")
+    return DiscreteModel([x], f=[a * x], h=[x**3], Q=0.1, R=0.2)
+
+
+def _five_state():
+    """A 5-state tracking-like model (no paper has it): two positions and velocities and a turn rate."""
+    px, py, vx, vy, w = sp.symbols("px py vx vy w")
+    dt = 0.1
+    f = [px + dt * vx, py + dt * vy, vx * sp.cos(w * dt) - vy * sp.sin(w * dt), vx * sp.sin(w * dt) + vy * sp.cos(w * dt), w]
+    return DiscreteModel([px, py, vx, vy, w], f=f, h=[sp.sqrt(px**2 + py**2 + 1), sp.atan2(py, px + 3)],
+                         Q=np.diag([1e-4, 1e-4, 1e-2, 1e-2, 1e-3]), R=np.diag([0.01, 0.001]))
+
+
+def test_the_rule_by_size():
+    """Short runs stay on the NumPy loop (numba's import and load would cost more than the run),
+    runs that repay the compile go compiled, a filter without a compiled loop stays on NumPy
+    whatever the size — the 5-state model (general loop: n > SPECIALIZE_UP_TO) and the scalar one."""
+    for md, make in ((_five_state(), EKF), (_five_state(), UKF), (_scalar(), EKF)):
+        flt = make(md)
+        backend, why = flt.backend_for(10, 50)
+        assert backend == "numpy" and "short run" in why, why
+        if compiled.available():
+            backend, why = flt.backend_for(10_000, 10_000)
+            assert backend == "numba" and "repays" in why, why
+            # a fit's evaluations count: 30 runs of 1000 x 1000 repay what one does not
+            n = md.n
+            one = choice.numpy_seconds(compiled.build.loop_of(flt)[0], n, 1000, 1000)
+            assert flt.backend_for(1000, 1000, repeats=200)[0] == "numba" or 200 * one < 2.0
+    backend, why = IteratedEKF(_scalar()).backend_for(10**6, 10**6)
+    assert backend == "numpy" and "IteratedEKF" in why
+
+
+def test_the_cost_model_is_monotone():
+    """More paths, steps, repeats or states never make the NumPy loop cheaper (the rule's premise)."""
+    for kind in choice.STEP_US:
+        base = choice.numpy_seconds(kind, 2, 100, 100)
+        assert choice.numpy_seconds(kind, 2, 200, 100) > base
+        assert choice.numpy_seconds(kind, 2, 100, 200) > base
+        assert choice.numpy_seconds(kind, 4, 100, 100) > base
+        assert choice.numpy_seconds(kind, 2, 100, 100, repeats=3) == pytest.approx(3 * base)
+
+
+def test_a_short_default_run_does_not_import_numba():
+    """The default call on a small run decides without numba (its import costs a second)."""
+    script = textwrap.dedent("""
+        import sys, numpy as np, sympy as sp
+        from nlfilter import DiscreteModel
+        from nlfilter.filters.ekf import EKF
+        x = sp.Symbol("x")
+        md = DiscreteModel([x], f=[0.9 * x], h=[x**3], Q=0.1, R=0.2)
+        est = EKF(md).run(np.zeros((3, 20, 1)), 0.1, 1.0, loglik=True)
+        print("numba" in sys.modules, np.isfinite(est.loglik).all())
+    """)
+    out = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, check=True, timeout=120)
+    assert out.stdout.split() == ["False", "True"], out.stdout + out.stderr
+
+
+@needs_numba
+def test_loaded_and_cached_loops_are_used(tmp_path, monkeypatch):
+    """After an explicit compiled run the default call runs compiled in this process (the same bits
+    as ``backend="numba"``; the scalar EKF's batch loop is also NumPy's bits, so a two-state UKF
+    would not tell — the scalar model is used for its short compile); a new process (here: a new
+    model object and no module remembered) finds the sealed disk entry for a run between the load
+    and the compile cost, and runs the NumPy loop without it."""
+    monkeypatch.setenv("NLFILTER_CACHE", str(tmp_path / "compiled"))
+    monkeypatch.setattr(cache, "_MODULES", {})
+    ys = np.random.default_rng(0).normal(size=(2, 30, 1))
+    md = _scalar()
+    flt = EKF(md)
+    mid = (1000, 5000)  # NumPy loop ~1.5 s: above LOAD_SECONDS, below the scalar loop's compile
+    assert choice.LOAD_SECONDS < choice.numpy_seconds("taylor1", 1, *mid) < choice.COMPILE_SECONDS["scalar"]
+    assert flt.backend_for(*mid) == ("numpy", "the compile (~2 s) costs more than the NumPy loop (~1.5 s)")
+    forced = flt.run(ys, 0.1, 1.0, loglik=True, backend="numba")
+    assert flt.backend_for(2, 30)[0] == "numba"
+    default = flt.run(ys, 0.1, 1.0, loglik=True)
+    np.testing.assert_array_equal(default.means, forced.means)
+    np.testing.assert_array_equal(default.extras["loglik"], forced.extras["loglik"])
+    cache._MODULES.clear()
+    other = EKF(_scalar())  # the same expressions: the same source, the same entry
+    assert other.backend_for(2, 30)[0] == "numpy"  # short: not worth numba's load
+    assert other.backend_for(*mid) == ("numba", "the compiled loop is in the disk cache")
+    monkeypatch.setenv("NLFILTER_CACHE", str(tmp_path / "empty"))
+    assert other.backend_for(*mid)[0] == "numpy"
+
+
+def test_auto_is_checked_and_initial_goes_to_numpy():
+    """``backend`` names the choices, ``"auto"`` among them; a run with ``initial`` (which the
+    Gaussian filters refuse) reaches the NumPy loop's refusal whatever the size."""
+    flt = EKF(_scalar())
+    with pytest.raises(ValueError, match="backend.*auto"):
+        flt.run(np.zeros((1, 5, 1)), 0.1, 1.0, backend="fast")
+    with pytest.raises(ValueError, match="initial"):
+        flt.run(np.zeros((1, 5, 1)), 0.1, 1.0, initial=object())
