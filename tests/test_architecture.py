@@ -20,7 +20,7 @@ LAYERS = (
     # 0 foundations: validation and errors, random streams, noise laws, the integrators, the data
     # types a run passes around (a Simulation, a filter's Estimates and beliefs); the package root
     # imports nothing at load (its names are PEP 562 lazy: importlib, not import statements)
-    ("", "_validate", "errors", "_interrupt", "streams", "noise", "ode", "sde_step", "simulation",
+    ("", "_validate", "_paths", "errors", "_interrupt", "streams", "noise", "ode", "sde_step", "simulation",
      "polynomials", "_modelexpr", "filters.estimates", "filters.beliefs"),
     # 1 the one code generator (SymPy -> NumPy / numba source)
     ("codegen",),

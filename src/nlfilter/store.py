@@ -148,11 +148,10 @@ class _Guarded:
 
 def default_path() -> Path:
     """``$NLFILTER_STORE``, else ``$XDG_CACHE_HOME/nlfilter/results.sqlite`` (default ``~/.cache``)."""
+    from ._paths import home
+
     env = os.environ.get("NLFILTER_STORE")
-    if env:
-        return Path(env).expanduser()
-    cache = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
-    return Path(cache) / "nlfilter" / "results.sqlite"
+    return Path(env).expanduser() if env else home() / "results.sqlite"
 
 
 @functools.lru_cache(maxsize=1)

@@ -49,9 +49,8 @@ records the paths in ``Estimates.diverged`` / ``diverged_step``, fills their lat
 with NaN (flagged, never silent), restarts them harmlessly from the initial belief and goes on
 with the others, whose estimates are those of a run without them.
 
-Backends: ``run(..., backend="numba")`` hands the same run to the compiled loop of
-:mod:`nlfilter.filters.compiled` (the discrete Gaussian filters on SymPy models), which keeps
-every convention above; this loop stays the reference it is tested against.
+Backends: ``"numba"`` (or ``"auto"``, the default, where it pays) hands the run to the compiled loop
+(:mod:`nlfilter.filters.compiled`), which keeps every convention above; this loop is its reference.
 """
 
 from __future__ import annotations
@@ -289,12 +288,10 @@ class Filter:
         backend : ``"auto"`` (default), ``"numpy"`` (this loop) or ``"numba"``: the same filter
             compiled, one loop over paths and steps (:mod:`nlfilter.filters.compiled`: the discrete
             EKF, UKF, CKF, GHKF, SLF and second-order filters on SymPy models; the same estimates
-            to rounding, tested to 1e-12; compiled at the first run of a model, seconds, and kept
-            on disk for the next process, ``NLFILTER_CACHE``); ``"numba"`` refuses a filter or
-            model it does not take with a TypeError naming backend. ``"auto"`` runs compiled
-            where the loop is loaded, in the disk cache, or repaid by the run's size, the NumPy
-            loop otherwise (:func:`~nlfilter.filters.compiled.choice.choose`; which one it takes:
-            :meth:`backend_for`)
+            to rounding, tested to 1e-12; compiled at a model's first run and kept on disk,
+            ``NLFILTER_CACHE``); ``"numba"`` refuses a filter or model it does not take with a
+            TypeError naming backend. ``"auto"``: compiled where the loop is loaded, on disk, or
+            repaid by the run's size, else the NumPy loop (:meth:`backend_for`)
 
         Returns
         -------
@@ -324,9 +321,8 @@ class Filter:
         return self._drive(ys, m0, P0, initial, rng, t0, on_divergence, progress, chunk, False, True, backend)
 
     def backend_for(self, B: int, T: int, *, repeats: int = 1) -> tuple:
-        """``(backend, why)``: the loop ``backend="auto"`` runs for ``B`` paths × ``T`` steps
-        (``repeats``: runs of that size to come, as a fit's evaluations);
-        :func:`~nlfilter.filters.compiled.choice.choose` states the rule."""
+        """``(backend, why)`` of ``backend="auto"`` for ``B`` paths × ``T`` steps, ``repeats`` times
+        (a fit's evaluations): :func:`~nlfilter.filters.compiled.choice.choose`."""
         if not getattr(self, "compiled", False):  # no class of this filter's declares a compiled loop
             return "numpy", f"{type(self).__name__} has no compiled loop"
         return tuple(load(AUTO)(self, B, T, repeats))

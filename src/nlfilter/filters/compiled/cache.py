@@ -43,11 +43,10 @@ _OFF: dict = {}  # root -> why the disk cache is off there
 
 def cache_root() -> Path:
     """``$NLFILTER_CACHE``, else ``$XDG_CACHE_HOME/nlfilter/compiled`` (default ``~/.cache``)."""
+    from ..._paths import home
+
     env = os.environ.get("NLFILTER_CACHE")
-    if env:
-        return Path(env).expanduser()
-    base = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
-    return Path(base) / "nlfilter" / "compiled"
+    return Path(env).expanduser() if env else home() / "compiled"
 
 
 @functools.lru_cache(maxsize=1)
