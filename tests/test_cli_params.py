@@ -59,7 +59,7 @@ def test_defaults_pass_their_own_checks_and_ranges_name_parameters():
         for name, default in exp.params.items():
             assert exp.check(name, default) == default, (exp.id, name)
     with pytest.raises(ValueError, match="are not parameters"):
-        experiments.experiment("x-demo", title="t", source="s", params={"a": 1}, ranges={"b": ">0"})(lambda: None)
+        experiments.Experiment("x-demo", "t", "s", {"a": 1}, "nlfilter.experiments.linear_gaussian:run", {"b": ">0"})
 
 
 def test_python_values_are_checked_too():

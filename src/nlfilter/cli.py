@@ -12,7 +12,10 @@ resumes from there. An error nlfilter did not anticipate prints one line naming 
 code 1 (``NLFILTER_TRACEBACK=1`` shows its traceback).
 
 This module imports only the standard library at its top: :func:`main` installs the Ctrl-C handler
-first, then loads NumPy, SymPy and the filters.
+first, then loads NumPy, SymPy and the filters — only where the command needs them: ``nlfilter list``
+(``--params``) reads the experiment registry, which imports no experiment, and ``nlfilter results``
+reads the store, so neither loads NumPy, SymPy, SciPy, numba or matplotlib
+(``tests/test_experiments_registry.py``).
 """
 
 from __future__ import annotations

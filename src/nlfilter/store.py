@@ -51,8 +51,6 @@ import warnings
 from datetime import datetime, timezone
 from pathlib import Path
 
-import numpy as np
-
 _SCHEMA = """
 CREATE TABLE IF NOT EXISTS blocks (
     key TEXT NOT NULL, start INTEGER NOT NULL, stop INTEGER NOT NULL,
@@ -182,12 +180,16 @@ def block_key(*, experiment: str, task: str, params: dict, seed: int, block: int
 
 
 def _pack(arrays: dict) -> bytes:
+    import numpy as np  # here, not at the top: `nlfilter results list` needs no NumPy
+
     buf = io.BytesIO()
     np.savez(buf, **{k: np.asarray(v) for k, v in arrays.items()})
     return buf.getvalue()
 
 
 def _unpack(data: bytes) -> dict:
+    import numpy as np
+
     with np.load(io.BytesIO(data), allow_pickle=False) as z:
         return {k: z[k] for k in z.files}
 

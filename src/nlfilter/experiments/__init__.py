@@ -1,9 +1,12 @@
-"""Experiments: one module per reproduced table or figure, registered under an id.
+"""Experiments: one module per reproduced table or figure, each registered here under an id.
 
 An experiment is a function ``run(params: dict, *, quick: bool, runs: int | None, seed: int,
-progress: bool) -> Result``. Each module in this package registers its experiments with the
-``@experiment`` decorator; :func:`registry` imports every module of the package once, so a new
-module needs no edit anywhere else.
+progress: bool) -> Result``. :data:`EXPERIMENTS` below is the registry, the one place an
+experiment's id, title, source, parameters and their ranges are stated; each entry names its
+function as a ``"module:function"`` string, imported on first use (:attr:`Experiment.func`), so
+``nlfilter list`` (and ``--params``) reads the registry without importing any experiment (nor
+NumPy, SymPy, SciPy or the filters). ``tests/test_experiments_registry.py`` checks that every
+module of this package is registered and every entry's function is there.
 
 Declared parameters (``params``) are the only names ``--param`` accepts; their defaults fix the
 types, and values given on the command line are converted to those types. The returned
@@ -14,7 +17,6 @@ and ``runs`` (a shorter horizon, the number of Monte Carlo ``paths``) with ``Res
 
 from __future__ import annotations
 
-import importlib
 import math
 import pkgutil
 import time
@@ -33,8 +35,18 @@ class Experiment:
     title: str
     source: str
     params: dict  # name -> default value (its type is the parameter's type)
-    func: Callable[..., Result]
+    target: str  # "module:function" of the experiment's function, imported on first use (func)
     ranges: dict = field(default_factory=dict)  # name -> range (see check_range) or a tuple of choices
+
+    def __post_init__(self):
+        unknown = set(self.ranges) - set(self.params)
+        if unknown:
+            raise ValueError(f"ranges of {self.id!r}: {sorted(unknown)} are not parameters")
+
+    @property
+    def func(self) -> Callable[..., Result]:
+        """The experiment's function (:attr:`target`, imported on first use)."""
+        return pkgutil.resolve_name(self.target)
 
     def run(self, params: dict | None = None, *, quick: bool = False, runs: int | None = None,
             seed: int = 0, progress: bool = False, chunk: int | None = None, executor=None, store=None,
@@ -184,34 +196,149 @@ def check_range(label: str, value, spec) -> None:
             raise ValueError(f"{label}: expected a value " + " and ".join(p.strip() for p in spec.split(",")))
 
 
-_REGISTRY: dict[str, Experiment] = {}
-_LOADED = False
+_BLOCK = {"block": 0}  # paths per Monte Carlo block; 0: all of the run's paths in one block (one batch)
+_BLOCK_RANGE = {"block": ">=0,<=1000000"}
+_LAWS = ("uniform", "bimodal", "skewed", "near-gaussian")  # the input laws of moment_systems.LAWS
 
 
-def experiment(id: str, *, title: str, source: str, params: dict | None = None, ranges: dict | None = None):
-    """Register ``func`` as experiment ``id``; ``ranges``: name -> the range of a parameter
-    (:func:`check_range`: ``">0"``, ``">=1,<=1e6"``) or a tuple of its choices."""
+def _index(*entries: Experiment) -> dict[str, Experiment]:
+    """``{id: entry}`` in the order of the ids; an id stated twice is a ValueError."""
+    out = {}
+    for e in entries:
+        if e.id in out:
+            raise ValueError(f"experiment id {e.id!r} registered twice")
+        out[e.id] = e
+    return dict(sorted(out.items()))
 
-    def deco(func):
-        if id in _REGISTRY:
-            raise ValueError(f"experiment id {id!r} registered twice")
-        unknown = set(ranges or {}) - set(params or {})
-        if unknown:
-            raise ValueError(f"ranges of {id!r}: {sorted(unknown)} are not parameters")
-        _REGISTRY[id] = Experiment(id, title, source, dict(params or {}), func, dict(ranges or {}))
-        return func
 
-    return deco
-
+#: Every experiment by id (the registry; ``nlfilter list`` prints it in this order).
+EXPERIMENTS = _index(
+    Experiment(
+        "cubic-sensor",
+        title="Cubic sensor: optimal linear filter, tensor post-processors, bound, Monte Carlo",
+        source="seed 001, Tables 5.1-5.2 (ch. 5, Appendix B)",
+        target="nlfilter.experiments.cubic_sensor:run",
+        params={"q": [2.0, 1.0], "r": [1.0, 1.0], "T": 60.0, "burn": 5.0, "dt": 0.0, "monte_carlo": True,
+                "block": 200},  # block: the default full run's paths (one batch)
+        ranges={"q": ">0", "r": ">0", "T": ">0,<=100000", "burn": ">=0", "dt": ">=0,<=1", "block": ">=1,<=1000000"}),
+    Experiment(
+        "cubic-sensor-closures",
+        title="Conditional-moment filters (Gaussian, Edgeworth-4 closures) vs EKF and the optimal filter on the "
+              "cubic sensor",
+        source="seed 001 (Vallot 1981), ch. 5, eqs. 5.1-5.4; seed 003 eqs. 11-15 (closures)",
+        target="nlfilter.experiments.cubic_closures:run",
+        params={"q": [2.0, 1.0], "r": [1.0, 1.0], "dt": 0.01, "t_end": 20.0, "burn_in": 5.0, "grid_size": 301,
+                "block": 300},  # block: the default full run's paths (one batch; --param block=N for finer resume/Dask)
+        ranges={"q": ">0", "r": ">0", "dt": ">0,<=1", "t_end": ">0,<=100000", "burn_in": ">=0",
+                "grid_size": ">=11,<=100001", "block": ">=1,<=1000000"}),
+    Experiment(
+        "linear-gaussian",
+        title="Linear Gaussian 2-state model: every filter against the Riccati steady state",
+        source="nlfilter check (no paper): Riccati equation",
+        target="nlfilter.experiments.linear_gaussian:run",
+        params={"q1": 0.1, "q2": 0.2, "r": 0.5, "steps": 200, "grid": 61, "particles": 1000,
+                "block": 1000},  # block: the default full run's paths (one batch)
+        ranges={"q1": ">0", "q2": ">0", "r": ">0", "steps": ">=2,<=1000000", "grid": ">=5,<=100001",
+                "particles": ">=10,<=10000000", "block": ">=1,<=1000000"}),
+    Experiment(
+        "moment-first-order",
+        title="First-order system: moment filter vs Kalman vs grid optimum",
+        source="seed 000, eqs. 2.4-2.5 (Chapter IV, outlined in the abstract)",
+        target="nlfilter.experiments.moment_systems:run_first_order",
+        params={"h": 0.5, "w_bound": 2.0, "N": [2, 4, 6], "laws": list(_LAWS), "T": 2000, "skip": 500,
+                "n0": 100.0, "window": 20, "grid": 400, **_BLOCK},
+        ranges={"h": ">-1,<1", "w_bound": ">0", "N": ">=1,<=12", "laws": _LAWS, "T": ">=2,<=10000000",
+                "skip": ">=0", "n0": ">0", "window": ">=1,<=100000", "grid": ">=10,<=100000", **_BLOCK_RANGE}),
+    Experiment(
+        "moment-second-order",
+        title="Second-order system: moment filter vs Kalman vs particle optimum",
+        source="seed 000, eqs. 2.6-2.8 (Chapter V, outlined in the abstract)",
+        target="nlfilter.experiments.moment_systems:run_second_order",
+        params={"h1": 0.6, "h2": -0.5, "d1": 1.0, "d2": 1.0, "w_bound": 1.5, "N": [2, 4, 6],
+                "laws": list(_LAWS), "T": 400, "skip": 100, "n0": 100.0, "window": 20,
+                "particles": 4000, "bounding": "polygon", "directions": 16, **_BLOCK},
+        ranges={"w_bound": ">0", "N": ">=1,<=12", "laws": _LAWS, "T": ">=2,<=1000000", "skip": ">=0",
+                "n0": ">0", "window": ">=1,<=100000", "particles": ">=10,<=10000000", "bounding": ("polygon", "box"),
+                "directions": ">=4,<=1024", **_BLOCK_RANGE}),
+    Experiment(
+        "oh-shin",
+        title="QLF vs MQLF (Edgeworth closure) on dx = −x³dt + dβ, dy = x dt + dη",
+        source="seed 003 (Oh & Shin 1995), Section 5, eqs. 18-33, Fig. 2",
+        target="nlfilter.experiments.oh_shin:run",
+        params={"Q": 0.05, "R": 0.05, "m0": 4.0, "D0": 0.05, "order": 4, "t_end": 1.0, "dt": 0.01,
+                "grid_size": 601, "block": 4000},  # block: the default full run's paths (one batch)
+        ranges={"Q": ">0", "R": ">0", "D0": ">0", "order": ">=3,<=12", "t_end": ">0,<=10000", "dt": ">0,<=1",
+                "grid_size": ">=11,<=100001", "block": ">=1,<=1000000"}),
+    Experiment(
+        "phase-tracking",
+        title="Phase tracking: PLL, linear quadrature filter, tensor filter, optimal",
+        source="seed 001, Figs. 4.3-4.4, Table 4.1 (ch. 4, Appendix A)",
+        target="nlfilter.experiments.phase_tracking:run",
+        params={"P": [], "q": 1.0, "sim_P": 0.129, "time_constants": 500.0, "discard": 25.0,
+                "step": 0.01, "grid": 256, "sweep": 100, "simulate": True, "block": 32},
+        ranges={"P": ">0,<=100", "q": ">0", "sim_P": ">0,<=100", "time_constants": ">0,<=1e5", "discard": ">=0",
+                "step": ">0,<=0.5", "grid": ">=0,<=65536", "sweep": ">=2,<=10000", "block": ">=1,<=100000"}),
+    Experiment(
+        "second-order",
+        title="Second-order filters: Henriksen's correct truncated form vs the pre-correction, modified and "
+              "Gaussian forms, EKF, UKF and the optimal reference",
+        source="seed 004 (Henriksen 1979) eqs. 11, 18-23, 33, 35-37; falling body of Athans, Wishner & "
+               "Bertolini 1968",
+        target="nlfilter.experiments.henriksen:run",
+        params={
+            "problem": "all",  # "all" or a comma list of quadratic, state-noise, falling-body
+            "steps": 0,  # 0 = the problem's default (50, 200, 60)
+            # quadratic: x' = a x + b x² + w, y = x + c x² + v
+            "quad_a": 0.7, "quad_b": 0.02, "quad_c": 0.3, "quad_q": 1.0, "quad_r": 0.2,
+            # state-noise: dx = −a x dt + (s0 + s1 x + s2 x²) dβ, dy = (x + c x²) dt + dη
+            "sn_a": 1.0, "sn_s0": 0.3, "sn_s1": 0.8, "sn_s2": 0.1, "sn_c": 0.5, "sn_r": 0.2, "sn_dt": 0.01,
+            "sn_innovation": "update",  # "update" (stable discrete absorption of dy) or "ito" (explicit increment)
+            # falling body: measurement noise variance, RK4 substeps per second, particles of the reference
+            "fb_r": 1e4, "fb_substeps": 20, "fb_particles": 1000, "fb_pf_runs": 100,
+            "grid_size": 401,
+            **_BLOCK,
+        },
+        ranges={"steps": ">=0,<=100000", "quad_q": ">0", "quad_r": ">0", "sn_r": ">0", "sn_dt": ">0,<=1",
+                "sn_innovation": ("update", "ito"), "fb_r": ">0", "fb_substeps": ">=1,<=10000",
+                "fb_particles": ">=10,<=10000000", "fb_pf_runs": ">=2,<=100000", "grid_size": ">=11,<=100001",
+                **_BLOCK_RANGE}),
+    Experiment(
+        "smoothing",
+        title="RTS smoothers of every Gaussian filter against the optimal smoother (cubic sensors)",
+        source="nlfilter check (no paper): Särkkä 2013 ch. 8-9 (Gaussian RTS smoothers); issue 12",
+        target="nlfilter.experiments.rts_smoothing:run",
+        params={"steps": 50, "particles": 1000, **_BLOCK},
+        ranges={"steps": ">=2,<=100000", "particles": ">=10,<=1000000", **_BLOCK_RANGE}),
+    Experiment(
+        "zero-order",
+        title="Zero-order problem: ensemble MSE of optimal, moment and linear estimators",
+        source="seed 000, Table 1 (eqs. 3.7, 3.20, 3.21, 3.24)",
+        target="nlfilter.experiments.zero_order_problem:run_table1",
+        params={"J": [0, 2, 4, 6, 8, 10], "N": [2, 4, 6], "eps": 1e-6, **_BLOCK},
+        ranges={"J": ">=0,<=40", "N": ">=1,<=12", "eps": ">0,<1", **_BLOCK_RANGE}),
+    Experiment(
+        "zero-order-adaptive",
+        title="Zero-order adaptive moment filter: time-averaged MSE vs n",
+        source="seed 000, Fig. 10 (a) J=10, (b) J=0; flow chart Fig. 7",
+        target="nlfilter.experiments.zero_order_problem:run_fig10",
+        params={"J": [10, 0], "N": [2, 4, 6], "n0": 100.0, "window": 20, "n_max": 3000, "eps": 1e-6,
+                "invalid_moments": "ignore", **_BLOCK},
+        ranges={"J": ">=0,<=40", "N": ">=1,<=12", "n0": ">0", "window": ">=1,<=100000", "n_max": ">=2,<=10000000",
+                "eps": ">0,<1", "invalid_moments": ("warn", "keep", "ignore"), **_BLOCK_RANGE}),
+    Experiment(
+        "zero-order-robustness",
+        title="Zero-order filter under input/noise correlation and non-additive noise",
+        source="seed 000, Chapter III (abstract: correlation and non-additive measurement)",
+        target="nlfilter.experiments.zero_order_problem:run_robustness",
+        params={"J": 10, "N": [2, 4, 6], "r": [0.0, 0.3, 0.6, 0.9], "beta": [0.0, 0.3, 0.6], "n": 3000,
+                "n0": 100.0, "window": 20, **_BLOCK},
+        ranges={"J": ">=0,<=40", "N": ">=1,<=12", "r": ">-1,<1", "beta": ">=-10,<=10", "n": ">=2,<=10000000",
+                "n0": ">0", "window": ">=1,<=100000", **_BLOCK_RANGE}),
+)
 
 def registry() -> dict[str, Experiment]:
-    """All experiments, by id (imports every module of this package on first call)."""
-    global _LOADED
-    if not _LOADED:
-        for mod in pkgutil.iter_modules(__path__):
-            importlib.import_module(f"{__name__}.{mod.name}")
-        _LOADED = True
-    return dict(sorted(_REGISTRY.items()))
+    """All experiments, by id (:data:`EXPERIMENTS`; a copy: nothing is imported)."""
+    return dict(EXPERIMENTS)
 
 
 def get(id: str) -> Experiment:

@@ -1,6 +1,6 @@
 """What the experiments' Monte Carlo blocks share (:func:`nlfilter.montecarlo.montecarlo`): the
-``block`` parameter (paths per block; 0, the default, puts all of a run's paths in one block, so a
-default run is one batch) and the per-path arrays a block returns — the seed-000 filters' means and
+``block`` parameter (paths per block, declared in the registry, :data:`nlfilter.experiments.EXPERIMENTS`;
+0, the default, puts all of a run's paths in one block, so a default run is one batch) and the per-path arrays a block returns — the seed-000 filters' means and
 extras (:func:`block_arrays`), or whole :class:`~nlfilter.filters.estimates.Estimates`
 (:func:`estimates_arrays`) — read back from the concatenated blocks."""
 
@@ -10,9 +10,6 @@ import numpy as np
 
 from ..filters.base import Estimates
 from ..filters.moment_bayes import refresh_failure_rate
-
-BLOCK = {"block": 0}  # paths per Monte Carlo block; 0: all of the run's paths in one block (one batch)
-BLOCK_RANGE = {"block": ">=0,<=1000000"}
 
 
 def block_size(res, params, paths):

@@ -36,12 +36,7 @@ from ..montecarlo import montecarlo
 from ..moments.closures import EdgeworthClosure, GaussianClosure
 from ..results import Result
 from ..simulate import simulate
-from . import experiment
 
-PARAMS = {"q": [2.0, 1.0], "r": [1.0, 1.0], "dt": 0.01, "t_end": 20.0, "burn_in": 5.0, "grid_size": 301,
-          "block": 300}  # block: the default full run's paths (one batch; --param block=N for finer resume/Dask)
-RANGES = {"q": ">0", "r": ">0", "dt": ">0,<=1", "t_end": ">0,<=100000", "burn_in": ">=0", "grid_size": ">=11,<=100001",
-          "block": ">=1,<=1000000"}
 # 001 Tables 5.1-5.2: steady-state E(x − x̂)² of the optimal linear filter, the tensor filter, and the
 # Bobrovsky-Zakai lower bound (for context only: not the filters of this experiment)
 THESIS = {(2.0, 1.0): {"linear": 0.540, "tensor": 0.522, "bz_bound": 0.238},
@@ -90,11 +85,8 @@ def _closures_block(rows, *, q, r, dt, steps, nb, substeps, grid, seed, case):
     return out
 
 
-@experiment("cubic-sensor-closures", title="Conditional-moment filters (Gaussian, Edgeworth-4 closures) vs "
-            "EKF and the optimal filter on the cubic sensor",
-            source="seed 001 (Vallot 1981), ch. 5, eqs. 5.1-5.4; seed 003 eqs. 11-15 (closures)", params=PARAMS,
-            ranges=RANGES)
 def run(params, *, quick, runs, seed, progress):
+    """The experiment ``cubic-sensor-closures`` (its title, source and parameters: :data:`nlfilter.experiments.EXPERIMENTS`)."""
     p = params
     qs, rs = list(p["q"]), list(p["r"])
     if len(qs) != len(rs) or not qs:

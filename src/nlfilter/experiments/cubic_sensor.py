@@ -33,7 +33,6 @@ from functools import partial
 import numpy as np
 from tqdm import tqdm
 
-from . import experiment
 from .. import evaluate as ev
 from .. import problems as pb
 from ..bilinear import BilinearModel
@@ -130,12 +129,8 @@ def _pairs(params):
     return list(zip(map(float, qs), map(float, rs)))
 
 
-@experiment("cubic-sensor", title="Cubic sensor: optimal linear filter, tensor post-processors, bound, Monte Carlo",
-            source="seed 001, Tables 5.1-5.2 (ch. 5, Appendix B)",
-            params={"q": [2.0, 1.0], "r": [1.0, 1.0], "T": 60.0, "burn": 5.0, "dt": 0.0,
-                    "monte_carlo": True, "block": 200},  # block: the default full run's paths (one batch)
-            ranges={"q": ">0", "r": ">0", "T": ">0,<=100000", "burn": ">=0", "dt": ">=0,<=1", "block": ">=1,<=1000000"})
 def run(params, *, quick, runs, seed, progress):
+    """The experiment ``cubic-sensor`` (its title, source and parameters: :data:`nlfilter.experiments.EXPERIMENTS`)."""
     res = Result("cubic-sensor", "Cubic sensor: optimal linear filter, tensor post-processors, bound, Monte Carlo",
                  "seed 001, Tables 5.1-5.2", params)
     pairs = _pairs(params)

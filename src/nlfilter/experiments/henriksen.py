@@ -45,43 +45,21 @@ from ..filters.second_order import (ContinuousDiscreteSecondOrderFilter, Continu
 from ..filters.ukf import UKF
 from ..models import DiscreteModel
 from ..montecarlo import montecarlo
-from ._blocks import BLOCK, BLOCK_RANGE, block_size, estimates_arrays, estimates_of
+from ._blocks import block_size, estimates_arrays, estimates_of
 from ..results import Result
 from ..simulate import simulate, simulate_continuous_discrete
 from ..certificate_checks import estimates_checks
-from . import experiment
 
 PROBLEMS = ("quadratic", "state-noise", "falling-body")
 FORMS = ("truncated", "truncated-jazwinski", "gaussian", "modified", "modified-gaussian")
 ORDER = ("ekf", "ukf", *FORMS, "optimal")  # modified-gaussian: the Gaussian form with C = 0
-PARAMS = {
-    "problem": "all",  # "all" or a comma list of quadratic, state-noise, falling-body
-    "steps": 0,  # 0 = the problem's default (50, 200, 60)
-    # quadratic: x' = a x + b x² + w, y = x + c x² + v
-    "quad_a": 0.7, "quad_b": 0.02, "quad_c": 0.3, "quad_q": 1.0, "quad_r": 0.2,
-    # state-noise: dx = −a x dt + (s0 + s1 x + s2 x²) dβ, dy = (x + c x²) dt + dη
-    "sn_a": 1.0, "sn_s0": 0.3, "sn_s1": 0.8, "sn_s2": 0.1, "sn_c": 0.5, "sn_r": 0.2, "sn_dt": 0.01,
-    "sn_innovation": "update",  # "update" (stable discrete absorption of dy) or "ito" (explicit increment)
-    # falling body: measurement noise variance, RK4 substeps per second, particles of the reference
-    "fb_r": 1e4, "fb_substeps": 20, "fb_particles": 1000, "fb_pf_runs": 100,
-    "grid_size": 401,
-    **BLOCK,
-}
-RANGES = {  # what --param accepts (nlfilter.experiments.check_range)
-    "steps": ">=0,<=100000", "quad_q": ">0", "quad_r": ">0", "sn_r": ">0", "sn_dt": ">0,<=1",
-    "sn_innovation": ("update", "ito"), "fb_r": ">0", "fb_substeps": ">=1,<=10000", "fb_particles": ">=10,<=10000000",
-    "fb_pf_runs": ">=2,<=100000", "grid_size": ">=11,<=100001", **BLOCK_RANGE,
-}
 RUNS = {"quadratic": 1000, "state-noise": 400, "falling-body": 500}
 QUICK = {"runs": 24, "steps": {"quadratic": 15, "state-noise": 40, "falling-body": 15},
          "grid_size": 151, "fb_particles": 200, "fb_pf_runs": 8}
 
 
-@experiment("second-order", title="Second-order filters: Henriksen's correct truncated form vs the "
-            "pre-correction, modified and Gaussian forms, EKF, UKF and the optimal reference",
-            source="seed 004 (Henriksen 1979) eqs. 11, 18-23, 33, 35-37; falling body of Athans, "
-                   "Wishner & Bertolini 1968", params=PARAMS, ranges=RANGES)
 def run(params, *, quick, runs, seed, progress):
+    """The experiment ``second-order`` (its title, source and parameters: :data:`nlfilter.experiments.EXPERIMENTS`)."""
     res = Result("second-order", "second-order filters (seed 004)", "seed 004", params)
     chosen = PROBLEMS if params["problem"] == "all" else tuple(
         p.strip() for p in str(params["problem"]).split(",") if p.strip())

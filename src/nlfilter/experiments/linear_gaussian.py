@@ -28,9 +28,8 @@ from ..montecarlo import montecarlo
 from ..results import Result
 from ..simulate import simulate
 from ..streams import FILTER, PathRNG
-from . import experiment
+from . import get
 
-TITLE = "Linear Gaussian 2-state model: every filter against the Riccati steady state"
 
 
 def model(q1=0.1, q2=0.2, r=0.5):
@@ -76,19 +75,16 @@ def _linear_block(rows, *, q1, q2, r, steps, grid, particles, seed):
     return out
 
 
-@experiment("linear-gaussian", title=TITLE, source="nlfilter check (no paper): Riccati equation",
-            params={"q1": 0.1, "q2": 0.2, "r": 0.5, "steps": 200, "grid": 61, "particles": 1000,
-                    "block": 1000},  # block: the default full run's paths (one batch)
-            ranges={"q1": ">0", "q2": ">0", "r": ">0", "steps": ">=2,<=1000000", "grid": ">=5,<=100001",
-                    "particles": ">=10,<=10000000", "block": ">=1,<=1000000"})
 def run(params, *, quick=False, runs=None, seed=0, progress=False):
+    """The experiment ``linear-gaussian`` (its title, source and parameters: :data:`nlfilter.experiments.EXPERIMENTS`)."""
     p = dict(params)
     if quick:
         p["steps"], p["grid"], p["particles"] = min(p["steps"], 80), min(p["grid"], 41), min(p["particles"], 400)
     runs = runs or (100 if quick else 1000)
     md = model(p["q1"], p["q2"], p["r"])
     _, Pf = steady_state(md)
-    res = Result("linear-gaussian", TITLE, "nlfilter check (no paper): Riccati equation", p)
+    exp = get("linear-gaussian")
+    res = Result("linear-gaussian", exp.title, exp.source, p)
     res.used("paths", runs)
     block = res.used("block", int(p["block"]))
     res.add("riccati", "mse", Pf[0, 0])

@@ -31,13 +31,12 @@ from functools import partial
 import numpy as np
 import scipy.stats as st
 
-from . import experiment
 from .. import evaluate as ev
 from .. import streams
 from ..filters.kalman import KalmanFilter
 from ..bounded import BoundedNoiseModel
 from ..filters.moment_bayes import FirstOrderMomentFilter
-from ._blocks import BLOCK, BLOCK_RANGE, block_arrays, block_estimates, block_size
+from ._blocks import block_arrays, block_estimates, block_size
 from .zero_order_problem import failure_rate_row
 from ..filters.reference.bounded import BoundedGridFilter1D
 from ..models import DiscreteModel
@@ -130,13 +129,8 @@ def _per_law(res, params, R, skip, Ns, kind, block_fn, ident, errors):
     return laws
 
 
-@experiment("moment-first-order", title="First-order system: moment filter vs Kalman vs grid optimum",
-            source="seed 000, eqs. 2.4-2.5 (Chapter IV, outlined in the abstract)",
-            params={"h": 0.5, "w_bound": 2.0, "N": [2, 4, 6], "laws": list(LAWS), "T": 2000, "skip": 500,
-                    "n0": 100.0, "window": 20, "grid": 400, **BLOCK},
-            ranges={"h": ">-1,<1", "w_bound": ">0", "N": ">=1,<=12", "laws": tuple(LAWS), "T": ">=2,<=10000000",
-                    "skip": ">=0", "n0": ">0", "window": ">=1,<=100000", "grid": ">=10,<=100000", **BLOCK_RANGE})
 def run_first_order(params, *, quick, runs, seed, progress):
+    """The experiment ``moment-first-order`` (its title, source and parameters: :data:`nlfilter.experiments.EXPERIMENTS`)."""
     h, wb = float(params["h"]), float(params["w_bound"])
     Ns = [int(N) for N in params["N"]]
     T, skip = _horizon(params, quick, 120, 30)
@@ -209,15 +203,8 @@ def kalman_second_order(zs, A, b, c, law, noise_halfwidth=1.0):
     return est.means + mux
 
 
-@experiment("moment-second-order", title="Second-order system: moment filter vs Kalman vs particle optimum",
-            source="seed 000, eqs. 2.6-2.8 (Chapter V, outlined in the abstract)",
-            params={"h1": 0.6, "h2": -0.5, "d1": 1.0, "d2": 1.0, "w_bound": 1.5, "N": [2, 4, 6],
-                    "laws": list(LAWS), "T": 400, "skip": 100, "n0": 100.0, "window": 20,
-                    "particles": 4000, "bounding": "polygon", "directions": 16, **BLOCK},
-            ranges={"w_bound": ">0", "N": ">=1,<=12", "laws": tuple(LAWS), "T": ">=2,<=1000000", "skip": ">=0",
-                    "n0": ">0", "window": ">=1,<=100000", "particles": ">=10,<=10000000", "bounding": ("polygon", "box"),
-                    "directions": ">=4,<=1024", **BLOCK_RANGE})
 def run_second_order(params, *, quick, runs, seed, progress):
+    """The experiment ``moment-second-order`` (its title, source and parameters: :data:`nlfilter.experiments.EXPERIMENTS`)."""
     A = np.diag([float(params["h1"]), float(params["h2"])])
     b = np.array([float(params["d1"]), float(params["d2"])])
     c = b.copy()  # 000 eqs. 2.6-2.7 as the OCR reads them: the same d1, d2 in the input and the output

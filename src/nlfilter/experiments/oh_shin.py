@@ -40,13 +40,8 @@ from ..moments.closures import EdgeworthClosure
 from ..results import Result
 from ..simulate import simulate
 from ..certificate_checks import BEATEN_MAX_DIVERGED, reference_checks
-from . import experiment
 
 PAPER = {"qlf": 0.0163, "mqlf": 0.015}  # 003 Section 5, text under Fig. 2 (P at t = 1.0)
-PARAMS = {"Q": 0.05, "R": 0.05, "m0": 4.0, "D0": 0.05, "order": 4, "t_end": 1.0, "dt": 0.01,
-          "grid_size": 601, "block": 4000}  # block: the default full run's paths (one batch)
-RANGES = {"Q": ">0", "R": ">0", "D0": ">0", "order": ">=3,<=12", "t_end": ">0,<=10000", "dt": ">0,<=1",
-          "grid_size": ">=11,<=100001", "block": ">=1,<=1000000"}
 
 
 def model(Q: float, R: float) -> SDEModel:
@@ -91,9 +86,8 @@ def _oh_shin_block(rows, *, Q, R, m0, D0, order, dt, steps, substeps, grid, seed
     return out
 
 
-@experiment("oh-shin", title="QLF vs MQLF (Edgeworth closure) on dx = −x³dt + dβ, dy = x dt + dη",
-            source="seed 003 (Oh & Shin 1995), Section 5, eqs. 18-33, Fig. 2", params=PARAMS, ranges=RANGES)
 def run(params, *, quick, runs, seed, progress):
+    """The experiment ``oh-shin`` (its title, source and parameters: :data:`nlfilter.experiments.EXPERIMENTS`)."""
     p = params
     for nm in ("Q", "R", "D0", "t_end", "dt"):
         V.positive(f"param {nm}", p[nm])

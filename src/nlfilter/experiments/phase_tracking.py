@@ -21,7 +21,6 @@ import numpy as np
 from scipy.optimize import minimize_scalar
 from tqdm import tqdm
 
-from . import experiment
 from .. import evaluate as ev
 from ..bilinear import phase_model
 from ..montecarlo import montecarlo
@@ -45,13 +44,8 @@ def _peak(q):
     return -opt.fun, float(np.exp(opt.x))
 
 
-@experiment("phase-tracking", title="Phase tracking: PLL, linear quadrature filter, tensor filter, optimal",
-            source="seed 001, Figs. 4.3-4.4, Table 4.1 (ch. 4, Appendix A)",
-            params={"P": [], "q": 1.0, "sim_P": 0.129, "time_constants": 500.0, "discard": 25.0,
-                    "step": 0.01, "grid": 256, "sweep": 100, "simulate": True, "block": 32},
-            ranges={"P": ">0,<=100", "q": ">0", "sim_P": ">0,<=100", "time_constants": ">0,<=1e5", "discard": ">=0",
-                    "step": ">0,<=0.5", "grid": ">=0,<=65536", "sweep": ">=2,<=10000", "block": ">=1,<=100000"})
 def run(params, *, quick, runs, seed, progress):
+    """The experiment ``phase-tracking`` (its title, source and parameters: :data:`nlfilter.experiments.EXPERIMENTS`)."""
     title = "Phase tracking: PLL, linear quadrature filter, tensor filter, optimal"
     res = Result("phase-tracking", title, "seed 001, Figs. 4.3-4.4, Table 4.1", params)
     q = float(params["q"])

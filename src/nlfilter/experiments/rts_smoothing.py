@@ -37,11 +37,9 @@ from ..evaluate import paired_difference, stream
 from ..filters.reference import ParticleFilter
 from ..models import DiscreteModel
 from ..results import Result
-from . import experiment
+from . import get
 from ._blocks import block_size
 
-TITLE = "RTS smoothers of every Gaussian filter against the optimal smoother (cubic sensors)"
-SOURCE = "nlfilter check (no paper): Särkkä 2013 ch. 8-9 (Gaussian RTS smoothers); issue 12"
 FILTERS = ("ekf", "iekf", "ukf", "ckf", "ghkf", "slf", "second-order")
 
 
@@ -55,18 +53,16 @@ def cases():
             "rotating-cubic": (rot, np.array([0.5, 0.0]), 0.5 * np.eye(2))}
 
 
-PARAMS = {"steps": 50, "particles": 1000,
-          "block": 0}  # paths per Monte Carlo block; 0: all of the run's paths in one block (one batch)
-RANGES = {"steps": ">=2,<=100000", "particles": ">=10,<=1000000", "block": ">=0,<=1000000"}
 
 
-@experiment("smoothing", title=TITLE, source=SOURCE, params=PARAMS, ranges=RANGES)
 def run(params, *, quick=False, runs=None, seed=0, progress=False):
+    """The experiment ``smoothing`` (its title, source and parameters: :data:`nlfilter.experiments.EXPERIMENTS`)."""
     p = dict(params)
     if quick:
         p["steps"], p["particles"] = min(p["steps"], 20), min(p["particles"], 300)
     runs = runs or (16 if quick else 200)
-    res = Result("smoothing", TITLE, SOURCE, p)
+    exp = get("smoothing")
+    res = Result("smoothing", exp.title, exp.source, p)
     res.used("paths", runs)
     block = block_size(res, p, runs)
     refs = {}

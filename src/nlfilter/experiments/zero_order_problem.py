@@ -25,13 +25,12 @@ from functools import partial
 
 import numpy as np
 
-from . import experiment
 from .. import evaluate as ev
 from ..bounded import ZeroOrderModel
 from ..filters.moment_bayes import MomentFilterWarning, ZeroOrderMomentFilter, power_density_estimate
 from ..moments.densities import power_density_moments
 from ..montecarlo import montecarlo
-from ._blocks import BLOCK, BLOCK_RANGE, block_arrays, block_estimates, block_size
+from ._blocks import block_arrays, block_estimates, block_size
 from ..results import Result
 
 # Table 1 of seed 000 (columns e_op, e_2, e_4, e_6, e_linear), read from the OCR.  Cells the OCR
@@ -144,11 +143,8 @@ def _table1_block(rows, *, J, Ns, eps, spp, seed, case):
             **{name: f(z).reshape(len(rows), -1) for name, (f, _) in _estimators(J, Ns, eps).items()}}
 
 
-@experiment("zero-order", title="Zero-order problem: ensemble MSE of optimal, moment and linear estimators",
-            source="seed 000, Table 1 (eqs. 3.7, 3.20, 3.21, 3.24)",
-            params={"J": [0, 2, 4, 6, 8, 10], "N": [2, 4, 6], "eps": 1e-6, **BLOCK},
-            ranges={"J": ">=0,<=40", "N": ">=1,<=12", "eps": ">0,<1", **BLOCK_RANGE})
 def run_table1(params, *, quick, runs, seed, progress):
+    """The experiment ``zero-order`` (its title, source and parameters: :data:`nlfilter.experiments.EXPERIMENTS`)."""
     Js = [_check_J(J) for J in params["J"]]
     Ns = [_check_N(N) for N in params["N"]]
     eps = float(params["eps"])
@@ -248,13 +244,8 @@ def _paired(est, xs, a, b, n=None):
     return s.value, s.stderr
 
 
-@experiment("zero-order-adaptive", title="Zero-order adaptive moment filter: time-averaged MSE vs n",
-            source="seed 000, Fig. 10 (a) J=10, (b) J=0; flow chart Fig. 7",
-            params={"J": [10, 0], "N": [2, 4, 6], "n0": 100.0, "window": 20, "n_max": 3000,
-                    "eps": 1e-6, "invalid_moments": "ignore", **BLOCK},
-            ranges={"J": ">=0,<=40", "N": ">=1,<=12", "n0": ">0", "window": ">=1,<=100000", "n_max": ">=2,<=10000000",
-                    "eps": ">0,<1", "invalid_moments": ("warn", "keep", "ignore"), **BLOCK_RANGE})
 def run_fig10(params, *, quick, runs, seed, progress):
+    """The experiment ``zero-order-adaptive`` (its title, source and parameters: :data:`nlfilter.experiments.EXPERIMENTS`)."""
     Js = [_check_J(J) for J in params["J"]]
     Ns = [_check_N(N) for N in params["N"]]
     n_max = int(params["n_max"]) if not quick else min(int(params["n_max"]), 600)
@@ -360,13 +351,8 @@ def correlated_optimal(z, J: int, r: float, nodes: int = 160):
     return np.sum(g * x, axis=-1) / np.sum(g, axis=-1)
 
 
-@experiment("zero-order-robustness", title="Zero-order filter under input/noise correlation and non-additive noise",
-            source="seed 000, Chapter III (abstract: correlation and non-additive measurement)",
-            params={"J": 10, "N": [2, 4, 6], "r": [0.0, 0.3, 0.6, 0.9], "beta": [0.0, 0.3, 0.6],
-                    "n": 3000, "n0": 100.0, "window": 20, **BLOCK},
-            ranges={"J": ">=0,<=40", "N": ">=1,<=12", "r": ">-1,<1", "beta": ">=-10,<=10", "n": ">=2,<=10000000",
-                    "n0": ">0", "window": ">=1,<=100000", **BLOCK_RANGE})
 def run_robustness(params, *, quick, runs, seed, progress):
+    """The experiment ``zero-order-robustness`` (its title, source and parameters: :data:`nlfilter.experiments.EXPERIMENTS`)."""
     J = _check_J(params["J"])
     Ns = [_check_N(N) for N in params["N"]]
     n = int(params["n"]) if not quick else min(int(params["n"]), 400)
