@@ -235,8 +235,15 @@ def fit(model, ys, params0, *, filter="ukf", m0=None, P0=None, initial=None, bou
     if getattr(first, "likelihood", None) is None:
         raise TypeError(f"filter: {label} defines no log-likelihood; use a Gaussian filter, grid or particle")
     why = {}
+    seen = {}  # θ (bytes) -> log L: the optimizer's last point, the estimate and the Hessian's centre are one
 
     def loglik(theta):
+        key = np.asarray(theta, dtype=float).tobytes()
+        if key not in seen:
+            seen[key] = _loglik(theta)
+        return seen[key]
+
+    def _loglik(theta):
         try:
             md = model.with_params(dict(zip(names, theta)))
         except ValueError as exc:  # the model refuses these values (e.g. a negative variance)

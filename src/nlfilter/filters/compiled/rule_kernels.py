@@ -24,6 +24,7 @@ from __future__ import annotations
 import numpy as np
 
 from .path_linalg import mm, psd_check
+from .kalman_loop import alloc_kalman, predict_kalman_, update_kalman_
 from .step_kernels import (add_gqg, add_half_trace, condition, meas_cov, nodes_moments, nodes_points, predict_cov,
                            quartic, work)
 
@@ -193,6 +194,6 @@ def update_taylor2_(h, hx, hxx, m, P, y, t, p, R, tol, want, l1, i1, c1, ks, ws,
 
 #: the kernels' sources by rule kind: ``(predict, update)`` (compiled by :func:`.build.steps`)
 KERNELS_BY_KIND = {"taylor1": (predict_taylor1_, update_taylor1_), "nodes": (predict_nodes_, update_nodes_),
-                   "taylor2": (predict_taylor2_, update_taylor2_)}
+                   "taylor2": (predict_taylor2_, update_taylor2_), "kalman": (predict_kalman_, update_kalman_)}
 #: the kernels' work arrays by rule kind: ``alloc(n, mdim, r, N) -> tuple``
-ALLOC = {"taylor1": alloc_taylor1, "nodes": alloc_nodes, "taylor2": alloc_taylor2}
+ALLOC = {"taylor1": alloc_taylor1, "nodes": alloc_nodes, "taylor2": alloc_taylor2, "kalman": alloc_kalman}

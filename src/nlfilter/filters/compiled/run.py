@@ -17,7 +17,8 @@ from ..recorder import loglik_divergence
 from ..rules import FORM_TABLE
 from . import build
 from .build import unused3
-from .kernels import model_kernels, scalar_kernels
+from .kalman_loop import KALMAN_KEY, matrices
+from .kernels import KERNELS, model_kernels, scalar_kernels
 from .loops import alloc_path
 from .rule_kernels import ALLOC
 from .support import nb, rule_kind, unsupported
@@ -64,12 +65,6 @@ def run_compiled(flt, yf, batch, m0, P0, on, loglik, progress=False):
     ys = _plain(yf)
     offset = 0 if flt.start == "update" else 1
     absent = np.isnan(ys).all(axis=(0, 2)) if B else np.zeros(T, bool)
-    vals = md._values.values
-    p = np.array([float(vals[s]) for s in md._psyms], float)
-    Q = _plain(md.Q)
-    R = _plain(md.R)
-    G_const = bool(md._G_fixed)
-    GQG0 = _plain(md.GQGT(np.zeros(n))) if G_const else np.zeros((n, n))
     means = np.empty((B, T, n))
     covs = np.empty((B, T, n, n))
     want = bool(loglik)
@@ -78,6 +73,22 @@ def run_compiled(flt, yf, batch, m0, P0, on, loglik, progress=False):
     icov = np.empty((B, T, mdim, mdim) if want else (0, 0, 0, 0))
     step = np.full(B, -1, np.int64)
     kind = rule_kind(flt)
+    R = _plain(md.R)
+    if kind == "kalman":  # the model's matrices as data (F, b, H, d, G Q Gᵀ): one loop for every linear model
+        ks = matrices(flt, T + offset)
+        if ks is None:  # pragma: no cover - unsupported refuses parameters per path
+            raise TypeError("backend: 'numba' takes one F, b, H, d, G Q Gᵀ per time; use backend='numpy'")
+        nil = np.empty((0, 0))  # p, Q, GQG0: read by the rule kernels only
+        KERNELS.setdefault(KALMAN_KEY, {})
+        build.steps(kind, {}, KALMAN_KEY)(ys, mean0, cov0, np.empty(0), nil, R, nil, False, offset, absent, PSD_TOL, means,
+                                          covs, ll, inn, icov, want, step, ks, ALLOC[kind](n, mdim),
+                                          *alloc_path(n, mdim))
+        return finish(flt, on, step, batch, means, covs, want, ll, inn, icov)
+    vals = md._values.values
+    p = np.array([float(vals[s]) for s in md._psyms], float)
+    Q = _plain(md.Q)
+    G_const = bool(md._G_fixed)
+    GQG0 = _plain(md.GQGT(np.zeros(n))) if G_const else np.zeros((n, n))
     fns = model_kernels(md, second=kind == "taylor2" and flt.rule.second)
     key = md._kernels["f"]
 
