@@ -24,8 +24,10 @@ import numpy as np
 
 from .path_linalg import psd_check
 from .step_kernels import condition, meas_cov, predict_cov, work
+from .support import jit
 
-__all__ = ["SOURCES", "alloc_kalman", "predict_kalman_", "update_kalman_", "matrices"]
+__all__ = ["SOURCES", "SCALAR_SOURCES", "SCALAR", "KALMAN_KEY", "alloc_kalman", "predict_kalman_", "update_kalman_",
+           "matrices", "scalar_parameters"]
 
 
 def alloc_kalman(n, mdim, r=0, N=0):
@@ -70,8 +72,54 @@ def update_kalman_(m, P, y, t, p, R, tol, want, l1, i1, c1, ks, ws, n, mdim):
     return ok and psd_check(m, P, n, tol, W, L, ev)
 
 
+def scalar_f_(x, t, p):
+    """``F_k x + b_k`` of a scalar model, ``p`` the rows ``(F, b, H, d, √N)`` of :func:`scalar_parameters`."""
+    i = 5 * int(t) if p.shape[0] > 5 else 0
+    return p[i] * x + p[i + 1]
+
+
+def scalar_fx_(x, t, p):
+    """``F_k``."""
+    i = 5 * int(t) if p.shape[0] > 5 else 0
+    return p[i]
+
+
+def scalar_h_(x, t, p):
+    """``H_k x + d_k``."""
+    i = 5 * int(t) if p.shape[0] > 5 else 0
+    return p[i + 2] * x + p[i + 3]
+
+
+def scalar_hx_(x, t, p):
+    """``H_k``."""
+    i = 5 * int(t) if p.shape[0] > 5 else 0
+    return p[i + 2]
+
+
+def scalar_G_(x, t, p):
+    """``√N_k`` (``G Q Gᵀ = N_k`` with ``Q = 1``: the time-varying case)."""
+    i = 5 * int(t) if p.shape[0] > 5 else 0
+    return p[i + 4]
+
+
 #: the Python sources of this module's kernels (compiled by :func:`.build.steps` into the template)
 SOURCES = (predict_kalman_, update_kalman_)
+#: the scalar model functions of the EKF's scalar batch loop (:func:`.loops.steps_scalar_`) on a
+#: linear model with one state and one measurement: the matrices read from ``p`` (the loop binds them)
+SCALAR_SOURCES = (scalar_f_, scalar_fx_, scalar_h_, scalar_hx_, scalar_G_)
+#: those compiled, by the names of :func:`.kernels.scalar_kernels`
+SCALAR = {name: jit(fn, _nrt=False, inline="always")
+          for name, fn in zip(("f", "f_x", "h", "h_x", "G"), SCALAR_SOURCES)}
+
+
+def scalar_parameters(ks):
+    """``(p, Q, GQG0, G_const)`` of the scalar batch loop from the matrices ``ks`` of :func:`matrices`
+    (``n = m = 1``): ``p`` the rows ``(F, b, H, d, √N)`` per time; a time-invariant model's ``N``
+    enters exactly as ``GQG0``, a time-varying one's as ``G = √N_k``, ``Q = 1``."""
+    F, b, H, d, N = (a.reshape(a.shape[0]) for a in ks)
+    p = np.ascontiguousarray(np.stack([F, b, H, d, np.sqrt(np.maximum(N, 0.0))], axis=1).reshape(-1))
+    const = F.shape[0] == 1
+    return p, np.ones((1, 1)), N.reshape(-1, 1, 1)[0].copy() if const else np.zeros((1, 1)), const
 
 
 def matrices(flt, times: int):

@@ -17,7 +17,7 @@ from ..recorder import loglik_divergence
 from ..rules import FORM_TABLE
 from . import build
 from .build import unused3
-from .kalman_loop import KALMAN_KEY, matrices
+from .kalman_loop import KALMAN_KEY, SCALAR, matrices, scalar_parameters
 from .kernels import KERNELS, model_kernels, scalar_kernels
 from .loops import alloc_path
 from .rule_kernels import ALLOC
@@ -74,30 +74,36 @@ def run_compiled(flt, yf, batch, m0, P0, on, loglik, progress=False):
     step = np.full(B, -1, np.int64)
     kind = rule_kind(flt)
     R = _plain(md.R)
-    if kind == "kalman":  # the model's matrices as data (F, b, H, d, G Q Gᵀ): one loop for every linear model
+    sk = None  # the scalar batch loop's model functions
+    if kind == "kalman":  # the model's matrices as data (F, b, H, d, G Q Gᵀ): no code per model
         ks = matrices(flt, T + offset)
         if ks is None:  # pragma: no cover - unsupported refuses parameters per path
             raise TypeError("backend: 'numba' takes one F, b, H, d, G Q Gᵀ per time; use backend='numpy'")
-        nil = np.empty((0, 0))  # p, Q, GQG0: read by the rule kernels only
-        KERNELS.setdefault(KALMAN_KEY, {})
-        build.steps(kind, {}, KALMAN_KEY)(ys, mean0, cov0, np.empty(0), nil, R, nil, False, offset, absent, PSD_TOL, means,
-                                          covs, ll, inn, icov, want, step, ks, ALLOC[kind](n, mdim),
-                                          *alloc_path(n, mdim))
-        return finish(flt, on, step, batch, means, covs, want, ll, inn, icov)
-    vals = md._values.values
-    p = np.array([float(vals[s]) for s in md._psyms], float)
-    Q = _plain(md.Q)
-    G_const = bool(md._G_fixed)
-    GQG0 = _plain(md.GQGT(np.zeros(n))) if G_const else np.zeros((n, n))
-    fns = model_kernels(md, second=kind == "taylor2" and flt.rule.second)
-    key = md._kernels["f"]
+        key = KALMAN_KEY
+        KERNELS.setdefault(key, {})
+        if n > 1 or mdim > 1:  # the template with the Kalman kernels, compiled once for every linear model
+            nil = np.empty((0, 0))  # p, Q, GQG0: read by the rule kernels only
+            build.steps(kind, {}, key)(ys, mean0, cov0, np.empty(0), nil, R, nil, False, offset, absent, PSD_TOL, means,
+                                       covs, ll, inn, icov, want, step, ks, ALLOC[kind](n, mdim), *alloc_path(n, mdim))
+            return finish(flt, on, step, batch, means, covs, want, ll, inn, icov)
+        sk = SCALAR  # one state and measurement: the scalar batch loop, its f, h, G reading the matrices in p
+        p, Q, GQG0, G_const = scalar_parameters(ks)
+    else:
+        vals = md._values.values
+        p = np.array([float(vals[s]) for s in md._psyms], float)
+        Q = _plain(md.Q)
+        G_const = bool(md._G_fixed)
+        GQG0 = _plain(md.GQGT(np.zeros(n))) if G_const else np.zeros((n, n))
+        fns = model_kernels(md, second=kind == "taylor2" and flt.rule.second)
+        key = md._kernels["f"]
+        if kind == "taylor1" and n == mdim == md.r == 1:
+            sk = scalar_kernels(md)
 
     def dims(N):
         return (n, mdim, md.r, None) if max(n, mdim) <= SPECIALIZE_UP_TO else None  # N stays: UKF/CKF/GHKF share
 
-    if kind == "taylor1" and n == mdim == md.r == 1:  # the scalar batch loop, time-major outputs
-        sk = scalar_kernels(md)
-        steps = build.steps(kind, sk, key, scalar=True)
+    if sk is not None:  # the scalar batch loop, time-major outputs
+        steps = build.steps("taylor1", sk, key, scalar=True)
         outm, outP = np.empty((T, B)), np.empty((T, B))
         sll, sinn, sicov = (np.empty((T, B)), np.empty((T, B)), np.empty((T, B))) if want else (ll, ll, ll)
         steps(ys, mean0, cov0, p, Q, R, GQG0, G_const, offset, absent, PSD_TOL, outm, outP, sll, sinn, sicov, want,
