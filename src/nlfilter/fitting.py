@@ -191,9 +191,9 @@ def fit(model, ys, params0, *, filter="ukf", m0=None, P0=None, initial=None, bou
     se : compute standard errors (2p² + 1 more likelihood evaluations)
     options : ``scipy.optimize.minimize`` options of ``method`` (checked: names and types)
     progress : show the number of evaluations and the best log-likelihood (tqdm)
-    backend : the filter's run loop (``Filter.run``): ``"numba"`` compiles the discrete EKF, UKF,
-        CKF, GHKF, SLF and second-order filters once for every parameter value (the parameters
-        are read at run time), often 2-10× faster per evaluation
+    backend : the filter's run loop (``Filter.run``): ``"numba"`` compiles the discrete KF, EKF,
+        UKF, CKF, GHKF, SLF and second-order filters once for every parameter value (the
+        parameters, the KF's matrices, are read at run time), often 2-10× faster per evaluation
 
     Returns
     -------

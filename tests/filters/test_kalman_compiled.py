@@ -145,3 +145,21 @@ def test_fit_on_the_compiled_loop_finds_the_numpy_optimum():
         assert abs(new.params[name] - ref.params[name]) <= 1e-5 * max(1.0, abs(ref.params[name]))
         assert abs(new.se[name] - ref.se[name]) <= 1e-4 * ref.se[name]
     assert abs(new.loglik - ref.loglik) <= 1e-9 * abs(ref.loglik)
+
+
+def test_with_params_copy_builds_its_noise_laws_when_read():
+    """fit's per-evaluation copy (:meth:`with_params`) factors no noise law it does not use: the
+    Gaussian laws of Q and R are built when first read, equal to those built at once, and the
+    marker survives pickling (a Dask worker reads the law in another process)."""
+    cloudpickle = pytest.importorskip("cloudpickle")  # as Dask pickles (the generated functions)
+    from nlfilter.model_noise import LazyGaussian
+    from nlfilter.noise import Gaussian
+
+    md = local_level().with_params(q=0.3, r=2.0)
+    assert md.__dict__["_process_noise"] is LazyGaussian and md.__dict__["_measurement_noise"] is LazyGaussian
+    back = cloudpickle.loads(cloudpickle.dumps(md))
+    for model in (md, back):
+        assert isinstance(model.process_noise, Gaussian) and model.process_noise.cov.tolist() == [[0.3]]
+        assert isinstance(model.measurement_noise, Gaussian) and model.measurement_noise.cov.tolist() == [[2.0]]
+    with pytest.raises(ValueError, match="positive semi-definite"):
+        local_level().with_params(q=-1.0)  # still checked at once: fit's "refused" values
