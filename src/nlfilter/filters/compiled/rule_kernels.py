@@ -1,7 +1,8 @@
 """The step kernels of the compiled loop, one predict and one update per rule kind (``rule.kind``):
 Taylor-1 (the EKF), node rules (unscented, cubature, Gauss–Hermite, SLF: the rule's table
-``(z, wm, wc)``) and Taylor-2 (seed 004 eqs. 18-23 in every form of
-:data:`~nlfilter.filters.rules.FORM_TABLE`). The time loop around them is one template
+``(z, wm, wc)``), Taylor-2 (seed 004 eqs. 18-23 in every form of
+:data:`~nlfilter.filters.rules.FORM_TABLE`) and the linear Kalman filter's (``"kalman"``:
+:mod:`.kalman_loop`, the model's matrices as data in ``ks``). The time loop around them is one template
 (:func:`.loops.steps_`); a kernel is all that differs between the rule kinds.
 
 Every kernel works on one path in place (``m``, ``P``) and returns False where the path fails
