@@ -3,6 +3,7 @@ what was expected (README, "Architecture", `_validate.py`)."""
 
 from __future__ import annotations
 
+import math
 import numbers
 import reprlib
 
@@ -67,6 +68,11 @@ def covariance(name: str, value, n: int | None = None, *, batch: bool = False,
         raise ValueError(f"{name}: expected a square matrix, got shape {arr.shape}")
     if n is not None and arr.shape[-1] != n:
         raise ValueError(f"{name}: expected shape ({n}, {n}), got {arr.shape}")
+    if arr.shape == (1, 1) and math.isfinite(arr[0, 0]):  # one variance: the checks below are its sign
+        if arr[0, 0] < -tol * max(1.0, abs(arr[0, 0])):  # (a fit's Q, R, P0 at every evaluation: no LAPACK)
+            raise ValueError(f"{name}: expected a positive semi-definite matrix, "
+                             f"got smallest eigenvalue {arr[0, 0]:.3g}")
+        return arr
     finite(name, arr)
     scale = max(1.0, float(np.max(np.abs(arr)))) if arr.size else 1.0
     asym = np.max(np.abs(arr - np.swapaxes(arr, -1, -2))) if arr.size else 0.0

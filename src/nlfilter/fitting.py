@@ -191,10 +191,11 @@ def fit(model, ys, params0, *, filter="ukf", m0=None, P0=None, initial=None, bou
     se : compute standard errors (2p² + 1 more likelihood evaluations)
     options : ``scipy.optimize.minimize`` options of ``method`` (checked: names and types)
     progress : show the number of evaluations and the best log-likelihood (tqdm)
-    backend : the filter's run loop (``Filter.run``): ``"numba"`` compiles the discrete EKF, UKF,
-        CKF, GHKF, SLF and second-order filters once for every parameter value (the parameters
-        are read at run time), often 2-10× faster per evaluation; ``"auto"`` (default) chooses
-        once for the whole fit, counting its evaluations (:meth:`Filter.backend_for`)
+    backend : the filter's run loop (``Filter.run``): ``"numba"`` compiles the discrete KF, EKF,
+        UKF, CKF, GHKF, SLF and second-order filters once for every parameter value (the
+        parameters, the KF's matrices, are read at run time), often 2-10× faster per evaluation;
+        ``"auto"`` (default) chooses once for the whole fit, counting its evaluations
+        (:meth:`Filter.backend_for`)
 
     Returns
     -------
@@ -238,10 +239,17 @@ def fit(model, ys, params0, *, filter="ukf", m0=None, P0=None, initial=None, bou
     if backend == "auto":  # one choice for the fit, counting its evaluations (L-BFGS-B: ~20 gradients)
         p = len(names)
         B, T = int(np.prod(np.shape(ys)[:-2])), np.shape(ys)[-2]
-        backend = first.backend_for(B, T, repeats=20 * (p + 1) + (2 * p * p + 1 if se else 0))[0]
+        backend = first.backend_for(B, T, repeats=20 * (p + 1) + (2 * p * p + 1 if se else 0), record=True)[0]
     why = {}
+    seen = {}  # θ (bytes) -> log L: the optimizer's last point, the estimate and the Hessian's centre are one
 
     def loglik(theta):
+        key = np.asarray(theta, dtype=float).tobytes()
+        if key not in seen:
+            seen[key] = _loglik(theta)
+        return seen[key]
+
+    def _loglik(theta):
         try:
             md = model.with_params(dict(zip(names, theta)))
         except ValueError as exc:  # the model refuses these values (e.g. a negative variance)

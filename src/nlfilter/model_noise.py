@@ -92,11 +92,20 @@ def cross_noise_matrix(model, cross_noise):
     return Sc
 
 
+class LazyGaussian:
+    """The marker of a noise law not built yet: the Gaussian of the model's covariance (Q or R),
+    built by the model when first read (:attr:`~nlfilter.models.Model.process_noise`,
+    :attr:`~nlfilter.models.Model.measurement_noise`), so that a :meth:`~nlfilter.models.Model.with_params`
+    copy — each evaluation of :func:`nlfilter.fit` — pays no factorization it does not use. A class
+    (not an instance): it pickles by reference, the marker stays itself in another process."""
+
+
 def bind_noise(model, values: Values, tv: set) -> None:
     """Q, R and the noise laws of ``model`` at the parameter values ``values`` (``tv``: the names
     of the functions and covariances that vary with time there): R one matrix or ``R(x)``
     (:func:`R_at`); a time-varying Q folded into G (``G Q_t^{1/2}``, ``model.Q`` the identity);
-    the joint law of correlated noise, checked positive semi-definite."""
+    the joint law of correlated noise, checked positive semi-definite; the Gaussian laws of Q and R
+    built when first read (:class:`LazyGaussian`)."""
     model.R_constant = True
     if "R" in model._QR:
         if "R" in tv:
@@ -108,7 +117,7 @@ def bind_noise(model, values: Values, tv: set) -> None:
             model._R_fn = Batched(model._QR["R"], values)
         else:
             model.R = covariance_at(model, "R", model.mv, values)
-            model.measurement_noise = Gaussian(model.R)
+            model.measurement_noise = LazyGaussian
     else:
         model.R, model.measurement_noise = model._R0, model._R_law
     model._fold = "Q" in tv
@@ -120,10 +129,10 @@ def bind_noise(model, values: Values, tv: set) -> None:
         for key in ("G", "G_x", "G_xx"):
             setattr(model, key, Folded(getattr(model, key), Qfn, per))
         model.Q = np.eye(model.r)
-        model.process_noise = Gaussian(model.Q)
+        model.process_noise = LazyGaussian
     elif "Q" in model._QR:
         model.Q = covariance_at(model, "Q", model.r, values)
-        model.process_noise = Gaussian(model.Q)
+        model.process_noise = LazyGaussian
     else:
         model.Q, model.process_noise = model._Q0, model._Q_law
     if model.cross_noise is not None:

@@ -102,7 +102,7 @@ from .model_builders import from_functions, linear
 from .model_expressions import (SUPPORTED_FUNCTIONS, check_expressions, check_free_symbols, code_matrix, matrix,
                                 model_symbols, noise_symbols, vector)
 from .model_functions import bind_functions, build_functions
-from .model_noise import STATE_R, R_at, bind_noise, cross_noise_matrix, noise_covariances
+from .model_noise import STATE_R, LazyGaussian, R_at, bind_noise, cross_noise_matrix, noise_covariances
 from .model_values import NO_VALUES, Broadcast, Values, param_value
 from .noise import Gaussian, NoiseLaw
 
@@ -216,11 +216,24 @@ class Model:
         a state-dependent R has the Gaussian ``N(0, R(x))`` at each state instead (:meth:`R_of`)."""
         if self._measurement_noise is None:
             raise ValueError(STATE_R.replace("model.R", "model.measurement_noise", 1))
+        if self._measurement_noise is LazyGaussian:
+            self._measurement_noise = Gaussian(self.R)
         return self._measurement_noise
 
     @measurement_noise.setter
     def measurement_noise(self, value):
         self._measurement_noise = value
+
+    @property
+    def process_noise(self) -> NoiseLaw:
+        """The law of ``w`` (for simulation and the reference filters; Gaussian ``N(0, Q)`` by default)."""
+        if self._process_noise is LazyGaussian:
+            self._process_noise = Gaussian(self.Q)
+        return self._process_noise
+
+    @process_noise.setter
+    def process_noise(self, value):
+        self._process_noise = value
 
     def R_of(self, x, t=0.0) -> np.ndarray:
         """``R(x, t) (..., m, m)`` at a batch of states ``x (..., n)`` (the constant ``R``
@@ -276,6 +289,11 @@ class Model:
     def _lookup(self, key):
         if isinstance(key, sp.Symbol) and key in self._psyms:
             return key
+        names = self.__dict__.get("_names")
+        if names is None:  # by name, computed once (SymPy's str costs microseconds a symbol)
+            names = self._names = {str(p): p for p in self._psyms}
+        if isinstance(key, str) and key in names:
+            return names[key]
         for p in self._psyms:
             if str(p) == key:
                 return p
@@ -311,7 +329,7 @@ class Model:
         given.update(named)
         for key, v in given.items():
             p = self._lookup(key)
-            new[p] = param_value(str(p), v)
+            new[p] = param_value(key if isinstance(key, str) else str(p), v)
         if self.kind == "discrete":
             if dt is not None:
                 raise ValueError(f"dt: a DiscreteModel reads array entry k at step k; expected None, got {dt!r}")

@@ -98,7 +98,7 @@ def test_loaded_and_cached_loops_are_used(tmp_path, monkeypatch):
     flt = EKF(md)
     mid = (1000, 5000)  # NumPy loop ~1.5 s: above LOAD_SECONDS, below the scalar loop's compile
     assert choice.LOAD_SECONDS < choice.numpy_seconds("taylor1", 1, *mid) < choice.COMPILE_SECONDS["scalar"]
-    assert flt.backend_for(*mid) == ("numpy", "the compile (~2 s) costs more than the NumPy loop (~1.5 s)")
+    assert flt.backend_for(*mid) == ("numpy", "the compile (~2 s) costs more than the NumPy loop (~1.5 s so far)")
     forced = flt.run(ys, 0.1, 1.0, loglik=True, backend="numba")
     assert flt.backend_for(2, 30)[0] == "numba"
     default = flt.run(ys, 0.1, 1.0, loglik=True)
@@ -110,6 +110,23 @@ def test_loaded_and_cached_loops_are_used(tmp_path, monkeypatch):
     assert other.backend_for(*mid) == ("numba", "the compiled loop is in the disk cache")
     monkeypatch.setenv("NLFILTER_CACHE", str(tmp_path / "empty"))
     assert other.backend_for(*mid)[0] == "numpy"
+
+
+@needs_numba
+def test_repeated_runs_move_to_the_compiled_loop(tmp_path, monkeypatch):
+    """Tiered: runs of the same loop that each stay on the NumPy loop add up (``record``: runs, not
+    questions), and the first run whose tally reaches the compile time goes compiled; a question
+    (``backend_for``) records nothing. Another model's tally is its own."""
+    monkeypatch.setenv("NLFILTER_CACHE", str(tmp_path / "empty"))
+    flt = EKF(_scalar(0.7))
+    work = choice.numpy_seconds("taylor1", 1, 1000, 1000)
+    need = int(np.ceil(choice.COMPILE_SECONDS["scalar"] / work))
+    assert need >= 3  # several runs, so the test sees the tally
+    for _ in range(5):
+        assert flt.backend_for(1000, 1000)[0] == "numpy"  # questions only
+    picks = [choice.choose(flt, 1000, 1000, record=True).backend for _ in range(need)]
+    assert picks == ["numpy"] * (need - 1) + ["numba"]
+    assert EKF(_scalar(0.6)).backend_for(1000, 1000)[0] == "numpy"
 
 
 def test_auto_is_checked_and_initial_goes_to_numpy():

@@ -320,12 +320,12 @@ class Filter:
                             "the Gaussian filters, the grid and the particle filters have one")
         return self._drive(ys, m0, P0, initial, rng, t0, on_divergence, progress, chunk, False, True, backend)
 
-    def backend_for(self, B: int, T: int, *, repeats: int = 1) -> tuple:
+    def backend_for(self, B: int, T: int, *, repeats: int = 1, record: bool = False) -> tuple:
         """``(backend, why)`` of ``backend="auto"`` for ``B`` paths × ``T`` steps, ``repeats`` times
-        (a fit's evaluations): :func:`~nlfilter.filters.compiled.choice.choose`."""
+        (a fit's evaluations; ``record``: by a run): :func:`~nlfilter.filters.compiled.choice.choose`."""
         if not getattr(self, "compiled", False):  # no class of this filter's declares a compiled loop
             return "numpy", f"{type(self).__name__} has no compiled loop"
-        return tuple(load(AUTO)(self, B, T, repeats))
+        return tuple(load(AUTO)(self, B, T, repeats, record))
 
     def _drive(self, ys, m0, P0, initial, rng, t0, on_divergence, progress, chunk, loglik, smooth, backend="auto"):
         """The one loop behind :meth:`run` and :meth:`smooth`."""
@@ -351,7 +351,7 @@ class Filter:
         B = math.prod(batch)
         yf = ys.reshape(B, T, m)
         if backend == "auto":  # after the data's checks: a run that fails them fails alike on either loop
-            backend = "numpy" if initial is not None else self.backend_for(B, T)[0]
+            backend = "numpy" if initial is not None else self.backend_for(B, T, record=True)[0]
         t0 = V.real("t0", t0)
         if self.time != "continuous" and t0 != 0.0:
             raise ValueError(f"t0: a discrete-time filter indexes steps by k; expected 0.0, got {t0!r}")

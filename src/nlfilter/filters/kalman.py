@@ -36,6 +36,8 @@ class KalmanFilter(DiscreteFilter):
     source = "seed 000 eqs. 1.33-1.36 (Kalman 1960)"
     needs = ("linear",)
     structures = ("cross noise",)
+    compiled = True  # backend="numba": its matrices as data (compiled.kalman_loop); cross noise runs here
+    compiled_kind = "kalman"
 
     def __init__(self, model, *, start: str | None = None):
         super().__init__(model, start=start)

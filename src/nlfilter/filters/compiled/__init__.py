@@ -14,6 +14,8 @@ node rules (``ukf``, ``ckf``,   ``X_i = m + L z_i`` (``P = L Lᵀ``, Cholesky; e
 ``ghkf``, ``slf``)              only semi-definite), weighted sums as :class:`~nlfilter.filters.rules.NodeRule`
 Taylor-2 (``truncated``, …,     seed 004 eqs. 18-23 in every form of :data:`~nlfilter.filters.rules.FORMS`:
 ``modified-gaussian``)          ½(P g_xx), the fourth-moment terms, the forcing tensor, S screened
+Kalman (``kf``)                 the model's matrices F, b, H, d, G Q Gᵀ read as data (per time when
+                                they vary): one loop for every linear model (:mod:`.kalman_loop`)
 ==============================  ================================================================
 
 A model with one state, one measurement and one noise runs the EKF's scalar batch loop
@@ -35,7 +37,8 @@ rotation free (then any root is as right, and the moments agree to the rule's ex
 What it takes: a filter whose class declares ``compiled = True`` (the discrete Gaussian filters
 above), with no step overridden below it (:func:`steps_refusal`); a :class:`~nlfilter.models.DiscreteModel` stated in SymPy, additive noise, constant
 Q and R, no correlated noise, parameters with one value each (arrays over time, inputs: the NumPy
-loop); Taylor-2 also a G free of the states. :func:`unsupported` names what a filter or model
+loop); Taylor-2 also a G free of the states; the Kalman filter any linear DiscreteModel (SymPy or
+matrices, time-varying too) without correlated noise or parameters per path. :func:`unsupported` names what a filter or model
 lacks; ``run`` then raises a TypeError naming ``backend``. Compilation (numba) happens at the first
 run of each model and rule kind (seconds), shared by every :meth:`~nlfilter.models.Model.with_params`
 copy; later runs reuse it.
@@ -49,6 +52,8 @@ The package, one concept a module:
 :mod:`.path_linalg`     one-path linear algebra: Cholesky, the divergence test, Jacobi, LU, products
 :mod:`.step_kernels`    one-path step pieces: covariances, node moments, Taylor-2 terms, the update
 :mod:`.rule_kernels`    one predict and one update kernel per rule kind, and their work arrays
+:mod:`.kalman_loop`     the Kalman filter's kernels: the matrices as data (the template's, and the scalar
+                        batch loop's f, h, G reading them from ``p``)
 :mod:`.loops`           one loop template for every rule kind; the scalar EKF's batch loop
 :mod:`.build`           the template with a kind's kernels and the model's functions, as one module's text
 :mod:`.cache`           that module written to the disk cache and imported, numba's code kept beside it

@@ -16,10 +16,11 @@ import inspect
 
 from . import loops, path_linalg, rule_kernels, step_kernels
 from .cache import load_source
+from .kalman_loop import KALMAN_KEY, SCALAR
 from .kernels import KERNELS, model_kernels, scalar_kernels
 from .support import rule_kind
 
-__all__ = ["FUNCTION_ARGS", "SPECIALIZE_UP_TO", "loop_of", "source", "steps", "text_of", "loaded"]
+__all__ = ["FUNCTION_ARGS", "SPECIALIZE_UP_TO", "loop_of", "source", "steps", "text_of", "loaded", "loop_name"]
 
 #: the functions a source takes first (bound as globals by :func:`steps`): the model's functions
 #: of each kernel, the kernels of the template
@@ -129,15 +130,19 @@ def source(kind: str, fns: dict, scalar: bool = False, dims=None) -> str:
 
 
 def loop_of(flt):
-    """``(kind, fns, scalar, dims)``: the loop that runs ``flt`` (:func:`.build.steps`' arguments):
-    its rule kind, the model's functions (:mod:`.kernels`, generated once per model), whether it is
-    the scalar batch loop (the EKF on one state, measurement and noise), the dimensions compiled
-    in (models up to :data:`SPECIALIZE_UP_TO`) or None."""
+    """``(kind, fns, scalar, dims, key)``: the loop that runs ``flt`` (:func:`steps`' arguments): its
+    rule kind, the model's functions (:mod:`.kernels`, generated once per model), whether it is the
+    scalar batch loop (the EKF on one state, measurement and noise; the KF on one state and
+    measurement), the dimensions compiled in (models up to :data:`SPECIALIZE_UP_TO`) or None, the
+    store its loops are kept in (:data:`~.kernels.KERNELS`: the model's, the KF's one)."""
     md = flt.model
     n, mdim, r = md.n, md.m, md.r
     kind = rule_kind(flt)
+    if kind == "kalman":  # the matrices are data: one loop for every linear model (the scalar one's f, h, G read them)
+        return (kind, SCALAR, True, None, KALMAN_KEY) if n == mdim == 1 else (kind, {}, False, None, KALMAN_KEY)
+    key = md._kernels["f"]
     if kind == "taylor1" and n == mdim == r == 1:
-        return kind, scalar_kernels(md), True, None
+        return kind, scalar_kernels(md), True, None, key
     dims = (n, mdim, r, None) if max(n, mdim) <= SPECIALIZE_UP_TO else None  # N stays: UKF/CKF/GHKF share
     second = kind == "taylor2" and flt.rule.second
     fns = model_kernels(md, second=second)
@@ -145,7 +150,7 @@ def loop_of(flt):
     # never called; None, a compiled no-op, fills them)
     args = {"taylor1": {"f": "f", "fx": "f_x", "h": "h", "hx": "h_x", "G": "G"}, "nodes": {"f": "f", "h": "h", "G": "G"},
             "taylor2": {"f": "f", "fx": "f_x", "fxx": "f_xx", "h": "h", "hx": "h_x", "hxx": "h_xx"}}[kind]
-    return kind, {a: fns.get(w) for a, w in args.items()}, False, dims
+    return kind, {a: fns.get(w) for a, w in args.items()}, False, dims, key
 
 
 def steps(kind: str, fns: dict, key, scalar: bool = False, dims=None):
@@ -159,15 +164,15 @@ def steps(kind: str, fns: dict, key, scalar: bool = False, dims=None):
     the template (one call site each). Made once per model (``key``: its kernel store) and kind in a
     process, and loaded from the disk cache (:mod:`.cache`) where another process compiled it.
     Returns ``(loop, cache entry)``."""
-    store = KERNELS[key]
-    name = _name(kind, fns, scalar, dims)
+    store = KERNELS.setdefault(key, {})
+    name = loop_name(kind, fns, scalar, dims)
     if name not in store:
         module, entry = load_source(*text_of(kind, fns, scalar, dims))
         store[name] = (module.steps, entry)
     return store[name]
 
 
-def _name(kind, fns, scalar, dims):
+def loop_name(kind, fns, scalar, dims):
     return ("steps", kind, fns.get("fxx") is None if kind == "taylor2" else scalar, dims)
 
 
@@ -178,4 +183,4 @@ def text_of(kind: str, fns: dict, scalar: bool = False, dims=None) -> tuple:
 
 def loaded(kind: str, fns: dict, key, scalar: bool = False, dims=None) -> bool:
     """Whether :func:`steps` has this loop for the model of kernel store ``key`` in this process."""
-    return _name(kind, fns, scalar, dims) in KERNELS.get(key, {})
+    return loop_name(kind, fns, scalar, dims) in KERNELS.get(key, {})

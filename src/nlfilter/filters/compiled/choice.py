@@ -1,18 +1,24 @@
 """``backend="auto"``, the default of ``run``, ``smooth`` and ``fit``: the compiled loop where it is
 ready or repays its compile, the NumPy loop otherwise.
 
-The rule (:func:`choose`), in order:
+The rule (:func:`choose`), in order — a tiered one, as a JIT's: the NumPy loop first, the compiled
+loop once the process has shown it repeats the work:
 
 1. A filter or model the compiled loop does not take (:func:`~.support.static_refusal`: the
    filter's declaration, its rule, the model's structure) runs on the NumPy loop.
 2. A loop already in this process (compiled or loaded by an earlier run) runs compiled.
-3. The NumPy loop's estimated time ``W`` (:func:`numpy_seconds`: ``repeats × T × (a + B·b·n^1.5)``
-   µs with the per-step and per-path-step costs of the rule kind, :data:`STEP_US`,
-   :data:`PATH_STEP_US`) decides the rest: below :data:`LOAD_SECONDS` (numba's import and a cached
-   loop's first call in a new process) the NumPy loop; at or above the loop's compile time
-   (:data:`COMPILE_SECONDS`) the compiled loop, compiled now and kept on disk; in between the
-   compiled loop only where the disk cache holds it (:func:`~.cache.ready`).
+3. ``W``: the NumPy loop's estimated time for this run (:func:`numpy_seconds`:
+   ``repeats × T × (a + B·b·n^1.5)`` µs with the per-step and per-path-step costs of the rule kind,
+   :data:`STEP_US`, :data:`PATH_STEP_US`) plus that of the earlier runs of the same loop in this
+   process that took the NumPy loop. Below the cost of loading a cached loop (:data:`LOAD_SECONDS`:
+   numba's import; :data:`LOADED_SECONDS` once numba is imported) the NumPy loop; at or above the
+   loop's compile time (:data:`COMPILE_SECONDS`) the compiled loop, compiled now and kept on disk;
+   in between the compiled loop only where the disk cache holds it (:func:`~.cache.ready`).
 4. numba not importable: the NumPy loop.
+
+So a single short run never imports numba; a fit, whose evaluations count as ``repeats``, or a
+process running the same model again and again, moves to the compiled loop as soon as the time
+it would save exceeds the time to get it.
 
 The costs are measured orders of magnitude (README, Benchmarks: one core), not promises; the rule
 needs them to within a factor of a few. Both loops give the same estimates to rounding (1e-12
@@ -22,22 +28,26 @@ no result beyond that. ``backend="numpy"`` or ``"numba"`` forces either.
 
 from __future__ import annotations
 
+import sys
 from typing import NamedTuple
 
 from .support import static_refusal
 
-__all__ = ["Choice", "choose", "numpy_seconds", "COMPILE_SECONDS", "LOAD_SECONDS", "STEP_US", "PATH_STEP_US"]
+__all__ = ["Choice", "choose", "numpy_seconds", "COMPILE_SECONDS", "LOAD_SECONDS", "LOADED_SECONDS", "STEP_US",
+           "PATH_STEP_US"]
 
 #: the NumPy loop's cost per step, µs (one trajectory: its Python overhead), by rule kind
-STEP_US = {"taylor1": 50.0, "nodes": 110.0, "taylor2": 160.0}
+STEP_US = {"kalman": 40.0, "taylor1": 50.0, "nodes": 110.0, "taylor2": 160.0}
 #: and per path-step at ``n = 1``, µs, scaled by ``n^1.5`` (1000 paths: 0.12 µs for the EKF at
 #: n = 1, 3.6 at n = 4, 22.7 at n = 16; the UKF and second-order filters 2-3× the EKF)
-PATH_STEP_US = {"taylor1": 0.25, "nodes": 0.45, "taylor2": 0.6}
+PATH_STEP_US = {"kalman": 0.2, "taylor1": 0.25, "nodes": 0.45, "taylor2": 0.6}
 #: a loop's first compile, CPU seconds: the scalar EKF's batch loop, the loops specialized to the
 #: dimensions (n, m ≤ :data:`~.build.SPECIALIZE_UP_TO`), the general loop
 COMPILE_SECONDS = {"scalar": 2.0, "specialized": 45.0, "general": 10.0}
 #: a cached loop's first run in a new process (numba's import, reading its code), seconds
 LOAD_SECONDS = 1.0
+#: the same once numba is imported in the process (reading the loop's code)
+LOADED_SECONDS = 0.1
 
 
 class Choice(NamedTuple):
@@ -52,26 +62,36 @@ def numpy_seconds(kind: str, n: int, B: int, T: int, repeats: int = 1) -> float:
     return repeats * T * (STEP_US[kind] + B * PATH_STEP_US[kind] * max(n, 1) ** 1.5) * 1e-6
 
 
-def choose(flt, B: int, T: int, repeats: int = 1) -> Choice:
+def choose(flt, B: int, T: int, repeats: int = 1, record: bool = False) -> Choice:
     """The backend ``run(..., backend="auto")`` takes for ``flt`` on ``B`` paths × ``T`` steps
-    (``repeats``: runs of the same size to come, as a fit's evaluations). See the module's rule."""
+    (``repeats``: runs of the same size to come, as a fit's evaluations). See the module's rule.
+    ``record``: the run happens (a NumPy run's time is added to its loop's tally); a question only
+    (:meth:`~nlfilter.filters.base.Filter.backend_for`) records nothing."""
     reason = static_refusal(flt)
     if reason is not None:
         return Choice("numpy", f"no compiled loop: {reason}")
     from . import build, cache
 
-    kind, fns, scalar, dims = build.loop_of(flt)
-    if build.loaded(kind, fns, flt.model._kernels["f"], scalar, dims):
+    kind, fns, scalar, dims, key = build.loop_of(flt)
+    if build.loaded(kind, fns, key, scalar, dims):
         return Choice("numba", "the compiled loop is loaded in this process")
+    store = build.KERNELS.setdefault(key, {})
+    tally = ("numpy seconds", build.loop_name(kind, fns, scalar, dims))
     work = numpy_seconds(kind, flt.model.n, B, T, repeats)
+    spent = store.get(tally, 0.0) + work  # with this run's: what this loop would have saved in the process
     compile_s = COMPILE_SECONDS["scalar" if scalar else "general" if dims is None else "specialized"]
-    if work < LOAD_SECONDS:
-        return Choice("numpy", f"a short run (NumPy loop ~{work:.2g} s)")
-    from .support import available
-    if not available():
-        return Choice("numpy", "numba does not import here")
-    if work >= compile_s:
-        return Choice("numba", f"the run (NumPy loop ~{work:.2g} s) repays the compile (~{compile_s:g} s)")
-    if cache.ready(*build.text_of(kind, fns, scalar, dims)) is not None:
-        return Choice("numba", "the compiled loop is in the disk cache")
-    return Choice("numpy", f"the compile (~{compile_s:g} s) costs more than the NumPy loop (~{work:.2g} s)")
+    load_s = LOADED_SECONDS if "numba" in sys.modules else LOAD_SECONDS
+    if spent >= load_s:
+        from .support import available
+        if not available():
+            return Choice("numpy", "numba does not import here")
+        if spent >= compile_s:
+            return Choice("numba", f"the NumPy loop's time (~{spent:.2g} s, this run's and earlier runs') repays the "
+                                   f"compile (~{compile_s:g} s)")
+        if cache.ready(*build.text_of(kind, fns, scalar, dims)) is not None:
+            return Choice("numba", "the compiled loop is in the disk cache")
+    if record:
+        store[tally] = spent
+    if spent < load_s:
+        return Choice("numpy", f"a short run (NumPy loop ~{work:.2g} s; ~{spent:.2g} s in this process)")
+    return Choice("numpy", f"the compile (~{compile_s:g} s) costs more than the NumPy loop (~{spent:.2g} s so far)")

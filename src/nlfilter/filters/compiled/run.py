@@ -17,6 +17,7 @@ from ..recorder import loglik_divergence
 from ..rules import FORM_TABLE
 from . import build
 from .cache import seal
+from .kalman_loop import matrices, scalar_parameters
 from .loops import alloc_path
 from .rule_kernels import ALLOC
 from .support import unsupported
@@ -57,12 +58,6 @@ def run_compiled(flt, yf, batch, m0, P0, on, loglik, progress=False):
     ys = _plain(yf)
     offset = 0 if flt.start == "update" else 1
     absent = np.isnan(ys).all(axis=(0, 2)) if B else np.zeros(T, bool)
-    vals = md._values.values
-    p = np.array([float(vals[s]) for s in md._psyms], float)
-    Q = _plain(md.Q)
-    R = _plain(md.R)
-    G_const = bool(md._G_fixed)
-    GQG0 = _plain(md.GQGT(np.zeros(n))) if G_const else np.zeros((n, n))
     means = np.empty((B, T, n))
     covs = np.empty((B, T, n, n))
     want = bool(loglik)
@@ -70,8 +65,26 @@ def run_compiled(flt, yf, batch, m0, P0, on, loglik, progress=False):
     inn = np.empty((B, T, mdim) if want else (0, 0, 0))
     icov = np.empty((B, T, mdim, mdim) if want else (0, 0, 0, 0))
     step = np.full(B, -1, np.int64)
-    kind, fns, scalar, dims = build.loop_of(flt)
-    steps, entry = build.steps(kind, fns, md._kernels["f"], scalar=scalar, dims=dims)
+    kind, fns, scalar, dims, key = build.loop_of(flt)
+    steps, entry = build.steps(kind, fns, key, scalar=scalar, dims=dims)
+    R = _plain(md.R)
+    if kind == "kalman":  # the model's matrices as data (F, b, H, d, G Q Gᵀ): no code per model
+        ks = matrices(flt, T + offset)
+        if ks is None:  # pragma: no cover - unsupported refuses parameters per path
+            raise TypeError("backend: 'numba' takes one F, b, H, d, G Q Gᵀ per time; use backend='numpy'")
+        if not scalar:  # the template with the Kalman kernels, compiled once for every linear model
+            nil = np.empty((0, 0))  # p, Q, GQG0: read by the rule kernels only
+            steps(ys, mean0, cov0, np.empty(0), nil, R, nil, False, offset, absent, PSD_TOL, means, covs, ll, inn, icov,
+                  want, step, ks, ALLOC[kind](n, mdim), *alloc_path(n, mdim))
+            seal(entry)
+            return finish(flt, on, step, batch, means, covs, want, ll, inn, icov)
+        p, Q, GQG0, G_const = scalar_parameters(ks)  # the scalar batch loop's f, h, G read the matrices in p
+    else:
+        vals = md._values.values
+        p = np.array([float(vals[s]) for s in md._psyms], float)
+        Q = _plain(md.Q)
+        G_const = bool(md._G_fixed)
+        GQG0 = _plain(md.GQGT(np.zeros(n))) if G_const else np.zeros((n, n))
     if scalar:  # the scalar batch loop, time-major outputs
         outm, outP = np.empty((T, B)), np.empty((T, B))
         sll, sinn, sicov = (np.empty((T, B)), np.empty((T, B)), np.empty((T, B))) if want else (ll, ll, ll)

@@ -21,8 +21,9 @@ def numba():
         return None, exc
     return nb, None
 
-#: the rule kinds (``rule.kind``) the compiled loop has a step kernel for
-KINDS = ("taylor1", "nodes", "taylor2")
+#: the rule kinds (``rule.kind``) the compiled loop has a step kernel for; ``"kalman"``: the linear
+#: Kalman filter (its class's ``compiled_kind``; the model's matrices as data, :mod:`.kalman_loop`)
+KINDS = ("taylor1", "nodes", "taylor2", "kalman")
 
 #: what a subclass of a class declaring ``compiled = True`` may redefine and still run compiled:
 #: its constructor and representation. Any other method of the family it redefines (``predict``,
@@ -77,7 +78,7 @@ def steps_refusal(flt) -> str | None:
     at = next((i for i, c in enumerate(mro) if "compiled" in vars(c)), None)
     if at is None or not vars(mro[at])["compiled"]:
         by = "" if at is None else f" ({mro[at].__name__} sets compiled = False)"
-        return (f"{cls.__name__} has no compiled loop{by}; it runs the discrete Gaussian filters (ekf, ukf, ckf, "
+        return (f"{cls.__name__} has no compiled loop{by}; it runs the discrete Gaussian filters (kf, ekf, ukf, ckf, "
                 "ghkf, slf, the discrete second-order forms)")
     family = set().union(*(_methods(c) for c in mro[at:])) - set(ALLOWED_OVERRIDES)
     for c in mro[:at]:
@@ -91,8 +92,9 @@ def steps_refusal(flt) -> str | None:
 
 
 def rule_kind(flt):
-    """The rule's step kernel (``rule.kind``: ``"taylor1"``, ``"nodes"``, ``"taylor2"``), or None."""
-    kind = getattr(getattr(flt, "rule", None), "kind", None)
+    """The rule's step kernel (``rule.kind``: ``"taylor1"``, ``"nodes"``, ``"taylor2"``; the
+    filter's ``compiled_kind``: ``"kalman"``), or None."""
+    kind = getattr(flt, "compiled_kind", None) or getattr(getattr(flt, "rule", None), "kind", None)
     return kind if kind in KINDS else None
 
 
@@ -116,6 +118,8 @@ def static_refusal(flt) -> str | None:
     if getattr(flt, "augmented", False):
         return f"{name} with augmented sigma points has no compiled form"
     md = flt.model
+    if kind == "kalman":
+        return _kalman_refusal(md)
     if getattr(md, "kind", None) != "discrete" or md.expressions is None:
         return "the model must be a DiscreteModel stated in SymPy (not from_functions)"
     if not (md.additive and md.additive_measurement):
@@ -132,4 +136,18 @@ def static_refusal(flt) -> str | None:
         return "the model has parameters or inputs that vary over time (arrays) or are not given"
     if kind == "taylor2" and not md._G_fixed:
         return "the second-order filters' compiled loop needs a G that depends on neither the state nor the time"
+    return None
+
+
+def _kalman_refusal(md) -> str | None:
+    """Why the Kalman filter's compiled loop cannot take the linear model ``md``, or None: its
+    matrices are data (:mod:`.kalman_loop`), so any linear DiscreteModel, from SymPy or from
+    callables, time-varying or not, with one set of parameter values for all paths."""
+    if md.cross_noise is not None:
+        return "the model has correlated process and measurement noise (cross_noise)"
+    if not md.R_constant:
+        return "the model's R depends on the state"
+    vals = md._values
+    if vals.per_path or vals.unset:
+        return "the model has parameters or inputs per path, or inputs not given"
     return None
