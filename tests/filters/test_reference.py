@@ -235,3 +235,16 @@ def test_particle_filter_batched_draws_weights_and_moments():
     b = flt.update(flt.init(M2, P2, (3,), rng=1), np.array([[0.3, 0.1], [np.nan, np.nan], [1.0, -0.5]]), 0)
     np.testing.assert_array_equal(b.w, weights(b.logw))  # the update's weights, kept for summary, ESS, resampling
     assert flt.reset(b, np.array([True, False, False]), flt.init(M2, P2, (3,), rng=1)).w is None
+
+
+def test_particle_filter_means_only_gives_the_same_means():
+    """The certificate's refinement run reads only its MSE (yardstick._check sets ``means_only``):
+    the same means, bitwise (the same draws and weights), and no covariances (NaN)."""
+    ys = simulate(D2, 6, paths=3, rng=2, m0=M2, P0=P2).ys
+    flt = ParticleFilter(D2, 100)
+    full = flt.run(ys, M2, P2, rng=5)
+    flt.means_only = True
+    lean = flt.run(ys, M2, P2, rng=5)
+    np.testing.assert_array_equal(lean.means, full.means)
+    np.testing.assert_array_equal(lean.extras["ess"], full.extras["ess"])
+    assert np.isnan(lean.covs).all()

@@ -107,6 +107,7 @@ class ParticleFilter(_ReferenceFilter):
     structures = ("state-dependent R", "non-additive noise")
     measurement_convention = LEFT_POINT
     blas_threads = 1  # small dense products per step (the summary's): one BLAS thread (base.Filter.blas_threads)
+    means_only = False  # True: the summary's covariance is not computed (NaN in the output): a run read for its MSE only
 
     def __init__(self, model, particles: int = 2000, *, dt: float | None = None, substeps: int | None = None,
                  threshold: float = 0.5, start: str | None = None):
@@ -179,8 +180,9 @@ class ParticleFilter(_ReferenceFilter):
         return belief
 
     def summary(self, belief: ParticleBelief):
-        """Weighted mean and covariance of the particles."""
-        return cloud_moments(_weights(belief), belief.x)
+        """Weighted mean and covariance of the particles (the mean alone, covariance None, when
+        ``means_only``: the certificate's refinement run, :func:`nlfilter.yardstick._check`)."""
+        return cloud_moments(_weights(belief), belief.x, cov=not self.means_only)
 
     def extras(self, belief: ParticleBelief):
         """``ess (B,)`` per step: the effective sample size ``1 / Σ w²`` of the weights after the
