@@ -54,12 +54,18 @@ def _weights(belief):
 def _draw(law, rng, shape):
     """``(B, *shape, d)`` draws of the noise law ``law``, path ``i`` from ``rng``'s generator ``i``:
     ``rng.sample(law, shape)``, bitwise. A :class:`~nlfilter.noise.Gaussian`'s standard normals are
-    drawn path by path and its ``mean + z Sᵀ`` applied once to all (``Gaussian.sample``'s
-    arithmetic: with ``r = 1`` a product, :func:`~nlfilter.filters.linalg.mm`, as the 1 × 1
-    matmul; else the stacked matmul, which makes the per-path matmul's call for each path)."""
+    drawn path by path and its ``mean + z Sᵀ`` applied once to all, in place (``Gaussian.sample``'s
+    arithmetic: with ``r = 1`` the 1 × 1 matmul's one product, as :func:`~nlfilter.filters.linalg.mm`;
+    else the stacked matmul, which makes the per-path matmul's call for each path)."""
     if type(law) is not Gaussian:
         return rng.sample(law, shape)
-    return law.mean + mm(rng.standard_normal((*shape, law.dim)), law._sqrt.T)
+    z = rng.standard_normal((*shape, law.dim))
+    if law.dim == 1:
+        z *= law._sqrt[0, 0]
+    else:
+        z = z @ law._sqrt.T
+    z += law.mean
+    return z
 
 
 def systematic_resample(w, rng):
