@@ -58,12 +58,12 @@ def nees_band(per, *, alpha: float = NEES_ALPHA, slack: float = NEES_SLACK, comp
     ``{component, nees, stderr, band, z, ok}``, the mean over paths, its standard error and the
     band ``1 ± (z se + slack)``, ``z = t_{N−1}(1 − alpha / 2n)`` (module docstring). An infinite
     value (a zero variance under an error) fails. Empty below :data:`CHECK_PATHS` paths."""
-    from scipy.stats import t as student
+    from scipy.special import stdtrit  # the Student quantile scipy.stats.t.ppf calls, without importing scipy.stats (0.6 s)
     per = np.asarray(per, float)
     if per.ndim != 2 or per.shape[0] < CHECK_PATHS:
         return []
     n = per.shape[1]
-    z = float(student.ppf(1.0 - alpha / (2 * n), per.shape[0] - 1))
+    z = float(stdtrit(per.shape[0] - 1, 1.0 - alpha / (2 * n)))
     out = []
     for i in range(n):
         m = float(np.mean(per[:, i]))

@@ -295,7 +295,10 @@ def _check(est, diag, fine, sim, sub, judged, window, rtol, run, tag):
     """The refinement check of a reference's estimates ``est`` (all paths) against the filter
     ``fine`` run on the paths ``sub``: ``(record fields, certified)`` — the change ``error``
     ``[(Δ, se)]``, its ``bound``, the ``tolerance``, the reference's ``mse``; certified when
-    :func:`_verdict` passes, the edge mass is within :data:`EDGE_MASS` and no path diverged."""
+    :func:`_verdict` passes, the edge mass is within :data:`EDGE_MASS` and no path diverged.
+    A particle ``fine`` runs ``means_only`` (the check reads its MSE alone: no covariances)."""
+    if isinstance(fine, ParticleFilter):
+        fine.means_only = True
     error = _refinement_error(run(fine, sim.ys[sub], tag), est.take(sub), sim.xs[sub], window)
     ref_mse = [mse(est, sim.xs, component=i, window=window).value for i in range(sim.xs.shape[-1])]
     tol = _tolerance(est, judged, sim.xs, window, rtol)

@@ -70,15 +70,24 @@ def weights(logw: np.ndarray) -> np.ndarray:
     finite log-weight."""
     Np = logw.shape[1]
     mx = logw.max(axis=1, keepdims=True)
+    if np.isfinite(mx).all():  # the usual case, every path with mass: the same numbers without the masks
+        w = np.subtract(logw, mx)
+        w /= np.exp(w, out=w).sum(axis=1, keepdims=True)
+        return w
     dead = ~np.isfinite(mx[:, 0])
     w = np.exp(logw - np.where(np.isfinite(mx), mx, 0.0))
     w /= w.sum(axis=1, keepdims=True)
     return np.where(dead[:, None], 1.0 / Np, w)
 
 
-def cloud_moments(w: np.ndarray, x: np.ndarray):
+def cloud_moments(w: np.ndarray, x: np.ndarray, cov: bool = True):
     """Weighted mean ``(B, n)`` and covariance ``(B, n, n)`` of the clouds ``x (B, Np, n)`` with
-    normalized weights ``w (B, Np)``."""
-    mean = np.einsum("bp,bpi->bi", w, x)
-    d = x - mean[:, None, :]
-    return mean, np.einsum("bp,bpi,bpj->bij", w, d, d)
+    normalized weights ``w (B, Np)``: ``m = Σ_p w_p x_p`` and ``Σ_p w_p (x_p − m)(x_p − m)ᵀ``, two
+    matrix products per path (BLAS; the deviations laid out ``(B, n, Np)``, so that every
+    elementwise pass runs along the particles). ``cov`` False: ``(mean, None)``."""
+    B, Np, n = x.shape
+    mean = np.matmul(w[:, None, :], x)[:, 0]
+    if not cov:
+        return mean, None
+    d = np.subtract(np.swapaxes(x, 1, 2), mean[:, :, None], out=np.empty((B, n, Np)))
+    return mean, np.matmul(d * w[:, None, :], np.swapaxes(d, 1, 2))

@@ -14,22 +14,25 @@ import numpy as np
 
 from ... import _validate as V
 from ...sde_step import LEFT_POINT, SUBSTEPS, euler_maruyama, increment_loglik
-from ...noise import initial_states
+from ...noise import Gaussian, initial_states
 from ...streams import FILTER, PathRNG
 from ..pointmass import cloud_moments, weights
-from ..linalg import gaussian_loglik, innovation_info, measurement_loglik, no_information, observed_precision
+from ..linalg import gaussian_loglik, innovation_info, measurement_loglik, mm, no_information, observed_precision
 from ._reference_base import _ReferenceFilter
 from .forward_backward import ffbsm, transition_logpdf
 
 
 class ParticleBelief(NamedTuple):
     """Particles ``x (B, Np, n)``, log-weights ``logw (B, Np)`` (unnormalized: the weights of the
-    last update, kept until the next ``predict``/``step`` resamples), and the per-path generators
-    ``rng`` (one object for the run: a restarted path keeps drawing from its stream)."""
+    last update, kept until the next ``predict``/``step`` resamples), the per-path generators
+    ``rng`` (one object for the run: a restarted path keeps drawing from its stream), and ``w``:
+    the normalized weights of ``logw`` (:func:`~nlfilter.filters.pointmass.weights`), computed
+    once by the update for the step's summary, ESS and resampling, or None (computed when needed)."""
 
     x: np.ndarray
     logw: np.ndarray
     rng: PathRNG
+    w: np.ndarray | None = None
 
     _shared = ("rng",)
 
@@ -41,6 +44,28 @@ def _dead_paths(logw):
     mx = np.max(logw, axis=-1)
     dead = ~np.isfinite(mx)
     return dead if dead.any() else None
+
+
+def _weights(belief):
+    """The normalized weights of a belief's ``logw``: its ``w``, or computed."""
+    return weights(belief.logw) if belief.w is None else belief.w
+
+
+def _draw(law, rng, shape):
+    """``(B, *shape, d)`` draws of the noise law ``law``, path ``i`` from ``rng``'s generator ``i``:
+    ``rng.sample(law, shape)``, bitwise. A :class:`~nlfilter.noise.Gaussian`'s standard normals are
+    drawn path by path and its ``mean + z Sᵀ`` applied once to all, in place (``Gaussian.sample``'s
+    arithmetic: with ``r = 1`` the 1 × 1 matmul's one product, as :func:`~nlfilter.filters.linalg.mm`;
+    else the stacked matmul, which makes the per-path matmul's call for each path)."""
+    if type(law) is not Gaussian:
+        return rng.sample(law, shape)
+    z = rng.standard_normal((*shape, law.dim))
+    if law.dim == 1:
+        z *= law._sqrt[0, 0]
+    else:
+        z = z @ law._sqrt.T
+    z += law.mean
+    return z
 
 
 def systematic_resample(w, rng):
@@ -87,6 +112,8 @@ class ParticleFilter(_ReferenceFilter):
     random = True
     structures = ("state-dependent R", "non-additive noise")
     measurement_convention = LEFT_POINT
+    blas_threads = 1  # small dense products per step (the summary's): one BLAS thread (base.Filter.blas_threads)
+    means_only = False  # True: the summary's covariance is not computed (NaN in the output): a run read for its MSE only
 
     def __init__(self, model, particles: int = 2000, *, dt: float | None = None, substeps: int | None = None,
                  threshold: float = 0.5, start: str | None = None):
@@ -159,14 +186,20 @@ class ParticleFilter(_ReferenceFilter):
         return belief
 
     def summary(self, belief: ParticleBelief):
-        """Weighted mean and covariance of the particles."""
-        return cloud_moments(weights(belief.logw), belief.x)
+        """Weighted mean and covariance of the particles (the mean alone, covariance None, when
+        ``means_only``: the certificate's refinement run, :func:`nlfilter.yardstick._check`)."""
+        return cloud_moments(_weights(belief), belief.x, cov=not self.means_only)
 
     def extras(self, belief: ParticleBelief):
         """``ess (B,)`` per step: the effective sample size ``1 / Σ w²`` of the weights after the
         step's update (``particles`` right after a resampling with no measurement)."""
-        w = weights(belief.logw)
+        w = _weights(belief)
         return {"ess": 1.0 / np.sum(w * w, axis=1)}
+
+    def reset(self, belief: ParticleBelief, paths, start):
+        """The belief with the paths ``paths`` restarted from ``start`` (field by field), its
+        weights ``w`` recomputed when needed."""
+        return super().reset(belief._replace(w=None), paths, start._replace(w=None))
 
     def _update_unchecked(self, belief, y, k):
         self._need("discrete", "update")
@@ -213,7 +246,7 @@ class ParticleFilter(_ReferenceFilter):
         bad = _dead_paths(logw)
         if bad is not None:
             logw = np.where(bad[:, None], 0.0, logw)
-        return (ParticleBelief(x, logw, belief.rng), bad) + ((out,) if info else ())
+        return (ParticleBelief(x, logw, belief.rng, weights(logw)), bad) + ((out,) if info else ())
 
     def _info(self, x, logw, ll, y, k, hbar=None):
         md = self.model
@@ -236,14 +269,20 @@ class ParticleFilter(_ReferenceFilter):
         """``(x, logw)`` with the paths whose ESS < threshold · particles resampled (systematic)."""
         x, logw = belief.x, belief.logw
         Np = self.particles
-        w = weights(logw)
+        w = _weights(belief)
         ess = 1.0 / np.sum(w**2, axis=1)
         rs = ess < self.threshold * Np
         if rs.any():
-            idx = systematic_resample(w[rs], belief.rng.take(rs))
-            x, logw = x.copy(), logw.copy()
-            x[rs] = np.take_along_axis(x[rs], idx[..., None], axis=1)
-            logw[rs] = 0.0
+            rows = np.flatnonzero(rs)
+            idx = systematic_resample(w[rows], belief.rng.take(rows))
+            B, n = x.shape[0], x.shape[-1]
+            picked = x.reshape(B * Np, n)[(idx + Np * rows[:, None]).ravel()]  # one gather of the new clouds
+            if rows.size == B:
+                x, logw = picked.reshape(x.shape), np.zeros_like(logw)
+            else:
+                x, logw = x.copy(), logw.copy()
+                x[rows] = picked.reshape(rows.size, Np, n)
+                logw[rows] = 0.0
         return x, logw
 
     def _propagate(self, x, t, rng):
@@ -252,19 +291,21 @@ class ParticleFilter(_ReferenceFilter):
         them (SDE, :func:`~nlfilter.sde_step.euler_maruyama`: the simulator's arithmetic)."""
         md = self.model
         if md.kind == "discrete":
-            w = rng.sample(md.process_noise, x.shape[1:-1])
+            w = _draw(md.process_noise, rng, x.shape[1:-1])
             return md.transition(x, w, t)  # f(x) + G(x) w, or f(x, w) for non-additive noise
         sq = np.sqrt(self.dt / self.substeps)
         L = md.process_noise._sqrt
         x, ih = euler_maruyama(md, x, t, self.dt, self.substeps,
-                               lambda j: rng.standard_normal((*x.shape[1:-1], md.r)) @ L.T * sq)
+                               lambda j: mm(rng.standard_normal((*x.shape[1:-1], md.r)), L.T) * sq)
         return x, ih / self.dt
 
     def _loglik(self, x, y, k, hbar=None):
         md = self.model
         obs = ~np.isnan(y)
         if md.kind == "discrete":
-            resid = np.where(obs[..., None, :], y[..., None, :] - md.h(x, k), 0.0)
+            resid = y[..., None, :] - md.h(x, k)
+            if not obs.all():
+                resid = np.where(obs[..., None, :], resid, 0.0)
             if not md.R_constant:  # v ~ N(0, R(x)) exactly at each particle
                 return gaussian_loglik(resid, md.R_of(x, k), obs[..., None, :])
             return measurement_loglik(md.measurement_noise, resid, obs)
