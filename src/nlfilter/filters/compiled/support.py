@@ -51,13 +51,22 @@ class _Jit:
     def __init__(self, fn, kw):
         self.py_func, self._kw, self._compiled = fn, kw, None
 
-    def __call__(self, *args):
+    def dispatcher(self):
+        """The numba dispatcher (made once); the kernels it calls, globals of its module that are
+        still :class:`_Jit`, are replaced there by theirs (numba types a dispatcher, not this)."""
         if self._compiled is None:
             nb = numba()[0]
             # error_model="numpy": a division by zero gives inf/NaN (caught by the divergence
             # test), as in NumPy, instead of raising ZeroDivisionError
             self._compiled = self.py_func if nb is None else nb.njit(error_model="numpy", nogil=True, **self._kw)(self.py_func)
-        return self._compiled(*args)
+            names = self.py_func.__globals__
+            for name, value in list(names.items()):
+                if isinstance(value, _Jit):
+                    names[name] = value.dispatcher()
+        return self._compiled
+
+    def __call__(self, *args):
+        return self.dispatcher()(*args)
 
 
 def jit(fn, **kw):
