@@ -40,6 +40,10 @@ def nlfilter_sides(make, ys, m0, P0, repeat, columns=("default", "numpy", "numba
     """
     timings, est, notes = {}, {}, []
     default = default_backend()
+    if default != "numpy" and "default" in columns and "numba" in columns:
+        notes.append(f"the default call ({default!r}) runs first: where it compiled, backend='numba' finds the "
+                     "compiled loop in this process and its 'compile' is what is left (a cold compile is the "
+                     "default call's)")
     for col in columns:
         if col == "numpy" and "default" in timings and default == "numpy":
             timings["numpy"], est["numpy"] = timings["default"], est["default"]

@@ -56,9 +56,12 @@ if PINNED:
     else:
         CORE = _allowed[-1]
     os.sched_setaffinity(0, {CORE})
-    from threadpoolctl import threadpool_limits
+    try:  # a peer's own environment may lack threadpoolctl: the variables above then do it alone
+        from threadpoolctl import threadpool_limits
 
-    _limits = threadpool_limits(limits=1)  # kept: the limits hold for the whole process
+        _limits = threadpool_limits(limits=1)  # kept: the limits hold for the whole process
+    except ImportError:
+        pass
 if _LATE:
     print(f"_pin: imported after {', '.join(_LATE)}: import benchmarks/_pin.py first", file=sys.stderr)
 
@@ -151,8 +154,10 @@ def _cpu_model():
 
 def pinning() -> dict:
     """What was pinned: the core, the thread variables, XLA's flags and the thread pools loaded."""
-    from threadpoolctl import threadpool_info
-
+    try:
+        from threadpoolctl import threadpool_info
+    except ImportError:
+        threadpool_info = list
     return {"pinned": PINNED, "core": CORE, "affinity": sorted(os.sched_getaffinity(0)),
             "threads": {v: os.environ.get(v) for v in THREAD_VARIABLES}, "XLA_FLAGS": os.environ.get("XLA_FLAGS"),
             "thread_pools": [{k: i.get(k) for k in ("user_api", "internal_api", "num_threads", "version")}

@@ -129,7 +129,8 @@ def measure(a):
     res["notes"] += notes
     res["nlfilter"] = {col: per_step(t, ps) for col, t in ours.items()}
     ref = est.get("numpy", est.get("default")).means[..., 0]
-    diffs = {f"nlfilter {col} vs numpy": maxdiff(e.means[..., 0], ref) for col, e in est.items() if col != "numpy"}
+    diffs = {f"nlfilter {col} vs numpy": maxdiff(e.means[..., 0], ref) for col, e in est.items()
+             if e is not est.get("numpy")}
     ours = {"ekf": ours}
     rows = []
 
