@@ -68,7 +68,7 @@ def measure(n, a):
         row["notes"] += [f"{kind}: {x}" for x in notes if x not in row["notes"]]
         base = e.get("numpy", e.get("default"))
         for col in e:
-            if col != "numpy" and e[col] is not base:
+            if base is not None and col != "numpy" and e[col] is not base:
                 row["max_rel_difference_of_means"][f"{kind}: {col} vs numpy"] = relmaxdiff(e[col].means, base.means)
     row["rows"] = []
     if a.no_peers:
