@@ -5,40 +5,26 @@
 * the whole Fig. 4.3 sweep (100 values of P_θℓ, phase tracking on the circle): < 10 s
 
 Each timing is the best of ``--repeat`` runs (the machine is shared). BLAS threads are pinned to
-one before NumPy is imported: these are many small dense solves, where threaded BLAS only adds
-contention. Writes JSON (``--out``, default ``benchmarks/results/bench_bilinear.json``).
+one before NumPy is imported (:mod:`_pin`, with the core): these are many small dense solves,
+where threaded BLAS only adds contention. Writes JSON (``--out``, default ``benchmarks/results/bench_bilinear.json``).
 
     PYTHONPATH=src python benchmarks/bench_bilinear.py
 """
 
 from __future__ import annotations
 
-import os
-
-for _v in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
-    os.environ.setdefault(_v, "1")
+import _pin  # noqa: F401  (first: one core, one thread)
 
 import argparse  # noqa: E402
-import json  # noqa: E402
-import platform  # noqa: E402
-import time  # noqa: E402
 
 import numpy as np  # noqa: E402
-
-
-def _best(fn, repeat):
-    times, out = [], None
-    for _ in range(repeat):
-        t = time.perf_counter()
-        out = fn()
-        times.append(time.perf_counter() - t)
-    return min(times), out
 
 
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--repeat", type=int, default=3)
     ap.add_argument("--out", default="benchmarks/results/bench_bilinear.json")
+    ap.add_argument("--label", default="pinned", help="the run's name in the JSON (other runs kept)")
     args = ap.parse_args(argv)
 
     from nlfilter.bilinear import BilinearModel
@@ -58,15 +44,11 @@ def main(argv=None):
     for name, fn, target in (("cubic sensor, degree 3 (x and x^3)", lambda: cubic(3), 0.1),
                              ("cubic sensor, degree 5 (x and x^3)", lambda: cubic(5), 2.0),
                              ("Fig. 4.3 sweep, 100 values of P", sweep, 10.0)):
-        t, out = _best(fn, args.repeat)
+        t, out = _pin.best_of(fn, args.repeat)
         extra = {"moments": out[1], "mse": out[0]} if name.startswith("cubic") else {"peak_reduction": max(out)}
         rows.append({"case": name, "seconds": t, "target_seconds": target, "met": t < target, **extra})
         print(f"{name:40s} {t * 1e3:9.1f} ms   (target {target * 1e3:.0f} ms)  {'ok' if t < target else 'MISSED'}")
-    os.makedirs(os.path.dirname(args.out) or ".", exist_ok=True)
-    with open(args.out, "w") as fh:
-        json.dump({"benchmark": "bilinear", "machine": platform.platform(), "python": platform.python_version(),
-                   "numpy": np.__version__, "repeat": args.repeat, "results": rows}, fh, indent=2)
-    print(f"wrote {args.out}")
+    _pin.write(args.out, args.label, {"repeat": args.repeat, "results": rows}, benchmark="bilinear")
 
 
 if __name__ == "__main__":

@@ -22,21 +22,21 @@ Run: ``python benchmarks/bench_construction.py [--sizes 4 8 12 24 42 --repeats 3
 
 from __future__ import annotations
 
-import argparse
-import json
-import os
-import pathlib
-import platform
-import time
+import _pin  # noqa: F401  (first: one core, one thread)
 
-import numpy as np
-import sympy as sp
-from sympy.core.cache import clear_cache
+import argparse  # noqa: E402
+import json  # noqa: E402
+import pathlib  # noqa: E402
+import time  # noqa: E402
 
-from nlfilter import DiscreteModel
-from nlfilter.filters.ekf import EKF
-from nlfilter.filters.ukf import UKF
-from nlfilter.simulate import simulate
+import numpy as np  # noqa: E402
+import sympy as sp  # noqa: E402
+from sympy.core.cache import clear_cache  # noqa: E402
+
+from nlfilter import DiscreteModel  # noqa: E402
+from nlfilter.filters.ekf import EKF  # noqa: E402
+from nlfilter.filters.ukf import UKF  # noqa: E402
+from nlfilter.simulate import simulate  # noqa: E402
 
 PATHS, STEPS = 10, 20
 PROBLEM = ("linear: DiscreteModel.linear with a dense random F (spectral radius 0.9), a dense 2 x n H, "
@@ -93,14 +93,11 @@ def main():
     ap.add_argument("--second-order-max-n", type=int, default=12)
     ap.add_argument("--construct-only-above", type=int, default=None,
                     help="above this n time the construction only (the slow code before a change)")
-    ap.add_argument("--label", default="", help="what code this run measures")
+    ap.add_argument("--label", default="pinned", help="the run's name in the JSON (other runs kept): what code it measures")
     ap.add_argument("--before", default=None, help="an earlier JSON of this script to embed as 'before'")
     ap.add_argument("--out", default=str(pathlib.Path(__file__).parent / "results" / "bench_construction.json"))
     a = ap.parse_args()
     res = {"label": a.label, "problem": PROBLEM, "paths": PATHS, "steps": STEPS, "repeats": a.repeats,
-           "machine": {"python": platform.python_version(), "numpy": np.__version__, "sympy": sp.__version__,
-                       "cpu": platform.machine(), "cores": os.cpu_count(),
-                       "note": "shared with other jobs: times are best-of-N and noisy"},
            "seconds": {}, "targets": {"n=24 construction": "< 1 s", "n=42 linear construction": "< 5 s"}}
     for fam in a.families:
         make = FAMILIES[fam]
@@ -135,12 +132,11 @@ def main():
     res["targets_met"] = met
     if a.before:
         before = json.loads(pathlib.Path(a.before).read_text())
-        res["before"] = {"seconds": before["seconds"], "machine": before["machine"],
+        res["before"] = {"seconds": before["seconds"], "machine": before.get("machine", before.get("environment")),
                          "note": before.get("label", "the code before the change")}
         res["construction_speedup"] = {k: before["seconds"][k]["construct"] / sec[k]["construct"]
                                        for k in sec if k in before["seconds"]}
-    pathlib.Path(a.out).parent.mkdir(parents=True, exist_ok=True)
-    pathlib.Path(a.out).write_text(json.dumps(res, indent=2) + "\n")
+    _pin.write(a.out, a.label, res, benchmark="construction")
 
 
 if __name__ == "__main__":

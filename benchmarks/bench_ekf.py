@@ -1,54 +1,52 @@
-"""EKF speed, side by side with peers in one run (issue: foundation, item 11).
+"""EKF speed, side by side with peers in one run (issue: foundation, item 11; issue 28, item 7).
 
 Scalar discrete cubic sensor ``x[k+1] = (1 − dt) x[k] + w``, ``y = x³ + v`` (dt = 0.01,
-Q = 0.01, R = 0.1), 1000 paths × 1000 steps:
+Q = 0.01, R = 0.1), 1000 paths × 1000 steps, every side on one core with one thread
+(:mod:`_pin`, imported first):
 
-* nlfilter ``EKF`` (batched over paths, generic: SymPy-generated f, h and Jacobians);
+* nlfilter ``EKF`` (batched over paths, generic: SymPy-generated f, h and Jacobians) in the
+  columns of ``--columns``: the default call (``run`` with no ``backend=``; what it resolves to is
+  recorded), ``backend="numpy"`` and ``backend="numba"`` (the first call apart: the compile);
 * a 20-line hand-vectorised NumPy EKF (what generality may cost);
 * filterpy ``ExtendedKalmanFilter``, a Python loop per path and step (timed on a subset of
   paths, reported per path-step), with ``predict_x`` overridden to propagate with f;
-* dynamax ``extended_kalman_filter`` in float64 under ``jit`` + ``vmap`` (compile time reported
-  apart from the run time);
-* nlfilter's compiled loop (``run(..., backend="numba")``: the scalar EKF's batch loop; compile
-  time apart);
+* dynamax ``extended_kalman_filter`` in float64 under ``jit`` + ``vmap`` (compile apart and
+  included);
 * a plain C loop (``gcc -O3``, built here with ctypes when gcc is on the machine; stores the means
-  and variances), in two orders: all paths at each step (contiguous state, time-major output: what
-  a C programmer would write for a batch) and one path at a time (issue 13, goal 2: the scalar
-  batch path within 10× of C).
+  and variances; "compile included" adds gcc's build), in two orders: all paths at each step
+  (contiguous state, time-major output: what a C programmer would write for a batch) and one path
+  at a time.
 
-Each time is the best of five runs. Writes ``benchmarks/results/bench_ekf.json`` with seconds per
-path-step, the ratios (and whether the targets are met), and the
-largest difference of the filtered means between the implementations. Needs
-``pip install ".[bench]"``; peers that are not installed are reported as missing.
+Each best is of ``--repeat`` (5) calls, the first apart. Writes the run ``--label`` of
+``benchmarks/results/bench_ekf.json``: per side µs per path-step, the rows naming both sides
+(``peer_over_ours`` > 1: nlfilter faster; compile apart and included), and the largest
+differences of the filtered means. Needs ``pip install ".[bench]"``; peers that are not installed
+are reported as missing.
 
-Run: ``python benchmarks/bench_ekf.py [--paths 1000 --steps 1000 --filterpy-paths 10]``
+Run: ``taskset -c 1 python benchmarks/bench_ekf.py [--paths 1000 --steps 1000 --filterpy-paths 10] [--quick]``
 """
 
 from __future__ import annotations
 
-import argparse
-import ctypes
-import json
-import pathlib
-import platform
-import shutil
-import subprocess
-import tempfile
-import time
+import _pin  # noqa: F401  (first: one core, one thread for every side)
 
-import numpy as np
-import sympy as sp
+import argparse  # noqa: E402
+import ctypes  # noqa: E402
+import pathlib  # noqa: E402
+import shutil  # noqa: E402
+import subprocess  # noqa: E402
+import tempfile  # noqa: E402
+import time  # noqa: E402
 
-from nlfilter import DiscreteModel
-from nlfilter.filters.ekf import EKF
-from nlfilter.simulate import simulate
+import numpy as np  # noqa: E402
+from _models import A, CUBIC_M0, CUBIC_P0, CUBIC_Q, CUBIC_R, cubic, cubic_jax  # noqa: E402
+from _peers import dynamax_filters, maxdiff, nlfilter_sides, per_step, rows_against  # noqa: E402
+from _pin import best_of, first_and_best  # noqa: E402
 
-DT, Q, R, M0, P0 = 0.01, 0.01, 0.1, 0.5, 0.1
+from nlfilter.filters.ekf import EKF  # noqa: E402
+from nlfilter.simulate import simulate  # noqa: E402
 
-
-def model():
-    x = sp.Symbol("x")
-    return DiscreteModel([x], [(1 - DT) * x], [x**3], Q=Q, R=R, name="cubic sensor")
+Q, R, M0, P0 = CUBIC_Q, CUBIC_R, CUBIC_M0, CUBIC_P0
 
 
 def hand_ekf(ys, m0, P0):
@@ -58,7 +56,7 @@ def hand_ekf(ys, m0, P0):
     out = np.empty(ys.shape[:2])
     for k in range(ys.shape[1]):
         if k:
-            m, P = (1 - DT) * m, (1 - DT) ** 2 * P + Q
+            m, P = A * m, A**2 * P + Q
         H = 3 * m**2
         S = H * P * H + R
         K = P * H / S
@@ -120,80 +118,57 @@ def c_loops(tmp):
     return dll
 
 
-def best_of(fn, repeat=5):
-    best, out = np.inf, None
-    for _ in range(repeat):
-        t = time.perf_counter()
-        out = fn()
-        best = min(best, time.perf_counter() - t)
-    return best, out
-
-
-def main():
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--paths", type=int, default=1000)
-    ap.add_argument("--steps", type=int, default=1000)
-    ap.add_argument("--filterpy-paths", type=int, default=10)
-    ap.add_argument("--out", default=str(pathlib.Path(__file__).parent / "results" / "bench_ekf.json"))
-    a = ap.parse_args()
-    md = model()
-    sim = simulate(md, a.steps, paths=a.paths, rng=0, m0=M0, P0=P0)
-    ys = sim.ys
+def measure(a):
+    """Every side on the same job (1000 × 1000 by default), the rows side by side."""
+    md = cubic()
+    ys = simulate(md, a.steps, paths=a.paths, rng=0, m0=M0, P0=P0).ys
     ps = a.paths * a.steps
     res = {"problem": "discrete cubic sensor, dt=0.01, Q=0.01, R=0.1", "paths": a.paths, "steps": a.steps,
-           "machine": {"python": platform.python_version(), "numpy": np.__version__, "cpu": platform.machine()},
-           "seconds_per_path_step": {}, "notes": []}
-    sec = res["seconds_per_path_step"]
+           "repeat": a.repeat, "notes": []}
+    ours, est, notes = nlfilter_sides(lambda: EKF(md), ys, M0, P0, a.repeat, a.columns)
+    res["notes"] += notes
+    res["nlfilter"] = {col: per_step(t, ps) for col, t in ours.items()}
+    ref = est.get("numpy", est.get("default")).means[..., 0]
+    diffs = {f"nlfilter {col} vs numpy": maxdiff(e.means[..., 0], ref) for col, e in est.items()
+             if e is not est.get("numpy")}
+    ours = {"ekf": ours}
+    rows = []
 
-    t, ours = best_of(lambda: EKF(md).run(ys, M0, P0))
-    sec["nlfilter"] = t / ps
-    t, hand = best_of(lambda: hand_ekf(ys[..., 0], M0, P0))
-    sec["numpy_hand_vectorised"] = t / ps
-    diffs = {"nlfilter_vs_hand": float(np.max(np.abs(ours.means[..., 0] - hand)))}
+    t, hand = best_of(lambda: hand_ekf(ys[..., 0], M0, P0), a.repeat)
+    res["numpy_hand_vectorised"] = {"us_per_step": t / ps * 1e6}
+    rows += rows_against(ours, "a hand-vectorised NumPy", {"ekf": {"best": t}}, ps)
+    diffs["nlfilter vs hand NumPy"] = maxdiff(ref, hand)
 
     try:
         from filterpy.kalman import ExtendedKalmanFilter
 
         class FP(ExtendedKalmanFilter):
             def predict_x(self, u=0):
-                self.x = (1 - DT) * self.x
+                self.x = A * self.x
 
         npth = min(a.filterpy_paths, a.paths)
-        pred = EKF(md, start="predict").run(ys[:npth], M0, P0)  # filterpy predicts first
+        pred = EKF(md, start="predict").run(ys[:npth], M0, P0, backend="numpy")  # filterpy predicts first
         t0 = time.perf_counter()
         fp_means = np.empty((npth, a.steps))
         for p in range(npth):
             f = FP(1, 1)
-            f.x, f.P, f.Q, f.R, f.F = np.array([[M0]]), np.array([[P0]]), np.array([[Q]]), np.array([[R]]), np.array([[1 - DT]])
+            f.x, f.P, f.Q, f.R, f.F = np.array([[M0]]), np.array([[P0]]), np.array([[Q]]), np.array([[R]]), np.array([[A]])
             for k in range(a.steps):
                 f.predict()
                 f.update(ys[p, k], lambda x: 3 * x**2, lambda x: x**3)
                 fp_means[p, k] = f.x[0, 0]
-        sec["filterpy"] = (time.perf_counter() - t0) / (npth * a.steps)
-        res["filterpy_paths_timed"] = npth
-        diffs["nlfilter_vs_filterpy"] = float(np.max(np.abs(pred.means[..., 0] - fp_means)))
+        per = (time.perf_counter() - t0) / (npth * a.steps)
+        res["filterpy"] = {"us_per_step": per * 1e6, "paths_timed": npth}
+        rows += rows_against(ours, f"filterpy (a Python loop, {npth} paths timed)", {"ekf": {"best": per * ps}}, ps)
+        diffs["nlfilter vs filterpy"] = maxdiff(pred.means[..., 0], fp_means)
     except ImportError:
         res["notes"].append("filterpy not installed")
 
     try:
-        import jax
-        jax.config.update("jax_enable_x64", True)
-        import jax.numpy as jnp
-        from dynamax.nonlinear_gaussian_ssm import ParamsNLGSSM, extended_kalman_filter
-
-        params = ParamsNLGSSM(initial_mean=jnp.array([M0]), initial_covariance=jnp.array([[P0]]),
-                              dynamics_function=lambda x: (1 - DT) * x, dynamics_covariance=jnp.array([[Q]]),
-                              emission_function=lambda x: x**3, emission_covariance=jnp.array([[R]]))
-        run = jax.jit(jax.vmap(lambda y: extended_kalman_filter(params, y).filtered_means))
-        yj = jnp.asarray(ys)
-        t0 = time.perf_counter()
-        run(yj).block_until_ready()
-        first = time.perf_counter() - t0
-        t, dm = best_of(lambda: run(yj).block_until_ready())
-        sec["dynamax"] = t / ps
-        res["dynamax_compile_seconds"] = first - t
-        res["jax"] = jax.__version__
-        diffs["nlfilter_vs_dynamax"] = float(np.max(np.abs(ours.means[..., 0] - np.asarray(dm)[..., 0])))
+        dm, dm_means = dynamax_filters(cubic_jax, ys, a.repeat, kinds=("ekf",))
+        res["dynamax"] = {k: per_step(v, ps) for k, v in dm.items()}
+        rows += rows_against(ours, "dynamax jit+vmap float64", dm, ps)
+        diffs["nlfilter vs dynamax"] = maxdiff(ref, dm_means["ekf"][..., 0])
         res["notes"].append("dynamax's psd_solve adds a 1e-9 diagonal boost to S and updates P - K S K^T "
                             "(no Joseph form): its gains differ from the exact ones by ~1e-9 relative, which "
                             "the cubic sensor's EKF amplifies along some paths; filterpy and the hand EKF, "
@@ -201,15 +176,10 @@ def main():
     except ImportError as exc:
         res["notes"].append(f"dynamax/jax not installed: {exc}")
 
-    t0 = time.perf_counter()
-    EKF(md).run(ys[:2, :10], M0, P0, backend="numba")
-    res["numba_compile_seconds"] = time.perf_counter() - t0
-    t, comp = best_of(lambda: EKF(md).run(ys, M0, P0, backend="numba"))
-    sec["nlfilter_numba"] = t / ps
-    diffs["numba_vs_numpy"] = float(np.max(np.abs(comp.means - ours.means)))
-
     with tempfile.TemporaryDirectory() as tmp:
+        t0 = time.perf_counter()
         dll = c_loops(tmp)
+        build = time.perf_counter() - t0
         if dll is None:
             res["notes"].append("gcc not found: no C loop")
         else:
@@ -218,26 +188,42 @@ def main():
             B, T = yc.shape
             mt, Pt, mw, Pw = np.empty((T, B)), np.empty((T, B)), np.empty(B), np.empty(B)
             mp, Pp = np.empty((B, T)), np.empty((B, T))
-            args = (B, T, M0, P0, 1 - DT, Q, R)
-            t, _ = best_of(lambda: dll.ekf_steps(ptr(yc), *args, ptr(mt), ptr(Pt), ptr(mw), ptr(Pw)))
-            sec["c_all_paths_each_step"] = t / ps
-            t, _ = best_of(lambda: dll.ekf_paths(ptr(yc), *args, ptr(mp), ptr(Pp)))
-            sec["c_one_path_at_a_time"] = t / ps
-            diffs["c_vs_hand_numpy"] = float(max(np.abs(mt.T - hand).max(), np.abs(mp - hand).max()))
-            c_best = min(sec["c_all_paths_each_step"], sec["c_one_path_at_a_time"])
-            res["numba_over_c"] = sec["nlfilter_numba"] / c_best
-            res["numpy_over_c"] = sec["nlfilter"] / c_best
-            res["targets"] = {"numba_within_10x_of_c": res["numba_over_c"] <= 10}
-
+            args = (B, T, M0, P0, A, Q, R)
+            c = {}
+            c["all paths at each step"], _ = first_and_best(
+                lambda: dll.ekf_steps(ptr(yc), *args, ptr(mt), ptr(Pt), ptr(mw), ptr(Pw)), a.repeat)
+            c["one path at a time"], _ = first_and_best(lambda: dll.ekf_paths(ptr(yc), *args, ptr(mp), ptr(Pp)),
+                                                        a.repeat)
+            for name, t in c.items():  # "compile included": gcc's build, then the first call
+                t.update(compile=build, included=build + t["first"])
+                res.setdefault("c_loop", {})[name] = per_step(t, ps)
+                rows += rows_against(ours, f"a C loop (gcc -O3, {name})", {"ekf": t}, ps)
+            diffs["C vs hand NumPy"] = float(max(np.abs(mt.T - hand).max(), np.abs(mp - hand).max()))
     res["max_abs_difference_of_means"] = diffs
-    res["speedup_of_nlfilter"] = {k: sec[k] / sec["nlfilter"] for k in sec if k != "nlfilter"}
-    res.setdefault("targets", {}).update({"vs_filterpy": ">= 300", "vs_dynamax": ">= 3"})
-    speed = res["speedup_of_nlfilter"]
-    res["targets_met"] = {"vs_filterpy": speed["filterpy"] >= 300 if "filterpy" in speed else None,
-                          "vs_dynamax": speed["dynamax"] >= 3 if "dynamax" in speed else None}
-    pathlib.Path(a.out).parent.mkdir(parents=True, exist_ok=True)
-    pathlib.Path(a.out).write_text(json.dumps(res, indent=2) + "\n")
-    print(json.dumps(res, indent=2))
+    res["rows"] = rows
+    res["targets"] = ["numba within 10x of C", ">= 300x filterpy", ">= 3x dynamax (compile apart)"]
+    return res
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--paths", type=int, default=1000)
+    ap.add_argument("--steps", type=int, default=1000)
+    ap.add_argument("--repeat", type=int, default=5, help="calls per side, the first (compile) apart")
+    ap.add_argument("--filterpy-paths", type=int, default=10)
+    ap.add_argument("--columns", nargs="+", choices=["default", "numpy", "numba"],
+                    default=["default", "numpy", "numba"], help="nlfilter's calls: default (no backend=), numpy, numba")
+    ap.add_argument("--quick", action="store_true", help="smoke size: 20 paths x 50 steps, 2 calls")
+    ap.add_argument("--label", default="pinned", help="the run's name in the JSON (other runs kept)")
+    ap.add_argument("--out", default=str(pathlib.Path(__file__).parent / "results" / "bench_ekf.json"))
+    a = ap.parse_args(argv)
+    if a.quick:
+        a.paths, a.steps, a.repeat, a.filterpy_paths = 20, 50, 2, 2
+    res = measure(a)
+    res["quick"] = a.quick
+    for r in res["rows"]:
+        print(f"{r['ours']} vs {r['peer']} ({r['compile']}): {r['peer_over_ours']:.2f}x")
+    _pin.write(a.out, a.label, res, benchmark="ekf")
 
 
 if __name__ == "__main__":

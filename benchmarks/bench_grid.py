@@ -12,26 +12,30 @@ A 1-D nonlinear model ``x' = 0.9 x + 0.5 sin x + w`` (Q = 0.5), ``y = x³/10 + v
 
 Best of ``--repeat`` runs; writes ``benchmarks/results/bench_grid.json`` (µs per path-step, the
 ratios, the largest difference of the filtered means between nlfilter and the hand-written grid,
-the BLAS libraries and their default threads). The machine was shared when noted.
+the BLAS libraries and their default threads). The machine was shared when noted. The one
+benchmark not pinned to one core and one thread (``NLFILTER_BENCH_PIN=0`` before :mod:`_pin`): it
+measures the thread count itself.
 
 Run: ``python benchmarks/bench_grid.py [--paths 100 --steps 200 --points 401 --repeat 3]``
 """
 
 from __future__ import annotations
 
-import argparse
-import json
 import os
-import pathlib
-import platform
-import time
 
-import numpy as np
-import sympy as sp
-from threadpoolctl import threadpool_info, threadpool_limits
+os.environ["NLFILTER_BENCH_PIN"] = "0"  # the one unpinned benchmark: it measures the BLAS thread count itself
+import _pin  # noqa: E402,F401  (first: the record of what was (not) pinned, the JSON)
 
-from nlfilter import DiscreteModel, simulate
-from nlfilter.filters import GridFilter
+import argparse  # noqa: E402
+import json  # noqa: E402
+import pathlib  # noqa: E402
+
+import numpy as np  # noqa: E402
+import sympy as sp  # noqa: E402
+from threadpoolctl import threadpool_info, threadpool_limits  # noqa: E402
+
+from nlfilter import DiscreteModel, simulate  # noqa: E402
+from nlfilter.filters import GridFilter  # noqa: E402
 
 
 def model():
@@ -57,15 +61,6 @@ def hand_grid(ys, X, m0, P0, Q, R):
     return means
 
 
-def best(fn, repeat):
-    out, t = None, np.inf
-    for _ in range(repeat):
-        s = time.perf_counter()
-        out = fn()
-        t = min(t, time.perf_counter() - s)
-    return t, out
-
-
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--paths", type=int, default=100)
@@ -74,6 +69,7 @@ def main(argv=None):
     ap.add_argument("--repeat", type=int, default=3)
     ap.add_argument("--shared", action="store_true", help="note in the JSON that the machine was shared")
     ap.add_argument("--out", default=str(pathlib.Path(__file__).parent / "results" / "bench_grid.json"))
+    ap.add_argument("--label", default="pinned", help="the run's name in the JSON (other runs kept)")
     a = ap.parse_args(argv)
     md = model()
     ys = simulate(md, a.steps, paths=a.paths, rng=0, m0=[0.0], P0=[[1.0]]).ys
@@ -82,12 +78,12 @@ def main(argv=None):
     X = flt.X[:, 0]
     per = a.paths * a.steps / 1e6  # seconds -> µs per path-step
     res = {}
-    res["nlfilter (1 BLAS thread, shipped)"], est = best(lambda: flt.run(ys, [0.0], [[1.0]]), a.repeat)
+    res["nlfilter (1 BLAS thread, shipped)"], est = _pin.best_of(lambda: flt.run(ys, [0.0], [[1.0]]), a.repeat)
     flt.blas_threads = None
-    res["nlfilter (default BLAS threads)"], _ = best(lambda: flt.run(ys, [0.0], [[1.0]]), a.repeat)
-    res["hand-written (default BLAS threads)"], hand = best(lambda: hand_grid(ys, X, 0.0, 1.0, 0.5, 0.1), a.repeat)
+    res["nlfilter (default BLAS threads)"], _ = _pin.best_of(lambda: flt.run(ys, [0.0], [[1.0]]), a.repeat)
+    res["hand-written (default BLAS threads)"], hand = _pin.best_of(lambda: hand_grid(ys, X, 0.0, 1.0, 0.5, 0.1), a.repeat)
     with threadpool_limits(1, user_api="blas"):
-        res["hand-written (1 BLAS thread)"], _ = best(lambda: hand_grid(ys, X, 0.0, 1.0, 0.5, 0.1), a.repeat)
+        res["hand-written (1 BLAS thread)"], _ = _pin.best_of(lambda: hand_grid(ys, X, 0.0, 1.0, 0.5, 0.1), a.repeat)
     us = {k: v / per for k, v in res.items()}
     out = {"task": f"grid filter, {a.points} points, {a.paths} paths x {a.steps} steps, best of {a.repeat}",
            "us_per_path_step": us,
@@ -97,11 +93,9 @@ def main(argv=None):
            "max_abs_mean_difference_vs_hand": float(np.max(np.abs(est.means[..., 0] - hand))),
            "blas": [{k: i.get(k) for k in ("internal_api", "num_threads", "version")} for i in threadpool_info()
                     if i.get("user_api") == "blas"],
-           "machine": {"platform": platform.platform(), "cpus": os.cpu_count(), "python": platform.python_version(),
-                       "numpy": np.__version__, "shared": a.shared}}
-    pathlib.Path(a.out).parent.mkdir(parents=True, exist_ok=True)
-    pathlib.Path(a.out).write_text(json.dumps(out, indent=2) + "\n")
+           "shared": a.shared}
     print(json.dumps(out, indent=2))
+    _pin.write(a.out, a.label, out, benchmark="grid")
 
 
 if __name__ == "__main__":

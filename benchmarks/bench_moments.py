@@ -1,22 +1,22 @@
 """Moment-engine speed: generate the moment equations of a 6-dimensional polynomial SDE with
 cubic drift up to order 6 (923 moments) and solve for its steady state (issue 4 targets: < 1 s
-each). Writes JSON (default benchmarks/bench_moments.json).
+each). Writes JSON (default benchmarks/results/bench_moments.json; the run ``--label``).
 
     PYTHONPATH=src python benchmarks/bench_moments.py [--out FILE] [--repeat 3]
 """
 
 from __future__ import annotations
 
-import argparse
-import pathlib
-import json
-import platform
-import time
+import _pin  # noqa: F401  (first: one core, one thread)
 
-import numpy as np
-import sympy as sp
+import argparse  # noqa: E402
+import pathlib  # noqa: E402
+import json  # noqa: E402
+import time  # noqa: E402
 
-from nlfilter.moments import (EdgeworthClosure, PolynomialSDE, moment_equations, monomials,
+import sympy as sp  # noqa: E402
+
+from nlfilter.moments import (EdgeworthClosure, PolynomialSDE, moment_equations, monomials,  # noqa: E402
                               steady_state)
 
 
@@ -31,6 +31,7 @@ def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__)
     ap.add_argument("--out", default=str(pathlib.Path(__file__).parent / "results" / "bench_moments.json"))
     ap.add_argument("--repeat", type=int, default=3)
+    ap.add_argument("--label", default="pinned", help="the run's name in the JSON (other runs kept)")
     a = ap.parse_args(argv)
     sde = model6()
     idx = monomials(6, 6, min_degree=1)
@@ -55,18 +56,15 @@ def main(argv=None):
         t0 = time.perf_counter()
         mu = steady_state(eq, closure=clo)
         solve_closure.append(time.perf_counter() - t0)
-    res = {"benchmark": "moments", "python": platform.python_version(), "numpy": np.__version__,
-           "n_states": 6, "order": 6, "n_moments": len(eq.indices), "n_missing": len(eq.missing),
+    res = {"n_states": 6, "order": 6, "n_moments": len(eq.indices), "n_missing": len(eq.missing),
            "generate_seconds_min": min(gen), "generate_seconds_all": gen,
            "steady_state_closed_seconds_min": min(solve_closed),
            "steady_state_edgeworth6_first_call_seconds": solve_closure[0],
            "steady_state_edgeworth6_seconds_min": min(solve_closure[1:] or solve_closure),
            "steady_state_E_x1^2": float(mu[eq.index[(2, 0, 0, 0, 0, 0)]]),
            "targets_seconds": {"generate": 1.0, "steady_state": 1.0}}
-    with open(a.out, "w") as fh:
-        json.dump(res, fh, indent=2)
-        fh.write("\n")
     print(json.dumps(res, indent=2))
+    _pin.write(a.out, a.label, res, benchmark="moments")
 
 
 if __name__ == "__main__":

@@ -19,19 +19,19 @@ Run: ``python benchmarks/bench_particle.py [--paths 20 --steps 100 --particles 1
 
 from __future__ import annotations
 
-import argparse
-import json
-import os
-import pathlib
-import platform
-import time
+import _pin  # noqa: F401  (first: one core, one thread)
 
-import numpy as np
-import sympy as sp
+import argparse  # noqa: E402
+import json  # noqa: E402
+import pathlib  # noqa: E402
+import time  # noqa: E402
 
-from nlfilter import DiscreteModel, simulate
-from nlfilter.evaluate import loglik
-from nlfilter.filters import GridFilter, ParticleFilter
+import numpy as np  # noqa: E402
+import sympy as sp  # noqa: E402
+
+from nlfilter import DiscreteModel, simulate  # noqa: E402
+from nlfilter.evaluate import loglik  # noqa: E402
+from nlfilter.filters import GridFilter, ParticleFilter  # noqa: E402
 
 
 def model():
@@ -65,6 +65,7 @@ def main(argv=None):
     ap.add_argument("--repeat", type=int, default=3)
     ap.add_argument("--shared", action="store_true", help="note in the JSON that the machine was shared")
     ap.add_argument("--out", default=str(pathlib.Path(__file__).parent / "results" / "bench_particle.json"))
+    ap.add_argument("--label", default="pinned", help="the run's name in the JSON (other runs kept)")
     a = ap.parse_args(argv)
     md = model()
     ys = simulate(md, a.steps, paths=a.paths, rng=0, m0=[0.0], P0=[[1.0]]).ys
@@ -102,10 +103,8 @@ def main(argv=None):
                               "z particles vs grid": ((m - grid) / se).tolist(),
                               "z nlfilter vs particles": ((ours.value - m) / np.hypot(ours.stderr, se)).tolist()})
         out["particles_version"] = getattr(particles, "__version__", "?")
-    out["machine"] = {"platform": platform.platform(), "cpus": os.cpu_count(), "python": platform.python_version(),
-                      "numpy": np.__version__, "shared": a.shared}
-    pathlib.Path(a.out).parent.mkdir(parents=True, exist_ok=True)
-    pathlib.Path(a.out).write_text(json.dumps(out, indent=2) + "\n")
+    out["shared"] = a.shared
+    _pin.write(a.out, a.label, out, benchmark="particle")
     print(json.dumps({k: v for k, v in out.items() if k != "loglik"}, indent=2))
     z = out["loglik"]
     print({k: (round(float(np.mean(np.square(v))), 2), round(float(np.max(np.abs(v))), 2))

@@ -12,20 +12,19 @@ rows stand for. Writes JSON (default benchmarks/results/bench_reference.json).
 
 from __future__ import annotations
 
-import argparse
-import json
-import pathlib
-import platform
-import time
-import warnings
+import _pin  # noqa: F401  (first: one core, one thread)
 
-import numpy as np
-import sympy as sp
+import argparse  # noqa: E402
+import pathlib  # noqa: E402
+import time  # noqa: E402
+import warnings  # noqa: E402
 
-import nlfilter
-from nlfilter import DiscreteModel, SDEModel, compare
-from nlfilter.filters import ContinuousEKF, GridFilter, ParticleFilter, UKF
-from nlfilter.simulate import simulate
+import numpy as np  # noqa: E402
+import sympy as sp  # noqa: E402
+
+from nlfilter import DiscreteModel, SDEModel, compare  # noqa: E402
+from nlfilter.filters import ContinuousEKF, GridFilter, ParticleFilter, UKF  # noqa: E402
+from nlfilter.simulate import simulate  # noqa: E402
 
 
 def pendulum(g=9.81, dt=0.1):
@@ -63,10 +62,9 @@ def main(argv=None):
     ap.add_argument("--paths", type=int, default=300)
     ap.add_argument("--steps", type=int, default=60)
     ap.add_argument("--out", default=str(pathlib.Path(__file__).parent / "results" / "bench_reference.json"))
+    ap.add_argument("--label", default="pinned", help="the run's name in the JSON (other runs kept)")
     a = ap.parse_args(argv)
-    out = {"benchmark": "reference", "paths": a.paths, "steps": a.steps,
-           "nlfilter": getattr(nlfilter, "__version__", "?"), "python": platform.python_version(),
-           "numpy": np.__version__, "machine": platform.machine(), "problems": {}}
+    out = {"paths": a.paths, "steps": a.steps, "problems": {}}
     pend = pendulum()
     vdp = van_der_pol()
     problems = {
@@ -102,10 +100,7 @@ def main(argv=None):
                 "warnings": [str(w.message)[:200] for w in caught]}
             print(f"{pname} / {name}: {seconds:.1f} s, {label}, x1 MSE {ref_mse.value:.5f} ± {ref_mse.stderr:.5f}, "
                   f"{fname} gap {gap.value:+.5f} ± {gap.stderr:.5f}", flush=True)
-    path = pathlib.Path(a.out)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text(json.dumps(out, indent=2) + "\n")
-    print(f"wrote {path}")
+    _pin.write(a.out, a.label, out, benchmark="reference")
 
 
 if __name__ == "__main__":

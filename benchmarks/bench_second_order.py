@@ -9,18 +9,18 @@ cost of a step is O(n³ + n²·m) per path (batched einsum); no timing is assert
 
 from __future__ import annotations
 
-import argparse
-import pathlib
-import json
-import platform
-import time
+import _pin  # noqa: F401  (first: one core, one thread)
 
-import numpy as np
+import argparse  # noqa: E402
+import pathlib  # noqa: E402
+import time  # noqa: E402
 
-from nlfilter import problems as pb
-from nlfilter.filters.second_order import (ContinuousDiscreteSecondOrderFilter, ContinuousSecondOrderFilter,
+import numpy as np  # noqa: E402
+
+from nlfilter import problems as pb  # noqa: E402
+from nlfilter.filters.second_order import (ContinuousDiscreteSecondOrderFilter, ContinuousSecondOrderFilter,  # noqa: E402
                                            SecondOrderFilter)
-from nlfilter.simulate import simulate
+from nlfilter.simulate import simulate  # noqa: E402
 
 FORMS = ("first-order", "truncated", "truncated-jazwinski", "modified", "gaussian")
 
@@ -40,6 +40,7 @@ def main(argv=None):
     ap.add_argument("--steps", type=int, default=20, help="measurement steps per run")
     ap.add_argument("--substeps", type=int, default=20, help="RK4 substeps per falling-body interval")
     ap.add_argument("--out", default=str(pathlib.Path(__file__).parent / "results" / "bench_second_order.json"))
+    ap.add_argument("--label", default="pinned", help="the run's name in the JSON (other runs kept)")
     args = ap.parse_args(argv)
     rng = np.random.default_rng(0)
     rows = []
@@ -71,15 +72,10 @@ def main(argv=None):
             rows.append({"problem": "state-noise", "form": form, "innovation": inn, "paths": args.paths,
                          "steps": args.steps, "seconds": sec, "path_steps_per_s": args.paths * args.steps / sec})
 
-    out = {"benchmark": "second_order", "python": platform.python_version(), "numpy": np.__version__,
-           "machine": platform.machine(), "rows": rows}
-    with open(args.out, "w") as fh:
-        json.dump(out, fh, indent=2)
-        fh.write("\n")
+    _pin.write(args.out, args.label, {"rows": rows}, benchmark="second_order")
     for r in rows:
         print(f"{r['problem']:13s} {r['form']:20s} {r.get('innovation', ''):7s} "
               f"{r['path_steps_per_s']:12.0f} path-steps/s")
-    print(f"wrote {args.out}")
 
 
 if __name__ == "__main__":

@@ -1,5 +1,5 @@
 """One trajectory, many steps: the cost per step of filtering a single path, side by side with
-peers (issue 13, goal 3: one trajectory within 2× of dynamax jit and faster than filterpy).
+peers (issue 13, goal 3; issue 28, item 7: every side on one core with one thread, :mod:`_pin`).
 
 Two models, one path each (``--steps``, default 20000):
 
@@ -8,117 +8,101 @@ Two models, one path each (``--steps``, default 20000):
 * (b) the n = 4 sin-coupled chain of ``bench_dimensions.py`` (``chain(4)``, m = 2 measurements,
   m0 = 0, P0 = I).
 
-Columns, in one run, µs per step (best of ``--repeat``, 3):
+Sides, in one run, µs per step (best of ``--repeat``, 3, calls; the first apart):
 
-* nlfilter ``EKF``, ``UKF`` and ``SecondOrderFilter`` (form ``"truncated"``) through the NumPy loop
-  (``backend="numpy"``, on the first ``--numpy-steps`` steps, 2000: its cost per step does not
-  depend on the length) and through the compiled loop (``backend="numba"``; compile time, the
-  first run on 10 steps, reported apart);
-* filterpy ``ExtendedKalmanFilter`` / ``UnscentedKalmanFilter`` (a Python loop over steps, the
-  helpers of ``bench_dimensions.py``);
+* nlfilter ``EKF``, ``UKF`` and ``SecondOrderFilter`` (form ``"truncated"``) in the columns
+  ``default`` (``run`` with no ``backend=``; what it resolves to is recorded), ``numpy`` and
+  ``numba`` (compile apart and included). A column that runs the NumPy loop runs the first
+  ``--numpy-steps`` steps (2000: its cost per step does not depend on the length); its
+  "compile included" time is its first call with the run part scaled to all the steps;
+* filterpy ``ExtendedKalmanFilter`` / ``UnscentedKalmanFilter`` (a Python loop over steps);
 * dynamax ``extended_kalman_filter`` / ``unscented_kalman_filter`` in float64 under ``jit``, no
-  ``vmap`` (one trajectory; compile time reported apart);
+  ``vmap`` (one trajectory; compile apart and included);
 * the second-order filter has no peer: nlfilter only.
 
-The largest |difference| of filtered means is reported for numba against numpy (the NumPy steps)
-and for each peer against nlfilter numba over all steps, with the same start: filterpy predicts
-first (nlfilter ``start="predict"``), dynamax updates first (nlfilter's default). Writes
-``benchmarks/results/bench_single_path.json`` with the machine, versions, rows and the ratios
-dynamax / numba, filterpy / numba and numpy / numba (> 1: nlfilter numba faster). No timing is
+The largest |difference| of filtered means is reported between the columns and for each peer,
+with the same start: filterpy predicts first (nlfilter ``start="predict"``), dynamax updates first
+(nlfilter's default). Writes the run ``--label`` of ``benchmarks/results/bench_single_path.json``:
+the sides, and the rows naming both (``peer_over_ours`` > 1: nlfilter faster). No timing is
 asserted anywhere.
 
-Run: ``PYTHONPATH=src python benchmarks/bench_single_path.py [--steps 20000] [--repeat 3] [--quick]``
+Run: ``taskset -c 1 python benchmarks/bench_single_path.py [--steps 20000] [--repeat 3] [--quick]``
 """
 
 from __future__ import annotations
 
-import argparse
-import json
-import os
-import pathlib
-import platform
-import sys
+import _pin  # noqa: F401  (first: one core, one thread for every side)
 
-import numpy as np
-import sympy as sp
+import argparse  # noqa: E402
+import pathlib  # noqa: E402
 
-sys.path.insert(0, str(pathlib.Path(__file__).parent))
-from bench_dimensions import _np_fns, best_of, chain, compiled, dynamax_chain, dynamax_pair, filterpy_pair  # noqa: E402
+import numpy as np  # noqa: E402
+from _peers import (dynamax_filters, filterpy_pair, maxdiff, nlfilter_sides, per_step, rows_against,  # noqa: E402
+                    scaled)
+from _models import CUBIC_Q, CUBIC_R, Q, R, chain, chain_jax, chain_np, cubic, cubic_jax, cubic_np  # noqa: E402
 
-from nlfilter import DiscreteModel  # noqa: E402
 from nlfilter.filters import EKF, UKF, SecondOrderFilter  # noqa: E402
-from nlfilter.filters import compiled as _numba_loop  # noqa: E402,F401  (numba imported outside the compile times)
 from nlfilter.simulate import simulate  # noqa: E402
 
 OUT = pathlib.Path(__file__).parent / "results" / "bench_single_path.json"
-A, Q, R = 0.99, 0.01, 0.1  # the cubic sensor of bench_ekf.py (1 - dt, dt = 0.01)
-
-
-def cubic() -> DiscreteModel:
-    x = sp.Symbol("x")
-    return DiscreteModel([x], [A * x], [x**3], Q=Q, R=R, name="cubic sensor")
-
-
-def cubic_np():
-    """The cubic sensor's ``(fx, hx, F, H)`` for filterpy, on a state ``(1,)``."""
-    return (lambda x, dt=None: A * x, lambda x: x**3, lambda x: np.array([[A]]),
-            lambda x: np.array([[3 * x[0] ** 2]]))
-
-
-def cubic_jax(jnp):
-    return (jnp.array([0.5]), jnp.array([[0.1]]), lambda x: A * x, jnp.array([[Q]]), lambda x: x**3,
-            jnp.array([[R]]))
+FILTERS = {"ekf": EKF, "ukf": UKF, "second-order": lambda md: SecondOrderFilter(md, form="truncated")}
 
 
 def problems():
-    """name -> (model, m0, P0, filterpy functions, dynamax spec)."""
-    return {"cubic sensor (n=1)": (cubic(), np.array([0.5]), np.array([[0.1]]), cubic_np(), cubic_jax),
-            "chain (n=4)": (chain(4), np.zeros(4), np.eye(4), _np_fns(4),
-                            lambda jnp: dynamax_chain(4, 2, jnp))}
+    """name -> (model, m0, P0, filterpy functions, dynamax spec, Q, R)."""
+    return {"cubic sensor (n=1)": (cubic(), np.array([0.5]), np.array([[0.1]]), cubic_np(), cubic_jax,
+                                   np.array([[CUBIC_Q]]), np.array([[CUBIC_R]])),
+            "chain (n=4)": (chain(4), np.zeros(4), np.eye(4), chain_np(4), lambda jnp: chain_jax(4, jnp),
+                            Q * np.eye(4), R * np.eye(2))}
 
 
-def maxdiff(a, b):
-    return float(np.max(np.abs(np.asarray(a) - np.asarray(b))))
-
-
-def measure(name, md, m0, P0, fns, spec, a):
+def measure(name, md, m0, P0, fns, spec, Qm, Rm, a):
     sim = simulate(md, a.steps, paths=1, rng=13, m0=m0, P0=P0)
     ys = np.ascontiguousarray(sim.ys)  # (1, T, m)
     T, Tn = a.steps, min(a.numpy_steps, a.steps)
     n = len(m0)
     row = {"problem": name, "n": int(n), "m": int(ys.shape[-1]), "steps": T, "numpy_steps": Tn,
-           "us_per_step": {}, "compile_seconds": {}, "max_abs_difference_of_means": {}}
-    us, comp, diff = row["us_per_step"], row["compile_seconds"], row["max_abs_difference_of_means"]
-    filters = {"ekf": EKF(md), "ukf": UKF(md), "second-order": SecondOrderFilter(md, form="truncated")}
-    numba_means = {}
-    for k, flt in filters.items():
-        t, ref = best_of(lambda: flt.run(ys[:, :Tn], m0, P0), a.repeat)
-        us.setdefault("nlfilter_numpy", {})[k] = t / Tn * 1e6
-        first, t, est = compiled(flt, ys, m0, P0, a.repeat)
-        us.setdefault("nlfilter_numba", {})[k] = t / T * 1e6
-        comp.setdefault("nlfilter_numba", {})[k] = first
-        numba_means[k] = est.means[0]
-        diff[f"{k}_numba_vs_numpy"] = maxdiff(est.means[0, :Tn], ref.means[0])
+           "nlfilter": {}, "notes": [], "max_abs_difference_of_means": {}}
+    diff = row["max_abs_difference_of_means"]
+    on_numpy = [c for c in a.columns if c == "numpy" or (c == "default" and _pin.default_backend() == "numpy")]
+    ours, est = {}, {}
+    for k in FILTERS:
+        ours[k], est[k] = {}, {}
+        for cols, steps in ((on_numpy, Tn), ([c for c in a.columns if c not in on_numpy], T)):
+            if not cols:
+                continue
+            t, e, notes = nlfilter_sides(lambda: FILTERS[k](md), ys[:, :steps], m0, P0, a.repeat, cols)
+            row["notes"] += [f"{k}: {x}" for x in notes if f"{k}: {x}" not in row["notes"]]
+            done = {}  # the numpy column may be the default call's own measurement: one object, kept one
+            for col in t:
+                ours[k][col] = done.setdefault(id(t[col]), scaled(t[col], T / steps))
+                row["nlfilter"].setdefault(k, {})[col] = {**per_step(t[col], steps), "steps": steps}
+            est[k].update(e)
+        base = est[k].get("numpy")
+        for col, e in est[k].items():
+            if base is not None and e is not base:  # not the default call's own (same) measurement
+                diff[f"{k}: {col} vs numpy"] = maxdiff(e.means[0, :Tn], base.means[0, :Tn])
+    full = {k: next((e for c, e in est[k].items() if e.means.shape[1] == T), None) for k in est}
+    rows = []
     try:
-        t_fp, fp_means = filterpy_pair(fns, ys, m0, P0, Q * np.eye(n), R * np.eye(ys.shape[-1]),
-                                       a.repeat)
-        us["filterpy"] = t_fp
+        t_fp, fp_means = filterpy_pair(fns, ys, m0, P0, Qm, Rm, a.repeat)
+        row["filterpy"] = {k: {"us_per_step": v * 1e6} for k, v in t_fp.items()}
+        rows += rows_against(ours, "filterpy (a Python loop)", {k: {"best": v * T} for k, v in t_fp.items()}, T)
         for k in t_fp:  # filterpy predicts first
-            pred = (EKF if k == "ekf" else UKF)(md, start="predict").run(ys, m0, P0, backend="numba").means
-            diff[f"{k}_filterpy_vs_numba"] = maxdiff(fp_means[k][0], pred[0])
+            pred = (EKF if k == "ekf" else UKF)(md, start="predict").run(ys[:, :Tn], m0, P0, backend="numpy").means
+            diff[f"{k}: filterpy vs numpy"] = maxdiff(fp_means[k][0, :Tn], pred[0])
     except ImportError as exc:
-        row["notes"] = [f"filterpy not installed: {exc}"]
+        row["notes"].append(f"filterpy not installed: {exc}")
     try:
-        t_dm, c_dm, dm_means, row["jax"] = dynamax_pair(spec, ys[0], a.repeat, vmap=False)
-        us["dynamax"] = t_dm
-        comp["dynamax"] = c_dm
+        t_dm, dm_means = dynamax_filters(spec, ys[0], a.repeat, vmap=False, kinds=("ekf", "ukf"))
+        row["dynamax"] = {k: per_step(v, T) for k, v in t_dm.items()}
+        rows += rows_against(ours, "dynamax jit float64", t_dm, T)
         for k in t_dm:
-            diff[f"{k}_dynamax_vs_numba"] = maxdiff(dm_means[k], numba_means[k])
+            if full.get(k) is not None:
+                diff[f"{k}: dynamax vs nlfilter (all steps)"] = maxdiff(dm_means[k], full[k].means[0])
     except ImportError as exc:
-        row.setdefault("notes", []).append(f"dynamax/jax not installed: {exc}")
-    nb = us["nlfilter_numba"]
-    row["ratios"] = {f"{col}_over_numba": {k: v / nb[k] for k, v in us[col].items()}
-                     for col in ("dynamax", "filterpy", "nlfilter_numpy") if col in us}
+        row["notes"].append(f"dynamax/jax not installed: {exc}")
+    row["rows"] = rows
     return row
 
 
@@ -126,35 +110,27 @@ def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--steps", type=int, default=20000)
     ap.add_argument("--numpy-steps", type=int, default=2000, help="steps of the NumPy loop (per step reported)")
-    ap.add_argument("--repeat", type=int, default=3)
-    ap.add_argument("--quick", action="store_true", help="smoke size: 300 steps, 100 NumPy steps, 1 repeat")
+    ap.add_argument("--repeat", type=int, default=3, help="calls per side, the first (compile) apart")
+    ap.add_argument("--columns", nargs="+", choices=["default", "numpy", "numba"],
+                    default=["default", "numpy", "numba"], help="nlfilter's calls: default (no backend=), numpy, numba")
+    ap.add_argument("--quick", action="store_true", help="smoke size: 300 steps, 100 NumPy steps, 2 calls")
+    ap.add_argument("--label", default="pinned", help="the run's name in the JSON (other runs kept)")
     ap.add_argument("--out", default=str(OUT))
     a = ap.parse_args(argv)
     if a.quick:
-        a.steps, a.numpy_steps, a.repeat = 300, 100, 1
+        a.steps, a.numpy_steps, a.repeat = 300, 100, 2
     rows = []
-    for name, (md, m0, P0, fns, spec) in problems().items():
-        row = measure(name, md, m0, P0, fns, spec, a)
-        rows.append(row)
-        print(json.dumps(row), flush=True)
-    versions = {"python": platform.python_version(), "numpy": np.__version__}
-    for mod in ("numba", "jax", "dynamax", "filterpy"):
-        try:
-            versions[mod] = __import__(mod).__version__
-        except (ImportError, AttributeError):
-            versions[mod] = None
-    res = {"benchmark": "single path", "quick": a.quick,
-           "problems": {"cubic sensor (n=1)": "x' = 0.99 x + w, y = x^3 + v, Q = 0.01, R = 0.1, m0 = 0.5, P0 = 0.1",
-                        "chain (n=4)": "bench_dimensions.chain(4): x_i' = 0.9 x_i + 0.1 sin(x_{i+1}) + w, "
-                                       "y_j = x_j + 0.1 x_{j+2}^2 + v, Q = 0.01 I, R = 0.1 I, m0 = 0, P0 = I"},
-           "machine": {**versions, "cpu": platform.machine(), "cores": os.cpu_count(),
-                       "note": "2 cores shared with other jobs (machine shared): best of N, noisy"},
-           "repeat": a.repeat, "units": "µs per step of one trajectory; compile seconds apart",
-           "second_order_form": "truncated (no peer)", "rows": rows}
-    out = pathlib.Path(a.out)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text(json.dumps(res, indent=2, ensure_ascii=False) + "\n")
-    print(f"wrote {out}")
+    for name, problem in problems().items():
+        rows.append(measure(name, *problem, a))
+        for r in rows[-1]["rows"]:
+            print(f"{name}: {r['ours']} vs {r['peer']} ({r['compile']}): {r['peer_over_ours']:.2f}x", flush=True)
+    _pin.write(a.out, a.label, {
+        "quick": a.quick, "repeat": a.repeat, "columns": a.columns,
+        "problems": {"cubic sensor (n=1)": "x' = 0.99 x + w, y = x^3 + v, Q = 0.01, R = 0.1, m0 = 0.5, P0 = 0.1",
+                     "chain (n=4)": "_models.chain(4): x_i' = 0.9 x_i + 0.1 sin(x_{i+1}) + w, "
+                                    "y_j = x_j + 0.1 x_{j+2}^2 + v, Q = 0.01 I, R = 0.1 I, m0 = 0, P0 = I"},
+        "units": "µs per step of one trajectory; compile apart and included", "second_order_form": "truncated (no peer)",
+        "rows": rows}, benchmark="single path")
 
 
 if __name__ == "__main__":

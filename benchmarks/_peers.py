@@ -1,0 +1,190 @@
+"""The sides the benchmarks time, shared (import :mod:`_pin` before this module).
+
+* :func:`nlfilter_sides`: one nlfilter filter through the **default call** (``run`` with no
+  ``backend=``; what it resolves to is recorded), ``backend="numpy"`` and ``backend="numba"``,
+  each with its first call (compile, cache load) apart and included;
+* :func:`filterpy_pair`: filterpy's ``ExtendedKalmanFilter`` and ``UnscentedKalmanFilter`` (a Python
+  loop per path and step) on NumPy functions of one state;
+* :func:`dynamax_filters`: dynamax's ``extended_kalman_filter`` and ``unscented_kalman_filter`` in
+  float64 under ``jit`` (with ``vmap`` over paths, or on one trajectory), the cubature rule as its
+  unscented filter with ``alpha = 1, beta = 0, kappa = 0`` (λ = 0: the 2n points ±√n L e_i with
+  equal weights, no centre point — the CKF's rule); compile apart and included.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from _pin import default_backend, first_and_best
+
+
+def maxdiff(a, b) -> float:
+    return float(np.max(np.abs(np.asarray(a) - np.asarray(b))))
+
+
+def relmaxdiff(a, b) -> float:
+    """max |a − b| / max |b| (a relative difference of whole arrays)."""
+    scale = float(np.max(np.abs(b))) or 1.0
+    return maxdiff(a, b) / scale
+
+
+def nlfilter_sides(make, ys, m0, P0, repeat, columns=("default", "numpy", "numba"), **kw):
+    """Time ``make().run(ys, m0, P0, **kw)`` for each column, in order: ``"default"`` (no backend
+    argument: first, so that a compile it decides on is its own), ``"numpy"``, ``"numba"``.
+
+    Returns ``(timings, estimates, notes)``: ``timings[col]`` as :func:`_pin.first_and_best` (its
+    "compile" is the first call's extra over the best: a compile, a cache load, or noise for the
+    NumPy loop); where the default call *is* ``backend="numpy"`` (the imported nlfilter's default)
+    the numpy column is that measurement, not a second one; a backend that refuses the filter is
+    a note, not a column.
+    """
+    timings, est, notes = {}, {}, []
+    default = default_backend()
+    if default != "numpy" and "default" in columns and "numba" in columns:
+        notes.append(f"the default call ({default!r}) runs first: where it compiled, backend='numba' finds the "
+                     "compiled loop in this process and its 'compile' is what is left (a cold compile is the "
+                     "default call's)")
+    for col in columns:
+        if col == "numpy" and "default" in timings and default == "numpy":
+            timings["numpy"], est["numpy"] = timings["default"], est["default"]
+            notes.append("the default call is backend='numpy' here: one measurement for both columns")
+            continue
+        flt = make()
+        args = {} if col == "default" else {"backend": col}
+        try:
+            timings[col], est[col] = first_and_best(lambda: flt.run(ys, m0, P0, **args, **kw), repeat)
+        except TypeError as exc:
+            if "backend" not in str(exc):
+                raise
+            notes.append(f"{col}: {exc}")
+    return timings, est, notes
+
+
+def filterpy_pair(fns, ys, m0, P0, Qm, Rm, repeat):
+    """filterpy's EKF and UKF over every path of ``ys (paths, T, m)`` with the NumPy functions
+    ``fns = (fx, hx, F, H)`` of one state ``(n,)``: seconds per path-step (best of ``repeat``) and
+    the means ``(paths, T, n)``. filterpy predicts first (nlfilter's ``start="predict"``)."""
+    from filterpy.kalman import ExtendedKalmanFilter, MerweScaledSigmaPoints, UnscentedKalmanFilter
+
+    from _pin import best_of
+
+    fx, hx, F, H = fns
+    n, m = len(m0), ys.shape[-1]
+    npth, T = ys.shape[:2]
+
+    class FP(ExtendedKalmanFilter):
+        def predict(self, u=0):
+            self.F = F(self.x[:, 0])
+            self.x = fx(self.x[:, 0])[:, None]
+            self.P = self.F @ self.P @ self.F.T + self.Q
+
+    def ekf():
+        out = np.empty((npth, T, n))
+        for p in range(npth):
+            f = FP(n, m)
+            f.x, f.P, f.Q, f.R = np.array(m0, float)[:, None], np.array(P0, float), Qm, Rm
+            for k in range(T):
+                f.predict()
+                f.update(ys[p, k][:, None], lambda x: H(x[:, 0]), lambda x: hx(x[:, 0])[:, None])
+                out[p, k] = f.x[:, 0]
+        return out
+
+    def ukf():
+        out = np.empty((npth, T, n))
+        for p in range(npth):
+            pts = MerweScaledSigmaPoints(n, alpha=1.0, beta=2.0, kappa=0.0)
+            f = UnscentedKalmanFilter(n, m, 1.0, hx, fx, pts)
+            f.x, f.P, f.Q, f.R = np.array(m0, float), np.array(P0, float), Qm, Rm
+            for k in range(T):
+                f.predict()
+                f.update(ys[p, k])
+                out[p, k] = f.x
+        return out
+
+    te, me = best_of(ekf, repeat)
+    tu, mu = best_of(ukf, repeat)
+    return {"ekf": te / (npth * T), "ukf": tu / (npth * T)}, {"ekf": me, "ukf": mu}
+
+
+def dynamax_filters(spec, ys, repeat, vmap=True, kinds=("ekf", "ukf", "ckf")):
+    """dynamax's filters (float64, ``jit``; over the paths of ``ys (paths, T, m)`` with ``vmap``, or
+    one trajectory ``ys (T, m)`` without) on the model ``spec(jnp) = (m0, P0, f, Q, h, R)``.
+
+    Returns ``(timings, means)``: ``timings[kind]`` as :func:`_pin.first_and_best` on the whole job
+    (its "compile" is jit's trace and XLA compile, "included" the first call), ``means[kind]``.
+    The UKF with nlfilter's defaults (``alpha = 1, beta = 2, kappa = 0``), the CKF as above.
+    Raises ImportError where jax or dynamax is missing.
+    """
+    import jax
+
+    jax.config.update("jax_enable_x64", True)
+    import jax.numpy as jnp
+    from dynamax.nonlinear_gaussian_ssm import (ParamsNLGSSM, UKFHyperParams, extended_kalman_filter,
+                                                unscented_kalman_filter)
+
+    m0, P0, f, Qm, h, Rm = spec(jnp)
+    params = ParamsNLGSSM(initial_mean=m0, initial_covariance=P0, dynamics_function=f, dynamics_covariance=Qm,
+                          emission_function=h, emission_covariance=Rm)
+    hyper = {"ukf": UKFHyperParams(alpha=1.0, beta=2.0, kappa=0.0),
+             "ckf": UKFHyperParams(alpha=1.0, beta=0.0, kappa=0.0)}
+    over = jax.vmap if vmap else (lambda fn: fn)
+
+    def job(kind):
+        if kind == "ekf":
+            return jax.jit(over(lambda y: extended_kalman_filter(params, y).filtered_means))
+        return jax.jit(over(lambda y: unscented_kalman_filter(params, y, hyper[kind]).filtered_means))
+
+    yj = jnp.asarray(ys)
+    timings, means = {}, {}
+    for kind in kinds:
+        run = job(kind)
+        timings[kind], out = first_and_best(lambda: run(yj).block_until_ready(), repeat)
+        means[kind] = np.asarray(out)
+    return timings, means
+
+
+def per_step(timing: dict, steps: int) -> dict:
+    """A :func:`_pin.first_and_best` timing with ``best`` also per (path-)step in µs."""
+    return {**timing, "us_per_step": timing["best"] / steps * 1e6}
+
+
+def column_name(col: str) -> str:
+    """How a row names an nlfilter column."""
+    if col == "default":
+        return f"default call, no backend= (here {default_backend()!r})"
+    return f"backend={col!r}"
+
+
+def rows_against(ours: dict, peer: str, theirs: dict, steps: int) -> list:
+    """Rows naming both sides, for every filter kind in both and every nlfilter column.
+
+    ``ours[kind][col]`` and ``theirs[kind]`` are :func:`_pin.first_and_best` timings of the same
+    job of ``steps`` (path-)steps (a peer timing without "first" has no compile-included row).
+    A column that is the default call's measurement itself (the default is that backend) gives
+    no second row. Each pair gives a row of µs per (path-)step with the compile apart (the best calls) and, where
+    both sides have a first call, a row of seconds to the first result (compile included).
+    """
+    from _pin import side_by_side
+
+    rows = []
+    for kind, t_peer in theirs.items():
+        for col, t_ours in ours.get(kind, {}).items():
+            if col != "default" and t_ours is ours[kind].get("default"):
+                continue  # the default call's own measurement (its row names what it resolved to)
+            name = f"nlfilter {kind}, {column_name(col)}"
+            rows.append(side_by_side(name, f"{peer} {kind}", t_ours["best"] / steps * 1e6,
+                                     t_peer["best"] / steps * 1e6, "µs per (path-)step, compile apart",
+                                     kind=kind, column=col, compile="apart"))
+            if "first" in t_peer:
+                rows.append(side_by_side(name, f"{peer} {kind}", t_ours["included"], t_peer["included"],
+                                         "s to the first result of the whole job, compile included",
+                                         kind=kind, column=col, compile="included"))
+    return rows
+
+
+def scaled(timing: dict, factor: float) -> dict:
+    """A :func:`_pin.first_and_best` timing of a job ``factor`` times shorter than the peers', as if
+    of the whole job: the best and the run part of the first call scaled, the compile kept."""
+    best = timing["best"] * factor
+    return {**timing, "best": best, "first": timing["compile"] + best, "included": timing["compile"] + best,
+            "scaled_by": factor}
