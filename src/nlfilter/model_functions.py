@@ -34,6 +34,7 @@ class Kernel:
         self = cls.__new__(cls)
         self.shape, self.params, self.varies, self.const, self.n = tuple(shape), (), False, True, n
         self.value = np.zeros(self.shape)
+        self.fixed = self.moving = ()
         return self
 
     def __init__(self, exprs, states, time, shape, params=()):
@@ -44,6 +45,9 @@ class Kernel:
         self.varies = bool(free & (set(states) | ({time} if time is not None else set())))
         self.const = not self.varies and not self.params
         self.n = len(states)
+        # the entries that are numbers (Batched._eval writes them once) and the others
+        self.fixed = tuple(j for j, e in enumerate(flat) if not e.free_symbols)
+        self.moving = tuple(j for j, e in enumerate(flat) if e.free_symbols)
         if self.const:
             self.value = np.array([float(e) for e in flat], dtype=float).reshape(self.shape)
         else:
@@ -117,9 +121,13 @@ class Batched:
     sympy issues #5642, #19259); so is a function that depends on scalar parameters only.
     """
 
+    #: the largest output (entries over the batch) whose constant entries are kept filled in a template
+    TEMPLATE_MAX = 1 << 16
+
     def __init__(self, kernel: Kernel, values: Values = NO_VALUES):
         self.kernel, self.values, self.shape = kernel, values, kernel.shape
         self._fixed = None
+        self._tmpl = None  # the output's constant entries for the last batch shape (_eval)
         if kernel.const:
             self._fixed = Broadcast(kernel.value)
         elif not kernel.varies and values.scalar(kernel.params):
@@ -134,10 +142,22 @@ class Batched:
     def _eval(self, x, t):
         batch = x.shape[:-1]
         kn = self.kernel
-        extra = [self.values.at(p, t, batch) for p in kn.params]
+        extra = [self.values.at(p, t, batch) for p in kn.params] if kn.params else ()
         vals = kn.fn(*(x[..., i] for i in range(kn.n)), np.float64(t), *extra)
-        if len(vals) == 1 and np.shape(vals[0]) == batch:  # one entry: a reshape, no copy
+        if len(vals) == 1 and getattr(vals[0], "shape", None) == batch:  # one entry: a reshape, no copy
             return np.asarray(vals[0], dtype=float).reshape(*batch, *self.shape)
+        fixed = kn.fixed
+        if fixed and len(vals) * (x.size // x.shape[-1]) <= self.TEMPLATE_MAX:  # the numbers are written once
+            tmpl = self._tmpl
+            if tmpl is None or tmpl.shape[:-1] != batch:
+                tmpl = np.empty((*batch, len(vals)))
+                for j in fixed:
+                    tmpl[..., j] = vals[j]
+                self._tmpl = tmpl
+            out = tmpl.copy()
+            for j in kn.moving:
+                out[..., j] = vals[j]
+            return out.reshape(*batch, *self.shape)
         out = np.empty((*batch, len(vals)))
         for j, v in enumerate(vals):
             out[..., j] = v

@@ -58,7 +58,7 @@ import numpy as np
 from .. import _validate as V
 from .base import ContinuousFilter, DiscreteFilter, GaussianState, continuous_precision, set_start, set_t0
 from .linalg import innovation_info, observed_precision, poison, symmetrize
-from .skeleton import (CrossNoise, MeasuredState, as_belief, check_paths, condition, ito_gain, ito_rhs,
+from .skeleton import (CrossNoise, MeasuredState, as_belief, as_gaussian, check_paths, condition, ito_gain, ito_rhs,
                        iterated_update, predict, propagate)
 from .smoothing import continuous_rts, rts
 
@@ -126,9 +126,12 @@ class GaussianFilter(DiscreteFilter):
     def _predict(self, state, k, cross: bool = False):
         """:func:`~nlfilter.filters.skeleton.predict` from step ``k`` (correlated noise: with the
         decorrelation of the belief's measurement); with ``cross`` also ``Cov[x_k, f(x_k)]``."""
-        out = predict(self.rule, self.model, state, self._time(k), decorrelation=self._cross.decorrelation(state, k),
+        cr = self._cross
+        if cr.S is None:  # uncorrelated noise: the belief is a plain GaussianState
+            return predict(self.rule, self.model, state, self._time(k), cross=cross)
+        out = predict(self.rule, self.model, state, self._time(k), decorrelation=cr.decorrelation(state, k),
                       cross=cross)
-        return (self._cross.unmeasured(out[0]), out[1]) if cross else self._cross.unmeasured(out)
+        return (cr.unmeasured(out[0]), out[1]) if cross else cr.unmeasured(out)
 
     def _predict_cross(self, state, k):
         return self._predict(state, k, cross=True)
@@ -142,8 +145,10 @@ class GaussianFilter(DiscreteFilter):
         """The update of step ``k``: ``(belief poisoned on the failed paths, with its measurement,
         failed paths, (ŷ, S))``."""
         y = np.asarray(y, dtype=float)
-        new, bad, moments = self._condition(GaussianState(state[0], state[1]), y, self._time(k))
-        return self._cross.carry(poison(new, bad), y), bad, moments
+        new, bad, moments = self._condition(as_gaussian(state), y, self._time(k))
+        if bad is not None:
+            new = poison(new, bad)
+        return (new if self._cross.S is None else self._cross.carry(new, y)), bad, moments
 
     def predict(self, state, k):
         new = self._predict(state, k)
@@ -309,7 +314,7 @@ class ContinuousGaussianFilter(ContinuousFilter):
         dy0 = np.where(obs, dy, 0.0)
         m, P = state
         Rinv = observed_precision(self.model.R, self._Rinv, obs)
-        K, _, _, M = ito_gain(self.rule, self.model, m, P, t, obs, Rinv)  # Itô: gain at the start of the step
+        K, _, _, M = ito_gain(self.rule, self.model, m, P, t, obs, Rinv, measure=False)  # Itô: gain at the start
         new = self.integrate(self._drift(obs, Rinv), GaussianState(m, P), None, t)
         mean = new.mean + np.einsum("...ij,...j->...i", K, dy0)
         cov = new.cov

@@ -9,19 +9,26 @@ from __future__ import annotations
 
 import functools
 import math
+import weakref
 
 import numpy as np
 
 from ..noise import Gaussian, Independent
 from .beliefs import GaussianState
 
+try:  # the gufuncs behind numpy.linalg: the same numbers without its Python wrapper (µs a call)
+    from numpy.linalg import _umath_linalg as _gufuncs
+except ImportError:  # pragma: no cover - a NumPy without them: the public functions
+    _gufuncs = None
+
 PSD_TOL = 1e-9
+_F8 = np.dtype(float)
 
 
 def symmetrize(P: np.ndarray) -> np.ndarray:
     if P.shape[-1] == 1:
         return P
-    return 0.5 * (P + np.swapaxes(P, -1, -2))
+    return 0.5 * (P + P.swapaxes(-1, -2))
 
 
 @functools.lru_cache(maxsize=None)
@@ -39,13 +46,58 @@ def mm(A: np.ndarray, B: np.ndarray) -> np.ndarray:
     return A @ B
 
 
+def _cholesky(A: np.ndarray) -> np.ndarray:
+    """``np.linalg.cholesky(A)`` of a float64 batch where every factorization succeeds; NaN in the
+    factors of the paths where one fails (the gufunc's fill) instead of the LinAlgError. Called
+    with NumPy's invalid/overflow warnings off (the run loop's, or the caller's errstate)."""
+    if _gufuncs is None or A.dtype != _F8:
+        try:
+            return np.linalg.cholesky(A)
+        except np.linalg.LinAlgError:
+            return np.full(A.shape, np.nan)
+    return _gufuncs.cholesky_lo(A, signature="d->d")
+
+
+def _solve(A: np.ndarray, B: np.ndarray) -> np.ndarray | None:
+    """``np.linalg.solve(A, B)`` (``B (..., m, k)``) of float64 batches, or None where it would
+    raise or a path's solution is not finite (the caller then takes ``np.linalg.solve``'s own path:
+    the same numbers, the same exceptions)."""
+    if _gufuncs is None or A.dtype != _F8 or B.dtype != _F8:
+        return None
+    with np.errstate(invalid="ignore", over="ignore", divide="ignore"):
+        X = _gufuncs.solve(A, B, signature="dd->d")
+    return X if math.isfinite(_total(X)) else None
+
+
+_AXIS_GATHER = {}
+
+
+def axis_gather(z):
+    """``(col (N,), zc (N, 1))`` when every node of a rule's table ``z (N, n)`` lies on an axis
+    (``z_p = zc_p e_{col_p}``: unscented, cubature; :meth:`~nlfilter.filters.rules.NodeRule.nodes`
+    then gathers columns of L), else None; kept per read-only table (the tables are cached; an
+    entry is checked by a weak reference and dropped with its table)."""
+    hit = _AXIS_GATHER.get(id(z))
+    if hit is not None and hit[0]() is z:
+        return hit[1]
+    val = None
+    if (np.count_nonzero(z, axis=1) <= 1).all():
+        col = np.argmax(z != 0, axis=1)
+        val = (col, z[np.arange(len(z)), col][:, None])
+    if z.flags.writeable:  # a table that may change: not kept
+        return val
+    key = id(z)
+    _AXIS_GATHER[key] = (weakref.ref(z, lambda _, key=key: _AXIS_GATHER.pop(key, None)), val)
+    return val
+
+
 def bad_paths(mean: np.ndarray, cov: np.ndarray, tol: float = PSD_TOL) -> np.ndarray:
     """Boolean ``(...)``: paths whose mean/cov is non-finite or whose cov is not PSD (an
     eigenvalue of the symmetrized cov below ``−tol·scale``, ``scale = max(1, max |cov|)``; a
     PSD but singular cov passes). The exact per-path test runs only when the one-call screen
     :func:`_screen_ok` cannot clear the whole batch (it never clears a batch this test flags)."""
     if cov.shape[-1] > 2:
-        with np.errstate(over="ignore", invalid="ignore"):  # a sum of infinities is NaN: no warning
+        with np.errstate(over="ignore", invalid="ignore", divide="ignore"):  # a sum of infinities is NaN: no warning
             if _screen_ok(mean, cov, tol):
                 return np.zeros(cov.shape[:-2], bool)
     return _bad_paths_exact(mean, cov, tol)
@@ -56,15 +108,21 @@ def _bad_paths_exact(mean: np.ndarray, cov: np.ndarray, tol: float = PSD_TOL) ->
     n = cov.shape[-1]
     ok = np.all(np.isfinite(mean), axis=-1) & np.all(np.isfinite(cov), axis=(-1, -2))
     safe = np.where(ok[..., None, None], cov, np.eye(n))
+    return ~ok | _below(safe, tol)
+
+
+def _below(cov: np.ndarray, tol: float) -> np.ndarray:
+    """Boolean ``(...)``: finite covariances with an eigenvalue below ``−tol·scale`` (:func:`bad_paths`)."""
+    n = cov.shape[-1]
     if n == 1:
-        low = safe[..., 0, 0]
+        low = cov[..., 0, 0]
     elif n == 2:  # closed-form smallest eigenvalue of a symmetric 2x2
-        a, b, c = safe[..., 0, 0], 0.5 * (safe[..., 0, 1] + safe[..., 1, 0]), safe[..., 1, 1]
+        a, b, c = cov[..., 0, 0], 0.5 * (cov[..., 0, 1] + cov[..., 1, 0]), cov[..., 1, 1]
         low = 0.5 * (a + c) - np.sqrt(0.25 * (a - c) ** 2 + b * b)
     else:
-        low = np.linalg.eigvalsh(symmetrize(safe))[..., 0]
-    scale = np.maximum(1.0, np.max(np.abs(safe), axis=(-1, -2)))
-    return ~ok | (low < -tol * scale)
+        low = np.linalg.eigvalsh(symmetrize(cov))[..., 0]
+    scale = np.maximum(1.0, _max(np.abs(cov), axis=(-1, -2)))
+    return low < -tol * scale
 
 
 #: the largest dimension the Cholesky screen serves (its rounding stays far inside the margin)
@@ -80,18 +138,16 @@ def _screen_ok(mean: np.ndarray, cov: np.ndarray, tol: float = PSD_TOL) -> bool:
     stable, error ≲ n³·eps·d ≪ tol·d/2 for n ≤ :data:`SCREEN_MAX_N`), and the exact test's
     threshold ``−tol·scale ≤ −tol·d`` lies below that. A PSD-but-singular cov (a known state
     component) becomes positive definite with the shift, so it passes as it does the exact test.
-    False (some path may fail, the sum overflowed, or n is too large): the exact test decides."""
+    False (some path may fail, the sum overflowed, or n is too large): the exact test decides.
+    Called with NumPy's invalid/overflow warnings off (the run loop's errstate, :func:`bad_paths`'):
+    the factorization fails where its factor is NaN (:func:`_cholesky`; A is finite here)."""
     n = cov.shape[-1]
-    if n > SCREEN_MAX_N or not math.isfinite(_sum(cov, axis=None) + _sum(mean, axis=None)):
+    if n > SCREEN_MAX_N or not math.isfinite(_total(cov) + _total(mean)):
         return False
-    A = cov + np.swapaxes(cov, -1, -2)
-    diag = np.einsum("...ii->...i", A)  # a writeable view of A's diagonal (= 2 cov_ii)
-    diag += (0.5 * tol) * np.maximum(2.0, _max(diag, axis=-1))[..., None]
-    try:
-        np.linalg.cholesky(A)
-    except np.linalg.LinAlgError:
-        return False
-    return True
+    A = cov + cov.swapaxes(-1, -2)
+    shift = (0.5 * tol) * np.maximum(2.0, _max(A.diagonal(0, -2, -1), axis=-1))  # A's diagonal: 2 cov_ii
+    A += shift[..., None, None] * _eye(n)
+    return not math.isnan(_total(_cholesky(A)))
 
 
 def sqrt_psd(P: np.ndarray, tol: float = PSD_TOL):
@@ -100,6 +156,10 @@ def sqrt_psd(P: np.ndarray, tol: float = PSD_TOL):
     initial state) the eigen root ``U √w`` (any root serves sigma points and quadrature nodes);
     the identity where P is non-finite or has an eigenvalue below ``−tol·scale`` (``bad``: the
     caller poisons those paths, so that ``run`` raises or marks them)."""
+    with np.errstate(invalid="ignore", over="ignore", divide="ignore"):
+        L = _cholesky(P)
+    if math.isfinite(_total(L)):  # every factorization succeeded: np.linalg.cholesky's factor
+        return L, np.zeros(P.shape[:-2], bool)
     try:
         return np.linalg.cholesky(P), np.zeros(P.shape[:-2], bool)
     except np.linalg.LinAlgError:
@@ -142,15 +202,26 @@ def _all_ok(mean: np.ndarray, cov: np.ndarray) -> bool:
     the Cholesky screen :func:`_screen_ok`, which may only answer False too often, and then
     :func:`bad_paths` decides path by path)."""
     n = cov.shape[-1]
-    if n == 2:
+    if n == 2:  # every path finite (one reduction): the exact test without its masking
+        if math.isfinite(_total(cov) + _total(mean)):
+            return not _below(cov, PSD_TOL).any()
         return not _bad_paths_exact(mean, cov).any()
     if n != 1:
         return _screen_ok(mean, cov)
     # ufunc reductions and Python floats: this runs twice a step, and method calls cost here
+    if cov.size == 1:  # one path: its numbers
+        c = cov.item()
+        return c >= 0.0 and math.isfinite(c + mean.item())
     return bool(_min(cov, axis=None) >= 0.0) and math.isfinite(_sum(cov, axis=None) + _sum(mean, axis=None))
 
 
 _min, _max, _sum = np.minimum.reduce, np.maximum.reduce, np.add.reduce
+
+
+def _total(a: np.ndarray):
+    """The sum of the entries of ``a`` for a finiteness test (a NaN or inf anywhere makes it NaN or
+    inf): one reduction, or the entry itself when there is one (a scalar on one trajectory)."""
+    return a.item() if a.size == 1 else _sum(a, axis=None)
 
 
 def gaussian_update(state: GaussianState, y: np.ndarray, y_pred: np.ndarray, S: np.ndarray,
@@ -166,7 +237,7 @@ def gaussian_update(state: GaussianState, y: np.ndarray, y_pred: np.ndarray, S: 
     """
     m, P = state
     # a NaN anywhere makes the sum NaN: one reduction screens the common complete case
-    miss = np.isnan(y) if math.isnan(_sum(y, axis=None)) else None
+    miss = np.isnan(y) if math.isnan(_total(y)) else None
     if miss is not None and miss.any():
         e = np.where(miss, 0.0, y - y_pred)
         C = np.where(miss[..., None, :], 0.0, C)
@@ -188,15 +259,20 @@ def gaussian_update(state: GaussianState, y: np.ndarray, y_pred: np.ndarray, S: 
     if S.shape[-1] == 1:  # scalar measurement: no solve needed
         K = C / S
     else:
-        try:
-            K = np.swapaxes(np.linalg.solve(S, np.swapaxes(C, -1, -2)), -1, -2)  # K = C S⁻¹ (S symmetric)
-        except np.linalg.LinAlgError:  # a (numerically) singular S on some path: poison those paths only
-            K, singular = _solve_paths(S, C)
+        Ct = C.swapaxes(-1, -2)
+        K = _solve(S, Ct)  # K = C S⁻¹ (S symmetric)
+        if K is not None:
+            K = K.swapaxes(-1, -2)
+        else:
+            try:
+                K = np.swapaxes(np.linalg.solve(S, Ct), -1, -2)
+            except np.linalg.LinAlgError:  # a (numerically) singular S on some path: poison those paths only
+                K, singular = _solve_paths(S, C)
     mean = m + (K[..., 0] * e if e.shape[-1] == 1 else np.einsum("...ij,...j->...i", K, e))
-    Kt = np.swapaxes(K, -1, -2)
+    Kt = K.swapaxes(-1, -2)
     if H is not None:  # Joseph form; K's missing columns are zero, so R's missing rows never enter
         IKH = _eye(m.shape[-1]) - mm(K, H)
-        cov = mm(mm(IKH, P), np.swapaxes(IKH, -1, -2)) + mm(mm(K, R), Kt)
+        cov = mm(mm(IKH, P), IKH.swapaxes(-1, -2)) + mm(mm(K, R), Kt)
     else:
         cov = P - mm(mm(K, S), Kt)
     return poison(GaussianState(mean, symmetrize(cov)), singular)
@@ -294,7 +370,7 @@ def innovation_info(y: np.ndarray, y_pred: np.ndarray, S: np.ndarray, *, scale: 
     m = y.shape[-1]
     if S.shape[:-1] != y.shape:
         S = np.broadcast_to(S, (*y.shape, m))
-    if m == 1 and not math.isnan(_sum(y, axis=None)):  # the common case: one complete component
+    if m == 1 and not math.isnan(_total(y)):  # the common case: one complete component
         e = y - y_pred
         s = S[..., 0]
         with np.errstate(invalid="ignore", divide="ignore"):

@@ -68,7 +68,7 @@ import numpy as np
 from .. import _validate as V
 from ..moments.quadrature import MAX_ENTRIES, cubature5_rule, gauss_hermite_rule
 from .contractions import gaussian_quartic, hessian_trace, noise_covariance, quarter_outer  # (re-exported)
-from .linalg import mm, sqrt_psd
+from .linalg import axis_gather, mm, sqrt_psd
 
 __all__ = ["GaussMoments", "Taylor1", "Taylor2", "FORMS", "Form", "FORM_TABLE", "Unscented", "Cubature", "GaussHermite", "NodeRule",
            "sigma_points", "hessian_trace", "quarter_outer", "gaussian_quartic", "noise_covariance"]
@@ -121,9 +121,9 @@ class Taylor1:
         J = jac(m, t)
         Q = None if noise_of is None else noise_of.GQGT(m, t)  # G(m) Q G(m)ᵀ
         if cross:
-            C = mm(P, np.swapaxes(J, -1, -2))  # Cov[x, g] = P Jᵀ
+            C = mm(P, J.swapaxes(-1, -2))  # Cov[x, g] = P Jᵀ
             return GaussMoments(g(m, t), C, mm(J, C) if cov else None, J, None, Q)
-        S = mm(mm(J, P), np.swapaxes(J, -1, -2)) if cov else None  # J P Jᵀ
+        S = mm(mm(J, P), J.swapaxes(-1, -2)) if cov else None  # J P Jᵀ
         return GaussMoments(g(m, t), None, S, J, None, Q)
 
 
@@ -238,10 +238,10 @@ class Taylor2:
                 quartic = -quarter_outer(P, A)  # 004 eq. 11 / after eq. 23 (pre-correction)
             elif kind == "gaussian":
                 quartic = gaussian_quartic(P, A)
-        Jt = np.swapaxes(J, -1, -2)
+        Jt = J.swapaxes(-1, -2)
         C = S = None
         if role == "dynamics" and not cov:  # the drift of dP/dt: Cov[x, f] = (F P)ᵀ
-            C = np.swapaxes(J @ P, -1, -2) if cross else None
+            C = (J @ P).swapaxes(-1, -2) if cross else None
         elif role == "dynamics":
             S = J @ P @ Jt  # 004 eq. 19: F X Fᵀ
             C = P @ Jt if cross else None
@@ -280,10 +280,11 @@ class NodeRule:
         must be discarded: the filter poisons them so that ``run`` raises or marks them)."""
         z, wm, wc = self.unit_nodes(m.shape[-1])
         L, bad = sqrt_psd(P)
-        Lt = np.swapaxes(L, -1, -2)  # rows: the columns of L
-        if (np.count_nonzero(z, axis=1) <= 1).all():  # nodes on the axes (unscented, cubature):
-            col = np.argmax(z != 0, axis=1)  # X_p = m + z_pj L e_j, a gather (the same numbers as the
-            X = m[..., None, :] + Lt[..., col, :] * z[np.arange(len(z)), col][:, None]  # product, faster)
+        Lt = L.swapaxes(-1, -2)  # rows: the columns of L
+        axes = axis_gather(z)
+        if axes is not None:  # nodes on the axes (unscented, cubature): X_p = m + z_pj L e_j,
+            col, zc = axes  # a gather (the same numbers as the product, faster)
+            X = m[..., None, :] + Lt[..., col, :] * zc
         else:  # X_p = m + L z_p as one batched product (an einsum over the nodes is a naive loop)
             X = m[..., None, :] + z @ Lt
         return X, wm, wc, bad
@@ -304,8 +305,8 @@ class NodeRule:
             C = np.einsum("i,...ia,...ib->...ab", wc, X - m[..., None, :], D) if cross else None
         else:  # batched matmuls Σ_i A_ia (wc_i D_ib): a three-operand einsum is a naive loop, 5-20x
             Dw = D * wc[:, None]  # slower from n = 4 (the sums differ from it by rounding only)
-            S = np.swapaxes(D, -1, -2) @ Dw if cov else None
-            C = np.swapaxes(X - m[..., None, :], -1, -2) @ Dw if cross else None
+            S = D.swapaxes(-1, -2) @ Dw if cov else None
+            C = (X - m[..., None, :]).swapaxes(-1, -2) @ Dw if cross else None
         Q = None
         if noise_of is not None:  # E[G Q Gᵀ]: G Q Gᵀ for constant G, else Σ w_i G(X_i) Q G(X_i)ᵀ
             Q = (noise_of.GQGT(m, t) if noise_of.G_constant

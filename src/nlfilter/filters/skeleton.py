@@ -46,7 +46,7 @@ from .contractions import hessian_trace
 from .smoothing import _solve_right
 
 __all__ = ["predict", "condition", "moment_rhs", "propagate", "ito_gain", "ito_rhs", "iterated_update", "CrossNoise",
-           "MeasuredState", "as_belief", "check_paths"]
+           "MeasuredState", "as_belief", "as_gaussian", "check_paths"]
 
 
 class MeasuredState(NamedTuple):
@@ -141,6 +141,11 @@ def _decorrelated(md, D, e):
     return f, f_x, f_xx
 
 
+def as_gaussian(belief) -> GaussianState:
+    """``belief`` as a :class:`GaussianState` (its first two fields; the belief itself when it is one)."""
+    return belief if type(belief) is GaussianState else GaussianState(belief[0], belief[1])
+
+
 def _plus(A, B):
     """``A + B``, B an optional term of the rule (None: absent)."""
     return A if B is None else A + B
@@ -159,15 +164,16 @@ def predict(rule, model, belief, t, *, decorrelation=None, cross: bool = False):
     if decorrelation is not None:  # correlated noise: the decorrelated dynamics f̃ (CrossNoise)
         D, e, sub = decorrelation
         f, f_x, f_xx = _decorrelated(md, D, e)
-    mo = rule.moments(GaussianState(belief[0], belief[1]), f, t, jac=f_x, hess=f_xx, cross=cross, noise_of=md,
-                      role="dynamics")
+    mo = rule.moments(as_gaussian(belief), f, t, jac=f_x, hess=f_xx, cross=cross, noise_of=md, role="dynamics")
     P = mo.cov + mo.noise  # P⁻ = Cov[f] + E[G Q Gᵀ]
     if sub is not None:  # Cov[w̃] = Q − S R⁻¹ Sᵀ
         P = P - sub
     P = _plus(P, mo.quartic)
     if rule.symmetrize:
         P = symmetrize(P)
-    new = poison(GaussianState(mo.mean, P), mo.bad)
+    new = GaussianState(mo.mean, P)
+    if mo.bad is not None:
+        new = poison(new, mo.bad)
     return (new, mo.cross) if cross else new
 
 
@@ -191,7 +197,7 @@ def condition(rule, model, belief, y, t, R=None):
     seed 004 eq. 17, see :mod:`nlfilter.filters.second_order`). The updated belief is not
     poisoned: the caller decides (a filter that raises, or :func:`~nlfilter.filters.linalg.poison`)."""
     md = model
-    state = GaussianState(belief[0], belief[1])
+    state = as_gaussian(belief)
     if R is None:  # a state-dependent R(x) at the predicted mean (the EKF convention)
         R = md.R if getattr(md, "R_constant", True) else md.R_of(state.mean, t)
     mo = rule.moments(state, md.h, t, jac=md.h_x, hess=md.h_xx, role="measurement")
@@ -220,9 +226,9 @@ def moment_rhs(rule, model, m, P, t, C=None):
     (:mod:`~nlfilter.filters.smoothing`): ``(dm/dt, dP/dt, dC/dt)``."""
     mo = rule.moments(GaussianState(m, P), model.f, t, jac=model.f_x, hess=model.f_xx, cov=False, noise_of=model,
                       role="dynamics")
-    dP = mo.cross + np.swapaxes(mo.cross, -1, -2) + mo.noise  # Cov[x, f] + Cov[f, x] + E[G Q Gᵀ]
+    dP = mo.cross + mo.cross.swapaxes(-1, -2) + mo.noise  # Cov[x, f] + Cov[f, x] + E[G Q Gᵀ]
     if C is not None:
-        return mo.mean, dP, C @ _solve_right(P, np.swapaxes(mo.cross, -1, -2)).swapaxes(-1, -2)
+        return mo.mean, dP, C @ _solve_right(P, mo.cross.swapaxes(-1, -2)).swapaxes(-1, -2)
     dm = mo.mean if mo.bad is None else np.where(mo.bad[..., None], np.nan, mo.mean)  # poisoned paths
     return dm, dP
 
@@ -241,24 +247,25 @@ def propagate(rule, model, belief, t, dt, *, substeps: int = 1, scheme: str = "r
     return GaussianState(m, P), C
 
 
-def ito_gain(rule, model, m, P, t, obs, Rinv):
+def ito_gain(rule, model, m, P, t, obs, Rinv, *, measure: bool = True):
     """The measurement terms of the continuous-time (Itô) filter at ``(m, P)`` (seed 004 eqs. 35-37):
     ``(K = P Hᵀ R⁻¹, P Hᵀ, ĥ, M R⁻¹)`` with ``ĥ = h + ½(P h_xx)`` and the forcing tensor M of a
     second-order rule (``rule.second``; else ``ĥ = h``, M None). ``obs (..., m)``: the observed
     components, ``Rinv`` their precision (:func:`~nlfilter.filters.linalg.observed_precision`;
-    missing ones do not update)."""
+    missing ones do not update). ``measure=False``: ĥ is not wanted (None; the gain of an Itô step)."""
     H = model.h_x(m, t) * obs[..., :, None]
-    PHt = mm(P, np.swapaxes(H, -1, -2))
+    PHt = mm(P, H.swapaxes(-1, -2))
     K = mm(PHt, Rinv)  # 004 eq. 37
-    hhat = model.h(m, t)
+    hhat = model.h(m, t) if measure else None
     M = None
     if rule.second:
         h_xx = model.h_xx(m, t)
-        hhat = hhat + 0.5 * hessian_trace(P, h_xx)  # 004 eq. 35
+        if measure:
+            hhat = hhat + 0.5 * hessian_trace(P, h_xx)  # 004 eq. 35
         M = rule.forcing(P, h_xx)
         if M is not None:
             M = np.einsum("...ijk,...kl->...ijl", M * obs[..., None, None, :], Rinv)  # M R⁻¹
-    return K, PHt, hhat * obs, M
+    return K, PHt, (hhat * obs if measure else None), M
 
 
 def ito_rhs(rule, model, m, P, t, obs, Rinv):
@@ -271,7 +278,7 @@ def ito_rhs(rule, model, m, P, t, obs, Rinv):
     if rule.second:
         dm = dm + 0.5 * hessian_trace(P, model.f_xx(m, t))  # 004 eq. 35, drift part
     FP = mm(F, P)
-    dP = FP + np.swapaxes(FP, -1, -2) + rule.noise(model, m, P, t) - mm(K, np.swapaxes(PHt, -1, -2))
+    dP = FP + FP.swapaxes(-1, -2) + rule.noise(model, m, P, t) - mm(K, PHt.swapaxes(-1, -2))
     if M is not None:
         dP = dP - np.einsum("...ijk,...k->...ij", M, hhat)  # forcing term, its dt part
     return dm, dP
@@ -299,7 +306,7 @@ def iterated_update(model, state, y, t, iterations: int, tol: float, *, info: bo
 
     def linear_update(x, at_mean):
         H = md.h_x(x, t)
-        C = mm(P, np.swapaxes(H, -1, -2))
+        C = mm(P, H.swapaxes(-1, -2))
         S = mm(H, C) + R
         y_pred = md.h(x, t) if at_mean else md.h(x, t) + np.einsum("...ij,...j->...i", H, m - x)
         if at_mean:
