@@ -34,7 +34,10 @@ from nlfilter.filters.ukf import UKF
 from nlfilter.simulate import simulate
 from tests.filters.test_screen import _matrix  # the screen's test matrices, every kind
 
-pytestmark = pytest.mark.skipif(not compiled.available(), reason="numba does not import")
+# every loop these tests compile must be one numba can keep on disk (a kernel that takes a model
+# function as a pointer cannot be: "dynamic globals"), so that warning fails the test
+pytestmark = [pytest.mark.skipif(not compiled.available(), reason="numba does not import"),
+              pytest.mark.filterwarnings("error:Cannot cache compiled function")]
 
 RTOL = 1e-12
 

@@ -22,7 +22,10 @@ from nlfilter.filters.kalman import KalmanFilter
 from nlfilter.simulate import simulate
 from tests.filters.test_compiled import close, same
 
-pytestmark = pytest.mark.skipif(not compiled.available(), reason="numba does not import")
+# every loop these tests compile must be one numba can keep on disk (a kernel that takes a model
+# function as a pointer cannot be: "dynamic globals"), so that warning fails the test
+pytestmark = [pytest.mark.skipif(not compiled.available(), reason="numba does not import"),
+              pytest.mark.filterwarnings("error:Cannot cache compiled function")]
 
 x, k = sp.symbols("x k")
 q, r = sp.Symbol("q", positive=True), sp.Symbol("r", positive=True)

@@ -37,6 +37,8 @@ FUNCTION_ARGS = {"steps_scalar_": ("f", "fx", "h", "hx", "G"), "steps_": ("predi
 SPECIALIZE_UP_TO = 4
 
 _KERNEL_MODULES = (path_linalg, step_kernels)
+#: the kernels whose first parameter is a model function (:func:`_helpers`)
+_TAKES_FUNCTIONS = ("nodes_moments_",)
 _SOURCE = {f.__name__: inspect.getsource(f)  # read once, at import
            for f in (*path_linalg.SOURCES, *step_kernels.SOURCES, *loops.SOURCES.values(),
                      *(k for pair in rule_kernels.KERNELS_BY_KIND.values() for k in pair))}
@@ -55,7 +57,9 @@ def _helpers(inline: bool) -> list:
     for mod in _KERNEL_MODULES:
         for f in mod.SOURCES:
             h = f.__name__
-            kw = {"inline": "always"} if inline and h != "jacobi_" else {}
+            # a kernel taking a model function as argument is always inlined: called, it would get
+            # the function as a pointer, which numba cannot keep on disk ("dynamic globals")
+            kw = {"inline": "always"} if (inline and h != "jacobi_") or h in _TAKES_FUNCTIONS else {}
             out += [_SOURCE[h], _jit_line(h[:-1], h, **kw)]
     return out
 
