@@ -52,6 +52,11 @@ class ClosureDivergedError(NLFilterError, FloatingPointError):
         self.moment = moment
 
 
+class CompileError(NLFilterError, TypeError):
+    """numba could not compile the model's functions (``backend="numba"`` raises it;
+    ``backend="auto"`` runs the NumPy loop instead)."""
+
+
 class NotPolynomialError(NLFilterError, ValueError):
     """A model term is not polynomial in the state but an exact polynomial method was asked for."""
 

@@ -40,7 +40,7 @@ from scipy import optimize
 
 from . import _validate as V
 from ._fit_checks import check_options, fit_data, parameter_kinds
-from .errors import DivergenceError
+from .errors import CompileError, DivergenceError
 
 __all__ = ["fit", "FitResult", "fit_em", "EMResult"]
 
@@ -236,11 +236,13 @@ def fit(model, ys, params0, *, filter="ukf", m0=None, P0=None, initial=None, bou
     label = label or getattr(first, "name", type(first).__name__)
     if getattr(first, "likelihood", None) is None:
         raise TypeError(f"filter: {label} defines no log-likelihood; use a Gaussian filter, grid or particle")
+    loop_arg = backend
     if backend == "auto":  # one choice for the fit, counting its evaluations (L-BFGS-B: ~20 gradients)
         p = len(names)
         B, T = int(np.prod(np.shape(ys)[:-2])), np.shape(ys)[-2]
         backend = first.backend_for(B, T, repeats=20 * (p + 1) + (2 * p * p + 1 if se else 0), record=True)[0]
-    why = {}
+    fallback = backend == "numba" and loop_arg == "auto"  # the NumPy loop where numba cannot compile the model
+    why, loop = {}, [backend]
     seen = {}  # θ (bytes) -> log L: the optimizer's last point, the estimate and the Hessian's centre are one
 
     def loglik(theta):
@@ -257,7 +259,13 @@ def fit(model, ys, params0, *, filter="ukf", m0=None, P0=None, initial=None, bou
             return -np.inf
         flt = build(md)
         try:
-            est = flt.run(data, m0, P0, initial=initial, rng=rng, on_divergence="mark", loglik=True, backend=backend)
+            try:
+                est = flt.run(data, m0, P0, initial=initial, rng=rng, on_divergence="mark", loglik=True, backend=loop[0])
+            except CompileError:  # chosen by auto: numba cannot compile the model's functions
+                if not fallback:
+                    raise
+                loop[0] = "numpy"
+                est = flt.run(data, m0, P0, initial=initial, rng=rng, on_divergence="mark", loglik=True, backend="numpy")
         except (DivergenceError, np.linalg.LinAlgError, FloatingPointError):
             why["diverged"] = True
             return -np.inf

@@ -137,3 +137,28 @@ def test_auto_is_checked_and_initial_goes_to_numpy():
         flt.run(np.zeros((1, 5, 1)), 0.1, 1.0, backend="fast")
     with pytest.raises(ValueError, match="initial"):
         flt.run(np.zeros((1, 5, 1)), 0.1, 1.0, initial=object())
+
+
+@needs_numba
+def test_a_model_numba_cannot_compile_runs_on_numpy_by_default(monkeypatch):
+    """``backend="numba"`` names the failure (CompileError, a TypeError naming backend); the default
+    call that chose the compiled loop runs the NumPy loop instead, with its numbers. numba's
+    TypingError is injected (the model files' functions all compile: no real model fails)."""
+    from numba.core.errors import TypingError
+
+    from nlfilter.errors import CompileError
+    from nlfilter.filters.compiled import run as compiled_run
+
+    def fails(*args):
+        raise TypingError("Untyped global name 'g': a function numba does not know")
+
+    monkeypatch.setattr(compiled_run, "_run", fails)
+    flt = EKF(_scalar(0.5))
+    monkeypatch.setattr(type(flt), "backend_for", lambda self, B, T, **kw: ("numba", "forced by the test"))
+    ys = np.random.default_rng(1).normal(size=(2, 10, 1))
+    with pytest.raises(CompileError, match="backend: numba cannot compile EKF.*use backend='numpy'"):
+        flt.run(ys, 0.1, 1.0, backend="numba")
+    default = flt.run(ys, 0.1, 1.0, loglik=True)
+    ref = flt.run(ys, 0.1, 1.0, loglik=True, backend="numpy")
+    np.testing.assert_array_equal(default.means, ref.means)
+    np.testing.assert_array_equal(default.extras["loglik"], ref.extras["loglik"])

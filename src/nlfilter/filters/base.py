@@ -14,9 +14,8 @@ handful of pure functions over a *belief* (a frozen container, :mod:`~nlfilter.f
 ``output(estimates)``           optional output map applied once at the end (a post-processor)
 ==============================  ========================================================================
 
-:meth:`Filter.run` is the one loop. It alone handles the input checks, the batch, the start
-convention, fully missing steps, divergence (raise / mark), the progress bar and the output
-:class:`Estimates`, for every filter.
+:meth:`Filter.run` is the one loop. It alone handles the input checks, the batch, the start convention,
+fully missing steps, divergence (raise / mark), the progress bar and the output :class:`Estimates`.
 
 Step convention (discrete time)
 -------------------------------
@@ -62,7 +61,7 @@ from types import MappingProxyType
 import numpy as np
 
 from .. import _validate as V
-from ..errors import DivergenceError
+from ..errors import CompileError, DivergenceError
 from ..sde_step import ITO_EULER
 from ..ode import ode_step  # noqa: F401  (re-exported: it moved to nlfilter.ode)
 from ..simulation import Simulation
@@ -285,13 +284,10 @@ class Filter:
             raised or marked as ``on_divergence`` says, the step flagged in the bool
             ``extras["loglik_failed"] (..., T)``; a filter whose ``likelihood`` is None refuses
             (TypeError)
-        backend : ``"auto"`` (default), ``"numpy"`` (this loop) or ``"numba"``: the same filter
-            compiled, one loop over paths and steps (:mod:`nlfilter.filters.compiled`: the discrete
-            EKF, UKF, CKF, GHKF, SLF and second-order filters on SymPy models; the same estimates
-            to rounding, tested to 1e-12; compiled at a model's first run and kept on disk,
-            ``NLFILTER_CACHE``); ``"numba"`` refuses a filter or model it does not take with a
-            TypeError naming backend. ``"auto"``: compiled where the loop is loaded, on disk, or
-            repaid by the run's size, else the NumPy loop (:meth:`backend_for`)
+        backend : ``"auto"`` (default: the compiled loop where it is loaded, on disk or repaid by
+            the run, :meth:`backend_for`; else this loop), ``"numpy"`` or ``"numba"`` (the KF, EKF,
+            UKF, CKF, GHKF, SLF, second-order filters compiled, :mod:`nlfilter.filters.compiled`:
+            the same estimates to 1e-12, kept on disk, ``NLFILTER_CACHE``; refuses what it does not take)
 
         Returns
         -------
@@ -350,8 +346,8 @@ class Filter:
         batch, T, m = ys.shape[:-2], ys.shape[-2], ys.shape[-1]
         B = math.prod(batch)
         yf = ys.reshape(B, T, m)
-        if backend == "auto":  # after the data's checks: a run that fails them fails alike on either loop
-            backend = "numpy" if initial is not None else self.backend_for(B, T, record=True)[0]
+        auto = backend == "auto"  # decided after the data's checks: a run fails them alike on either loop
+        backend = ("numpy" if initial is not None else self.backend_for(B, T, record=True)[0]) if auto else backend
         t0 = V.real("t0", t0)
         if self.time != "continuous" and t0 != 0.0:
             raise ValueError(f"t0: a discrete-time filter indexes steps by k; expected 0.0, got {t0!r}")
@@ -371,9 +367,13 @@ class Filter:
             est = Estimates.concatenate(parts)
             out = lambda a: a.reshape(*batch, *a.shape[1:])  # noqa: E731
             return Estimates(*(out(a) for a in est[:4]), MappingProxyType({k: out(v) for k, v in est.extras.items()}))
-        if backend != "numpy":
-            est = load(BACKENDS[backend].run)(self, yf, batch if not smooth else (B,), m0, P0, on, loglik, progress)
-            return self._smoothed(est, None, yf, t0, batch, on) if smooth else est
+        try:
+            if backend != "numpy":
+                est = load(BACKENDS[backend].run)(self, yf, batch if not smooth else (B,), m0, P0, on, loglik, progress)
+                return self._smoothed(est, None, yf, t0, batch, on) if smooth else est
+        except CompileError:  # auto: the model's functions do not compile; the NumPy loop runs them
+            if not auto:
+                raise
         with _blas_limit(self.blas_threads):
             return self._loop(yf, batch, m, m0, P0, initial, rng, t0, on, progress, loglik, smooth)
 

@@ -10,7 +10,7 @@ from types import MappingProxyType
 
 import numpy as np
 
-from ...errors import DivergenceError
+from ...errors import CompileError, DivergenceError
 from ..estimates import Estimates
 from ..linalg import PSD_TOL
 from ..recorder import loglik_divergence
@@ -49,6 +49,15 @@ def run_compiled(flt, yf, batch, m0, P0, on, loglik, progress=False):
     if reason is not None:
         raise TypeError(f"backend: 'numba' cannot run {type(flt).__name__} here: {reason}; use backend='numpy'")
     from numba.core.errors import TypingError
+    try:
+        return _run(flt, yf, batch, m0, P0, on, loglik, progress)
+    except TypingError as exc:  # a function of the model numba cannot compile
+        raise CompileError(f"backend: numba cannot compile {type(flt).__name__} on this model "
+                           f"({str(exc).splitlines()[0]}); use backend='numpy'") from exc
+
+
+def _run(flt, yf, batch, m0, P0, on, loglik, progress):
+    """:func:`run_compiled` after its checks (a TypingError: the model's functions do not compile)."""
     md = flt.model
     B, T, mdim = yf.shape
     n = md.n
@@ -113,17 +122,13 @@ def run_compiled(flt, yf, batch, m0, P0, on, loglik, progress=False):
                   inn[lo:hi] if want else inn, icov[lo:hi] if want else icov, want, step[lo:hi])
         steps(ys[lo:hi], mean0[lo:hi], cov0[lo:hi], p, Q, R, GQG0, G_const, *common, ks, ws, *own)
 
-    try:
-        if progress and B > 1:
-            from tqdm.auto import tqdm
-            size = max(1, -(-B // 20))
-            for lo in tqdm(range(0, B, size), desc=f"{flt.name} (numba)", leave=False):
-                block(lo, min(B, lo + size))
-        else:
-            block(0, B)
-    except TypingError as exc:  # a function of the model numba cannot compile
-        raise TypeError(f"backend: numba cannot compile {type(flt).__name__} on this model ({str(exc).splitlines()[0]}); "
-                        "use backend='numpy'") from exc
+    if progress and B > 1:
+        from tqdm.auto import tqdm
+        size = max(1, -(-B // 20))
+        for lo in tqdm(range(0, B, size), desc=f"{flt.name} (numba)", leave=False):
+            block(lo, min(B, lo + size))
+    else:
+        block(0, B)
     seal(entry)
     return finish(flt, on, step, batch, means, covs, want, ll, inn, icov)
 
