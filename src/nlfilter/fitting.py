@@ -236,12 +236,10 @@ def fit(model, ys, params0, *, filter="ukf", m0=None, P0=None, initial=None, bou
     label = label or getattr(first, "name", type(first).__name__)
     if getattr(first, "likelihood", None) is None:
         raise TypeError(f"filter: {label} defines no log-likelihood; use a Gaussian filter, grid or particle")
-    loop_arg = backend
-    if backend == "auto":  # one choice for the fit, counting its evaluations (L-BFGS-B: ~20 gradients)
-        p = len(names)
-        B, T = int(np.prod(np.shape(ys)[:-2])), np.shape(ys)[-2]
-        backend = first.backend_for(B, T, repeats=20 * (p + 1) + (2 * p * p + 1 if se else 0), record=True)[0]
-    fallback = backend == "numba" and loop_arg == "auto"  # the NumPy loop where numba cannot compile the model
+    fallback = backend == "auto"  # one choice for the fit, counting its evaluations (L-BFGS-B: ~20 gradients)
+    if fallback:  # and the NumPy loop where numba cannot compile the model
+        reps = 20 * (len(names) + 1) + (2 * len(names) ** 2 + 1 if se else 0)
+        backend = first.backend_for(int(np.prod(ys.shape[:-2])), ys.shape[-2], repeats=reps, record=True)[0]
     why, loop = {}, [backend]
     seen = {}  # θ (bytes) -> log L: the optimizer's last point, the estimate and the Hessian's centre are one
 
@@ -265,7 +263,7 @@ def fit(model, ys, params0, *, filter="ukf", m0=None, P0=None, initial=None, bou
                 if not fallback:
                     raise
                 loop[0] = "numpy"
-                est = flt.run(data, m0, P0, initial=initial, rng=rng, on_divergence="mark", loglik=True, backend="numpy")
+                return _loglik(theta)
         except (DivergenceError, np.linalg.LinAlgError, FloatingPointError):
             why["diverged"] = True
             return -np.inf
