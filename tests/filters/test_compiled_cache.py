@@ -138,3 +138,48 @@ def test_an_unwritable_cache_compiles_in_memory(root, tmp_path, monkeypatch):
     ref = EKF(_model()).run(YS, 0.1, 1.0, backend="numpy", loglik=True)
     np.testing.assert_allclose(est.means, ref.means, rtol=1e-12, atol=0)
     assert blocker.read_text() == "" and not Path(str(blocker) + "compiled").exists()
+
+
+def _owner(entry, pid, host=None, age=0.0):
+    import json
+    import socket
+    import time
+    (entry / "owner.json").write_text(json.dumps({"pid": pid, "host": host or socket.gethostname(),
+                                                  "time": time.time() - age}))
+
+
+def test_an_entry_another_living_process_is_writing_is_left_alone(root):
+    """An unsealed entry claimed by another process that still runs (it compiled, numba wrote its
+    files, it has not sealed them yet) is not touched: this process compiles in memory, same
+    numbers. Once the owner is gone, the entry is compiled again, sealed, and the claim removed."""
+    est, loop, entry = _run(_model())
+    assert not (entry / "owner.json").exists()  # sealed: the claim is gone
+    (entry / "sealed.json").unlink()
+    files = {p.name: p.read_bytes() for p in (entry / "__pycache__").iterdir()}
+    _owner(entry, os.getppid())  # alive, and not this process
+    cache._MODULES.clear()
+    again, loop2, entry2 = _run(_model())
+    assert entry2 is None and _counts(loop2)[0] == 0
+    assert {p.name: p.read_bytes() for p in (entry / "__pycache__").iterdir()} == files
+    assert not (entry / "sealed.json").exists()
+    np.testing.assert_array_equal(again.means, est.means)
+    done = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"], capture_output=True, text=True,
+                          check=True)
+    _owner(entry, int(done.stdout))  # a process that has ended
+    cache._MODULES.clear()
+    _, loop3, entry3 = _run(_model())
+    assert entry3 == entry and _counts(loop3) == (0, 1)
+    assert (entry / "sealed.json").is_file() and not (entry / "owner.json").exists()
+
+
+def test_a_claim_from_another_host_holds_for_an_hour(tmp_path):
+    """No pid can be asked on another host (a shared cache folder): its claim holds OWNER_SECONDS;
+    a claim that cannot be read claims nothing."""
+    _owner(tmp_path, 1, host="another-host", age=60.0)
+    assert cache._busy(tmp_path)
+    _owner(tmp_path, 1, host="another-host", age=cache.OWNER_SECONDS + 60.0)
+    assert not cache._busy(tmp_path)
+    (tmp_path / "owner.json").write_text("{not json")
+    assert not cache._busy(tmp_path)
+    _owner(tmp_path, os.getpid())  # this process's own claim does not stop it
+    assert not cache._busy(tmp_path)

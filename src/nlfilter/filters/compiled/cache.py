@@ -17,6 +17,9 @@ size); after numba has written its files (the first run), :func:`seal` records t
 ``sealed.json``; an entry whose numba files do not match their seal (truncated, damaged, written by
 a process that did not finish) loses them and is compiled again. numba does not check its own
 files (a truncated index or data file raises from deep inside the dispatcher), hence the seal.
+A process that may write numba's files into an unsealed entry says so in ``owner.json`` (its pid
+and host); while that process lives (on another host: for an hour), another process finding the
+entry unsealed leaves it alone and compiles in memory instead of deleting files being written.
 A folder that cannot be written leaves the disk cache off for the process, with one warning:
 the loop is then compiled in memory, as without a cache.
 """
@@ -30,7 +33,9 @@ import json
 import os
 import platform
 import shutil
+import socket
 import sys
+import time
 import tempfile
 import warnings
 from pathlib import Path
@@ -105,6 +110,38 @@ def _trusted(entry: Path) -> bool:
     return isinstance(sealed, dict) and sealed == found
 
 
+#: how long an unsealed entry's owner on another host is taken to be alive (no pid to ask there)
+OWNER_SECONDS = 3600.0
+
+
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except OSError:  # e.g. PermissionError: it exists, owned by someone else
+        return True
+    return True
+
+
+def _busy(entry: Path) -> bool:
+    """Whether another living process claimed ``entry`` (:func:`_claim`) and may still be writing
+    numba's files there."""
+    try:
+        owner = json.loads((entry / "owner.json").read_text())
+        pid, host, since = int(owner["pid"]), str(owner["host"]), float(owner["time"])
+    except (OSError, ValueError, KeyError, TypeError):
+        return False
+    if host != socket.gethostname():
+        return time.time() - since < OWNER_SECONDS
+    return pid != os.getpid() and _alive(pid)
+
+
+def _claim(entry: Path) -> None:
+    _write_atomic(entry / "owner.json", json.dumps({"pid": os.getpid(), "host": socket.gethostname(),
+                                                    "time": time.time()}).encode())
+
+
 def _in_memory(text: str, name: str):
     """The module compiled without the disk (numba cannot cache code that is not in a file)."""
     module = type(sys)(name)
@@ -133,11 +170,17 @@ def load_source(text: str, tag: str):
                 same = src.read_bytes() == data
             except OSError:
                 same = False
-            if not same or not _trusted(entry):  # numba's files go, and their seal
-                shutil.rmtree(entry / "__pycache__", ignore_errors=True)
+            if not same or not _trusted(entry):
+                if _busy(entry):  # another process is writing it: leave it, compile in memory
+                    module = _in_memory(text, name)
+                    _MODULES[key] = (module, None)
+                    return module, None
+                shutil.rmtree(entry / "__pycache__", ignore_errors=True)  # numba's files go, and their seal
                 (entry / "sealed.json").unlink(missing_ok=True)
             if not same:  # new, damaged or foreign: written again (numba's index would be stale)
                 _write_atomic(src, data)
+            if not (entry / "sealed.json").exists():  # numba may write here: say who, until sealed
+                _claim(entry)
             probe = entry / f".probe-{os.getpid()}"  # numba writes beside the source: it must be writable
             probe.write_bytes(b"")
             probe.unlink()
@@ -179,5 +222,6 @@ def seal(entry) -> None:
     if found:
         try:
             _write_atomic(entry / "sealed.json", json.dumps(found, indent=0, sort_keys=True).encode())
+            (entry / "owner.json").unlink(missing_ok=True)
         except OSError:  # pragma: no cover - a folder that became unwritable: the entry stays unsealed
             pass
