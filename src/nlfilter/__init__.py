@@ -40,11 +40,11 @@ _WHERE = {"BilinearModel": "bilinear", "compare": "comparison", "mse": "evaluate
           "nees": "evaluate", "paired_difference": "evaluate", "fit": "fitting", "fit_em": "fitting",
           "load_model": "modelfile", "DiscreteModel": "models", "SDEModel": "models", "Gaussian": "noise",
           "Independent": "noise", "Sampler": "noise", "Result": "results", "Row": "results",
-          "Simulation": "simulate", "simulate": "simulate"}
+          "Simulation": "simulate", "simulate": "simulate", "sample_posterior": "filters.sampling"}
 _SUBMODULES = ("filters", "moments", "problems")
 
 __all__ = ["DiscreteModel", "SDEModel", "BilinearModel", "Gaussian", "Independent", "Sampler",
-           "simulate", "Simulation", "compare", "load_model", "fit", "fit_em", "mse", "mse_per_step", "nees", "paired_difference", "Result", "Row",
+           "simulate", "Simulation", "compare", "load_model", "fit", "fit_em", "sample_posterior", "mse", "mse_per_step", "nees", "paired_difference", "Result", "Row",
            "filters", "moments", "problems"]
 
 

@@ -60,7 +60,7 @@ from .base import ContinuousFilter, DiscreteFilter, GaussianState, continuous_pr
 from .linalg import innovation_info, observed_precision, poison, symmetrize
 from .skeleton import (CrossNoise, MeasuredState, as_belief, as_gaussian, check_paths, condition, ito_gain, ito_rhs,
                        iterated_update, predict, propagate)
-from .smoothing import continuous_rts, rts
+from .smoothing import backward_steps, continuous_rts, rts
 
 __all__ = ["GaussianFilter", "ContinuousDiscreteGaussianFilter", "ContinuousGaussianFilter", "iterated_update",
            "MeasuredState", "as_belief"]
@@ -177,8 +177,7 @@ class GaussianFilter(DiscreteFilter):
 
     def _smooth(self, est, beliefs, ys, t0):
         """The RTS backward pass through the rule (:func:`~nlfilter.filters.smoothing.rts`)."""
-        off = 0 if self.start == "update" else 1
-        ms, Ps, lag = rts(est.means, est.covs, self._cross.smooth_predict(self._predict_cross, ys, off), off)
+        ms, Ps, lag = rts(est.means, est.covs, *backward_steps(self, ys))
         return ms, Ps, {"lag_one_cov": lag}
 
 

@@ -15,7 +15,7 @@ from .base import ContinuousFilter, DiscreteFilter, GaussianState
 from .linalg import gaussian_update, innovation_info
 from .ekf import ContinuousEKF
 from .skeleton import CrossNoise
-from .smoothing import rts
+from .smoothing import backward_steps, rts
 
 
 def _require_linear(model, who):
@@ -83,8 +83,7 @@ class KalmanFilter(DiscreteFilter):
 
     def _smooth(self, est, beliefs, ys, t0):
         """The Rauch–Tung–Striebel smoother (Rauch, Tung & Striebel 1965; :func:`~nlfilter.filters.smoothing.rts`)."""
-        off = 0 if self.start == "update" else 1
-        ms, Ps, lag = rts(est.means, est.covs, self._cross.smooth_predict(self._predict_cross, ys, off), off)
+        ms, Ps, lag = rts(est.means, est.covs, *backward_steps(self, ys))
         return ms, Ps, {"lag_one_cov": lag}
 
     likelihood = "prediction-error"

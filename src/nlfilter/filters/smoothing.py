@@ -45,7 +45,7 @@ import numpy as np
 from .beliefs import GaussianState
 from .linalg import symmetrize
 
-__all__ = ["rts", "continuous_rts"]
+__all__ = ["rts", "continuous_rts", "backward_steps"]
 
 
 #: a predicted covariance is singular on a path where its smallest eigenvalue is at most this
@@ -136,6 +136,16 @@ def rts(means: np.ndarray, covs: np.ndarray, predict_cross, offset: int = 0):
         Ps[:, k] = symmetrize(P + G @ (Ps[:, k + 1] - pred.cov) @ Gt)
         lag[:, k] = G @ Ps[:, k + 1]
     return ms, Ps, lag
+
+
+def backward_steps(flt, ys):
+    """``(predict_cross, offset)`` of a discrete Gaussian filter's backward pass (:func:`rts`, and
+    the backward sampler of :mod:`~nlfilter.filters.sampling`): the filter's rule from step ``k``
+    of the run to ``k + 1`` with ``D = Cov[x_k, x_{k+1}]`` (a correlated noise's measurement
+    ``ys (B, T, m)`` of the step included), and the run's start convention (``offset`` 1: the
+    first measurement after a prediction)."""
+    off = 0 if flt.start == "update" else 1
+    return flt._cross.smooth_predict(flt._predict_cross, ys, off), off
 
 
 def continuous_rts(flt, means: np.ndarray, covs: np.ndarray, t0: float):

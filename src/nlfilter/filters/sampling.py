@@ -1,0 +1,117 @@
+"""Posterior trajectory samples: draws of the whole state path ``x_0..x_{T-1}`` given all the
+measurements, by forward filtering, backward sampling (Carter & Kohn 1994; Frühwirth-Schnatter
+1994; Särkkä 2013, *Bayesian Filtering and Smoothing*, §8.3 for the Gaussian form).
+
+The forward pass is the filter's own run (its filtered moments ``m_k, P_k``); the backward pass
+draws, from the last step down, with the same rule-based prediction as the Rauch–Tung–Striebel
+smoother (:func:`~nlfilter.filters.smoothing.rts`: ``m⁻_{k+1}``, ``P⁻_{k+1}``,
+``D_{k+1} = Cov[x_k, x_{k+1} | y_0..y_k]``, ``G_k = D_{k+1} (P⁻_{k+1})⁻¹``)::
+
+    x_{T-1} ~ N(m_{T-1}, P_{T-1})
+    x_k | x_{k+1} ~ N(m_k + G_k (x_{k+1} − m⁻_{k+1}),  P_k − G_k D_{k+1}ᵀ)
+
+On a linear-Gaussian model (every Gaussian filter then is the Kalman filter) the draws are exact
+samples of the posterior ``p(x_0..x_{T-1} | y_0..y_{T-1})``: at each step their mean and
+covariance are the RTS smoother's, their lag-one covariance its ``lag_one_cov``. On a nonlinear
+model they are samples of the Gaussian approximation that the filter's rule makes of that
+posterior (the one whose marginals its RTS smoother reports) — not of the exact posterior.
+
+Each path draws from a stream of its own (:mod:`nlfilter.streams`, sub-stream :data:`SAMPLE` of
+the root of ``rng``): path ``p``'s samples are the same in any batch or chunk.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .. import _validate as V
+from ..errors import DivergenceError
+from ..simulation import Simulation
+from ..streams import PathRNG
+from .beliefs import GaussianState
+from .linalg import sqrt_psd, symmetrize
+from .smoothing import _solve_right, backward_steps
+
+__all__ = ["sample_posterior", "SAMPLE"]
+
+SAMPLE = 1
+"""The key of the posterior sampler's per-path sub-stream (:mod:`nlfilter.streams`): distinct
+from the simulation's (None) and a random filter's (:data:`~nlfilter.streams.FILTER`), so that
+sampling with the simulation's seed does not reuse its noise."""
+
+
+def sample_posterior(flt, ys, m0=None, P0=None, n: int = 1, rng=None, *, initial=None,
+                     backend: str = "auto") -> np.ndarray:
+    """``n`` draws of the state trajectory given all of ``ys``, for every path (module docstring).
+
+    Parameters
+    ----------
+    flt : Filter
+        A discrete-time Gaussian filter with an RTS smoother (KF, EKF, IEKF, UKF, CKF, GHKF, SLF,
+        the second-order filters; continuous-discrete ones too).
+    ys : array (..., T, m)
+        Measurements, NaN where missing (as :meth:`~nlfilter.filters.base.Filter.run`).
+    m0, P0, initial, backend
+        The prior and the loop of the forward pass, as :meth:`~nlfilter.filters.base.Filter.run`.
+    n : int
+        Draws per path.
+    rng : int, SeedSequence, Generator or PathRNG
+        The root of the per-path streams (sub-stream :data:`SAMPLE`); a ``PathRNG`` is used as it is.
+
+    Returns
+    -------
+    ndarray (..., n, T, state dim)
+        ``out[..., i, k, :]`` is draw ``i`` of ``x_k``.
+
+    Raises
+    ------
+    DivergenceError
+        Where the forward pass diverges, or a conditional covariance of the backward pass is not
+        positive semi-definite (``what="sampler"``).
+
+    >>> import sympy as sp; from nlfilter import DiscreteModel; from nlfilter.filters import KalmanFilter
+    >>> x = sp.Symbol("x")
+    >>> kf = KalmanFilter(DiscreteModel([x], f=[0.9 * x], h=[x], Q=0.5, R=1.0))
+    >>> sample_posterior(kf, np.zeros((2, 5, 1)), 0.0, 1.0, n=3, rng=0).shape
+    (2, 3, 5, 1)
+    """
+    if getattr(flt, "smoother", None) != "rts" or not hasattr(flt, "_predict_cross"):
+        raise TypeError(f"flt: sample_posterior draws through a discrete-time Gaussian filter's RTS backward "
+                        f"pass (KF, EKF, UKF, CKF, GHKF, IEKF, SLF, the second-order filters); got "
+                        f"{type(flt).__name__}")
+    n = V.positive("n", n, integer=True)
+    if isinstance(ys, Simulation):
+        flt, _ = flt.for_timing(ys.timing)
+        ys = ys.ys
+    est = flt.run(ys, m0, P0, initial=initial, backend=backend)  # raises where it diverges
+    ys = flt.check_data(ys)
+    batch, T = ys.shape[:-2], ys.shape[-2]
+    B = int(np.prod(batch, dtype=int))
+    nx = est.means.shape[-1]
+    means, covs = est.means.reshape(B, T, nx), est.covs.reshape(B, T, nx, nx)
+    z = PathRNG.of(rng, B, key=SAMPLE).standard_normal((T, n, nx))  # path by path: one call each
+    predict_cross, off = backward_steps(flt, ys.reshape(B, T, ys.shape[-1]))
+    out = np.empty((B, n, T, nx))
+    x = _draw(means[:, T - 1][:, None], covs[:, T - 1], z[:, T - 1], T - 1)
+    out[:, :, T - 1] = x
+    for k in range(T - 2, -1, -1):
+        m, P = means[:, k], covs[:, k]
+        pred, D = predict_cross(GaussianState(m, P), k + off)
+        G = _solve_right(pred.cov, D)  # G_k = D_{k+1} (P⁻_{k+1})⁻¹
+        mean = m[:, None] + (x - pred.mean[:, None]) @ np.swapaxes(G, -1, -2)
+        x = _draw(mean, symmetrize(P - G @ np.swapaxes(D, -1, -2)), z[:, k], k)
+        out[:, :, k] = x
+    return out.reshape(*batch, n, T, nx)
+
+
+def _draw(mean, cov, z, k):
+    """``mean (B, n, nx) + z (B, n, nx) Lᵀ``, ``L Lᵀ = cov (B, nx, nx)``; a covariance that is not
+    PSD (or not finite) raises :class:`DivergenceError` naming its paths and step."""
+    L, bad = sqrt_psd(cov)
+    bad = bad | ~np.all(np.isfinite(mean), axis=(-1, -2))
+    if bad.any():
+        idx = np.flatnonzero(bad)
+        raise DivergenceError(f"sample_posterior: the backward pass's conditional law is not finite or its "
+                              f"covariance not positive semi-definite at step {k} on {idx.size} path(s), first "
+                              f"{idx[:5].tolist()}", step=k, paths=idx, what="sampler")
+    return mean + z @ np.swapaxes(L, -1, -2)
