@@ -40,11 +40,12 @@ _WHERE = {"BilinearModel": "bilinear", "compare": "comparison", "mse": "evaluate
           "nees": "evaluate", "paired_difference": "evaluate", "fit": "fitting", "fit_em": "fitting",
           "load_model": "modelfile", "DiscreteModel": "models", "SDEModel": "models", "Gaussian": "noise",
           "Independent": "noise", "Sampler": "noise", "Result": "results", "Row": "results",
-          "Simulation": "simulate", "simulate": "simulate", "sample_posterior": "filters.sampling"}
+          "Simulation": "simulate", "simulate": "simulate", "sample_posterior": "filters.sampling",
+          "fixed_lag": "filters.fixed_lag"}
 _SUBMODULES = ("filters", "moments", "problems")
 
 __all__ = ["DiscreteModel", "SDEModel", "BilinearModel", "Gaussian", "Independent", "Sampler",
-           "simulate", "Simulation", "compare", "load_model", "fit", "fit_em", "sample_posterior", "mse", "mse_per_step", "nees", "paired_difference", "Result", "Row",
+           "simulate", "Simulation", "compare", "load_model", "fit", "fit_em", "sample_posterior", "fixed_lag", "mse", "mse_per_step", "nees", "paired_difference", "Result", "Row",
            "filters", "moments", "problems"]
 
 

@@ -138,13 +138,14 @@ def rts(means: np.ndarray, covs: np.ndarray, predict_cross, offset: int = 0):
     return ms, Ps, lag
 
 
-def backward_steps(flt, ys):
-    """``(predict_cross, offset)`` of a discrete Gaussian filter's backward pass (:func:`rts`, and
-    the backward sampler of :mod:`~nlfilter.filters.sampling`): the filter's rule from step ``k``
-    of the run to ``k + 1`` with ``D = Cov[x_k, x_{k+1}]`` (a correlated noise's measurement
-    ``ys (B, T, m)`` of the step included), and the run's start convention (``offset`` 1: the
-    first measurement after a prediction)."""
-    off = 0 if flt.start == "update" else 1
+def backward_steps(flt, ys, first: int = 0):
+    """``(predict_cross, offset)`` of a discrete Gaussian filter's backward pass (:func:`rts`, the
+    backward sampler of :mod:`~nlfilter.filters.sampling`, the fixed-lag smoother of
+    :mod:`~nlfilter.filters.fixed_lag`): the filter's rule from step ``k`` of the run to ``k + 1``
+    with ``D = Cov[x_k, x_{k+1}]`` (a correlated noise's measurement ``ys (B, ·, m)`` of the step
+    included), and the model index of ``ys[:, 0]``: the run's start convention (1: the first
+    measurement after a prediction) plus ``first``, the run step ``ys[:, 0]`` is (a window)."""
+    off = (0 if flt.start == "update" else 1) + first
     return flt._cross.smooth_predict(flt._predict_cross, ys, off), off
 
 
