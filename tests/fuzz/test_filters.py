@@ -59,7 +59,9 @@ def _bad_runs(case):
             ("m0 wrong length", "m0", {"m0": np.zeros(n + 1)}),
             ("P0 complex", "P0", {"P0": _complex(P0)}),
             ("P0 nan", "P0", {"P0": np.full_like(P0, np.nan)}),
-            ("P0 inf", "P0", {"P0": np.where(np.eye(n, dtype=bool), np.inf, 0.0)}),
+            # +inf on the diagonal is a diffuse prior where the filter has one (diffuse_prior): -inf is bad for all
+            ("P0 inf", "P0", {"P0": np.where(np.eye(n, dtype=bool), -np.inf if getattr(case.filter(), "diffuse_prior", False)
+                                             else np.inf, 0.0)}),
             ("P0 negative", "P0", {"P0": -np.eye(n)}),
             ("P0 'abc'", "P0", {"P0": "abc"}),
             ("P0 3-d of the wrong size", "P0", {"P0": np.ones((3, n, n))}),

@@ -15,6 +15,15 @@ from .beliefs import GaussianState
 __all__ = ["gaussian_prior", "check_structure", "continuous_precision"]
 
 
+def is_diffuse(P0) -> bool:
+    """Whether ``P0`` states a diffuse prior (an infinite entry)."""
+    try:
+        P = np.asarray(P0, dtype=float)
+    except (TypeError, ValueError):
+        return False
+    return bool(np.isposinf(P).any())
+
+
 def gaussian_prior(m0, P0, n: int, batch: tuple, *, data: str = "ys", one: bool = False,
                    definite: bool = False) -> GaussianState:
     """The prior ``N(m0, P0)`` checked and broadcast to ``B = prod(batch)`` paths: ``m0`` a scalar,
@@ -24,6 +33,9 @@ def gaussian_prior(m0, P0, n: int, batch: tuple, *, data: str = "ys", one: bool 
     if m0 is None or P0 is None:
         raise ValueError(f"m0/P0: expected the prior mean and covariance, got m0={m0!r}, P0={P0!r}")
     m0 = V.mean("m0", m0, n)
+    if is_diffuse(P0):
+        raise ValueError("P0: an infinite variance (a diffuse prior) is run exactly by KalmanFilter only (the exact "
+                         "diffuse initialisation, nlfilter.filters.diffuse); give this filter a finite P0")
     P0 = V.covariance("P0", P0, n, batch=True)
     if one and (m0.ndim > 1 or P0.ndim > 2):
         raise ValueError(f"m0/P0: this filter takes one prior for all paths, shapes ({n},) and ({n}, {n}); "

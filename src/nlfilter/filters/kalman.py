@@ -11,7 +11,9 @@ from __future__ import annotations
 import numpy as np
 import scipy.linalg as sla
 
+from ..simulation import Simulation
 from .base import ContinuousFilter, DiscreteFilter, GaussianState
+from .diffuse import diffuse_run, is_diffuse
 from .linalg import gaussian_update, innovation_info
 from .ekf import ContinuousEKF
 from .skeleton import CrossNoise
@@ -38,6 +40,7 @@ class KalmanFilter(DiscreteFilter):
     structures = ("cross noise",)
     compiled = True  # backend="numba": its matrices as data (compiled.kalman_loop); cross noise runs here
     compiled_kind = "kalman"
+    diffuse_prior = True  # run(): P0 with inf entries is a diffuse prior (nlfilter.filters.diffuse)
 
     def __init__(self, model, *, start: str | None = None):
         super().__init__(model, start=start)
@@ -46,6 +49,25 @@ class KalmanFilter(DiscreteFilter):
         if self._const:
             self._mats = self._matrices(0)
         self._cross = CrossNoise(model)
+
+    def run(self, ys, m0=None, P0=None, *, loglik: bool = False, **kw):
+        """As :meth:`Filter.run <nlfilter.filters.base.Filter.run>`; a ``P0`` with ``inf`` on the
+        diagonal entries of unknown directions is a diffuse prior, run by the exact diffuse
+        initialisation (:mod:`~nlfilter.filters.diffuse`; NumPy loop; ``loglik``: the diffuse
+        log-likelihood)."""
+        if is_diffuse(P0):
+            if isinstance(ys, Simulation):
+                flt, _ = self.for_timing(ys.timing)
+                return flt.run(ys.ys, m0, P0, loglik=loglik, **kw)
+            _diffuse_options(kw)
+            return diffuse_run(self, ys, m0, P0, loglik=loglik)
+        return super().run(ys, m0, P0, loglik=loglik, **kw)
+
+    def smooth(self, ys, m0=None, P0=None, **kw):
+        if is_diffuse(P0):
+            raise ValueError("P0: the smoother from a diffuse prior (inf entries) is not implemented yet; run() "
+                             "filters from it (and gives the diffuse log-likelihood)")
+        return super().smooth(ys, m0, P0, **kw)
 
     def init(self, m0, P0, batch, *, initial=None, rng=None):
         return self._cross.unmeasured(super().init(m0, P0, batch, initial=initial, rng=rng))
@@ -102,6 +124,14 @@ class KalmanFilter(DiscreteFilter):
         """The update and the step's log N(y; H m⁻ + d, H P⁻ Hᵀ + R) (prediction-error decomposition)."""
         new, yhat, S = self._update(state, y, k)
         return self._cross.carry(new, y), None, innovation_info(y, yhat, S)
+
+
+def _diffuse_options(kw):
+    """The run options a diffuse run honours: the default ones (its loop is NumPy's, on all paths)."""
+    given = {k: v for k, v in kw.items() if v not in (None, False, "raise", "auto", "numpy")}
+    if given:
+        raise ValueError(f"P0: a diffuse prior (inf entries) runs on the NumPy loop with the default options; "
+                         f"got {sorted(given)}")
 
 
 def steady_state(model, k: int = 0):

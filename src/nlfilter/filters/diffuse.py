@@ -1,0 +1,144 @@
+"""The exact diffuse initialisation of the Kalman filter: a prior with infinite variance in some
+directions (``P0`` with ``inf`` on those diagonal entries), the state's level there unknown,
+handled exactly rather than by a large finite variance (Koopman & Durbin 2000, "Fast filtering
+and smoothing for multivariate state space models", J. Time Series Anal. 21; Durbin & Koopman
+2012, *Time Series Analysis by State Space Methods*, 2nd ed., §5.2 and §6.4 univariate form).
+
+The prior covariance is ``P = κ P∞ + P*`` with ``κ → ∞``: ``P∞`` the diagonal indicator of the
+infinite entries, ``P*`` the finite rest (the rows and columns of an infinite entry are zero). The
+measurement is taken in component by component after whitening by the Cholesky factor ``L`` of
+the observed block of ``R`` (``ỹ = L⁻¹ (y − d)``, ``z = (L⁻¹ H)_i``, unit variance); for each
+component ``v = ỹ_i − z a``, ``M∞ = P∞ zᵀ``, ``M* = P* zᵀ``, ``F∞ = z P∞ zᵀ``, ``F* = z P* zᵀ + 1``:
+
+- ``F∞ > 0`` (the component sees a diffuse direction: the univariate form, D&K 2012 §6.4.3, of
+  the exact initial Kalman filter of §5.2)::
+
+      a ← a + M∞ v / F∞
+      P∞ ← P∞ − M∞ M∞ᵀ / F∞
+      P* ← P* + M∞ M∞ᵀ F* / F∞² − (M* M∞ᵀ + M∞ M*ᵀ) / F∞
+      log-likelihood term: −½ (log 2π + log F∞)
+
+- ``F∞ = 0``: the ordinary update, ``a ← a + M* v / F*``, ``P* ← P* − M* M*ᵀ / F*``, term
+  ``−½ (log 2π + log F* + v² / F*)``;
+
+and every step's terms less ``Σ log L_ii`` (the whitening's Jacobian). The prediction carries both
+parts: ``P∞ ← F P∞ Fᵀ``, ``P* ← F P* Fᵀ + G Q Gᵀ``. Once ``P∞`` is zero the recursion is the
+Kalman filter. The sum of the terms is the diffuse log-likelihood ``log L_d = lim_{κ→∞} (log L(κ)
++ (q/2) log κ)``, ``q`` the number of diffuse directions (D&K 2012 §7.2.2) — the quantity a
+maximum-likelihood fit of a model with unknown initial level maximises (statsmodels'
+``initialization="diffuse"``).
+
+Reported estimates: the mean ``a`` and, while a direction is still diffuse, ``inf`` in the rows and
+columns of the covariance that ``P∞`` reaches (not yet identified by the data), ``P*`` elsewhere.
+"""
+
+from __future__ import annotations
+
+import math
+from types import MappingProxyType
+
+import numpy as np
+
+from .. import _validate as V
+from ..errors import DivergenceError
+from .checks import is_diffuse
+from .estimates import Estimates
+from .linalg import symmetrize
+
+__all__ = ["is_diffuse", "diffuse_run", "DIFFUSE_TOL"]
+
+#: ``F∞ = z P∞ zᵀ`` counts as zero at or below this fraction of ``|z|²`` (``P∞``'s entries are
+#: O(1): a projected-out direction leaves rounding of ~1e-16 there)
+DIFFUSE_TOL = 1e-12
+_LOG_2PI = math.log(2.0 * math.pi)
+
+
+def _split(P0, n):
+    """``(P∞, P*)`` from ``P0 (..., n, n)`` with ``inf`` on the diffuse diagonal entries."""
+    P = np.asarray(P0, dtype=float)
+    if P.ndim == 0 and n == 1:
+        P = P.reshape(1, 1)
+    if P.shape[-2:] != (n, n):
+        raise ValueError(f"P0: expected a covariance of shape ({n}, {n}) (or per path), got shape {P.shape}")
+    inf = np.isposinf(P)
+    diag = np.isposinf(np.diagonal(P, axis1=-2, axis2=-1))
+    cross = diag[..., :, None] | diag[..., None, :]
+    if np.isnan(P).any() or np.isneginf(P).any() or (inf & ~np.eye(n, dtype=bool)).any() \
+            or (cross & ~np.eye(n, dtype=bool) & (P != 0)).any():
+        raise ValueError("P0: a diffuse prior has inf on the diagonal entries of the unknown directions and zeros "
+                         f"in their rows and columns, finite entries elsewhere; got {V.shown(P0)}")
+    Pinf = np.where(np.eye(n, dtype=bool) & cross, 1.0, 0.0)
+    Pstar = np.where(cross, 0.0, P)
+    V.covariance("P0", Pstar, n, batch=True)  # the finite part: symmetric PSD
+    return Pinf, Pstar
+
+
+def diffuse_run(kf, ys, m0, P0, *, loglik: bool = False) -> Estimates:
+    """The Kalman filter ``kf`` over ``ys (..., T, m)`` from the diffuse prior ``(m0, P0)`` (module
+    docstring); ``loglik``: ``extras["loglik"] (..., T)``, the diffuse log-likelihood's terms.
+    A path whose moments become non-finite raises :class:`~nlfilter.errors.DivergenceError`."""
+    md = kf.model
+    if kf._cross.S is not None:
+        raise ValueError("P0: a diffuse prior (inf entries) with correlated process and measurement noise "
+                         "(cross_noise) is not supported; give a finite P0")
+    n = md.n
+    Pinf0, Pstar0 = _split(P0, n)
+    ys = kf.check_data(ys)
+    batch, T, m = ys.shape[:-2], ys.shape[-2], ys.shape[-1]
+    B = math.prod(batch)
+    yf = ys.reshape(B, T, m)
+    a = np.broadcast_to(V.mean("m0", m0, n), (*batch, n)).reshape(B, n).copy()
+    Pinf = np.broadcast_to(Pinf0, (*batch, n, n)).reshape(B, n, n).copy()
+    Pst = np.broadcast_to(Pstar0, (*batch, n, n)).reshape(B, n, n).copy()
+    R = md.R
+    off = 0 if kf.start == "update" else 1
+    means, covs, terms = np.empty((B, T, n)), np.empty((B, T, n, n)), np.zeros((B, T))
+    eye = np.eye(m)
+    for k in range(T):
+        with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
+            if k > 0 or off:
+                F, b, _, _, GQG = kf._mats if kf._const else kf._matrices(k + off - 1)
+                a = a @ F.T + b
+                Pinf = F @ Pinf @ F.T
+                Pst = symmetrize(F @ Pst @ F.T + GQG)
+            _, _, H, d, _ = kf._mats if kf._const else kf._matrices(k + off)
+            y = yf[:, k]
+            obs = ~np.isnan(y)
+            both = obs[:, :, None] & obs[:, None, :]
+            L = np.linalg.cholesky(np.where(both, R, eye))  # the observed block's factor; 1 elsewhere
+            yt = np.linalg.solve(L, np.where(obs, y - d, 0.0)[..., None])[..., 0]
+            Zt = np.linalg.solve(L, np.broadcast_to(H, (B, m, n)))
+            ll = -np.sum(np.where(obs, np.log(np.diagonal(L, axis1=-2, axis2=-1)), 0.0), axis=-1)
+            for i in range(m):
+                z, o = Zt[:, i], obs[:, i]
+                v = yt[:, i] - np.einsum("bj,bj->b", z, a)
+                Minf, Mst = np.einsum("bij,bj->bi", Pinf, z), np.einsum("bij,bj->bi", Pst, z)
+                Finf, Fst = np.einsum("bi,bi->b", z, Minf), np.einsum("bi,bi->b", z, Mst) + 1.0
+                dif = o & (Finf > DIFFUSE_TOL * np.einsum("bi,bi->b", z, z))
+                ordinary = o & ~dif
+                Fi = np.where(dif, Finf, 1.0)
+                Fs = np.where(ordinary, Fst, 1.0)
+                a = a + np.where(dif[:, None], Minf * (v / Fi)[:, None], 0.0) \
+                    + np.where(ordinary[:, None], Mst * (v / Fs)[:, None], 0.0)
+                outer = lambda p, q: p[:, :, None] * q[:, None, :]  # noqa: E731
+                Pst_dif = Pst + outer(Minf, Minf) * (Fst / Fi**2)[:, None, None] \
+                    - (outer(Mst, Minf) + outer(Minf, Mst)) / Fi[:, None, None]
+                Pst = symmetrize(np.where(dif[:, None, None], Pst_dif,
+                                          np.where(ordinary[:, None, None], Pst - outer(Mst, Mst) / Fs[:, None, None],
+                                                   Pst)))
+                Pinf = symmetrize(np.where(dif[:, None, None], Pinf - outer(Minf, Minf) / Fi[:, None, None], Pinf))
+                ll = ll + np.where(dif, -0.5 * (_LOG_2PI + np.log(Fi)), 0.0) \
+                    + np.where(ordinary, -0.5 * (_LOG_2PI + np.log(Fs) + v * v / Fs), 0.0)
+        unknown = np.abs(Pinf) > DIFFUSE_TOL
+        reach = unknown.any(axis=-1)
+        means[:, k] = a
+        covs[:, k] = np.where(reach[:, :, None] | reach[:, None, :], np.inf, Pst)
+        terms[:, k] = ll
+        bad = ~(np.isfinite(a).all(axis=-1) & np.isfinite(Pst).all(axis=(-1, -2)) & np.isfinite(ll))
+        if bad.any():
+            idx = np.flatnonzero(bad)
+            raise DivergenceError(f"{kf.name}: the diffuse Kalman filter's moments are not finite at step {k} on "
+                                  f"{idx.size} path(s), first {idx[:5].tolist()}", step=k, paths=idx, what="covariance")
+    out = lambda x: x.reshape(*batch, *x.shape[1:])  # noqa: E731
+    extras = MappingProxyType({"loglik": out(terms)} if loglik else {})
+    return Estimates(out(means), out(covs), np.zeros(batch, bool), np.full(batch, -1), extras)
