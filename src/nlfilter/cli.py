@@ -76,6 +76,8 @@ def _parser() -> argparse.ArgumentParser:
             a.add_argument("--experiment", metavar="ID", default=None, help="only this experiment's runs")
         if name == "show":
             a.add_argument("run_id", type=int, metavar="RUN", help="run id (see `nlfilter results list`)")
+            a.add_argument("--all", action="store_true", help="also the rows without a paper value")
+            a.add_argument("--notes", action="store_true", help="also the notes")
         if name == "export":
             a.add_argument("run_ids", type=int, nargs="*", metavar="RUN",
                            help="run ids (default: the latest finished run of each experiment)")
@@ -290,8 +292,9 @@ def _main(argv) -> int:
 
 def _error(exc) -> int:
     """One line on stderr (the first of the message), exit code 2."""
+    from .sources import cite
     msg = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
-    print(f"nlfilter: error: {msg}", file=sys.stderr)
+    print(f"nlfilter: error: {cite(msg)}", file=sys.stderr)
     return 2
 
 

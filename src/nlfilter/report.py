@@ -137,6 +137,10 @@ def _columns(head: list[str], body: list[list[str]]) -> list[str]:
             for row in [head, ["-" * w for w in widths], *body]]
 
 
+def _many(n: int, word: str) -> str:
+    return f"{n} {word}" + ("" if n == 1 else "s")
+
+
 def render_text(res: Result, *, all_rows: bool = False, notes: bool = False) -> str:
     """The table ``nlfilter reproduce ID`` prints: the rows with a paper value (quantity · filter ·
     params · paper · nlfilter · s.e. · verdict, :func:`row_verdict`), one summary line, then — with
@@ -172,8 +176,8 @@ def render_text(res: Result, *, all_rows: bool = False, notes: bool = False) -> 
         out += ["", *_columns(["quantity", "filter", "params", "nlfilter", "s.e."], body)]
     if notes and res.notes:
         out += ["", "notes:", *(f"- {cite(n)}" for n in res.notes)]
-    left = [f"{len(other)} rows without a paper value: --all"] if other and paper and not all_rows else []
-    left += [f"{len(res.notes)} notes: --notes"] if res.notes and not notes else []
+    left = [_many(len(other), "row") + " without a paper value: --all"] if other and paper and not all_rows else []
+    left += [_many(len(res.notes), "note") + ": --notes"] if res.notes and not notes else []
     if left:
         out += ["", "; ".join(left) + " (--json PATH: everything)"]
     return "\n".join(out)
