@@ -55,3 +55,26 @@ def test_gallery_has_every_experiment_and_readme_links_it():
         png = root / "docs" / "figures" / f"{id}.png"
         assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and png.stat().st_size < 150_000, id
         assert f"(docs/figures/{id}.png)" in readme, id
+
+
+def test_log_y_when_curves_span_more_than_two_decades(tmp_path, monkeypatch):
+    """A y-axis turns logarithmic when a panel's values are all positive and span more than two
+    decades (one filter at MSE 2000 beside the others at 0.1-1 would flatten them); not for values
+    within two decades, values ≤ 0 (a gap, a reduction), or a panel stating logy=False."""
+    from matplotlib.axes import Axes
+
+    from nlfilter.plots import log_scale, plot_result
+    x = np.arange(1, 6)
+    wide = {"x": x, "lines": {"ekf": 2000.0 + 0 * x, "ukf": 0.1 + 0.01 * x, "optimal": 0.1 + 0 * x}}
+    assert log_scale(wide) and not log_scale({**wide, "logy": False})
+    assert not log_scale({"x": x, "lines": {"a": 0.2 * x, "b": 10.0 + x}})           # 0.2 .. 15: linear
+    assert not log_scale({"x": x, "lines": {"gap": x - 3.0, "b": 2000.0 + x}})      # a value ≤ 0
+    assert log_scale({"kind": "bar", "categories": ["a", "b"], "bars": {"g": [0.01, 5.0]}})
+    assert log_scale({"x": x, "lines": {"a": 0.5 + 0 * x}, "paper": {"a": ([2], [900.0])}})  # the paper's value counts
+    scales = []
+    monkeypatch.setattr(Axes, "set_yscale", lambda self, v, **k: scales.append(v))
+    res = Result("wide", "a wide result", "seed 004 eqs. 18-23", {})
+    res.series["one bad filter"] = wide
+    res.series["within two decades"] = {"x": x, "lines": {"ukf": 0.1 + 0.01 * x}}
+    plot_result(res, tmp_path / "w.png")
+    assert scales == ["log"] and (tmp_path / "w.png").stat().st_size > 5_000

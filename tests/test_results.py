@@ -109,7 +109,7 @@ def test_quick_params_differ_from_defaults_where_quick_overrides(quick_runs):
         "second-order": {"grid_size", "fb_particles", "fb_pf_runs"}, "zero-order": set(),
         "zero-order-adaptive": {"n_max"}, "zero-order-robustness": {"n"}, "smoothing": {"steps", "particles"}}
     cubic = quick_runs["cubic-sensor"][0].params
-    assert (cubic["T"], cubic["burn"], cubic["paths"]) == (6.0, 3.0, 6)  # not the defaults T = 60, burn = 5
+    assert (cubic["T"], cubic["burn"], cubic["paths"]) == (5.0, 2.5, 64)  # not the defaults T = 60, burn = 5
 
 
 def test_rows_unique_in_every_experiment(quick_runs):

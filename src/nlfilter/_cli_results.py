@@ -60,8 +60,11 @@ def results(args) -> int:
             if run["result"] is None:
                 print(f"no table: the run is {run['status']}; its finished Monte Carlo blocks are in the store "
                       f"({st.count_blocks(run['experiment'])} block(s) of {run['experiment']})")
-            else:
+            elif run["result"].experiment == "compare":
                 print(run["result"].table())
+            else:
+                from .report import render_text
+                print(render_text(run["result"], all_rows=args.all, notes=args.notes))
             return 0
         # export
         option = "--csv" if args.csv is not None else "--json"

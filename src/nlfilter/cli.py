@@ -43,7 +43,9 @@ def _parser() -> argparse.ArgumentParser:
     ls.add_argument("--params", action="store_true",
                     help="also list each experiment's parameters (what --param accepts) with their defaults")
     ls.add_argument("--filters", action="store_true",
-                    help="list the filter registry instead: name, family, time, model kinds, needs, source")
+                    help="list the filter registry instead: by family, name, time, model kinds, source")
+    ls.add_argument("--wide", action="store_true",
+                    help="with --filters: every field (class, needs, likelihood, smoother, measurement convention)")
     r = sub.add_parser("reproduce", help="run one experiment and print its table")
     r.add_argument("id", help="experiment id (see `nlfilter list`), or `all`: every experiment")
     r.add_argument("--report", metavar="DIR", default=None,
@@ -59,6 +61,8 @@ def _parser() -> argparse.ArgumentParser:
     r.add_argument("--json", metavar="PATH", help="write the result table as JSON")
     r.add_argument("--plot", metavar="PATH", help="write the figure as PNG")
     r.add_argument("--no-progress", action="store_true", help="hide progress bars")
+    r.add_argument("--all", action="store_true", help="also print the rows without a paper value, by quantity")
+    r.add_argument("--notes", action="store_true", help="also print the experiment's notes (the JSON has them)")
     _execution_options(r)
     res = sub.add_parser("results", help="the results store: list runs, show one, export tables")
     rsub = res.add_subparsers(dest="action", required=True, parser_class=_Parser)
@@ -72,6 +76,8 @@ def _parser() -> argparse.ArgumentParser:
             a.add_argument("--experiment", metavar="ID", default=None, help="only this experiment's runs")
         if name == "show":
             a.add_argument("run_id", type=int, metavar="RUN", help="run id (see `nlfilter results list`)")
+            a.add_argument("--all", action="store_true", help="also the rows without a paper value")
+            a.add_argument("--notes", action="store_true", help="also the notes")
         if name == "export":
             a.add_argument("run_ids", type=int, nargs="*", metavar="RUN",
                            help="run ids (default: the latest finished run of each experiment)")
@@ -136,13 +142,6 @@ def _parse_params(items) -> dict:
             raise ValueError(f"--param {item!r}: expected NAME=VALUE")
         out[name.strip()] = value.strip()
     return out
-
-
-def _show(value) -> str:
-    """A default as ``--param`` takes it (lists comma-separated)."""
-    if isinstance(value, (list, tuple)):
-        return ",".join(map(str, value))
-    return str(value)
 
 
 def main(argv=None) -> int:
@@ -225,24 +224,14 @@ def _main(argv) -> int:
     _KEPT.text = ""  # what a Ctrl-C leaves behind: set once a run has a store
     args = _parser().parse_args(argv)
     from . import experiments
-    if args.command == "list" and args.filters:
-        from .filters import REGISTRY
-        from .filters.registry import table
-
-        for row in table(REGISTRY):
-            print("\t".join([row["name"], row["class"], row["family"] or "-", row["time"] or "-",
-                              row["accepts"] or "-", row["needs"] or "-", row["likelihood"] or "-",
-                              row["smoother"] or "-", row["source"] or "-", row["measurement_convention"] or "-"]))
-        return 0
     if args.command == "list":
-        for exp in experiments.registry().values():
-            print(f"{exp.id}\t{exp.title}\t{exp.source}")
-            if args.params:
-                for name, default in sorted(exp.params.items()):
-                    rng = exp.ranges.get(name)
-                    shown = "" if rng is None else ("  (one of " + ", ".join(rng) + ")" if isinstance(rng, tuple)
-                                                    else "  (" + rng.replace(",", ", ") + ")")
-                    print(f"    --param {name}={_show(default)}{shown}")
+        from ._cli_list import list_experiments, list_filters
+        if args.wide and not args.filters:
+            return _error(ValueError("--wide: only with --filters"))
+        if args.filters:
+            print("\n".join(list_filters(args.wide)))
+        else:
+            list_experiments(args.params)
         return 0
     if args.command == "compare":
         return _compare(args, argv)
@@ -303,8 +292,9 @@ def _main(argv) -> int:
 
 def _error(exc) -> int:
     """One line on stderr (the first of the message), exit code 2."""
+    from .sources import cite
     msg = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
-    print(f"nlfilter: error: {msg}", file=sys.stderr)
+    print(f"nlfilter: error: {cite(msg)}", file=sys.stderr)
     return 2
 
 
@@ -399,8 +389,9 @@ def _compare(args, argv) -> int:
 
 
 def _write(result, args) -> None:
-    """Print the table; write the JSON and the figure when asked."""
-    print(result.table())
+    """Print the table (an experiment's: :func:`nlfilter.report.render_text`); write the JSON and
+    the figure when asked."""
+    print(_text(result, args))
     if args.json:
         result.to_json(args.json)
         print(f"wrote {args.json}")
@@ -414,6 +405,14 @@ def _write(result, args) -> None:
 
         print(f"wrote {write_report([result], args.report)}")
     return 0
+
+
+def _text(result, args) -> str:
+    """An experiment's compact table (``--all``, ``--notes``: more); a comparison's whole table."""
+    if result.experiment == "compare":
+        return result.table()
+    from .report import render_text
+    return render_text(result, all_rows=args.all, notes=args.notes)
 
 
 def _check_folder(path: str) -> None:
@@ -476,7 +475,7 @@ def _reproduce_all(args, command) -> int:
                         store.finish_run(run_id, status, result if status == "done" else None)
                 if args.report is not None and result.series:
                     plot_result(result, os.path.join(args.report, f"{exp.id}.png"))
-            print(result.table())
+            print(_text(result, args))
             print()
             results.append(result)
     finally:

@@ -111,6 +111,10 @@ def _resolve(filters, model, sim_model, dt, start):
         raise TypeError(f"filters: expected 'all', a list of registry names or a non-empty dict of name -> filter "
                         f"instance, got {V.shown(filters)}")
     check_names(names)
+    ref = next((n for n in names if explicit and getattr(REGISTRY[n], "family", "") == "reference"), None)
+    if ref is not None:  # the yardstick is chosen as the reference, not judged as a filter
+        raise ValueError(f"filters: {ref}: the grid and particle filters are the reference: pass reference= or a "
+                         "dict of name -> filter instance (command line: --reference grid|particle)")
     out = {}
     for name in names:
         if name in out:

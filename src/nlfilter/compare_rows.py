@@ -195,3 +195,31 @@ def smoothing_note(info) -> str:
     if info.get("failed"):
         parts.append("smoother failed: " + "; ".join(f"{k}: {v}" for k, v in info["failed"].items()))
     return "smoothing: " + "; ".join(parts) if parts else "smoothing: every filter smoothed"
+
+
+def uninformed_note(est: dict, names) -> str | None:
+    """A note naming the filters of ``names`` whose estimates are the same on every path (on the
+    paths where they did not diverge), or None. The measurements moved none of them: each returned
+    its prior prediction. It is what every Gaussian filter does where the measurement carries no
+    information for it — where Cov[x, h(x)] = 0 under its Gaussian approximation at every step,
+    as for stochastic volatility in levels (y = exp(x/2)·v: the information is in the scale of
+    y, which a linear update in y cannot see) — and what a Taylor filter does at a point where
+    h'(m) = 0 (the cubic sensor from m0 = 0)."""
+    blind = []
+    for name in names:
+        e = est.get(name)
+        if e is None:
+            continue
+        m = np.asarray(e.means, float)[~np.asarray(e.diverged, bool)]
+        if m.shape[0] < 2 or not np.isfinite(m).all():
+            continue
+        if np.max(np.abs(m - m[:1])) <= 1e-12 * (1.0 + np.max(np.abs(m))):
+            blind.append(name)
+    if not blind:
+        return None
+    return (f"{', '.join(blind)}: the same estimates on every path — the measurements moved none of them, each "
+            "returned its prior prediction: under its Gaussian approximation the measurement carries no "
+            "information about the state here (Cov[x, h(x)] = 0 at every step, e.g. y = exp(x/2)·v, whose "
+            "information is in its scale; or h'(m) = 0 at a Taylor filter's mean). Their MSE is the prior's; "
+            "the reference uses the measurements.")
+

@@ -47,7 +47,7 @@ import numpy as np
 from . import _validate as V
 from .compare_filters import _check_filter, _check_filters, _component_names, _resolve, _streams
 from .compare_rows import (certificate_note, filter_rows, mse_series, smoothed_rows, smoothers,
-                           smoothing_note)
+                           smoothing_note, uninformed_note)
 from .compare_tasks import Tasks
 from .errors import DivergenceError
 from .evaluate import _window
@@ -323,6 +323,9 @@ def compare(model, filters, steps, *, paths=200, m0, P0, rng=0, reference="auto"
             if "ess_min" in diag:
                 res.add(ref_name, "ess_min", diag["ess_min"])
         mse_series(res, est, sim, comps, paths=paths, kind=kind)
+        blind = uninformed_note(est, filters)
+        if blind:
+            res.notes.append(blind)
         if skipped:
             res.notes.append("not run: " + "; ".join(f"{k}: {v}" for k, v in skipped.items()))
         if failed:

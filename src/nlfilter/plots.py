@@ -18,6 +18,10 @@ drawn side by side into one PNG by :func:`plot_result`. Two kinds of panel:
     {"kind": "bar", "categories": [str], "bars": {label: values}, "errors": {label: values},
      "paper": {label: values (None where the paper gives none)}, "xlabel", "ylabel", "logy"}
 
+``logy`` not stated: a log y-axis when the panel's values are all positive and span more than
+:data:`LOG_DECADES` decades (one bad filter at MSE 2000 would otherwise flatten every other
+curve); ``logy=False`` keeps a linear axis.
+
 Colours follow the label across all panels of a figure; "optimal" (or "optimal (…)") is black and
 drawn thicker, so the gap to the optimal filter reads the same everywhere.
 """
@@ -29,7 +33,30 @@ import textwrap
 
 import numpy as np
 
+from .sources import cite
+
 _PAPER = dict(marker="D", ms=7, mfc="none", mew=1.6, ls="none", zorder=5)
+LOG_DECADES = 2.0  # a panel whose positive values span more decades than this gets a log y-axis
+
+
+def _values(panel) -> np.ndarray:
+    """Every y value a panel draws (lines, points, the paper's values, bars), finite ones only."""
+    ys = [np.asarray(y, dtype=float).ravel() for y in panel.get("lines", {}).values()]
+    ys += [np.asarray(p[1], dtype=float).ravel() for p in panel.get("points", {}).values()]
+    ys += [np.asarray(p[1] if panel.get("kind", "line") == "line" else p, dtype=float).ravel()
+           for p in panel.get("paper", {}).values() if p is not None and not isinstance(p, (int, float))]
+    ys += [np.asarray(v, dtype=float).ravel() for v in panel.get("bars", {}).values()]
+    v = np.concatenate(ys) if ys else np.zeros(0)
+    return v[np.isfinite(v)]
+
+
+def log_scale(panel) -> bool:
+    """Whether a panel's y-axis is logarithmic: its ``logy`` if stated, else whether its values
+    are all positive and span more than :data:`LOG_DECADES` decades."""
+    if panel.get("logy") is not None:
+        return bool(panel["logy"])
+    v = _values(panel)
+    return bool(v.size) and v.min() > 0 and math.log10(v.max() / v.min()) > LOG_DECADES
 
 
 class _Colours:
@@ -82,10 +109,10 @@ def plot_result(result, path, *, dpi: int = 100) -> None:
             _lines(ax, panel, colour)
         if panel.get("logx"):
             ax.set_xscale("log")
-        if panel.get("logy"):
+        if log_scale(panel):
             ax.set_yscale("log")
         wrap = 60 if ncol > 1 else 90
-        title = textwrap.fill(name, wrap) + ("\n" + textwrap.fill(panel["note"], wrap) if panel.get("note") else "")
+        title = textwrap.fill(cite(name), wrap) + ("\n" + textwrap.fill(panel["note"], wrap) if panel.get("note") else "")
         ax.set_title(title, fontsize=9.5)
         ax.set_xlabel(panel.get("xlabel", ""), fontsize=9)
         ax.set_ylabel(panel.get("ylabel", ""), fontsize=9)
@@ -106,7 +133,7 @@ def plot_result(result, path, *, dpi: int = 100) -> None:
         fig.legend(list(merged.values()), list(merged), loc="outside right upper", fontsize=8)
     title, source = _heading(result)
     head = textwrap.fill(f"{result.experiment}: {title}", 130)
-    fig.suptitle(f"{head}\n" + textwrap.fill(f"source: {source}", 130), fontsize=10)
+    fig.suptitle(f"{head}\n" + textwrap.fill(f"source: {cite(source)}", 130), fontsize=10)
     import io
 
     from .results import atomic_write

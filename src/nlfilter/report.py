@@ -33,6 +33,7 @@ import os
 from pathlib import Path
 
 from .results import Result, Row, _fmt, _fmt_params, atomic_write
+from .sources import cite
 
 MC_SIGMAS = 3.0  # a Monte Carlo row is reproduced within this many of our standard errors
 
@@ -66,6 +67,27 @@ def verdict(row: Row) -> tuple[str, str]:
     return "not reproduced", f"ours {shown} at the {d} printed decimals"
 
 
+QUICK_MIN_PATHS = 30  # a quick run's Monte Carlo row on fewer paths is "indicative": its s.e. is itself too noisy
+
+
+def _fewest_paths(res: Result):
+    """The fewest Monte Carlo paths of any case of ``res`` (``meta["paths"]``: an int or per case), or None."""
+    paths = res.meta.get("paths")
+    vals = list(paths.values()) if isinstance(paths, dict) else [paths]
+    vals = [v for v in vals if isinstance(v, int) and not isinstance(v, bool)]
+    return min(vals) if vals else None
+
+
+def row_verdict(res: Result, row: Row) -> tuple[str, str]:
+    """:func:`verdict` of ``row`` in its run ``res``: a Monte Carlo row of a quick run on fewer than
+    :data:`QUICK_MIN_PATHS` paths is ``("indicative", ...)`` — its verdict would judge noise."""
+    v, why = verdict(row)
+    n = _fewest_paths(res)
+    if v and row.stderr is not None and res.meta.get("quick") and n is not None and n < QUICK_MIN_PATHS:
+        return "indicative", f"quick run, {n} paths; would be: {v}, {why}"
+    return v, why
+
+
 def _optimum(res: Result, row: Row):
     for r in res.rows:
         if r.filter == "optimal" and r.quantity == row.quantity and r.params == row.params:
@@ -82,7 +104,7 @@ def render_table(res: Result) -> str:
     for r in res.rows:
         if r.paper is None:
             continue
-        v, why = verdict(r)
+        v, why = row_verdict(res, r)
         opt = _optimum(res, r)
         lines.append(f"| {r.filter} | {r.quantity} | {_fmt_params(r.params)} | {_fmt(r.paper)} | {_fmt(r.value)} | "
                      f"{_fmt(r.stderr)} | {_fmt(opt)} | {v} ({why}) |")
@@ -92,13 +114,73 @@ def render_table(res: Result) -> str:
 
 
 def counts(res: Result) -> dict:
-    """``{"reproduced": n, "not reproduced": m}`` over the rows with a paper value."""
+    """``{"reproduced": n, "not reproduced": m}`` over the rows with a paper value (and
+    ``"indicative": k`` when a quick run has such rows: :func:`row_verdict`)."""
     out = {"reproduced": 0, "not reproduced": 0}
     for r in res.rows:
-        v, _ = verdict(r)
+        v, _ = row_verdict(res, r)
         if v:
-            out[v] += 1
+            out[v] = out.get(v, 0) + 1
     return out
+
+
+def tally(c: dict) -> str:
+    """``counts`` as a phrase: "7 reproduced, 3 not reproduced" (", 2 indicative" when a quick run has them)."""
+    return f"{c['reproduced']} reproduced, {c['not reproduced']} not reproduced" + (
+        f", {c['indicative']} indicative" if c.get("indicative") else "")
+
+
+def _columns(head: list[str], body: list[list[str]]) -> list[str]:
+    """Plain-text columns: ``head``, a rule, ``body``; each column as wide as its widest cell."""
+    widths = [max([len(h)] + [len(b[i]) for b in body]) for i, h in enumerate(head)]
+    return ["  ".join(c.ljust(w) for c, w in zip(row, widths)).rstrip()
+            for row in [head, ["-" * w for w in widths], *body]]
+
+
+def _many(n: int, word: str) -> str:
+    return f"{n} {word}" + ("" if n == 1 else "s")
+
+
+def render_text(res: Result, *, all_rows: bool = False, notes: bool = False) -> str:
+    """The table ``nlfilter reproduce ID`` prints: the rows with a paper value (quantity · filter ·
+    params · paper · nlfilter · s.e. · verdict, :func:`row_verdict`), one summary line, then — with
+    ``all_rows`` — the other rows grouped by quantity, and — with ``notes`` — the notes. What is
+    left out is named on the last line (the JSON always holds everything)."""
+    out = [f"{res.experiment}: {cite(res.title)}", f"source: {cite(res.source)}"]
+    if res.meta.get("quick"):
+        n = _fewest_paths(res)
+        out.append("quick run: small sizes, same code paths" + (f"; {n} Monte Carlo paths" if n else "")
+                   + " (the published numbers come from full runs)")
+    paper = [r for r in res.rows if r.paper is not None]
+    other = [r for r in res.rows if r.paper is None]
+    out.append("")
+    if paper:
+        body = []
+        for r in paper:
+            v, why = row_verdict(res, r)
+            body.append([r.quantity, r.filter, _fmt_params(r.params), _fmt(r.paper), _fmt(r.value), _fmt(r.stderr),
+                         f"{v} ({why})"])
+        out += _columns(["quantity", "filter", "params", "paper", "nlfilter", "s.e.", "verdict"], body)
+        c = counts(res)
+        out += ["", tally(c) + ("" if not c["not reproduced"] else " (see the notes)" if notes or not res.notes
+                                else " (see the notes: --notes)")]
+    else:
+        out.append("no row of this experiment has a paper value (a check of nlfilter, or a paper that prints no "
+                   "numbers): its rows follow")
+    if other and (all_rows or not paper):
+        groups = {}
+        for r in other:
+            groups.setdefault(r.quantity, []).append(r)
+        body = [[q if i == 0 else "", r.filter, _fmt_params(r.params), _fmt(r.value), _fmt(r.stderr)]
+                for q, rows in groups.items() for i, r in enumerate(rows)]
+        out += ["", *_columns(["quantity", "filter", "params", "nlfilter", "s.e."], body)]
+    if notes and res.notes:
+        out += ["", "notes:", *(f"- {cite(n)}" for n in res.notes)]
+    left = [_many(len(other), "row") + " without a paper value: --all"] if other and paper and not all_rows else []
+    left += [_many(len(res.notes), "note") + ": --notes"] if res.notes and not notes else []
+    if left:
+        out += ["", "; ".join(left) + " (--json PATH: everything)"]
+    return "\n".join(out)
 
 
 def render_summary(results: list[Result], link: str = "#{id}") -> str:
@@ -193,11 +275,10 @@ def section(res: Result, figure: str | None = None) -> str:
             parts += [f"![{res.experiment}]({figure})", ""]
         return "\n".join(parts + [f"Provenance: {provenance_line(res)}", ""])
     c = counts(res)
-    parts = [f'<a id="{res.experiment}"></a>', "", f"## `{res.experiment}` — {res.title}", "", f"Source: {res.source}. "
-             f"Rows with a paper value: {c['reproduced']} reproduced, {c['not reproduced']} not reproduced.", "",
-             render_table(res), ""]
+    parts = [f'<a id="{res.experiment}"></a>', "", f"## `{res.experiment}` — {cite(res.title)}", "",
+             f"Source: {cite(res.source)}. Rows with a paper value: {tally(c)}.", "", render_table(res), ""]
     if res.notes:
-        parts += [*(f"- {n}" for n in res.notes), ""]
+        parts += [*(f"- {cite(n)}" for n in res.notes), ""]
     if figure:
         parts += [f"![{res.experiment}]({figure})", ""]
     parts += [f"Provenance: {provenance_line(res)}", ""]
@@ -219,7 +300,7 @@ def write_report(results: list[Result], folder, *, figures: bool = True, title: 
         # a result read back from the store has no series: its figure is the one written when it ran
         fig = f"{res.experiment}.png" if (folder / f"{res.experiment}.png").exists() else None
         for k, n in counts(res).items():
-            total[k] += n
+            total[k] = total.get(k, 0) + n
         body.append(section(res, fig))
     quick = any(r.meta.get("quick") for r in results)
     if results and all(r.experiment == "compare" for r in results):  # nlfilter compare --report DIR
@@ -230,7 +311,7 @@ def write_report(results: list[Result], folder, *, figures: bool = True, title: 
         return folder / "index.md"
     head = [f"# {title or 'nlfilter: reproduction report'}", "",
             f"{len(results)} experiments ({'quick runs: small sizes, same code paths' if quick else 'full runs'}); "
-            f"rows with a paper value: {total['reproduced']} reproduced, {total['not reproduced']} not reproduced.",
+            f"rows with a paper value: {tally(total)}.",
             "", "Verdicts: a Monte Carlo row is reproduced when it lies within "
             f"{MC_SIGMAS:g} of our standard errors of the paper's value; a deterministic row when it rounds to the "
             "paper's printed decimals (`nlfilter.report`). The notes under each table say what the numbers mean "

@@ -24,6 +24,7 @@ from dataclasses import dataclass, field
 from typing import Callable
 
 from ..results import Result, _decode, _encode, provenance
+from ..sources import cite
 
 
 MAX_RUNS = 10**7  # Monte Carlo paths an experiment takes (a block of them is bounded by memory: _validate.memory)
@@ -75,6 +76,7 @@ class Experiment:
             res = self.func(full, quick=quick, runs=runs, seed=seed, progress=progress)
         seconds = time.perf_counter() - t0
         res.params = _decode(_encode(res.params))  # as JSON keeps them (tuples as lists, numpy as Python)
+        res.source, res.notes = cite(res.source), [cite(n) for n in res.notes]  # papers by name, not file number
         res.meta = provenance(self.id, seed=seed, runs=runs, paths=res.params.get("paths"), quick=quick,
                               given=given)
         res.meta["execution"] = {**sess.execution(), "seconds": round(seconds, 3)}
@@ -216,7 +218,7 @@ EXPERIMENTS = _index(
     Experiment(
         "cubic-sensor",
         title="Cubic sensor: optimal linear filter, tensor post-processors, bound, Monte Carlo",
-        source="seed 001, Tables 5.1-5.2 (ch. 5, Appendix B)",
+        source="Vallot (1981), Tables 5.1-5.2 (ch. 5, Appendix B)",
         target="nlfilter.experiments.cubic_sensor:run",
         params={"q": [2.0, 1.0], "r": [1.0, 1.0], "T": 60.0, "burn": 5.0, "dt": 0.0, "monte_carlo": True,
                 "block": 200},  # block: the default full run's paths (one batch)
@@ -225,7 +227,7 @@ EXPERIMENTS = _index(
         "cubic-sensor-closures",
         title="Conditional-moment filters (Gaussian, Edgeworth-4 closures) vs EKF and the optimal filter on the "
               "cubic sensor",
-        source="seed 001 (Vallot 1981), ch. 5, eqs. 5.1-5.4; seed 003 eqs. 11-15 (closures)",
+        source="Vallot (1981), ch. 5, eqs. 5.1-5.4; Oh & Shin (1995) eqs. 11-15 (closures)",
         target="nlfilter.experiments.cubic_closures:run",
         params={"q": [2.0, 1.0], "r": [1.0, 1.0], "dt": 0.01, "t_end": 20.0, "burn_in": 5.0, "grid_size": 301,
                 "block": 300},  # block: the default full run's paths (one batch; --param block=N for finer resume/Dask)
@@ -243,7 +245,7 @@ EXPERIMENTS = _index(
     Experiment(
         "moment-first-order",
         title="First-order system: moment filter vs Kalman vs grid optimum",
-        source="seed 000, eqs. 2.4-2.5 (Chapter IV, outlined in the abstract)",
+        source="the moment-algorithm dissertation, eqs. 2.4-2.5 (Chapter IV, outlined in the abstract)",
         target="nlfilter.experiments.moment_systems:run_first_order",
         params={"h": 0.5, "w_bound": 2.0, "N": [2, 4, 6], "laws": list(_LAWS), "T": 2000, "skip": 500,
                 "n0": 100.0, "window": 20, "grid": 400, **_BLOCK},
@@ -252,7 +254,7 @@ EXPERIMENTS = _index(
     Experiment(
         "moment-second-order",
         title="Second-order system: moment filter vs Kalman vs particle optimum",
-        source="seed 000, eqs. 2.6-2.8 (Chapter V, outlined in the abstract)",
+        source="the moment-algorithm dissertation, eqs. 2.6-2.8 (Chapter V, outlined in the abstract)",
         target="nlfilter.experiments.moment_systems:run_second_order",
         params={"h1": 0.6, "h2": -0.5, "d1": 1.0, "d2": 1.0, "w_bound": 1.5, "N": [2, 4, 6],
                 "laws": list(_LAWS), "T": 400, "skip": 100, "n0": 100.0, "window": 20,
@@ -263,7 +265,7 @@ EXPERIMENTS = _index(
     Experiment(
         "oh-shin",
         title="QLF vs MQLF (Edgeworth closure) on dx = −x³dt + dβ, dy = x dt + dη",
-        source="seed 003 (Oh & Shin 1995), Section 5, eqs. 18-33, Fig. 2",
+        source="Oh & Shin (1995), Section 5, eqs. 18-33, Fig. 2",
         target="nlfilter.experiments.oh_shin:run",
         params={"Q": 0.05, "R": 0.05, "m0": 4.0, "D0": 0.05, "order": 4, "t_end": 1.0, "dt": 0.01,
                 "grid_size": 601, "block": 4000},  # block: the default full run's paths (one batch)
@@ -272,7 +274,7 @@ EXPERIMENTS = _index(
     Experiment(
         "phase-tracking",
         title="Phase tracking: PLL, linear quadrature filter, tensor filter, optimal",
-        source="seed 001, Figs. 4.3-4.4, Table 4.1 (ch. 4, Appendix A)",
+        source="Vallot (1981), Figs. 4.3-4.4, Table 4.1 (ch. 4, Appendix A)",
         target="nlfilter.experiments.phase_tracking:run",
         params={"P": [], "q": 1.0, "sim_P": 0.129, "time_constants": 500.0, "discard": 25.0,
                 "step": 0.01, "grid": 256, "sweep": 100, "simulate": True, "block": 32},
@@ -282,7 +284,7 @@ EXPERIMENTS = _index(
         "second-order",
         title="Second-order filters: Henriksen's correct truncated form vs the pre-correction, modified and "
               "Gaussian forms, EKF, UKF and the optimal reference",
-        source="seed 004 (Henriksen 1979) eqs. 11, 18-23, 33, 35-37; falling body of Athans, Wishner & "
+        source="Henriksen (1979) eqs. 11, 18-23, 33, 35-37; falling body of Athans, Wishner & "
                "Bertolini 1968",
         target="nlfilter.experiments.henriksen:run",
         params={
@@ -312,14 +314,14 @@ EXPERIMENTS = _index(
     Experiment(
         "zero-order",
         title="Zero-order problem: ensemble MSE of optimal, moment and linear estimators",
-        source="seed 000, Table 1 (eqs. 3.7, 3.20, 3.21, 3.24)",
+        source="the moment-algorithm dissertation, Table 1 (eqs. 3.7, 3.20, 3.21, 3.24)",
         target="nlfilter.experiments.zero_order_problem:run_table1",
         params={"J": [0, 2, 4, 6, 8, 10], "N": [2, 4, 6], "eps": 1e-6, **_BLOCK},
         ranges={"J": ">=0,<=40", "N": ">=1,<=12", "eps": ">0,<1", **_BLOCK_RANGE}),
     Experiment(
         "zero-order-adaptive",
         title="Zero-order adaptive moment filter: time-averaged MSE vs n",
-        source="seed 000, Fig. 10 (a) J=10, (b) J=0; flow chart Fig. 7",
+        source="the moment-algorithm dissertation, Fig. 10 (a) J=10, (b) J=0; flow chart Fig. 7",
         target="nlfilter.experiments.zero_order_problem:run_fig10",
         params={"J": [10, 0], "N": [2, 4, 6], "n0": 100.0, "window": 20, "n_max": 3000, "eps": 1e-6,
                 "invalid_moments": "ignore", **_BLOCK},
@@ -328,7 +330,8 @@ EXPERIMENTS = _index(
     Experiment(
         "zero-order-robustness",
         title="Zero-order filter under input/noise correlation and non-additive noise",
-        source="seed 000, Chapter III (abstract: correlation and non-additive measurement)",
+        source="the moment-algorithm dissertation, Chapter III (abstract: correlation and non-additive "
+               "measurement)",
         target="nlfilter.experiments.zero_order_problem:run_robustness",
         params={"J": 10, "N": [2, 4, 6], "r": [0.0, 0.3, 0.6, 0.9], "beta": [0.0, 0.3, 0.6], "n": 3000,
                 "n0": 100.0, "window": 20, **_BLOCK},
