@@ -91,6 +91,8 @@ def test_readme_own_model_runs_and_prints_what_it_shows(tmp_path, monkeypatch, c
     section = text[text.index("## Your own model"):text.index("## The reproduction")]
     code, shown = re.findall(r"```python\n(.*?)```", section, re.S)[0], re.findall(r"```text\n(.*?)```", section, re.S)[0]
     assert "100, paths=64" in code
+    (guide,) = rst_code(GUIDE / "model.rst")
+    assert code.startswith(guide)  # the guide's model is the README's
     monkeypatch.chdir(tmp_path)
     exec(compile(code.replace("100, paths=64", "30, paths=16"), "README-own-model", "exec"), {})
     out = capsys.readouterr().out
