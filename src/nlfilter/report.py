@@ -3,9 +3,10 @@
 :func:`write_report` writes ``DIR/index.md`` (one section per experiment: a table
 paper · nlfilter · s.e. · optimum · verdict for every row that has a paper value, the experiment's
 notes, and the run's provenance), ``DIR/<id>.json`` (the whole result) and ``DIR/<id>.png`` (its
-figure). :func:`render_table` is the one Markdown table of an experiment, which the README's
-results section carries between ``<!-- report:ID -->`` and ``<!-- /report:ID -->``
-(:func:`readme_blocks`; a test checks that they equal the committed full report's).
+figure). :func:`render_table` is the one Markdown table of an experiment. The README carries the
+summary of the committed full report (:func:`render_readme_summary`) between
+``<!-- report:summary -->`` and ``<!-- /report:summary -->`` (:func:`readme_blocks`,
+:func:`fill_readme`; a test checks that it equals what the committed report gives).
 
 The verdict rule (:func:`verdict`), stated once:
 
