@@ -5,7 +5,7 @@
 
 copies every ``<id>.json`` and ``<id>.png`` of the run into ``docs/report/``, rewrites
 ``docs/report/index.md`` from those JSON files, and replaces every ``<!-- report:ID -->`` block of
-README.md (the summary, one table per experiment, and one per committed single run in
+README.md (the summary table; a block may also name an experiment or a committed single run in
 ``docs/report/runs/``). ``tests/test_report.py`` checks that the
 README's blocks and ``docs/report/index.md`` equal what the committed JSON files give.
 ``python docs/make_report.py`` without a folder only regenerates from ``docs/report/``.

@@ -2,6 +2,7 @@
 
 import pathlib
 import re
+import textwrap
 import warnings
 
 import numpy as np
@@ -149,8 +150,8 @@ def test_plot_result_writes_png(linear, check_figure):
 
 
 def test_readme_compare_block_runs(monkeypatch, tmp_path, capsys):
-    readme = pathlib.Path(__file__).resolve().parents[1] / "README.md"
-    code = re.search(r"### One call: `compare`\n.*?```python\n(.*?)```", readme.read_text(), re.S).group(1)
+    guide = pathlib.Path(__file__).resolve().parents[1] / "docs" / "guide" / "compare.rst"
+    code = textwrap.dedent(re.search(r"\.\. code-block:: python\n\n((?:(?:   .*)?\n)+)", guide.read_text()).group(1))
     monkeypatch.chdir(tmp_path)
     exec(compile(code, "README-compare", "exec"), {"model": CUBIC, "EKF": EKF, "UKF": UKF})  # the Quickstart's
     assert "gap_to_optimal" in capsys.readouterr().out

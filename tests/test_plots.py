@@ -44,17 +44,17 @@ def test_linear_gaussian_figure(check_figure):
     assert np.all(lo < panel["lines"]["kf"]) and np.all(panel["lines"]["kf"] < hi)
 
 
-def test_gallery_has_every_experiment_and_readme_links_it():
+def test_gallery_has_every_experiment_and_the_results_page_shows_it():
     from pathlib import Path
 
     from nlfilter.experiments import registry
 
     root = Path(__file__).resolve().parents[1]
-    readme = (root / "README.md").read_text()
+    results = (root / "docs" / "guide" / "results.rst").read_text()
     for id in registry():
         png = root / "docs" / "figures" / f"{id}.png"
         assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and png.stat().st_size < 150_000, id
-        assert f"(docs/figures/{id}.png)" in readme, id
+        assert f".. figure:: ../figures/{id}.png" in results, id
 
 
 def test_log_y_when_curves_span_more_than_two_decades(tmp_path, monkeypatch):

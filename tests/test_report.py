@@ -115,43 +115,10 @@ def test_readme_blocks_equal_the_committed_report():
     text = (ROOT / "README.md").read_text(encoding="utf-8")
     blocks = readme_blocks(text)
     results = _committed()
-    assert {"summary", "phase-tracking-table-4.1"} <= set(blocks)
+    assert set(blocks) == {"summary"}  # the README's one table (the results tables: tests/test_readme.py)
     for eid, body in blocks.items():
         assert body == render_block(eid, results), eid
     reg = experiments.registry()
     exps = [results[e] for e in reg if e in results]
     assert [r.experiment for r in exps] == list(reg), "an experiment is missing from docs/report"
     assert all(not r.meta["quick"] and r.meta["seed"] == 0 for r in exps)
-
-
-def test_readme_table_4_1_quotes_the_committed_run():
-    """The README's Table 4.1 paragraph (hand-written) quotes the committed decisive run: each
-    value and standard error as printed (5 decimals), the distance in standard errors (1 decimal)."""
-    import re
-    run = _committed()["phase-tracking-table-4.1"]
-    text = (ROOT / "README.md").read_text(encoding="utf-8")
-    part = text[text.index("**Table 4.1 decided**"):text.index("**The thesis' LQF")]
-    assert run.params["paths"] == 256 and run.params["time_constants"] == 2000
-    for name in ("pll", "lqf", "tensor", "optimal"):
-        row = run.get(name, "mse_theta", P=0.129)
-        line = next(ln for ln in part.splitlines() if ln.startswith(f"| {name}"))
-        v, se = map(float, re.search(r"\| ([\d.]+) ± ([\d.]+) \|", line).groups())
-        assert (v, se) == (round(row.value, 5), round(row.stderr, 5)), name
-        if row.paper is not None:
-            k = float(re.search(r"\(([\d.]+) s\.e\.\)", line).group(1))
-            assert k == round(abs(row.value - row.paper) / row.stderr, 1), name
-            ex = run.get(name, "excess_mse_theta", P=0.129)
-            ev, ese = map(float, re.findall(r"([\d.]+) ± ([\d.]+) \|$", line)[0])
-            assert (ev, ese) == (round(ex.value, 5), round(ex.stderr, 5)), name
-
-
-def test_readme_hand_tables_quote_the_committed_report():
-    """Every number of the README's hand-written result tables (outside the generated blocks) is
-    a value, standard error or paper value of a row of the committed report — or of a run kept
-    in docs/report/runs — of the experiment its section names, at the number's printed digits
-    (nlfilter.report.unquoted_numbers): a rerun that moves a number, or a typo, fails here."""
-    from nlfilter.report import unquoted_numbers
-    text = (ROOT / "README.md").read_text(encoding="utf-8")
-    assert unquoted_numbers(text, _committed()) == []
-    moved = text.replace("| 0.581 ± 0.013 |", "| 0.582 ± 0.013 |", 1)  # the check sees a moved digit
-    assert moved != text and unquoted_numbers(moved, _committed()) == [("second-order", "0.582 ± 0.013", "0.582")]

@@ -1,5 +1,5 @@
 """Input checks at the public boundary: every message names the argument, what was given and
-what was expected (README, "Architecture", `_validate.py`)."""
+what was expected (docs/architecture.rst, `_validate.py`)."""
 
 from __future__ import annotations
 

@@ -1,6 +1,6 @@
 """Models stated once, in SymPy, with batched numeric functions generated at construction.
 
-Two kinds of model (the forms of seed 004, eqs. 1-2 and 24-25; README, "Conventions"):
+Two kinds of model (the forms of Henriksen (1979), eqs. 1-2 and 24-25; docs/guide/conventions.rst):
 
 * :class:`DiscreteModel` — ``x[k+1] = f(x[k], k) + G(x[k], k) w[k]``,
   ``y[k] = h(x[k], k) + v[k]``, ``w ~ (0, Q)``, ``v ~ (0, R)``;

@@ -3,9 +3,10 @@
 :func:`write_report` writes ``DIR/index.md`` (one section per experiment: a table
 paper · nlfilter · s.e. · optimum · verdict for every row that has a paper value, the experiment's
 notes, and the run's provenance), ``DIR/<id>.json`` (the whole result) and ``DIR/<id>.png`` (its
-figure). :func:`render_table` is the one Markdown table of an experiment, which the README's
-results section carries between ``<!-- report:ID -->`` and ``<!-- /report:ID -->``
-(:func:`readme_blocks`; a test checks that they equal the committed full report's).
+figure). :func:`render_table` is the one Markdown table of an experiment. The README carries the
+summary of the committed full report (:func:`render_readme_summary`) between
+``<!-- report:summary -->`` and ``<!-- /report:summary -->`` (:func:`readme_blocks`,
+:func:`fill_readme`; a test checks that it equals what the committed report gives).
 
 The verdict rule (:func:`verdict`), stated once:
 
@@ -199,6 +200,42 @@ def render_summary(results: list[Result], link: str = "#{id}") -> str:
     return "\n".join(lines)
 
 
+# The source papers as a reader names them (docs/bibliography.rst has the full references); the
+# registry's and the committed JSON's sources may still name them by their file number ("seed 001").
+def reader_source(source: str) -> str:
+    """``source`` with every paper named as a reader expects: ``"seed 001, Tables 5.1-5.2"`` ->
+    ``"Vallot (1981), Tables 5.1-5.2"``, ``"seed 004 (Henriksen 1979) eqs. 11"`` -> ``"Henriksen (1979)
+    eqs. 11"``; an nlfilter check is ``"no paper: ..."`` (the issue it came from left out).
+
+    >>> reader_source("seed 003 (Oh & Shin 1995), Section 5")
+    'Oh & Shin (1995), Section 5'
+    """
+    import re
+    out = cite(source)
+    out = re.sub(r"^nlfilter check \(no paper\): ", "no paper: ", out)
+    out = re.sub(r"; issue \d+$", "", out)
+    out = re.sub(r"\b([A-Z][^\W\d_]+) ((?:19|20)\d\d)\b", r"\1 (\2)", out)  # "Särkkä 2013" -> "Särkkä (2013)"
+    return out[:1].upper() + out[1:]
+
+
+def render_readme_summary(results: list[Result], link: str = "#{id}") -> str:
+    """The README's table of the reproduction: one line per experiment, its source as a reader names
+    it (:func:`reader_source`) and its rows with a paper value reproduced / not reproduced ("–" where
+    the source prints no value to compare), then one line with the totals."""
+    lines = ["| experiment | source | reproduced | not reproduced |", "|---|---|---|---|"]
+    total = {"reproduced": 0, "not reproduced": 0}
+    for res in results:
+        c = counts(res)
+        for k in total:
+            total[k] += c[k]
+        shown = [str(c[k]) if any(c.values()) else "–" for k in ("reproduced", "not reproduced")]
+        lines.append(f"| [`{res.experiment}`]({link.replace('{id}', res.experiment)}) | "
+                     f"{reader_source(res.source)} | {shown[0]} | {shown[1]} |")
+    return "\n".join(lines + ["", f"{len(results)} experiments; rows with a paper value: {total['reproduced']} "
+                                   f"reproduced, {total['not reproduced']} not reproduced (–: no printed value to "
+                                   "compare; what the experiment checks instead is in its notes)."])
+
+
 def provenance_line(res: Result) -> str:
     m = res.meta
     ex = m.get("execution") or {}
@@ -331,11 +368,11 @@ def readme_blocks(text: str) -> dict[str, str]:
 
 
 def render_block(eid: str, results: dict[str, Result]) -> str:
-    """The text of README block ``eid``: ``summary`` (:func:`render_summary`, linking to the
+    """The text of README block ``eid``: ``summary`` (:func:`render_readme_summary`, linking to the
     committed report) or an experiment id (:func:`render_table`, folded under a summary line)."""
     if eid == "summary":  # the experiments (not the single runs kept beside them)
         exps = [r for k, r in results.items() if k == r.experiment]
-        return render_summary(exps, link=f"{REPORT_LINK}#{{id}}")
+        return render_readme_summary(exps, link=f"{REPORT_LINK}#{{id}}")
     if eid not in results:
         raise ValueError(f"README block report:{eid}: no result for it; expected 'summary' or one of {sorted(results)}")
     res = results[eid]

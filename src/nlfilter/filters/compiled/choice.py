@@ -20,7 +20,7 @@ So a single short run never imports numba; a fit, whose evaluations count as ``r
 process running the same model again and again, moves to the compiled loop as soon as the time
 it would save exceeds the time to get it.
 
-The costs are measured orders of magnitude (README, Benchmarks: one core), not promises; the rule
+The costs are measured orders of magnitude (docs/guide/speed.rst and the benchmarks page: one core), not promises; the rule
 needs them to within a factor of a few. Both loops give the same estimates to rounding (1e-12
 relative, the compiled loop's tests; the scalar EKF's batch loop bit for bit), so the choice moves
 no result beyond that. ``backend="numpy"`` or ``"numba"`` forces either.
