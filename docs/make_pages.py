@@ -140,10 +140,11 @@ def reproduction(report: Path = HERE / "report", out: Path = HERE / "reproductio
 # -- the benchmarks page -----------------------------------------------------------------------
 
 def _num(x) -> str:
+    """A value as plain text: a float at nlfilter's printed precision, anything else as ``str``."""
     from nlfilter.results import _fmt
 
     if isinstance(x, bool) or not isinstance(x, (int, float)):
-        return esc(x)
+        return str(x)
     return str(x) if isinstance(x, int) else _fmt(x)
 
 
@@ -158,11 +159,15 @@ def _flat(d: dict, prefix: str = "") -> dict:
 
 
 def _cell(v) -> str:
+    """A table cell: a number or a word as text; a dict (flattened to ``key value`` pairs) or a list
+    as one literal, so that command-line flags and paths are shown as recorded."""
     if isinstance(v, dict):
-        return esc(", ".join(f"{k} {_num(x)}" for k, x in _flat(v).items()))
-    if isinstance(v, list):
-        return esc(", ".join(str(x) for x in v))
-    return _num(v)
+        v = ", ".join(f"{k} {_num(x)}" for k, x in _flat(v).items())
+    elif isinstance(v, list):
+        v = ", ".join(_num(x) for x in v)
+    else:
+        return esc(_num(v))
+    return f"``{v}``" if v and "``" not in v and not v.startswith(" ") and not v.endswith(" ") else esc(v)
 
 
 def render_record(rec: dict) -> str:

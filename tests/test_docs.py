@@ -249,8 +249,9 @@ def test_pages_render_in_a_browser(built, tmp_path):
     html_dir = _ok(built)
     guide = sorted((html_dir / "guide").glob("*.html")) or [html_dir / "notation.html"]
     pages = {"index": html_dir / "index.html", "guide": guide[0], "api": html_dir / "api" / "models.html",
-             "reproduction": html_dir / "reproduction" / "cubic-sensor.html",
-             "theory": html_dir / "theory" / "second_order.html"}
+             "reproduction": html_dir / "reproduction" / "cubic-sensor.html"}
+    if "<math" not in guide[0].read_text(encoding="utf-8"):  # a page with maths, rendered by the browser
+        pages["theory"] = html_dir / "theory" / "second_order.html"
     keep = pathlib.Path(os.environ.get("NLFILTER_SCREENSHOTS") or tmp_path)
     keep.mkdir(parents=True, exist_ok=True)
     from PIL import Image
