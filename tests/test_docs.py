@@ -26,22 +26,42 @@ GENERATED = ("_build", "auto_examples", "_generated", "generated", "reproduction
              "__pycache__")
 
 
-@pytest.fixture(scope="module")
-def built(tmp_path_factory):
+def _build(tmp):
     """Build a copy of docs/, examples/ and benchmarks/ (so that the gallery's generated sources never
-    land in the working tree and every example runs afresh) into ``html``; returns (html dir, process)."""
-    for mod in ("sphinx", "numpydoc", "sphinx_gallery", "math_core"):
-        pytest.importorskip(mod, reason=f"{mod} is not installed (pip install '.[docs]')")
-    tmp = tmp_path_factory.mktemp("docs")
+    land in the working tree and every example runs afresh) into ``tmp/html``."""
     ignore = shutil.ignore_patterns(*GENERATED)
     for part in ("docs", "examples", "benchmarks"):
         shutil.copytree(ROOT / part, tmp / part, ignore=ignore)
     env = dict(os.environ, MPLBACKEND="Agg",
                PYTHONPATH=os.pathsep.join([str(ROOT / "src")] + [p for p in [os.environ.get("PYTHONPATH")] if p]))
-    html_dir = tmp / "html"
-    proc = subprocess.run([sys.executable, "-m", "sphinx", "-W", "--keep-going", "-E", "-q", "-b", "html",
-                           str(tmp / "docs"), str(html_dir)], capture_output=True, text=True, env=env, timeout=900)
-    return html_dir, proc
+    return subprocess.run([sys.executable, "-m", "sphinx", "-W", "--keep-going", "-E", "-q", "-b", "html",
+                           str(tmp / "docs"), str(tmp / "html")], capture_output=True, text=True, env=env, timeout=900)
+
+
+@pytest.fixture(scope="module")
+def built(tmp_path_factory):
+    """The built site: (html dir, the build's process). Under pytest-xdist the tests of this module
+    may run on several workers: the first builds (under a file lock in the run's shared temporary
+    folder) and the others read its result, so the site is built once per run, not once per worker."""
+    for mod in ("sphinx", "numpydoc", "sphinx_gallery", "math_core"):
+        pytest.importorskip(mod, reason=f"{mod} is not installed (pip install '.[docs]')")
+    try:
+        import fcntl
+    except ImportError:  # no POSIX locks: each worker builds its own
+        fcntl = None
+    if fcntl is None or not os.environ.get("PYTEST_XDIST_WORKER"):
+        tmp = tmp_path_factory.mktemp("docs")
+        return tmp / "html", _build(tmp)
+    shared = tmp_path_factory.getbasetemp().parent / "docs-build"
+    shared.mkdir(exist_ok=True)
+    with open(shared / "lock", "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        record = shared / "result.json"
+        if not record.is_file():
+            proc = _build(shared)
+            record.write_text(json.dumps([proc.returncode, proc.stdout, proc.stderr]), encoding="utf-8")
+        code, out, err = json.loads(record.read_text(encoding="utf-8"))
+    return shared / "html", subprocess.CompletedProcess([], code, out, err)
 
 
 def _ok(built):
@@ -288,6 +308,7 @@ def test_pages_render_in_a_browser(built, tmp_path):
         proc = subprocess.run([browser, "--headless", "--no-sandbox", "--disable-gpu", "--hide-scrollbars",
                                "--window-size=1280,1600", f"--screenshot={shot}", "--dump-dom", probe.as_uri()],
                               capture_output=True, text=True, timeout=120)
+        probe.unlink()
         assert proc.returncode == 0, proc.stderr[-2000:]
         dom = proc.stdout
         found = re.search(r'data-math="(\d+) (\d+)"', dom)
