@@ -4,10 +4,13 @@ Build (from the repository root, after ``pip install ".[docs]"``)::
 
     python -m sphinx -b html docs docs/_build/html
 
-The API reference comes from the numpydoc docstrings, the gallery from ``examples/plot_*.py``
-(sphinx-gallery runs every one of them during the build), and the table of the "choosing a
-filter" page from a small :func:`nlfilter.compare` run made at build time
-(:mod:`choosing_tables`).
+The API reference comes from the numpydoc docstrings (``api.rst`` and one page per area in
+``api/``), the gallery from ``examples/plot_*.py`` (sphinx-gallery runs every one of them during
+the build), the table of the "choosing a filter" page from a small :func:`nlfilter.compare` run
+made at build time (``choosing_tables.py``), and the reproduction and benchmarks pages from the
+committed JSON (``make_pages.py``). Maths is written as MathML by the build (``_ext/mathml.py``):
+the site loads nothing from the network. ``nitpicky``: every cross-reference must resolve
+(``_ext/pyrefs.py`` resolves a name the way Python does).
 """
 
 import sys
@@ -20,6 +23,7 @@ matplotlib.use("Agg")
 HERE = Path(__file__).resolve().parent
 ROOT = HERE.parent
 sys.path.insert(0, str(HERE))
+sys.path.insert(0, str(HERE / "_ext"))
 if (ROOT / "src" / "nlfilter").is_dir():  # a source checkout: document this tree, not an installed copy
     sys.path.insert(0, str(ROOT / "src"))
 
@@ -33,21 +37,32 @@ release = version = nlfilter.__version__
 extensions = [
     "sphinx.ext.autodoc",
     "sphinx.ext.autosummary",
-    "sphinx.ext.mathjax",
     "numpydoc",
     "sphinx_gallery.gen_gallery",
+    "mathml",    # _ext/mathml.py: maths as MathML at build time (no script, no CDN)
+    "pyrefs",    # _ext/pyrefs.py: references resolved as Python resolves the name
 ]
+html_math_renderer = "mathml"
 
-exclude_patterns = ["_build", "_generated", "figures", "**.ipynb_checkpoints", "sg_execution_times.rst"]
+exclude_patterns = ["_build", "_generated", "figures", "report", "**.ipynb_checkpoints", "sg_execution_times.rst"]
 templates_path = []
 source_suffix = {".rst": "restructuredtext"}
 root_doc = "index"
-nitpicky = False
+nitpicky = True   # every cross-reference must resolve (tests/test_docs.py builds with -W)
+# Third-party names without an inventory (intersphinx needs the network, which the build must not):
+# each is named exactly; nothing of nlfilter's is ignored.
+nitpick_ignore = [
+    ("py:class", "sympy.printing.numpy.NumPyPrinter"),
+    ("py:class", "sympy.printing.pycode.PythonCodePrinter"),
+    ("py:class", "numpy.linalg.LinAlgError"),
+    ("py:func", "scipy.integrate.solve_ivp"),
+    ("py:mod", "sqlite3"),
+]
 suppress_warnings = ["config.cache"]  # sphinx-gallery's conf values are not picklable
 
 # -- autodoc / numpydoc ------------------------------------------------------------------------
 autosummary_generate = False        # the API pages use automodule; autosummary only for tables
-autodoc_default_options = {"members": True, "show-inheritance": False}
+autodoc_default_options = {"members": True, "show-inheritance": True}  # public bases only (_ext/pyrefs.py)
 autodoc_member_order = "bysource"
 autodoc_typehints = "none"          # the numpydoc Parameters sections say the types
 numpydoc_show_class_members = False  # automodule lists the members once
@@ -71,7 +86,8 @@ sphinx_gallery_conf = {
 }
 
 html_theme = "alabaster"
-html_static_path = []
+html_static_path = ["_static"]
+html_css_files = ["nlfilter.css"]
 html_title = f"nlfilter {release}"
 html_theme_options = {"description": "moment-based nonlinear filters", "page_width": "1100px",
                       "sidebar_width": "240px"}
@@ -104,6 +120,14 @@ def _implementing_code(app):
     (out / "implementing_ckf5.py").write_text(code, encoding="utf-8")
 
 
+def _generated_pages(app):
+    """The reproduction pages and the benchmarks page, from the committed JSON (make_pages.py)."""
+    import make_pages
+
+    make_pages.write_all(app)
+
+
 def setup(app):
+    app.connect("builder-inited", _generated_pages)
     app.connect("builder-inited", _choosing_tables)
     app.connect("builder-inited", _implementing_code)

@@ -101,7 +101,8 @@ class BilinearModel:
 
     Parameters
     ----------
-    F : (n, n);  H : (m, n)
+    F : (n, n)
+    H : (m, n)
     G : sequence of (n, n) — multiplicative process noise, standard Brownian motions (001 eq. 2.19)
     M : sequence of (m, n) — multiplicative measurement noise (001 eq. 2.20)
     B, Q : (n, p) and (p, p) — additive process noise ``B dw_a``, ``E dw_a dw_aᵀ = Q dt`` (Q = I if omitted)
@@ -297,7 +298,7 @@ class BilinearModel:
         noise gain are affine in the state (then the monomials of degree ≤ ``degree`` are closed
         under the Itô rule). ``degree`` defaults to the measurement's degree.
 
-        The lifted state is every monomial of degree 1..``degree`` (ordered by degree, ``coords``),
+        The lifted state is every monomial of degree 1 to ``degree`` (ordered by degree, ``coords``),
         augmented with 1 (001 eq. 5.5 for the cubic sensor). Raises :class:`NotPolynomialError`
         when the model does not lift exactly (drift or noise gain of degree > 1, or a
         non-polynomial term), naming the offending term.

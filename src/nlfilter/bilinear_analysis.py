@@ -101,7 +101,7 @@ def state_second_moments(model: BilinearModel, X0=None, t: float = 0.0) -> np.nd
     """Steady-state ``X∞ = E[z zᵀ]`` of the augmented state (001 eq. 2.37 at rest), by a direct
     solve with the conserved quantities fixed by ``X0`` (augmented ``(N, N)``, or the original
     ``(n, n)`` second moment when the model is augmented only by the constant, which is then 1).
-    Raises :class:`SingularSystemError` when there is no finite or unique steady state."""
+    Raises :class:`~nlfilter.errors.SingularSystemError` when there is no finite or unique steady state."""
     aug = model.augmented(t)
     N, ci = model.N, model.constant_index
     A = _kron_operator(aug.F, aug.G)

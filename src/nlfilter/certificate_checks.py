@@ -44,11 +44,11 @@ import numpy as np
 from .errors import ReferenceWarning
 from .evaluate import _means_and_mask, _window, mse, paired_difference
 
-NEES_ALPHA = 0.01       # family-wise rate of the NEES band over the components
-NEES_SLACK = 0.1        # a particle cloud's own NEES excess (≈ 2/ESS)
-BEATEN_Z = 2.0          # a filter "beats the optimum" when its gap is below −BEATEN_Z s.e.
-BEATEN_MAX_DIVERGED = 0.1
-CHECK_PATHS = 16        # the fewest paths (not diverged) on which the checks judge: below, s.e. are unreliable
+NEES_ALPHA = 0.01       #: family-wise rate of the NEES band over the components
+NEES_SLACK = 0.1        #: a particle cloud's own NEES excess (≈ 2/ESS)
+BEATEN_Z = 2.0          #: a filter "beats the optimum" when its gap is below −BEATEN_Z s.e.
+BEATEN_MAX_DIVERGED = 0.1  #: the largest diverged fraction at which a filter may still "beat the optimum"
+CHECK_PATHS = 16        #: the fewest paths (not diverged) on which the checks judge: below, s.e. are unreliable
 CONTRADICTED = "reference (contradicted: {})"
 
 

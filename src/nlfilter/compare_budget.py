@@ -26,7 +26,7 @@ A budget in seconds makes the reference depend on the machine's speed (its pilot
 certificate and ``params["reference_budget"]`` record what was chosen, and a comparison resumed
 from the store (:mod:`nlfilter.compare_tasks`) may choose another reference and compute it afresh
 (the filters' tasks are read back all the same). Every decision is a line of
-:attr:`ReferenceBudget.log` (printed on stderr before the runs with ``progress``, and kept in
+``ReferenceBudget.log`` (printed on stderr before the runs with ``progress``, and kept in
 ``Result.params["reference_budget"]`` and a note when a budget was set).
 """
 
@@ -37,8 +37,8 @@ import time
 
 from .yardstick import PARTICLES
 
-PILOT_PATHS = 4          # paths a pilot runs on
-MIN_PARTICLES = 200      # the smallest particle reference a budget may cut the first rung to
+PILOT_PATHS = 4          #: paths a pilot runs on
+MIN_PARTICLES = 200      #: the smallest particle reference a budget may cut the first rung to
 LONG = 10.0              # seconds: an estimate above it is announced before the reference runs
 
 

@@ -138,6 +138,8 @@ def compare(model, filters, steps, *, paths=200, m0, P0, rng=0, reference="auto"
     on_divergence : passed to every ``run``; ``"mark"`` leaves diverged paths out of the
         statistics and reports their share as ``divergence_rate``
 
+    Notes
+    -----
     Rows (``Result.get(name, quantity, component=i)``): per filter and component ``i``: ``mse``
     (window average ± stderr) and ``gap_to_optimal`` (MSE minus the reference's on the same
     paths; its stderr is the paired one and the reference's own error in quadrature); per
@@ -155,6 +157,8 @@ def compare(model, filters, steps, *, paths=200, m0, P0, rng=0, reference="auto"
 
     Returns the :class:`Result`, or ``(result, simulation, estimates)`` with ``full_output``.
 
+    Examples
+    --------
     >>> import sympy as sp; from nlfilter import DiscreteModel; from nlfilter.filters import EKF, UKF
     >>> x = sp.Symbol("x")
     >>> md = DiscreteModel([x], f=[0.9 * x], h=[x], Q=0.1, R=0.5)

@@ -183,7 +183,7 @@ def fit(model, ys, params0, *, filter="ukf", m0=None, P0=None, initial=None, bou
     m0, P0, initial : the prior, fixed (as in ``run``)
     bounds : ``{name: (lo, hi)}`` (``None`` or ±inf for an open side); positive symbols are bounded below by 0
     method : ``"L-BFGS-B"`` (default, finite-difference gradient), ``"Nelder-Mead"`` (for a particle
-        filter's noisy likelihood) or another of :data:`nlfilter._fit_checks.METHODS`
+        filter's noisy likelihood) or another of ``nlfilter._fit_checks.METHODS``
     dt, start, filter_options : how the filter is built (continuous-time models need ``dt``; a
         Simulation gives it); ``start`` None: the filter's default, or the Simulation's; both reach
         the filter with or without ``filter_options``
@@ -195,7 +195,7 @@ def fit(model, ys, params0, *, filter="ukf", m0=None, P0=None, initial=None, bou
         UKF, CKF, GHKF, SLF and second-order filters once for every parameter value (the
         parameters, the KF's matrices, are read at run time), often 2-10× faster per evaluation;
         ``"auto"`` (default) chooses once for the whole fit, counting its evaluations
-        (:meth:`Filter.backend_for`)
+        (:meth:`~nlfilter.filters.base.Filter.backend_for`)
 
     Returns
     -------
@@ -409,7 +409,7 @@ class EMResult:
     iterations: int
 
     def model(self):
-        """The fitted model (:meth:`DiscreteModel.linear`)."""
+        """The fitted model (:meth:`~nlfilter.models.DiscreteModel.linear`)."""
         from .models import DiscreteModel
         return DiscreteModel.linear(self.F, self.H, self.Q, self.R)
 

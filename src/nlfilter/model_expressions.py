@@ -85,7 +85,7 @@ SUPPORTED_FUNCTIONS = tuple(f.__name__ for f in SMOOTH + tuple(PIECEWISE))
 
 def code_form(e):
     """``e`` with SymPy's piecewise functions replaced by their code-generation forms
-    (:class:`_PiecewiseFn`: derivatives by the stated convention); ``e`` itself when it has none."""
+    (``_PiecewiseFn``: derivatives by the stated convention); ``e`` itself when it has none."""
     if not e.has(*PIECEWISE):
         return e
     return e.replace(lambda a: type(a) in PIECEWISE, lambda a: PIECEWISE[type(a)](*a.args))

@@ -26,7 +26,7 @@ from .model_values import NO_VALUES, Broadcast, Values
 class Kernel:
     """A SymPy array expression compiled once (``lambdify`` with ``cse=True``) into a function of
     the state components, the time and the parameters it uses; shared by every
-    :meth:`Model.with_params` copy of a model."""
+    :meth:`~nlfilter.models.Model.with_params` copy of a model."""
 
     @classmethod
     def zeros(cls, shape, n: int) -> "Kernel":
@@ -58,7 +58,7 @@ class Kernel:
 
 class LazyKernels:
     """Kernels generated on first use (the second derivatives, G's derivatives), shared by every
-    :meth:`Model.with_params` copy of a model: whichever copy calls first generates the code once,
+    :meth:`~nlfilter.models.Model.with_params` copy of a model: whichever copy calls first generates the code once,
     and every copy, made before or after, uses it."""
 
     def __init__(self, makers: dict):

@@ -183,7 +183,7 @@ class Model:
     @property
     def structure(self) -> frozenset:
         """What the model has beyond additive, uncorrelated noise with one constant R:
-        ``"state-dependent R"`` (:meth:`R_of`), ``"cross noise"`` (:attr:`cross_noise`),
+        ``"state-dependent R"`` (:meth:`R_of`), ``"cross noise"`` (``cross_noise``),
         ``"non-additive noise"``; a filter refuses a structure it does not handle (its
         ``structures``, :func:`~nlfilter.filters.base.check_structure`)."""
         out = set()
@@ -423,8 +423,11 @@ class DiscreteModel(Model):
     Parameters
     ----------
     states : list of sympy.Symbol, length n
-    f : n expressions;  h : m expressions;  G : n x r matrix (identity if omitted)
-    Q : (r, r) covariance of w;  R : (m, m) covariance of v
+    f : n expressions
+    h : m expressions
+    G : n x r matrix (identity if omitted)
+    Q : (r, r) covariance of w
+    R : (m, m) covariance of v
     params : {Symbol: value}, kept as symbols of the generated functions (:meth:`Model.with_params`)
     inputs : control-input symbols, fed by :meth:`Model.with_inputs` an array ``u (..., T, p)``
     time : the step-index symbol, if f, h or G depend on it
@@ -433,6 +436,8 @@ class DiscreteModel(Model):
     noise : the process-noise symbols when they enter ``f`` non-additively (module docstring)
     meas_noise : the measurement-noise symbols when they enter ``h`` non-additively
 
+    Examples
+    --------
     ``R`` may depend on the states (``R_of``): the radar of filterpy's EKF test, whose range
     noise grows with the range:
 

@@ -114,7 +114,7 @@ def _stderr_to_devnull():
 class DaskExecutor:
     """Run the tasks on a ``dask.distributed`` cluster: the scheduler at ``address``, or a
     ``LocalCluster`` of ``workers`` single-threaded worker processes (default 2) started here and
-    closed by :meth:`close`. Needs the optional extra ``pip install "nlfilter[dask]"``."""
+    closed by ``close()``. Needs the optional extra ``pip install "nlfilter[dask]"``."""
 
     name = "dask"
 

@@ -94,7 +94,7 @@ def falling_body(*, gamma: float = 5e-5, M: float = 1e5, Z: float = 1e5, r: floa
 
     The radar sits at altitude ``Z`` at horizontal distance ``M``; when the body passes ``Z`` the
     range is insensitive to altitude (h_x1 = 0), where second-order terms matter. The model is an
-    :class:`SDEModel` whose ``h``/``R`` are the *discrete* measurement (use
+    :class:`~nlfilter.models.SDEModel` whose ``h``/``R`` are the *discrete* measurement (use
     :class:`~nlfilter.filters.second_order.ContinuousDiscreteSecondOrderFilter`). The true initial
     state ``x0`` is fixed and the prior ``(m0, diag(P0))`` is deliberately off in ``x3``.
     """
@@ -129,8 +129,8 @@ def cubic_sensor(q: float = 2.0, r: float = 1.0, *, dt: float = 0.01, steps: int
 
 
 def euler_discretization(model: SDEModel, dt: float) -> DiscreteModel:
-    """The Euler–Maruyama discretization of an Itô :class:`SDEModel` on the measurement grid, as a
-    :class:`DiscreteModel`: ``x[k+1] = x + f dt + G √dt w``, ``y_k = dy_k/dt = h(x_k) + v_k`` with
+    """The Euler–Maruyama discretization of an Itô :class:`~nlfilter.models.SDEModel` on the measurement grid, as a
+    :class:`~nlfilter.models.DiscreteModel`: ``x[k+1] = x + f dt + G √dt w``, ``y_k = dy_k/dt = h(x_k) + v_k`` with
     ``w ~ (0, Q)``, ``v ~ (0, R/dt)``. Used to run discrete-only filters (the UKF) on SDE problems.
 
     >>> m = euler_discretization(state_noise().model, 0.01)

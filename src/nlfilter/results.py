@@ -132,7 +132,7 @@ def provenance(experiment: str, *, seed=None, runs=None, paths=None, quick=False
 class Result:
     """An experiment's table, plus arrays for its figures (``series``, not written to JSON and not
     compared by ``==``), the notes that say what the numbers mean, and provenance (``meta``, see
-    :func:`provenance`). ``params`` are the values that ran: an experiment records each value it
+    :func:`~nlfilter.results.provenance`). ``params`` are the values that ran: an experiment records each value it
     derives (a quick horizon, the number of paths) with :meth:`used`.
 
     >>> res = Result("demo", "a demo", "no paper", {"T": 1.0})

@@ -30,7 +30,7 @@ import numpy as np
 # :func:`~nlfilter.simulate.simulate` (and ``compare``) and :class:`~nlfilter.filters.reference.ParticleFilter`,
 # so that a particle reference built without ``substeps`` has the simulator's model; a Simulation
 # records the substeps it was made with (``sim.timing.substeps``), which such a filter takes.
-SUBSTEPS = 10
+SUBSTEPS = 10  #: Euler–Maruyama steps per measurement interval, the simulators' and particle filters' default
 
 # What each continuous filter's ``measurement_convention`` says (``nlfilter list --filters``): how it
 # reads the increment dy of one interval, and to what order in dt it is the simulator's convention.

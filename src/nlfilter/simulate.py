@@ -130,13 +130,12 @@ def simulate(model, steps: int, *, paths: int | range = 1, rng=None, m0=None, P0
     paths : number of independent trajectories (the leading axis of every output), or a
         ``range`` of path indices: ``paths=range(a, b)`` gives rows ``a..b-1`` of the run on all paths
     rng : seed, ``SeedSequence``, ``Generator`` or :class:`~nlfilter.streams.PathRNG` (the root of
-        the per-path streams, :mod:`nlfilter.streams`)
-
-    Draws of a path, in order: its initial state (unless ``x0``); discrete models: the process
-    noises of all steps, then the measurement noises of all steps; SDE models: per measurement
-    step, the ``substeps × r`` standard normals of the Brownian increments, then the ``m`` of the
-    measurement noise.
-    m0, P0 / x0 / initial : the initial state: drawn from N(m0, P0), fixed ``x0``, or drawn from
+        the per-path streams, :mod:`nlfilter.streams`).
+        Draws of a path, in order: its initial state (unless ``x0``); discrete models: the process
+        noises of all steps, then the measurement noises of all steps; SDE models: per measurement
+        step, the ``substeps × r`` standard normals of the Brownian increments, then the ``m`` of
+        the measurement noise.
+    m0, P0, x0, initial : the initial state: drawn from N(m0, P0), fixed ``x0``, or drawn from
         the noise law ``initial`` (a non-Gaussian prior)
     start : discrete models only, ``"update"`` or ``"predict"`` (see :mod:`nlfilter.filters.base`)
     dt, substeps, t0 : SDE models only: measurement step, Euler–Maruyama steps per measurement
@@ -148,6 +147,8 @@ def simulate(model, steps: int, *, paths: int | range = 1, rng=None, m0=None, P0
         path has NaN ``xs``/``ys`` from that step on (:attr:`Simulation.diverged`,
         :attr:`Simulation.diverged_step`), the other paths are unchanged
 
+    Notes
+    -----
     A state-dependent measurement noise (``R_of``) draws ``v_k = L(x_k) z_k``, ``L Lᵀ = R(x_k)``
     (Cholesky), ``z_k`` standard normal in the place of the measurement noise. Correlated noise
     (``cross_noise``) draws ``(w_k, v_k)`` jointly, one ``N(0, [[Q, S], [Sᵀ, R]])`` vector per step
@@ -161,6 +162,8 @@ def simulate(model, steps: int, *, paths: int | range = 1, rng=None, m0=None, P0
     (``x[k+1] = f(x[k], k) + ...`` uses entry ``k``); per-path arrays ``(P, T)`` give row ``p``
     to path ``p`` (rows ``a..b-1`` for ``paths=range(a, b)``).
 
+    Examples
+    --------
     >>> import sympy as sp; from nlfilter import SDEModel
     >>> x = sp.Symbol("x")
     >>> sim = simulate(SDEModel([x], [-x], [x], Q=1.0, R=1.0), 5, paths=3, rng=0, m0=0.0, P0=1.0, dt=0.1)

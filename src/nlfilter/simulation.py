@@ -22,7 +22,7 @@ class Timing(NamedTuple):
     ``t0``) or ``"predict"`` (it measures the state one step or ``dt`` after the prior), None for
     increments; ``t0``: the prior's time (0 for a discrete model); ``dt``: the measurement
     interval (None for a discrete model); ``substeps``: increments only, the Euler–Maruyama steps
-    per interval of :func:`simulate` (:mod:`nlfilter.sde_step`: the model a particle reference
+    per interval of :func:`~nlfilter.simulate.simulate` (:mod:`nlfilter.sde_step`: the model a particle reference
     must share to have the simulator's), None when not made by them (a 4-field Timing, the
     exact-transition simulators). The filters read it (:meth:`nlfilter.filters.base.Filter.for_timing`;
     a ParticleFilter built without ``substeps`` takes these)."""
@@ -67,7 +67,7 @@ class _SimulationArrays(NamedTuple):
 class Simulation(_SimulationArrays):
     """``xs (paths, T, n)``, ``ys (paths, T, m)`` (increments ``dy`` for SDEs), ``x0 (paths, n)``,
     ``t (T,)`` the times (step indices for discrete models) of ``xs`` — a 4-tuple (``xs, ys, x0, t =
-    sim``) — and :attr:`timing`, the :class:`Timing` convention of its measurements (``None`` for
+    sim``) — and ``timing``, the :class:`Timing` convention of its measurements (``None`` for
     one built by hand without it): ``Filter.run``/``smooth``, :func:`~nlfilter.evaluate.loglik` and
     :func:`~nlfilter.fitting.fit` take a Simulation in place of ``ys`` and read the step convention
     ``start``, ``t0`` and ``dt`` from it (a filter built with a conflicting one is refused).

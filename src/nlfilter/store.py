@@ -62,8 +62,8 @@ CREATE TABLE IF NOT EXISTS runs (
     finished TEXT, seconds REAL, command TEXT, result TEXT);
 """
 STATUSES = ("running", "done", "interrupted", "failed")
-APPLICATION_ID = 0x6E6C6672  # "nlfr" in SQLite's header (PRAGMA application_id): the file is an nlfilter store
-SCHEMA_VERSION = 1  # PRAGMA user_version: this module's schema (_SCHEMA)
+APPLICATION_ID = 0x6E6C6672  #: "nlfr" in SQLite's header (PRAGMA application_id): the file is an nlfilter store
+SCHEMA_VERSION = 1  #: PRAGMA user_version: this module's schema (_SCHEMA)
 _TABLES = {"blocks": ["key", "start", "stop", "experiment", "task", "seconds", "created", "data"],
            "runs": ["id", "experiment", "params", "seed", "runs", "quick", "version", "code", "status", "started",
                     "finished", "seconds", "command", "result"]}
@@ -200,7 +200,7 @@ def _now() -> str:
 
 class ResultsStore:
     """The SQLite results store at ``path`` (created with its folder on first use); see the module
-    docstring. Use as a context manager or call :meth:`close`."""
+    docstring. Use as a context manager or call ``close()``."""
 
     def __init__(self, path=None):
         self.path = Path(default_path() if path is None else path).expanduser()

@@ -65,13 +65,13 @@ from .sde_step import SUBSTEPS
 
 RESOLUTION = 4          # grid points per (smallest) scale
 POSTERIOR_QUANTILE = 0.1
-GRID_POINTS = {1: 4001, 2: 1700}   # the largest automatic grid on all paths (its 2× refinement runs on a few)
+GRID_POINTS = {1: 4001, 2: 1700}   #: the largest automatic grid on all paths (its 2× refinement runs on a few)
 GRID_MIN = {1: 101, 2: 21}
-REFINE_POINTS = {1: 4 * GRID_POINTS[1], 2: 4 * GRID_POINTS[2]}  # the largest refinement run (a few paths)
-PARTICLES = 2000
+REFINE_POINTS = {1: 4 * GRID_POINTS[1], 2: 4 * GRID_POINTS[2]}  #: the largest refinement run (a few paths)
+PARTICLES = 2000  #: the particles of an automatic particle reference
 MAX_PARTICLES = 32000
-EDGE_MASS = 1e-3
-ENDPOINT_TOL = 0.1      # the grid's end-point reading of dy: rms error per interval / measurement noise
+EDGE_MASS = 1e-3  #: the largest posterior mass on a grid's outermost points that certifies it
+ENDPOINT_TOL = 0.1      #: the grid's end-point reading of dy: rms error per interval / measurement noise
 OPTIMAL = "optimal"
 NOT_CONVERGED = "reference (not converged)"
 

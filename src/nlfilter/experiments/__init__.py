@@ -46,7 +46,7 @@ class Experiment:
 
     @property
     def func(self) -> Callable[..., Result]:
-        """The experiment's function (:attr:`target`, imported on first use)."""
+        """The experiment's function (``target``, imported on first use)."""
         return pkgutil.resolve_name(self.target)
 
     def run(self, params: dict | None = None, *, quick: bool = False, runs: int | None = None,

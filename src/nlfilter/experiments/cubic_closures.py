@@ -15,7 +15,7 @@ optimal filter on the same paths. Each row's ``params`` holds q and r.
 
 The thesis gives no number for these filters (its Tables 5.1-5.2 list the optimal *linear* filter,
 its tensor filter and the Bobrovsky-Zakai bound; they are quoted in the notes for context).
-The Monte Carlo is computed in blocks of ``block`` paths (:func:`_closures_block`,
+The Monte Carlo is computed in blocks of ``block`` paths (``_closures_block``,
 :func:`nlfilter.montecarlo.montecarlo`).
 """
 

@@ -11,7 +11,7 @@ Rows
 Off-line (quantities ``mse_x``, ``mse_x3``): ``linear`` (001 eqs. 2.31-2.47), ``tensor``
 (``α x̂ + β x̂³`` and ``α₂ x̂³ + β₂ (x̂³)³``, 001 eqs. 5.11-5.12), ``tensor5`` (quintic),
 ``tensor-cross`` (odd cubic monomials of both estimates), ``tensor-2stage`` (001 Fig. 3.2, mse_x),
-``bz-bound`` (Bobrovsky-Zakai lower bound, :func:`bz_bound`).
+``bz-bound`` (Bobrovsky-Zakai lower bound, ``bz_bound``).
 Monte Carlo on common noise (quantity ``mse_x_mc``; ``mse_x3_mc`` for the filters that estimate
 x³; ``excess_mse_x_mc``: paired excess over the optimal filter; ``diverged_fraction``):
 ``linear``, ``tensor``, ``updated-innovations`` (001 Fig. 3.4), ``ekf`` and the second-order
@@ -19,9 +19,9 @@ filters (from m0 = 0 and from m0 = σ), ``qlf`` and ``mqlf`` (seed 003: statisti
 about the prior law, gains off-line), ``gaussian-closure`` (conditional-moment filter with the
 Gaussian closure, :class:`~nlfilter.filters.moment_filters.ConditionalMomentFilter`), and
 ``optimal`` (grid filter). The QLF also gets an off-line ``mse_x`` row: its true steady-state MSE
-from the moments of the joint process (x, x̂) (:meth:`QuasilinearFilter.error_analysis`).
+from the moments of the joint process (x, x̂) (:meth:`~nlfilter.filters.quasilinear.QuasilinearFilter.error_analysis`).
 
-The Monte Carlo is computed in blocks of ``block`` paths (:func:`_cubic_block`,
+The Monte Carlo is computed in blocks of ``block`` paths (``_cubic_block``,
 :func:`nlfilter.montecarlo.montecarlo`): the same numbers on any executor and for any chunk,
 kept in the results store and resumed after a crash.
 """

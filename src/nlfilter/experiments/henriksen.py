@@ -22,8 +22,8 @@ so the ``paper`` column is empty: the paper's claims are checked qualitatively (
 
 Each problem's Monte Carlo is computed in blocks of ``block`` paths (0: one block of all its
 paths, the default; :func:`nlfilter.montecarlo.montecarlo`): a block simulates its paths and runs
-every filter on them (:func:`_quadratic_block`, :func:`_state_noise_block`,
-:func:`_falling_body_block`). The grid references' bounds come from every path's simulated
+every filter on them (``_quadratic_block``, ``_state_noise_block``,
+``_falling_body_block``). The grid references' bounds come from every path's simulated
 states, so the problem's paths are simulated once more beforehand to find them (per-path streams:
 the same paths).
 """

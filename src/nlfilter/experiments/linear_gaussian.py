@@ -8,7 +8,7 @@ run, beside the Riccati prediction (steady-state filtered covariance from
 agree with the Riccati value within its Monte Carlo standard error (the grid and particle
 filters up to their discretization error). ``gap_to_optimal`` rows: each filter's MSE minus the
 Kalman filter's (the optimum here) on the same paths, with its paired standard error. The Monte Carlo is computed in blocks of ``block`` paths
-(:func:`_linear_block`, :func:`nlfilter.montecarlo.montecarlo`).
+(``_linear_block``, :func:`nlfilter.montecarlo.montecarlo`).
 """
 
 from __future__ import annotations

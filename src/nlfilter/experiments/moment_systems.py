@@ -19,8 +19,8 @@ assumption 6), with the standard error over paths; the gap to the optimum is a p
 
 Each input law's Monte Carlo is computed in blocks of ``block`` paths (0: one block of all the
 run's paths, the default; :func:`nlfilter.montecarlo.montecarlo`): a block simulates its paths
-(per-path streams of the law's case) and runs every filter on them (:func:`_first_order_block`,
-:func:`_second_order_block`; the particle optimum draws from each path's ``streams.FILTER``
+(per-path streams of the law's case) and runs every filter on them (``_first_order_block``,
+``_second_order_block``; the particle optimum draws from each path's ``streams.FILTER``
 sub-stream, the same in any block).
 """
 

@@ -18,7 +18,7 @@ filters ``truncated`` and ``gaussian`` (seed 004, :mod:`nlfilter.filters.second_
 
 The paper's values are the ``paper`` column of the qlf/mqlf rows. The figure is the paper's Fig. 2:
 MSE over t for each filter (Monte Carlo) with the off-line curves. The Monte Carlo is computed in
-blocks of ``block`` paths (:func:`_oh_shin_block`, :func:`nlfilter.montecarlo.montecarlo`).
+blocks of ``block`` paths (``_oh_shin_block``, :func:`nlfilter.montecarlo.montecarlo`).
 """
 
 from __future__ import annotations

@@ -13,8 +13,8 @@
 
 Their Monte Carlo is computed in blocks of ``block`` paths (0: one block of all the run's paths,
 the default; :func:`nlfilter.montecarlo.montecarlo`): a block simulates its paths (per-path
-streams of the case) and runs every estimator or filter on them (:func:`_table1_block`,
-:func:`_adaptive_block`, :func:`_correlated_block`, :func:`_scaled_noise_block`); the statistics
+streams of the case) and runs every estimator or filter on them (``_table1_block``,
+``_adaptive_block``, ``_correlated_block``, ``_scaled_noise_block``); the statistics
 are computed from all the blocks' paths.
 """
 

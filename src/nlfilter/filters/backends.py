@@ -3,7 +3,7 @@
 Each entry names, as ``"module:attribute"`` strings imported on first use, the backend's run
 function and its ``unsupported(flt) -> reason or None`` (None for a backend that runs every
 filter). ``"numpy"`` is the loop of :meth:`~nlfilter.filters.base.Filter.run` (the reference);
-``"numba"`` the compiled loop (:mod:`nlfilter.filters.compiled`, which imports numba: seconds, so
+``"numba"`` the compiled loop (``nlfilter.filters.compiled``, which imports numba: seconds, so
 only when asked for). Named by strings, the backends import nothing here: the compiled loop never
 needs :mod:`~nlfilter.filters.base`, and ``base`` never imports the compiled loop.
 """

@@ -49,7 +49,7 @@ with NaN (flagged, never silent), restarts them harmlessly from the initial beli
 with the others, whose estimates are those of a run without them.
 
 Backends: ``"numba"`` (or ``"auto"``, the default, where it pays) hands the run to the compiled loop
-(:mod:`nlfilter.filters.compiled`), which keeps every convention above; this loop is its reference.
+(``nlfilter.filters.compiled``), which keeps every convention above; this loop is its reference.
 """
 
 from __future__ import annotations
@@ -286,7 +286,7 @@ class Filter:
             (TypeError)
         backend : ``"auto"`` (default: the compiled loop where it is loaded, on disk or repaid by
             the run, :meth:`backend_for`; else this loop), ``"numpy"`` or ``"numba"`` (the KF, EKF,
-            UKF, CKF, GHKF, SLF, second-order filters compiled, :mod:`nlfilter.filters.compiled`:
+            UKF, CKF, GHKF, SLF, second-order filters compiled, ``nlfilter.filters.compiled``:
             the same estimates to 1e-12, kept on disk, ``NLFILTER_CACHE``; refuses what it does not take)
 
         Returns
@@ -318,7 +318,7 @@ class Filter:
 
     def backend_for(self, B: int, T: int, *, repeats: int = 1, record: bool = False) -> tuple:
         """``(backend, why)`` of ``backend="auto"`` for ``B`` paths × ``T`` steps, ``repeats`` times
-        (a fit's evaluations; ``record``: by a run): :func:`~nlfilter.filters.compiled.choice.choose`."""
+        (a fit's evaluations; ``record``: by a run): ``nlfilter.filters.compiled.choice.choose``."""
         if not getattr(self, "compiled", False):  # no class of this filter's declares a compiled loop
             return "numpy", f"{type(self).__name__} has no compiled loop"
         return tuple(load(AUTO)(self, B, T, repeats, record))
@@ -475,7 +475,7 @@ class DiscreteFilter(Filter):
 
 
 class ContinuousFilter(Filter):
-    """Base of continuous-time filters on an :class:`SDEModel` observed through increments
+    """Base of continuous-time filters on an :class:`~nlfilter.models.SDEModel` observed through increments
     ``dy`` on a grid of step ``dt``. Subclasses give ``step(state, dy, t)``: the belief at
     ``t + dt`` after the increment over ``[t, t + dt]``. ``run`` returns estimates at
     ``t_1 .. t_T`` (``t_k = t0 + k dt``), aligned with ``Simulation.xs``."""
@@ -494,7 +494,7 @@ class ContinuousFilter(Filter):
 
     def integrate(self, rhs, state: GaussianState, z, t) -> GaussianState:
         """Integrate ``d(m, P)/dt = rhs(m, P, z, t)`` over one measurement step (``scheme``,
-        ``substeps``; :func:`ode_step`), symmetrizing P after each substep."""
+        ``substeps``; :func:`~nlfilter.ode.ode_step`), symmetrizing P after each substep."""
         m, P = ode_step(lambda x, s: rhs(x[0], x[1], z, s), tuple(state), t, self.dt, substeps=self.substeps,
                         scheme=self.scheme, finish=lambda x: (x[0], symmetrize(x[1])))
         return GaussianState(m, P)

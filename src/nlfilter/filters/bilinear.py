@@ -84,15 +84,18 @@ class TensorFilter(_SteadyLinearRecursion):
 
     Parameters
     ----------
-    model : BilinearModel;  dt : measurement step
+    model : BilinearModel
+    dt : measurement step
     targets : augmented coordinates to estimate (default: all of x)
     degree : odd degree of the post-processor (3 = ``α x̂ + β x̂³``; 5, 7 ... also)
     inputs : "own" (each target from powers of its own linear estimate, as 001 eqs. 4.20, 5.11-5.12)
         or "cross" (odd monomials of all random estimates, with cross terms)
     initial : callable ``base monomial -> E[.]`` at t = 0 (needed on conservative state spaces)
 
+    Notes
+    -----
     ``run(ys, m0, P0)`` (``ys`` the increments ``dy``): the linear filter's augmented estimate
-    ``ẑ`` follows the affine runner of :mod:`.offline` (:class:`_SteadyLinearRecursion`: prior
+    ``ẑ`` follows the affine runner of :mod:`.offline` (``_SteadyLinearRecursion``: prior
     ``ẑ0 = (m0, 1)``, missing components give no innovation); the post-processor is the runner's
     output map from ``ẑ`` to the reported estimate, applied at every step (``summary``) so that the
     run loop screens its overflow too (``x̂³`` of a huge but finite ``ẑ``). ``means`` are the targets' estimates ``(..., T, len(targets))``;

@@ -85,6 +85,8 @@ class IteratedEKF(GaussianFilter):
     tol : float — a path stops when ``|x_{i+1} − x_i| ≤ tol (1 + |x_i|)``; default 1e-10
     start : ``"update"`` or ``"predict"``
 
+    Examples
+    --------
     >>> import sympy as sp; from nlfilter import DiscreteModel
     >>> x = sp.Symbol("x")
     >>> model = DiscreteModel([x], [x], [x**3], Q=0.1, R=0.01)
@@ -157,7 +159,7 @@ class ContinuousDiscreteIEKF(ContinuousDiscreteGaussianFilter):
 
 
 class ContinuousEKF(ContinuousGaussianFilter):
-    """Continuous-time EKF (Kalman–Bucy on the linearization) for an :class:`SDEModel`: the
+    """Continuous-time EKF (Kalman–Bucy on the linearization) for an :class:`~nlfilter.models.SDEModel`: the
     :class:`~nlfilter.filters.gaussian.ContinuousGaussianFilter` skeleton (Itô step) with the
     :class:`~nlfilter.filters.rules.Taylor1` rule (equations in the module docstring).
 

@@ -8,7 +8,7 @@ The EKF, UKF, cubature (CKF) and Gauss–Hermite (GHKF) Kalman filters differ on
     update:   ŷ = E[h(x)],  S = Cov[h(x)] + R,  C = Cov[x, h(x)],  K = C S⁻¹,
               m⁺ = m⁻ + K (y − ŷ),  P⁺ = P⁻ − K S Kᵀ
 
-(:func:`~nlfilter.filters.base.gaussian_update`: missing components, partly missing measurements
+(:func:`~nlfilter.filters.linalg.gaussian_update`: missing components, partly missing measurements
 with correlated R, singular S poisoned).
 
 A state-dependent measurement noise ``v_k ~ N(0, R(x_k))`` (``DiscreteModel(..., R=<expression in
@@ -76,10 +76,14 @@ class GaussianFilter(DiscreteFilter):
         ``Cubature()``, ``GaussHermite(order)``)
     start : ``"update"`` or ``"predict"`` (see :mod:`nlfilter.filters.base`)
 
+    Notes
+    -----
     ``predict``/``update`` return NaN on the paths whose covariance has no square root (poisoned:
     ``run`` raises or marks them); with ``raises`` (a configuration's class attribute) they raise
     :class:`~nlfilter.errors.DivergenceError` instead.
 
+    Examples
+    --------
     >>> import sympy as sp; from nlfilter import DiscreteModel
     >>> from nlfilter.filters.rules import Cubature
     >>> x = sp.Symbol("x")
@@ -190,12 +194,15 @@ class ContinuousDiscreteGaussianFilter(GaussianFilter):
         ``y_k = h(x(t_k)) + v_k``, ``v_k ~ N(0, R)``, ``t_k = t0 + k dt``
     dt : float — the measurement interval
     rule : a rule of :mod:`nlfilter.filters.rules`
-    scheme : ``"rk4"`` (default) or ``"euler"``;  substeps : int — integration steps per interval
+    scheme : ``"rk4"`` (default) or ``"euler"``
+    substeps : int — integration steps per interval
     start : ``"predict"`` (default: ``ys[..., 0, :]`` at ``t0 + dt``, the prior at ``t0``, as
         :func:`~nlfilter.simulate.simulate_continuous_discrete`) or ``"update"`` (at ``t0``); None:
         the default, or a Simulation's (:meth:`~nlfilter.filters.base.Filter.for_timing`)
     t0 : float — the prior's time (None: 0.0, or a Simulation's)
 
+    Examples
+    --------
     >>> import sympy as sp; from nlfilter import SDEModel
     >>> from nlfilter.filters.rules import Cubature
     >>> x = sp.Symbol("x")

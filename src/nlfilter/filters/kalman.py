@@ -27,7 +27,7 @@ def _require_linear(model, who):
 
 
 class KalmanFilter(DiscreteFilter):
-    """Discrete Kalman filter on a linear :class:`DiscreteModel` (batched, Joseph-form update).
+    """Discrete Kalman filter on a linear :class:`~nlfilter.models.DiscreteModel` (batched, Joseph-form update).
 
     Correlated noise ``E[w_k v_kᵀ] = S`` (``cross_noise``; :class:`~nlfilter.filters.skeleton.CrossNoise`):
     the prediction ``m⁻ = F m + b + G K_w (y_k − H m − d)``, ``P⁻ = F̃ P F̃ᵀ + G (Q − K_w Sᵀ) Gᵀ``,
@@ -157,7 +157,7 @@ def steady_state_continuous(model, t: float = 0.0):
 
 
 class KalmanBucy(ContinuousEKF):
-    """Kalman–Bucy filter on a linear :class:`SDEModel` (the continuous EKF is exact there)."""
+    """Kalman–Bucy filter on a linear :class:`~nlfilter.models.SDEModel` (the continuous EKF is exact there)."""
 
     name = "kf"
     source = "Kalman & Bucy 1961 (seed 004 eqs. 35-37, linear)"

@@ -95,7 +95,7 @@ def bad_paths(mean: np.ndarray, cov: np.ndarray, tol: float = PSD_TOL) -> np.nda
     """Boolean ``(...)``: paths whose mean/cov is non-finite or whose cov is not PSD (an
     eigenvalue of the symmetrized cov below ``−tol·scale``, ``scale = max(1, max |cov|)``; a
     PSD but singular cov passes). The exact per-path test runs only when the one-call screen
-    :func:`_screen_ok` cannot clear the whole batch (it never clears a batch this test flags)."""
+    ``_screen_ok`` cannot clear the whole batch (it never clears a batch this test flags)."""
     if cov.shape[-1] > 2:
         with np.errstate(over="ignore", invalid="ignore", divide="ignore"):  # a sum of infinities is NaN: no warning
             if _screen_ok(mean, cov, tol):
@@ -199,7 +199,7 @@ def poison(state: GaussianState, bad) -> GaussianState:
 
 def _all_ok(mean: np.ndarray, cov: np.ndarray) -> bool:
     """Quick test that every path is finite with PSD covariance (exact for n ≤ 2; for n > 2
-    the Cholesky screen :func:`_screen_ok`, which may only answer False too often, and then
+    the Cholesky screen ``_screen_ok``, which may only answer False too often, and then
     :func:`bad_paths` decides path by path)."""
     n = cov.shape[-1]
     if n == 2:  # every path finite (one reduction): the exact test without its masking

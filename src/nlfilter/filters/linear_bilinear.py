@@ -117,12 +117,16 @@ class OptimalLinearFilter(OfflineGainFilter):
     X0 : optional (N, N) initial second moment of z, needed by ``"steady"`` when the dynamics
         conserve second moments (the circle); otherwise taken from ``(m0, P0)``
 
+    Notes
+    -----
     ``run(ys, m0, P0)`` (increments ``ys``) returns :class:`~nlfilter.filters.estimates.Estimates` in the
     coordinates of x (the constant coordinate dropped; ``return_augmented=True``: all of z).
     ``m0``/``P0`` must be common to all paths (the gains are computed once for the whole batch).
     The on-line step is the affine runner of :mod:`.offline` (convention ``"held"``); NaN
     components of an increment are missing (no innovation; the path's own covariance).
 
+    Examples
+    --------
     >>> from nlfilter.bilinear import BilinearModel
     >>> model = BilinearModel([[-1.0]], [[1.0]], B=[[1.0]], R=[[1.0]])    # Ornstein-Uhlenbeck
     >>> ss = OptimalLinearFilter(model, 0.01).steady_state()
@@ -157,7 +161,7 @@ class OptimalLinearFilter(OfflineGainFilter):
         """Solve the algebraic equations (001 eq. 2.54) directly: ``X∞`` from the linear
         second-moment equation (with conservation laws fixed by ``X0``), then ``P∞`` from the
         algebraic Riccati equation with ``Π∞ = Σ G_i X∞ G_iᵀ``. Raises
-        :class:`SingularSystemError` with the Wonham-type diagnosis when there is no finite one."""
+        :class:`~nlfilter.errors.SingularSystemError` with the Wonham-type diagnosis when there is no finite one."""
         X0 = self.X0 if X0 is None else X0
         if self._steady is not None and X0 is None:
             return self._steady

@@ -3,7 +3,7 @@
 These are the on-line counterparts of the QLF/MQLF (:mod:`.quasilinear`): instead of the prior
 moments of x(t), they propagate the moments of x(t) given the measurements, for every path.
 
-Continuous time (Kushner-Stratonovich, Itô form) for a polynomial :class:`SDEModel`: for every
+Continuous time (Kushner-Stratonovich, Itô form) for a polynomial :class:`~nlfilter.models.SDEModel`: for every
 kept monomial φ = x^γ (all of degree 1..N)::
 
     dE[φ | Y] = E[L φ | Y] dt + Cov(φ, hᵀ | Y) R⁻¹ (dy − E[h | Y] dt)
@@ -189,7 +189,7 @@ def _model_polys(model, who):
 
 
 class ConditionalMomentFilter(_MomentFilter, ContinuousFilter):
-    """Kushner-Stratonovich conditional-moment filter for a polynomial :class:`SDEModel`.
+    """Kushner-Stratonovich conditional-moment filter for a polynomial :class:`~nlfilter.models.SDEModel`.
 
     Parameters
     ----------
@@ -201,6 +201,8 @@ class ConditionalMomentFilter(_MomentFilter, ContinuousFilter):
     substeps : RK4 substeps of the ``dt`` term per measurement step
     name : the filter's label (default from the closure)
 
+    Examples
+    --------
     >>> import sympy as sp; from nlfilter import SDEModel
     >>> x = sp.Symbol("x")
     >>> f = ConditionalMomentFilter(SDEModel([x], [-x], [x], Q=1.0, R=1.0), 0.01)

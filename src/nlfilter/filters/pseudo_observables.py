@@ -84,8 +84,11 @@ class PseudoObservablesFilter(OfflineGainFilter):
     ----------
     model : BilinearModel with additive measurement noise only (``R``; no ``M``)
     powers : the powers of each measurement component used as observables (``(1, 3)``: y and y³)
-    dt : measurement step;  x_moment : callable ``base monomial -> E[x0^α]`` (initial law of x)
+    dt : measurement step
+    x_moment : callable ``base monomial -> E[x0^α]`` (initial law of x)
 
+    Notes
+    -----
     ``run(ys)`` (``ys`` the increments ``dy``, y0 = 0): the off-line-gain runner of :mod:`.offline`
     over an :class:`~nlfilter.filters.offline.OfflineState` (``carried``: the running ``y``);
     ``means`` the estimates of the base variables, ``covs`` the off-line error covariance of the

@@ -18,12 +18,12 @@ Theorem 4.1 (003 eqs. 16-17), continuous time, measurement increments ``dy = h d
 
 Everything but ``x̂`` — the moments, a0, a1, b0, b1, P and the gain — depends on the prior only,
 so :meth:`QuasilinearFilter.offline` computes it once (one ``solve_ivp`` of the moment and
-Riccati equations, dense output); :meth:`run` then integrates one linear equation per step for
+Riccati equations, dense output); :meth:`~QuasilinearFilter.run` then integrates one linear equation per step for
 the whole batch: the ``dt`` terms by RK4 (or Euler) substeps, the innovation ``Kg(t_k) dy`` added
 as an Itô increment with the gain at the start of the step (the convention of
 :class:`~nlfilter.filters.ekf.ContinuousEKF`, so the QLF is the Kalman-Bucy filter on linear
 models). ``Estimates.covs`` holds ``P``, which is NOT the
-error covariance (003, below eq. 8); the true error comes from :meth:`error_analysis`.
+error covariance (003, below eq. 8); the true error comes from :meth:`~QuasilinearFilter.error_analysis`.
 
 Off-line accuracy (003 Fig. 2): (x, x̂) is a polynomial SDE with time-varying coefficients::
 
@@ -153,9 +153,13 @@ class QuasilinearFilter(OfflineGainFilter, ContinuousFilter):
         on-line equation
     rtol, atol : tolerances of the off-line ``solve_ivp``
 
+    Notes
+    -----
     The gains depend on the prior ``(m0, P0)``, which must be the same for every path; they are
     computed at the first ``run`` (or by :meth:`offline`) and cached.
 
+    Examples
+    --------
     >>> import sympy as sp; from nlfilter import SDEModel
     >>> x = sp.Symbol("x")
     >>> model = SDEModel([x], [-x], [x], Q=1.0, R=1.0)          # linear: QLF = Kalman-Bucy

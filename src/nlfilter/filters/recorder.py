@@ -28,7 +28,7 @@ def loglik_divergence(name: str, k: int, idx) -> DivergenceError:
 
 
 class Recorder:
-    """Bookkeeping of :meth:`Filter.run`: output arrays (path-major ``(B, T, ...)`` while filling,
+    """Bookkeeping of :meth:`~nlfilter.filters.base.Filter.run`: output arrays (path-major ``(B, T, ...)`` while filling,
     the layout of the result: no transposing copy at the end), the divergence check after each
     step (raise or mark), the restart of marked paths."""
 

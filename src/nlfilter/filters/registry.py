@@ -18,7 +18,7 @@ from .. import _validate as V
 
 def get(registry: dict, name: str):
     """The class registered under ``name``; an unknown name (any object) is a ValueError listing
-    the choices (:func:`nlfilter._validate.choice`)."""
+    the choices (``nlfilter._validate.choice``)."""
     return registry[V.choice("filter", name, set(registry))]
 
 

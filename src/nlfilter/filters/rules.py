@@ -44,7 +44,7 @@ covariance weights ``w^c_i``, then ``E[g] ≈ Σ w_i g(X_i)``, ``Cov[x, g] ≈ �
 ``Cov[g] ≈ Σ w^c_i (g_i − ĝ)(g_i − ĝ)ᵀ``, ``E[G Q Gᵀ] ≈ Σ w_i G(X_i) Q G(X_i)ᵀ`` (``G Q Gᵀ`` for
 constant G). The square root is the Cholesky factor, the eigen root where P is only semi-definite,
 and the identity on paths whose P is not PSD (``bad``: the filter poisons them, so that ``run``
-raises or marks them; :func:`~nlfilter.filters.base.sqrt_psd`).
+raises or marks them; :func:`~nlfilter.filters.linalg.sqrt_psd`).
 
 >>> import numpy as np
 >>> from nlfilter.filters.base import GaussianState
@@ -127,6 +127,7 @@ class Taylor1:
         return GaussMoments(g(m, t), None, S, J, None, Q)
 
 
+#: the forms of the Taylor-2 rule (:class:`Taylor2`), the ``form=`` of the second-order filters
 FORMS = ("truncated", "truncated-jazwinski", "modified", "gaussian", "modified-gaussian", "first-order")
 
 
@@ -259,11 +260,11 @@ class Taylor2:
 class NodeRule:
     """Base of the node rules: a rule *is* its table of unit nodes and weights.
 
-    A subclass gives :meth:`unit_nodes` ``(n) -> (z (N, n), wm (N,), wc (N,))``: the nodes of
+    A subclass gives ``unit_nodes(n) -> (z (N, n), wm (N,), wc (N,))``: the nodes of
     N(0, I_n) with the mean and covariance weights (read-only arrays, cached per n). The points
     under ``N(m, P)`` are ``X_i = m + L z_i`` with ``L`` the square root of P
     (:func:`~nlfilter.filters.linalg.sqrt_psd`); the NumPy skeleton (:meth:`moments`) and the
-    compiled loop (:mod:`nlfilter.filters.compiled`) both read this one table, so a new node rule
+    compiled loop (``nlfilter.filters.compiled``) both read this one table, so a new node rule
     is a table (and a registry line). ``check(n)``, when defined, refuses a dimension the table
     cannot serve (a ValueError naming the rule's argument)."""
 
@@ -355,7 +356,7 @@ class Unscented(NodeRule):
         object.__setattr__(self, "kappa", V.real("kappa", self.kappa))
 
     #: the largest rounding of the weighted sums the weights may cause, ``eps · Σ|Wc_i|``: with
-    #: ``s = α²(n + κ)`` the weights are ~``1/s`` with a centre weight ``≈ 1 − n/s``, so the sums
+    #: ``s = α²(n + κ)`` the weights are ≈ ``1/s`` with a centre weight ``≈ 1 − n/s``, so the sums
     #: of points cancel and lose ``eps·n/s`` of their relative accuracy (``α = 1e-3``, the usual
     #: small choice, loses ~1e-10 for n = 2)
     ROUNDING = 1e-6
@@ -470,7 +471,7 @@ class Cubature5(NodeRule):
     screen = True  # negative weights (n ≥ 5): the skeleton checks S for positive definiteness
 
     def check(self, n):
-        """Refuse an n whose ``2n² + 1`` nodes exceed :data:`MAX_NODES` per expectation, or whose
+        """Refuse an n whose ``2n² + 1`` nodes exceed ``MAX_NODES`` per expectation, or whose
         table would exceed the node coordinates :func:`cubature5_rule` builds (n > 215)."""
         nodes = 2 * n * n + 1
         if nodes > MAX_NODES or nodes * n > MAX_ENTRIES:

@@ -109,6 +109,8 @@ class SecondOrderFilter(GaussianFilter):
     form : one of :data:`FORMS` (default ``"truncated"``, the paper's correct form)
     start : ``"update"`` or ``"predict"`` (see :mod:`nlfilter.filters.base`)
 
+    Notes
+    -----
     ``predict``/``update`` raise :class:`~nlfilter.errors.DivergenceError` when the covariance (or
     the innovation covariance) is not positive (semi)definite; ``run`` raises or, with
     ``on_divergence="mark"``, records such paths.

@@ -18,7 +18,7 @@ path::
 (:func:`~nlfilter.filters.linalg.gaussian_update` conditions on the observed components of a partly
 missing ``y``; the forcing tensor M is the discrete C tensor of seed 004 eq. 17, see
 :mod:`nlfilter.filters.second_order`). The order of the additions is the one the compiled loop
-reproduces (:mod:`nlfilter.filters.compiled`, agreement to 1e-12): covariance + noise, then the
+reproduces (``nlfilter.filters.compiled``, agreement to 1e-12): covariance + noise, then the
 decorrelation, then the fourth-moment term, then the symmetrization.
 
 >>> import sympy as sp; from nlfilter import DiscreteModel

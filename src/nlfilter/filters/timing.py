@@ -13,7 +13,7 @@ from .. import _validate as V
 
 def set_start(flt, start) -> None:
     """``flt.start``: ``start`` checked, or the class's default when None; ``flt.start_stated``
-    records which (a filter built without ``start`` takes a Simulation's, :meth:`Filter.for_timing`)."""
+    records which (a filter built without ``start`` takes a Simulation's, :meth:`~nlfilter.filters.base.Filter.for_timing`)."""
     flt.start_stated = start is not None
     flt.start = type(flt).start if start is None else V.choice("start", start, {"update", "predict"})
 

@@ -7,7 +7,7 @@ Sigma points ``χ_0 = m``, ``χ_{±i} = m ± (√((n+λ) P))_i`` (columns of the
 Predict: ``m⁻ = Σ W_i f(χ_i)``, ``P⁻ = Σ W^c_i (f(χ_i) − m⁻)(·)ᵀ + Σ W_i G(χ_i) Q G(χ_i)ᵀ``
 (the expected noise covariance over the sigma points; equals ``G Q Gᵀ`` for constant G).
 Update: sigma points redrawn from ``(m⁻, P⁻)``, ``ŷ = Σ W_i h(χ_i)``, ``S = Σ W^c_i (h_i − ŷ)(·)ᵀ + R``,
-``C = Σ W^c_i (χ_i − m⁻)(h_i − ŷ)ᵀ``, then :func:`~nlfilter.filters.base.gaussian_update`.
+``C = Σ W^c_i (χ_i − m⁻)(h_i − ŷ)ᵀ``, then :func:`~nlfilter.filters.linalg.gaussian_update`.
 
 Non-additive process noise ``x[k+1] = f(x[k], w[k])`` (``DiscreteModel(..., noise=[w...])``):
 ``UKF(model)`` predicts over augmented sigma points of ``(x, w)`` (``augmented``; Julier &

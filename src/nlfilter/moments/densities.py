@@ -275,6 +275,8 @@ class LegendreDensity:
     lo, hi : array (...)
         Interval ends (broadcast against the batch shape ``coef.shape[:-1]``).
 
+    Notes
+    -----
     The polynomial is the least-squares approximation; it may be negative somewhere and need not
     integrate a sub-interval to a positive number (the filters check this, 000 Fig. 7 step 9).
     """

@@ -2,13 +2,13 @@
 
 Both moment generators (:func:`~nlfilter.moments.ito.moment_equations` in continuous time,
 :func:`~nlfilter.moments.discrete.discrete_moment_equations` in discrete time) produce, per kept
-monomial, a row ``{(exponent, coefficient group): weight}``; :func:`_assemble` turns the rows into
+monomial, a row ``{(exponent, coefficient group): weight}``; ``_assemble`` turns the rows into
 :class:`MomentEquations`: ``dμ/dt = A μ + B ν + c`` (or ``μ⁺ = A μ + B ν + c``), with ``ν`` the
 moments of the monomials reached outside the kept set (``missing``) and ``c`` the constant
 monomial (``E[1] = 1``) unless ``(0,…,0)`` is kept.
 
 Coefficients may depend on time or on other symbols (e.g. tabulated gains): a coefficient is split
-into coefficient groups ``Σ_j w_j g_j`` (numbers ``w_j``, symbolic factors ``g_j``, :class:`_Groups`),
+into coefficient groups ``Σ_j w_j g_j`` (numbers ``w_j``, symbolic factors ``g_j``, ``_Groups``),
 the matrices are stored as ``Σ_j g_j(t, symbols) (A_j, B_j, c_j)`` on their union sparsity pattern
 and evaluated with :meth:`MomentEquations.at`.
 

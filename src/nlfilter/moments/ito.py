@@ -35,9 +35,11 @@ Front doors
 
 Elsewhere in :mod:`nlfilter.moments` (and still importable from here): the equation container
 :mod:`.equations` (:class:`MomentEquations`, :func:`degree_order`), the discrete counterpart
-:mod:`.discrete` (:class:`PolynomialMap`, :func:`discrete_moment_equations`,
-:func:`gaussian_noise_moments`), closed monomial sets and the bilinear lift :mod:`.closed`
-(:func:`closed_hull`, :func:`is_closed`, :func:`bilinear_lift`).
+:mod:`.discrete` (:class:`~nlfilter.moments.discrete.PolynomialMap`,
+:func:`~nlfilter.moments.discrete.discrete_moment_equations`,
+:func:`~nlfilter.moments.discrete.gaussian_noise_moments`), closed monomial sets and the bilinear
+lift :mod:`.closed` (:func:`~nlfilter.moments.closed.closed_hull`,
+:func:`~nlfilter.moments.closed.is_closed`, :func:`~nlfilter.moments.closed.bilinear_lift`).
 
 Example: Ornstein-Uhlenbeck ``dx = -x dt + dβ`` (Q = 2): d E[x²]/dt = -2 E[x²] + 2.
 
@@ -78,7 +80,7 @@ class PolynomialSDE:
     Noise columns (optional, :meth:`from_noise` or ``from_sympy(..., G=..., Q=...)``): ``noise``
     (n x r polynomials G) and ``noise_cov`` (r x r, Q). The moments need only σ; the bilinear lift
     ``d x_[p] = A x_[p] dt + Σ_a B_a x_[p] dβ_a`` of seed 001 (eqs. 3.13, A.2) needs the
-    coefficient of each ``dβ_a`` in ``d x^γ``, :meth:`noise_terms` (see :func:`bilinear_lift`).
+    coefficient of each ``dβ_a`` in ``d x^γ``, :meth:`noise_terms` (see :func:`~nlfilter.moments.closed.bilinear_lift`).
     """
 
     drift: tuple

@@ -39,7 +39,7 @@ IntervalBelief.__doc__ = """Per path: posterior moments ``m (B, N)`` of x_k and 
     ``fallback (B,)`` flag, the input moments in use ``mw (B, N)``, the learner's power sums
     ``acc (B, N)`` and sample count ``count (B,)``, the moments ``hm (B, N)`` of ``h x_{k-1}``,
     ``predicted (B,)`` (whether ``m`` is a prediction from them, to redo after a refresh) and the
-    flags ``refreshed``/``refresh_failed (B,)`` of this step's refresh (:data:`._moment_base.INVALID_MOMENTS`)."""
+    flags ``refreshed``/``refresh_failed (B,)`` of this step's refresh (:data:`~nlfilter.filters.moment_bayes.INVALID_MOMENTS`)."""
 
 
 def _raw_model(model, args, kind):
@@ -88,12 +88,16 @@ class FirstOrderMomentFilter(MomentFilter):
     invalid_moments : {"warn", "keep", "ignore"}
         A refresh that learns input moments no law on ``[-w_b, w_b]`` has: use the uniform law's
         instead and warn, keep the previous ones and warn, or use them silently (000's algorithm);
-        see :data:`nlfilter.filters.moment_bayes._moment_base.INVALID_MOMENTS`. Default "warn" (until
+        see :data:`~nlfilter.filters.moment_bayes.INVALID_MOMENTS`. Default "warn" (until
         this option the filter used them silently).
 
+    Notes
+    -----
     Step convention: ``ys[..., 0, :]`` measures ``x_0``, whose prior is the stationary law implied by
     the (known or initially guessed) input moments on the stationary interval ``|x| <= w_b/(1-|h|)``.
 
+    Examples
+    --------
     >>> import numpy as np
     >>> from nlfilter.bounded import BoundedNoiseModel; from nlfilter.moments.densities import uniform_moments
     >>> f = FirstOrderMomentFilter(BoundedNoiseModel.first_order(0.5, 1.0), 4, w_moments=uniform_moments(4))

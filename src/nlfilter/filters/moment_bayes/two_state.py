@@ -43,7 +43,7 @@ PolygonBelief.__doc__ = """Per path: posterior mixed moments ``M (B, N+1, N+1)``
     ``fallback (B,)`` flag, the input moments in use ``mw (B, N)``, the learner's power sums
     ``acc (B, N)`` and ``count (B,)``, the previous posterior ``prev (B, N+1, N+1)``,
     ``predicted (B,)`` (whether ``M`` is its prediction, to redo after a refresh) and the flags
-    ``refreshed``/``refresh_failed (B,)`` of this step's refresh (:data:`._moment_base.INVALID_MOMENTS`)."""
+    ``refreshed``/``refresh_failed (B,)`` of this step's refresh (:data:`~nlfilter.filters.moment_bayes.INVALID_MOMENTS`)."""
 
 
 def _merge(paths, new, old):

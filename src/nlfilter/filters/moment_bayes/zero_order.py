@@ -43,7 +43,7 @@ class ZeroOrderBelief(NamedTuple):
     x times it (refreshed with ``coef``; ``(B, 0)`` with the known moments); the learner's power sums
     ``acc (B, N)`` (completed windows) and ``part (B, N)`` (current window), ``count (B,)``
     samples learnt; ``refreshed``/``refresh_failed (B,)`` the flags of this step's refresh
-    (:data:`._moment_base.INVALID_MOMENTS`)."""
+    (:data:`~nlfilter.filters.moment_bayes.INVALID_MOMENTS`)."""
 
     mean: np.ndarray
     fallback: np.ndarray
@@ -85,7 +85,10 @@ def zero_order_estimate(z, density: LegendreDensity, *, x_min=-1.0, x_max=1.0, n
     ----------
     z : array (...)
     density : LegendreDensity with batch shape broadcastable to ``z`` (its interval = ``[x_min, x_max]``)
-    Returns ``(x_hat, fallback)``, both shaped like ``z``.
+
+    Returns
+    -------
+    x_hat, fallback : arrays shaped like ``z``
 
     >>> from nlfilter.moments.densities import LegendreDensity, uniform_moments
     >>> d = LegendreDensity.from_moments(uniform_moments(4))
@@ -186,10 +189,10 @@ class ZeroOrderMomentFilter(MomentFilter):
     invalid_moments : {"warn", "keep", "ignore"}
         When the moments in use are not a moment sequence on the support (too high an N for the
         data): "warn" uses eq. 3.16 while they are in use and issues one
-        :class:`MomentFilterWarning` per run; "keep" rejects a refresh that learns such moments
+        :class:`~nlfilter.filters.moment_bayes.MomentFilterWarning` per run; "keep" rejects a refresh that learns such moments
         (the previous ones stay; impossible known or initial moments: as "warn") and warns;
         "ignore" uses the polynomial anyway (000's own algorithm, guarded only by ``eps``). The
-        same meaning in every seed-000 filter: :data:`nlfilter.filters.moment_bayes._moment_base.INVALID_MOMENTS`.
+        same meaning in every seed-000 filter: :data:`~nlfilter.filters.moment_bayes.INVALID_MOMENTS`.
     """
 
     name = "zero-order-moment"

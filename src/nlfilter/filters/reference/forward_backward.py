@@ -43,7 +43,7 @@ from ..pointmass import apply_kernel, cloud_moments, moments, weights
 
 __all__ = ["grid_smoother", "ffbsm", "transition_logpdf"]
 
-BLOCK = 2**22  # elements of the pairwise arrays (paths × Np × Np × n) per block of the particle smoother
+BLOCK = 2**22  #: elements of the pairwise arrays (paths × Np × Np × n) per block of the particle smoother
 
 
 def grid_smoother(filtered, kernel, X):

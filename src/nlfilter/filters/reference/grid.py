@@ -78,6 +78,8 @@ class GridFilter(_ReferenceFilter):
         outermost points of a density cut at its mode shrinks as the grid is refined (two of 101
         points hold 1-10 % of it), while the ratio stays near 1.
 
+    Notes
+    -----
     Measurement convention (SDEs): a density on the grid carries no path within the interval, so
     not the simulator's ``∫ h ds`` (:mod:`nlfilter.sde_step`): ``dy`` is weighed with ``h`` at the
     interval's end point, ``exp(h(x)ᵀ R⁻¹ dy − ½ dt h(x)ᵀ R⁻¹ h(x))`` at each grid point after

@@ -103,6 +103,8 @@ class ParticleFilter(_ReferenceFilter):
     threshold : resample when ESS < threshold · particles
     start : discrete models: step convention
 
+    Notes
+    -----
     ``Estimates.extras["ess"] (..., T)``: the effective sample size of each step's weights.
     """
 
@@ -187,7 +189,7 @@ class ParticleFilter(_ReferenceFilter):
 
     def summary(self, belief: ParticleBelief):
         """Weighted mean and covariance of the particles (the mean alone, covariance None, when
-        ``means_only``: the certificate's refinement run, :func:`nlfilter.yardstick._check`)."""
+        ``means_only``: the certificate's refinement run, the yardstick's ``_check``)."""
         return cloud_moments(_weights(belief), belief.x, cov=not self.means_only)
 
     def extras(self, belief: ParticleBelief):

@@ -85,12 +85,17 @@ class ResampleMoveParticleFilter(Filter):
     ----------
     model : SDEModel with Q = 0
     particles : number of particles per path
-    dt : measurement interval;  substeps : RK4 steps per interval
-    moves : Metropolis sweeps after each resampling;  scale : proposal scale
+    dt : measurement interval
+    substeps : RK4 steps per interval
+    moves : Metropolis sweeps after each resampling
+    scale : proposal scale
     threshold : resample when ESS < threshold · particles
     start : ``"predict"`` (default: ``ys[..., 0, :]`` at ``t0 + dt``) or ``"update"`` (at ``t0``); None: the
-        default, or a Simulation's;  t0 : float (None: 0.0, or a Simulation's)
+        default, or a Simulation's
+    t0 : float (None: 0.0, or a Simulation's)
 
+    Notes
+    -----
     ``Estimates.extras``: ``accepted``, ``proposed (..., T)`` the cumulative numbers of accepted and
     proposed moves per path (the acceptance rate is ``accepted[..., -1].sum() / proposed[..., -1].sum()``).
     """
