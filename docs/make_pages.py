@@ -49,10 +49,10 @@ def title(text: str, char: str = "=") -> str:
 
 # -- the reproduction pages --------------------------------------------------------------------
 
-def _verdict_cell(row) -> str:
-    from nlfilter.report import verdict
+def _verdict_cell(res, row) -> str:
+    from nlfilter.report import row_verdict
 
-    v, why = verdict(row)
+    v, why = row_verdict(res, row)
     return f"**{v}** ({esc(why)})" if v == "reproduced" else f"*{v}* ({esc(why)})"
 
 
@@ -61,7 +61,7 @@ def paper_table(res) -> str:
     from nlfilter.results import _fmt, _fmt_params
 
     rows = [[f"``{r.filter}``", esc(r.quantity), esc(_fmt_params(r.params)), _fmt(r.paper), _fmt(r.value),
-             _fmt(r.stderr), _verdict_cell(r)] for r in res.rows if r.paper is not None]
+             _fmt(r.stderr), _verdict_cell(res, r)] for r in res.rows if r.paper is not None]
     if not rows:
         return "No row of this experiment has a paper value (a check of nlfilter against itself or a bound).\n"
     return list_table(["filter", "quantity", "params", "paper", "nlfilter", "s.e.", "verdict"], rows)
@@ -77,17 +77,18 @@ def other_rows(res) -> str:
 
 
 def experiment_page(res, runs, figure: str | None) -> str:
-    from nlfilter.report import counts, provenance_line
+    from nlfilter.report import counts, provenance_line, reader_source
+    from nlfilter.sources import cite
 
     c = counts(res)
     out = [f".. _reproduction-{res.experiment}:", "", title(f"{res.experiment}: {res.title}"),
-           f"Source: {esc(res.source)}. Rows with a paper value: **{c['reproduced']} reproduced**, "
+           f"Source: {esc(reader_source(res.source))}. Rows with a paper value: **{c['reproduced']} reproduced**, "
            f"**{c['not reproduced']} not reproduced**. Generated from ``docs/report/{res.experiment}.json``; "
            f"the verdict rule is :func:`nlfilter.report.verdict` (within 3 standard errors for a Monte Carlo "
            f"row, to the printed decimals for a deterministic one).", "",
            title("Paper values", "-"), paper_table(res)]
     if res.notes:
-        out += [title("Notes", "-")] + [f"* {esc(n)}" for n in res.notes] + [""]
+        out += [title("Notes", "-")] + [f"* {esc(cite(n))}" for n in res.notes] + [""]
     if figure:
         out += [title("Figure", "-"), f".. image:: {figure}", f"   :alt: the figure of {res.experiment}",
                 "   :width: 100%", ""]
@@ -99,7 +100,7 @@ def experiment_page(res, runs, figure: str | None) -> str:
         out += [title(f"Committed run {name}", "-"),
                 f"{esc(run.title)} (``docs/report/runs/{name}.json``): {rc['reproduced']} reproduced, "
                 f"{rc['not reproduced']} not reproduced.", "", paper_table(run),
-                *[f"* {esc(n)}" for n in run.notes], "", f"Provenance: {esc(provenance_line(run))}", ""]
+                *[f"* {esc(cite(n))}" for n in run.notes], "", f"Provenance: {esc(provenance_line(run))}", ""]
     out += [title("Provenance", "-"), esc(provenance_line(res)), ""]
     return "\n".join(out)
 
@@ -108,7 +109,7 @@ def reproduction(report: Path = HERE / "report", out: Path = HERE / "reproductio
                  generated: Path = HERE / "_generated") -> list[str]:
     """Write one page per ``report/<id>.json`` into ``out`` and the summary table into ``generated``;
     returns the experiment ids."""
-    from nlfilter.report import counts, load_folder
+    from nlfilter.report import counts, load_folder, reader_source
     from nlfilter.results import Result
 
     results = load_folder(report)
@@ -127,7 +128,7 @@ def reproduction(report: Path = HERE / "report", out: Path = HERE / "reproductio
         secs = (res.meta.get("execution") or {}).get("seconds")
         paths = res.meta.get("paths")
         paths = ", ".join(f"{k} {v}" for k, v in paths.items()) if isinstance(paths, dict) else paths
-        rows.append([f":doc:`{eid} <reproduction/{eid}>`", esc(res.source), str(c["reproduced"]),
+        rows.append([f":doc:`{eid} <reproduction/{eid}>`", esc(reader_source(res.source)), str(c["reproduced"]),
                      str(c["not reproduced"]), esc(paths), "–" if secs is None else f"{secs:.0f}"])
     total = {k: sum(counts(r)[k] for r in results.values()) for k in ("reproduced", "not reproduced")}
     summary = (f"{len(results)} experiments (full runs); rows with a paper value: **{total['reproduced']} "

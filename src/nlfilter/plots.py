@@ -36,7 +36,8 @@ import numpy as np
 from .sources import cite
 
 _PAPER = dict(marker="D", ms=7, mfc="none", mew=1.6, ls="none", zorder=5)
-LOG_DECADES = 2.0  # a panel whose positive values span more decades than this gets a log y-axis
+#: a panel whose positive values span more decades than this gets a log y-axis
+LOG_DECADES = 2.0
 
 
 def _values(panel) -> np.ndarray:

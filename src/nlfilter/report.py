@@ -68,7 +68,8 @@ def verdict(row: Row) -> tuple[str, str]:
     return "not reproduced", f"ours {shown} at the {d} printed decimals"
 
 
-QUICK_MIN_PATHS = 30  # a quick run's Monte Carlo row on fewer paths is "indicative": its s.e. is itself too noisy
+#: a quick run's Monte Carlo row on fewer paths is "indicative": its s.e. is itself too noisy
+QUICK_MIN_PATHS = 30
 
 
 def _fewest_paths(res: Result):
