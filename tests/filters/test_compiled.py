@@ -45,7 +45,7 @@ RTOL = 1e-12
 @pytest.fixture(autouse=True)
 def general_loops(monkeypatch):
     """The general (not dimension-specialized) loops: 3-7 s of compilation per model and rule kind
-    instead of 15-45 s; the specialized loops do the same arithmetic, which
+    instead of 8-16 s; the specialized loops do the same arithmetic, which
     :func:`test_specialized_loops_give_the_same_numbers` checks to the last bit."""
     monkeypatch.setattr(compiled_build, "SPECIALIZE_UP_TO", 0)
 

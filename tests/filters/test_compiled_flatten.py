@@ -162,3 +162,12 @@ def test_flat_loop_text_equals_the_general_loop_as_python(make, G, monkeypatch):
     for a, b in ((out[0].means, out[1].means), (out[0].covs, out[1].covs),
                  (out[0].extras["loglik"], out[1].extras["loglik"])):
         np.testing.assert_array_equal(a, b)
+
+
+def test_the_return_flag_does_not_take_a_local_of_the_callee():
+    """A return inside a loop sets a flag; a callee local of the same name stays its own."""
+    callee = ("def k(a):\n    done = 0\n    for i in range(3):\n        if a[i] < 0:\n            return i\n"
+              "        done += 1\n    return -done\n")
+    flat = flatten("def root(a):\n    x = k(a)\n    return x\n", {"k": callee})
+    for a, want in (([1, 2, 3], -3), ([1, -2, 3], 1)):
+        assert _run(flat, "root", {}, a) == want

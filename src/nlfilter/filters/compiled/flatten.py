@@ -211,6 +211,8 @@ class _Inliner:
         fn = ast.fix_missing_locations(fn)
         body = self.block(fn.body)
         flag = f"done__{k}"
+        while flag in rename.values():  # a local of the callee named done
+            flag = "_" + flag
         out = _Returns(target, flag).block(body, "top")
         return pre + ([_assign(_name(flag, True), ast.Constant(False))] if _has_flag(out, flag) else []) + out
 
