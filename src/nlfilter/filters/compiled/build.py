@@ -5,9 +5,11 @@ update kernels of the rule's kind (:mod:`.rule_kernels`), and those with the mod
 Each loop is one generated module (:func:`source`): the kernels of :mod:`.path_linalg` and
 :mod:`.step_kernels`, the model's functions, the kind's kernels and the loop, as text, written to
 the disk cache and imported from there (:mod:`.cache`), so numba keeps its machine code for the
-next process. The specialized loops (:data:`SPECIALIZE_UP_TO`) get
-the dimensions as constants and every kernel ``inline="always"``. The sources are read once, at
-import: later edits of the files cannot skew the compiled code.
+next process. The specialized loops (:data:`SPECIALIZE_UP_TO`) get the dimensions as constants
+and every kernel expanded into the loop's own text (:mod:`.flatten`: one function for numba to
+type and compile, 2-2.5× shorter compiles than numba's ``inline="always"`` of each kernel, the
+same machine arithmetic). The sources are read once, at import: later edits of the files cannot
+skew the compiled code.
 """
 
 from __future__ import annotations
@@ -16,6 +18,7 @@ import inspect
 
 from . import loops, path_linalg, rule_kernels, step_kernels
 from .cache import load_source
+from .flatten import flatten
 from .kalman_loop import KALMAN_KEY, SCALAR
 from .kernels import KERNELS, model_kernels, scalar_kernels
 from .support import rule_kind
@@ -30,10 +33,11 @@ FUNCTION_ARGS = {"steps_scalar_": ("f", "fx", "h", "hx", "G"), "steps_": ("predi
                  "predict_taylor2_": ("f", "fx", "fxx"), "update_taylor2_": ("h", "hx", "hxx")}
 
 #: loops of models up to this state and measurement dimension are specialized: the dimensions
-#: compiled in as constants and the helpers inlined (the compiler then unrolls the small loops:
-#: 2-5× faster at n ≤ 4 than the general loop, at a compile time of 15-45 s per model and rule
-#: kind instead of 3-7 s); larger models take the general loop. The arithmetic is the same
-#: (no fast-math), so both give the same numbers to the last bit.
+#: compiled in as constants and the helpers expanded into the loop (:func:`_flat`; the compiler
+#: then unrolls the small loops: 2-5× faster at n ≤ 4 than the general loop, at a compile time of
+#: 8-16 s CPU per model and rule kind — 21-34 s with numba's own inlining — against 3-7 s);
+#: larger models take the general loop. The arithmetic is the same (no fast-math), so both give
+#: the same numbers to the last bit.
 SPECIALIZE_UP_TO = 4
 
 _KERNEL_MODULES = (path_linalg, step_kernels)
@@ -49,17 +53,16 @@ def _jit_line(name: str, src_name: str, **kw) -> str:
     return f"{name} = _jit({src_name}{args})\n"
 
 
-def _helpers(inline: bool) -> list:
+def _helpers() -> list:
     """The kernels of :mod:`.path_linalg` and :mod:`.step_kernels` as source, each jitted under its
-    name (``chol_`` as ``chol``); ``inline``: ``inline="always"`` (the specialized loops) but for
-    ``jacobi``, called only where the Cholesky screens cannot decide (rare, long code)."""
+    name (``chol_`` as ``chol``; the general loops')."""
     out = []
     for mod in _KERNEL_MODULES:
         for f in mod.SOURCES:
             h = f.__name__
             # a kernel taking a model function as argument is always inlined: called, it would get
             # the function as a pointer, which numba cannot keep on disk ("dynamic globals")
-            kw = {"inline": "always"} if (inline and h != "jacobi_") or h in _TAKES_FUNCTIONS else {}
+            kw = {"inline": "always"} if h in _TAKES_FUNCTIONS else {}
             out += [_SOURCE[h], _jit_line(h[:-1], h, **kw)]
     return out
 
@@ -86,6 +89,7 @@ def _bind(name, fns, dims):
     return head + "(" + ", ".join(plist[len(drop):]) + "):\n" + body
 
 
+_UNUSED3 = "def unused3_(x, t, p, out):\n    pass\n"
 _HEADER = """# nlfilter: a compiled loop, generated (nlfilter.filters.compiled.build); not to be edited: the
 # cache compares this file with the source it must hold and writes it again where they differ.
 import math
@@ -109,14 +113,37 @@ unused3 = _jit(unused3_)
 """
 
 
+def _flat(kind: str, fns: dict, dims) -> list:
+    """The parts of a specialized loop's module after the header: ``jacobi`` (rare, long: a call),
+    the model's functions too large to inline, and the loop with every other kernel expanded into
+    its text (:func:`.flatten.flatten`; numba then types one function instead of inlining its
+    kernels call site by call site: the same arithmetic, a fraction of the compile)."""
+    defs = {f.__name__[:-1]: _SOURCE[f.__name__] for mod in _KERNEL_MODULES for f in mod.SOURCES
+            if f.__name__ != "jacobi_"}
+    parts = [_SOURCE["jacobi_"], _jit_line("jacobi", "jacobi_")]
+    for arg, k in fns.items():
+        if k is None:
+            defs[arg] = _UNUSED3
+        elif k.inline:
+            defs[arg] = k.source
+        else:
+            parts += [k.source, _jit_line(arg, k.name)]
+    for role, f in zip(("predict", "update"), rule_kernels.KERNELS_BY_KIND[kind]):
+        defs[role] = _bind(f.__name__, fns, dims)
+    loop = _bind(loops.steps_.__name__, {"predict": None, "update": None}, dims)
+    return parts + [flatten(loop, defs), _jit_line("steps", loops.steps_.__name__, cache=True)]
+
+
 def source(kind: str, fns: dict, scalar: bool = False, dims=None) -> str:
     """The module text of the loop of rule ``kind`` (see :func:`steps`): one file holding all it
     runs — the kernels of :mod:`.path_linalg` and :mod:`.step_kernels`, the model's functions
     ``fns`` (``{arg name: Kernel}``; ``None`` for an unused Hessian slot), the kind's predict and
     update kernels with the model's functions bound as globals, and the loop, ``steps``, whose
     machine code numba keeps on disk (``cache=True``; :mod:`.cache`)."""
-    inline = dims is not None
-    parts = [_HEADER.format(log2pi=step_kernels.LOG_2PI), *_helpers(inline)]
+    parts = [_HEADER.format(log2pi=step_kernels.LOG_2PI)]
+    if dims is not None and not scalar:
+        return "\n\n".join(p.rstrip("\n") + "\n" for p in parts + _flat(kind, fns, dims))
+    parts += _helpers()
     for arg, k in fns.items():
         if k is None:
             parts.append(f"{arg} = unused3\n")

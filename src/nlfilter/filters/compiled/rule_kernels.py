@@ -81,7 +81,9 @@ def alloc_nodes(n, mdim, r, N=0):
     mean, Cov, Cross = np.empty(pmax), np.empty((pmax, pmax)), np.empty((n, pmax))
     Gm, GQ, Nz = np.empty((n, r)), np.empty((n, r)), np.empty((n, n))
     S, C, yhat = np.empty((mdim, mdim)), np.empty((n, mdim)), np.empty(mdim)
-    return (L, W, L2, ev, V, X, GX, D, mean, Cov, Cross, Gm, GQ, Nz, S, C, yhat, np.empty((1, 1)),
+    # H0: the update's H, read by condition_ into its observed rows though unused without Joseph
+    # (1 × 1, it was read out of bounds)
+    return (L, W, L2, ev, V, X, GX, D, mean, Cov, Cross, Gm, GQ, Nz, S, C, yhat, np.zeros((mdim, n)),
             np.empty((1, 1, 1)), work(n, mdim))
 
 
