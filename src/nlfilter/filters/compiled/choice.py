@@ -42,8 +42,9 @@ STEP_US = {"kalman": 40.0, "taylor1": 50.0, "nodes": 110.0, "taylor2": 160.0}
 #: n = 1, 3.6 at n = 4, 22.7 at n = 16; the UKF and second-order filters 2-3× the EKF)
 PATH_STEP_US = {"kalman": 0.2, "taylor1": 0.25, "nodes": 0.45, "taylor2": 0.6}
 #: a loop's first compile, CPU seconds: the scalar EKF's batch loop, the loops specialized to the
-#: dimensions (n, m ≤ :data:`~.build.SPECIALIZE_UP_TO`), the general loop
-COMPILE_SECONDS = {"scalar": 2.0, "specialized": 45.0, "general": 10.0}
+#: dimensions (n, m ≤ :data:`~.build.SPECIALIZE_UP_TO`; flattened: 10-21 s measured by
+#: benchmarks/bench_compile.py on a loaded machine), the general loop
+COMPILE_SECONDS = {"scalar": 2.0, "specialized": 20.0, "general": 10.0}
 #: a cached loop's first run in a new process (numba's import, reading its code), seconds
 LOAD_SECONDS = 1.0
 #: the same once numba is imported in the process (reading the loop's code)
