@@ -99,7 +99,7 @@ _INLINED = ("bchol_", "bmt_", "bscreen_", "bgather_", "kill_")
 
 def _params(head: str) -> list:
     """The parameter names of a ``def`` line."""
-    return [x.strip() for x in head.split("(", 1)[1].rsplit(")", 1)[0].replace("\n", " ").split(",")]
+    return [x.strip() for x in head.split("(", 1)[1].split("):\n", 1)[0].replace("\n", " ").split(",")]
 
 
 def _split(src: str) -> tuple:
@@ -111,9 +111,10 @@ def _split(src: str) -> tuple:
 def source(base: str, dims) -> str:
     """The module text of the batch-inner loop: ``base`` (the one-path module of
     :func:`.build.source` for the Taylor-1 kind, the model's block functions among its functions),
-    the one-path update not inlined as ``update1``, the kernels of :mod:`.batch_kernels` inlined
-    with the dimensions ``dims`` (:func:`dims_of`) compiled in, and the loop as ``steps`` (its
-    machine code kept on disk)."""
+    the one-path update not inlined as ``update1``, the kernels of :mod:`.batch_kernels` with the
+    dimensions ``dims`` (:func:`dims_of`) compiled in as constants of their bodies (the compiler then
+    unrolls the sums; :data:`_INLINED`, called with several dimensions, take theirs inlined), and the
+    loop as ``steps`` (its machine code kept on disk)."""
     _, n, mdim, r = dims
     parts = [base, f"# the batch-inner loop (nlfilter.filters.compiled.batch_loop)\nNB = {NB}\nupdate1 = _jit(update_taylor1_)\n"]
     for f in batch_kernels.SOURCES:
