@@ -2,8 +2,8 @@
 innermost loop, so that every scalar operation of a step is a loop over the block's paths that the
 compiler vectorizes (structure of arrays: ``m (n, NB)``, ``P (n, n, NB)``; :mod:`.batch_kernels`).
 
-For the Taylor-1 rule (``ekf``) at ``n ≥`` :data:`BATCH_FROM` states, where the one-path loop's
-small matrices leave the processor idle. Per block and step, the arithmetic of the one-path
+For the Taylor-1 rule (``ekf``) at :data:`BATCH_FROM` to :data:`BATCH_UP_TO` states, where the
+one-path loop's small matrices leave the processor idle. Per block and step, the arithmetic of the one-path
 kernels (:mod:`.rule_kernels`), entry for entry in their order — ``m⁻ = f(m)``, ``P⁻ = F (P Fᵀ) +
 G Q Gᵀ``; ``C = P Hᵀ``, ``S = H C + R``, ``K = C S⁻¹``, the Joseph form ``(I − K H) P (I − K H)ᵀ
 + (K R) Kᵀ``, symmetrized — but for ``S⁻¹``: a Cholesky factor of S instead of LU factors with
@@ -32,10 +32,14 @@ from ...codegen import array_source
 from . import batch_kernels
 from .kernels import KERNELS, Kernel, model_kernels
 
-__all__ = ["BATCH_FROM", "NB", "serves", "dims_of", "is_batch", "block_kernels", "source", "alloc"]
+__all__ = ["BATCH_FROM", "BATCH_UP_TO", "NB", "serves", "dims_of", "is_batch", "block_kernels", "source", "alloc"]
 
-#: the Taylor-1 loops of models with at least this many states take the batch-inner loop
-BATCH_FROM = 4
+#: the Taylor-1 loops of models with ``BATCH_FROM ≤ n ≤ BATCH_UP_TO`` states take the batch-inner
+#: loop: there it is ahead of dynamax's jit+vmap EKF (CPU time, 1000 × 200, one core: 2.0× at n = 4,
+#: 1.2× at n = 8; benchmarks/results/bench_dimensions.json, run "batch-inner-ekf"). At n = 16 it is
+#: 1.9× the one-path loop's speed but 0.5× dynamax's, at twice its compile time (~45 s of CPU
+#: against ~22 s): left to the one-path loop
+BATCH_FROM, BATCH_UP_TO = 4, 8
 #: paths per block (the block's work arrays, two dozen of ``n × n × NB`` at most, stay in the
 #: processor's level-2 cache up to n = 16)
 NB = 32
@@ -49,7 +53,7 @@ _SOURCE = {f.__name__: inspect.getsource(f) for f in batch_kernels.SOURCES}  # r
 
 def serves(kind: str, n: int, mdim: int) -> bool:
     """Whether the loop of rule ``kind`` on ``n`` states (``mdim`` measurements) is the batch-inner one."""
-    return kind == "taylor1" and n >= BATCH_FROM
+    return kind == "taylor1" and BATCH_FROM <= n <= BATCH_UP_TO
 
 
 def dims_of(n, mdim, r) -> tuple:
