@@ -146,10 +146,13 @@ def nothing_to_share(exprs) -> bool:
 # ---------------------------------------------------------------------------------------------
 # scalar source for the compiled loop
 # ---------------------------------------------------------------------------------------------
-def array_source(name, exprs, shape, states, time, psyms) -> str:
+def array_source(name, exprs, shape, states, time, psyms, block: bool = False) -> str:
     """``def name(x, t, p, out)``: writes ``out[idx] = expr`` for every entry of ``exprs`` (flat,
     row-major over ``shape``), with common subexpressions computed once; the states are read from
     ``x``, the parameters ``psyms`` from ``p`` in their order, ``time`` (or ``None``) is ``t``.
+    ``block``: the same function over a block of paths, ``def name(x, t, p, out, nb)`` with the
+    paths last (``x (n, ≥nb)``, ``out (*shape, ≥nb)``), the code of one path in a loop over the
+    first ``nb`` (the batch-inner loop's, :mod:`nlfilter.filters.compiled.batch_loop`).
 
     >>> import sympy as sp
     >>> x, a = sp.symbols("x a")
@@ -159,6 +162,13 @@ def array_source(name, exprs, shape, states, time, psyms) -> str:
         p_0 = p[0]
         out[1] = 0.0
         out[0] = p_0*math.sin(x_0)
+    >>> print(array_source("g", [a * sp.sin(x), 0], (2,), [x], None, [a], block=True))
+    def g(x, t, p, out, nb):
+        p_0 = p[0]
+        for b_ in range(nb):
+            x_0 = x[0, b_]
+            out[1, b_] = 0.0
+            out[0, b_] = p_0*math.sin(x_0)
     """
     xs = {s: sp.Symbol(f"x_{i}") for i, s in enumerate(states)}
     ps = {s: sp.Symbol(f"p_{j}") for j, s in enumerate(psyms)}
@@ -168,30 +178,35 @@ def array_source(name, exprs, shape, states, time, psyms) -> str:
     flat = [sp.sympify(e).xreplace(sub) for e in exprs]
     pr = ScalarPrinter()
     used = set().union(*(e.free_symbols for e in flat)) if flat else set()
-    lines = [f"def {name}(x, t, p, out):"]
-    lines += [f"    x_{i} = x[{i}]" for i, s in enumerate(states) if xs[s] in used]
-    lines += [f"    p_{j} = p[{j}]" for j, s in enumerate(psyms) if ps[s] in used]
+    ind, lane = ("        ", ", b_") if block else ("    ", "")
+    xlines = [f"{ind}x_{i} = x[{i}{lane}]" for i, s in enumerate(states) if xs[s] in used]
+    plines = [f"    p_{j} = p[{j}]" for j, s in enumerate(psyms) if ps[s] in used]
     if time is not None and sp.Symbol("t_") in used:
-        lines.append("    t_ = t")
+        plines.append("    t_ = t")
+    if block:
+        lines = [f"def {name}(x, t, p, out, nb):", *plines, "    for b_ in range(nb):", *xlines]
+    else:
+        lines = [f"def {name}(x, t, p, out):", *xlines, *plines]
+    body = len(lines)
     nonzero = [(i, e) for i, e in enumerate(flat) if e != 0]
     if nonzero:
         reps, red = sp.cse([e for _, e in nonzero], symbols=sp.numbered_symbols("c_"))
-        lines += [f"    {s} = {pr.doprint(v)}" for s, v in reps]
+        lines += [f"{ind}{s} = {pr.doprint(v)}" for s, v in reps]
     else:
         red = []
     zeros = [i for i, e in enumerate(flat) if e == 0]
     if len(zeros) > 8:  # a sparse Hessian: one loop of zeros, then the nonzero entries (compact code)
         ix = [f"i{d}" for d in range(len(shape))]
         for d, (v, size) in enumerate(zip(ix, shape)):
-            lines.append("    " + "    " * d + f"for {v} in range({size}):")
-        lines.append("    " + "    " * len(shape) + f"out[{', '.join(ix)}] = 0.0")
+            lines.append(ind + "    " * d + f"for {v} in range({size}):")
+        lines.append(ind + "    " * len(shape) + f"out[{', '.join(ix)}{lane}] = 0.0")
     else:
         for i in zeros:
-            lines.append(f"    out[{', '.join(map(str, np.unravel_index(i, shape)))}] = 0.0")
+            lines.append(f"{ind}out[{', '.join(map(str, np.unravel_index(i, shape)))}{lane}] = 0.0")
     for (i, _), e in zip(nonzero, red):
-        lines.append(f"    out[{', '.join(map(str, np.unravel_index(i, shape)))}] = {pr.doprint(e)}")
-    if len(lines) == 1:
-        lines.append("    pass")
+        lines.append(f"{ind}out[{', '.join(map(str, np.unravel_index(i, shape)))}{lane}] = {pr.doprint(e)}")
+    if len(lines) == body:
+        lines.append(f"{ind}pass")
     return "\n".join(lines)
 
 

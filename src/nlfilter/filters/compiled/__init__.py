@@ -21,7 +21,9 @@ Kalman (``kf``)                 the model's matrices F, b, H, d, G Q Gᵀ read a
 A model with one state, one measurement and one noise runs the EKF's scalar batch loop
 (:func:`~.loops.steps_scalar_`: every path at each step, the arithmetic of NumPy's scalar branch, bit for
 bit); models up to :data:`~.build.SPECIALIZE_UP_TO` states and measurements get loops with their
-dimensions compiled in and the helpers inlined (the same bits, faster, longer to compile).
+dimensions compiled in and the helpers inlined (the same bits, faster, longer to compile); the EKF
+on 4 to 8 states runs blocks of paths with the paths innermost (:mod:`.batch_loop`: vectorized over
+paths, the same numbers to rounding).
 
 The same conventions as the NumPy loop, which the tests hold it to (1e-12): both starts, partly
 missing measurements (the observed block, exactly; a step missing on every path only predicts),
@@ -55,6 +57,8 @@ The package, one concept a module:
 :mod:`.kalman_loop`     the Kalman filter's kernels: the matrices as data (the template's, and the scalar
                         batch loop's f, h, G reading them from ``p``)
 :mod:`.loops`           one loop template for every rule kind; the scalar EKF's batch loop
+:mod:`.batch_kernels`   the EKF's batch-inner loop: blocks of paths, the paths innermost
+:mod:`.batch_loop`      that loop's dispatch, the model's functions over a block, its module text
 :mod:`.build`           the template with a kind's kernels and the model's functions, as one module's text
 :mod:`.cache`           that module written to the disk cache and imported, numba's code kept beside it
 :mod:`.run`             :func:`run_compiled` and :func:`~.run.finish`

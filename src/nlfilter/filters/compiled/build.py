@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import inspect
 
-from . import loops, path_linalg, rule_kernels, step_kernels
+from . import batch_loop, loops, path_linalg, rule_kernels, step_kernels
 from .cache import load_source
 from .flatten import flatten
 from .kalman_loop import KALMAN_KEY, SCALAR
@@ -181,7 +181,10 @@ def loop_of(flt):
     # never called; None, a compiled no-op, fills them)
     args = {"taylor1": {"f": "f", "fx": "f_x", "h": "h", "hx": "h_x", "G": "G"}, "nodes": {"f": "f", "h": "h", "G": "G"},
             "taylor2": {"f": "f", "fx": "f_x", "fxx": "f_xx", "h": "h", "hx": "h_x", "hxx": "h_xx"}}[kind]
-    return kind, {a: fns.get(w) for a, w in args.items()}, False, dims, key
+    fns = {a: fns.get(w) for a, w in args.items()}
+    if batch_loop.serves(kind, n, mdim):  # the batch-inner loop (the model's functions over blocks too)
+        return kind, {**fns, **batch_loop.block_kernels(md)}, False, batch_loop.dims_of(n, mdim, r), key
+    return kind, fns, False, dims, key
 
 
 def steps(kind: str, fns: dict, key, scalar: bool = False, dims=None):
@@ -208,7 +211,10 @@ def loop_name(kind, fns, scalar, dims):
 
 
 def text_of(kind: str, fns: dict, scalar: bool = False, dims=None) -> tuple:
-    """``(module text, cache tag)`` of the loop :func:`steps` makes (:func:`source`)."""
+    """``(module text, cache tag)`` of the loop :func:`steps` makes (:func:`source`; the batch-inner
+    loop: :func:`.batch_loop.source` around it)."""
+    if batch_loop.is_batch(dims):
+        return batch_loop.source(source(kind, fns), dims), f"{kind}-batch"
     return source(kind, fns, scalar, dims), f"{kind}{'-scalar' if scalar else ''}"
 
 

@@ -15,7 +15,7 @@ from ..estimates import Estimates
 from ..linalg import PSD_TOL
 from ..recorder import loglik_divergence
 from ..rules import FORM_TABLE
-from . import build
+from . import batch_loop, build
 from .cache import seal
 from .kalman_loop import matrices, scalar_parameters
 from .loops import alloc_path
@@ -115,6 +115,8 @@ def _run(flt, yf, batch, m0, P0, on, loglik, progress):
         kinds = ((_KIND[spec[0]], _KIND[spec[1]], _FORCE[spec[2]]) if rule.second else (0, 0, 0))
         ks, N = (rule.second, *kinds, spec[1] == "none"), 0
     ws = ALLOC[kind](n, mdim, md.r, N)
+    if batch_loop.is_batch(dims):  # the batch-inner loop: the one-path kernels' work arrays and its own
+        ws = (ws, batch_loop.alloc(n, mdim, md.r))
     own = alloc_path(n, mdim)
 
     def block(lo, hi):

@@ -1,0 +1,340 @@
+"""The kernels and the loop of the EKF's batch-inner loop (:mod:`.batch_loop`): a block of paths,
+``nb ≤ NB``, each state a structure of arrays with the paths last (``m (n, NB)``, ``P (n, n, NB)``).
+
+Products loop over the entries, then the paths, then the summation index (``s`` in a register; the
+dimensions are constants of the generated module, so the compiler unrolls the sum and vectorizes
+over the paths); the Cholesky factors and triangular solves keep a sum per path in ``acc`` (their
+trip counts vary). Sums run in the one-path kernels' order (:func:`~.step_kernels.predict_cov_`,
+:func:`~.step_kernels.meas_cov_`, :func:`~.step_kernels.condition_`'s Joseph form).
+
+Sources, never called as Python: :func:`.batch_loop.source` compiles them in the module of the
+one-path kernels (``psd_check``, ``mark``, ``update1``: :func:`~.rule_kernels.update_taylor1_`) and
+the model's block functions (``fb, fxb, hb, hxb, Gb``).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+__all__ = ["SOURCES"]
+
+
+def bchol_(A, L, n, nb, d, acc, ok):
+    """The lower Cholesky factors of the lanes of ``A`` into ``L`` (``d``: 1 / its diagonal); ``ok[b]``
+    set to 0.0 where lane ``b`` has none (its ``L`` then meaningless)."""
+    for j in range(n):
+        for b in range(nb):
+            acc[b] = A[j, j, b]
+        for q in range(j):
+            for b in range(nb):
+                acc[b] -= L[j, q, b] * L[j, q, b]
+        for b in range(nb):
+            s = acc[b]
+            good = s > 0.0
+            ok[b] = ok[b] if good else 0.0
+            r = math.sqrt(s) if good else 1.0
+            L[j, j, b] = r
+            d[b] = 1.0 / r
+        for i in range(j + 1, n):
+            for b in range(nb):
+                acc[b] = A[i, j, b]
+            for q in range(j):
+                for b in range(nb):
+                    acc[b] -= L[i, q, b] * L[j, q, b]
+            for b in range(nb):
+                L[i, j, b] = acc[b] * d[b]
+
+
+def bmt_(A, B, C, ni, nj, nk, nb):
+    """``C = A Bᵀ`` on every lane (``C_ij = Σ_q A_iq B_jq``, summed in ``q``'s order)."""
+    for i in range(ni):
+        for j in range(nj):
+            for b in range(nb):
+                s = 0.0
+                for q in range(nk):
+                    s += A[i, q, b] * B[j, q, b]
+                C[i, j, b] = s
+
+
+def bscreen_(M, P, n, nb, tol, W, L, d, acc, ok):
+    """``ok[b] = 1.0`` where lane ``b`` passes the Cholesky screen of :func:`~.path_linalg.psd_ok_`
+    (finite ``m`` and ``P``, ``P + Pᵀ + ½ tol·max(2, 2 max P_ii) I`` positive definite), else 0.0
+    (failed or undecided: :func:`~.path_linalg.psd_check_` decides, on that lane alone)."""
+    big = 1.7976931348623157e308
+    for b in range(nb):
+        ok[b] = 1.0
+        d[b] = 2.0
+    for i in range(n):
+        for b in range(nb):
+            ok[b] = ok[b] if abs(M[i, b]) <= big else 0.0
+            d[b] = max(d[b], 2.0 * P[i, i, b])
+        for j in range(n):
+            for b in range(nb):
+                ok[b] = ok[b] if abs(P[i, j, b]) <= big else 0.0
+                W[i, j, b] = P[i, j, b] + P[j, i, b]
+    for i in range(n):
+        for b in range(nb):
+            W[i, i, b] += 0.5 * tol * d[b]
+    bchol(W, L, n, nb, d, acc, ok)
+
+
+def bgather_(M, P, b, m1, P1, n):
+    """Lane ``b`` of ``M``, ``P`` into the one-path ``m1``, ``P1``."""
+    for i in range(n):
+        m1[i] = M[i, b]
+        for j in range(n):
+            P1[i, j] = P[i, j, b]
+
+
+def kill_(Mb, Pb, b, n, dead, step, lo, k):
+    """Lane ``b`` fails at step ``k``: recorded, its state reset to ``0, I`` (no more work on it)."""
+    dead[b] = 1
+    step[lo + b] = k
+    for i in range(n):
+        Mb[i, b] = 0.0
+        for j in range(n):
+            Pb[i, j, b] = 1.0 if i == j else 0.0
+
+
+def settle_(Mb, Pb, n, nb, tol, W, L, d, acc, ok, dead, irr, step, lo, k, m, P, W1, L1, ev1):
+    """The divergence test of every live lane not judged already (``irr``: by the one-path update):
+    the block's screen, :func:`~.path_linalg.psd_check_` where it does not pass; a lane that fails
+    dies at step ``k``."""
+    bscreen(Mb, Pb, n, nb, tol, W, L, d, acc, ok)
+    for b in range(nb):
+        if ok[b] == 0.0 and dead[b] == 0 and irr[b] == 0.0:
+            bgather(Mb, Pb, b, m, P, n)
+            if not psd_check(m, P, n, tol, W1, L1, ev1):
+                kill(Mb, Pb, b, n, dead, step, lo, k)
+
+
+def bpredict_(t, p, Q, GQG0, G_const, n, r, nb, bw):
+    """``m⁻ = f(m)``, ``P⁻ = F (P Fᵀ) + G Q Gᵀ`` on the block (:func:`~.rule_kernels.predict_taylor1_`)."""
+    (Mb, Pb, Mp, F, Gm, N, Wn, T1, Yh, H, C, S, Ls, E, K, KR, u, A, okv, Li, LiS, dv, acc, qv, ldv, irr,
+     dead, GQ) = bw
+    fb(Mb, t, p, Mp, nb)
+    fxb(Mb, t, p, F, nb)
+    if G_const:
+        for i in range(n):
+            for j in range(n):
+                v = GQG0[i, j]
+                for b in range(nb):
+                    N[i, j, b] = v
+    else:  # N_ij = Σ_a (G Q)_ia G_ja (add_gqg_)
+        Gb(Mb, t, p, Gm, nb)
+        for i in range(n):
+            for a in range(r):
+                for b in range(nb):
+                    s = 0.0
+                    for c in range(r):
+                        s += Gm[i, c, b] * Q[c, a]
+                    GQ[a, b] = s
+            for j in range(n):
+                for b in range(nb):
+                    s = 0.0
+                    for a in range(r):
+                        s += GQ[a, b] * Gm[j, a, b]
+                    N[i, j, b] = s
+    bmt(Pb, F, Wn, n, n, n, nb)  # Wn = P Fᵀ
+    for i in range(n):  # P = N + F Wn, symmetric: the upper triangle, mirrored
+        for j in range(i, n):
+            for b in range(nb):
+                s = N[i, j, b]
+                for q in range(n):
+                    s += F[i, q, b] * Wn[q, j, b]
+                Pb[i, j, b] = s
+                Pb[j, i, b] = s
+    for i in range(n):
+        for b in range(nb):
+            Mb[i, b] = Mp[i, b]
+
+
+def bupdate_(ys, k, t, lo, nb, n, mdim, p, R, tol, want, ks, w1, bw, m, P, yk, l1, i1, c1, step):
+    """The update of the block at step ``k`` (``t``): the lanes measured in full with a Cholesky factor
+    of S batched; the others, live, by the one-path kernel from the same predicted state."""
+    (Mb, Pb, Mp, F, Gm, N, Wn, T1, Yh, H, C, S, Ls, E, K, KR, u, A, okv, Li, LiS, dv, acc, qv, ldv, irr,
+     dead, GQ) = bw
+    hb(Mb, t, p, Yh, nb)
+    hxb(Mb, t, p, H, nb)
+    bmt(Pb, H, C, n, mdim, n, nb)  # C = P Hᵀ
+    for a in range(mdim):  # S = R + H C
+        for c in range(mdim):
+            v = R[a, c]
+            for b in range(nb):
+                s = v
+                for q in range(n):
+                    s += H[a, q, b] * C[q, c, b]
+                S[a, c, b] = s
+                LiS[a, c, b] = s
+    for b in range(nb):
+        okv[b] = 1.0
+    bchol(S, Ls, mdim, nb, dv, acc, okv)
+    for a in range(mdim):  # e = y − ŷ; Li: 1 / the factor's diagonal
+        for b in range(nb):
+            E[a, b] = ys[lo + b, k, a] - Yh[a, b]
+            Li[a, b] = 1.0 / Ls[a, a, b]
+    for b in range(nb):  # the lanes the one-path kernel updates (partly missing y, no factor of S)
+        bad = okv[b] == 0.0
+        for a in range(mdim):
+            bad = bad or math.isnan(ys[lo + b, k, a])
+        if bad and not dead[b]:
+            irr[b] = 1.0
+            bgather(Mb, Pb, b, m, P, n)
+            for a in range(mdim):
+                yk[a] = ys[lo + b, k, a]
+            ok = update1(m, P, yk, t, p, R, tol, want, l1, i1, c1, ks, w1, n, mdim)
+            for i in range(n):  # kept in Mp, Wn (free until the next predict); its outputs in E, LiS, qv
+                Mp[i, b] = m[i]
+                for j in range(n):
+                    Wn[i, j, b] = P[i, j]
+            qv[b] = l1[0]
+            for a in range(mdim):
+                E[a, b] = i1[a]
+                for c in range(mdim):
+                    LiS[a, c, b] = c1[a, c]
+            ldv[b] = 1.0 if ok else 0.0
+    for i in range(n):  # K_i = S⁻¹ C_i (forward and back substitution)
+        for a in range(mdim):
+            for b in range(nb):
+                acc[b] = C[i, a, b]
+            for c in range(a):
+                for b in range(nb):
+                    acc[b] -= Ls[a, c, b] * u[c, b]
+            for b in range(nb):
+                u[a, b] = acc[b] * Li[a, b]
+        for a in range(mdim - 1, -1, -1):
+            for b in range(nb):
+                acc[b] = u[a, b]
+            for c in range(a + 1, mdim):
+                for b in range(nb):
+                    acc[b] -= Ls[c, a, b] * K[i, c, b]
+            for b in range(nb):
+                K[i, a, b] = acc[b] * Li[a, b]
+    if want:
+        blik(E, Ls, Li, u, acc, qv, irr, nb, mdim)
+    for i in range(n):  # m += K e; A = I − K H
+        for b in range(nb):
+            s = 0.0
+            for a in range(mdim):
+                s += K[i, a, b] * E[a, b]
+            Mb[i, b] += s
+        for j in range(n):
+            v = 1.0 if i == j else 0.0
+            for b in range(nb):
+                s = v
+                for a in range(mdim):
+                    s -= K[i, a, b] * H[a, j, b]
+                A[i, j, b] = s
+    for i in range(n):  # T1 = A P
+        for j in range(n):
+            for b in range(nb):
+                s = 0.0
+                for q in range(n):
+                    s += A[i, q, b] * Pb[q, j, b]
+                T1[i, j, b] = s
+    for i in range(n):  # KR = K R
+        for a in range(mdim):
+            for b in range(nb):
+                s = 0.0
+                for c in range(mdim):
+                    s += K[i, c, b] * R[c, a]
+                KR[i, a, b] = s
+    for i in range(n):  # P = T1 Aᵀ + KR Kᵀ, symmetric: the upper triangle, mirrored
+        for j in range(i, n):
+            for b in range(nb):
+                s = 0.0
+                for q in range(n):
+                    s += T1[i, q, b] * A[j, q, b]
+                for a in range(mdim):
+                    s += KR[i, a, b] * K[j, a, b]
+                Pb[i, j, b] = s
+                Pb[j, i, b] = s
+    for b in range(nb):  # the one-path lanes' results
+        if irr[b] and not dead[b]:
+            for i in range(n):
+                Mb[i, b] = Mp[i, b]
+                for j in range(n):
+                    Pb[i, j, b] = Wn[i, j, b]
+            if ldv[b] == 0.0:
+                kill(Mb, Pb, b, n, dead, step, lo, k)
+    settle(Mb, Pb, n, nb, tol, T1, A, dv, acc, okv, dead, irr, step, lo, k, m, P, w1[10], w1[11], w1[12])
+
+
+def blik_(E, Ls, Li, u, acc, qv, irr, nb, mdim):
+    """``qv[b] = −½ (eᵀ S⁻¹ e + log det S + m log 2π)`` on the batched lanes (``irr`` 0)."""
+    for b in range(nb):
+        acc[b] = 1.0  # the product of the factor's diagonal
+    for a in range(mdim):
+        for b in range(nb):
+            s = E[a, b]
+            for c in range(a):
+                s -= Ls[a, c, b] * u[c, b]
+            u[a, b] = s * Li[a, b]
+            acc[b] *= Ls[a, a, b]
+    for b in range(nb):
+        if irr[b] == 0.0:
+            q = 0.0
+            for a in range(mdim):
+                q += u[a, b] * u[a, b]
+            x = acc[b]
+            if 1e-150 < x < 1e150:
+                ld = 2.0 * math.log(x)
+            else:  # the product out of range: the sum of the logarithms
+                ld = 0.0
+                for a in range(mdim):
+                    ld += 2.0 * math.log(Ls[a, a, b])
+            qv[b] = -0.5 * (q + ld + mdim * LOG_2PI)
+
+
+def steps_batch_(ys, m0, P0, p, Q, R, GQG0, G_const, offset, absent, tol, means, covs, ll, inn, icov, want, step,
+                 ks, ws, m, P, yk, l1, i1, c1):
+    """The EKF over blocks of ``NB`` paths (the arguments of :func:`.loops.steps_`; ``ws``: the
+    one-path kernels' work arrays and the block's, :func:`.batch_loop.alloc`)."""
+    B, T, mdim = ys.shape
+    n = m0.shape[1]
+    r = Q.shape[0]
+    w1, bw = ws
+    Mb, Pb, E, LiS, okv, dv, acc, qv, irr, dead = bw[0], bw[1], bw[13], bw[20], bw[18], bw[21], bw[22], bw[23], bw[25], bw[26]
+    nbmax = NB
+    for lo in range(0, B, nbmax):
+        nb = min(nbmax, B - lo)
+        for b in range(nb):
+            step[lo + b] = -1
+            dead[b] = 0
+            for i in range(n):
+                Mb[i, b] = m0[lo + b, i]
+                for j in range(n):
+                    Pb[i, j, b] = P0[lo + b, i, j]
+        for k in range(T):
+            for b in range(nb):
+                irr[b] = 0.0
+            if k > 0 or offset:
+                bpredict(float(k + offset - 1), p, Q, GQG0, G_const, n, r, nb, bw)
+                settle(Mb, Pb, n, nb, tol, bw[7], bw[17], dv, acc, okv, dead, irr, step, lo, k, m, P, w1[10], w1[11],
+                       w1[12])
+            if not absent[k]:
+                bupdate(ys, k, float(k + offset), lo, nb, n, mdim, p, R, tol, want, ks, w1, bw, m, P, yk, l1, i1, c1,
+                        step)
+            for b in range(nb):
+                if dead[b]:
+                    continue
+                g = lo + b
+                for i in range(n):
+                    means[g, k, i] = Mb[i, b]
+                    for j in range(n):
+                        covs[g, k, i, j] = Pb[i, j, b]
+                if want:
+                    ll[g, k] = 0.0 if absent[k] else qv[b]
+                    for a in range(mdim):
+                        inn[g, k, a] = np.nan if absent[k] else E[a, b]
+                        for c in range(mdim):
+                            icov[g, k, a, c] = np.nan if absent[k] else LiS[a, c, b]
+        for b in range(nb):
+            if step[lo + b] >= 0:
+                mark(means, covs, ll, inn, icov, want, lo + b, step[lo + b])
+
+
+#: the loop and its kernels, in the order the generated module defines them
+SOURCES = (bchol_, bmt_, bscreen_, bgather_, kill_, settle_, bpredict_, blik_, bupdate_, steps_batch_)
