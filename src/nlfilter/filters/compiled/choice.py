@@ -43,8 +43,9 @@ STEP_US = {"kalman": 40.0, "taylor1": 50.0, "nodes": 110.0, "taylor2": 160.0}
 PATH_STEP_US = {"kalman": 0.2, "taylor1": 0.25, "nodes": 0.45, "taylor2": 0.6}
 #: a loop's first compile, CPU seconds: the scalar EKF's batch loop, the loops specialized to the
 #: dimensions (n, m ≤ :data:`~.build.SPECIALIZE_UP_TO`; flattened: 10-21 s measured by
-#: benchmarks/bench_compile.py on a loaded machine), the general loop
-COMPILE_SECONDS = {"scalar": 2.0, "specialized": 20.0, "general": 10.0}
+#: benchmarks/bench_compile.py on a loaded machine), the general loop, the EKF's batch-inner loop
+#: (:mod:`.batch_loop`, 4-8 states: 33-44 s measured)
+COMPILE_SECONDS = {"scalar": 2.0, "specialized": 20.0, "general": 10.0, "batch": 45.0}
 #: a cached loop's first run in a new process (numba's import, reading its code), seconds
 LOAD_SECONDS = 1.0
 #: the same once numba is imported in the process (reading the loop's code)
@@ -71,7 +72,7 @@ def choose(flt, B: int, T: int, repeats: int = 1, record: bool = False) -> Choic
     reason = static_refusal(flt)
     if reason is not None:
         return Choice("numpy", f"no compiled loop: {reason}")
-    from . import build, cache
+    from . import batch_loop, build, cache
 
     kind, fns, scalar, dims, key = build.loop_of(flt)
     if build.loaded(kind, fns, key, scalar, dims):
@@ -80,7 +81,8 @@ def choose(flt, B: int, T: int, repeats: int = 1, record: bool = False) -> Choic
     tally = ("numpy seconds", build.loop_name(kind, fns, scalar, dims))
     work = numpy_seconds(kind, flt.model.n, B, T, repeats)
     spent = store.get(tally, 0.0) + work  # with this run's: what this loop would have saved in the process
-    compile_s = COMPILE_SECONDS["scalar" if scalar else "general" if dims is None else "specialized"]
+    compile_s = COMPILE_SECONDS["scalar" if scalar else "general" if dims is None else
+                                "batch" if batch_loop.is_batch(dims) else "specialized"]
     load_s = LOADED_SECONDS if "numba" in sys.modules else LOAD_SECONDS
     if spent >= load_s:
         from .support import available
