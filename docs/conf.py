@@ -127,7 +127,17 @@ def _generated_pages(app):
     make_pages.write_all(app)
 
 
+def _cite_sources(app, what, name, obj, options, lines):
+    """Docstrings name the source papers by their file number ("seed 004 eq. 19"); the API pages
+    name them as a reader does ("Henriksen (1979) eq. 19"): :func:`nlfilter.sources.cite`, the
+    one table of papers (the command line and the report use it too)."""
+    from nlfilter.sources import cite
+
+    lines[:] = [cite(line) for line in lines]
+
+
 def setup(app):
+    app.connect("autodoc-process-docstring", _cite_sources)
     app.connect("builder-inited", _generated_pages)
     app.connect("builder-inited", _choosing_tables)
     app.connect("builder-inited", _implementing_code)

@@ -166,6 +166,16 @@ def test_pages_have_no_raw_markup(built):
     assert not bad, bad
 
 
+def test_papers_are_named_as_a_reader_names_them(built):
+    """No page calls a source paper by its file number ("seed 004"): the docstrings still do, the
+    build names them (``nlfilter.sources.cite``, conf.py); "seed" stays the random seed."""
+    html_dir = _ok(built)
+    found = {p.relative_to(html_dir).as_posix(): m.group(0) for p in html_dir.rglob("*.html")
+             if not p.relative_to(html_dir).parts[0].startswith("_")
+             and (m := re.search(r"\bseeds? 00\d\b", visible_text(p.read_text(encoding="utf-8"))))}
+    assert not found, found
+
+
 # -- numpydoc parameter lists name parameters ----------------------------------------------------
 
 SIG = re.compile(r'<dt class="sig sig-object py[^"]*" id="([^"]+)">')

@@ -7,6 +7,7 @@ import pathlib
 import re
 import textwrap
 
+import numpy as np
 import pytest
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
@@ -153,16 +154,19 @@ def test_compare_blocks_run(tmp_path, monkeypatch):
 
 
 def test_likelihood_block_runs(tmp_path, monkeypatch, capsys):
-    """The likelihood block runs as written (sizes cut: 60 steps, 2 paths, a 101-point grid; the
-    code path is the same) and prints a converged fit."""
-    (code,) = rst_code(GUIDE / "likelihood.rst")
-    code = code.replace("300, paths=4", "60, paths=2").replace("401))", "101))")
+    """The likelihood blocks run as written, the second after the first (sizes cut: 60 steps, 2
+    paths, a 101-point grid; the code path is the same): a converged fit, the fixed-lag smoother,
+    posterior draws and a finite diffuse log-likelihood."""
+    first, second = rst_code(GUIDE / "likelihood.rst")
+    code = (first + second).replace("300, paths=4", "60, paths=2").replace("401))", "101))")
     monkeypatch.chdir(tmp_path)
     ns = {}
     exec(compile(code, "guide-likelihood", "exec"), ns)
     out = capsys.readouterr().out
     assert ns["est"].loglik.shape == (2,) and ns["sm"].means.shape == (2, 60, 1)
     assert "converged" in out and ns["res"].se_ok
+    assert ns["lagged"].means.shape == (2, 60, 1) and ns["draws"].shape == (2, 100, 60, 1)
+    assert np.isfinite(ns["draws"]).all() and np.isfinite(ns["lagged"].covs).all()
 
 
 def test_compiled_block_runs(tmp_path, monkeypatch, capsys):
