@@ -70,9 +70,9 @@ def test_em_on_a_two_state_model_increases_the_likelihood():
     md = DiscreteModel.linear(F, [[1.0, 0.0], [0.5, 1.0]], np.diag([0.2, 0.1]), np.diag([0.3, 0.2]))
     ys = simulate(md, 200, paths=3, m0=[0.0, 0.0], P0=np.eye(2), rng=2).ys
     em = fit_em(ys, np.eye(2) * 0.5, [[1.0, 0.0], [0.5, 1.0]], np.eye(2), np.eye(2), [0.0, 0.0], np.eye(2),
-                estimate=("F", "Q", "R"), iterations=80)
+                estimate=("F", "Q", "R"), iterations=30)  # 30 steps of EM: log L up by 475 (80: 476)
     assert np.all(np.diff(em.loglik) >= -1e-9 * abs(em.loglik[-1])) and em.loglik[-1] > em.loglik[0] + 10
-    assert np.abs(em.F - F).max() < 0.15  # 600 observations: sampling error of F ~0.05
+    assert np.abs(em.F - F).max() < 0.15  # 600 observations: sampling error of F ~0.05 (measured 0.039; 80 steps: 0.034)
 
 
 def test_standard_errors_agree_with_the_spread_over_repeated_simulations():
