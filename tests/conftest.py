@@ -183,7 +183,7 @@ def pytest_xdist_make_scheduler(config, log):
     such a module is one unit of work for one worker (xdist's ``loadscope`` units), and every
     other test its own unit; units of several tests are sent first (xdist orders units by their
     number of tests), so the long shared fixtures run at the start, not in the last minute
-    while the other worker idles. Any ``--dist`` given explicitly is left as it is."""
+    while the other worker idles. Any other ``--dist`` (``loadfile``, ``worksteal`` ...) is xdist's."""
     if config.getvalue("dist") != "load":
         return None
     from xdist.scheduler import LoadScopeScheduling
