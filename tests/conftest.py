@@ -71,6 +71,32 @@ def check_figure(tmp_path):
     return lambda result, expect, paper=(): _check_figure(result, tmp_path, expect, paper)
 
 
+@pytest.fixture(scope="session", autouse=True)
+def _post_processor_computed_once():
+    """``phase-tracking``'s off-line part, the post-processor fits of Figs. 4.3-4.4 (about 12 s of
+    the 14 s of a quick run: the quintic fits at small ``P``), computed once per test process.
+
+    The fit is a deterministic function of ``(P, degree, q)`` (exact steady-state moments, no
+    random numbers), so a repeated call returns what the first one computed, the same object;
+    the many quick runs of the experiment in the tests (every chunk, executor and resume of
+    test_montecarlo and experiments/test_chunks, test_results, test_report) then cost only their
+    Monte Carlo. Only the experiment's module is patched: tests of ``post_processor`` itself
+    (tests/filters) call the function."""
+    from nlfilter.experiments import phase_tracking
+
+    real, fits = phase_tracking.post_processor, {}
+
+    def once(P, *, degree=3, q=1.0):
+        key = (float(P), int(degree), float(q))
+        if key not in fits:
+            fits[key] = real(P, degree=degree, q=q)
+        return fits[key]
+
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(phase_tracking, "post_processor", once)
+        yield
+
+
 @pytest.fixture(autouse=True)
 def _private_store(tmp_path, monkeypatch):
     """The command line's results store goes to a temporary file, never the user's cache."""
@@ -142,3 +168,40 @@ def pytest_terminal_summary(terminalreporter, config):
     if path:
         Path(path).write_text(json.dumps({"counts": {a: dict(c) for a, c in counts.items()},
                                           "failures": failures}, indent=1, sort_keys=True))
+
+
+# -- the xdist schedule (README: ``python -m pytest -n auto``) ------------------------------------
+_MODULE_FIXTURE = ('@pytest.fixture(scope="module")', "@pytest.fixture(scope='module')")
+
+
+@pytest.hookimpl(optionalhook=True)
+def pytest_xdist_make_scheduler(config, log):
+    """pytest-xdist's default schedule (``load``) deals consecutive tests to whichever worker is
+    free, so a module whose tests share a module-scoped fixture (a quick run of an experiment, a
+    Monte Carlo reference: up to a minute of CPU) computes it once on each worker that gets one of
+    its tests — near the end of the run, where xdist sends tests in small chunks, on both. Here
+    such a module is one unit of work for one worker (xdist's ``loadscope`` units), and every
+    other test its own unit; units of several tests are sent first (xdist orders units by their
+    number of tests), so the long shared fixtures run at the start, not in the last minute
+    while the other worker idles. Any other ``--dist`` (``loadfile``, ``worksteal`` ...) is xdist's."""
+    if config.getvalue("dist") != "load":
+        return None
+    from xdist.scheduler import LoadScopeScheduling
+
+    root, shared = Path(str(config.rootpath)), {}
+
+    def shares_a_module_fixture(module: str) -> bool:
+        if module not in shared:
+            try:
+                text = (root / module).read_text(encoding="utf-8")
+            except OSError:
+                text = ""
+            shared[module] = any(f in text for f in _MODULE_FIXTURE)
+        return shared[module]
+
+    class ModuleFixtureScheduling(LoadScopeScheduling):
+        def _split_scope(self, nodeid: str) -> str:
+            module = nodeid.split("::", 1)[0]
+            return module if shares_a_module_fixture(module) else nodeid
+
+    return ModuleFixtureScheduling(config, log)

@@ -56,9 +56,11 @@ def test_compiled_filter_finds_the_same_mle(ar_fit):
 def test_em_climbs_to_the_same_mle(ar_fit):
     """EM (Shumway & Stoffer) never decreases the likelihood and converges to the MLE that the
     direct maximization finds: log L within 1e-6 relative, parameters within 3e-3 (EM's slow
-    last iterations, far below the standard errors ~0.05)."""
+    last iterations, far below the standard errors ~0.05). Measured with EM's tolerance 1e-8 (113
+    iterations): log L within 1e-7 relative, parameters within 9e-4 (1e-10: 162 iterations, 1e-9
+    and 9e-5)."""
     ys, res = ar_fit
-    em = fit_em(ys, [[0.5]], [[1.0]], [[1.0]], [[1.0]], [0.0], [[1.0]], estimate=("F", "Q", "R"), tol=1e-10)
+    em = fit_em(ys, [[0.5]], [[1.0]], [[1.0]], [[1.0]], [0.0], [[1.0]], estimate=("F", "Q", "R"), tol=1e-8)
     assert em.converged and np.all(np.diff(em.loglik) >= -1e-9 * abs(em.loglik[-1]))
     assert abs(em.loglik[-1] - res.loglik) < 1e-6 * abs(res.loglik)
     for got, k in ((em.F[0, 0], "a"), (em.Q[0, 0], "q"), (em.R[0, 0], "r")):
@@ -70,9 +72,9 @@ def test_em_on_a_two_state_model_increases_the_likelihood():
     md = DiscreteModel.linear(F, [[1.0, 0.0], [0.5, 1.0]], np.diag([0.2, 0.1]), np.diag([0.3, 0.2]))
     ys = simulate(md, 200, paths=3, m0=[0.0, 0.0], P0=np.eye(2), rng=2).ys
     em = fit_em(ys, np.eye(2) * 0.5, [[1.0, 0.0], [0.5, 1.0]], np.eye(2), np.eye(2), [0.0, 0.0], np.eye(2),
-                estimate=("F", "Q", "R"), iterations=80)
+                estimate=("F", "Q", "R"), iterations=30)  # 30 steps of EM: log L up by 475 (80: 476)
     assert np.all(np.diff(em.loglik) >= -1e-9 * abs(em.loglik[-1])) and em.loglik[-1] > em.loglik[0] + 10
-    assert np.abs(em.F - F).max() < 0.15  # 600 observations: sampling error of F ~0.05
+    assert np.abs(em.F - F).max() < 0.15  # 600 observations: sampling error of F ~0.05 (measured 0.039; 80 steps: 0.034)
 
 
 def test_standard_errors_agree_with_the_spread_over_repeated_simulations():

@@ -96,7 +96,9 @@ def test_interrupted_run_resumes_only_unfinished_blocks(tmp_path, monkeypatch, r
         assert [(r.start, r.stop) for r in calls] == [(0, 2)]
 
 
-CUBIC = {"q": [2.0], "r": [1.0], "block": 2}  # quick cubic sensor, one (q, r): 5 paths = blocks of 2, 2 and 1
+# quick cubic sensor, one (q, r): 5 paths = blocks of 2, 2 and 1; a step dt of 0.03 (200 steps of the
+# quick T = 6, not the automatic ~1400): how blocks resume does not depend on the step
+CUBIC = {"q": [2.0], "r": [1.0], "block": 2, "dt": 0.03}
 
 
 def test_cubic_sensor_resumes_only_unfinished_blocks(tmp_path, monkeypatch):
@@ -146,7 +148,8 @@ def _cli(*args, **kw):
 def test_ctrl_c_exits_130_and_the_rerun_resumes(tmp_path):
     store = tmp_path / "s.sqlite"
     out = tmp_path / "out.json"
-    args = ["reproduce", "phase-tracking", "--quick", "--runs", "12", "--seed", "4", "--param", "block=1",
+    runs = 6  # blocks of one path, ~1-2 s each: the interrupt lands after 2 with 4 to go
+    args = ["reproduce", "phase-tracking", "--quick", "--runs", str(runs), "--seed", "4", "--param", "block=1",
             "--param", "sweep=3", "--no-progress", "--store", str(store), "--json", str(out)]
     p = _cli(*args)
     deadline = time.time() + 120
@@ -170,14 +173,14 @@ def test_ctrl_c_exits_130_and_the_rerun_resumes(tmp_path):
     assert not out.exists()  # no partial JSON
     with ResultsStore(store) as st:
         kept = st.count_blocks("phase-tracking")
-        assert 2 <= kept < 12
+        assert 2 <= kept < runs
         assert st.runs()[0]["status"] == "interrupted"
     p = _cli(*args)
     stdout, stderr = p.communicate(timeout=300)
     assert p.returncode == 0, stderr
     assert f"reused {kept} finished Monte Carlo block(s)" in stderr
     resumed = json.loads(out.read_text())
-    assert resumed["meta"]["execution"]["blocks_computed"] == 12 - kept
+    assert resumed["meta"]["execution"]["blocks_computed"] == runs - kept
     # the uninterrupted run, in a process of its own too (the off-line rows' last bit may depend on
     # the process's BLAS thread count, which the Monte Carlo blocks pin to 1)
     fresh_out = tmp_path / "fresh.json"
@@ -185,7 +188,7 @@ def test_ctrl_c_exits_130_and_the_rerun_resumes(tmp_path):
     assert p.communicate(timeout=300)[0] and p.returncode == 0
     fresh = json.loads(fresh_out.read_text())
     assert resumed["rows"] == fresh["rows"] and resumed["notes"] == fresh["notes"]
-    assert fresh["meta"]["execution"]["blocks_computed"] == 12 and fresh["meta"]["execution"]["store"] is None
+    assert fresh["meta"]["execution"]["blocks_computed"] == runs and fresh["meta"]["execution"]["store"] is None
 
 
 def test_results_list_show_export(tmp_path, capsys):

@@ -14,16 +14,18 @@ import pytest
 
 from nlfilter.experiments import get
 
-# quick runs, small --runs (two chunks of 2 and one of 1), the cheapest parameters of each
+# quick runs, small --runs (two chunks of 2 and one of 1), the cheapest parameters of each (shorter
+# horizons than the quick runs' where a parameter sets them: how the blocks are grouped into tasks
+# does not depend on the number of steps)
 CASES = {
-    "cubic-sensor": ({"q": [2.0], "r": [1.0]}, 5),
+    "cubic-sensor": ({"q": [2.0], "r": [1.0], "dt": 0.03}, 5),  # 200 steps of T = 6, not the automatic ~1400
     "cubic-sensor-closures": ({"q": [1.0], "r": [1.0]}, 5),
     "linear-gaussian": ({"steps": 20}, 5),
     "moment-first-order": ({"laws": ["uniform"], "N": [2]}, 5),
-    "moment-second-order": ({"laws": ["uniform"], "N": [2], "particles": 200}, 5),
-    "oh-shin": ({}, 5),
+    "moment-second-order": ({"laws": ["uniform"], "N": [2], "particles": 200, "T": 30, "skip": 10}, 5),
+    "oh-shin": ({"t_end": 0.5}, 5),
     "phase-tracking": ({}, 3),
-    "second-order": ({}, 5),
+    "second-order": ({"steps": 20}, 5),  # each problem's first 20 steps (of 50, 200, 60)
     "smoothing": ({"steps": 8}, 5),
     "zero-order": ({"J": [2], "N": [2]}, 2500),  # 3 paths of 1000 samples
     "zero-order-adaptive": ({"J": [0], "N": [2]}, 5),
