@@ -28,13 +28,13 @@ def cases():
                   lambda: compare(cubic, "all", 200, paths=200, m0=0.5, P0=0.1, rng=0),
                   "``x[k+1] = 0.99 x + w``, ``y = x³ + v``, Q = 0.01, R = 0.1, m0 = 0.5, P0 = 0.1; "
                   "200 steps, 200 paths, MSE over the second half."),
-        "quadratic": ("Strong quadratic measurement (seed 004's problem)",
+        "quadratic": ("Strong quadratic measurement (Henriksen's (1979) problem)",
                       lambda: compare(quad.model, "all", quad.steps, paths=200, m0=quad.m0, P0=quad.P0, rng=0,
                                       on_divergence="mark"),
                       ":func:`nlfilter.problems.quadratic`: "
                       "``x[k+1] = 0.7 x + 0.02 x² + w``, ``y = x + 0.3 x² + v``, q = 1, r = 0.2, P0 = 1; "
                       "50 steps, 200 paths, MSE over the second half."),
-        "oh-shin": ("Continuous time: seed 003's example",
+        "oh-shin": ("Continuous time: Oh & Shin's (1995) example",
                     lambda: compare(oh_shin, "all", 100, paths=60, m0=4.0, P0=0.05, dt=0.01, substeps=5, rng=0),
                     "``dx = −x³ dt + dβ``, ``dy = x dt + dη``, Q = R = 0.05, m0 = 4, D0 = 0.05, dt = 0.01; "
                     "t ∈ [0, 1], 60 paths, MSE over the second half."),

@@ -29,7 +29,11 @@ ROOT = HERE.parent
 
 
 def esc(text) -> str:
-    """``text`` as literal reST inline text: markup characters escaped, one line."""
+    """``text`` as literal reST inline text: markup characters escaped, one line, the source papers
+    named as a reader names them (:func:`nlfilter.sources.cite`: the JSON may say "seed 004")."""
+    from nlfilter.sources import cite
+
+    text = cite(str(text))
     return re.sub(r"([\\`*_|\[\]<>])", r"\\\1", str(text)).replace("\n", " ")
 
 
@@ -81,7 +85,7 @@ def experiment_page(res, runs, figure: str | None) -> str:
     from nlfilter.sources import cite
 
     c = counts(res)
-    out = [f".. _reproduction-{res.experiment}:", "", title(f"{res.experiment}: {res.title}"),
+    out = [f".. _reproduction-{res.experiment}:", "", title(f"{res.experiment}: {esc(res.title)}"),
            f"Source: {esc(reader_source(res.source))}. Rows with a paper value: **{c['reproduced']} reproduced**, "
            f"**{c['not reproduced']} not reproduced**. Generated from ``docs/report/{res.experiment}.json``; "
            f"the verdict rule is :func:`nlfilter.report.verdict` (within 3 standard errors for a Monte Carlo "

@@ -1,6 +1,6 @@
 """
-Off-line error analysis of a quasilinear filter (seed 003, Oh & Shin 1995)
-==========================================================================
+Off-line error analysis of a quasilinear filter (Oh & Shin 1995)
+================================================================
 
 The quasilinear filter (QLF) linearizes ``f`` and ``h`` statistically about the *prior* law of the
 state, so its gains are computed before any data arrive. Its variance ``P`` is not its error

@@ -1,6 +1,6 @@
 """
-Phase tracking: the cubic post-processor of the linear filter (seed 001, Fig. 4.3)
-===================================================================================
+Phase tracking: the cubic post-processor of the linear filter (Vallot 1981, Fig. 4.3)
+=====================================================================================
 
 A Brownian phase θ (intensity ``q``) is measured through ``dz = (sin θ, cos θ) dt + dn``. In
 rectangular coordinates ``x = (sin θ, cos θ)`` the problem is bilinear, its optimal linear filter

@@ -1,10 +1,10 @@
 """
-Second-order filters vs the EKF (seed 004, Henriksen 1979)
-==========================================================
+Second-order filters vs the EKF (Henriksen 1979)
+================================================
 
 On a scalar model with a strongly curved measurement, ``x[k+1] = 0.7 x + 0.02 x² + w``,
 ``y = x + 0.3 x² + v`` (:func:`nlfilter.problems.quadratic`), we compare the EKF with the
-second-order filters of seed 004: Henriksen's corrected truncated filter (the default
+second-order filters of Henriksen (1979): his corrected truncated filter (the default
 ``form="truncated"``, 004 eqs. 18–23) and the older, pre-correction form
 (``form="truncated-jazwinski"``) whose −¼ terms and random forcing term can make the covariance
 lose positive definiteness. ``on_divergence="mark"`` lets the comparison count those losses

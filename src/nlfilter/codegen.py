@@ -152,7 +152,7 @@ def array_source(name, exprs, shape, states, time, psyms, block: bool = False) -
     ``x``, the parameters ``psyms`` from ``p`` in their order, ``time`` (or ``None``) is ``t``.
     ``block``: the same function over a block of paths, ``def name(x, t, p, out, nb)`` with the
     paths last (``x (n, ≥nb)``, ``out (*shape, ≥nb)``), the code of one path in a loop over the
-    first ``nb`` (the batch-inner loop's, :mod:`nlfilter.filters.compiled.batch_loop`).
+    first ``nb`` (the batch-inner loop's, ``nlfilter.filters.compiled.batch_loop``).
 
     >>> import sympy as sp
     >>> x, a = sp.symbols("x a")
