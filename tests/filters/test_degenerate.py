@@ -212,3 +212,14 @@ def test_the_compiled_loop_marks_a_loglik_failure_as_the_run_loop():
     assert err.value.what == "loglik"
     with pytest.raises(DivergenceError, match="covariance lost positive definiteness .* at step 1"):
         finish(flt, "raise", np.array([-1, -1, 1]), (B,), *outputs()[:2], True, *outputs()[2:])
+
+
+def test_no_steps_on_a_loaded_compiled_loop():
+    """A run of no steps where the compiled loop is already loaded (``backend="auto"`` then picks it,
+    as in a process that ran the model before): empty estimates and a zero log-likelihood, as the
+    NumPy loop (the compiled run's finish once failed on the empty record)."""
+    pytest.importorskip("numba")
+    flt = KalmanFilter(_model(KalmanFilter))
+    est = flt.run(_ys()[:, :0], [0.5], [[0.3]], loglik=True, backend="numba")
+    assert est.loglik.tolist() == [0.0, 0.0, 0.0] and est.means.shape == (3, 0, 1)
+    assert est.extras["loglik_failed"].shape == (3, 0)

@@ -144,7 +144,7 @@ def finish(flt, on, step, batch, means, covs, want, ll, inn, icov):
     if want:
         T = ll.shape[1]
         llbad = ~np.isfinite(ll)
-        first = np.where(llbad.any(axis=1), np.argmax(llbad, axis=1), T)
+        first = np.where(llbad.any(axis=1), np.argmax(llbad, axis=1), T) if T else np.zeros(len(ll), int)  # no step: none failed
         lost = (first < T) & ((step < 0) | (first < step))
         failed = np.zeros(ll.shape, bool)
         if lost.any():
