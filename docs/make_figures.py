@@ -5,7 +5,7 @@
 The PNGs are quantized to 256 colours so that each stays under 150 kB.
 """
 
-import io
+import tempfile
 from pathlib import Path
 
 from PIL import Image
@@ -18,10 +18,11 @@ OUT = Path(__file__).parent / "figures"
 
 def main():
     OUT.mkdir(exist_ok=True)
+    tmp = Path(tempfile.mkdtemp())
     for id, exp in registry().items():
-        buf = io.BytesIO()
-        plot_result(exp.run({}, quick=True, seed=0), buf, dpi=90)
-        img = Image.open(buf).convert("RGB").quantize(256)
+        raw = tmp / f"{id}.png"  # plot_result writes a file (atomically), then quantized here
+        plot_result(exp.run({}, quick=True, seed=0), raw, dpi=90)
+        img = Image.open(raw).convert("RGB").quantize(256)
         path = OUT / f"{id}.png"
         img.save(path, optimize=True)
         print(f"{path}: {path.stat().st_size // 1000} kB")
