@@ -23,6 +23,7 @@ import pytest
 import sympy as sp
 
 from nlfilter import DiscreteModel
+from nlfilter.errors import DivergenceError
 from nlfilter.filters import EKF, KalmanFilter
 
 YS = np.random.default_rng(0).normal(size=(3, 40, 1)).cumsum(axis=1)
@@ -103,3 +104,43 @@ def test_bad_input_is_named():
                np.diag([-np.inf, 1.0, 1.0])):
         with pytest.raises(ValueError, match="P0: "):
             KalmanFilter(md3).run(np.zeros((4, 2)), np.zeros(3), P0)
+
+
+def test_a_fit_from_a_diffuse_prior_finds_statsmodels_optimum():
+    """simulate → fit with defaults from the diffuse prior: the local level's (σ²_ε, σ²_η) MLE is
+    statsmodels' exact-diffuse MLE to 1e-3 relative (two optimizers' stopping rules on a flat
+    maximum: the log-likelihoods agree to 1e-6), where statsmodels is installed; without it, the
+    fit must still converge to a finite optimum above its start."""
+    from nlfilter import fit
+    x = sp.Symbol("x")
+    q, r = sp.symbols("q r", positive=True)
+    md = DiscreteModel([x], f=[x], h=[x], Q=[[q]], R=[[r]], params={q: 0.3, r: 0.8})
+    g = np.random.default_rng(5)  # a local level with both noises: level walk 0.3, measurement 0.8
+    ys = (np.cumsum(g.normal(0, math.sqrt(0.3), 120)) + g.normal(0, math.sqrt(0.8), 120)).reshape(1, 120, 1)
+    res = fit(md, ys, {"q": 0.5, "r": 0.5}, m0=0.0, P0=np.inf, filter="kf", se=False)
+    assert res.converged and np.isfinite(res.loglik)
+    try:
+        import statsmodels.api as sm
+    except ImportError:
+        return
+    mod = sm.tsa.UnobservedComponents(ys[0, :, 0], "llevel", use_exact_diffuse=True)
+    mod.ssm.tolerance = 0
+    ref = mod.fit(disp=False, method="lbfgs", maxiter=500, pgtol=1e-10)
+    est = np.array([res.params["r"], res.params["q"]])
+    np.testing.assert_allclose(est, ref.params, rtol=1e-3)
+    assert abs(res.loglik - ref.llf) < 1e-6 * abs(ref.llf)
+
+
+def test_a_diverging_path_is_marked():
+    """Data of 1e200 on one path: its diffuse log-likelihood term overflows (v² = 1e400); with
+    on_divergence='mark' that path is marked at that step, NaN from there, the others as alone."""
+    kf = KalmanFilter(_level(), start="update")
+    ys = YS.copy()
+    ys[1, 5] = 1e200
+    est = kf.run(ys, 0.0, np.inf, loglik=True, on_divergence="mark")
+    assert est.diverged.tolist() == [False, True, False] and est.diverged_step[1] == 5
+    assert np.isnan(est.means[1, 5:]).all() and np.isfinite(est.means[1, :5]).all()
+    alone = kf.run(ys[[0, 2]], 0.0, np.inf, loglik=True)
+    np.testing.assert_allclose(est.loglik[[0, 2]], alone.loglik, rtol=1e-14)
+    with pytest.raises(DivergenceError):
+        kf.run(ys, 0.0, np.inf, loglik=True)

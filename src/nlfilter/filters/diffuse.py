@@ -73,10 +73,13 @@ def _split(P0, n):
     return Pinf, Pstar
 
 
-def diffuse_run(kf, ys, m0, P0, *, loglik: bool = False) -> Estimates:
+def diffuse_run(kf, ys, m0, P0, *, loglik: bool = False, on_divergence: str = "raise") -> Estimates:
     """The Kalman filter ``kf`` over ``ys (..., T, m)`` from the diffuse prior ``(m0, P0)`` (module
-    docstring); ``loglik``: ``extras["loglik"] (..., T)``, the diffuse log-likelihood's terms.
-    A path whose moments become non-finite raises :class:`~nlfilter.errors.DivergenceError`."""
+    docstring); ``loglik``: ``extras["loglik"] (..., T)``, the diffuse log-likelihood's terms (and
+    ``loglik_failed``). A path whose moments become non-finite raises
+    :class:`~nlfilter.errors.DivergenceError` (``on_divergence="raise"``) or is marked (``"mark"``:
+    ``diverged``, ``diverged_step``, its outputs NaN from that step on), as the run loop does."""
+    on = V.choice("on_divergence", on_divergence, {"raise", "mark"})
     md = kf.model
     if kf._cross.S is not None:
         raise ValueError("P0: a diffuse prior (inf entries) with correlated process and measurement noise "
@@ -93,6 +96,7 @@ def diffuse_run(kf, ys, m0, P0, *, loglik: bool = False) -> Estimates:
     R = md.R
     off = 0 if kf.start == "update" else 1
     means, covs, terms = np.empty((B, T, n)), np.empty((B, T, n, n)), np.zeros((B, T))
+    step = np.full(B, -1)
     eye = np.eye(m)
     for k in range(T):
         with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
@@ -134,11 +138,19 @@ def diffuse_run(kf, ys, m0, P0, *, loglik: bool = False) -> Estimates:
         means[:, k] = a
         covs[:, k] = np.where(reach[:, :, None] | reach[:, None, :], np.inf, Pst)
         terms[:, k] = ll
-        bad = ~(np.isfinite(a).all(axis=-1) & np.isfinite(Pst).all(axis=(-1, -2)) & np.isfinite(ll))
+        bad = (step < 0) & ~(np.isfinite(a).all(axis=-1) & np.isfinite(Pst).all(axis=(-1, -2)) & np.isfinite(ll))
         if bad.any():
             idx = np.flatnonzero(bad)
-            raise DivergenceError(f"{kf.name}: the diffuse Kalman filter's moments are not finite at step {k} on "
-                                  f"{idx.size} path(s), first {idx[:5].tolist()}", step=k, paths=idx, what="covariance")
+            if on == "raise":
+                raise DivergenceError(f"{kf.name}: the diffuse Kalman filter's moments are not finite at step {k} on "
+                                      f"{idx.size} path(s), first {idx[:5].tolist()}; pass on_divergence='mark' to "
+                                      "record such paths and go on", step=k, paths=idx, what="covariance")
+            step[idx] = k
+        dead = step >= 0  # marked: NaN from their step on
+        if dead.any():
+            a, Pinf, Pst = (np.where(dead.reshape(-1, *(1,) * (x.ndim - 1)), np.nan, x) for x in (a, Pinf, Pst))
+            means[dead, k], covs[dead, k], terms[dead, k] = np.nan, np.nan, np.nan
     out = lambda x: x.reshape(*batch, *x.shape[1:])  # noqa: E731
-    extras = MappingProxyType({"loglik": out(terms)} if loglik else {})
-    return Estimates(out(means), out(covs), np.zeros(batch, bool), np.full(batch, -1), extras)
+    failed = np.zeros((B, T), bool)
+    extras = MappingProxyType({"loglik": out(terms), "loglik_failed": out(failed)} if loglik else {})
+    return Estimates(out(means), out(covs), (step >= 0).reshape(batch), step.reshape(batch), extras)

@@ -60,7 +60,7 @@ class KalmanFilter(DiscreteFilter):
                 flt, _ = self.for_timing(ys.timing)
                 return flt.run(ys.ys, m0, P0, loglik=loglik, **kw)
             _diffuse_options(kw)
-            return diffuse_run(self, ys, m0, P0, loglik=loglik)
+            return diffuse_run(self, ys, m0, P0, loglik=loglik, on_divergence=kw.get("on_divergence", "raise"))
         return super().run(ys, m0, P0, loglik=loglik, **kw)
 
     def smooth(self, ys, m0=None, P0=None, **kw):
@@ -127,8 +127,10 @@ class KalmanFilter(DiscreteFilter):
 
 
 def _diffuse_options(kw):
-    """The run options a diffuse run honours: the default ones (its loop is NumPy's, on all paths)."""
-    given = {k: v for k, v in kw.items() if v not in (None, False, "raise", "auto", "numpy")}
+    """The run options a diffuse run honours: ``on_divergence``, any ``backend`` (its loop is NumPy's
+    whatever the backend: a fit's automatic choice may name the compiled one), the others at their
+    defaults (all paths at once, no progress bar)."""
+    given = {k: v for k, v in kw.items() if k not in ("on_divergence", "backend") and v not in (None, False)}
     if given:
         raise ValueError(f"P0: a diffuse prior (inf entries) runs on the NumPy loop with the default options; "
                          f"got {sorted(given)}")
