@@ -140,6 +140,7 @@ def test_a_diverging_path_is_marked():
     est = kf.run(ys, 0.0, np.inf, loglik=True, on_divergence="mark")
     assert est.diverged.tolist() == [False, True, False] and est.diverged_step[1] == 5
     assert np.isnan(est.means[1, 5:]).all() and np.isfinite(est.means[1, :5]).all()
+    assert est.extras["loglik_failed"][1].tolist() == [False] * 5 + [True] + [False] * (YS.shape[1] - 6)
     alone = kf.run(ys[[0, 2]], 0.0, np.inf, loglik=True)
     np.testing.assert_allclose(est.loglik[[0, 2]], alone.loglik, rtol=1e-14)
     with pytest.raises(DivergenceError):

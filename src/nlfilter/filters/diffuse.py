@@ -90,13 +90,17 @@ def diffuse_run(kf, ys, m0, P0, *, loglik: bool = False, on_divergence: str = "r
     batch, T, m = ys.shape[:-2], ys.shape[-2], ys.shape[-1]
     B = math.prod(batch)
     yf = ys.reshape(B, T, m)
-    a = np.broadcast_to(V.mean("m0", m0, n), (*batch, n)).reshape(B, n).copy()
-    Pinf = np.broadcast_to(Pinf0, (*batch, n, n)).reshape(B, n, n).copy()
-    Pst = np.broadcast_to(Pstar0, (*batch, n, n)).reshape(B, n, n).copy()
+    m0 = V.mean("m0", m0, n)
+    try:
+        a = np.broadcast_to(m0, (*batch, n)).reshape(B, n).copy()
+        Pinf = np.broadcast_to(Pinf0, (*batch, n, n)).reshape(B, n, n).copy()
+        Pst = np.broadcast_to(Pstar0, (*batch, n, n)).reshape(B, n, n).copy()
+    except ValueError:
+        raise ValueError(f"m0/P0: shapes {m0.shape}, {np.shape(P0)} do not broadcast to the batch {batch} of ys") from None
     R = md.R
     off = 0 if kf.start == "update" else 1
     means, covs, terms = np.empty((B, T, n)), np.empty((B, T, n, n)), np.zeros((B, T))
-    step = np.full(B, -1)
+    step, failed = np.full(B, -1), np.zeros((B, T), bool)
     eye = np.eye(m)
     for k in range(T):
         with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
@@ -138,7 +142,8 @@ def diffuse_run(kf, ys, m0, P0, *, loglik: bool = False, on_divergence: str = "r
         means[:, k] = a
         covs[:, k] = np.where(reach[:, :, None] | reach[:, None, :], np.inf, Pst)
         terms[:, k] = ll
-        bad = (step < 0) & ~(np.isfinite(a).all(axis=-1) & np.isfinite(Pst).all(axis=(-1, -2)) & np.isfinite(ll))
+        moments = np.isfinite(a).all(axis=-1) & np.isfinite(Pst).all(axis=(-1, -2))
+        bad = (step < 0) & ~(moments & np.isfinite(ll))
         if bad.any():
             idx = np.flatnonzero(bad)
             if on == "raise":
@@ -146,11 +151,11 @@ def diffuse_run(kf, ys, m0, P0, *, loglik: bool = False, on_divergence: str = "r
                                       f"{idx.size} path(s), first {idx[:5].tolist()}; pass on_divergence='mark' to "
                                       "record such paths and go on", step=k, paths=idx, what="covariance")
             step[idx] = k
+            failed[idx, k] = moments[idx]  # the likelihood term failed first (as the run loop's loglik_failed)
         dead = step >= 0  # marked: NaN from their step on
         if dead.any():
             a, Pinf, Pst = (np.where(dead.reshape(-1, *(1,) * (x.ndim - 1)), np.nan, x) for x in (a, Pinf, Pst))
             means[dead, k], covs[dead, k], terms[dead, k] = np.nan, np.nan, np.nan
     out = lambda x: x.reshape(*batch, *x.shape[1:])  # noqa: E731
-    failed = np.zeros((B, T), bool)
     extras = MappingProxyType({"loglik": out(terms), "loglik_failed": out(failed)} if loglik else {})
     return Estimates(out(means), out(covs), (step >= 0).reshape(batch), step.reshape(batch), extras)
