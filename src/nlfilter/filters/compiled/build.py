@@ -14,6 +14,7 @@ skew the compiled code.
 
 from __future__ import annotations
 
+import functools
 import inspect
 
 from . import batch_loop, loops, path_linalg, rule_kernels, step_kernels
@@ -212,7 +213,15 @@ def loop_name(kind, fns, scalar, dims):
 
 def text_of(kind: str, fns: dict, scalar: bool = False, dims=None) -> tuple:
     """``(module text, cache tag)`` of the loop :func:`steps` makes (:func:`source`; the batch-inner
-    loop: :func:`.batch_loop.source` around it)."""
+    loop: :func:`.batch_loop.source` around it). Made once per loop in a process: the automatic
+    backend asks for it on every run past its first threshold, and a specialized loop's text takes
+    0.1-0.6 s to write (:func:`.flatten.flatten`), more than the small run it decides about."""
+    return _text(kind, tuple(fns.items()), scalar, dims)
+
+
+@functools.lru_cache(maxsize=256)
+def _text(kind: str, fns: tuple, scalar: bool, dims) -> tuple:
+    fns = dict(fns)
     if batch_loop.is_batch(dims):
         return batch_loop.source(source(kind, fns), dims), f"{kind}-batch"
     return source(kind, fns, scalar, dims), f"{kind}{'-scalar' if scalar else ''}"
