@@ -2,6 +2,7 @@ import collections
 import json
 import os
 from pathlib import Path
+from typing import NamedTuple
 
 import numpy as np
 import pytest
@@ -97,6 +98,72 @@ def _post_processor_computed_once():
         yield
 
 
+class QuickReproduction(NamedTuple):
+    """What :func:`quick_reproduction` ran: the report folder, the command's arguments, and
+    ``runs``: ``{experiment id: (Result, [(steps, paths) of every simulation it made])}``."""
+
+    folder: Path
+    argv: list
+    runs: dict
+
+
+#: the simulators the experiments call (under the names their modules import them)
+_SIMULATORS = ("simulate", "simulate_ou", "simulate_phase", "simulate_continuous_discrete")
+
+
+def _recording(func, calls):
+    import inspect
+    sig = inspect.signature(func)
+
+    def wrapper(*args, **kwargs):
+        b = sig.bind(*args, **kwargs)
+        b.apply_defaults()
+        paths = b.arguments["paths"]  # an int, or the range of path indices of one chunk
+        calls.append((int(b.arguments["steps"]), len(paths) if isinstance(paths, range) else int(paths)))
+        return func(*args, **kwargs)
+    return wrapper
+
+
+@pytest.fixture(scope="session")
+def quick_reproduction(tmp_path_factory):
+    """``nlfilter reproduce all --quick --report DIR`` (every experiment's quick run, ~1.5 min of
+    CPU), run once per test process for tests/test_report.py (the report, its resume) and
+    tests/test_results.py (the Results themselves, recorded as each experiment returned it, with
+    the ``(steps, paths)`` of every simulation it made). The schedule below sends the modules that
+    use it to one worker."""
+    import importlib
+
+    from nlfilter import cli, experiments
+    from nlfilter.bounded import BoundedNoiseModel, ZeroOrderModel
+
+    simulate_module = importlib.import_module("nlfilter.simulate")
+    comparison_module = importlib.import_module("nlfilter.comparison")
+    runs, real_run = {}, experiments.Experiment.run
+
+    def recorded(exp, *args, **kwargs):
+        calls = []
+        module = importlib.import_module(exp.func.__module__)
+        with pytest.MonkeyPatch.context() as mp:
+            for mod in (module, comparison_module):  # an experiment may simulate through compare
+                for name in _SIMULATORS:
+                    if hasattr(mod, name) and getattr(mod, name) is getattr(simulate_module, name):
+                        mp.setattr(mod, name, _recording(getattr(simulate_module, name), calls))
+            for cls in (BoundedNoiseModel, ZeroOrderModel):
+                mp.setattr(cls, "simulate", _recording(cls.simulate, calls))
+            res = real_run(exp, *args, **kwargs)
+        runs[exp.id] = (res, calls)
+        return res
+
+    folder = tmp_path_factory.mktemp("report")
+    argv = ["reproduce", "all", "--quick", "--no-progress", "--report", str(folder / "out"),
+            "--store", str(folder / "store.sqlite")]
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(experiments.Experiment, "run", recorded)
+        assert cli.main(argv) == 0
+    assert set(runs) == set(experiments.registry())
+    return QuickReproduction(folder / "out", argv, runs)
+
+
 @pytest.fixture(autouse=True)
 def _private_store(tmp_path, monkeypatch):
     """The command line's results store goes to a temporary file, never the user's cache."""
@@ -172,6 +239,8 @@ def pytest_terminal_summary(terminalreporter, config):
 
 # -- the xdist schedule (README: ``python -m pytest -n auto``) ------------------------------------
 _MODULE_FIXTURE = ('@pytest.fixture(scope="module")', "@pytest.fixture(scope='module')")
+#: session fixtures of minutes of CPU: the modules that use one are one unit of work (one worker)
+_SESSION_FIXTURES = ("quick_reproduction",)
 
 
 @pytest.hookimpl(optionalhook=True)
@@ -180,15 +249,16 @@ def pytest_xdist_make_scheduler(config, log):
     free, so a module whose tests share a module-scoped fixture (a quick run of an experiment, a
     Monte Carlo reference: up to a minute of CPU) computes it once on each worker that gets one of
     its tests — near the end of the run, where xdist sends tests in small chunks, on both. Here
-    such a module is one unit of work for one worker (xdist's ``loadscope`` units), and every
-    other test its own unit; units of several tests are sent first (xdist orders units by their
+    such a module is one unit of work for one worker (xdist's ``loadscope`` units), the modules
+    that use one of the costly session fixtures (:data:`_SESSION_FIXTURES`) together one unit, and
+    every other test its own unit; units of several tests are sent first (xdist orders units by their
     number of tests), so the long shared fixtures run at the start, not in the last minute
     while the other worker idles. Any other ``--dist`` (``loadfile``, ``worksteal`` ...) is xdist's."""
     if config.getvalue("dist") != "load":
         return None
     from xdist.scheduler import LoadScopeScheduling
 
-    root, shared = Path(str(config.rootpath)), {}
+    root, shared, shared_text = Path(str(config.rootpath)), {}, {}
 
     def shares_a_module_fixture(module: str) -> bool:
         if module not in shared:
@@ -197,11 +267,16 @@ def pytest_xdist_make_scheduler(config, log):
             except OSError:
                 text = ""
             shared[module] = any(f in text for f in _MODULE_FIXTURE)
+            shared_text[module] = text
         return shared[module]
+
+    def session_fixture(module: str) -> str | None:
+        shares_a_module_fixture(module)
+        return next((f for f in _SESSION_FIXTURES if f in shared_text[module]), None)
 
     class ModuleFixtureScheduling(LoadScopeScheduling):
         def _split_scope(self, nodeid: str) -> str:
             module = nodeid.split("::", 1)[0]
-            return module if shares_a_module_fixture(module) else nodeid
+            return session_fixture(module) or (module if shares_a_module_fixture(module) else nodeid)
 
     return ModuleFixtureScheduling(config, log)

@@ -148,9 +148,12 @@ def _cli(*args, **kw):
 def test_ctrl_c_exits_130_and_the_rerun_resumes(tmp_path):
     store = tmp_path / "s.sqlite"
     out = tmp_path / "out.json"
-    runs = 6  # blocks of one path, ~1-2 s each: the interrupt lands after 2 with 4 to go
-    args = ["reproduce", "phase-tracking", "--quick", "--runs", str(runs), "--seed", "4", "--param", "block=1",
-            "--param", "sweep=3", "--no-progress", "--store", str(store), "--json", str(out)]
+    # blocks of one path, ~1 s each after ~2 s of start-up (the quick linear-Gaussian run: its grid
+    # and particle references; phase-tracking, used before, spends ~12 s off-line in each of the
+    # three processes): the interrupt lands after 2 blocks with 4 to go
+    runs = 6
+    args = ["reproduce", "linear-gaussian", "--quick", "--runs", str(runs), "--seed", "4", "--param", "block=1",
+            "--no-progress", "--store", str(store), "--json", str(out)]
     p = _cli(*args)
     deadline = time.time() + 120
     blocks = 0
@@ -172,7 +175,7 @@ def test_ctrl_c_exits_130_and_the_rerun_resumes(tmp_path):
     assert "interrupted" in stderr and str(store) in stderr
     assert not out.exists()  # no partial JSON
     with ResultsStore(store) as st:
-        kept = st.count_blocks("phase-tracking")
+        kept = st.count_blocks("linear-gaussian")
         assert 2 <= kept < runs
         assert st.runs()[0]["status"] == "interrupted"
     p = _cli(*args)

@@ -3,7 +3,6 @@ verdict rule, a complete quick report of every experiment, its resume from the s
 
 from __future__ import annotations
 
-import json
 import math
 
 import pytest
@@ -48,13 +47,11 @@ def test_table_and_readme_blocks():
         fill_readme(text, {})
 
 
-@pytest.fixture(scope="module")
-def quick_report(tmp_path_factory):
-    folder = tmp_path_factory.mktemp("report")
-    store = folder / "store.sqlite"
-    argv = ["reproduce", "all", "--quick", "--no-progress", "--report", str(folder / "out"), "--store", str(store)]
-    assert cli.main(argv) == 0
-    return folder / "out", argv
+@pytest.fixture
+def quick_report(quick_reproduction):
+    """``nlfilter reproduce all --quick --report DIR`` (tests/conftest.py, shared with
+    tests/test_results.py): the report folder and the command's arguments."""
+    return quick_reproduction.folder, quick_reproduction.argv
 
 
 def test_quick_report_is_complete(quick_report):
@@ -111,7 +108,7 @@ def test_readme_blocks_equal_the_committed_report():
     """Every generated block of the README is what docs/make_report.py makes of the committed
     JSON files (so the README's tables cannot drift from the report), and docs/report/index.md
     too; every experiment of the registry is in the committed report."""
-    from nlfilter.report import REPORT_DIR, render_block, write_report
+    from nlfilter.report import render_block
     text = (ROOT / "README.md").read_text(encoding="utf-8")
     blocks = readme_blocks(text)
     results = _committed()

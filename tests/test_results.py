@@ -1,7 +1,5 @@
 """Lossless results: provenance, the parameters that ran, unique rows, the JSON round trip."""
 
-import importlib
-import inspect
 import json
 import math
 
@@ -9,15 +7,11 @@ import numpy as np
 import pytest
 
 from nlfilter import __version__, cli
-from nlfilter.bounded import BoundedNoiseModel, ZeroOrderModel
 from nlfilter.experiments import registry
 from nlfilter.results import Result, Row
 
-# the simulators the experiments call (under the names their modules import) and the parameter
-# of each experiment's Result.params that holds the simulated horizon (int, or {case: int})
-simulate_module = importlib.import_module("nlfilter.simulate")
-comparison_module = importlib.import_module("nlfilter.comparison")
-SIMULATORS = ("simulate", "simulate_ou", "simulate_phase", "simulate_continuous_discrete")
+# the parameter of each experiment's Result.params that holds the simulated horizon (int, or
+# {case: int}); the simulators' calls are recorded by the quick run (tests/conftest.py)
 HORIZON = {"cubic-sensor": "steps", "cubic-sensor-closures": "steps", "linear-gaussian": "steps",
            "moment-first-order": "T", "moment-second-order": "T", "oh-shin": "steps",
            "phase-tracking": "steps", "second-order": "problem_steps", "zero-order": None,
@@ -28,37 +22,11 @@ PATHS = {"zero-order": "sample_paths"}
 HORIZON["zero-order"] = "samples_per_path"
 
 
-def _recording(func, calls):
-    sig = inspect.signature(func)
-
-    def wrapper(*args, **kwargs):
-        b = sig.bind(*args, **kwargs)
-        b.apply_defaults()
-        paths = b.arguments["paths"]  # an int, or the range of path indices of one chunk
-        calls.append((int(b.arguments["steps"]), len(paths) if isinstance(paths, range) else int(paths)))
-        return func(*args, **kwargs)
-    return wrapper
-
-
-def _quick(exp):
-    """One quick run, recording (steps, paths) of every simulation it makes."""
-    calls = []
-    module = inspect.getmodule(exp.func)
-    with pytest.MonkeyPatch.context() as mp:
-        for mod in (module, comparison_module):  # an experiment may simulate through compare
-            for name in SIMULATORS:
-                if hasattr(mod, name) and getattr(mod, name) is getattr(simulate_module, name):
-                    mp.setattr(mod, name, _recording(getattr(simulate_module, name), calls))
-        for cls in (BoundedNoiseModel, ZeroOrderModel):
-            mp.setattr(cls, "simulate", _recording(cls.simulate, calls))
-        res = exp.run(quick=True, seed=0)
-    return res, calls
-
-
-@pytest.fixture(scope="module")
-def quick_runs():
-    """One quick run per experiment, shared by the tests of this module (~1.5 min in all)."""
-    return {eid: _quick(exp) for eid, exp in registry().items()}
+@pytest.fixture
+def quick_runs(quick_reproduction):
+    """One quick run per experiment, ``{id: (Result, [(steps, paths) of each simulation])}``: those
+    of ``nlfilter reproduce all --quick`` (tests/conftest.py), shared with tests/test_report.py."""
+    return quick_reproduction.runs
 
 
 def _values(v):

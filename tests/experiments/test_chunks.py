@@ -14,25 +14,26 @@ import pytest
 
 from nlfilter.experiments import get
 
-# quick runs, small --runs (two chunks of 2 and one of 1), the cheapest parameters of each (shorter
+# quick runs, small --runs (3 paths: a block of 2 and one of 1, so chunk=1 makes two tasks and chunk=4
+# one task of both blocks), the cheapest parameters of each (shorter
 # horizons than the quick runs' where a parameter sets them: how the blocks are grouped into tasks
 # does not depend on the number of steps)
 CASES = {
-    "cubic-sensor": ({"q": [2.0], "r": [1.0], "dt": 0.03}, 5),  # 200 steps of T = 6, not the automatic ~1400
-    "cubic-sensor-closures": ({"q": [1.0], "r": [1.0]}, 5),
-    "linear-gaussian": ({"steps": 20}, 5),
-    "moment-first-order": ({"laws": ["uniform"], "N": [2]}, 5),
-    "moment-second-order": ({"laws": ["uniform"], "N": [2], "particles": 200, "T": 30, "skip": 10}, 5),
-    "oh-shin": ({"t_end": 0.5}, 5),
+    "cubic-sensor": ({"q": [2.0], "r": [1.0], "dt": 0.1}, 3),  # 50 steps of the quick T = 5, not the automatic ~1400
+    "cubic-sensor-closures": ({"q": [1.0], "r": [1.0]}, 3),
+    "linear-gaussian": ({"steps": 20}, 3),
+    "moment-first-order": ({"laws": ["uniform"], "N": [2]}, 3),
+    "moment-second-order": ({"laws": ["uniform"], "N": [2], "particles": 200, "T": 30, "skip": 10}, 3),
+    "oh-shin": ({"t_end": 0.5}, 3),
     "phase-tracking": ({}, 3),
-    "second-order": ({"steps": 20}, 5),  # each problem's first 20 steps (of 50, 200, 60)
-    "smoothing": ({"steps": 8}, 5),
+    "second-order": ({"steps": 6}, 3),  # each problem's first 6 steps (of 50, 200, 60)
+    "smoothing": ({"steps": 8}, 3),
     "zero-order": ({"J": [2], "N": [2]}, 2500),  # 3 paths of 1000 samples
-    "zero-order-adaptive": ({"J": [0], "N": [2]}, 5),
-    "zero-order-robustness": ({"r": [0.3], "beta": [0.2], "N": [2]}, 5),
+    "zero-order-adaptive": ({"J": [0], "N": [2]}, 3),
+    "zero-order-robustness": ({"r": [0.3], "beta": [0.2], "N": [2]}, 3),
 }
 # Monte Carlo in blocks, bitwise the same for any chunk: the extra parameters of the test (blocks of
-# 2 paths: 2, 2, 1; a chunk of 4 puts two blocks in one task)
+# 2 paths: 2, 1; a chunk of 4 puts both blocks in one task)
 BLOCKS = {"cubic-sensor": {"block": 2}, "cubic-sensor-closures": {"block": 2}, "oh-shin": {"block": 2},
           "linear-gaussian": {"block": 2}, "phase-tracking": {"block": 2, "sweep": 3}, "second-order": {"block": 2},
           "smoothing": {"block": 2}, "zero-order": {"block": 2}, "zero-order-adaptive": {"block": 2},
