@@ -10,7 +10,7 @@ import pytest
 import sympy as sp
 
 from nlfilter import DiscreteModel, SDEModel, sample_posterior, simulate
-from nlfilter.filters import CKF, EKF, UKF, ContinuousDiscreteEKF, KalmanFilter
+from nlfilter.filters import CKF, EKF, GHKF, REGISTRY, UKF, ContinuousDiscreteEKF, KalmanFilter, SecondOrderFilter
 from nlfilter.filters.compiled.support import static_refusal
 
 p, v = sp.symbols("p v")
@@ -51,10 +51,11 @@ def test_alpha_one_is_the_filter_bit_for_bit_and_alpha_above_one_forgets():
 
 
 def test_every_rule_is_the_fading_kalman_filter_on_a_linear_model():
-    """EKF, UKF and CKF with fading memory: their prediction from N(m, α² P) is exact on a linear
-    model, so each equals the fading Kalman filter (1e-10: rounding of the node sums)."""
+    """EKF, UKF, CKF, GHKF, the second-order filter and a registry rule filter (ckf5) with fading
+    memory: their prediction from N(m, α² P) is exact on a linear model, so each equals the fading
+    Kalman filter (1e-10: rounding of the node sums)."""
     kf = KalmanFilter(TRACK).fading_memory(1.2).run(YS, M0, P0, backend="numpy")
-    for flt in (EKF(TRACK), UKF(TRACK), CKF(TRACK)):
+    for flt in (EKF(TRACK), UKF(TRACK), CKF(TRACK), GHKF(TRACK), SecondOrderFilter(TRACK), REGISTRY["ckf5"](TRACK)):
         est = flt.fading_memory(1.2).run(YS, M0, P0, backend="numpy")
         np.testing.assert_allclose(est.means, kf.means, atol=1e-10)
         np.testing.assert_allclose(est.covs, kf.covs, atol=1e-10)
@@ -94,7 +95,11 @@ def test_bad_alpha_is_named_and_the_compiled_loop_refuses_it():
     for bad in (0.9, float("nan"), float("inf"), -1.0):
         with pytest.raises(ValueError, match="alpha: expected a finite number >= 1"):
             kf.fading_memory(bad)
-    for bad in ("1.1", None, True, 1 + 0j):
+    class Opaque:  # an object whose repr raises: the message must not call it
+        def __repr__(self):
+            raise RuntimeError("repr")
+
+    for bad in ("1.1", None, True, 1 + 0j, np.array([1.1, 1.2]), Opaque()):
         with pytest.raises(TypeError, match="alpha: expected a real number"):
             kf.fading_memory(bad)
     assert "fading memory" in static_refusal(kf.fading_memory(1.1)) and static_refusal(kf.fading_memory(1.0)) is None

@@ -31,6 +31,8 @@ import numbers
 
 import numpy as np
 
+from .. import _validate as V
+
 __all__ = ["FadingMemory"]
 
 
@@ -54,10 +56,10 @@ class FadingMemory:
         2.0
         """
         if isinstance(alpha, (bool, np.bool_)) or not isinstance(alpha, numbers.Real):
-            raise TypeError(f"alpha: expected a real number >= 1 (the fading-memory factor), got {alpha!r}")
+            raise TypeError(f"alpha: expected a real number >= 1 (the fading-memory factor), got {V.shown(alpha)}")
         if not (math.isfinite(alpha) and alpha >= 1.0):
             raise ValueError(f"alpha: expected a finite number >= 1 (the fading-memory factor; 1: no fading), "
-                             f"got {alpha!r}")
+                             f"got {V.shown(alpha)}")
         new = copy.copy(self)
         new.fading = float(alpha)
         return new
