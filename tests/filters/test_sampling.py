@@ -16,7 +16,8 @@ import sympy as sp
 
 from nlfilter import DiscreteModel, sample_posterior
 from nlfilter.errors import DivergenceError
-from nlfilter.filters import EKF, KalmanFilter, ParticleFilter
+from nlfilter.filters import EKF, KalmanFilter
+from nlfilter.filters.quasilinear import DiscreteQuasilinearFilter
 from nlfilter.filters.sampling import SAMPLE
 from nlfilter.streams import PathRNG
 
@@ -110,8 +111,8 @@ def test_bad_input_is_named():
     x = sp.Symbol("x")
     md = DiscreteModel([x], f=[0.9 * x], h=[x], Q=0.5, R=1.0)
     ys = np.zeros((5, 1))
-    with pytest.raises(TypeError, match="flt: .*ParticleFilter"):
-        sample_posterior(ParticleFilter(md, 100), ys, 0.0, 1.0, rng=0)
+    with pytest.raises(TypeError, match="flt: .*DiscreteQuasilinearFilter"):  # no backward pass
+        sample_posterior(DiscreteQuasilinearFilter(md), ys, 0.0, 1.0, rng=0)
     with pytest.raises(ValueError, match="n: "):
         sample_posterior(KalmanFilter(md), ys, 0.0, 1.0, n=0, rng=0)
     with pytest.raises(TypeError, match="n: expected an integer"):

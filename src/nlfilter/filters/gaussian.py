@@ -57,6 +57,7 @@ import numpy as np
 
 from .. import _validate as V
 from .base import ContinuousFilter, DiscreteFilter, GaussianState, continuous_precision, set_start, set_t0
+from .fading import FadingMemory
 from .linalg import innovation_info, observed_precision, poison, symmetrize
 from .skeleton import (CrossNoise, MeasuredState, as_belief, as_gaussian, check_paths, condition, ito_gain, ito_rhs,
                        iterated_update, predict, propagate)
@@ -66,7 +67,7 @@ __all__ = ["GaussianFilter", "ContinuousDiscreteGaussianFilter", "ContinuousGaus
            "MeasuredState", "as_belief"]
 
 
-class GaussianFilter(DiscreteFilter):
+class GaussianFilter(DiscreteFilter, FadingMemory):
     """Discrete-time Gaussian filter over a moment ``rule`` (see the module docstring).
 
     Parameters
@@ -78,6 +79,9 @@ class GaussianFilter(DiscreteFilter):
 
     Notes
     -----
+    ``fading_memory(alpha)``: the filter with fading memory, its prediction from ``N(m, α² P)``
+    (:mod:`~nlfilter.filters.fading`; every subclass, the continuous-discrete ones included).
+
     ``predict``/``update`` return NaN on the paths whose covariance has no square root (poisoned:
     ``run`` raises or marks them); with ``raises`` (a configuration's class attribute) they raise
     :class:`~nlfilter.errors.DivergenceError` instead.
@@ -138,7 +142,8 @@ class GaussianFilter(DiscreteFilter):
         return (cr.unmeasured(out[0]), out[1]) if cross else cr.unmeasured(out)
 
     def _predict_cross(self, state, k):
-        return self._predict(state, k, cross=True)
+        pred, D = self._predict(self._inflate(state), k, cross=True)  # fading memory: from α² P (fading.py)
+        return pred, self._deflate(D)
 
     def _condition(self, state, y, t, R=None):
         """``(updated, failed paths or None, (ŷ, S))``: :func:`~nlfilter.filters.skeleton.condition`
@@ -155,7 +160,7 @@ class GaussianFilter(DiscreteFilter):
         return (new if self._cross.S is None else self._cross.carry(new, y)), bad, moments
 
     def predict(self, state, k):
-        new = self._predict(state, k)
+        new = self._predict(self._inflate(state), k)  # fading memory: from α² P (fading.py)
         return check_paths(self, new, None, "predicted covariance", k) if self.raises else new
 
     def update(self, state, y, k):
@@ -165,7 +170,7 @@ class GaussianFilter(DiscreteFilter):
     # the run loop's steps: ``predict``/``update`` themselves (so that a subclass redefining one is
     # run with it), except where they raise (``raises``): then the failed paths come back as data
     def _predict_unchecked(self, state, k):
-        return (self._predict(state, k) if self.raises else self.predict(state, k)), None
+        return (self._predict(self._inflate(state), k) if self.raises else self.predict(state, k)), None
 
     def _update_unchecked(self, state, y, k):
         if not self.raises:

@@ -14,6 +14,7 @@ import scipy.linalg as sla
 from ..simulation import Simulation
 from .base import ContinuousFilter, DiscreteFilter, GaussianState
 from .diffuse import diffuse_run, is_diffuse
+from .fading import FadingMemory
 from .linalg import gaussian_update, innovation_info
 from .ekf import ContinuousEKF
 from .skeleton import CrossNoise
@@ -26,12 +27,15 @@ def _require_linear(model, who):
                          f"got {model!r}; use EKF, UKF or a second-order filter")
 
 
-class KalmanFilter(DiscreteFilter):
+class KalmanFilter(DiscreteFilter, FadingMemory):
     """Discrete Kalman filter on a linear :class:`~nlfilter.models.DiscreteModel` (batched, Joseph-form update).
 
     Correlated noise ``E[w_k v_kᵀ] = S`` (``cross_noise``; :class:`~nlfilter.filters.skeleton.CrossNoise`):
     the prediction ``m⁻ = F m + b + G K_w (y_k − H m − d)``, ``P⁻ = F̃ P F̃ᵀ + G (Q − K_w Sᵀ) Gᵀ``,
-    ``F̃ = F − G K_w H``, ``K_w = S R⁻¹`` (Anderson & Moore 1979, §5.5), exact."""
+    ``F̃ = F − G K_w H``, ``K_w = S R⁻¹`` (Anderson & Moore 1979, §5.5), exact.
+
+    ``fading_memory(alpha)``: ``P⁻ = α² F P Fᵀ + G Q Gᵀ`` (:mod:`~nlfilter.filters.fading`;
+    filterpy's ``KalmanFilter.alpha``)."""
 
     name = "kf"
     family = "gaussian"
@@ -56,6 +60,9 @@ class KalmanFilter(DiscreteFilter):
         initialisation (:mod:`~nlfilter.filters.diffuse`; NumPy loop; ``loglik``: the diffuse
         log-likelihood)."""
         if is_diffuse(P0):
+            if self.fading != 1.0:
+                raise ValueError(f"alpha: the exact diffuse initialisation (P0 with inf) has no fading memory; got "
+                                 f"alpha = {self.fading!r} (expected 1, or a finite P0)")
             if isinstance(ys, Simulation):
                 flt, _ = self.for_timing(ys.timing)
                 return flt.run(ys.ys, m0, P0, loglik=loglik, **kw)
@@ -79,6 +86,7 @@ class KalmanFilter(DiscreteFilter):
         return md.f_x(z, k), md.f(z, k), md.h_x(z, k), md.h(z, k), G @ md.Q @ G.T
 
     def predict(self, state, k):
+        state = self._inflate(state)  # fading memory: from α² P (fading.py)
         if self._cross.S is None:
             F, b, _, _, GQG = self._mats if self._const else self._matrices(k)
             m, P = state
@@ -93,15 +101,17 @@ class KalmanFilter(DiscreteFilter):
     def _predict_cross(self, state, k):
         """The prediction and ``Cov[x_k, x_{k+1}] = P F̃ᵀ`` (``F̃ = F`` without correlated noise)."""
         F, b, H, d, GQG = self._mats if self._const else self._matrices(k)
+        state = self._inflate(state)  # fading memory: from α² P, D = P F̃ᵀ (fading.py)
         m, P = state[0], state[1]
         dec = self._cross.decorrelation(state, k)
         if dec is None:
-            return self._cross.unmeasured(GaussianState(m @ F.T + b, F @ P @ F.T + GQG)), P @ F.T
+            return self._cross.unmeasured(GaussianState(m @ F.T + b, F @ P @ F.T + GQG)), self._deflate(P @ F.T)
         D, e, sub = dec
         Ft = F - D @ H  # F̃ = F − G K_w H
         mean = np.einsum("...ij,...j->...i", Ft, m) + b + np.einsum("...ij,...j->...i", D, e - d)
         cov = Ft @ P @ np.swapaxes(Ft, -1, -2) + GQG - sub
-        return self._cross.unmeasured(GaussianState(mean, 0.5 * (cov + np.swapaxes(cov, -1, -2)))), P @ np.swapaxes(Ft, -1, -2)
+        return (self._cross.unmeasured(GaussianState(mean, 0.5 * (cov + np.swapaxes(cov, -1, -2)))),
+                self._deflate(P @ np.swapaxes(Ft, -1, -2)))
 
     def _smooth(self, est, beliefs, ys, t0):
         """The Rauch–Tung–Striebel smoother (Rauch, Tung & Striebel 1965; :func:`~nlfilter.filters.smoothing.rts`)."""

@@ -16,11 +16,27 @@ covariance are the RTS smoother's, their lag-one covariance its ``lag_one_cov``.
 model they are samples of the Gaussian approximation that the filter's rule makes of that
 posterior (the one whose marginals its RTS smoother reports) — not of the exact posterior.
 
+The reference filters draw through their own backward kernels
+(:mod:`~nlfilter.filters.reference.forward_backward`): ``x_k | x_{k+1} ∝ p(x_k | y_0..y_k)
+τ(x_{k+1} | x_k)`` — on the grid filter, forward filtering backward sampling with the filtered grid
+weights times the column of the filter's transition kernel at the drawn point (exact draws of the
+grid chain's posterior: grid points, whose marginals are its forward–backward smoother's); on the
+particle filter, backward simulation (Godsill, Doucet & West 2004), the filtered particles
+reweighted by the transition density to the drawn ``x_{k+1}`` (draws of its clouds, whose
+marginals given the clouds are its FFBSm smoother's). These hold any posterior the filter
+represents — several modes included, which a Gaussian smoother's draws cannot show. The forward
+pass keeps every step's belief: ``B × T × N`` floats on the grid (``N`` grid points),
+``B × T × Np × (n + 1)`` for the particles; pass fewer paths at a time to bound it.
+
 Each path draws from a stream of its own (:mod:`nlfilter.streams`, sub-stream :data:`SAMPLE` of
-the root of ``rng``): path ``p``'s samples are the same in any batch or chunk.
+the root of ``rng``): path ``p``'s samples are the same in any batch or chunk. The particle
+filter's forward pass draws from that stream too (its clouds are those of
+``flt.run(ys, rng=PathRNG(rng, B, key=SAMPLE))``), then the backward pass's uniforms.
 """
 
 from __future__ import annotations
+
+import copy
 
 import numpy as np
 
@@ -28,6 +44,7 @@ from .. import _validate as V
 from ..errors import DivergenceError
 from ..simulation import Simulation
 from ..streams import PathRNG
+from .base import Filter
 from .beliefs import GaussianState
 from .linalg import sqrt_psd, symmetrize
 from .smoothing import _solve_right, backward_steps
@@ -48,11 +65,14 @@ def sample_posterior(flt, ys, m0=None, P0=None, n: int = 1, rng=None, *, initial
     ----------
     flt : Filter
         A discrete-time Gaussian filter with an RTS smoother (KF, EKF, IEKF, UKF, CKF, GHKF, SLF,
-        the second-order filters; continuous-discrete ones too).
+        the second-order filters; continuous-discrete ones too), a :class:`GridFilter` or a
+        :class:`ParticleFilter` (on an SDEModel: built with ``substeps=1``, whose step has a
+        transition density).
     ys : array (..., T, m)
         Measurements, NaN where missing (as :meth:`~nlfilter.filters.base.Filter.run`).
     m0, P0, initial, backend
-        The prior and the loop of the forward pass, as :meth:`~nlfilter.filters.base.Filter.run`.
+        The prior and the loop of the forward pass, as :meth:`~nlfilter.filters.base.Filter.run`
+        (the reference filters: the NumPy loop).
     n : int
         Draws per path.
     rng : int, SeedSequence, Generator or PathRNG
@@ -67,7 +87,8 @@ def sample_posterior(flt, ys, m0=None, P0=None, n: int = 1, rng=None, *, initial
     ------
     DivergenceError
         Where the forward pass diverges, or a conditional covariance of the backward pass is not
-        positive semi-definite (``what="sampler"``).
+        positive semi-definite, or a reference filter's backward kernel has no mass
+        (``what="sampler"``).
 
     >>> import sympy as sp; from nlfilter import DiscreteModel; from nlfilter.filters import KalmanFilter
     >>> x = sp.Symbol("x")
@@ -75,14 +96,18 @@ def sample_posterior(flt, ys, m0=None, P0=None, n: int = 1, rng=None, *, initial
     >>> sample_posterior(kf, np.zeros((2, 5, 1)), 0.0, 1.0, n=3, rng=0).shape
     (2, 3, 5, 1)
     """
-    if getattr(flt, "smoother", None) != "rts" or not hasattr(flt, "_predict_cross"):
+    reference = callable(getattr(flt, "_sample", None))
+    if not reference and (getattr(flt, "smoother", None) != "rts" or not hasattr(flt, "_predict_cross")):
         raise TypeError(f"flt: sample_posterior draws through a discrete-time Gaussian filter's RTS backward "
-                        f"pass (KF, EKF, UKF, CKF, GHKF, IEKF, SLF, the second-order filters); got "
-                        f"{type(flt).__name__}")
+                        f"pass (KF, EKF, UKF, CKF, GHKF, IEKF, SLF, the second-order filters) or the backward "
+                        f"kernel of GridFilter or ParticleFilter; got {type(flt).__name__}")
     n = V.positive("n", n, integer=True)
+    t0 = None
     if isinstance(ys, Simulation):
-        flt, _ = flt.for_timing(ys.timing)
+        flt, t0 = flt.for_timing(ys.timing)
         ys = ys.ys
+    if reference:
+        return _reference(flt, ys, m0, P0, n, rng, initial, t0, backend)
     est = flt.run(ys, m0, P0, initial=initial, backend=backend)  # raises where it diverges
     ys = flt.check_data(ys)
     batch, T = ys.shape[:-2], ys.shape[-2]
@@ -102,6 +127,31 @@ def sample_posterior(flt, ys, m0=None, P0=None, n: int = 1, rng=None, *, initial
         x = _draw(mean, symmetrize(P - G @ np.swapaxes(D, -1, -2)), z[:, k], k)
         out[:, :, k] = x
     return out.reshape(*batch, n, T, nx)
+
+
+def _reference(flt, ys, m0, P0, n, rng, initial, t0, backend):
+    """The grid or particle filter's draws (module docstring): its forward pass keeping every
+    step's belief (the loop of ``Filter.smooth``, on a copy whose backward pass only keeps them),
+    then its ``_sample`` over the uniforms ``(B, T, n)`` of each path's stream."""
+    if flt.smoother is None:
+        raise TypeError(f"flt: {type(flt).__name__} here has no transition density for its backward kernel "
+                        f"(an SDEModel with substeps={getattr(flt, 'substeps', None)}: build it with substeps=1, "
+                        "or sample with GridFilter)")
+    ys = flt.check_data(ys)
+    batch, T, m = ys.shape[:-2], ys.shape[-2], ys.shape[-1]
+    B = int(np.prod(batch, dtype=int))
+    streams = PathRNG.of(rng, B, key=SAMPLE)
+    kept = []
+
+    def keep(est, beliefs, yf, t0):
+        kept.append(beliefs)
+        return est.means, est.covs
+    twin = copy.copy(flt)
+    twin._smooth = keep
+    Filter.smooth(twin, ys, m0, P0, initial=initial, rng=streams, t0=t0, backend=backend)  # raises where the forward pass diverges
+    u = streams.random((T, n))  # path by path, after the forward pass's draws (the particle filter's)
+    out = flt._sample(kept[0], ys.reshape(B, T, m), 0.0 if t0 is None else t0, u)
+    return out.reshape(*batch, n, T, out.shape[-1])
 
 
 def _draw(mean, cov, z, k):

@@ -121,6 +121,8 @@ def static_refusal(flt) -> str | None:
     reason = steps_refusal(flt)
     if reason is not None:
         return reason
+    if getattr(flt, "fading", 1.0) != 1.0:
+        return f"{name} with fading memory (alpha = {flt.fading:g}, nlfilter.filters.fading) has no compiled form"
     kind = rule_kind(flt)
     if kind is None:
         return f"{name}'s rule {type(getattr(flt, 'rule', None)).__name__} has no compiled form"

@@ -33,15 +33,32 @@ per step; memory ``O(block · Np²)`` (:data:`BLOCK`). At the default 2000 parti
 ``4·10⁶`` transition densities per step and path, about 0.1 s on one core (1-D, measured; the
 forward pass costs ~1 ms): for long records or many paths build the particle filter with fewer
 ``particles`` (the smoother's Monte Carlo error then grows as ``1/√Np``, as the filter's).
+
+Trajectory draws (:func:`nlfilter.sample_posterior`) go through the same backward kernel, one
+state at a time, from the last step down: since ``p(x_k | x_{k+1:T-1}, y_{0:T-1}) =
+p(x_k | x_{k+1}, y_{0:k}) ∝ τ(x_{k+1} | x_k) p(x_k | y_{0:k})`` (Särkkä 2013, Thm. 8.1's backward
+kernel; Carter & Kohn 1994 for the Gaussian case)::
+
+    x̃_{T-1} ~ p(x_{T-1} | y_{0:T-1}),    x̃_k ~ ∝ p(x_k | y_{0:k}) τ(x̃_{k+1} | x_k)
+
+* Grid (:func:`grid_ffbs`, forward filtering backward sampling): ``P(x̃_k = X_i | x̃_{k+1} = X_j)
+  ∝ p_k,i K_k,ij``, the filtered grid weights times the column of the filter's own kernel at the
+  drawn point: exact draws of the grid's Markov chain posterior (their marginals are
+  :func:`grid_smoother`'s), grid points.
+* Particles (:func:`backward_simulation`, Godsill, Doucet & West 2004, *JASA* 99, §3: the
+  backward-simulation smoother): ``P(x̃_k = x_k,i | x̃_{k+1}) = w_{k|k+1},i ∝ w_k,i τ(x̃_{k+1} |
+  x_k,i)``, the filtered particles reweighted by the transition density to the drawn state
+  (their marginals, given the clouds, are :func:`ffbsm`'s), ``O(Np)`` per step and draw.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
+from ...errors import DivergenceError
 from ..pointmass import apply_kernel, cloud_moments, moments, weights
 
-__all__ = ["grid_smoother", "ffbsm", "transition_logpdf"]
+__all__ = ["grid_smoother", "ffbsm", "transition_logpdf", "grid_ffbs", "backward_simulation"]
 
 BLOCK = 2**22  #: elements of the pairwise arrays (paths × Np × Np × n) per block of the particle smoother
 
@@ -183,3 +200,87 @@ def transition_logpdf(model, x, x1, k, dt=None):
         return q
     z = np.einsum("...iab,...ijb->...ija", Li, x1[..., None, :, :] - f[..., :, None, :])
     return -0.5 * np.sum(z * z, axis=-1) - 0.5 * logdet[..., :, None]
+
+
+def _categorical(w, u, k, lo=0):
+    """Indices ``(b, d)``: row ``(i, j)`` drawn from the unnormalized weights ``w[i, j] (N,)`` by the
+    uniform ``u[i, j]`` (inverse CDF: the index whose cumulative-weight interval holds ``u · Σ w``;
+    a zero weight is never drawn). Weights with no positive, finite total raise
+    :class:`DivergenceError` (``what="sampler"``) naming the step and paths."""
+    c = np.cumsum(w, axis=-1)
+    tot = c[..., -1]
+    bad = ~(tot > 0) | ~np.isfinite(tot)
+    if bad.any():
+        idx = lo + np.flatnonzero(bad.any(axis=-1))
+        raise DivergenceError(f"sample_posterior: the backward kernel has no finite positive mass at step {k} on "
+                              f"{idx.size} path(s), first {idx[:5].tolist()}", step=k, paths=idx, what="sampler")
+    return np.minimum(np.sum(c <= (u * tot)[..., None], axis=-1), w.shape[-1] - 1)
+
+
+def grid_ffbs(filtered, kernel, X, u, block: int | None = None):
+    """Trajectory draws through the grid filter (module docstring, forward filtering backward
+    sampling): ``filtered``, ``kernel``, ``X`` as :func:`grid_smoother`; ``u (B, T, d)``
+    uniforms in [0, 1), one per path, step and draw. Returns the draws ``(B, d, T, n)``, grid
+    points. Memory ``block × d × N`` per step (``block`` paths at a time, default: as many as keep
+    it under :data:`BLOCK` elements).
+
+    >>> import numpy as np
+    >>> K = np.array([[1.0, 0.0], [0.0, 1.0]])   # the chain stays put: the whole path is the last draw
+    >>> X = np.array([[0.0], [1.0]])
+    >>> grid_ffbs([np.array([[0.5, 0.5]])] * 3, lambda k: K, X, np.array([[[0.2, 0.7]] * 3]))[0, :, :, 0].tolist()
+    [[0.0, 0.0, 0.0], [1.0, 1.0, 1.0]]
+    """
+    T = len(filtered)
+    B, _, d = u.shape
+    N = X.shape[0]
+    idx = np.empty((B, d, T), dtype=np.intp)
+    if T == 0:
+        return np.empty((B, d, 0, X.shape[1]))
+    block = max(1, BLOCK // (d * N)) if block is None else block
+    for lo in range(0, B, block):
+        sl = slice(lo, min(lo + block, B))
+        idx[sl, :, T - 1] = _categorical(filtered[-1][sl, None, :], u[sl, T - 1], T - 1, lo)
+        for k in range(T - 2, -1, -1):
+            K = kernel(k)
+            j = idx[sl, :, k + 1]  # the drawn points of step k + 1: the columns K[:, j]
+            cols = K.T[j] if isinstance(K, np.ndarray) else K.T.tocsr()[j.ravel()].toarray().reshape(*j.shape, N)
+            idx[sl, :, k] = _categorical(filtered[k][sl, None, :] * cols, u[sl, k], k, lo)  # p_k,i K_k,ij
+    return X[idx]
+
+
+def backward_simulation(xs, logws, logtau, u, block: int | None = None, logg=None):
+    """Trajectory draws through the particle filter's clouds (module docstring; Godsill, Doucet &
+    West 2004): ``xs``, ``logws``, ``logtau``, ``logg`` as :func:`ffbsm` (``logtau`` evaluated
+    with the drawn states as ``x1 (b, d, n)``); ``u (B, T, d)`` uniforms in [0, 1). Returns the
+    draws ``(B, d, T, n)``, particles of each step's cloud. Cost ``O(Np)`` per step and draw;
+    memory ``O(block · Np · d)``.
+
+    >>> import numpy as np
+    >>> x0, x1 = np.array([[[-1.0], [1.0]]]), np.array([[[1.0]]])   # τ = N(x, 0.1): x̃_0 = 1 almost surely
+    >>> lt = lambda x, y, k: -5.0 * (y[:, None, :, 0] - x[:, :, None, 0]) ** 2
+    >>> backward_simulation([x0, x1], [np.zeros((1, 2)), np.zeros((1, 1))], lt, np.full((1, 2, 3), 0.01))[0, :, 0, 0].tolist()
+    [1.0, 1.0, 1.0]
+    """
+    T = len(xs)
+    B, _, d = u.shape
+    n = xs[-1].shape[-1]
+    out = np.empty((B, d, T, n))
+    if T == 0:
+        return out
+    Np = max(x.shape[1] for x in xs)
+    block = max(1, BLOCK // (Np * d * n)) if block is None else block
+    for lo in range(0, B, block):
+        sl = slice(lo, min(lo + block, B))
+        rows = np.arange(sl.stop - sl.start)[:, None]
+        j = _categorical(weights(logws[-1][sl])[:, None, :], u[sl, T - 1], T - 1, lo)
+        x = out[sl, :, T - 1] = xs[-1][sl][rows, j]
+        for k in range(T - 2, -1, -1):
+            lw = logws[k][sl]
+            if logg is not None:  # y_{k+1} depends on x_k (an SDE's left point): ∝ w τ g_{k+1}(x_k)
+                lw = lw + logg(xs[k][sl], k, sl)
+            a = np.swapaxes(logtau(xs[k][sl], x, k), -1, -2) + lw[:, None, :]  # (b, d, Np): log w_k,i τ(x̃_{k+1} | x_k,i)
+            mx = np.max(a, axis=-1, keepdims=True)
+            a -= np.where(np.isfinite(mx), mx, 0.0)
+            j = _categorical(np.exp(a, out=a), u[sl, k], k, lo)
+            x = out[sl, :, k] = xs[k][sl][rows, j]
+    return out

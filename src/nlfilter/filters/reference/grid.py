@@ -19,7 +19,7 @@ from ..base import gaussian_prior
 from ..pointmass import apply_kernel, axis_points, moments, normalize
 from ..linalg import gaussian_loglik, innovation_info, measurement_loglik, no_information, observed_precision
 from ._reference_base import _ReferenceFilter
-from .forward_backward import grid_smoother
+from .forward_backward import grid_ffbs, grid_smoother
 
 
 EDGE_LIMIT = 0.9
@@ -390,9 +390,17 @@ class GridFilter(_ReferenceFilter):
         Keeps every step's density: ``B × T × N`` floats (``smooth(..., chunk=)`` bounds B)."""
         if not beliefs:  # T = 0: nothing to smooth
             return est.means, est.covs
+        return grid_smoother([b.p for b in beliefs], self._step_kernel(t0), self.X)
+
+    def _step_kernel(self, t0):
+        """``k ↦`` the kernel from step ``k`` to step ``k + 1`` of a run from ``t0``."""
         if self.time == "continuous":  # step k's density is at t0 + (k + 1) dt; the next step starts there
-            kernel = lambda k: self._kernel(t0 + (k + 1) * self.dt)  # noqa: E731
-        else:  # step k + 1 is predicted from step k at model index k + offset (base.run)
-            offset = 0 if self.start == "update" else 1
-            kernel = lambda k: self._kernel(k + offset)  # noqa: E731
-        return grid_smoother([b.p for b in beliefs], kernel, self.X)
+            return lambda k: self._kernel(t0 + (k + 1) * self.dt)
+        offset = 0 if self.start == "update" else 1  # step k + 1 is predicted from step k at model index k + offset (base.run)
+        return lambda k: self._kernel(k + offset)
+
+    def _sample(self, beliefs, ys, t0, u):
+        """Trajectory draws ``(B, d, T, n)`` by forward filtering, backward sampling on the grid
+        (:func:`~nlfilter.filters.reference.forward_backward.grid_ffbs`; ``u (B, T, d)`` uniforms):
+        exact draws of the grid chain's posterior, grid points (:func:`nlfilter.sample_posterior`)."""
+        return grid_ffbs([b.p for b in beliefs], self._step_kernel(t0), self.X, u)

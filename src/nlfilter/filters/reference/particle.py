@@ -19,7 +19,7 @@ from ...streams import FILTER, PathRNG
 from ..pointmass import cloud_moments, weights
 from ..linalg import gaussian_loglik, innovation_info, measurement_loglik, mm, no_information, observed_precision
 from ._reference_base import _ReferenceFilter
-from .forward_backward import ffbsm, transition_logpdf
+from .forward_backward import backward_simulation, ffbsm, transition_logpdf
 
 
 class ParticleBelief(NamedTuple):
@@ -341,6 +341,20 @@ class ParticleFilter(_ReferenceFilter):
         of that update on the particles before the next resampling)."""
         if not beliefs:  # T = 0: nothing to smooth
             return est.means, est.covs
+        logtau, logg, block = self._backward(ys, t0)
+        return ffbsm([b.x for b in beliefs], [b.logw for b in beliefs], logtau, block=block, logg=logg)
+
+    def _sample(self, beliefs, ys, t0, u):
+        """Trajectory draws ``(B, d, T, n)`` by backward simulation through the filtered clouds
+        (Godsill, Doucet & West 2004;
+        :func:`~nlfilter.filters.reference.forward_backward.backward_simulation`; ``u (B, T, d)``
+        uniforms): particles of each step's cloud (:func:`nlfilter.sample_posterior`)."""
+        logtau, logg, block = self._backward(ys, t0)
+        return backward_simulation([b.x for b in beliefs], [b.logw for b in beliefs], logtau, u, block=block, logg=logg)
+
+    def _backward(self, ys, t0):
+        """The backward kernel's pieces for a run from ``t0`` on ``ys (B, T, m)``: ``(logtau, logg,
+        block)`` as :func:`~nlfilter.filters.reference.forward_backward.ffbsm` takes them."""
         md = self.model
         logg = None
         if self.time == "continuous":  # step k's cloud is at t0 + (k + 1) dt: one Euler–Maruyama step on
@@ -353,5 +367,4 @@ class ParticleFilter(_ReferenceFilter):
             offset = 0 if self.start == "update" else 1
             logtau = lambda x, x1, k: transition_logpdf(md, x, x1, k + offset)  # noqa: E731
         per_path = bool(getattr(getattr(md, "_values", None), "per_path", ()))  # parameters per path: no blocks
-        return ffbsm([b.x for b in beliefs], [b.logw for b in beliefs], logtau, block=ys.shape[0] if per_path else None,
-                     logg=logg)
+        return logtau, logg, ys.shape[0] if per_path else None
