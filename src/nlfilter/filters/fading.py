@@ -39,7 +39,7 @@ __all__ = ["FadingMemory"]
 class FadingMemory:
     """The fading-memory option of the Gaussian filters (module docstring): a mixin of
     :class:`~nlfilter.filters.gaussian.GaussianFilter` and
-    :class:`~nlfilter.filters.kalman.KalmanFilter`, whose predictions call :meth:`_inflate`."""
+    :class:`~nlfilter.filters.kalman.KalmanFilter`, whose predictions call its ``_inflate``."""
 
     fading = 1.0  # α: 1.0 is no fading (the class's value; fading_memory sets an instance's)
 

@@ -65,8 +65,8 @@ def sample_posterior(flt, ys, m0=None, P0=None, n: int = 1, rng=None, *, initial
     ----------
     flt : Filter
         A discrete-time Gaussian filter with an RTS smoother (KF, EKF, IEKF, UKF, CKF, GHKF, SLF,
-        the second-order filters; continuous-discrete ones too), a :class:`GridFilter` or a
-        :class:`ParticleFilter` (on an SDEModel: built with ``substeps=1``, whose step has a
+        the second-order filters; continuous-discrete ones too), a :class:`~nlfilter.filters.reference.grid.GridFilter` or a
+        :class:`~nlfilter.filters.reference.particle.ParticleFilter` (on an SDEModel: built with ``substeps=1``, whose step has a
         transition density).
     ys : array (..., T, m)
         Measurements, NaN where missing (as :meth:`~nlfilter.filters.base.Filter.run`).
