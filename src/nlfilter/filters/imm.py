@@ -264,7 +264,7 @@ def _poison(state, bad):
 class TwoModeIMM(IMM):
     """The registry's IMM (``"imm"``): two EKFs of one ``model`` — mode 0 the model itself, mode 1
     a manoeuvre mode, the same model with fading memory ``alpha`` (its prediction from
-    ``N(m, α² P)``: more process uncertainty, :mod:`~nlfilter.filters.fading`) — switching with
+    ``N(m, α² P)``: more process uncertainty, ``nlfilter.filters.fading``) — switching with
     probability ``1 − stay`` per step, mode probabilities 1/2 each at the start. What ``compare``
     and the contract build from one model (``cls(model, start=...)``); an IMM of other modes is
     :class:`IMM` over filters of their own models.
