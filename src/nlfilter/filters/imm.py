@@ -35,6 +35,19 @@ mode's likelihood that underflows a double does not zero it; a path where every 
 0 or NaN (the measurement is impossible under every mode) is a divergence (raised or marked, as the
 other filters: :mod:`~nlfilter.filters.base`).
 
+Smoothing (``smooth``): the backward pass of Kim (1994, J. Econometrics 60, §2.2; Kim & Nelson
+1999, *State-Space Models with Regime Switching*, §5.2.2) over the IMM's forward beliefs — the
+standard approximate smoother of a jump-Markov Gaussian model. From the last step, where it is the
+filter, back to step k, with ``c̄_{k+1} = μ_k Π`` (the predicted mode probabilities)::
+
+    P(r_k = i, r_{k+1} = j | all) = μ_k(i) Π_ij μˢ_{k+1}(j) / c̄_{k+1}(j),   μˢ_k(i) = Σ_j of it
+    (m⁻_ij, P⁻_ij, D_ij) = member j's prediction from N(m_k^i, P_k^i) (its own rule, as its RTS smoother)
+    mˢ_ij = m_k^i + G_ij (mˢ_{k+1,j} − m⁻_ij),   Pˢ_ij = P_k^i + G_ij (Pˢ_{k+1,j} − P⁻_ij) G_ijᵀ,   G_ij = D_ij (P⁻_ij)⁻¹
+
+and mode i's smoothed Gaussian is the moment match of ``N(mˢ_ij, Pˢ_ij)`` over j with the weights
+``P(r_{k+1} = j | r_k = i, all)``; the output is the combination (5.) with ``μˢ_k``, and
+``extras["mode_probs"]`` the smoothed ``μˢ``. With one mode it is the member's RTS smoother.
+
 Step convention: the members' ``start`` is ignored; the IMM's own (``start``, as every discrete
 filter). With ``start="update"`` the prior ``N(m0, P0)`` is every mode's at step 0 with the mode
 probabilities ``mode_probs0``; with ``start="predict"`` (filterpy's ``IMMEstimator``: predict,
@@ -62,6 +75,8 @@ from .base import DiscreteFilter, Filter, check_structure, gaussian_prior, set_s
 from .beliefs import GaussianState
 from .gaussian import GaussianFilter
 from .kalman import KalmanFilter
+from .linalg import symmetrize
+from .smoothing import _solve_right
 
 __all__ = ["IMM", "IMMState", "TwoModeIMM"]
 
@@ -123,9 +138,10 @@ class IMM(DiscreteFilter):
 
     Notes
     -----
-    No smoother (the IMM smoother is not implemented), no compiled loop (``backend="auto"`` runs
-    the NumPy loop; ``backend="numba"`` is refused), no correlated process and measurement noise
-    (the members' beliefs would carry the measurement).
+    ``smooth``: Kim's smoother over the IMM's forward pass (module docstring, "Smoothing"),
+    smoothed mode probabilities in ``extras["mode_probs"]``. No compiled loop (``backend="auto"``
+    runs the NumPy loop; ``backend="numba"`` is refused), no correlated process and measurement
+    noise (the members' beliefs would carry the measurement).
     """
 
     name = "imm"
@@ -136,7 +152,8 @@ class IMM(DiscreteFilter):
     structures = ("state-dependent R", "non-additive noise", "non-additive measurement noise")
     likelihood = "mixture-prediction-error"
     compiled = False  # the mixing is not lowered: the compiled loop refuses the IMM (auto: NumPy)
-    smoother = None
+    smoother = "imm-kim"
+    smoother_keeps = True  # the backward pass reads every step's per-mode beliefs
 
     def __init__(self, filters, transition, mode_probs0=None, *, start: str | None = None):
         if isinstance(filters, Filter) or not isinstance(filters, (list, tuple)) or not filters:
@@ -252,6 +269,42 @@ class IMM(DiscreteFilter):
 
     def extras(self, state):
         return {"mode_probs": state.probs}
+
+    def _smooth(self, est, beliefs, ys, t0):
+        """Kim's backward pass (module docstring, "Smoothing") over the forward beliefs of every step."""
+        if not beliefs:  # no step: nothing to smooth
+            return est.means, est.covs, {"mode_probs": np.empty((*est.means.shape[:2], self.modes))}
+        mean = np.stack([b.mean for b in beliefs], axis=1)  # (B, T, M, n)
+        cov = np.stack([b.cov for b in beliefs], axis=1)
+        mu = np.stack([b.probs for b in beliefs], axis=1)  # (B, T, M)
+        B, T, M, n = mean.shape
+        off = 0 if self.start == "update" else 1
+        xs, Xs, mus = mean[:, -1], cov[:, -1], mu[:, -1]
+        out_m, out_P, out_mu = np.empty((B, T, n)), np.empty((B, T, n, n)), np.empty((B, T, M))
+        out_m[:, -1], out_P[:, -1] = _combine(mus, xs, Xs)
+        out_mu[:, -1] = mus
+        for k in range(T - 2, -1, -1):
+            m, P = mean[:, k], cov[:, k]
+            cbar = mu[:, k] @ self.transition  # P(r_{k+1} = j | y_0..y_k)
+            ratio = np.where(cbar > 0, mus / np.where(cbar > 0, cbar, 1.0), 0.0)
+            joint = mu[:, k, :, None] * self.transition[None] * ratio[:, None, :]  # P(r_k = i, r_{k+1} = j | all)
+            mus_k = joint.sum(axis=-1)
+            w = np.where(mus_k[..., None] > 0, joint / np.where(mus_k > 0, mus_k, 1.0)[..., None],
+                         self.transition[None])  # P(r_{k+1} = j | r_k = i, all)
+            x_ij, P_ij = np.empty((B, M, M, n)), np.empty((B, M, M, n, n))
+            for i in range(M):
+                for j, f in enumerate(self.filters):  # mode i's filtered belief through model j
+                    pred, D = f._predict_cross(GaussianState(m[:, i], P[:, i]), k + off)
+                    G = _solve_right(pred.cov, D)
+                    x_ij[:, i, j] = m[:, i] + np.einsum("...ij,...j->...i", G, xs[:, j] - pred.mean)
+                    P_ij[:, i, j] = symmetrize(P[:, i] + G @ (Xs[:, j] - pred.cov) @ np.swapaxes(G, -1, -2))
+            xs = np.einsum("bij,bijn->bin", w, x_ij)
+            d = x_ij - xs[:, :, None, :]
+            Xs = np.einsum("bij,bijkl->bikl", w, P_ij) + np.einsum("bij,bijk,bijl->bikl", w, d, d)
+            mus = mus_k
+            out_m[:, k], out_P[:, k] = _combine(mus, xs, Xs)
+            out_mu[:, k] = mus
+        return out_m, out_P, {"mode_probs": out_mu}
 
 
 def _poison(state, bad):
