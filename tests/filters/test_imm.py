@@ -337,3 +337,21 @@ def test_smoother_without_switching_is_exact_model_averaging():
     np.testing.assert_allclose(sm.means, mean, rtol=0, atol=1e-10)
     np.testing.assert_allclose(sm.covs, cov, rtol=0, atol=1e-10)
     np.testing.assert_allclose(sm.extras["mode_probs"], np.broadcast_to(p[:, None], (2, 7, 2)), rtol=0, atol=1e-10)
+
+
+def test_modes_as_parameter_values_of_one_model():
+    """``IMM.from_params``: one model with a parameter ``q`` in Q, the modes its values — the IMM of
+    the two models written out (1e-12); a bad ``modes`` or ``build`` named."""
+    q = sp.Symbol("q")
+    X = sp.Matrix([x1, x2])
+    md = DiscreteModel([x1, x2], list(sp.Matrix(F2) * X), [x1, x2], Q=[[q, 0], [0, 2 * q]], R=RC, params={q: 0.1})
+    ys = _ys((2,), 6, 8)
+    a = IMM.from_params(KalmanFilter, md, [{"q": 0.1}, {q: 1.0}], PI).run(ys, M2, P2)
+    b = IMM([KalmanFilter(LIN), KalmanFilter(LIN_LOUD)], PI).run(ys, M2, P2)
+    for key in ("means", "covs"):
+        np.testing.assert_allclose(getattr(a, key), getattr(b, key), rtol=0, atol=1e-12)
+    np.testing.assert_allclose(a.extras["mode_probs"], b.extras["mode_probs"], rtol=0, atol=1e-12)
+    with pytest.raises(TypeError, match=r"^modes: expected a non-empty list of dicts"):
+        IMM.from_params(KalmanFilter, md, {"q": 0.1}, PI)
+    with pytest.raises(TypeError, match=r"^build: expected a callable"):
+        IMM.from_params("ekf", md, [{"q": 0.1}, {"q": 1.0}], PI)

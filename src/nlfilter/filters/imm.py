@@ -184,6 +184,35 @@ class IMM(DiscreteFilter):
         self.model = first.model  # the first mode's (state_dim, data_dim, the data's kind)
         set_start(self, start)
 
+    @classmethod
+    def from_params(cls, build, model, modes, transition, mode_probs0=None, *, start: str | None = None):
+        """The IMM of one ``model`` whose modes are values of its parameters: mode j's filter is
+        ``build(model.with_params(modes[j]))`` (the generated code shared, no SymPy per mode).
+
+        Parameters
+        ----------
+        build : a callable ``model -> discrete Gaussian filter`` (a class: ``EKF``, ``UKF``, ``KalmanFilter``, ...)
+        model : a model stated with ``params=`` (:meth:`~nlfilter.models.Model.with_params`)
+        modes : a list of dicts of parameter values, one per mode (e.g. ``[{"q": 0.01}, {"q": 1.0}]``)
+        transition, mode_probs0, start : as :class:`IMM`
+
+        >>> import numpy as np, sympy as sp; from nlfilter import DiscreteModel
+        >>> from nlfilter.filters import KalmanFilter
+        >>> x, q = sp.symbols("x q")
+        >>> walk = DiscreteModel([x], [x], [x], Q=[[q]], R=1.0, params={q: 0.01})
+        >>> imm = IMM.from_params(KalmanFilter, walk, [{"q": 0.01}, {"q": 4.0}], [[0.95, 0.05], [0.05, 0.95]])
+        >>> [float(f.model.Q[0, 0]) for f in imm.filters]
+        [0.01, 4.0]
+        """
+        if not callable(build):
+            raise TypeError(f"build: expected a callable model -> filter (e.g. EKF), got {V.shown(build)}")
+        if not isinstance(modes, (list, tuple)) or not modes or not all(isinstance(v, dict) for v in modes):
+            raise TypeError(f"modes: expected a non-empty list of dicts of parameter values (one per mode), "
+                            f"got {V.shown(modes)}")
+        if not callable(getattr(model, "with_params", None)):
+            raise TypeError(f"model: expected a model with parameters (params=), got {type(model).__name__}")
+        return cls([build(model.with_params(v)) for v in modes], transition, mode_probs0, start=start)
+
     @property
     def modes(self) -> int:
         return len(self.filters)
