@@ -255,8 +255,8 @@ def test_compiled_backend_refuses_it():
 
 # -- bad input named ---------------------------------------------------------------------------------------
 @pytest.mark.parametrize("args,err,match", [
-    (([EKF(D2), EKF(D2)], [[0.9, 0.1]]), ValueError, r"^transition: expected an \(2, 2\) Markov matrix"),
-    (([EKF(D2), EKF(D2)], np.eye(3)), ValueError, r"^transition: expected an \(2, 2\)"),
+    (([EKF(D2), EKF(D2)], [[0.9, 0.1]]), ValueError, r"^transition: expected a \(2, 2\) Markov matrix"),
+    (([EKF(D2), EKF(D2)], np.eye(3)), ValueError, r"^transition: expected a \(2, 2\)"),
     (([EKF(D2), EKF(D2)], [[1.1, -0.1], [0.5, 0.5]]), ValueError, r"^transition: expected non-negative"),
     (([EKF(D2), EKF(D2)], [[0.9, 0.2], [0.5, 0.5]]), ValueError, r"^transition: expected probabilities summing to 1"),
     (([EKF(D2), EKF(D2)], [[0.9, np.nan], [0.5, 0.5]]), ValueError, r"^transition: expected finite"),

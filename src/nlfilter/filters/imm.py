@@ -5,22 +5,22 @@ A jump-Markov system switches between ``M`` models (modes) by a Markov chain
 G, Q, h, R over the same state and measurement dimensions, and its own rule: EKF, UKF, CKF, the
 Kalman filter, ...). The IMM filter (Blom & Bar-Shalom 1988; Bar-Shalom, Li & Kirubarajan 2001,
 *Estimation with Applications to Tracking and Navigation*, §11.6.6) carries one Gaussian
-``N(m_j, P_j)`` per mode and the mode probabilities ``μ_j``. One cycle (equation numbers of
-Bar-Shalom, Li & Kirubarajan 2001, §11.6.6):
+``N(m_j, P_j)`` per mode and the mode probabilities ``μ_j``. One cycle (the steps of
+Bar-Shalom, Li & Kirubarajan 2001, §11.6.6, in their notation):
 
-1. mixing (interaction; 11.6.6-6 to 11.6.6-8), from the filtered beliefs of step k::
+1. mixing (interaction), from the filtered beliefs of step k::
 
        c̄_j = Σ_i Π_ij μ_i,     μ_{i|j} = Π_ij μ_i / c̄_j,
        m⁰_j = Σ_i μ_{i|j} m_i,   P⁰_j = Σ_i μ_{i|j} [P_i + (m_i − m⁰_j)(m_i − m⁰_j)ᵀ]
 
 2. mode-matched prediction: member j's own ``predict`` from ``N(m⁰_j, P⁰_j)``; the predicted mode
    probabilities are ``c̄_j``;
-3. mode-matched update (11.6.6-9, -10): member j's own update on ``y_k``, with its likelihood
+3. mode-matched update: member j's own update on ``y_k``, with its likelihood
    ``Λ_j = N(y_k; ŷ_j, S_j)`` (its own predictive moments; missing components drop out as in the
    members: ``Λ_j`` is the density of the observed components, 1 when nothing is measured);
-4. mode probabilities (11.6.6-11, -12): ``μ_j = c̄_j Λ_j / c``, ``c = Σ_j c̄_j Λ_j``; the step's
+4. mode probabilities: ``μ_j = c̄_j Λ_j / c``, ``c = Σ_j c̄_j Λ_j``; the step's
    log-likelihood is ``log c`` (the predictive density of ``y_k`` is the mixture Σ_j c̄_j N(ŷ_j, S_j));
-5. combination (output only, 11.6.6-16, -17)::
+5. combination (output only)::
 
        m = Σ_j μ_j m_j,   P = Σ_j μ_j [P_j + (m_j − m)(m_j − m)ᵀ]
 
@@ -30,19 +30,23 @@ and ``covs`` are the combination, ``extras["mode_probs"] (..., T, M)`` the filte
 ``loglik=True`` ``extras["loglik"]`` is ``log c`` and ``innovation``/``innovation_cov`` are the
 mean ``Σ c̄_j (y − ŷ_j)`` and covariance ``Σ c̄_j [S_j + (ŷ_j − ŷ)(ŷ_j − ŷ)ᵀ]`` of the predictive
 mixture (NaN innovation in a missing component, whose ``ŷ_j`` the members do not report: the
-spread term is 0 in its rows and columns). The probabilities are updated in log space (``log c̄_j + log Λ_j``, the log-sum-exp), so a
-mode's likelihood that underflows a double does not zero it; a path where every mode's likelihood is
-0 or NaN (the measurement is impossible under every mode) is a divergence (raised or marked, as the
-other filters: :mod:`~nlfilter.filters.base`).
+spread term is 0 in its rows and columns). The probabilities are updated in log space
+(``log c̄_j + log Λ_j``, the log-sum-exp), so a mode's likelihood that underflows a double does
+not zero it; a path where every mode's likelihood is 0 or NaN (the measurement is impossible
+under every mode) is a divergence (raised or marked, as the other filters:
+:mod:`~nlfilter.filters.base`).
 
-Smoothing (``smooth``): the backward pass of Kim (1994, J. Econometrics 60, §2.2; Kim & Nelson
-1999, *State-Space Models with Regime Switching*, §5.2.2) over the IMM's forward beliefs — the
-standard approximate smoother of a jump-Markov Gaussian model. From the last step, where it is the
-filter, back to step k, with ``c̄_{k+1} = μ_k Π`` (the predicted mode probabilities)::
+Smoothing (``smooth``): the backward pass of Kim (1994, "Dynamic linear models with
+Markov-switching", J. Econometrics 60; Kim & Nelson 1999, *State-Space Models with Regime
+Switching*, ch. 5) over the IMM's forward beliefs — the standard approximate smoother of a
+jump-Markov Gaussian model (exact when the mode never switches, Π = I: Bayesian model averaging
+of the members' RTS smoothers). From the last step, where it is the filter, back to step k,
+with ``c̄_{k+1} = μ_k Π`` (the predicted mode probabilities)::
 
     P(r_k = i, r_{k+1} = j | all) = μ_k(i) Π_ij μˢ_{k+1}(j) / c̄_{k+1}(j),   μˢ_k(i) = Σ_j of it
     (m⁻_ij, P⁻_ij, D_ij) = member j's prediction from N(m_k^i, P_k^i) (its own rule, as its RTS smoother)
-    mˢ_ij = m_k^i + G_ij (mˢ_{k+1,j} − m⁻_ij),   Pˢ_ij = P_k^i + G_ij (Pˢ_{k+1,j} − P⁻_ij) G_ijᵀ,   G_ij = D_ij (P⁻_ij)⁻¹
+    G_ij = D_ij (P⁻_ij)⁻¹,   mˢ_ij = m_k^i + G_ij (mˢ_{k+1,j} − m⁻_ij),
+    Pˢ_ij = P_k^i + G_ij (Pˢ_{k+1,j} − P⁻_ij) G_ijᵀ
 
 and mode i's smoothed Gaussian is the moment match of ``N(mˢ_ij, Pˢ_ij)`` over j with the weights
 ``P(r_{k+1} = j | r_k = i, all)``; the output is the combination (5.) with ``μˢ_k``, and
@@ -175,7 +179,7 @@ class IMM(DiscreteFilter):
         M = len(filters)
         Pi = _probability_rows("transition", transition)
         if Pi.shape != (M, M):
-            raise ValueError(f"transition: expected an ({M}, {M}) Markov matrix (one row and column per filter), "
+            raise ValueError(f"transition: expected a ({M}, {M}) Markov matrix (one row and column per filter), "
                              f"got shape {Pi.shape}")
         mu0 = np.full(M, 1.0 / M) if mode_probs0 is None else _probability_rows("mode_probs0", mode_probs0, M)
         if mu0.ndim != 1:
