@@ -32,6 +32,7 @@ from nlfilter.filters import (CKF, REGISTRY, EKF, FORMS, GHKF, MQLF, PLL, QLF, U
 from nlfilter.filters import (ContinuousDiscreteCKF, ContinuousDiscreteEKF, ContinuousDiscreteGaussianFilter,
                               ContinuousDiscreteGHKF, ContinuousDiscreteIEKF, ContinuousDiscreteUKF, GaussianFilter,
                               IteratedEKF, StatisticallyLinearizedFilter, ContinuousDiscreteSLF)
+from nlfilter.filters.imm import TwoModeIMM
 from nlfilter.filters.rule_filter import RuleFilter
 from nlfilter.filters.rules import Taylor2
 from nlfilter.filters.reference import ResampleMoveParticleFilter
@@ -211,6 +212,9 @@ CASES = [
     # needs no line here
     *[_gauss(name, lambda cls=cls, model=D2, **k: cls(model, **k), D2, M2, P2, options=(("start", "bogus"),))
       for name, cls in REGISTRY.items() if issubclass(cls, RuleFilter)],
+    # the registry's IMM (two EKF modes of one model, the second with fading memory: filters/imm.py)
+    _gauss("imm", lambda model=D2, **k: TwoModeIMM(model, **k), D2, M2, P2,
+           options=(("start", "bogus"), ("stay", 1.5), ("alpha", 0.5), ("alpha", 1.0)), extras={"mode_probs": (2,)}),
     _gauss("cd-slf", lambda model=S2, **k: ContinuousDiscreteSLF(model, DT, **k), euler_discretization(S2, DT),
            M2, P2, options=(("scheme", "bogus"), ("start", "bogus"))),
     _gauss("iekf", lambda model=D2, **k: IteratedEKF(model, **k), D2, M2, P2,
@@ -962,11 +966,12 @@ SMOOTHER = [c for c in CASES if c.filter().smoother is not None]
 
 def test_likelihood_and_smoother_families():
     """Which filters give a likelihood and which smooth (the README's table says the same)."""
-    assert {c.filter().likelihood for c in LIKELIHOOD} == {"prediction-error", "exact", "estimate", "assumed-density"}
+    assert {c.filter().likelihood for c in LIKELIHOOD} == {"prediction-error", "exact", "estimate", "assumed-density",
+                                                            "mixture-prediction-error"}
     for c in CASES:
         f = c.filter()
-        assert (f.likelihood is not None) == (f.family in ("gaussian", "second-order", "conditional moments")
-                                              or f.name in ("grid", "particle")), c.name
+        assert (f.likelihood is not None) == (f.family in ("gaussian", "second-order", "conditional moments",
+                                                           "multiple-model") or f.name in ("grid", "particle")), c.name
         if f.family in ("gaussian", "second-order"):
             assert f.smoother == "rts", c.name
         if f.name == "grid":

@@ -8,6 +8,7 @@ kalman, ekf, ukf          KalmanFilter, KalmanBucy, EKF, IteratedEKF, Continuous
                           ContinuousDiscreteEKF, ContinuousDiscreteIEKF, ContinuousDiscreteUKF
 cubature                  CKF, GHKF, ContinuousDiscreteCKF, ContinuousDiscreteGHKF, the statistically
                           linearized filters (exact Gaussian moments of polynomial models)
+imm                       IMM (interacting multiple models over Gaussian filters), TwoModeIMM (registry)
 gaussian, rules           GaussianFilter, ContinuousDiscreteGaussianFilter over a moment rule
                           (Taylor1, Unscented, Cubature, GaussHermite, Cubature5)
 rule_filter               rule_filter: a registered filter class from a rule (the ckf5 line)
@@ -37,6 +38,7 @@ from .cubature import (CKF, GHKF, ContinuousDiscreteCKF, ContinuousDiscreteGHKF,
                        StatisticallyLinearizedFilter)
 from .ekf import EKF, ContinuousDiscreteEKF, ContinuousDiscreteIEKF, ContinuousEKF, IteratedEKF
 from .gaussian import ContinuousDiscreteGaussianFilter, GaussianFilter
+from .imm import IMM, TwoModeIMM
 from .kalman import KalmanBucy, KalmanFilter
 from .moment_bayes import (FirstOrderMomentFilter, ScaledNoiseZeroOrderFilter, SecondOrderMomentFilter,
                            ZeroOrderMomentFilter)
@@ -76,6 +78,7 @@ REGISTRY = {
     "bounded-grid": BoundedGridFilter1D, "bounded-particle": BoundedParticleFilter,
     "grid": GridFilter, "particle": ParticleFilter,
     "resample-move": ResampleMoveParticleFilter,
+    "imm": TwoModeIMM,
 }
 
 
@@ -95,4 +98,4 @@ __all__ = ["REGISTRY", "get", "GaussianState", "Estimates", "DiscreteFilter", "C
            "ParticleFilter", "BoundedGridFilter1D", "BoundedParticleFilter", "ResampleMoveParticleFilter",
            "CKF", "GHKF", "IteratedEKF", "ContinuousDiscreteEKF", "ContinuousDiscreteIEKF", "ContinuousDiscreteUKF",
            "ContinuousDiscreteCKF", "ContinuousDiscreteGHKF", "GaussianFilter", "ContinuousDiscreteGaussianFilter",
-           "StatisticallyLinearizedFilter", "ContinuousDiscreteSLF", "rule_filter"]
+           "StatisticallyLinearizedFilter", "ContinuousDiscreteSLF", "rule_filter", "IMM", "TwoModeIMM"]
