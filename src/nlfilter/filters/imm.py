@@ -200,6 +200,8 @@ class IMM(DiscreteFilter):
         modes : a list of dicts of parameter values, one per mode (e.g. ``[{"q": 0.01}, {"q": 1.0}]``)
         transition, mode_probs0, start : as :class:`IMM`
 
+        Examples
+        --------
         >>> import numpy as np, sympy as sp; from nlfilter import DiscreteModel
         >>> from nlfilter.filters import KalmanFilter
         >>> x, q = sp.symbols("x q")
