@@ -25,10 +25,15 @@ import pytest
 from nlfilter import cli, montecarlo
 from nlfilter.experiments import get
 from nlfilter.experiments import cubic_sensor as cs
-from nlfilter.experiments import phase_tracking as pt
+from nlfilter.experiments import moment_systems as ms
 from nlfilter.store import ResultsStore
 
-PARAMS = {"sweep": 3, "block": 2}  # quick phase tracking: 5 paths = blocks of 2, 2 and 1
+# the quick second-order moment system on one input law and one N: 5 paths = blocks of 2, 2 and 1,
+# ~1 s a run (phase tracking, used before, runs ~5 s of Monte Carlo and, once per process, ~10 s
+# off-line: how blocks are computed, grouped, sent to Dask workers and resumed is the experiment's
+# business only through its block function)
+EXP = "moment-second-order"
+PARAMS = {"laws": ["uniform"], "N": [2], "particles": 200, "T": 30, "skip": 10, "block": 2}
 
 
 def _json(res) -> str:
@@ -40,18 +45,18 @@ def _json(res) -> str:
 
 @pytest.fixture(scope="module")
 def reference():
-    return get("phase-tracking").run(PARAMS, quick=True, runs=5, seed=1)
+    return get(EXP).run(PARAMS, quick=True, runs=5, seed=1)
 
 
 def test_chunks_give_identical_json(reference):
-    exp = get("phase-tracking")
+    exp = get(EXP)
     for chunk in (1, 3, 4, 100):
         assert _json(exp.run(PARAMS, quick=True, runs=5, seed=1, chunk=chunk)) == _json(reference), chunk
 
 
 def test_dask_workers_give_identical_json(reference):
     pytest.importorskip("dask.distributed")
-    exp = get("phase-tracking")
+    exp = get(EXP)
     for workers, chunk in ((1, None), (2, None), (2, 4)):
         res = exp.run(PARAMS, quick=True, runs=5, seed=1, executor="dask", workers=workers, chunk=chunk)
         assert res.meta["execution"]["executor"] == "dask" and res.meta["execution"]["workers"] == workers
@@ -76,12 +81,12 @@ def _crash_at(monkeypatch, module, name, n):
 
 
 def test_interrupted_run_resumes_only_unfinished_blocks(tmp_path, monkeypatch, reference):
-    calls = _crash_at(monkeypatch, pt, "_phase_block", 3)
-    exp = get("phase-tracking")
+    calls = _crash_at(monkeypatch, ms, "_second_order_block", 3)
+    exp = get(EXP)
     with ResultsStore(tmp_path / "s.sqlite") as st:
         with pytest.raises(KeyboardInterrupt):
             exp.run(PARAMS, quick=True, runs=5, seed=1, store=st)
-        assert st.count_blocks("phase-tracking") == 2
+        assert st.count_blocks(EXP) == 2
         calls.clear()
         res = exp.run(PARAMS, quick=True, runs=5, seed=1, store=st)
         assert [(r.start, r.stop) for r in calls] == [(4, 5)]  # only the unfinished block
