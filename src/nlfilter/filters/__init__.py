@@ -11,6 +11,8 @@ cubature                  CKF, GHKF, ContinuousDiscreteCKF, ContinuousDiscreteGH
 gaussian, rules           GaussianFilter, ContinuousDiscreteGaussianFilter over a moment rule
                           (Taylor1, Unscented, Cubature, GaussHermite, Cubature5)
 rule_filter               rule_filter: a registered filter class from a rule (the ckf5 line)
+square_root               SquareRootKF, SquareRootEKF, SquareRootUKF, SquareRootCKF, SquareRootGHKF: the
+                          belief a Cholesky factor, QR (array) steps, downdates for negative weights
 second_order              SecondOrderFilter, ContinuousSecondOrderFilter,
                           ContinuousDiscreteSecondOrderFilter (seed 004; ``form=`` FORMS)
 skeleton                  the Gaussian steps as functions (predict, condition, moment_rhs, ito_rhs) that
@@ -45,6 +47,7 @@ from .phase import PLL, CircleGridFilter, LinearQuadratureFilter, PhaseTensorFil
 from .quasilinear import MQLF, QLF, DiscreteQuasilinearFilter, QuasilinearFilter
 from .reference import GridFilter, ParticleFilter, ResampleMoveParticleFilter
 from .reference.bounded import BoundedGridFilter1D, BoundedParticleFilter
+from .square_root import SquareRootCKF, SquareRootEKF, SquareRootGHKF, SquareRootKF, SquareRootUKF
 from .second_order import (FORMS, ContinuousDiscreteSecondOrderFilter, ContinuousSecondOrderFilter,
                            SecondOrderFilter)
 from .ukf import UKF, ContinuousDiscreteUKF
@@ -59,6 +62,8 @@ REGISTRY = {
     "ekf": EKF, "iekf": IteratedEKF, "ukf": UKF, "ckf": CKF, "ghkf": GHKF, "slf": StatisticallyLinearizedFilter,
     "ckf5": rule_filter(Cubature5(), name="ckf5", source="Jia, Xin & Cheng 2013, High-degree cubature Kalman filter, "
                         "Automatica 49; Stroud 1971, Approximate calculation of multiple integrals (degree-5 rule)"),
+    "sr-kf": SquareRootKF, "sr-ekf": SquareRootEKF, "sr-ukf": SquareRootUKF, "sr-ckf": SquareRootCKF,
+    "sr-ghkf": SquareRootGHKF,
     "continuous-ekf": ContinuousEKF,
     "continuous-discrete-ekf": ContinuousDiscreteEKF, "continuous-discrete-iekf": ContinuousDiscreteIEKF,
     "continuous-discrete-ukf": ContinuousDiscreteUKF, "continuous-discrete-ckf": ContinuousDiscreteCKF,
@@ -95,4 +100,5 @@ __all__ = ["REGISTRY", "get", "GaussianState", "Estimates", "DiscreteFilter", "C
            "ParticleFilter", "BoundedGridFilter1D", "BoundedParticleFilter", "ResampleMoveParticleFilter",
            "CKF", "GHKF", "IteratedEKF", "ContinuousDiscreteEKF", "ContinuousDiscreteIEKF", "ContinuousDiscreteUKF",
            "ContinuousDiscreteCKF", "ContinuousDiscreteGHKF", "GaussianFilter", "ContinuousDiscreteGaussianFilter",
-           "StatisticallyLinearizedFilter", "ContinuousDiscreteSLF", "rule_filter"]
+           "StatisticallyLinearizedFilter", "ContinuousDiscreteSLF", "rule_filter", "SquareRootKF", "SquareRootEKF",
+           "SquareRootUKF", "SquareRootCKF", "SquareRootGHKF"]

@@ -1,0 +1,437 @@
+"""Square-root Gaussian filters: the belief carries a factor ``S`` of its covariance (``P = S Sᵀ``).
+
+The standard Gaussian filters (:mod:`nlfilter.filters.gaussian`) propagate P itself, and in finite
+precision ``P⁻ − K S Kᵀ`` can lose symmetry and positive definiteness where the filters are needed
+most (a near-noiseless measurement, a long run). The square-root forms propagate a lower-triangular
+``S`` by orthogonal transformations only, so ``S Sᵀ`` is symmetric PSD by construction and its
+condition number is the square root of P's (Bierman 1977; Grewal & Andrews, *Kalman Filtering:
+Theory and Practice*, the square-root and triangularization methods). ``tria(A)`` below is the
+lower-triangular ``L`` with ``L Lᵀ = A Aᵀ`` from a QR factorization of ``Aᵀ`` (``Aᵀ = Θ Lᵀ``,
+Θ orthonormal; :func:`tria`); P is never formed in a step.
+
+Taylor-1 (the square-root EKF; the Kalman filter on a linear model, Morf & Kailath 1975)::
+
+    predict:  m⁻ = f(m),  S⁻ = tria([F S,  G(m) Q^½])                      F = f_x(m)
+    update:   tria([[H S⁻,  R^½],      = [[S_y,  0 ],                      H = h_x(m⁻)
+                    [S⁻,     0  ]])       [K̄,   S⁺]]
+              m⁺ = m⁻ + K̄ S_y⁻¹ (y − h(m⁻))        (K = K̄ S_y⁻¹;  S_y S_yᵀ = H P⁻ Hᵀ + R)
+
+Node rules (unscented: van der Merwe & Wan 2001; cubature: Arasaratnam & Haykin 2009;
+Gauss–Hermite: Arasaratnam & Haykin 2008, square-root quadrature) with the points
+``X_i = m + S z_i`` of the rule's table (:meth:`~nlfilter.filters.rules.NodeRule.points`)::
+
+    predict:  m⁻ = Σ wm_i f(X_i),   S⁻ = tria([√wc_i (f(X_i) − m⁻),  G Q^½])   (wc_i > 0)
+              then a Cholesky downdate by √|wc_i| (f(X_i) − m⁻) for every wc_i < 0
+    update:   the joint array  tria([[√wc_i (h(X_i) − ŷ),  R^½],   = [[S_y, 0], [K̄, S⁺]]
+                                     [√wc_i S⁻ z_i,         0  ]])
+              (downdated likewise), ŷ = Σ wm_i h(X_i),  m⁺ = m⁻ + K̄ S_y⁻¹ (y − ŷ)
+
+The joint array's Gram matrix is ``[[S, Cᵀ], [C, Σ wc_i S⁻ z_i z_iᵀ S⁻ᵀ]]`` with the standard rule's
+``S = Cov[h] + R`` and ``C = Cov[x, h]``; its lower-right block is P⁻ because ``Σ wc_i z_i z_iᵀ = I``
+(a rule exact for second moments: checked at construction), so ``S⁺ S⁺ᵀ = P⁻ − C S⁻¹ Cᵀ``, the
+standard update. A state-dependent ``G(x)`` adds the columns ``√wm_i G(X_i) Q^½`` (E[G Q Gᵀ]).
+
+**Negative weights.** The unscented rule with ``α < 1`` (e.g. ``α = 0.5``: ``wc_0 = −0.25``) has a
+negative centre weight, which no QR column can carry. Those terms are removed by rank-one Cholesky
+downdates (van der Merwe & Wan 2001, ``cholupdate(S, √|wc_0| (X_0 − m), "−")``; the hyperbolic
+rotations of :func:`downdate`), exact in exact arithmetic. A downdate whose result is not positive
+definite (the standard filter's P⁻ would have lost definiteness there too) is *reported*: that path
+is poisoned, so ``run`` raises or marks it as diverged, never returns it silently.
+
+The log-likelihood comes from the factor: with ``u = S_y⁻¹ (y − ŷ)``,
+``log N(y; ŷ, S) = −½ (uᵀu + 2 Σ_i log (S_y)_ii + m log 2π)``. Missing components of y: their
+rows of the measurement columns are zeroed and R is replaced by its observed block (unit diagonal
+elsewhere), the exact update on the observed components (as :func:`~nlfilter.filters.linalg.gaussian_update`).
+
+What ``run`` reports is ``covs = S Sᵀ`` (symmetric), so the smoother, the likelihood, the contract
+and the plots read them as any Gaussian filter's; the RTS smoother is the rule's own
+(:mod:`~nlfilter.filters.smoothing`) from those moments. These forms run on the NumPy loop (the
+compiled backend refuses them, naming why); correlated process/measurement noise and non-additive
+noise are refused at construction (``structures``).
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import numpy as np
+
+from .beliefs import GaussianState
+from .gaussian import GaussianFilter
+from .kalman import _require_linear
+from .rules import Cubature, GaussHermite, Taylor1, Unscented
+from .linalg import LOG_2PI, mm, sqrt_psd, symmetrize
+from .skeleton import predict as _moment_predict
+
+__all__ = ["SqrtState", "tria", "downdate", "sqrt_predict", "sqrt_condition", "factor_info", "SquareRootFilter",
+           "SquareRootKF", "SquareRootEKF", "SquareRootUKF", "SquareRootCKF", "SquareRootGHKF"]
+
+
+class SqrtState(NamedTuple):
+    """Mean ``(..., n)`` and a square root ``factor (..., n, n)`` of the covariance
+    (``P = factor @ factorᵀ``): lower-triangular with a non-negative diagonal after every step (the
+    prior's is its Cholesky factor, or the symmetric root where P0 is only semi-definite)."""
+
+    mean: np.ndarray
+    factor: np.ndarray
+
+
+def tria(A: np.ndarray) -> np.ndarray:
+    """The lower-triangular ``L (..., p, p)`` with ``L Lᵀ = A Aᵀ`` and ``L_ii ≥ 0``, for ``A (..., p, q)``:
+    ``Lᵀ`` is the R of a QR factorization of ``Aᵀ`` (Householder, backward stable), its columns' signs
+    made non-negative on the diagonal (for a positive definite ``A Aᵀ`` this is its Cholesky factor).
+    Non-finite entries give NaN (the caller's path check reports them).
+
+    >>> A = np.array([[1.0, 2.0, 0.5], [0.0, 1.0, 3.0]])
+    >>> L = tria(A)
+    >>> bool(np.allclose(L @ L.T, A @ A.T)), bool(L[0, 1] == 0), bool((np.diag(L) >= 0).all())
+    (True, True, True)
+    """
+    p, q = A.shape[-2:]
+    if q < p:  # fewer columns than rows: zero columns change nothing in A Aᵀ
+        A = np.concatenate([A, np.zeros((*A.shape[:-1], p - q))], axis=-1)
+    L = np.linalg.qr(A.swapaxes(-1, -2), mode="r").swapaxes(-1, -2)
+    d = np.diagonal(L, axis1=-2, axis2=-1)
+    return L * np.where(d < 0, -1.0, 1.0)[..., None, :]
+
+
+def downdate(L: np.ndarray, vs) -> tuple:
+    """``(L', failed)``: the lower-triangular ``L'`` with ``L' L'ᵀ = L Lᵀ − Σ_j v_j v_jᵀ`` for the
+    vectors ``vs`` (each ``(..., p)``), by rank-one Cholesky downdates (hyperbolic rotations, column
+    by column: ``r = √(L_kk² − x_k²)``, ``c = r/L_kk``, ``s = x_k/L_kk``; Golub & Van Loan, *Matrix
+    Computations*, §6.5.4); ``L`` lower-triangular with ``L_kk ≥ 0``. ``failed (...)``: the paths where
+    the result is not positive definite (``L_kk² ≤ x_k²`` with ``x_k ≠ 0``); their factor is NaN.
+    None for no vector.
+
+    >>> L = np.linalg.cholesky(np.array([[4.0, 2.0], [2.0, 3.0]]))
+    >>> Ld, failed = downdate(L, [np.array([1.0, 0.5])])
+    >>> bool(np.allclose(Ld @ Ld.T, [[3.0, 1.5], [1.5, 2.75]])), bool(failed)
+    (True, False)
+    """
+    if not vs:
+        return L, None
+    p = L.shape[-1]
+    L = np.array(L, dtype=float)  # a copy: updated column by column
+    failed = np.zeros(L.shape[:-2], bool)
+    for v in vs:
+        x = np.array(np.broadcast_to(v, L.shape[:-1]), dtype=float)
+        for k in range(p):
+            Lkk, xk = L[..., k, k], x[..., k]
+            r2 = Lkk * Lkk - xk * xk
+            skip = xk == 0  # nothing to remove along this column: the identity rotation
+            ok = skip | (r2 > 0)
+            failed |= ~ok
+            go = ok & ~skip
+            Ls = np.where(go, Lkk, 1.0)
+            r = np.sqrt(np.where(go, r2, 1.0))
+            c, s = np.where(go, r / Ls, 1.0), np.where(go, xk / Ls, 0.0)
+            L[..., k, k] = np.where(go, r, Lkk)
+            col = (L[..., k + 1:, k] - s[..., None] * x[..., k + 1:]) / c[..., None]
+            L[..., k + 1:, k] = col
+            x[..., k + 1:] = c[..., None] * x[..., k + 1:] - s[..., None] * col
+    if failed.any():
+        L[failed] = np.nan
+    return L, failed
+
+
+def _signed_nodes(rule, n):
+    """The rule's table for dimension n split by the sign of the covariance weights:
+    ``(z, wm, wc, pos, neg)`` (index arrays; zero weights in neither)."""
+    z, wm, wc = rule.unit_nodes(n)
+    return z, wm, wc, np.flatnonzero(wc > 0), np.flatnonzero(wc < 0)
+
+
+def _columns(D, w, idx):
+    """``(..., p, len(idx))``: the columns ``√|w_i| D_i`` of ``D (..., N, p)`` for the nodes ``idx``."""
+    return (D[..., idx, :] * np.sqrt(np.abs(w[idx]))[:, None]).swapaxes(-1, -2)
+
+
+def _rows(D, w, idx):
+    """The vectors ``√|w_i| D_i (..., p)`` for the nodes ``idx`` (the downdates of negative weights)."""
+    return [D[..., i, :] * np.sqrt(-w[i]) for i in idx]
+
+
+def _noise_columns(model, m, X, wm, t, Lq):
+    """The factor columns of ``E[G Q Gᵀ]`` and the downdates of its negative weights:
+    ``G(m) Q^½`` for a constant G (or the Taylor-1 rule: X None), else ``√wm_i G(X_i) Q^½``."""
+    if X is None or model.G_constant:
+        return model.G(m, t) @ Lq, []
+    GL = model.G(X, t) @ Lq  # (..., N, n, r)
+    pos, neg = np.flatnonzero(wm > 0), np.flatnonzero(wm < 0)
+    cols = GL[..., pos, :, :] * np.sqrt(wm[pos])[:, None, None]  # (..., Np, n, r) -> (..., n, Np r)
+    cols = np.moveaxis(cols, -3, -2).reshape(*cols.shape[:-3], cols.shape[-2], -1)
+    return cols, [GL[..., i, :, j] * np.sqrt(-wm[i]) for i in neg for j in range(GL.shape[-1])]
+
+
+def _broadcast_concat(blocks, axis):
+    """``np.concatenate`` of arrays whose leading (batch) axes broadcast."""
+    lead = np.broadcast_shapes(*(b.shape[:-2] for b in blocks))
+    return np.concatenate([np.broadcast_to(b, (*lead, *b.shape[-2:])) for b in blocks], axis=axis)
+
+
+def sqrt_predict(rule, model, belief, t, Lq):
+    """``(SqrtState at t + 1, failed paths or None)``: the square-root prediction (module docstring)
+    of ``belief`` by ``rule`` (Taylor-1 or a node rule); ``Lq``: a square root of the model's Q."""
+    m, S = belief[0], belief[1]
+    if rule.kind == "taylor1":
+        mean = model.f(m, t)
+        cols, neg = mm(model.f_x(m, t), S), []  # F S
+        noise, nneg = _noise_columns(model, m, None, None, t, Lq)
+    else:
+        z, wm, wc, pos, negi = _signed_nodes(rule, m.shape[-1])
+        X = rule.points(m, S)[0]
+        FX = model.f(X, t)
+        mean = np.einsum("i,...ij->...j", wm, FX)  # Σ wm_i f(X_i)
+        D = FX - mean[..., None, :]
+        cols, neg = _columns(D, wc, pos), _rows(D, wc, negi)
+        noise, nneg = _noise_columns(model, m, X, wm, t, Lq)
+    L, failed = downdate(tria(_broadcast_concat([cols, noise], -1)), neg + nneg)
+    return SqrtState(mean, L), failed
+
+
+def sqrt_condition(rule, model, belief, y, t, Lr, *, full: bool = False):
+    """The square-root update of ``belief`` on ``y (..., m)`` (NaN components missing; module
+    docstring): ``(SqrtState, failed paths or None, (ŷ, S_y, u, S))`` with ``S_y`` the factor of the
+    innovation covariance (of its observed block; unit rows where a component is missing),
+    ``u = S_y⁻¹ (y − ŷ)`` (0 where missing) and, with ``full``, ``S = Cov[h] + R`` (all components,
+    for the likelihood's ``innovation_cov``; else None). ``Lr``: ``(R, a square root of R)`` of a
+    constant R, or None (``model.R_of`` at the predicted mean: the EKF convention)."""
+    m, S = belief[0], belief[1]
+    n, p = m.shape[-1], y.shape[-1]
+    if rule.kind == "taylor1":
+        yhat = model.h(m, t)
+        Y, Xc, neg = mm(model.h_x(m, t), S), S, []  # H S⁻ over S⁻
+    else:
+        z, wm, wc, pos, negi = _signed_nodes(rule, n)
+        X = rule.points(m, S)[0]
+        HX = model.h(X, t)
+        yhat = np.einsum("i,...ij->...j", wm, HX)  # Σ wm_i h(X_i)
+        D, Z = HX - yhat[..., None, :], X - m[..., None, :]  # Z_i = S⁻ z_i
+        Y, Xc = _columns(D, wc, pos), _columns(Z, wc, pos)
+        neg = _rows(np.concatenate([D, np.broadcast_to(Z, (*D.shape[:-1], n))], axis=-1), wc, negi)
+    R, LR = Lr if Lr is not None else (model.R_of(m, t), None)
+    Sfull = None
+    if full:
+        Sfull = mm(Y, Y.swapaxes(-1, -2)) + R - sum(np.einsum("...i,...j->...ij", v[..., :p], v[..., :p]) for v in neg)
+    miss = np.isnan(y)
+    if miss.any():  # the observed block of R (unit diagonal elsewhere), the missing rows of h dropped
+        Y = np.where(miss[..., :, None], 0.0, Y)
+        neg = [np.concatenate([np.where(miss, 0.0, v[..., :p]), v[..., p:]], axis=-1) for v in neg]
+        both = miss[..., :, None] | miss[..., None, :]
+        R = np.where(both, np.where(np.eye(p, dtype=bool), 1.0, 0.0), R)
+        LR = None
+    LR, bad = sqrt_psd(R) if LR is None else (LR, None)
+    lead = np.broadcast_shapes(Y.shape[:-2], Xc.shape[:-2], LR.shape[:-2])
+    A = _broadcast_concat([_broadcast_concat([Y, LR], -1),
+                           _broadcast_concat([Xc, np.zeros((*lead, n, p))], -1)], -2)
+    L, failed = downdate(tria(A), neg)
+    Sy, Kb, Sp = L[..., :p, :p], L[..., p:, :p], L[..., p:, p:]
+    diag = np.diagonal(Sy, axis1=-2, axis2=-1)
+    sing = ~np.all(diag > 0, axis=-1)  # a singular (or non-finite) innovation factor
+    for more in (failed, bad):
+        if more is not None and np.ndim(more):
+            sing = sing | more
+    e = np.where(miss, 0.0, y - yhat)
+    safe = np.where(sing[..., None, None], np.eye(p), Sy)
+    u = e / safe[..., 0, :] if p == 1 else np.linalg.solve(safe, e[..., None])[..., 0]  # S_y⁻¹ e
+    mean = m + np.einsum("...ij,...j->...i", Kb, u)  # m⁻ + K̄ S_y⁻¹ (y − ŷ)
+    return SqrtState(mean, Sp), (sing if sing.any() else None), (yhat, Sy, u, Sfull)
+
+
+def factor_info(y, yhat, Sy, u, S) -> dict:
+    """The step's likelihood output (as :func:`~nlfilter.filters.linalg.innovation_info`) from the
+    innovation factor: ``loglik = −½ (uᵀu + 2 Σ log (S_y)_ii + m_obs log 2π)`` (0 with nothing
+    measured; NaN where ``S_y`` is singular), ``innovation = y − ŷ`` (NaN where missing),
+    ``innovation_cov = S`` (NaN on a path with nothing measured)."""
+    miss = np.isnan(y)
+    diag = np.diagonal(Sy, axis1=-2, axis2=-1)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        logdet = 2.0 * np.sum(np.log(np.where(diag > 0, diag, np.nan)), axis=-1)
+    ll = -0.5 * (np.sum(u * u, axis=-1) + logdet + (~miss).sum(axis=-1) * LOG_2PI)
+    none = miss.all(axis=-1)
+    return {"loglik": ll, "innovation": np.where(miss, np.nan, y - yhat),
+            "innovation_cov": np.where(none[..., None, None], np.nan, S)}
+
+
+def _poison(state: SqrtState, bad) -> SqrtState:
+    """NaN on the paths in ``bad`` (``run`` then raises or marks them)."""
+    if bad is None or not np.any(bad):
+        return state
+    return SqrtState(np.where(bad[..., None], np.nan, state.mean), np.where(bad[..., None, None], np.nan, state.factor))
+
+
+def _second_moments_exact(rule, n) -> bool:
+    """Whether the node rule's table gives ``Σ wc_i z_i z_iᵀ = I`` (its points carry P exactly)."""
+    z, _, wc = rule.unit_nodes(n)
+    return bool(np.allclose(np.einsum("i,ij,ik->jk", wc, z, z), np.eye(n), rtol=0, atol=1e-12))
+
+
+class SquareRootFilter(GaussianFilter):
+    """Discrete-time square-root Gaussian filter over a moment ``rule`` (Taylor-1 or a node rule
+    exact for second moments): the steps of the module docstring on a :class:`SqrtState` belief.
+
+    Parameters
+    ----------
+    model : DiscreteModel (additive noise, uncorrelated; R constant or state-dependent)
+    rule : :class:`~nlfilter.filters.rules.Taylor1`, :class:`~nlfilter.filters.rules.Unscented`,
+        :class:`~nlfilter.filters.rules.Cubature` or :class:`~nlfilter.filters.rules.GaussHermite`
+        (order ≥ 2)
+    start : ``"update"`` or ``"predict"`` (see :mod:`nlfilter.filters.base`)
+
+    ``summary`` reports ``(mean, S Sᵀ)``; ``predict``/``update`` take and return a :class:`SqrtState`
+    (``init(m0, P0, batch)`` makes the first). The smoother is the rule's RTS smoother from the
+    reported moments (:mod:`~nlfilter.filters.smoothing`).
+
+    Examples
+    --------
+    >>> import sympy as sp; from nlfilter import DiscreteModel
+    >>> x = sp.Symbol("x")
+    >>> flt = SquareRootFilter(DiscreteModel([x], [0.9 * x], [x], Q=1.0, R=1.0), Unscented(alpha=0.5))
+    >>> b = flt.predict(flt.init([1.0], [[2.0]], (1,)), 0)     # the centre weight −0.25: a downdate
+    >>> round(float(b.factor[0, 0, 0] ** 2), 12), round(float(flt.summary(b)[1][0, 0, 0]), 12)   # 0.81 · 2 + 1
+    (2.62, 2.62)
+    """
+
+    name = "square-root"
+    source = ("Morf & Kailath 1975, Square-root algorithms for least-squares estimation, IEEE TAC 20(4); "
+              "Bierman 1977, Factorization Methods for Discrete Sequential Estimation")
+    structures = ("state-dependent R",)
+    compiled = False  # no compiled kernel propagates a factor (compiled_refusal says so)
+    compiled_refusal = ("the square-root filters propagate a Cholesky factor by QR steps, which the compiled loop "
+                        "has no kernel for; they run on the NumPy loop (backend='numpy', or 'auto')")
+
+    def __init__(self, model, rule, *, start: str | None = None):
+        super().__init__(model, rule, start=start)
+        kind = getattr(rule, "kind", None)
+        if kind not in ("taylor1", "nodes"):
+            raise TypeError(f"rule: the square-root filters take Taylor1 or a node rule (Unscented, Cubature, "
+                            f"GaussHermite), got {rule!r}")
+        if kind == "nodes" and not _second_moments_exact(rule, model.n):
+            raise ValueError(f"rule: the square-root update needs a rule whose points carry the covariance "
+                             f"(Σ wc_i z_i z_iᵀ = I), got {rule!r}; e.g. GaussHermite(order ≥ 2)")
+        self._roots = {}
+
+    def _root(self, key, M):
+        """A square root of the constant matrix ``M`` (``model.Q``, ``model.R``), kept while M is."""
+        hit = self._roots.get(key)
+        if hit is None or hit[0] is not M:
+            hit = self._roots[key] = (M, sqrt_psd(np.asarray(M, dtype=float))[0])
+        return hit[1]
+
+    def init(self, m0, P0, batch, *, initial=None, rng=None):
+        """The prior ``N(m0, P0)`` (checked as every Gaussian filter's) as a :class:`SqrtState`: the
+        Cholesky factor of P0 (the symmetric root of a semi-definite one)."""
+        st = super().init(m0, P0, batch, initial=initial, rng=rng)
+        return SqrtState(st.mean, sqrt_psd(st.cov)[0])
+
+    def summary(self, belief):
+        S = belief[1]
+        return belief[0], symmetrize(mm(S, S.swapaxes(-1, -2)))
+
+    def _predict(self, state, k):
+        new, failed = sqrt_predict(self.rule, self.model, state, self._time(k), self._root("Q", self.model.Q))
+        return _poison(new, failed)
+
+    def _predict_cross(self, state, k):
+        """The smoother's prediction (the rule's, from the reported moments) and ``Cov[x_k, f(x_k)]``."""
+        return _moment_predict(self.rule, self.model, GaussianState(state[0], state[1]), self._time(k), cross=True)
+
+    def _measurement_root(self):
+        md = self.model
+        return (md.R, self._root("R", md.R)) if getattr(md, "R_constant", True) else None
+
+    def _conditioned(self, state, y, k, full: bool = False):
+        y = np.asarray(y, dtype=float)
+        new, bad, info = sqrt_condition(self.rule, self.model, state, y, self._time(k), self._measurement_root(),
+                                        full=full)
+        return _poison(new, bad), bad, info
+
+    def _update_info(self, state, y, k):
+        """``run(..., loglik=True)``: the update with the step's log-likelihood from the innovation
+        factor (:func:`factor_info`)."""
+        y = np.asarray(y, dtype=float)
+        new, bad, (yhat, Sy, u, S) = self._conditioned(state, y, k, full=True)
+        return new, bad, factor_info(y, yhat, Sy, u, S)
+
+
+class SquareRootEKF(SquareRootFilter):
+    """Square-root extended Kalman filter: the Taylor-1 rule's steps in array form (module
+    docstring; the same estimates as :class:`~nlfilter.filters.ekf.EKF` in exact arithmetic).
+
+    >>> import sympy as sp; from nlfilter import DiscreteModel
+    >>> from nlfilter.filters.ekf import EKF
+    >>> x = sp.Symbol("x")
+    >>> model = DiscreteModel([x], [0.9 * x + 0.1 * sp.sin(x)], [x**3], Q=0.1, R=0.01)
+    >>> ys = np.array([[[0.5], [0.2], [0.9]]])
+    >>> a, b = SquareRootEKF(model).run(ys, [0.5], [[0.3]]), EKF(model).run(ys, [0.5], [[0.3]])
+    >>> float(np.abs(a.means - b.means).max()) < 1e-12, float(np.abs(a.covs - b.covs).max()) < 1e-12
+    (True, True)
+    """
+
+    name = "sr-ekf"
+    source = ("Morf & Kailath 1975, IEEE TAC 20(4) (array form); Grewal & Andrews, Kalman Filtering: Theory and "
+              "Practice (square-root filtering); Jazwinski 1970, ch. 8 (the EKF)")
+    needs = ("f_x", "h_x")
+
+    def __init__(self, model, *, start: str | None = None):
+        super().__init__(model, Taylor1(), start=start)
+
+
+class SquareRootKF(SquareRootFilter):
+    """Square-root Kalman filter on a linear model (f, h affine, G constant): :class:`SquareRootEKF`'s
+    array steps, exact there (Morf & Kailath 1975; Bierman 1977). The same estimates as
+    :class:`~nlfilter.filters.kalman.KalmanFilter` in exact arithmetic, PSD covariances in any."""
+
+    name = "sr-kf"
+    source = ("Morf & Kailath 1975, Square-root algorithms for least-squares estimation, IEEE TAC 20(4); "
+              "Bierman 1977, Factorization Methods for Discrete Sequential Estimation")
+    needs = ("linear",)
+
+    def __init__(self, model, *, start: str | None = None):
+        super().__init__(model, Taylor1(), start=start)  # a structure it does not take is named first
+        _require_linear(model, "SquareRootKF")
+
+
+class SquareRootUKF(SquareRootFilter):
+    """Square-root unscented Kalman filter (van der Merwe & Wan 2001): the scaled sigma points
+    ``(alpha, beta, kappa)`` of :class:`~nlfilter.filters.rules.Unscented` drawn from the factor; a
+    negative centre weight (``α < 1``) by Cholesky downdates, a failed one reported (module docstring).
+    Additive noise only (the augmented form of :class:`~nlfilter.filters.ukf.UKF` is not here)."""
+
+    name = "sr-ukf"
+    source = ("van der Merwe & Wan 2001, The square-root unscented Kalman filter for state and parameter-estimation, "
+              "ICASSP 2001, vol. 6, 3461-3464")
+
+    def __init__(self, model, *, alpha: float = 1.0, beta: float = 2.0, kappa: float = 0.0,
+                 start: str | None = None):
+        super().__init__(model, Unscented(alpha, beta, kappa), start=start)
+        self.alpha, self.beta, self.kappa = self.rule.alpha, self.rule.beta, self.rule.kappa
+
+
+class SquareRootCKF(SquareRootFilter):
+    """Square-root cubature Kalman filter (Arasaratnam & Haykin 2009, its square-root form): the
+    points ``m ± √n S e_i``, weights ``1/(2n)``, all positive (QR steps only)."""
+
+    name = "sr-ckf"
+    source = "Arasaratnam & Haykin 2009, Cubature Kalman filters, IEEE TAC 54(6) 1254-1269 (square-root CKF)"
+
+    def __init__(self, model, *, start: str | None = None):
+        super().__init__(model, Cubature(), start=start)
+
+
+class SquareRootGHKF(SquareRootFilter):
+    """Square-root Gauss–Hermite (quadrature) Kalman filter: ``order ≥ 2`` nodes per axis from the
+    factor (Arasaratnam & Haykin 2008, Square-root quadrature Kalman filtering, IEEE TSP 56(6); Ito &
+    Xiong 2000 for the rule)."""
+
+    name = "sr-ghkf"
+    source = ("Arasaratnam & Haykin 2008, Square-root quadrature Kalman filtering, IEEE TSP 56(6) 2589-2593; "
+              "Ito & Xiong 2000, IEEE TAC 45(5) (the rule)")
+
+    def __init__(self, model, *, order: int = 3, start: str | None = None):
+        rule = GaussHermite(order)  # a bad order named by the rule
+        if rule.order < 2:  # one node at the mean: its points carry no covariance
+            raise ValueError(f"order: the square-root GHKF needs order ≥ 2 (a rule exact for second moments), "
+                             f"got {order!r}")
+        super().__init__(model, rule, start=start)
+        self.order = self.rule.order
