@@ -56,6 +56,7 @@ from typing import NamedTuple
 
 import numpy as np
 
+from .. import _validate as V
 from .beliefs import GaussianState
 from .gaussian import GaussianFilter
 from .kalman import _require_linear
@@ -323,6 +324,27 @@ class SquareRootFilter(GaussianFilter):
         Cholesky factor of P0 (the symmetric root of a semi-definite one)."""
         st = super().init(m0, P0, batch, initial=initial, rng=rng)
         return SqrtState(st.mean, sqrt_psd(st.cov)[0])
+
+    def belief(self, mean, factor) -> SqrtState:
+        """A :class:`SqrtState` for the step functions (``predict``/``update``) from a mean ``(..., n)``
+        and a factor ``(..., n, n)`` of its covariance (``P = factor factorᵀ``): finite,
+        lower-triangular with a non-negative diagonal (the form every step keeps; a covariance goes to
+        :meth:`init`), broadcast together; anything else is a ValueError naming the argument."""
+        n = self.model.n
+        mean = V.mean("mean", mean, n)
+        S = V.finite("factor", V.as_float_array("factor", factor, shape_tail=(n, n)))
+        above = np.triu(S, 1)
+        if np.any(above != 0):
+            i, j = np.argwhere(above != 0)[0][-2:]
+            raise ValueError(f"factor: expected a lower-triangular factor (zeros above the diagonal), got the entry "
+                             f"{float(above[..., i, j].ravel()[np.flatnonzero(above[..., i, j])[0]])!r} at ({i}, {j})")
+        if np.any(np.diagonal(S, axis1=-2, axis2=-1) < 0):
+            raise ValueError("factor: expected a non-negative diagonal (the Cholesky convention), got a negative entry")
+        try:
+            lead = np.broadcast_shapes(mean.shape[:-1], S.shape[:-2])
+        except ValueError:
+            raise ValueError(f"mean/factor: shapes {mean.shape}, {S.shape} do not broadcast") from None
+        return SqrtState(np.broadcast_to(mean, (*lead, n)).copy(), np.broadcast_to(S, (*lead, n, n)).copy())
 
     def summary(self, belief):
         S = belief[1]
