@@ -279,9 +279,12 @@ class SquareRootFilter(GaussianFilter):
         (order ≥ 2)
     start : ``"update"`` or ``"predict"`` (see :mod:`nlfilter.filters.base`)
 
+    Notes
+    -----
     ``summary`` reports ``(mean, S Sᵀ)``; ``predict``/``update`` take and return a :class:`SqrtState`
-    (``init(m0, P0, batch)`` makes the first). The smoother is the rule's RTS smoother from the
-    reported moments (:mod:`~nlfilter.filters.smoothing`).
+    (:meth:`SquareRootFilter.init` makes the first from ``(m0, P0)``, :meth:`SquareRootFilter.belief`
+    from a mean and a factor). The smoother is the rule's RTS smoother from the reported moments
+    (:mod:`~nlfilter.filters.smoothing`).
 
     Examples
     --------
@@ -329,7 +332,7 @@ class SquareRootFilter(GaussianFilter):
         """A :class:`SqrtState` for the step functions (``predict``/``update``) from a mean ``(..., n)``
         and a factor ``(..., n, n)`` of its covariance (``P = factor factorᵀ``): finite,
         lower-triangular with a non-negative diagonal (the form every step keeps; a covariance goes to
-        :meth:`init`), broadcast together; anything else is a ValueError naming the argument."""
+        :meth:`SquareRootFilter.init`), broadcast together; anything else is a ValueError naming the argument."""
         n = self.model.n
         mean = V.mean("mean", mean, n)
         S = V.finite("factor", V.as_float_array("factor", factor, shape_tail=(n, n)))
