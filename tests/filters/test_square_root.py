@@ -230,6 +230,11 @@ def test_bad_input_is_named():
             flt.belief([0.1, 0.2], factor)
     with pytest.raises(ValueError, match=r"^mean"):
         flt.belief([0.1, 0.2, 0.3], [[1.0, 0.0], [0.3, 0.5]])
+    from nlfilter.filters import GaussianState
+    cov = GaussianState(np.array([0.1, 0.2]), np.array([[1.0, 0.3], [0.3, 0.5]]))  # a covariance is no factor
+    for step in (lambda: flt.predict(cov, 0), lambda: flt.update(cov, np.array([0.1, 0.2]), 0)):
+        with pytest.raises(TypeError, match=r"^belief: the square-root filters step a SqrtState"):
+            step()
 
 
 def test_the_compiled_backend_refuses_them_naming_why():

@@ -353,7 +353,15 @@ class SquareRootFilter(GaussianFilter):
         S = belief[1]
         return belief[0], symmetrize(mm(S, S.swapaxes(-1, -2)))
 
+    @staticmethod
+    def _check_belief(state):
+        """A step's belief must carry a factor: a covariance passed for one would be read as one."""
+        if not isinstance(state, SqrtState):
+            raise TypeError(f"belief: the square-root filters step a SqrtState (mean, factor), made by init(m0, P0, "
+                            f"batch) or belief(mean, factor); got {type(state).__name__}")
+
     def _predict(self, state, k):
+        self._check_belief(state)
         new, failed = sqrt_predict(self.rule, self.model, state, self._time(k), self._root("Q", self.model.Q))
         return _poison(new, failed)
 
@@ -366,6 +374,7 @@ class SquareRootFilter(GaussianFilter):
         return (md.R, self._root("R", md.R)) if getattr(md, "R_constant", True) else None
 
     def _conditioned(self, state, y, k, full: bool = False):
+        self._check_belief(state)
         y = np.asarray(y, dtype=float)
         new, bad, info = sqrt_condition(self.rule, self.model, state, y, self._time(k), self._measurement_root(),
                                         full=full)
