@@ -3,7 +3,8 @@ square-root form is its standard form on well-conditioned problems (means, covar
 log-likelihood, innovation covariance, smoother), on a five-state coordinated-turn tracking model
 too; on the classic near-noiseless, nearly collinear measurement the standard forms lose their
 covariance (or its positive definiteness) and the square-root forms keep it, measured against the
-exact posterior in 50-digit arithmetic; a failed downdate is reported; bad input is named."""
+exact posterior in 50-digit arithmetic, smoothed too; a failed downdate is reported; bad input is
+named."""
 
 from __future__ import annotations
 
@@ -17,7 +18,8 @@ from nlfilter.errors import DivergenceError
 from nlfilter.filters import CKF, EKF, GHKF, REGISTRY, UKF, KalmanFilter
 from nlfilter.filters.rules import Cubature5, GaussHermite, Taylor2, Unscented
 from nlfilter.filters.square_root import (SqrtState, SquareRootCKF, SquareRootEKF, SquareRootFilter, SquareRootGHKF,
-                                          SquareRootKF, SquareRootUKF, downdate, tria)
+                                          SquareRootKF, SquareRootUKF)
+from nlfilter.filters.triangular import downdate, tria
 from nlfilter.simulate import simulate
 
 x1, x2, x3 = sp.symbols("x1 x2 x3")
@@ -167,6 +169,42 @@ def test_near_noiseless_collinear_measurement(sr, std, d, lost):
             REGISTRY[std](md).run(ys, np.zeros(3), np.eye(3), backend="numpy")
     else:
         assert not b.diverged.any() and np.abs(b.covs[0, 0] - exact).max() > 0.1
+
+
+def _exact_smoothed(d, q, T):
+    """The RTS smoother's ``Pˢ_0`` of :func:`_collinear` with ``Q = q I`` over T zero measurements,
+    in 60-digit arithmetic: the filter, then ``Pˢ_k = P_k + G (Pˢ_{k+1} − P⁻_{k+1}) Gᵀ``,
+    ``G = P_k (P⁻_{k+1})⁻¹`` (F = I)."""
+    with mp.workdps(60):
+        d, q = mp.mpf(d), mp.mpf(q)
+        H = mp.matrix([[1, 1, 1], [1, 1, 1 + d]])
+        P, filt, pred = mp.eye(3), [], []
+        for k in range(T):
+            P = P + q * mp.eye(3) if k else P
+            pred.append(P)
+            P = P - P * H.T * mp.inverse(H * P * H.T + d**2 * mp.eye(2)) * H * P
+            filt.append(P)
+        Ps = filt[-1]
+        for k in range(T - 2, -1, -1):
+            G = filt[k] * mp.inverse(pred[k + 1])
+            Ps = filt[k] + G * (Ps - pred[k + 1]) * G.T
+        return np.array(Ps.tolist(), dtype=float)
+
+
+@pytest.mark.parametrize("sr,std,d,q,err", [("sr-kf", "kf", 1e-8, 1e-4, 1e-7), ("sr-ckf", "ckf", 1e-6, 1e-12, 1e-9)])
+def test_square_root_smoother_on_the_near_noiseless_measurement(sr, std, d, q, err):
+    """The same measurement at three steps with ``Q = q I``: the smoothed ``Pˢ_0`` against the exact
+    one (60 digits). Measured: the standard Kalman smoother is off by 0.15 at δ = 1e-8 and the
+    standard CKF's by 0.33 at δ = 1e-6, q = 1e-12 (its filtered covariance already indefinite,
+    −7e-11); the square-root smoothers (:func:`~nlfilter.filters.square_root.sqrt_rts`) by 2.7e-9
+    and 4.2e-11, PSD; the tolerances ``err`` are 25-40 times those."""
+    T = 3
+    md = DiscreteModel.linear(np.eye(3), [[1.0, 1.0, 1.0], [1.0, 1.0, 1.0 + d]], q * np.eye(3), d * d * np.eye(2))
+    ys, exact = np.zeros((1, T, 2)), _exact_smoothed(d, q, T)
+    a = REGISTRY[sr](md).smooth(ys, np.zeros(3), np.eye(3))
+    b = REGISTRY[std](md).smooth(ys, np.zeros(3), np.eye(3), on_divergence="mark", backend="numpy")
+    assert np.abs(a.covs[0, 0] - exact).max() < err and np.linalg.eigvalsh(a.covs[0, 0])[0] >= -1e-15
+    assert b.diverged.any() or np.abs(b.covs[0, 0] - exact).max() > 0.1
 
 
 def test_a_failed_downdate_is_reported():

@@ -7,7 +7,7 @@ most (a near-noiseless measurement, a long run). The square-root forms propagate
 condition number is the square root of P's (Bierman 1977; Grewal & Andrews, *Kalman Filtering:
 Theory and Practice*, the square-root and triangularization methods). ``tria(A)`` below is the
 lower-triangular ``L`` with ``L Lᵀ = A Aᵀ`` from a QR factorization of ``Aᵀ`` (``Aᵀ = Θ Lᵀ``,
-Θ orthonormal; :func:`tria`); P is never formed in a step.
+Θ orthonormal; :func:`~nlfilter.filters.triangular.tria`); P is never formed in a step.
 
 Taylor-1 (the square-root EKF; the Kalman filter on a linear model, Morf & Kailath 1975)::
 
@@ -34,7 +34,7 @@ standard update. A state-dependent ``G(x)`` adds the columns ``√wm_i G(X_i) Q^
 **Negative weights.** The unscented rule with ``α < 1`` (e.g. ``α = 0.5``: ``wc_0 = −0.25``) has a
 negative centre weight, which no QR column can carry. Those terms are removed by rank-one Cholesky
 downdates (van der Merwe & Wan 2001, ``cholupdate(S, √|wc_0| (X_0 − m), "−")``; the hyperbolic
-rotations of :func:`downdate`), exact in exact arithmetic. A downdate whose result is not positive
+rotations of :func:`~nlfilter.filters.triangular.downdate`), exact in exact arithmetic. A downdate whose result is not positive
 definite (the standard filter's P⁻ would have lost definiteness there too) is *reported*: that path
 is poisoned, so ``run`` raises or marks it as diverged, never returns it silently.
 
@@ -43,9 +43,11 @@ The log-likelihood comes from the factor: with ``u = S_y⁻¹ (y − ŷ)``,
 rows of the measurement columns are zeroed and R is replaced by its observed block (unit diagonal
 elsewhere), the exact update on the observed components (as :func:`~nlfilter.filters.linalg.gaussian_update`).
 
-What ``run`` reports is ``covs = S Sᵀ`` (symmetric), so the smoother, the likelihood, the contract
-and the plots read them as any Gaussian filter's; the RTS smoother is the rule's own
-(:mod:`~nlfilter.filters.smoothing`) from those moments. These forms run on the NumPy loop (the
+What ``run`` reports is ``covs = S Sᵀ`` (symmetric), so the likelihood, the contract and the plots
+read them as any Gaussian filter's. ``smooth`` is the square-root RTS smoother (:func:`sqrt_rts`:
+the joint factor of ``(x_{k+1}, x_k)``, ``Sˢ_k = tria([S_c, G Sˢ_{k+1}])``); the fixed-lag
+smoother and the posterior sampler run the rule's moment form from the reported moments
+(:mod:`~nlfilter.filters.smoothing`). These forms run on the NumPy loop (the
 compiled backend refuses them, naming why); correlated process/measurement noise and non-additive
 noise are refused at construction (``structures``).
 """
@@ -62,9 +64,11 @@ from .gaussian import GaussianFilter
 from .kalman import _require_linear
 from .rules import Cubature, GaussHermite, Taylor1, Unscented
 from .linalg import LOG_2PI, mm, sqrt_psd, symmetrize
+from .triangular import downdate, tria
 from .skeleton import predict as _moment_predict
+from .smoothing import SINGULAR_RTOL, _solve_right
 
-__all__ = ["SqrtState", "tria", "downdate", "sqrt_predict", "sqrt_condition", "factor_info", "SquareRootFilter",
+__all__ = ["SqrtState", "sqrt_predict", "sqrt_rts", "sqrt_condition", "factor_info", "SquareRootFilter",
            "SquareRootKF", "SquareRootEKF", "SquareRootUKF", "SquareRootCKF", "SquareRootGHKF"]
 
 
@@ -75,64 +79,6 @@ class SqrtState(NamedTuple):
 
     mean: np.ndarray
     factor: np.ndarray
-
-
-def tria(A: np.ndarray) -> np.ndarray:
-    """The lower-triangular ``L (..., p, p)`` with ``L Lᵀ = A Aᵀ`` and ``L_ii ≥ 0``, for ``A (..., p, q)``:
-    ``Lᵀ`` is the R of a QR factorization of ``Aᵀ`` (Householder, backward stable), its columns' signs
-    made non-negative on the diagonal (for a positive definite ``A Aᵀ`` this is its Cholesky factor).
-    Non-finite entries give NaN (the caller's path check reports them).
-
-    >>> A = np.array([[1.0, 2.0, 0.5], [0.0, 1.0, 3.0]])
-    >>> L = tria(A)
-    >>> bool(np.allclose(L @ L.T, A @ A.T)), bool(L[0, 1] == 0), bool((np.diag(L) >= 0).all())
-    (True, True, True)
-    """
-    p, q = A.shape[-2:]
-    if q < p:  # fewer columns than rows: zero columns change nothing in A Aᵀ
-        A = np.concatenate([A, np.zeros((*A.shape[:-1], p - q))], axis=-1)
-    L = np.linalg.qr(A.swapaxes(-1, -2), mode="r").swapaxes(-1, -2)
-    d = np.diagonal(L, axis1=-2, axis2=-1)
-    return L * np.where(d < 0, -1.0, 1.0)[..., None, :]
-
-
-def downdate(L: np.ndarray, vs) -> tuple:
-    """``(L', failed)``: the lower-triangular ``L'`` with ``L' L'ᵀ = L Lᵀ − Σ_j v_j v_jᵀ`` for the
-    vectors ``vs`` (each ``(..., p)``), by rank-one Cholesky downdates (hyperbolic rotations, column
-    by column: ``r = √(L_kk² − x_k²)``, ``c = r/L_kk``, ``s = x_k/L_kk``; Golub & Van Loan, *Matrix
-    Computations*, §6.5.4); ``L`` lower-triangular with ``L_kk ≥ 0``. ``failed (...)``: the paths where
-    the result is not positive definite (``L_kk² ≤ x_k²`` with ``x_k ≠ 0``); their factor is NaN.
-    None for no vector.
-
-    >>> L = np.linalg.cholesky(np.array([[4.0, 2.0], [2.0, 3.0]]))
-    >>> Ld, failed = downdate(L, [np.array([1.0, 0.5])])
-    >>> bool(np.allclose(Ld @ Ld.T, [[3.0, 1.5], [1.5, 2.75]])), bool(failed)
-    (True, False)
-    """
-    if not vs:
-        return L, None
-    p = L.shape[-1]
-    L = np.array(L, dtype=float)  # a copy: updated column by column
-    failed = np.zeros(L.shape[:-2], bool)
-    for v in vs:
-        x = np.array(np.broadcast_to(v, L.shape[:-1]), dtype=float)
-        for k in range(p):
-            Lkk, xk = L[..., k, k], x[..., k]
-            r2 = Lkk * Lkk - xk * xk
-            skip = xk == 0  # nothing to remove along this column: the identity rotation
-            ok = skip | (r2 > 0)
-            failed |= ~ok
-            go = ok & ~skip
-            Ls = np.where(go, Lkk, 1.0)
-            r = np.sqrt(np.where(go, r2, 1.0))
-            c, s = np.where(go, r / Ls, 1.0), np.where(go, xk / Ls, 0.0)
-            L[..., k, k] = np.where(go, r, Lkk)
-            col = (L[..., k + 1:, k] - s[..., None] * x[..., k + 1:]) / c[..., None]
-            L[..., k + 1:, k] = col
-            x[..., k + 1:] = c[..., None] * x[..., k + 1:] - s[..., None] * col
-    if failed.any():
-        L[failed] = np.nan
-    return L, failed
 
 
 def _signed_nodes(rule, n):
@@ -170,24 +116,81 @@ def _broadcast_concat(blocks, axis):
     return np.concatenate([np.broadcast_to(b, (*lead, *b.shape[-2:])) for b in blocks], axis=axis)
 
 
-def sqrt_predict(rule, model, belief, t, Lq):
+def sqrt_predict(rule, model, belief, t, Lq, *, joint: bool = False):
     """``(SqrtState at t + 1, failed paths or None)``: the square-root prediction (module docstring)
-    of ``belief`` by ``rule`` (Taylor-1 or a node rule); ``Lq``: a square root of the model's Q."""
+    of ``belief`` by ``rule`` (Taylor-1 or a node rule); ``Lq``: a square root of the model's Q.
+    ``joint``: ``(m⁻, J, failed)`` with ``J (..., 2n, 2n)`` the lower-triangular factor of the joint
+    covariance of ``(x_{k+1}, x_k)`` (the smoother's, :func:`sqrt_rts`): the columns of P⁻ over
+    ``S`` (Taylor-1) or ``S z_i`` (nodes), the noise's over zeros."""
     m, S = belief[0], belief[1]
+    n = m.shape[-1]
     if rule.kind == "taylor1":
         mean = model.f(m, t)
-        cols, neg = mm(model.f_x(m, t), S), []  # F S
+        cols, low, neg = mm(model.f_x(m, t), S), S, []  # F S over S
         noise, nneg = _noise_columns(model, m, None, None, t, Lq)
     else:
-        z, wm, wc, pos, negi = _signed_nodes(rule, m.shape[-1])
+        z, wm, wc, pos, negi = _signed_nodes(rule, n)
         X = rule.points(m, S)[0]
         FX = model.f(X, t)
         mean = np.einsum("i,...ij->...j", wm, FX)  # Σ wm_i f(X_i)
         D = FX - mean[..., None, :]
-        cols, neg = _columns(D, wc, pos), _rows(D, wc, negi)
+        cols, low = _columns(D, wc, pos), _columns(X - m[..., None, :], wc, pos)
+        neg = _rows(np.concatenate([D, X - m[..., None, :]], axis=-1) if joint else D, wc, negi)
         noise, nneg = _noise_columns(model, m, X, wm, t, Lq)
-    L, failed = downdate(tria(_broadcast_concat([cols, noise], -1)), neg + nneg)
-    return SqrtState(mean, L), failed
+    if not joint:
+        L, failed = downdate(tria(_broadcast_concat([cols, noise], -1)), neg + nneg)
+        return SqrtState(mean, L), failed
+    lead = np.broadcast_shapes(cols.shape[:-2], low.shape[:-2], noise.shape[:-2])
+    A = _broadcast_concat([_broadcast_concat([cols, noise], -1),
+                           _broadcast_concat([low, np.zeros((*lead, n, noise.shape[-1]))], -1)], -2)
+    nneg = [np.concatenate([v, np.zeros(v.shape)], axis=-1) for v in nneg]
+    L, failed = downdate(tria(A), neg + nneg)
+    return mean, L, failed
+
+
+def _gain(Gb, Sp):
+    """``G = Ḡ S⁻⁻¹`` (``G P⁻ = D``) by a triangular solve; where ``S⁻`` is (nearly) singular the
+    standard smoother's gain from ``P⁻ = S⁻ S⁻ᵀ`` and ``D = Ḡ S⁻ᵀ`` (its pseudo-inverse on the range of
+    P⁻, :func:`~nlfilter.filters.smoothing._solve_right`)."""
+    d = np.abs(np.diagonal(Sp, axis1=-2, axis2=-1))
+    sing = ~np.all(d > np.sqrt(SINGULAR_RTOL) * d.max(axis=-1, keepdims=True), axis=-1)
+    safe = np.where(sing[..., None, None], np.eye(Sp.shape[-1]), Sp)
+    G = np.linalg.solve(safe.swapaxes(-1, -2), Gb.swapaxes(-1, -2)).swapaxes(-1, -2)  # G S⁻ = Ḡ
+    if sing.any():
+        Spt = Sp.swapaxes(-1, -2)
+        G = np.where(sing[..., None, None], _solve_right(Sp @ Spt, Gb @ Spt), G)
+    return G
+
+
+def sqrt_rts(rule, model, beliefs, Lq, time):
+    """The square-root RTS smoother over the filtered beliefs ``beliefs`` (T :class:`SqrtState` of
+    ``(B, n)``, ``(B, n, n)``; ``time(k)``: the model time of run step k): ``(means (B, T, n),
+    covs (B, T, n, n), lag (B, T, n, n))``. Each step factors the joint law of ``(x_{k+1}, x_k)``
+    given ``y_0..y_k`` (:func:`sqrt_predict` with ``joint``), ``tria = [[S⁻, 0], [Ḡ, S_c]]`` with
+    ``Ḡ S⁻ᵀ = Cov[x_k, x_{k+1}]`` and ``S_c S_cᵀ = P − G P⁻ Gᵀ``; then (Särkkä 2013, Thm. 8.2, in
+    factored form)::
+
+        G = Ḡ S⁻⁻¹,   mˢ_k = m_k + G (mˢ_{k+1} − m⁻),   Sˢ_k = tria([S_c,  G Sˢ_{k+1}])
+
+    so ``Pˢ_k = P_k + G (Pˢ_{k+1} − P⁻) Gᵀ`` with no difference of covariances formed; ``lag[:, k] =
+    G Pˢ_{k+1}`` (NaN at the last step). A path whose downdate fails gets NaN (the caller reports it)."""
+    T = len(beliefs)
+    m_last, S_last = beliefs[-1]
+    B, n = m_last.shape
+    ms, Ss = np.empty((B, T, n)), np.empty((B, T, n, n))
+    lag = np.full((B, T, n, n), np.nan)
+    ms[:, -1], Ss[:, -1] = m_last, S_last
+    for k in range(T - 2, -1, -1):
+        m, S = beliefs[k]
+        mp, J, failed = sqrt_predict(rule, model, beliefs[k], time(k), Lq, joint=True)
+        G = _gain(J[..., n:, :n], J[..., :n, :n])
+        ms[:, k] = m + np.einsum("...ij,...j->...i", G, ms[:, k + 1] - mp)
+        GS = G @ Ss[:, k + 1]
+        Ss[:, k] = tria(np.concatenate([J[..., n:, n:], GS], axis=-1))
+        lag[:, k] = GS @ Ss[:, k + 1].swapaxes(-1, -2)
+        if failed is not None and failed.any():
+            ms[failed, k], Ss[failed, k] = np.nan, np.nan
+    return ms, symmetrize(Ss @ Ss.swapaxes(-1, -2)), lag
 
 
 def sqrt_condition(rule, model, belief, y, t, Lr, *, full: bool = False):
@@ -283,8 +286,7 @@ class SquareRootFilter(GaussianFilter):
     -----
     ``summary`` reports ``(mean, S Sᵀ)``; ``predict``/``update`` take and return a :class:`SqrtState`
     (:meth:`SquareRootFilter.init` makes the first from ``(m0, P0)``, :meth:`SquareRootFilter.belief`
-    from a mean and a factor). The smoother is the rule's RTS smoother from the reported moments
-    (:mod:`~nlfilter.filters.smoothing`).
+    from a mean and a factor). ``smooth`` is the square-root RTS smoother (:func:`sqrt_rts`).
 
     Examples
     --------
@@ -365,8 +367,20 @@ class SquareRootFilter(GaussianFilter):
         new, failed = sqrt_predict(self.rule, self.model, state, self._time(k), self._root("Q", self.model.Q))
         return _poison(new, failed)
 
+    smoother_keeps = True  # the backward pass reads the filtered factors (sqrt_rts)
+
+    def _smooth(self, est, beliefs, ys, t0):
+        """The square-root RTS backward pass over the filtered factors (:func:`sqrt_rts`)."""
+        if not beliefs:  # no step: nothing to smooth
+            return est.means.copy(), est.covs.copy(), {"lag_one_cov": np.full_like(est.covs, np.nan)}
+        off = 0 if self.start == "update" else 1
+        ms, Ps, lag = sqrt_rts(self.rule, self.model, beliefs, self._root("Q", self.model.Q),
+                               lambda k: self._time(k + off))
+        return ms, Ps, {"lag_one_cov": lag}
+
     def _predict_cross(self, state, k):
-        """The smoother's prediction (the rule's, from the reported moments) and ``Cov[x_k, f(x_k)]``."""
+        """The prediction (the rule's, from moments) and ``Cov[x_k, f(x_k)]`` of the moment-based backward
+        passes: the fixed-lag smoother and the posterior sampler (:mod:`~nlfilter.filters.sampling`)."""
         return _moment_predict(self.rule, self.model, GaussianState(state[0], state[1]), self._time(k), cross=True)
 
     def _measurement_root(self):
