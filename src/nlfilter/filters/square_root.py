@@ -149,11 +149,13 @@ def sqrt_predict(rule, model, belief, t, Lq, *, joint: bool = False):
 
 
 def _gain(Gb, Sp):
-    """``G = Ḡ S⁻⁻¹`` (``G P⁻ = D``) by a triangular solve; where ``S⁻`` is (nearly) singular the
-    standard smoother's gain from ``P⁻ = S⁻ S⁻ᵀ`` and ``D = Ḡ S⁻ᵀ`` (its pseudo-inverse on the range of
-    P⁻, :func:`~nlfilter.filters.smoothing._solve_right`)."""
+    """``G = Ḡ S⁻⁻¹`` (``G P⁻ = D``) by a triangular solve; where ``S⁻`` is singular to rounding (a
+    diagonal entry at most :data:`~nlfilter.filters.smoothing.SINGULAR_RTOL` times the largest: the
+    standard smoother's threshold on P⁻'s eigenvalues, applied to its square root; a known state
+    component, Q = 0 and P0 = 0 in it) the standard smoother's gain from ``P⁻ = S⁻ S⁻ᵀ`` and
+    ``D = Ḡ S⁻ᵀ`` (the pseudo-inverse on the range of P⁻, :func:`~nlfilter.filters.smoothing._solve_right`)."""
     d = np.abs(np.diagonal(Sp, axis1=-2, axis2=-1))
-    sing = ~np.all(d > np.sqrt(SINGULAR_RTOL) * d.max(axis=-1, keepdims=True), axis=-1)
+    sing = ~np.all(d > SINGULAR_RTOL * d.max(axis=-1, keepdims=True), axis=-1)
     safe = np.where(sing[..., None, None], np.eye(Sp.shape[-1]), Sp)
     G = np.linalg.solve(safe.swapaxes(-1, -2), Gb.swapaxes(-1, -2)).swapaxes(-1, -2)  # G S⁻ = Ḡ
     if sing.any():
