@@ -215,7 +215,8 @@ CASES = [
     # every square-root filter (a linear model for those that need one): built generically from the registry
     *[_gauss(name, lambda cls=cls, model=(LIN if "linear" in cls.needs else D2), **k: cls(model, **k),
              LIN if "linear" in cls.needs else D2, M2, P2,
-             options=(("start", "bogus"),) + {"sr-ukf": (("alpha", 0.0),), "sr-ghkf": (("order", 1),)}.get(name, ()))
+             options=(("start", "bogus"),) + {"sr-ukf": (("alpha", 0.0),), "sr-ghkf": (("order", 1),),
+                                         "sr-iekf": (("iterations", 0), ("tol", -1.0))}.get(name, ()))
       for name, cls in REGISTRY.items() if issubclass(cls, SquareRootFilter)],
     _gauss("cd-slf", lambda model=S2, **k: ContinuousDiscreteSLF(model, DT, **k), euler_discretization(S2, DT),
            M2, P2, options=(("scheme", "bogus"), ("start", "bogus"))),

@@ -15,10 +15,11 @@ import sympy as sp
 
 from nlfilter import DiscreteModel
 from nlfilter.errors import DivergenceError
-from nlfilter.filters import CKF, EKF, GHKF, REGISTRY, UKF, KalmanFilter
+from nlfilter.filters import CKF, EKF, GHKF, REGISTRY, UKF, IteratedEKF, KalmanFilter
 from nlfilter.filters.rules import Cubature5, GaussHermite, Taylor2, Unscented
 from nlfilter.filters.square_root import (SqrtState, SquareRootCKF, SquareRootEKF, SquareRootFilter, SquareRootGHKF,
                                           SquareRootKF, SquareRootUKF)
+from nlfilter.filters.square_root_iekf import SquareRootIEKF
 from nlfilter.filters.triangular import downdate, tria
 from nlfilter.simulate import simulate
 
@@ -37,7 +38,7 @@ M3, P3 = np.array([0.3, -0.2, 0.5]), np.array([[0.5, 0.1, 0.0], [0.1, 0.4, 0.05]
 # (square-root form, its standard form): the registry's defaults, the unscented rule with a
 # negative centre weight (α = 0.5: wc_0 = −0.25, wm_0 = −3 — downdates in both the moments and the
 # E[G Q Gᵀ] of a state-dependent G), the Gauss–Hermite rule of order 2
-PAIRS = {"sr-ekf": (SquareRootEKF, EKF), "sr-ukf": (SquareRootUKF, UKF), "sr-ckf": (SquareRootCKF, CKF),
+PAIRS = {"sr-ekf": (SquareRootEKF, EKF), "sr-iekf": (SquareRootIEKF, IteratedEKF), "sr-ukf": (SquareRootUKF, UKF), "sr-ckf": (SquareRootCKF, CKF),
          "sr-ghkf": (SquareRootGHKF, GHKF),
          "sr-ukf-alpha0.5": (lambda md, **k: SquareRootUKF(md, alpha=0.5, **k), lambda md, **k: UKF(md, alpha=0.5, **k)),
          "sr-ghkf-order2": (lambda md, **k: SquareRootGHKF(md, order=2, **k), lambda md, **k: GHKF(md, order=2, **k))}
@@ -103,7 +104,7 @@ def _turn_model():
     return DiscreteModel([px, vx, py, vy, w], f, h, G=G, Q=np.diag([0.1, 0.1, 1e-7]), R=np.diag([25.0, 1e-5]))
 
 
-@pytest.mark.parametrize("name", ["sr-ekf", "sr-ukf", "sr-ckf", "sr-ghkf"])
+@pytest.mark.parametrize("name", ["sr-ekf", "sr-iekf", "sr-ukf", "sr-ckf", "sr-ghkf"])
 def test_five_state_coordinated_turn(name):
     """A five-state coordinated-turn tracker from range and bearing (positions ~1000 m, ω ≈ 0.05
     rad/s ± 0.01): the square-root forms equal the standard ones over 40 steps. Compared relative to

@@ -13,6 +13,7 @@ gaussian, rules           GaussianFilter, ContinuousDiscreteGaussianFilter over 
 rule_filter               rule_filter: a registered filter class from a rule (the ckf5 line)
 square_root               SquareRootKF, SquareRootEKF, SquareRootUKF, SquareRootCKF, SquareRootGHKF: the
                           belief a Cholesky factor, QR (array) steps, downdates for negative weights
+square_root_iekf          SquareRootIEKF: the iterated update in array form
 second_order              SecondOrderFilter, ContinuousSecondOrderFilter,
                           ContinuousDiscreteSecondOrderFilter (seed 004; ``form=`` FORMS)
 skeleton                  the Gaussian steps as functions (predict, condition, moment_rhs, ito_rhs) that
@@ -48,6 +49,7 @@ from .quasilinear import MQLF, QLF, DiscreteQuasilinearFilter, QuasilinearFilter
 from .reference import GridFilter, ParticleFilter, ResampleMoveParticleFilter
 from .reference.bounded import BoundedGridFilter1D, BoundedParticleFilter
 from .square_root import SquareRootCKF, SquareRootEKF, SquareRootGHKF, SquareRootKF, SquareRootUKF
+from .square_root_iekf import SquareRootIEKF
 from .second_order import (FORMS, ContinuousDiscreteSecondOrderFilter, ContinuousSecondOrderFilter,
                            SecondOrderFilter)
 from .ukf import UKF, ContinuousDiscreteUKF
@@ -63,7 +65,7 @@ REGISTRY = {
     "ckf5": rule_filter(Cubature5(), name="ckf5", source="Jia, Xin & Cheng 2013, High-degree cubature Kalman filter, "
                         "Automatica 49; Stroud 1971, Approximate calculation of multiple integrals (degree-5 rule)"),
     "sr-kf": SquareRootKF, "sr-ekf": SquareRootEKF, "sr-ukf": SquareRootUKF, "sr-ckf": SquareRootCKF,
-    "sr-ghkf": SquareRootGHKF,
+    "sr-ghkf": SquareRootGHKF, "sr-iekf": SquareRootIEKF,
     "continuous-ekf": ContinuousEKF,
     "continuous-discrete-ekf": ContinuousDiscreteEKF, "continuous-discrete-iekf": ContinuousDiscreteIEKF,
     "continuous-discrete-ukf": ContinuousDiscreteUKF, "continuous-discrete-ckf": ContinuousDiscreteCKF,
@@ -101,4 +103,4 @@ __all__ = ["REGISTRY", "get", "GaussianState", "Estimates", "DiscreteFilter", "C
            "CKF", "GHKF", "IteratedEKF", "ContinuousDiscreteEKF", "ContinuousDiscreteIEKF", "ContinuousDiscreteUKF",
            "ContinuousDiscreteCKF", "ContinuousDiscreteGHKF", "GaussianFilter", "ContinuousDiscreteGaussianFilter",
            "StatisticallyLinearizedFilter", "ContinuousDiscreteSLF", "rule_filter", "SquareRootKF", "SquareRootEKF",
-           "SquareRootUKF", "SquareRootCKF", "SquareRootGHKF"]
+           "SquareRootUKF", "SquareRootCKF", "SquareRootGHKF", "SquareRootIEKF"]

@@ -195,18 +195,21 @@ def sqrt_rts(rule, model, beliefs, Lq, time):
     return ms, symmetrize(Ss @ Ss.swapaxes(-1, -2)), lag
 
 
-def sqrt_condition(rule, model, belief, y, t, Lr, *, full: bool = False):
+def sqrt_condition(rule, model, belief, y, t, Lr, *, full: bool = False, at=None):
     """The square-root update of ``belief`` on ``y (..., m)`` (NaN components missing; module
     docstring): ``(SqrtState, failed paths or None, (ŷ, S_y, u, S))`` with ``S_y`` the factor of the
     innovation covariance (of its observed block; unit rows where a component is missing),
     ``u = S_y⁻¹ (y − ŷ)`` (0 where missing) and, with ``full``, ``S = Cov[h] + R`` (all components,
     for the likelihood's ``innovation_cov``; else None). ``Lr``: ``(R, a square root of R)`` of a
-    constant R, or None (``model.R_of`` at the predicted mean: the EKF convention)."""
+    constant R, or None (``model.R_of`` at the predicted mean: the EKF convention). ``at``: Taylor-1
+    linearized at ``x`` instead of the mean, ``ŷ = h(x) + H (m⁻ − x)`` (an iterated update's step)."""
     m, S = belief[0], belief[1]
     n, p = m.shape[-1], y.shape[-1]
     if rule.kind == "taylor1":
-        yhat = model.h(m, t)
-        Y, Xc, neg = mm(model.h_x(m, t), S), S, []  # H S⁻ over S⁻
+        xl = m if at is None else at
+        H = model.h_x(xl, t)
+        yhat = model.h(xl, t) if at is None else model.h(xl, t) + np.einsum("...ij,...j->...i", H, m - xl)
+        Y, Xc, neg = mm(H, S), S, []  # H S⁻ over S⁻
     else:
         z, wm, wc, pos, negi = _signed_nodes(rule, n)
         X = rule.points(m, S)[0]
