@@ -17,9 +17,9 @@ from nlfilter import DiscreteModel
 from nlfilter.errors import DivergenceError
 from nlfilter.filters import CKF, EKF, GHKF, REGISTRY, UKF, IteratedEKF, KalmanFilter
 from nlfilter.filters.rules import Cubature5, GaussHermite, Taylor2, Unscented
-from nlfilter.filters.square_root import (SqrtState, SquareRootCKF, SquareRootEKF, SquareRootFilter, SquareRootGHKF,
-                                          SquareRootKF, SquareRootUKF)
-from nlfilter.filters.square_root_iekf import SquareRootIEKF
+from nlfilter.filters.square_root import SqrtState, SquareRootFilter
+from nlfilter.filters.square_root_filters import (SquareRootCKF, SquareRootEKF, SquareRootGHKF, SquareRootIEKF,
+                                                  SquareRootKF, SquareRootUKF)
 from nlfilter.filters.triangular import downdate, tria
 from nlfilter.simulate import simulate
 

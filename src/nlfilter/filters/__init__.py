@@ -11,9 +11,10 @@ cubature                  CKF, GHKF, ContinuousDiscreteCKF, ContinuousDiscreteGH
 gaussian, rules           GaussianFilter, ContinuousDiscreteGaussianFilter over a moment rule
                           (Taylor1, Unscented, Cubature, GaussHermite, Cubature5)
 rule_filter               rule_filter: a registered filter class from a rule (the ckf5 line)
-square_root               SquareRootKF, SquareRootEKF, SquareRootUKF, SquareRootCKF, SquareRootGHKF: the
-                          belief a Cholesky factor, QR (array) steps, downdates for negative weights
-square_root_iekf          SquareRootIEKF: the iterated update in array form
+square_root               SquareRootFilter: the belief a Cholesky factor, QR (array) steps, downdates for
+                          negative weights, the square-root RTS smoother
+square_root_filters       SquareRootKF, SquareRootEKF, SquareRootIEKF, SquareRootUKF, SquareRootCKF,
+                          SquareRootGHKF (sr-kf, ... sr-ghkf)
 second_order              SecondOrderFilter, ContinuousSecondOrderFilter,
                           ContinuousDiscreteSecondOrderFilter (seed 004; ``form=`` FORMS)
 skeleton                  the Gaussian steps as functions (predict, condition, moment_rhs, ito_rhs) that
@@ -48,8 +49,8 @@ from .phase import PLL, CircleGridFilter, LinearQuadratureFilter, PhaseTensorFil
 from .quasilinear import MQLF, QLF, DiscreteQuasilinearFilter, QuasilinearFilter
 from .reference import GridFilter, ParticleFilter, ResampleMoveParticleFilter
 from .reference.bounded import BoundedGridFilter1D, BoundedParticleFilter
-from .square_root import SquareRootCKF, SquareRootEKF, SquareRootGHKF, SquareRootKF, SquareRootUKF
-from .square_root_iekf import SquareRootIEKF
+from .square_root_filters import (SquareRootCKF, SquareRootEKF, SquareRootGHKF, SquareRootIEKF, SquareRootKF,
+                                  SquareRootUKF)
 from .second_order import (FORMS, ContinuousDiscreteSecondOrderFilter, ContinuousSecondOrderFilter,
                            SecondOrderFilter)
 from .ukf import UKF, ContinuousDiscreteUKF

@@ -61,15 +61,12 @@ import numpy as np
 from .. import _validate as V
 from .beliefs import GaussianState
 from .gaussian import GaussianFilter
-from .kalman import _require_linear
-from .rules import Cubature, GaussHermite, Taylor1, Unscented
 from .linalg import LOG_2PI, mm, sqrt_psd, symmetrize
 from .triangular import downdate, tria
 from .skeleton import predict as _moment_predict
 from .smoothing import SINGULAR_RTOL, _solve_right
 
-__all__ = ["SqrtState", "sqrt_predict", "sqrt_rts", "sqrt_condition", "factor_info", "SquareRootFilter",
-           "SquareRootKF", "SquareRootEKF", "SquareRootUKF", "SquareRootCKF", "SquareRootGHKF"]
+__all__ = ["SqrtState", "sqrt_predict", "sqrt_rts", "sqrt_condition", "factor_info", "SquareRootFilter"]
 
 
 class SqrtState(NamedTuple):
@@ -296,6 +293,7 @@ class SquareRootFilter(GaussianFilter):
     Examples
     --------
     >>> import sympy as sp; from nlfilter import DiscreteModel
+    >>> from nlfilter.filters.rules import Unscented
     >>> x = sp.Symbol("x")
     >>> flt = SquareRootFilter(DiscreteModel([x], [0.9 * x], [x], Q=1.0, R=1.0), Unscented(alpha=0.5))
     >>> b = flt.predict(flt.init([1.0], [[2.0]], (1,)), 0)     # the centre weight −0.25: a downdate
@@ -405,86 +403,3 @@ class SquareRootFilter(GaussianFilter):
         y = np.asarray(y, dtype=float)
         new, bad, (yhat, Sy, u, S) = self._conditioned(state, y, k, full=True)
         return new, bad, factor_info(y, yhat, Sy, u, S)
-
-
-class SquareRootEKF(SquareRootFilter):
-    """Square-root extended Kalman filter: the Taylor-1 rule's steps in array form (module
-    docstring; the same estimates as :class:`~nlfilter.filters.ekf.EKF` in exact arithmetic).
-
-    >>> import sympy as sp; from nlfilter import DiscreteModel
-    >>> from nlfilter.filters.ekf import EKF
-    >>> x = sp.Symbol("x")
-    >>> model = DiscreteModel([x], [0.9 * x + 0.1 * sp.sin(x)], [x**3], Q=0.1, R=0.01)
-    >>> ys = np.array([[[0.5], [0.2], [0.9]]])
-    >>> a, b = SquareRootEKF(model).run(ys, [0.5], [[0.3]]), EKF(model).run(ys, [0.5], [[0.3]])
-    >>> float(np.abs(a.means - b.means).max()) < 1e-12, float(np.abs(a.covs - b.covs).max()) < 1e-12
-    (True, True)
-    """
-
-    name = "sr-ekf"
-    source = ("Morf & Kailath 1975, IEEE TAC 20(4) (array form); Grewal & Andrews, Kalman Filtering: Theory and "
-              "Practice (square-root filtering); Jazwinski 1970, ch. 8 (the EKF)")
-    needs = ("f_x", "h_x")
-
-    def __init__(self, model, *, start: str | None = None):
-        super().__init__(model, Taylor1(), start=start)
-
-
-class SquareRootKF(SquareRootFilter):
-    """Square-root Kalman filter on a linear model (f, h affine, G constant): :class:`SquareRootEKF`'s
-    array steps, exact there (Morf & Kailath 1975; Bierman 1977). The same estimates as
-    :class:`~nlfilter.filters.kalman.KalmanFilter` in exact arithmetic, PSD covariances in any."""
-
-    name = "sr-kf"
-    source = ("Morf & Kailath 1975, Square-root algorithms for least-squares estimation, IEEE TAC 20(4); "
-              "Bierman 1977, Factorization Methods for Discrete Sequential Estimation")
-    needs = ("linear",)
-
-    def __init__(self, model, *, start: str | None = None):
-        super().__init__(model, Taylor1(), start=start)  # a structure it does not take is named first
-        _require_linear(model, "SquareRootKF")
-
-
-class SquareRootUKF(SquareRootFilter):
-    """Square-root unscented Kalman filter (van der Merwe & Wan 2001): the scaled sigma points
-    ``(alpha, beta, kappa)`` of :class:`~nlfilter.filters.rules.Unscented` drawn from the factor; a
-    negative centre weight (``α < 1``) by Cholesky downdates, a failed one reported (module docstring).
-    Additive noise only (the augmented form of :class:`~nlfilter.filters.ukf.UKF` is not here)."""
-
-    name = "sr-ukf"
-    source = ("van der Merwe & Wan 2001, The square-root unscented Kalman filter for state and parameter-estimation, "
-              "ICASSP 2001, vol. 6, 3461-3464")
-
-    def __init__(self, model, *, alpha: float = 1.0, beta: float = 2.0, kappa: float = 0.0,
-                 start: str | None = None):
-        super().__init__(model, Unscented(alpha, beta, kappa), start=start)
-        self.alpha, self.beta, self.kappa = self.rule.alpha, self.rule.beta, self.rule.kappa
-
-
-class SquareRootCKF(SquareRootFilter):
-    """Square-root cubature Kalman filter (Arasaratnam & Haykin 2009, its square-root form): the
-    points ``m ± √n S e_i``, weights ``1/(2n)``, all positive (QR steps only)."""
-
-    name = "sr-ckf"
-    source = "Arasaratnam & Haykin 2009, Cubature Kalman filters, IEEE TAC 54(6) 1254-1269 (square-root CKF)"
-
-    def __init__(self, model, *, start: str | None = None):
-        super().__init__(model, Cubature(), start=start)
-
-
-class SquareRootGHKF(SquareRootFilter):
-    """Square-root Gauss–Hermite (quadrature) Kalman filter: ``order ≥ 2`` nodes per axis from the
-    factor (Arasaratnam & Haykin 2008, Square-root quadrature Kalman filtering, IEEE TSP 56(6); Ito &
-    Xiong 2000 for the rule)."""
-
-    name = "sr-ghkf"
-    source = ("Arasaratnam & Haykin 2008, Square-root quadrature Kalman filtering, IEEE TSP 56(6) 2589-2593; "
-              "Ito & Xiong 2000, IEEE TAC 45(5) (the rule)")
-
-    def __init__(self, model, *, order: int = 3, start: str | None = None):
-        rule = GaussHermite(order)  # a bad order named by the rule
-        if rule.order < 2:  # one node at the mean: its points carry no covariance
-            raise ValueError(f"order: the square-root GHKF needs order ≥ 2 (a rule exact for second moments), "
-                             f"got {order!r}")
-        super().__init__(model, rule, start=start)
-        self.order = self.rule.order
