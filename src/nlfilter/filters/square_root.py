@@ -48,8 +48,10 @@ read them as any Gaussian filter's. ``smooth`` is the square-root RTS smoother (
 the joint factor of ``(x_{k+1}, x_k)``, ``Sˢ_k = tria([S_c, G Sˢ_{k+1}])``); the fixed-lag
 smoother and the posterior sampler run the rule's moment form from the reported moments
 (:mod:`~nlfilter.filters.smoothing`). These forms run on the NumPy loop (the
-compiled backend refuses them, naming why); correlated process/measurement noise and non-additive
-noise are refused at construction (``structures``).
+compiled backend refuses them, naming why). Correlated process and measurement noise
+(``cross_noise``) is decorrelated as in the standard filters (the prediction's dynamics
+``f + G K_w (y_k − h)``, the factor of ``Q − K_w Sᵀ``); non-additive noise is refused at construction
+(``structures``).
 """
 
 from __future__ import annotations
@@ -59,11 +61,10 @@ from typing import NamedTuple
 import numpy as np
 
 from .. import _validate as V
-from .beliefs import GaussianState
 from .gaussian import GaussianFilter
-from .linalg import LOG_2PI, mm, sqrt_psd, symmetrize
+from .linalg import LOG_2PI, decorrelation, mm, sqrt_psd, symmetrize
 from .triangular import downdate, tria
-from .skeleton import predict as _moment_predict
+from .skeleton import _decorrelated
 from .smoothing import SINGULAR_RTOL, _solve_right
 
 __all__ = ["SqrtState", "sqrt_predict", "sqrt_rts", "sqrt_condition", "factor_info", "SquareRootFilter"]
@@ -72,10 +73,14 @@ __all__ = ["SqrtState", "sqrt_predict", "sqrt_rts", "sqrt_condition", "factor_in
 class SqrtState(NamedTuple):
     """Mean ``(..., n)`` and a square root ``factor (..., n, n)`` of the covariance
     (``P = factor @ factorᵀ``): lower-triangular with a non-negative diagonal after every step (the
-    prior's is its Cholesky factor, or the symmetric root where P0 is only semi-definite)."""
+    prior's is its Cholesky factor, or the symmetric root where P0 is only semi-definite). ``y``: with
+    correlated noise (``cross_noise``) the measurement ``(..., m)`` the belief was last conditioned on
+    (NaN: none), which the next prediction decorrelates (:class:`~nlfilter.filters.skeleton.CrossNoise`);
+    else None."""
 
     mean: np.ndarray
     factor: np.ndarray
+    y: np.ndarray | None = None
 
 
 def _signed_nodes(rule, n):
@@ -113,22 +118,24 @@ def _broadcast_concat(blocks, axis):
     return np.concatenate([np.broadcast_to(b, (*lead, *b.shape[-2:])) for b in blocks], axis=axis)
 
 
-def sqrt_predict(rule, model, belief, t, Lq, *, joint: bool = False):
+def sqrt_predict(rule, model, belief, t, Lq, *, joint: bool = False, f=None, f_x=None):
     """``(SqrtState at t + 1, failed paths or None)``: the square-root prediction (module docstring)
     of ``belief`` by ``rule`` (Taylor-1 or a node rule); ``Lq``: a square root of the model's Q.
     ``joint``: ``(m⁻, J, failed)`` with ``J (..., 2n, 2n)`` the lower-triangular factor of the joint
     covariance of ``(x_{k+1}, x_k)`` (the smoother's, :func:`sqrt_rts`): the columns of P⁻ over
-    ``S`` (Taylor-1) or ``S z_i`` (nodes), the noise's over zeros."""
+    ``S`` (Taylor-1) or ``S z_i`` (nodes), the noise's over zeros. ``f``, ``f_x``: dynamics in place
+    of the model's (correlated noise: the decorrelated ones, :class:`~nlfilter.filters.skeleton.CrossNoise`)."""
     m, S = belief[0], belief[1]
     n = m.shape[-1]
+    f, f_x = model.f if f is None else f, model.f_x if f_x is None else f_x
     if rule.kind == "taylor1":
-        mean = model.f(m, t)
-        cols, low, neg = mm(model.f_x(m, t), S), S, []  # F S over S
+        mean = f(m, t)
+        cols, low, neg = mm(f_x(m, t), S), S, []  # F S over S
         noise, nneg = _noise_columns(model, m, None, None, t, Lq)
     else:
         z, wm, wc, pos, negi = _signed_nodes(rule, n)
         X = rule.points(m, S)[0]
-        FX = model.f(X, t)
+        FX = f(X, t)
         mean = np.einsum("i,...ij->...j", wm, FX)  # Σ wm_i f(X_i)
         D = FX - mean[..., None, :]
         cols, low = _columns(D, wc, pos), _columns(X - m[..., None, :], wc, pos)
@@ -161,9 +168,10 @@ def _gain(Gb, Sp):
     return G
 
 
-def sqrt_rts(rule, model, beliefs, Lq, time):
+def sqrt_rts(beliefs, joint_predict):
     """The square-root RTS smoother over the filtered beliefs ``beliefs`` (T :class:`SqrtState` of
-    ``(B, n)``, ``(B, n, n)``; ``time(k)``: the model time of run step k): ``(means (B, T, n),
+    ``(B, n)``, ``(B, n, n)``; ``joint_predict(belief, k)``: :func:`sqrt_predict` with ``joint`` from
+    run step k, the filter's rule, time and noise): ``(means (B, T, n),
     covs (B, T, n, n), lag (B, T, n, n))``. Each step factors the joint law of ``(x_{k+1}, x_k)``
     given ``y_0..y_k`` (:func:`sqrt_predict` with ``joint``), ``tria = [[S⁻, 0], [Ḡ, S_c]]`` with
     ``Ḡ S⁻ᵀ = Cov[x_k, x_{k+1}]`` and ``S_c S_cᵀ = P − G P⁻ Gᵀ``; then (Särkkä 2013, Thm. 8.2, in
@@ -174,14 +182,13 @@ def sqrt_rts(rule, model, beliefs, Lq, time):
     so ``Pˢ_k = P_k + G (Pˢ_{k+1} − P⁻) Gᵀ`` with no difference of covariances formed; ``lag[:, k] =
     G Pˢ_{k+1}`` (NaN at the last step). A path whose downdate fails gets NaN (the caller reports it)."""
     T = len(beliefs)
-    m_last, S_last = beliefs[-1]
-    B, n = m_last.shape
+    B, n = beliefs[-1].mean.shape
     ms, Ss = np.empty((B, T, n)), np.empty((B, T, n, n))
     lag = np.full((B, T, n, n), np.nan)
-    ms[:, -1], Ss[:, -1] = m_last, S_last
+    ms[:, -1], Ss[:, -1] = beliefs[-1].mean, beliefs[-1].factor
     for k in range(T - 2, -1, -1):
-        m, S = beliefs[k]
-        mp, J, failed = sqrt_predict(rule, model, beliefs[k], time(k), Lq, joint=True)
+        m = beliefs[k].mean
+        mp, J, failed = joint_predict(beliefs[k], k)
         G = _gain(J[..., n:, :n], J[..., :n, :n])
         ms[:, k] = m + np.einsum("...ij,...j->...i", G, ms[:, k + 1] - mp)
         GS = G @ Ss[:, k + 1]
@@ -263,7 +270,8 @@ def _poison(state: SqrtState, bad) -> SqrtState:
     """NaN on the paths in ``bad`` (``run`` then raises or marks them)."""
     if bad is None or not np.any(bad):
         return state
-    return SqrtState(np.where(bad[..., None], np.nan, state.mean), np.where(bad[..., None, None], np.nan, state.factor))
+    return SqrtState(np.where(bad[..., None], np.nan, state.mean), np.where(bad[..., None, None], np.nan, state.factor),
+                     state.y)
 
 
 def _second_moments_exact(rule, n) -> bool:
@@ -304,7 +312,7 @@ class SquareRootFilter(GaussianFilter):
     name = "square-root"
     source = ("Morf & Kailath 1975, Square-root algorithms for least-squares estimation, IEEE TAC 20(4); "
               "Bierman 1977, Factorization Methods for Discrete Sequential Estimation")
-    structures = ("state-dependent R",)
+    structures = ("state-dependent R", "cross noise")
     compiled = False  # no compiled kernel propagates a factor (compiled_refusal says so)
     compiled_refusal = ("the square-root filters propagate a Cholesky factor by QR steps, which the compiled loop "
                         "has no kernel for; they run on the NumPy loop (backend='numpy', or 'auto')")
@@ -330,8 +338,8 @@ class SquareRootFilter(GaussianFilter):
     def init(self, m0, P0, batch, *, initial=None, rng=None):
         """The prior ``N(m0, P0)`` (checked as every Gaussian filter's) as a :class:`SqrtState`: the
         Cholesky factor of P0 (the symmetric root of a semi-definite one)."""
-        st = super().init(m0, P0, batch, initial=initial, rng=rng)
-        return SqrtState(st.mean, sqrt_psd(st.cov)[0])
+        st = super().init(m0, P0, batch, initial=initial, rng=rng)  # a MeasuredState with cross noise
+        return SqrtState(st.mean, sqrt_psd(st.cov)[0], getattr(st, "y", None))
 
     def belief(self, mean, factor) -> SqrtState:
         """A :class:`SqrtState` for the step functions (``predict``/``update``) from a mean ``(..., n)``
@@ -367,7 +375,26 @@ class SquareRootFilter(GaussianFilter):
 
     def _predict(self, state, k):
         self._check_belief(state)
-        new, failed = sqrt_predict(self.rule, self.model, state, self._time(k), self._root("Q", self.model.Q))
+        return self._sqrt_predict(state, k)
+
+    def _sqrt_predict(self, state, k, joint: bool = False):
+        """:func:`sqrt_predict` from step ``k``; correlated noise (``cross_noise``, the belief's ``y``):
+        the decorrelated dynamics ``f + G K_w (y_k − h)`` and the factor of ``Q − K_w Sᵀ``
+        (:class:`~nlfilter.filters.skeleton.CrossNoise`, Anderson & Moore 1979, §5.5)."""
+        md, cr = self.model, self._cross
+        Q, f = md.Q, (None, None)
+        if cr.S is not None and state.y is not None:
+            obs = ~np.isnan(state.y)
+            Kw, KS = decorrelation(cr.S, md.R, cr._Rinv, obs)  # K_w = S_o R_oo⁻¹, K_w Sᵀ
+            f = _decorrelated(md, md.G(np.zeros(md.n), k) @ Kw, np.where(obs, state.y, 0.0))[:2]
+            Q = Q - KS  # Cov[w̃] = Q − K_w Sᵀ
+        Lq = self._root("Q", Q) if f[0] is None else sqrt_psd(Q)[0]
+        out = sqrt_predict(self.rule, md, state, self._time(k), Lq, joint=joint, f=f[0], f_x=f[1])
+        if joint:
+            return out
+        new, failed = out
+        if cr.S is not None:  # predicted: conditioned on no measurement yet
+            new = new._replace(y=np.full((*new.mean.shape[:-1], md.m), np.nan))
         return _poison(new, failed)
 
     smoother_keeps = True  # the backward pass reads the filtered factors (sqrt_rts)
@@ -377,14 +404,13 @@ class SquareRootFilter(GaussianFilter):
         if not beliefs:  # no step: nothing to smooth
             return est.means.copy(), est.covs.copy(), {"lag_one_cov": np.full_like(est.covs, np.nan)}
         off = 0 if self.start == "update" else 1
-        ms, Ps, lag = sqrt_rts(self.rule, self.model, beliefs, self._root("Q", self.model.Q),
-                               lambda k: self._time(k + off))
+        ms, Ps, lag = sqrt_rts(beliefs, lambda b, k: self._sqrt_predict(b, k + off, joint=True))
         return ms, Ps, {"lag_one_cov": lag}
 
     def _predict_cross(self, state, k):
         """The prediction (the rule's, from moments) and ``Cov[x_k, f(x_k)]`` of the moment-based backward
         passes: the fixed-lag smoother and the posterior sampler (:mod:`~nlfilter.filters.sampling`)."""
-        return _moment_predict(self.rule, self.model, GaussianState(state[0], state[1]), self._time(k), cross=True)
+        return GaussianFilter._predict(self, state, k, cross=True)
 
     def _measurement_root(self):
         md = self.model
@@ -395,7 +421,13 @@ class SquareRootFilter(GaussianFilter):
         y = np.asarray(y, dtype=float)
         new, bad, info = sqrt_condition(self.rule, self.model, state, y, self._time(k), self._measurement_root(),
                                         full=full)
-        return _poison(new, bad), bad, info
+        return self._carry(_poison(new, bad), y), bad, info
+
+    def _carry(self, new, y):
+        """The updated belief with the measurement it saw, when the noise is correlated."""
+        if self._cross.S is None:
+            return new
+        return new._replace(y=np.broadcast_to(y, new.mean.shape[:-1] + y.shape[-1:]))
 
     def _update_info(self, state, y, k):
         """``run(..., loglik=True)``: the update with the step's log-likelihood from the innovation

@@ -156,4 +156,4 @@ class SquareRootIEKF(SquareRootFilter):
         y = np.asarray(y, dtype=float)
         new, bad, info = sqrt_iterated_condition(self.model, state, y, self._time(k), self._measurement_root(),
                                                  self.iterations, self.tol, full=full)
-        return _poison(new, bad), bad, info
+        return self._carry(_poison(new, bad), y), bad, info
