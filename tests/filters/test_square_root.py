@@ -100,6 +100,21 @@ def test_correlated_noise_is_the_standard_decorrelation(name, start):
           std(D2X, start=start).smooth(ys, M3[:2], P3[:2, :2], backend="numpy"), 1e-10)
 
 
+def test_square_root_slf_is_the_statistically_linearized_filter():
+    """The polynomial model D2 (the order of exact Gaussian moments: 4 points per axis), correlated
+    noise too: sr-slf = StatisticallyLinearizedFilter to 1e-10 (measured ≤ 1e-14), smoother included."""
+    from nlfilter.filters import StatisticallyLinearizedFilter
+    from nlfilter.filters.square_root_filters import SquareRootSLF
+    for md in (D2, D2X):
+        ys = _data(md, M3[:2], P3[:2, :2], 30)
+        a = SquareRootSLF(md).run(ys, M3[:2], P3[:2, :2], loglik=True)
+        b = StatisticallyLinearizedFilter(md).run(ys, M3[:2], P3[:2, :2], loglik=True, backend="numpy")
+        assert a.diverged.sum() == 0 and SquareRootSLF(md).order == 4
+        _same(a, b, 1e-10)
+        _same(SquareRootSLF(md).smooth(ys, M3[:2], P3[:2, :2]),
+              StatisticallyLinearizedFilter(md).smooth(ys, M3[:2], P3[:2, :2], backend="numpy"), 1e-10)
+
+
 def test_square_root_kf_is_the_kalman_filter():
     """Linear model, correlated R, missing data: sr-kf = KalmanFilter (Joseph form) to 1e-10 (measured
     ~1e-15); its smoother the RTS smoother."""

@@ -14,7 +14,7 @@ rule_filter               rule_filter: a registered filter class from a rule (th
 square_root               SquareRootFilter: the belief a Cholesky factor, QR (array) steps, downdates for
                           negative weights, the square-root RTS smoother
 square_root_filters       SquareRootKF, SquareRootEKF, SquareRootIEKF, SquareRootUKF, SquareRootCKF,
-                          SquareRootGHKF (sr-kf, ... sr-ghkf)
+                          SquareRootGHKF, SquareRootSLF (sr-kf, ... sr-slf)
 second_order              SecondOrderFilter, ContinuousSecondOrderFilter,
                           ContinuousDiscreteSecondOrderFilter (seed 004; ``form=`` FORMS)
 skeleton                  the Gaussian steps as functions (predict, condition, moment_rhs, ito_rhs) that
@@ -50,7 +50,7 @@ from .quasilinear import MQLF, QLF, DiscreteQuasilinearFilter, QuasilinearFilter
 from .reference import GridFilter, ParticleFilter, ResampleMoveParticleFilter
 from .reference.bounded import BoundedGridFilter1D, BoundedParticleFilter
 from .square_root_filters import (SquareRootCKF, SquareRootEKF, SquareRootGHKF, SquareRootIEKF, SquareRootKF,
-                                  SquareRootUKF)
+                                  SquareRootSLF, SquareRootUKF)
 from .second_order import (FORMS, ContinuousDiscreteSecondOrderFilter, ContinuousSecondOrderFilter,
                            SecondOrderFilter)
 from .ukf import UKF, ContinuousDiscreteUKF
@@ -66,7 +66,7 @@ REGISTRY = {
     "ckf5": rule_filter(Cubature5(), name="ckf5", source="Jia, Xin & Cheng 2013, High-degree cubature Kalman filter, "
                         "Automatica 49; Stroud 1971, Approximate calculation of multiple integrals (degree-5 rule)"),
     "sr-kf": SquareRootKF, "sr-ekf": SquareRootEKF, "sr-ukf": SquareRootUKF, "sr-ckf": SquareRootCKF,
-    "sr-ghkf": SquareRootGHKF, "sr-iekf": SquareRootIEKF,
+    "sr-ghkf": SquareRootGHKF, "sr-slf": SquareRootSLF, "sr-iekf": SquareRootIEKF,
     "continuous-ekf": ContinuousEKF,
     "continuous-discrete-ekf": ContinuousDiscreteEKF, "continuous-discrete-iekf": ContinuousDiscreteIEKF,
     "continuous-discrete-ukf": ContinuousDiscreteUKF, "continuous-discrete-ckf": ContinuousDiscreteCKF,
@@ -104,4 +104,4 @@ __all__ = ["REGISTRY", "get", "GaussianState", "Estimates", "DiscreteFilter", "C
            "CKF", "GHKF", "IteratedEKF", "ContinuousDiscreteEKF", "ContinuousDiscreteIEKF", "ContinuousDiscreteUKF",
            "ContinuousDiscreteCKF", "ContinuousDiscreteGHKF", "GaussianFilter", "ContinuousDiscreteGaussianFilter",
            "StatisticallyLinearizedFilter", "ContinuousDiscreteSLF", "rule_filter", "SquareRootKF", "SquareRootEKF",
-           "SquareRootUKF", "SquareRootCKF", "SquareRootGHKF", "SquareRootIEKF"]
+           "SquareRootUKF", "SquareRootCKF", "SquareRootGHKF", "SquareRootIEKF", "SquareRootSLF"]

@@ -1,5 +1,5 @@
 """The registered square-root filters (``sr-kf``, ``sr-ekf``, ``sr-iekf``, ``sr-ukf``, ``sr-ckf``,
-``sr-ghkf``): configurations of :class:`~nlfilter.filters.square_root.SquareRootFilter` by a rule,
+``sr-ghkf``, ``sr-slf``): configurations of :class:`~nlfilter.filters.square_root.SquareRootFilter` by a rule,
 as the standard ones configure :class:`~nlfilter.filters.gaussian.GaussianFilter`; the steps and the
 equations are in :mod:`nlfilter.filters.square_root`.
 
@@ -19,6 +19,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from .checks import check_structure
+from .cubature import exact_order
 from .ekf import _iterations
 from .kalman import _require_linear
 from .rules import Cubature, GaussHermite, Taylor1, Unscented
@@ -26,7 +28,7 @@ from .skeleton import gauss_newton
 from .square_root import SquareRootFilter, _poison, sqrt_condition
 
 __all__ = ["SquareRootKF", "SquareRootEKF", "SquareRootIEKF", "SquareRootUKF", "SquareRootCKF", "SquareRootGHKF",
-           "sqrt_iterated_condition"]
+           "SquareRootSLF", "sqrt_iterated_condition"]
 
 
 class SquareRootEKF(SquareRootFilter):
@@ -111,6 +113,24 @@ class SquareRootGHKF(SquareRootFilter):
             raise ValueError(f"order: the square-root GHKF needs order ≥ 2 (a rule exact for second moments), "
                              f"got {order!r}")
         super().__init__(model, rule, start=start)
+        self.order = self.rule.order
+
+
+class SquareRootSLF(SquareRootFilter):
+    """Square-root statistically linearized filter for a polynomial model: the square-root
+    Gauss–Hermite filter at :func:`~nlfilter.filters.cubature.exact_order` (the rule then computes the
+    Gaussian moments of polynomial f, h, G exactly; Gelb 1974, §6.2), as
+    :class:`~nlfilter.filters.cubature.StatisticallyLinearizedFilter` is the GHKF's (order at least 2,
+    whose points carry P, where f and h do not depend on the state at all)."""
+
+    name = "sr-slf"
+    source = ("Gelb 1974, Applied Optimal Estimation §6.2 (statistical linearization); Arasaratnam & Haykin 2008, "
+              "IEEE TSP 56(6) (square-root quadrature)")
+    needs = ("polynomial",)
+
+    def __init__(self, model, *, start: str | None = None):
+        check_structure(self, model)  # a structure it does not take is named before the degrees are read
+        super().__init__(model, GaussHermite(max(2, exact_order(model))), start=start)
         self.order = self.rule.order
 
 
