@@ -373,6 +373,26 @@ class SquareRootFilter(GaussianFilter):
             raise TypeError(f"belief: the square-root filters step a SqrtState (mean, factor), made by init(m0, P0, "
                             f"batch) or belief(mean, factor); got {type(state).__name__}")
 
+    fading = 1.0  # fading memory α (the Gaussian filters' option, nlfilter.filters.fading): 1.0 is none
+
+    def predict(self, state, k):
+        """The prediction from step ``k``, from ``N(m, α² P)`` with fading memory (factor ``α S``)."""
+        return self._predict(self._inflate(state), k)
+
+    def _inflate(self, state):
+        """The belief a prediction starts from: ``state``, or with fading memory α its factor times α
+        (a moment belief, of the moment-based backward passes: its covariance times α²)."""
+        a = getattr(self, "fading", 1.0)
+        if a == 1.0:
+            return state
+        return state._replace(factor=state.factor * a) if isinstance(state, SqrtState) else state._replace(
+            cov=state.cov * a**2)
+
+    def _deflate(self, D):
+        """``Cov[x_k, x_{k+1}]`` from the one under the inflated belief: ``D / α²`` (fading memory)."""
+        a = getattr(self, "fading", 1.0)
+        return D if a == 1.0 else D / a**2
+
     def _predict(self, state, k):
         self._check_belief(state)
         return self._sqrt_predict(state, k)
@@ -404,13 +424,29 @@ class SquareRootFilter(GaussianFilter):
         if not beliefs:  # no step: nothing to smooth
             return est.means.copy(), est.covs.copy(), {"lag_one_cov": np.full_like(est.covs, np.nan)}
         off = 0 if self.start == "update" else 1
-        ms, Ps, lag = sqrt_rts(beliefs, lambda b, k: self._sqrt_predict(b, k + off, joint=True))
+        ms, Ps, lag = sqrt_rts(beliefs, lambda b, k: self._joint(b, k + off))
         return ms, Ps, {"lag_one_cov": lag}
+
+    def _joint(self, belief, k):
+        """:func:`sqrt_predict` with ``joint`` from step ``k``. With fading memory α the joint law is
+        the one that reads the inflation as added process noise (:mod:`nlfilter.filters.fading`): from
+        the inflated belief's ``[[S⁻, 0], [Ḡ, S_c]]``, ``D = Ḡ S⁻ᵀ / α²`` and
+        ``P − D P⁻⁻¹ Dᵀ = S_c S_cᵀ / α² + (1/α² − 1/α⁴) Ḡ Ḡᵀ`` (a sum of PSD terms: its factor by ``tria``)."""
+        mp, J, failed = self._sqrt_predict(self._inflate(belief), k, joint=True)
+        a = getattr(self, "fading", 1.0)
+        if a != 1.0:
+            n = mp.shape[-1]
+            Gb, Sc = J[..., n:, :n], J[..., n:, n:]
+            J = J.copy()
+            J[..., n:, n:] = tria(np.concatenate([Sc / a, np.sqrt(1.0 / a**2 - 1.0 / a**4) * Gb], axis=-1))
+            J[..., n:, :n] = Gb / a**2
+        return mp, J, failed
 
     def _predict_cross(self, state, k):
         """The prediction (the rule's, from moments) and ``Cov[x_k, f(x_k)]`` of the moment-based backward
         passes: the fixed-lag smoother and the posterior sampler (:mod:`~nlfilter.filters.sampling`)."""
-        return GaussianFilter._predict(self, state, k, cross=True)
+        pred, D = GaussianFilter._predict(self, self._inflate(state), k, cross=True)
+        return pred, self._deflate(D)
 
     def _measurement_root(self):
         md = self.model
