@@ -15,6 +15,7 @@ from nlfilter.errors import DivergenceError
 from nlfilter.evaluate import loglik
 from nlfilter.filters import REGISTRY, GridFilter, KalmanBucy, KalmanFilter
 from nlfilter.filters.rule_filter import RuleFilter
+from nlfilter.filters.square_root import SquareRootFilter
 from nlfilter.filters.smoothing import SINGULAR_RTOL, _solve_right
 
 x, x1, x2 = sp.symbols("x x1 x2")
@@ -45,8 +46,8 @@ def test_the_registry_has_the_smoothers_of_the_issue():
     """Eighteen Gaussian (RTS) smoothers, the grid and particle smoothers and the IMM's (Kim's,
     through its members' RTS steps): the issue's twelve that returned NaN are among them; every one
     is tested below. (Besides them, the RTS smoothers of the rule filters, one registry line each:
-    ``rule_filter``.)"""
-    made = [c for c in SMOOTHERS.values() if issubclass(c, RuleFilter)]
+    ``rule_filter``, and of the square-root filters.)"""
+    made = [c for c in SMOOTHERS.values() if issubclass(c, (RuleFilter, SquareRootFilter))]
     assert made and all(c.smoother == "rts" for c in made)
     rts = sum(c.smoother == "rts" for c in SMOOTHERS.values())
     assert len(SMOOTHERS) - len(made) == 21 and rts - len(made) == 18

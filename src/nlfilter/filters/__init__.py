@@ -12,6 +12,10 @@ imm                       IMM (interacting multiple models over Gaussian filters
 gaussian, rules           GaussianFilter, ContinuousDiscreteGaussianFilter over a moment rule
                           (Taylor1, Unscented, Cubature, GaussHermite, Cubature5)
 rule_filter               rule_filter: a registered filter class from a rule (the ckf5 line)
+square_root               SquareRootFilter: the belief a Cholesky factor, QR (array) steps, downdates for
+                          negative weights, the square-root RTS smoother
+square_root_filters       SquareRootKF, SquareRootEKF, SquareRootIEKF, SquareRootUKF, SquareRootCKF,
+                          SquareRootGHKF, SquareRootSLF (sr-kf, ... sr-slf)
 second_order              SecondOrderFilter, ContinuousSecondOrderFilter,
                           ContinuousDiscreteSecondOrderFilter (seed 004; ``form=`` FORMS)
 skeleton                  the Gaussian steps as functions (predict, condition, moment_rhs, ito_rhs) that
@@ -47,6 +51,8 @@ from .phase import PLL, CircleGridFilter, LinearQuadratureFilter, PhaseTensorFil
 from .quasilinear import MQLF, QLF, DiscreteQuasilinearFilter, QuasilinearFilter
 from .reference import GridFilter, ParticleFilter, ResampleMoveParticleFilter
 from .reference.bounded import BoundedGridFilter1D, BoundedParticleFilter
+from .square_root_filters import (SquareRootCKF, SquareRootEKF, SquareRootGHKF, SquareRootIEKF, SquareRootKF,
+                                  SquareRootSLF, SquareRootUKF)
 from .second_order import (FORMS, ContinuousDiscreteSecondOrderFilter, ContinuousSecondOrderFilter,
                            SecondOrderFilter)
 from .ukf import UKF, ContinuousDiscreteUKF
@@ -61,6 +67,8 @@ REGISTRY = {
     "ekf": EKF, "iekf": IteratedEKF, "ukf": UKF, "ckf": CKF, "ghkf": GHKF, "slf": StatisticallyLinearizedFilter,
     "ckf5": rule_filter(Cubature5(), name="ckf5", source="Jia, Xin & Cheng 2013, High-degree cubature Kalman filter, "
                         "Automatica 49; Stroud 1971, Approximate calculation of multiple integrals (degree-5 rule)"),
+    "sr-kf": SquareRootKF, "sr-ekf": SquareRootEKF, "sr-ukf": SquareRootUKF, "sr-ckf": SquareRootCKF,
+    "sr-ghkf": SquareRootGHKF, "sr-slf": SquareRootSLF, "sr-iekf": SquareRootIEKF,
     "continuous-ekf": ContinuousEKF,
     "continuous-discrete-ekf": ContinuousDiscreteEKF, "continuous-discrete-iekf": ContinuousDiscreteIEKF,
     "continuous-discrete-ukf": ContinuousDiscreteUKF, "continuous-discrete-ckf": ContinuousDiscreteCKF,
@@ -98,4 +106,6 @@ __all__ = ["REGISTRY", "get", "GaussianState", "Estimates", "DiscreteFilter", "C
            "ParticleFilter", "BoundedGridFilter1D", "BoundedParticleFilter", "ResampleMoveParticleFilter",
            "CKF", "GHKF", "IteratedEKF", "ContinuousDiscreteEKF", "ContinuousDiscreteIEKF", "ContinuousDiscreteUKF",
            "ContinuousDiscreteCKF", "ContinuousDiscreteGHKF", "GaussianFilter", "ContinuousDiscreteGaussianFilter",
-           "StatisticallyLinearizedFilter", "ContinuousDiscreteSLF", "rule_filter", "IMM", "TwoModeIMM"]
+           "StatisticallyLinearizedFilter", "ContinuousDiscreteSLF", "rule_filter", "IMM", "TwoModeIMM",
+           "SquareRootKF", "SquareRootEKF",
+           "SquareRootUKF", "SquareRootCKF", "SquareRootGHKF", "SquareRootIEKF", "SquareRootSLF"]

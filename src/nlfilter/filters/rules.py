@@ -279,16 +279,19 @@ class NodeRule:
         """``(X (..., N, n), wm (N,), wc (N,), bad (...))``: the points ``m + L z_i`` and weights;
         ``bad``: paths whose P has no square root (their points are drawn from the identity and
         must be discarded: the filter poisons them so that ``run`` raises or marks them)."""
-        z, wm, wc = self.unit_nodes(m.shape[-1])
         L, bad = sqrt_psd(P)
+        return (*self.points(m, L), bad)
+
+    def points(self, m, L):
+        """``(X (..., N, n), wm, wc)``: the points ``m + L z_i`` of any square root ``L`` of P (the
+        square-root filters pass their propagated factor, :mod:`~nlfilter.filters.square_root`)."""
+        z, wm, wc = self.unit_nodes(m.shape[-1])
         Lt = L.swapaxes(-1, -2)  # rows: the columns of L
         axes = axis_gather(z)
         if axes is not None:  # nodes on the axes (unscented, cubature): X_p = m + z_pj L e_j,
             col, zc = axes  # a gather (the same numbers as the product, faster)
-            X = m[..., None, :] + Lt[..., col, :] * zc
-        else:  # X_p = m + L z_p as one batched product (an einsum over the nodes is a naive loop)
-            X = m[..., None, :] + z @ Lt
-        return X, wm, wc, bad
+            return m[..., None, :] + Lt[..., col, :] * zc, wm, wc
+        return m[..., None, :] + z @ Lt, wm, wc  # X_p = m + L z_p: one batched product (an einsum is a naive loop)
 
     def needs(self, model):
         return ()

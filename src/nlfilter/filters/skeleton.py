@@ -41,11 +41,13 @@ import numpy as np
 
 from ..errors import DivergenceError
 from .base import GaussianState, ode_step
+from .beliefs import where_paths
 from .linalg import bad_paths, decorrelation, gaussian_update, mm, poison, symmetrize
 from .contractions import hessian_trace
 from .smoothing import _solve_right
 
-__all__ = ["predict", "condition", "moment_rhs", "propagate", "ito_gain", "ito_rhs", "iterated_update", "CrossNoise",
+__all__ = ["predict", "condition", "moment_rhs", "propagate", "ito_gain", "ito_rhs", "iterated_update", "gauss_newton",
+           "CrossNoise",
            "MeasuredState", "as_belief", "as_gaussian", "check_paths"]
 
 
@@ -313,18 +315,26 @@ def iterated_update(model, state, y, t, iterations: int, tol: float, *, info: bo
             first.append((y_pred, S))
         return gaussian_update(state, y, y_pred, S, C, H=H, R=R)
 
-    new = linear_update(m, True)
-    done = np.zeros(m.shape[:-1], bool)
+    new = gauss_newton(linear_update(m, True), lambda x: linear_update(x, False), iterations, tol)
+    return (new, first[0]) if info else new
+
+
+def gauss_newton(new, relinearized, iterations: int, tol: float):
+    """The iteration of the iterated updates (:func:`iterated_update`; the square-root IEKF's): from
+    the first update ``new`` (a belief whose first field is the mean), ``relinearized(x)`` — the
+    update linearized at ``x`` — at the latest mean, path by path until
+    ``|x_{i+1} − x_i| ≤ tol (1 + |x_i|)`` componentwise (a path that stopped keeps its belief), at
+    most ``iterations`` updates in all."""
+    done = np.zeros(new[0].shape[:-1], bool)
     for _ in range(iterations - 1):
-        x = new.mean
-        cand = linear_update(x, False)
-        step_small = np.all(np.abs(cand.mean - x) <= tol * (1.0 + np.abs(x)), axis=-1)
-        new = GaussianState(np.where(done[..., None], new.mean, cand.mean),
-                            np.where(done[..., None, None], new.cov, cand.cov))
+        x = new[0]
+        cand = relinearized(x)
+        step_small = np.all(np.abs(cand[0] - x) <= tol * (1.0 + np.abs(x)), axis=-1)
+        new = where_paths(done, new, cand)
         done = done | step_small
         if done.all():
             break
-    return (new, first[0]) if info else new
+    return new
 
 
 def check_paths(flt, state, bad, what, t):

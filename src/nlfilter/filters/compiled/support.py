@@ -86,6 +86,9 @@ def steps_refusal(flt) -> str | None:
     mro = cls.__mro__
     at = next((i for i, c in enumerate(mro) if "compiled" in vars(c)), None)
     if at is None or not vars(mro[at])["compiled"]:
+        why = getattr(cls, "compiled_refusal", None)  # the family's own reason (e.g. the square-root filters)
+        if why:
+            return f"{cls.__name__} has no compiled loop: {why}"
         by = "" if at is None else f" ({mro[at].__name__} sets compiled = False)"
         return (f"{cls.__name__} has no compiled loop{by}; it runs the discrete Gaussian filters (kf, ekf, ukf, ckf, "
                 "ghkf, slf, the discrete second-order forms)")
