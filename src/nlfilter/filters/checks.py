@@ -10,6 +10,7 @@ import math
 import numpy as np
 
 from .. import _validate as V
+from ..model_noise import check_horizon
 from .beliefs import GaussianState
 
 __all__ = ["gaussian_prior", "check_structure", "continuous_precision"]
@@ -54,18 +55,30 @@ def gaussian_prior(m0, P0, n: int, batch: tuple, *, data: str = "ys", one: bool 
 def check_structure(flt, model) -> None:
     """Refuse, naming it, a model structure (:attr:`~nlfilter.models.Model.structure`: a
     state-dependent R, correlated process and measurement noise, non-additive noise) that the
-    filter ``flt`` does not handle (its ``structures``): a filter never ignores one silently."""
+    filter ``flt`` does not handle (its ``structures``): a filter never ignores one silently. A
+    filter that takes a state-dependent R takes an R that varies over the steps (both read by
+    :meth:`~nlfilter.models.Model.R_of`)."""
     has = getattr(model, "structure", frozenset())
-    missing = sorted(set(has) - set(flt.structures))
+    takes = set(flt.structures) | ({"time-varying R"} if "state-dependent R" in flt.structures else set())
+    missing = sorted(set(has) - takes)  # a filter that reads R(x) by R_of reads R_k (one per step) alike
     if missing:
         what = {"state-dependent R": "R: the model's measurement noise covariance depends on the state (R(x))",
+                "time-varying R": "R: the model's measurement noise covariance varies over the steps (R_k)",
                 "cross noise": "cross_noise: the model's process and measurement noises are correlated",
                 "non-additive noise": "noise: the model's process noise enters f non-additively",
                 "non-additive measurement noise": "meas_noise: the model's measurement noise enters h non-additively"}
         raise ValueError(f"{'; '.join(what[k] for k in missing)}; {type(flt).__name__} handles "
                          f"{list(flt.structures) or 'none of these'} (see each filter's structures attribute: "
-                         "the Gaussian filters take R(x) and cross noise, the UKF non-additive noise (augmented "
+                         "the Gaussian filters take R(x), R_k and cross noise, the Kalman filter R_k, the UKF non-additive noise (augmented "
                          "sigma points), GridFilter and ParticleFilter R(x), ParticleFilter non-additive process noise)")
+
+
+def noise_horizon(flt, T: int, B: int) -> None:
+    """The data ``(B paths, T steps)`` of a discrete-time filter ``flt`` against its model's ``Q``/``R``
+    given per step (:func:`~nlfilter.model_noise.check_horizon`): long enough for the steps read
+    (one further when the filter starts by a prediction), one row per path of a per-path array."""
+    if getattr(flt, "time", None) == "discrete":
+        check_horizon(getattr(flt, "model", None), T, B, 0 if flt.start == "update" else 1)
 
 
 def continuous_precision(model) -> np.ndarray:
