@@ -276,3 +276,41 @@ def test_grid_and_particle_references_read_R_k():
     np.testing.assert_allclose(p.means, kf.means, rtol=0, atol=0.05)
     np.testing.assert_allclose(p.loglik, kf.loglik, rtol=0, atol=0.3)
 
+
+
+def test_dynamax_time_varying_lgssm_case():
+    """dynamax's time-varying LGSSM test case (linear_gaussian_ssm/parallel_inference_test.py,
+    ``make_dynamic_lgssm_params``: F_t = a_t I + dt E (E the ones two above the diagonal), R_t =
+    s_t² I per step, constant Q, H = [I 0], 50 steps; a_t ~ N(0, 0.5²), s_t ~ N(0, 0.1²) drawn
+    here by NumPy), written as an nlfilter model: F_t through a parameter given per step, R_t
+    as an array. The KF and its RTS smoother equal filterpy's batch_filter(Fs, Rs) and
+    rts_smoother to 1e-9 (R_t down to ~1e-6 makes S_k⁻¹ large: round-off ~1e-12 relative)."""
+    from filterpy.common import Saver
+    from filterpy.kalman import KalmanFilter as FPKF
+
+    Tn, n, dt = 50, 4, 0.1
+    g = np.random.default_rng(0)
+    a_t, s_t = g.normal(size=Tn) * 0.5, g.normal(size=Tn) * 0.1
+    E = dt * np.eye(n, k=2)
+    Fs = a_t[:, None, None] * np.eye(n) + E
+    Qd = np.kron(np.array([[dt ** 3 / 3, dt ** 2 / 2], [dt ** 2 / 2, dt]]), np.eye(2))
+    Hd = np.eye(2, n)
+    Rs = (s_t ** 2)[:, None, None] * np.eye(2)
+    m0, S0 = np.array([0.0, 0.0, 1.0, -1.0]), np.eye(n)
+    xs, a = sp.symbols("p1 p2 v1 v2"), sp.Symbol("a")
+    f = list(a * sp.Matrix(xs) + sp.Matrix(E) * sp.Matrix(xs))
+    model = DiscreteModel(list(xs), f, list(xs[:2]), Q=Qd, R=Rs, params={a: a_t})
+    sim = simulate(model, Tn, paths=1, rng=1, m0=m0, P0=S0)
+    est = KalmanFilter(model).run(sim, m0, S0, loglik=True)
+    sm = KalmanFilter(model).smooth(sim, m0, S0)
+    kf = FPKF(dim_x=n, dim_z=2)
+    kf.x, kf.P, kf.H, kf.Q = m0.copy(), S0.copy(), Hd, Qd
+    saver = Saver(kf)
+    means, covs, _, _ = kf.batch_filter(sim.ys[0], Fs=list(Fs), Rs=list(Rs), update_first=True, saver=saver)
+    # filterpy's smoother predicts k -> k+1 with Fs[k + 1] (its predict-first convention): F_k there
+    sx, sP, _, _ = kf.rts_smoother(means, covs, Fs=[Fs[0]] + list(Fs[:-1]), Qs=[Qd] * Tn)
+    np.testing.assert_allclose(est.means[0], means, rtol=1e-9, atol=1e-9)
+    np.testing.assert_allclose(est.covs[0], covs, rtol=1e-9, atol=1e-12)
+    np.testing.assert_allclose(est.extras["loglik"][0], np.array(saver.log_likelihood), rtol=1e-9)
+    np.testing.assert_allclose(sm.means[0], sx, rtol=1e-9, atol=1e-9)
+    np.testing.assert_allclose(sm.covs[0], sP, rtol=1e-9, atol=1e-12)

@@ -144,7 +144,7 @@ def static_refusal(flt) -> str | None:
         return _R_refusal(md)
     vals = md._values
     if vals.arrays or vals.unset or md._fold:
-        return "the model has parameters or inputs that vary over time (arrays) or are not given"
+        return "the model has parameters, inputs or a Q that vary over time (arrays, Q given per step) or are not given"
     if kind == "taylor2" and not md._G_fixed:
         return "the second-order filters' compiled loop needs a G that depends on neither the state nor the time"
     return None
