@@ -121,9 +121,9 @@ class Filter:
     # times their cost to thread start-up on a few cores (benchmarks/bench_grid.py)
     blas_threads: int | None = None
     # the model structures beyond additive, uncorrelated noise with one constant R that the filter
-    # handles (:attr:`~nlfilter.models.Model.structure`): "state-dependent R", "cross noise",
-    # "non-additive noise", "non-additive measurement noise"; a model with another is refused at
-    # construction (check_structure)
+    # handles (:attr:`~nlfilter.models.Model.structure`): "state-dependent R", "time-varying R" (R_k
+    # per step), "cross noise", "non-additive noise", "non-additive measurement noise"; a model with
+    # another is refused at construction (check_structure)
     structures: tuple = ()
 
     @classmethod

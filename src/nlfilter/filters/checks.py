@@ -55,12 +55,9 @@ def gaussian_prior(m0, P0, n: int, batch: tuple, *, data: str = "ys", one: bool 
 def check_structure(flt, model) -> None:
     """Refuse, naming it, a model structure (:attr:`~nlfilter.models.Model.structure`: a
     state-dependent R, correlated process and measurement noise, non-additive noise) that the
-    filter ``flt`` does not handle (its ``structures``): a filter never ignores one silently. A
-    filter that takes a state-dependent R takes an R that varies over the steps (both read by
-    :meth:`~nlfilter.models.Model.R_of`)."""
+    filter ``flt`` does not handle (its ``structures``): a filter never ignores one silently."""
     has = getattr(model, "structure", frozenset())
-    takes = set(flt.structures) | ({"time-varying R"} if "state-dependent R" in flt.structures else set())
-    missing = sorted(set(has) - takes)  # a filter that reads R(x) by R_of reads R_k (one per step) alike
+    missing = sorted(set(has) - set(flt.structures))
     if missing:
         what = {"state-dependent R": "R: the model's measurement noise covariance depends on the state (R(x))",
                 "time-varying R": "R: the model's measurement noise covariance varies over the steps (R_k)",
