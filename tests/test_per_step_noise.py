@@ -283,8 +283,10 @@ def test_dynamax_time_varying_lgssm_case():
     ``make_dynamic_lgssm_params``: F_t = a_t I + dt E (E the ones two above the diagonal), R_t =
     s_t² I per step, constant Q, H = [I 0], 50 steps; a_t ~ N(0, 0.5²), s_t ~ N(0, 0.1²) drawn
     here by NumPy), written as an nlfilter model: F_t through a parameter given per step, R_t
-    as an array. The KF and its RTS smoother equal filterpy's batch_filter(Fs, Rs) and
-    rts_smoother to 1e-9 (R_t down to ~1e-6 makes S_k⁻¹ large: round-off ~1e-12 relative)."""
+    as an array (R_t corrupts y_t in both libraries; dynamax's F_t drives x_{t-1} -> x_t, entry k
+    here drives x_k -> x_{k+1}: the same law for drawn arrays). The KF and its RTS smoother equal
+    filterpy's batch_filter(Fs, Rs) and rts_smoother to 1e-9 (R_t down to ~1e-6 makes S_k⁻¹
+    large: round-off ~1e-12 relative)."""
     from filterpy.common import Saver
     from filterpy.kalman import KalmanFilter as FPKF
 
