@@ -316,3 +316,25 @@ def test_dynamax_time_varying_lgssm_case():
     np.testing.assert_allclose(est.extras["loglik"][0], np.array(saver.log_likelihood), rtol=1e-9)
     np.testing.assert_allclose(sm.means[0], sx, rtol=1e-9, atol=1e-9)
     np.testing.assert_allclose(sm.covs[0], sP, rtol=1e-9, atol=1e-12)
+
+
+def test_diffuse_kalman_reads_R_k():
+    """The exact diffuse initialisation (P0 with inf) reads R_k too: from the step after the
+    diffuse period on (step 1: two measurements of two states) it equals the KF from a finite
+    P0 = 1e6 I on the same directions, to 1e-5 (the two differ by O(1/1e6) relative on O(1)
+    numbers: 3e-7 here)."""
+    R, Q = per_step(T)
+    model = linear(R, Q)
+    ys = simulate(model, T, paths=2, rng=8, m0=M0, P0=P0).ys
+    diffuse = KalmanFilter(model).run(ys, np.zeros(2), np.diag([np.inf, np.inf]), loglik=True)
+    big = KalmanFilter(model).run(ys, np.zeros(2), 1e6 * np.eye(2), loglik=True)
+    np.testing.assert_allclose(diffuse.means[:, 1:], big.means[:, 1:], rtol=0, atol=1e-5)
+    np.testing.assert_allclose(diffuse.covs[:, 1:], big.covs[:, 1:], rtol=0, atol=1e-5)
+    assert np.isfinite(diffuse.loglik).all()
+    # a constant R_k array: the same diffuse run bit for bit as the constant R
+    const = linear(R[0], Q[0])
+    a = KalmanFilter(const).run(ys, np.zeros(2), np.diag([np.inf, np.inf]), loglik=True)
+    b = KalmanFilter(const.with_params(R=np.repeat(R[:1], T, axis=0))).run(
+        ys, np.zeros(2), np.diag([np.inf, np.inf]), loglik=True)
+    np.testing.assert_array_equal(a.means, b.means)
+    np.testing.assert_array_equal(a.loglik, b.loglik)
