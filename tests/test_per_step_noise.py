@@ -338,3 +338,16 @@ def test_diffuse_kalman_reads_R_k():
         ys, np.zeros(2), np.diag([np.inf, np.inf]), loglik=True)
     np.testing.assert_array_equal(a.means, b.means)
     np.testing.assert_array_equal(a.loglik, b.loglik)
+
+
+def test_imm_of_kalman_filters_reads_R_k():
+    """An IMM whose two modes are the same KF with R_k is that KF (the mixture of equal beliefs):
+    to 1e-12 (round-off of the mixing)."""
+    from nlfilter.filters import IMM
+    R, Q = per_step(T)
+    model = linear(R, Q)
+    ys = simulate(model, T, paths=2, rng=3, m0=M0, P0=P0).ys
+    kf = KalmanFilter(model).run(ys, M0, P0, loglik=True)
+    imm = IMM([KalmanFilter(model), KalmanFilter(model)], [[0.9, 0.1], [0.1, 0.9]]).run(ys, M0, P0, loglik=True)
+    np.testing.assert_allclose(imm.means, kf.means, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(imm.loglik, kf.loglik, rtol=1e-12)
