@@ -1053,8 +1053,8 @@ def test_no_smoother_is_refused_naming_it(case):
 
 # -- model structures (issue 12 item 4): handled, or refused naming them -------------------------
 def _structured(model):
-    """The model with each structure beyond additive uncorrelated noise with one R: R(x), cross
-    noise E[w vᵀ] = S, non-additive noise (f(x) + G (w ⊙ (1 + 0.1 x₁²)), written in w) and
+    """The model with each structure beyond additive uncorrelated noise with one R: R(x), R_k per
+    step, cross noise E[w vᵀ] = S, non-additive noise (f(x) + G (w ⊙ (1 + 0.1 x₁²)), written in w) and
     non-additive measurement noise (h(x) + v ⊙ (1 + 0.1 x₁²), written in v)."""
     st, f, h, G = model.states, model.sym["f"], model.sym["h"], model.sym["G"]
     Q, R = model.Q, model.R
@@ -1068,13 +1068,15 @@ def _structured(model):
     return {"state-dependent R": DiscreteModel(st, f, h, G=G, Q=Q, R=Rx),
             "cross noise": DiscreteModel(st, f, h, G=G, Q=Q, R=R, cross_noise=S),
             "non-additive noise": DiscreteModel(st, fw, h, Q=Q, R=R, noise=list(ws)),
-            "non-additive measurement noise": DiscreteModel(st, f, hv, G=G, Q=Q, R=R, meas_noise=list(vs))}
+            "non-additive measurement noise": DiscreteModel(st, f, hv, G=G, Q=Q, R=R, meas_noise=list(vs)),
+            # R_k per step (issue 31 item 4): R growing over the steps, T + 1 of them (start="predict")
+            "time-varying R": DiscreteModel(st, f, h, G=G, Q=Q, R=R * (1 + 0.2 * np.arange(T + 1))[:, None, None])}
 
 
 STRUCTURED = [c for c in CASES if "model" in inspect.signature(c.make).parameters
               and getattr(inspect.signature(c.make).parameters["model"].default, "kind", None) == "discrete"]
 _ARG = {"state-dependent R": "R", "cross noise": "cross_noise", "non-additive noise": "noise",
-        "non-additive measurement noise": "meas_noise"}
+        "non-additive measurement noise": "meas_noise", "time-varying R": "R"}
 
 
 @pytest.mark.parametrize("case", STRUCTURED, ids=[c.name for c in STRUCTURED])

@@ -200,8 +200,11 @@ def test_errors_name_the_argument():
         _control_model().with_inputs(np.zeros(4))
     with pytest.raises(ValueError, match=r"model.sym: .*\['a'\]"):
         short.sym  # noqa: B018
-    with pytest.raises(ValueError, match="R: depends on time-varying parameter"):
-        DiscreteModel([x1], [x1], [x1], Q=1.0, R=[[r]], params={r: 0.5}).with_params(r=np.ones(3))
+    # an R in parameters given per step is R_k (issue 31 item 4; tests/test_per_step_noise.py), not refused
+    tvR = DiscreteModel([x1], [x1], [x1], Q=1.0, R=[[r]], params={r: 0.5}).with_params(r=[1.0, 2.0, 3.0])
+    assert tvR.structure == {"time-varying R"} and tvR.R_of(np.zeros((2, 1)), 1)[:, 0, 0].tolist() == [2.0, 2.0]
+    with pytest.raises(ValueError, match="R: depends on time-varying parameter.*DiscreteModel only"):
+        SDEModel([x1], [-x1], [x1], Q=1.0, R=[[r]], params={r: 0.5}).with_params(r=np.ones(3), dt=0.1)
     fm = DiscreteModel.from_functions(1, 1, lambda x, t=0: 0.9 * x, lambda x, t=0: x, Q=1.0, R=1.0)
     with pytest.raises(ValueError, match="with_params: a model built from_functions has no parameters"):
         fm.with_params(a=1.0)

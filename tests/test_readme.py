@@ -92,13 +92,22 @@ def test_readme_own_model_runs_and_prints_what_it_shows(tmp_path, monkeypatch, c
     section = text[text.index("## Your own model"):text.index("## The reproduction")]
     code, shown = re.findall(r"```python\n(.*?)```", section, re.S)[0], re.findall(r"```text\n(.*?)```", section, re.S)[0]
     assert "100, paths=64" in code
-    (guide,) = rst_code(GUIDE / "model.rst")
+    guide = rst_code(GUIDE / "model.rst")[0]  # (the second block, noise per step: the test below)
     assert code.startswith(guide)  # the guide's model is the README's
     monkeypatch.chdir(tmp_path)
     exec(compile(code.replace("100, paths=64", "30, paths=16"), "README-own-model", "exec"), {})
     out = capsys.readouterr().out
     assert _table_lines(out) == _table_lines(shown)
     assert "certified" in out.splitlines()[-3]
+
+
+def test_guide_noise_per_step_runs_as_written():
+    """docs/guide/model.rst's second block (R given per step, issue 31 item 4) after its model (the
+    README's pendulum), as written: the EKF's log-likelihood is finite on every path."""
+    model_code, per_step = rst_code(GUIDE / "model.rst")
+    ns = {}
+    exec(compile(model_code + per_step, "model.rst", "exec"), ns)
+    assert ns["est"].means.shape == (4, 100, 2) and np.isfinite(ns["est"].loglik).all()
 
 
 def test_readme_model_file_is_the_example():

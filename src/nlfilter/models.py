@@ -35,8 +35,8 @@ with other values is :meth:`Model.with_params` (no code generated again; what a 
 or per path ``(B, T)`` (``B`` the filtered batch), read at entry ``k`` at step ``k`` (SDE models:
 piecewise constant on a grid ``dt``); control inputs (``inputs=[u]``) are such arrays, given by
 :meth:`Model.with_inputs` ``u (..., T, p)``. A time-varying ``Q`` is carried by ``G``
-(``G_k Q_k^{1/2}``, ``model.Q`` the identity); a ``R`` varying with parameter arrays is not
-supported.
+(``G_k Q_k^{1/2}``, ``model.Q`` the identity); a time-varying ``R`` is ``R_k`` (:meth:`Model.R_of`).
+``Q``, ``R`` may also be given per step, ``(T, d, d)`` or ``(B, T, d, d)`` (:mod:`~nlfilter.model_noise`).
 
 Structure beyond additive, uncorrelated noise with one constant R (:attr:`Model.structure`;
 each filter lists in ``structures`` what it handles and refuses the rest at construction):
@@ -102,7 +102,7 @@ from .model_builders import from_functions, linear
 from .model_expressions import (SUPPORTED_FUNCTIONS, check_expressions, check_free_symbols, code_matrix, matrix,
                                 model_symbols, noise_symbols, vector)
 from .model_functions import bind_functions, build_functions
-from .model_noise import STATE_R, LazyGaussian, R_at, bind_noise, cross_noise_matrix, noise_covariances
+from .model_noise import STATE_R, STEP_R, LazyGaussian, R_at, bind_noise, cross_noise_matrix, new_noise, noise_covariances
 from .model_values import NO_VALUES, Broadcast, Values, param_value
 from .noise import Gaussian, NoiseLaw
 
@@ -170,9 +170,9 @@ class Model:
             raise ValueError(f"dt: the parameter(s) {sorted(map(str, values.arrays))} are arrays over time; an "
                              "SDEModel needs their grid: model.with_params(..., dt=, t0=)")
         bind_functions(self, values)
-        tv = {k for k, used in self._uses.items() if used & (values.arrays | values.unset)}
+        tv = {k for k, used in self._uses.items() if used & (values.arrays | values.unset)} | set(self._steps)
         bind_noise(self, values, tv)
-        self._per_path_G = bool(self._uses["G"] & values.per_path) or (self._fold and bool(self._uses["Q"] & values.per_path))
+        self._per_path_G = bool(self._uses["G"] & values.per_path) or self._per_path_Q  # G Q_k^{1/2} per path
         fixed = self._G_fixed and "G" not in tv and not self._fold
         self._GQG0 = (Broadcast(self.G(np.zeros(self.n)) @ self.Q @ self.G(np.zeros(self.n)).T)
                       if fixed else None)  # fixed G Q Gᵀ, computed once
@@ -183,12 +183,13 @@ class Model:
     @property
     def structure(self) -> frozenset:
         """What the model has beyond additive, uncorrelated noise with one constant R:
-        ``"state-dependent R"`` (:meth:`R_of`), ``"cross noise"`` (``cross_noise``),
+        ``"state-dependent R"`` (:meth:`R_of`), ``"time-varying R"`` (R per step: :meth:`R_of` at
+        the step; a filter that takes R(x) takes it), ``"cross noise"`` (``cross_noise``),
         ``"non-additive noise"``; a filter refuses a structure it does not handle (its
         ``structures``, :func:`~nlfilter.filters.base.check_structure`)."""
         out = set()
         if not getattr(self, "R_constant", True):
-            out.add("state-dependent R")
+            out.add("time-varying R" if getattr(self, "_R_kind", None) == "time" else "state-dependent R")
         if getattr(self, "cross_noise", None) is not None:
             out.add("cross noise")
         if not getattr(self, "additive", True):
@@ -203,7 +204,7 @@ class Model:
         """The measurement noise covariance ``(m, m)`` when it is constant (``R_constant``); a model
         whose R depends on the state has none: :meth:`R_of` evaluates it."""
         if self._R is None:
-            raise ValueError(STATE_R)
+            raise ValueError(STEP_R if self._R_kind == "time" else STATE_R)
         return self._R
 
     @R.setter
@@ -215,7 +216,7 @@ class Model:
         """The law of ``v`` (for simulation and the reference filters' likelihood); a model with
         a state-dependent R has the Gaussian ``N(0, R(x))`` at each state instead (:meth:`R_of`)."""
         if self._measurement_noise is None:
-            raise ValueError(STATE_R.replace("model.R", "model.measurement_noise", 1))
+            raise ValueError((STEP_R if self._R_kind == "time" else STATE_R).replace("model.R", "model.measurement_noise", 1))
         if self._measurement_noise is LazyGaussian:
             self._measurement_noise = Gaussian(self.R)
         return self._measurement_noise
@@ -301,16 +302,21 @@ class Model:
                          f"{[str(p) for p in self._psyms if p not in self.inputs]}"
                          + (f" and inputs {[str(u) for u in self.inputs]}" if self.inputs else ""))
 
-    def with_params(self, values=None, /, *, dt: float | None = None, t0: float = 0.0, **named):
+    def with_params(self, values=None, /, *, dt: float | None = None, t0: float = 0.0, R=None, Q=None, **named):
         """A copy of the model with new parameter values, sharing the generated code (no SymPy).
 
         ``values``: a dict keyed by symbol or name, and/or keywords by name (a parameter named
-        ``dt`` or ``t0`` goes in the dict). A value is a number, an array ``(T,)`` over time shared
+        ``dt``, ``t0``, ``R`` or ``Q`` goes in the dict). A value is a number, an array ``(T,)`` over time shared
         by all paths, or ``(..., T)`` per path (leading axes those of the filtered batch). A
         discrete model reads entry ``k`` at step ``k``; an :class:`SDEModel` reads the array as
         piecewise constant on the grid ``t0 + i dt`` (``i = floor((t - t0)/dt + 1e-9)``, clipped
         to the array): ``dt`` is then required (kept from the model when not given). An array
         makes the model time-varying (``time_invariant = False``).
+
+        ``R``, ``Q`` (discrete models whose R, Q are numbers, not expressions): new noise
+        covariances, one matrix or one per step as the constructor takes them — ``(T, m, m)``
+        shared by the paths or ``(B, T, m, m)`` per path (Q: ``(T, r, r)``, ``(B, T, r, r)``),
+        entry ``k`` read at step ``k`` (:mod:`nlfilter.model_noise`).
 
         >>> import sympy as sp
         >>> x, a = sp.symbols("x a")
@@ -338,6 +344,8 @@ class Model:
             grid = ((float(V.positive("dt", dt)), float(t0)) if dt is not None
                     else (self._values.dt, self._values.t0 if t0 == 0.0 else float(t0)))
         out = copy.copy(self)
+        if R is not None or Q is not None:
+            new_noise(out, R, Q)
         out._bind(Values(new, self.inputs, *grid))
         return out
 
@@ -355,9 +363,11 @@ class Model:
         return self.with_params({s: u[..., j] for j, s in enumerate(self.inputs)}, dt=dt, t0=t0)
 
     def _rows(self, paths: range):
-        """The model for the paths ``paths`` (rows of every per-path parameter array), or itself."""
+        """The model for the paths ``paths`` (rows of every per-path parameter array, and of a
+        per-path Q or R given per step), or itself."""
         vals = getattr(self, "_values", NO_VALUES)
-        if not vals.per_path:
+        steps = {nm: a for nm, a in getattr(self, "_steps", {}).items() if a.ndim == 4}
+        if not vals.per_path and not steps:
             return self
         new = {}
         for p in vals.per_path:
@@ -366,7 +376,11 @@ class Model:
                 raise ValueError(f"{p}: a per-path array of shape {v.shape} for paths {paths!r}; expected "
                                  f"(P, T) with P >= {paths.stop}")
             new[p] = v[paths.start:paths.stop]
-        return self.with_params(new)
+        for nm, a in steps.items():
+            if a.shape[0] < paths.stop:
+                raise ValueError(f"{nm}: a per-path array of shape {a.shape} for paths {paths!r}; expected "
+                                 f"(P, T, d, d) with P >= {paths.stop}")
+        return self.with_params(new, **{nm: a[paths.start:paths.stop] for nm, a in steps.items()})
 
     # -- construction without SymPy text (nlfilter.model_builders) -----------------------------
     from_functions = classmethod(from_functions)

@@ -27,6 +27,8 @@ import numpy as np
 
 from . import _validate as V
 from .errors import DivergenceError
+from .filters.linalg import sqrt_psd
+from .model_noise import check_horizon
 from .noise import Gaussian, NoiseLaw, initial_states  # noqa: F401  (initial_states: the simulators' first draw)
 from .ode import ode_step
 from .sde_step import SUBSTEPS, euler_maruyama
@@ -98,12 +100,13 @@ def _path_rows(model, rng, paths):
     ``(P, T)`` (:meth:`~nlfilter.models.Model.with_params`) give rows ``a..b-1`` for
     ``paths=range(a, b)``; for ``paths=P`` they must have exactly ``P`` rows."""
     rows = getattr(model, "_rows", None)
-    per = getattr(getattr(model, "_values", None), "per_path", ())
+    per = {p: model._values.values[p] for p in getattr(getattr(model, "_values", None), "per_path", ())}
+    per.update({nm: a for nm, a in getattr(model, "_steps", {}).items() if a.ndim == 4})  # per-path Q/R per step
     if rows is None or not per:
         return model
     if not isinstance(paths, range) and not isinstance(paths, PathRNG):
         for p in per:
-            B = model._values.values[p].shape[0]
+            B = per[p].shape[0]
             if B != len(rng):
                 raise ValueError(f"{p}: a per-path array with {B} row(s) for paths={paths!r}; expected "
                                  f"{len(rng)} rows (or paths=range(a, b) to take rows a..b-1)")
@@ -192,6 +195,7 @@ def _simulate(model, steps, paths, rng, x, x_init, xs, ys, m, start, dt, substep
         if dt is not None:
             raise ValueError(f"dt: a DiscreteModel has no time step; expected None, got {dt!r}")
         offset = 1 if V.choice("start", start, {"update", "predict"}) == "predict" else 0
+        check_horizon(model, steps, paths, offset)  # Q/R given per step: long enough, one row per path
         Rx = not getattr(model, "R_constant", True)  # v_k ~ N(0, R(x_k)): standard normals, scaled at the state
         if getattr(model, "cross_noise", None) is not None:  # (w_j, v_j) jointly Gaussian, E[w_j v_jᵀ] = S
             # pair j at model time j: v_j corrupts y_j, w_j drives x_{j+1}
@@ -208,8 +212,10 @@ def _simulate(model, steps, paths, rng, x, x_init, xs, ys, m, start, dt, substep
                 x = screen.check(k, x, x=x, restart=x_init)
             xs[:, k] = x
             vk = v[:, k]
-            if Rx:  # R(x_k) = L Lᵀ (R_of raises where it is not positive definite)
-                vk = np.einsum("...ij,...j->...i", np.linalg.cholesky(model.R_of(x, k + offset)), vk)
+            if Rx:  # R(x_k) = L Lᵀ (R_of raises where it is not positive definite); R_k per step: a PSD root
+                Rk = model.R_of(x, k + offset)
+                L = sqrt_psd(Rk)[0] if model._R_kind == "time" else np.linalg.cholesky(Rk)
+                vk = np.einsum("...ij,...j->...i", L, vk)
             ys[:, k] = (model.h(x, k + offset) + vk if getattr(model, "additive_measurement", True)
                         else model.measurement(x, vk, k + offset))
             screen.check(k, ys[:, k])

@@ -68,7 +68,7 @@ from ..simulation import Simulation
 from ..streams import FILTER, PathRNG
 from .backends import AUTO, BACKENDS, load, refusal
 from .beliefs import GaussianState, where_paths
-from .checks import check_structure, continuous_precision, gaussian_prior  # noqa: F401  (re-exported)
+from .checks import check_structure, continuous_precision, gaussian_prior, noise_horizon  # noqa: F401  (re-exported)
 from .estimates import Estimates
 from .linalg import no_information, symmetrize
 from .recorder import Recorder, loglik_divergence  # noqa: F401  (loglik_divergence re-exported)
@@ -121,9 +121,9 @@ class Filter:
     # times their cost to thread start-up on a few cores (benchmarks/bench_grid.py)
     blas_threads: int | None = None
     # the model structures beyond additive, uncorrelated noise with one constant R that the filter
-    # handles (:attr:`~nlfilter.models.Model.structure`): "state-dependent R", "cross noise",
-    # "non-additive noise", "non-additive measurement noise"; a model with another is refused at
-    # construction (check_structure)
+    # handles (:attr:`~nlfilter.models.Model.structure`): "state-dependent R", "time-varying R" (R_k
+    # per step), "cross noise", "non-additive noise", "non-additive measurement noise"; a model with
+    # another is refused at construction (check_structure)
     structures: tuple = ()
 
     @classmethod
@@ -244,6 +244,7 @@ class Filter:
             raise ValueError(f"ys: expected at least one path, got shape {ys.shape}")
         V.memory("ys", 8.0 * B * T * (n + n * n), f"{B} path(s) × {T} step(s) of estimates (means and covariances "
                  f"of dimension {n})")
+        noise_horizon(self, T, B)  # a model's Q/R given per step: as long as the data, one row a path (checks.py)
         return V.finite("ys", ys, allow_nan=True)
 
     # -- the one loop ------------------------------------------------------------------------------
@@ -329,8 +330,7 @@ class Filter:
             flt, t0 = self.for_timing(ys.timing, t0=t0)
             ys = ys.ys
             if flt is not self:
-                return flt._drive(ys, m0, P0, initial, rng, t0, on_divergence, progress, chunk, loglik, smooth,
-                                  backend)
+                return flt._drive(ys, m0, P0, initial, rng, t0, on_divergence, progress, chunk, loglik, smooth, backend)
         t0 = 0.0 if t0 is None else t0
         on = V.choice("on_divergence", on_divergence, {"raise", "mark"})
         backend = V.choice("backend", backend, {*BACKENDS, "auto"})

@@ -10,6 +10,7 @@ import math
 import numpy as np
 
 from .. import _validate as V
+from ..model_noise import check_horizon
 from .beliefs import GaussianState
 
 __all__ = ["gaussian_prior", "check_structure", "continuous_precision"]
@@ -59,13 +60,22 @@ def check_structure(flt, model) -> None:
     missing = sorted(set(has) - set(flt.structures))
     if missing:
         what = {"state-dependent R": "R: the model's measurement noise covariance depends on the state (R(x))",
+                "time-varying R": "R: the model's measurement noise covariance varies over the steps (R_k)",
                 "cross noise": "cross_noise: the model's process and measurement noises are correlated",
                 "non-additive noise": "noise: the model's process noise enters f non-additively",
                 "non-additive measurement noise": "meas_noise: the model's measurement noise enters h non-additively"}
         raise ValueError(f"{'; '.join(what[k] for k in missing)}; {type(flt).__name__} handles "
                          f"{list(flt.structures) or 'none of these'} (see each filter's structures attribute: "
-                         "the Gaussian filters take R(x) and cross noise, the UKF non-additive noise (augmented "
+                         "the Gaussian filters take R(x), R_k and cross noise, the Kalman filter R_k, the UKF non-additive noise (augmented "
                          "sigma points), GridFilter and ParticleFilter R(x), ParticleFilter non-additive process noise)")
+
+
+def noise_horizon(flt, T: int, B: int) -> None:
+    """The data ``(B paths, T steps)`` of a discrete-time filter ``flt`` against its model's ``Q``/``R``
+    given per step (:func:`~nlfilter.model_noise.check_horizon`): long enough for the steps read
+    (one further when the filter starts by a prediction), one row per path of a per-path array."""
+    if getattr(flt, "time", None) == "discrete":
+        check_horizon(getattr(flt, "model", None), T, B, 0 if flt.start == "update" else 1)
 
 
 def continuous_precision(model) -> np.ndarray:

@@ -97,7 +97,7 @@ def diffuse_run(kf, ys, m0, P0, *, loglik: bool = False, on_divergence: str = "r
         Pst = np.broadcast_to(Pstar0, (*batch, n, n)).reshape(B, n, n).copy()
     except ValueError:
         raise ValueError(f"m0/P0: shapes {m0.shape}, {np.shape(P0)} do not broadcast to the batch {batch} of ys") from None
-    R = md.R
+    R = md.R if md.R_constant else None  # R_k given per step: read at each step (md.R_of)
     off = 0 if kf.start == "update" else 1
     means, covs, terms = np.empty((B, T, n)), np.empty((B, T, n, n)), np.zeros((B, T))
     step, failed = np.full(B, -1), np.zeros((B, T), bool)
@@ -106,6 +106,7 @@ def diffuse_run(kf, ys, m0, P0, *, loglik: bool = False, on_divergence: str = "r
         with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
             if k > 0 or off:
                 F, b, _, _, GQG = kf._mats if kf._const else kf._matrices(k + off - 1)
+                GQG = kf._gqg(GQG, a, k + off - 1)
                 a = a @ F.T + b
                 Pinf = F @ Pinf @ F.T
                 Pst = symmetrize(F @ Pst @ F.T + GQG)
@@ -113,7 +114,8 @@ def diffuse_run(kf, ys, m0, P0, *, loglik: bool = False, on_divergence: str = "r
             y = yf[:, k]
             obs = ~np.isnan(y)
             both = obs[:, :, None] & obs[:, None, :]
-            L = np.linalg.cholesky(np.where(both, R, eye))  # the observed block's factor; 1 elsewhere
+            Rk = md.R_of(a, k + off) if R is None else R
+            L = np.linalg.cholesky(np.where(both, Rk, eye))  # the observed block's factor; 1 elsewhere
             yt = np.linalg.solve(L, np.where(obs, y - d, 0.0)[..., None])[..., 0]
             Zt = np.linalg.solve(L, np.broadcast_to(H, (B, m, n)))
             ll = -np.sum(np.where(obs, np.log(np.diagonal(L, axis1=-2, axis2=-1)), 0.0), axis=-1)

@@ -35,13 +35,26 @@ class KalmanFilter(DiscreteFilter, FadingMemory):
     ``F̃ = F − G K_w H``, ``K_w = S R⁻¹`` (Anderson & Moore 1979, §5.5), exact.
 
     ``fading_memory(alpha)``: ``P⁻ = α² F P Fᵀ + G Q Gᵀ`` (:mod:`~nlfilter.filters.fading`;
-    filterpy's ``KalmanFilter.alpha``)."""
+    filterpy's ``KalmanFilter.alpha``).
+
+    Noise given per step (``R`` ``(T, m, m)`` / ``(B, T, m, m)``, ``Q`` ``(T, r, r)`` /
+    ``(B, T, r, r)``, or written with parameters given as arrays over time;
+    :mod:`nlfilter.models`, "Noise given per step"): the step ``k``'s covariances enter the
+    recursion (seed 000 eqs. 1.33-1.36 with ``Q_k``, ``R_k``)::
+
+        m⁻_{k+1} = F_k m_k + b_k,        P⁻_{k+1} = F_k P_k F_kᵀ + G_k Q_k G_kᵀ
+        S_k = H_k P⁻_k H_kᵀ + R_k,       K_k = P⁻_k H_kᵀ S_k⁻¹
+        m_k = m⁻_k + K_k (y_k − H_k m⁻_k − d_k),   P_k = (I − K_k H_k) P⁻_k (I − K_k H_k)ᵀ + K_k R_k K_kᵀ
+        log p(y_k | y_{<k}) = log N(y_k; H_k m⁻_k + d_k, S_k)
+
+    (per-path arrays: each path its own ``R_k``, ``Q_k``); the RTS smoother runs on the same
+    predictions."""
 
     name = "kf"
     family = "gaussian"
     source = "seed 000 eqs. 1.33-1.36 (Kalman 1960)"
     needs = ("linear",)
-    structures = ("cross noise",)
+    structures = ("cross noise", "time-varying R")
     compiled = True  # backend="numba": its matrices as data (compiled.kalman_loop); cross noise runs here
     compiled_kind = "kalman"
     diffuse_prior = True  # run(): P0 with inf entries is a diffuse prior (nlfilter.filters.diffuse)
@@ -82,14 +95,23 @@ class KalmanFilter(DiscreteFilter, FadingMemory):
     def _matrices(self, k):
         md = self.model
         z = np.zeros(md.n)
-        G = md.G(z, k)
-        return md.f_x(z, k), md.f(z, k), md.h_x(z, k), md.h(z, k), G @ md.Q @ G.T
+        if getattr(md, "_per_path_G", False):  # G Q_k Gᵀ per path: at the batch's states (_gqg)
+            GQG = None
+        else:
+            G = md.G(z, k)
+            GQG = G @ md.Q @ G.T
+        return md.f_x(z, k), md.f(z, k), md.h_x(z, k), md.h(z, k), GQG
+
+    def _gqg(self, GQG, m, k):
+        """``G Q_k Gᵀ``: the step's matrix, or per path (a per-path Q given per step) at the means ``m``."""
+        return self.model.GQGT(m, k) if GQG is None else GQG
 
     def predict(self, state, k):
         state = self._inflate(state)  # fading memory: from α² P (fading.py)
         if self._cross.S is None:
             F, b, _, _, GQG = self._mats if self._const else self._matrices(k)
             m, P = state
+            GQG = self._gqg(GQG, m, k)
             return GaussianState(m @ F.T + b, F @ P @ F.T + GQG)
         return self._predict_cross(state, k)[0]
 
@@ -103,6 +125,7 @@ class KalmanFilter(DiscreteFilter, FadingMemory):
         F, b, H, d, GQG = self._mats if self._const else self._matrices(k)
         state = self._inflate(state)  # fading memory: from α² P, D = P F̃ᵀ (fading.py)
         m, P = state[0], state[1]
+        GQG = self._gqg(GQG, m, k)
         dec = self._cross.decorrelation(state, k)
         if dec is None:
             return self._cross.unmeasured(GaussianState(m @ F.T + b, F @ P @ F.T + GQG)), self._deflate(P @ F.T)
@@ -124,7 +147,8 @@ class KalmanFilter(DiscreteFilter, FadingMemory):
         _, _, H, d, _ = self._mats if self._const else self._matrices(k)
         m, P = state[0], state[1]
         state = GaussianState(m, P)
-        R = self.model.R
+        md = self.model
+        R = md.R if md.R_constant else md.R_of(m, k)  # R_k given per step (the structure "time-varying R")
         C = P @ H.T
         S = H @ C + R
         yhat = m @ H.T + d

@@ -50,7 +50,8 @@ class UKF(GaussianFilter):
     name = "ukf"
     compiled = True  # its steps are the family's (backend="numba"; augmented sigma points: refused)
     source = "Julier & Uhlmann 1997; van der Merwe 2004 (scaled sigma points); Wan & van der Merwe 2000 (augmented)"
-    structures = ("state-dependent R", "cross noise", "non-additive noise", "non-additive measurement noise")
+    structures = ("state-dependent R", "time-varying R", "cross noise", "non-additive noise",
+                  "non-additive measurement noise")
 
     def __init__(self, model, *, alpha: float = 1.0, beta: float = 2.0, kappa: float = 0.0,
                  start: str | None = None, augmented: bool | None = None):

@@ -144,10 +144,10 @@ def static_refusal(flt) -> str | None:
     if md.cross_noise is not None:
         return "the model has correlated process and measurement noise (cross_noise)"
     if not md.R_constant:
-        return "the model's R depends on the state"
+        return _R_refusal(md)
     vals = md._values
     if vals.arrays or vals.unset or md._fold:
-        return "the model has parameters or inputs that vary over time (arrays) or are not given"
+        return "the model has parameters, inputs or a Q that vary over time (arrays, Q given per step) or are not given"
     if kind == "taylor2" and not md._G_fixed:
         return "the second-order filters' compiled loop needs a G that depends on neither the state nor the time"
     return None
@@ -160,8 +160,15 @@ def _kalman_refusal(md) -> str | None:
     if md.cross_noise is not None:
         return "the model has correlated process and measurement noise (cross_noise)"
     if not md.R_constant:
-        return "the model's R depends on the state"
+        return _R_refusal(md)
     vals = md._values
-    if vals.per_path or vals.unset:
-        return "the model has parameters or inputs per path, or inputs not given"
+    if vals.per_path or vals.unset or getattr(md, "_per_path_G", False):
+        return "the model has parameters, inputs or a Q given per step per path, or inputs not given"
     return None
+
+
+def _R_refusal(md) -> str:
+    """Why a compiled loop cannot take a model without one constant R: the loops read one matrix."""
+    if getattr(md, "_R_kind", None) == "time":
+        return "the model's R varies over the steps (R_k given per step, or in parameters given per step); the compiled loops read one R"
+    return "the model's R depends on the state"
