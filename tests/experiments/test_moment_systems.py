@@ -51,7 +51,7 @@ def test_first_order_bad_params():
 
 
 def test_second_order_quick_runs_and_optimum_not_beaten(check_figure):
-    res = get("moment-second-order").run({"laws": ["bimodal"], "N": [4], "T": 60, "skip": 10,
+    res = get("moment-second-order").run({"laws": ["bimodal"], "N": [4], "T": 50, "skip": 10,
                                           "particles": 1000}, quick=True, runs=6, seed=2)
     for name in ("optimal", "kalman", "moment4", "adaptive4"):
         r = res.get(name, "mse", law="bimodal")
@@ -60,6 +60,6 @@ def test_second_order_quick_runs_and_optimum_not_beaten(check_figure):
         g = res.get(name, "gap_to_optimal", law="bimodal")
         assert g.value > -3 * g.stderr
     assert 0.0 <= res.get("adaptive4", "refresh_failure_rate", law="bimodal").value <= 1.0
-    mse = "MSE by input law (6 paths × steps 10..59; E|x − x̂|² over both states; optimal: particle filter, 1000 particles)"
+    mse = "MSE by input law (6 paths × steps 10..49; E|x − x̂|² over both states; optimal: particle filter, 1000 particles)"
     check_figure(res, {mse: {"optimal", "kalman", "moment4"},
                        "Excess MSE over the optimum (paired on the same paths)": {"kalman", "moment4", "adaptive4"}})
