@@ -173,20 +173,24 @@ def _diverging():
 @pytest.mark.parametrize("make", [EKF, UKF, lambda md: SecondOrderFilter(md, form="gaussian")],
                          ids=["ekf", "ukf", "second-order"])
 def test_divergence_marked_and_raised_as_numpy(make):
-    """Paths that fail at different steps and paths that do not, marked and raised alike. The EKF
-    and UKF on a scalar model whose state blows up unobserved (it overflows: the step is the same
-    in any order of arithmetic; a two-state blow-up is not, its covariance loses definiteness at
-    1e50 by rounding); the second-order filter on the polynomial model, whose loop the other tests
-    compile (a model of its own would be a compile of its own, ~15 s), from means where its update
-    loses positive definiteness at once (x1 ≥ 2.75; 3 and 3.5 here) and from means where it does
-    not (x1 ≤ 2.5)."""
-    if make in (EKF, UKF):
+    """Paths that fail at different steps and paths that do not, marked and raised alike. The steps
+    must not hang on rounding (a two-state blow-up that loses definiteness at 1e50 fails a step
+    earlier or later in the other loop's order of arithmetic), so the failures here are overflows
+    or a definiteness lost at once: the EKF on a scalar model whose state blows up unobserved (its
+    scalar loop compiles in a second); the UKF and the second-order filter on the polynomial model,
+    whose loops the other tests compile (a model of its own would be a compile of its own, ~20 s) —
+    the UKF from means so large that its measurement's covariance overflows at once (x1 = 1e160) or
+    after one prediction (x1 = 1e50), the second-order filter from means where its update loses
+    positive definiteness at once (x1 ≥ 2.75; 3 and 3.5 here)."""
+    if make is EKF:
         md, ys = _diverging(), np.zeros((4, 40, 1))
         m0, P0 = np.array([[0.1], [0.5], [2.0], [3.0]]), 0.1  # the last two blow up, at different steps
     else:
         md = polynomial()
         ys = simulate(md, 40, paths=4, rng=5, m0=[0.2, -0.1], P0=0.3 * np.eye(2)).ys
-        m0, P0 = np.array([[0.2, -0.1], [3.0, 0.0], [0.5, 0.0], [3.5, 0.0]]), 0.1 * np.eye(2)
+        m0 = np.array([[0.2, -0.1], [1e160, 0.0], [0.5, 0.0], [1e50, 0.0]]) if make is UKF else \
+            np.array([[0.2, -0.1], [3.0, 0.0], [0.5, 0.0], [3.5, 0.0]])
+        P0 = 0.1 * np.eye(2)
     flt = make(md)
     ref = flt.run(ys, m0, P0, on_divergence="mark", loglik=True)
     new = flt.run(ys, m0, P0, on_divergence="mark", loglik=True, backend="numba")
