@@ -73,24 +73,37 @@ def check_figure(tmp_path):
 
 
 @pytest.fixture(scope="session", autouse=True)
-def _post_processor_computed_once():
+def _post_processor_computed_once(tmp_path_factory):
     """``phase-tracking``'s off-line part, the post-processor fits of Figs. 4.3-4.4 (about 12 s of
-    the 14 s of a quick run: the quintic fits at small ``P``), computed once per test process.
+    the 14 s of a quick run: the quintic fits at small ``P``), computed once per test run.
 
     The fit is a deterministic function of ``(P, degree, q)`` (exact steady-state moments, no
-    random numbers), so a repeated call returns what the first one computed, the same object;
-    the many quick runs of the experiment in the tests (every chunk, executor and resume of
-    test_montecarlo and experiments/test_chunks, test_results, test_report) then cost only their
-    Monte Carlo. Only the experiment's module is patched: tests of ``post_processor`` itself
-    (tests/filters) call the function."""
+    random numbers), so a repeated call returns what the first one computed: the same object in
+    a process, its pickle (the same numbers, bit for bit) in another xdist worker of the run;
+    the many quick runs of the experiment in the tests (chunks and resume in
+    experiments/test_chunks, test_results, test_report) then cost only their Monte Carlo. Only the
+    experiment's module is patched: tests of ``post_processor`` itself (tests/filters) call the
+    function."""
+    import pickle
+
     from nlfilter.experiments import phase_tracking
 
     real, fits = phase_tracking.post_processor, {}
+    base = tmp_path_factory.getbasetemp()
+    shared = (base.parent if os.environ.get("PYTEST_XDIST_WORKER") else base) / "post-processor-fits"
+    shared.mkdir(exist_ok=True)
 
     def once(P, *, degree=3, q=1.0):
         key = (float(P), int(degree), float(q))
         if key not in fits:
-            fits[key] = real(P, degree=degree, q=q)
+            path = shared / f"{key[0]!r}-{key[1]}-{key[2]!r}.pickle"
+            try:
+                fits[key] = pickle.loads(path.read_bytes())
+            except (OSError, pickle.UnpicklingError, EOFError):
+                fits[key] = real(P, degree=degree, q=q)
+                tmp = path.with_suffix(f".{os.getpid()}.tmp")
+                tmp.write_bytes(pickle.dumps(fits[key]))
+                os.replace(tmp, path)  # whole or absent for another worker
         return fits[key]
 
     with pytest.MonkeyPatch.context() as mp:

@@ -101,9 +101,9 @@ def test_interrupted_run_resumes_only_unfinished_blocks(tmp_path, monkeypatch, r
         assert [(r.start, r.stop) for r in calls] == [(0, 2)]
 
 
-# quick cubic sensor, one (q, r): 5 paths = blocks of 2, 2 and 1; a step dt of 0.03 (200 steps of the
-# quick T = 6, not the automatic ~1400): how blocks resume does not depend on the step
-CUBIC = {"q": [2.0], "r": [1.0], "block": 2, "dt": 0.03}
+# quick cubic sensor, one (q, r): 5 paths = blocks of 2, 2 and 1; a step dt of 0.1 (50 steps of the
+# quick T = 5, not the automatic ~1400): how blocks resume does not depend on the step
+CUBIC = {"q": [2.0], "r": [1.0], "block": 2, "dt": 0.1}
 
 
 def test_cubic_sensor_resumes_only_unfinished_blocks(tmp_path, monkeypatch):

@@ -35,7 +35,7 @@ CASES = {
 # Monte Carlo in blocks, bitwise the same for any chunk: the extra parameters of the test (blocks of
 # 2 paths: 2, 1; a chunk of 4 puts both blocks in one task)
 BLOCKS = {"cubic-sensor": {"block": 2}, "cubic-sensor-closures": {"block": 2}, "oh-shin": {"block": 2},
-          "linear-gaussian": {"block": 2}, "phase-tracking": {"block": 2, "sweep": 3}, "second-order": {"block": 2},
+          "linear-gaussian": {"block": 2}, "phase-tracking": {"block": 2, "sweep": 3, "grid": 0}, "second-order": {"block": 2},
           "smoothing": {"block": 2}, "zero-order": {"block": 2}, "zero-order-adaptive": {"block": 2},
           "zero-order-robustness": {"block": 2}, "moment-first-order": {"block": 2},
           "moment-second-order": {"block": 2}}
