@@ -73,6 +73,7 @@ import math
 from typing import NamedTuple
 
 import numpy as np
+from scipy.special import logsumexp
 
 from .. import _validate as V
 from .base import DiscreteFilter, Filter, check_structure, gaussian_prior, set_start
@@ -117,13 +118,6 @@ def _combine(w, m, P):
     d = m - mean[:, None, :]
     cov = np.einsum("bi,bikl->bkl", w, P) + np.einsum("bi,bik,bil->bkl", w, d, d)
     return mean, cov
-
-
-def _logsumexp(a):
-    """``log Σ_j exp(a_j)`` over the last axis (``−inf`` where every ``a_j`` is ``−inf``; NaN propagates)."""
-    top = np.max(a, axis=-1)
-    safe = np.where(np.isfinite(top), top, 0.0)
-    return safe + np.log(np.sum(np.exp(a - safe[..., None]), axis=-1))
 
 
 class IMM(DiscreteFilter):
@@ -273,7 +267,7 @@ class IMM(DiscreteFilter):
         with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
             a = np.log(cbar) + np.stack(lls, axis=1)  # log c̄_j + log Λ_j (log 0 = −inf: an unreachable mode)
             a = np.where(cbar > 0, a, -np.inf)
-            logc = _logsumexp(a)
+            logc = logsumexp(a, axis=-1)  # −inf where no mode is reachable; NaN propagates
             ok = np.isfinite(logc)
             mu = np.exp(a - np.where(ok, logc, 0.0)[:, None])
         if not ok.all():  # no mode explains y on these paths: a divergence (NaN, raised or marked by run)

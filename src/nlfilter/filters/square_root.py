@@ -373,25 +373,17 @@ class SquareRootFilter(GaussianFilter):
             raise TypeError(f"belief: the square-root filters step a SqrtState (mean, factor), made by init(m0, P0, "
                             f"batch) or belief(mean, factor); got {type(state).__name__}")
 
-    fading = 1.0  # fading memory α (the Gaussian filters' option, nlfilter.filters.fading): 1.0 is none
-
     def predict(self, state, k):
         """The prediction from step ``k``, from ``N(m, α² P)`` with fading memory (factor ``α S``)."""
         return self._predict(self._inflate(state), k)
 
     def _inflate(self, state):
-        """The belief a prediction starts from: ``state``, or with fading memory α its factor times α
-        (a moment belief, of the moment-based backward passes: its covariance times α²)."""
-        a = getattr(self, "fading", 1.0)
-        if a == 1.0:
-            return state
-        return state._replace(factor=state.factor * a) if isinstance(state, SqrtState) else state._replace(
-            cov=state.cov * a**2)
-
-    def _deflate(self, D):
-        """``Cov[x_k, x_{k+1}]`` from the one under the inflated belief: ``D / α²`` (fading memory)."""
-        a = getattr(self, "fading", 1.0)
-        return D if a == 1.0 else D / a**2
+        """The belief a prediction starts from: with fading memory α a factor times α; a moment
+        belief (of the moment-based backward passes) as every Gaussian filter's
+        (:class:`~nlfilter.filters.fading.FadingMemory`)."""
+        if isinstance(state, SqrtState) and self.fading != 1.0:
+            return state._replace(factor=state.factor * self.fading)
+        return super()._inflate(state)
 
     def _predict(self, state, k):
         self._check_belief(state)
@@ -433,7 +425,7 @@ class SquareRootFilter(GaussianFilter):
         the inflated belief's ``[[S⁻, 0], [Ḡ, S_c]]``, ``D = Ḡ S⁻ᵀ / α²`` and
         ``P − D P⁻⁻¹ Dᵀ = S_c S_cᵀ / α² + (1/α² − 1/α⁴) Ḡ Ḡᵀ`` (a sum of PSD terms: its factor by ``tria``)."""
         mp, J, failed = self._sqrt_predict(self._inflate(belief), k, joint=True)
-        a = getattr(self, "fading", 1.0)
+        a = self.fading
         if a != 1.0:
             n = mp.shape[-1]
             Gb, Sc = J[..., n:, :n], J[..., n:, n:]
