@@ -16,6 +16,7 @@ square_root               SquareRootFilter: the belief a Cholesky factor, QR (ar
                           negative weights, the square-root RTS smoother
 square_root_filters       SquareRootKF, SquareRootEKF, SquareRootIEKF, SquareRootUKF, SquareRootCKF,
                           SquareRootGHKF, SquareRootSLF (sr-kf, ... sr-slf)
+square_root_second_order  SquareRootSecondOrderFilter (sr-second-order; seed 004's forms on a factor)
 second_order              SecondOrderFilter, ContinuousSecondOrderFilter,
                           ContinuousDiscreteSecondOrderFilter (seed 004; ``form=`` FORMS)
 skeleton                  the Gaussian steps as functions (predict, condition, moment_rhs, ito_rhs) that
@@ -53,6 +54,7 @@ from .reference import GridFilter, ParticleFilter, ResampleMoveParticleFilter
 from .reference.bounded import BoundedGridFilter1D, BoundedParticleFilter
 from .square_root_filters import (SquareRootCKF, SquareRootEKF, SquareRootGHKF, SquareRootIEKF, SquareRootKF,
                                   SquareRootSLF, SquareRootUKF)
+from .square_root_second_order import SquareRootSecondOrderFilter
 from .second_order import (FORMS, ContinuousDiscreteSecondOrderFilter, ContinuousSecondOrderFilter,
                            SecondOrderFilter)
 from .ukf import UKF, ContinuousDiscreteUKF
@@ -69,6 +71,7 @@ REGISTRY = {
                         "Automatica 49; Stroud 1971, Approximate calculation of multiple integrals (degree-5 rule)"),
     "sr-kf": SquareRootKF, "sr-ekf": SquareRootEKF, "sr-ukf": SquareRootUKF, "sr-ckf": SquareRootCKF,
     "sr-ghkf": SquareRootGHKF, "sr-slf": SquareRootSLF, "sr-iekf": SquareRootIEKF,
+    "sr-second-order": SquareRootSecondOrderFilter,
     "continuous-ekf": ContinuousEKF,
     "continuous-discrete-ekf": ContinuousDiscreteEKF, "continuous-discrete-iekf": ContinuousDiscreteIEKF,
     "continuous-discrete-ukf": ContinuousDiscreteUKF, "continuous-discrete-ckf": ContinuousDiscreteCKF,
@@ -108,4 +111,5 @@ __all__ = ["REGISTRY", "get", "GaussianState", "Estimates", "DiscreteFilter", "C
            "ContinuousDiscreteCKF", "ContinuousDiscreteGHKF", "GaussianFilter", "ContinuousDiscreteGaussianFilter",
            "StatisticallyLinearizedFilter", "ContinuousDiscreteSLF", "rule_filter", "IMM", "TwoModeIMM",
            "SquareRootKF", "SquareRootEKF",
-           "SquareRootUKF", "SquareRootCKF", "SquareRootGHKF", "SquareRootIEKF", "SquareRootSLF"]
+           "SquareRootUKF", "SquareRootCKF", "SquareRootGHKF", "SquareRootIEKF", "SquareRootSLF",
+           "SquareRootSecondOrderFilter"]

@@ -118,17 +118,21 @@ def _broadcast_concat(blocks, axis):
     return np.concatenate([np.broadcast_to(b, (*lead, *b.shape[-2:])) for b in blocks], axis=axis)
 
 
-def sqrt_predict(rule, model, belief, t, Lq, *, joint: bool = False, f=None, f_x=None):
+def sqrt_predict(rule, model, belief, t, Lq, *, joint: bool = False, f=None, f_x=None, f_xx=None):
     """``(SqrtState at t + 1, failed paths or None)``: the square-root prediction (module docstring)
     of ``belief`` by ``rule`` (Taylor-1 or a node rule); ``Lq``: a square root of the model's Q.
     ``joint``: ``(m⁻, J, failed)`` with ``J (..., 2n, 2n)`` the lower-triangular factor of the joint
     covariance of ``(x_{k+1}, x_k)`` (the smoother's, :func:`sqrt_rts`): the columns of P⁻ over
     ``S`` (Taylor-1) or ``S z_i`` (nodes), the noise's over zeros. ``f``, ``f_x``: dynamics in place
-    of the model's (correlated noise: the decorrelated ones, :class:`~nlfilter.filters.skeleton.CrossNoise`)."""
+    of the model's (correlated noise: the decorrelated ones, :class:`~nlfilter.filters.skeleton.CrossNoise`);
+    ``f_xx`` likewise (a rule with its own columns, ``sqrt_dynamics``: the second-order filters of
+    :mod:`~nlfilter.filters.square_root_second_order`)."""
     m, S = belief[0], belief[1]
     n = m.shape[-1]
     f, f_x = model.f if f is None else f, model.f_x if f_x is None else f_x
-    if rule.kind == "taylor1":
+    if hasattr(rule, "sqrt_dynamics"):  # the rule's own columns (square_root_second_order)
+        mean, cols, low, neg, noise, nneg = rule.sqrt_dynamics(model, m, S, t, Lq, f, f_x, f_xx, joint)
+    elif rule.kind == "taylor1":
         mean = f(m, t)
         cols, low, neg = mm(f_x(m, t), S), S, []  # F S over S
         noise, nneg = _noise_columns(model, m, None, None, t, Lq)
@@ -209,7 +213,9 @@ def sqrt_condition(rule, model, belief, y, t, Lr, *, full: bool = False, at=None
     linearized at ``x`` instead of the mean, ``ŷ = h(x) + H (m⁻ − x)`` (an iterated update's step)."""
     m, S = belief[0], belief[1]
     n, p = m.shape[-1], y.shape[-1]
-    if rule.kind == "taylor1":
+    if hasattr(rule, "sqrt_measurement"):  # the rule's own columns (square_root_second_order)
+        yhat, Y, Xc, neg = rule.sqrt_measurement(model, m, S, t)
+    elif rule.kind == "taylor1":
         xl = m if at is None else at
         H = model.h_x(xl, t)
         yhat = model.h(xl, t) if at is None else model.h(xl, t) + np.einsum("...ij,...j->...i", H, m - xl)
@@ -320,7 +326,7 @@ class SquareRootFilter(GaussianFilter):
     def __init__(self, model, rule, *, start: str | None = None):
         super().__init__(model, rule, start=start)
         kind = getattr(rule, "kind", None)
-        if kind not in ("taylor1", "nodes"):
+        if kind not in ("taylor1", "nodes") and not hasattr(rule, "sqrt_dynamics"):
             raise TypeError(f"rule: the square-root filters take Taylor1 or a node rule (Unscented, Cubature, "
                             f"GaussHermite), got {rule!r}")
         if kind == "nodes" and not _second_moments_exact(rule, model.n):
@@ -394,14 +400,14 @@ class SquareRootFilter(GaussianFilter):
         the decorrelated dynamics ``f + G K_w (y_k − h)`` and the factor of ``Q − K_w Sᵀ``
         (:class:`~nlfilter.filters.skeleton.CrossNoise`, Anderson & Moore 1979, §5.5)."""
         md, cr = self.model, self._cross
-        Q, f = md.Q, (None, None)
+        Q, f = md.Q, (None, None, None)
         if cr.S is not None and state.y is not None:
             obs = ~np.isnan(state.y)
             Kw, KS = decorrelation(cr.S, md.R, cr._Rinv, obs)  # K_w = S_o R_oo⁻¹, K_w Sᵀ
-            f = _decorrelated(md, md.G(np.zeros(md.n), k) @ Kw, np.where(obs, state.y, 0.0))[:2]
+            f = _decorrelated(md, md.G(np.zeros(md.n), k) @ Kw, np.where(obs, state.y, 0.0))
             Q = Q - KS  # Cov[w̃] = Q − K_w Sᵀ
         Lq = self._root("Q", Q) if f[0] is None else sqrt_psd(Q)[0]
-        out = sqrt_predict(self.rule, md, state, self._time(k), Lq, joint=joint, f=f[0], f_x=f[1])
+        out = sqrt_predict(self.rule, md, state, self._time(k), Lq, joint=joint, f=f[0], f_x=f[1], f_xx=f[2])
         if joint:
             return out
         new, failed = out
