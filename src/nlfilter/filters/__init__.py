@@ -17,6 +17,8 @@ square_root               SquareRootFilter: the belief a Cholesky factor, QR (ar
 square_root_filters       SquareRootKF, SquareRootEKF, SquareRootIEKF, SquareRootUKF, SquareRootCKF,
                           SquareRootGHKF, SquareRootSLF (sr-kf, ... sr-slf)
 square_root_second_order  SquareRootSecondOrderFilter (sr-second-order; seed 004's forms on a factor)
+square_root_continuous    SquareRootContinuousDiscreteEKF, -UKF, -CKF (sr-continuous-discrete-ekf, ...):
+                          the square-root moment ODE between measurements
 second_order              SecondOrderFilter, ContinuousSecondOrderFilter,
                           ContinuousDiscreteSecondOrderFilter (seed 004; ``form=`` FORMS)
 skeleton                  the Gaussian steps as functions (predict, condition, moment_rhs, ito_rhs) that
@@ -55,6 +57,8 @@ from .reference.bounded import BoundedGridFilter1D, BoundedParticleFilter
 from .square_root_filters import (SquareRootCKF, SquareRootEKF, SquareRootGHKF, SquareRootIEKF, SquareRootKF,
                                   SquareRootSLF, SquareRootUKF)
 from .square_root_second_order import SquareRootSecondOrderFilter
+from .square_root_continuous import (SquareRootContinuousDiscreteCKF, SquareRootContinuousDiscreteEKF,
+                                     SquareRootContinuousDiscreteUKF)
 from .second_order import (FORMS, ContinuousDiscreteSecondOrderFilter, ContinuousSecondOrderFilter,
                            SecondOrderFilter)
 from .ukf import UKF, ContinuousDiscreteUKF
@@ -71,7 +75,9 @@ REGISTRY = {
                         "Automatica 49; Stroud 1971, Approximate calculation of multiple integrals (degree-5 rule)"),
     "sr-kf": SquareRootKF, "sr-ekf": SquareRootEKF, "sr-ukf": SquareRootUKF, "sr-ckf": SquareRootCKF,
     "sr-ghkf": SquareRootGHKF, "sr-slf": SquareRootSLF, "sr-iekf": SquareRootIEKF,
-    "sr-second-order": SquareRootSecondOrderFilter,
+    "sr-second-order": SquareRootSecondOrderFilter, "sr-continuous-discrete-ekf": SquareRootContinuousDiscreteEKF,
+    "sr-continuous-discrete-ukf": SquareRootContinuousDiscreteUKF,
+    "sr-continuous-discrete-ckf": SquareRootContinuousDiscreteCKF,
     "continuous-ekf": ContinuousEKF,
     "continuous-discrete-ekf": ContinuousDiscreteEKF, "continuous-discrete-iekf": ContinuousDiscreteIEKF,
     "continuous-discrete-ukf": ContinuousDiscreteUKF, "continuous-discrete-ckf": ContinuousDiscreteCKF,
@@ -112,4 +118,5 @@ __all__ = ["REGISTRY", "get", "GaussianState", "Estimates", "DiscreteFilter", "C
            "StatisticallyLinearizedFilter", "ContinuousDiscreteSLF", "rule_filter", "IMM", "TwoModeIMM",
            "SquareRootKF", "SquareRootEKF",
            "SquareRootUKF", "SquareRootCKF", "SquareRootGHKF", "SquareRootIEKF", "SquareRootSLF",
-           "SquareRootSecondOrderFilter"]
+           "SquareRootSecondOrderFilter", "SquareRootContinuousDiscreteEKF", "SquareRootContinuousDiscreteUKF",
+           "SquareRootContinuousDiscreteCKF"]

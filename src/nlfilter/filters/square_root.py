@@ -325,11 +325,15 @@ class SquareRootFilter(GaussianFilter):
 
     def __init__(self, model, rule, *, start: str | None = None):
         super().__init__(model, rule, start=start)
+        self._square_root_rule(rule)
+
+    def _square_root_rule(self, rule):
+        """Refuse a rule without a square-root form (the continuous-discrete forms call it too)."""
         kind = getattr(rule, "kind", None)
         if kind not in ("taylor1", "nodes") and not hasattr(rule, "sqrt_dynamics"):
             raise TypeError(f"rule: the square-root filters take Taylor1 or a node rule (Unscented, Cubature, "
                             f"GaussHermite), got {rule!r}")
-        if kind == "nodes" and not _second_moments_exact(rule, model.n):
+        if kind == "nodes" and not _second_moments_exact(rule, self.model.n):
             raise ValueError(f"rule: the square-root update needs a rule whose points carry the covariance "
                              f"(Σ wc_i z_i z_iᵀ = I), got {rule!r}; e.g. GaussHermite(order ≥ 2)")
         self._roots = {}

@@ -1,0 +1,200 @@
+"""Continuous-discrete square-root Gaussian filters (``sr-continuous-discrete-ekf``, ``-ukf``,
+``-ckf``): the prediction of :class:`~nlfilter.filters.gaussian.ContinuousDiscreteGaussianFilter`
+propagated on a lower-triangular factor ``S`` of the covariance (``P = S Sᵀ``), the discrete
+square-root update of :mod:`nlfilter.filters.square_root` at the measurements.
+
+Between measurements the moment equations of the Gaussian closure (Särkkä 2007, IEEE TAC 52(9))
+``dP/dt = Cov[x, f] + Cov[f, x] + E[G Q Gᵀ]`` become the square-root moment ODE (Särkkä 2007, §IV,
+the square-root continuous-discrete UKF; Arasaratnam, Haykin & Hurd 2010, IEEE TSP 58(10), the
+square-root continuous-discrete CKF; Morf, Lévy & Kailath 1978 for the Riccati equation)::
+
+    dm/dt = E[f],    dS/dt = S Φ(M),    M = S⁻¹ (dP/dt) S⁻ᵀ
+    Φ(M) = the strictly lower triangle of M plus half its diagonal
+
+so that ``dS Sᵀ + S dSᵀ = S (Φ(M) + Φ(M)ᵀ) Sᵀ = dP/dt`` and S stays lower-triangular (a product of
+lower-triangular matrices; every RK stage a sum of them). P is never formed: with the rule's points
+``X_i = m + S z_i`` (the factor itself as their square root, as the standard filter's Cholesky
+factor of ``S Sᵀ`` is ``S``), ``S⁻¹ Cov[x, f] S⁻ᵀ = Σ wc_i z_i (S⁻¹ (f(X_i) − ḟ))ᵀ``; Taylor-1 (the
+EKF), ``S⁻¹ Cov[f, x] S⁻ᵀ = S⁻¹ F S``; the noise, ``W Wᵀ`` with ``W = S⁻¹ G Q^½`` (or
+``Σ wm_i (S⁻¹ G(X_i) Q^½)(·)ᵀ`` for a state-dependent G). The triangular solves need S invertible
+(P positive definite): a path whose factor is singular is poisoned, so ``run`` raises or marks it.
+
+Integrated by ``scheme`` (``"rk4"`` default, or ``"euler"``) with ``substeps`` steps per interval:
+the defaults of the standard continuous-discrete filters. The two ODEs are the same flow in exact
+arithmetic but not the same discretisation: RK4 applied to ``(m, S)`` and to ``(m, P)`` differ by
+``O(h⁴)`` (the difference of the two global errors; ``tests/filters/test_square_root_continuous.py``
+measures it falling ~16x per halving of h). ``smooth`` is the standard filter's moment-form RTS
+smoother (the continuous-discrete cross-covariance ``dC/dt = C P⁻¹ Cov[x, f]``) from the reported
+moments, as the fixed-lag smoother of every square-root filter.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..ode import ode_step
+from .gaussian import ContinuousDiscreteGaussianFilter, GaussianFilter
+from .linalg import mm
+from .rules import Cubature, Taylor1, Unscented
+from .square_root import SqrtState, SquareRootFilter, _poison
+
+__all__ = ["sqrt_moment_rhs", "sqrt_propagate", "ContinuousDiscreteSquareRoot", "SquareRootContinuousDiscreteEKF",
+           "SquareRootContinuousDiscreteUKF", "SquareRootContinuousDiscreteCKF"]
+
+
+def _phi(M):
+    """``Φ(M)``: the strictly lower triangle of ``M`` plus half its diagonal."""
+    return np.tril(M, -1) + 0.5 * np.tril(np.triu(M))
+
+
+def sqrt_moment_rhs(rule, model, m, S, t, Lq):
+    """``(dm/dt, dS/dt, singular paths)`` of the square-root moment ODE (module docstring) at
+    ``(m, S)``, time ``t``, ``Lq`` a square root of ``model.Q``; a path whose ``S`` has a diagonal entry
+    that is not positive gets NaN (it is reported by the caller)."""
+    n = m.shape[-1]
+    sing = ~np.all(np.diagonal(S, axis1=-2, axis2=-1) > 0, axis=-1)
+    Ss = np.where(sing[..., None, None], np.eye(n), S)  # the solves stay finite; those paths are poisoned
+
+    def solve(B):
+        return np.linalg.solve(np.broadcast_to(Ss, (*np.broadcast_shapes(Ss.shape[:-2], B.shape[:-2]), n, n)), B)
+
+    if rule.kind == "taylor1":
+        dm = model.f(m, t)
+        A = solve(mm(model.f_x(m, t), S)).swapaxes(-1, -2)  # (S⁻¹ F S)ᵀ = S⁻¹ Cov[x, f] S⁻ᵀ
+        W = solve(model.G(m, t) @ Lq)
+        N = mm(W, W.swapaxes(-1, -2))
+    else:
+        z, wm, wc = rule.unit_nodes(n)
+        X = rule.points(m, S)[0]
+        FX = model.f(X, t)
+        dm = np.einsum("i,...ij->...j", wm, FX)  # Σ wm_i f(X_i)
+        SD = solve((FX - dm[..., None, :]).swapaxes(-1, -2))  # columns S⁻¹ (f(X_i) − ḟ)
+        A = (z.T * wc) @ SD.swapaxes(-1, -2)  # Σ wc_i z_i (S⁻¹ D_i)ᵀ
+        if model.G_constant:
+            W = solve(model.G(m, t) @ Lq)
+            N = mm(W, W.swapaxes(-1, -2))
+        else:  # Σ wm_i (S⁻¹ G(X_i) Q^½)(·)ᵀ
+            GL = model.G(X, t) @ Lq  # (..., N, n, r)
+            W = np.linalg.solve(Ss[..., None, :, :], GL)
+            N = np.einsum("i,...iab,...icb->...ac", wm, W, W)
+    M = A + A.swapaxes(-1, -2) + N  # S⁻¹ (dP/dt) S⁻ᵀ
+    dS = mm(S, _phi(M))
+    if sing.any():
+        dm = np.where(sing[..., None], np.nan, dm)
+    return dm, dS
+
+
+def sqrt_propagate(rule, model, belief, t, dt, Lq, *, substeps: int = 1, scheme: str = "rk4") -> SqrtState:
+    """The continuous-discrete square-root prediction: :func:`sqrt_moment_rhs` integrated from ``t``
+    to ``t + dt`` (:func:`~nlfilter.ode.ode_step`: ``scheme``, ``substeps``), the belief at ``t + dt``
+    (NaN on the paths whose factor became singular)."""
+    m, S = ode_step(lambda x, s: sqrt_moment_rhs(rule, model, x[0], x[1], s, Lq), (belief[0], belief[1]), t, dt,
+                    substeps=substeps, scheme=scheme)
+    bad = ~np.all(np.diagonal(S, axis1=-2, axis2=-1) > 0, axis=-1) | ~np.isfinite(m).all(axis=-1)
+    return _poison(SqrtState(m, S), bad)
+
+
+class ContinuousDiscreteSquareRoot:
+    """The continuous-discrete part of a square-root filter (a mixin before
+    :class:`~nlfilter.filters.square_root.SquareRootFilter`): the model, ``dt``, ``scheme``,
+    ``substeps``, ``start`` and ``t0`` as :class:`~nlfilter.filters.gaussian.ContinuousDiscreteGaussianFilter`
+    takes them; the prediction by :func:`sqrt_propagate`; the smoother the standard one's, from the
+    reported moments."""
+
+    compiled = False  # continuous dynamics: no compiled loop
+    accepts = ("sde",)
+    start = "predict"  # the prior at t0, y_0 at t0 + dt (as simulate_continuous_discrete)
+    structures = ("state-dependent R",)
+    smoother_keeps = False  # the moment-form RTS pass reads the reported moments
+
+    def _continuous_discrete(self, model, dt, rule, scheme, substeps, start, t0):
+        # the standard filter's set-up (model kind, start, dt, scheme, substeps, t0, the rule's needs)
+        ContinuousDiscreteGaussianFilter.__init__(self, model, dt, rule, scheme=scheme, substeps=substeps, start=start,
+                                                  t0=t0, by=type(self).__name__)
+        self._square_root_rule(rule)
+
+    def _time(self, k):
+        return self.t0 + k * self.dt
+
+    def _predict(self, state, k):
+        self._check_belief(state)
+        return sqrt_propagate(self.rule, self.model, state, self._time(k), self.dt, self._root("Q", self.model.Q),
+                              substeps=self.substeps, scheme=self.scheme)
+
+    def _predict_cross(self, state, k):
+        """The standard filter's prediction with ``Cov[x(t_k), x(t_{k+1})]`` from moments (the smoothers)."""
+        pred, D = ContinuousDiscreteGaussianFilter._predict(self, self._inflate(state), k, cross=True)
+        return pred, self._deflate(D)
+
+    _smooth = GaussianFilter._smooth
+
+
+_PARAMS = """
+    Parameters
+    ----------
+    model : SDEModel; its ``h`` and ``R`` are read as the discrete measurement ``y_k = h(x(t_k)) + v_k``
+    dt : float — the measurement interval
+    scheme : ``"rk4"`` (default) or ``"euler"``
+    substeps : int — integration steps per interval (default 1)
+    start : ``"predict"`` (default: ``ys[..., 0, :]`` at ``t0 + dt``) or ``"update"``
+    t0 : float — the prior's time (None: 0.0)
+"""
+
+
+class SquareRootContinuousDiscreteEKF(ContinuousDiscreteSquareRoot, SquareRootFilter):
+    __doc__ = """Square-root continuous-discrete EKF: ``dm/dt = f(m)``, ``dS/dt = S Φ(S⁻¹ F S + (S⁻¹ F S)ᵀ
+    + W Wᵀ)``, ``W = S⁻¹ G Q^½`` (module docstring), the square-root EKF update at the measurements;
+    :class:`~nlfilter.filters.ekf.ContinuousDiscreteEKF` in square-root form.
+    """ + _PARAMS + """
+    Examples
+    --------
+    >>> import sympy as sp; from nlfilter import SDEModel
+    >>> x = sp.Symbol("x")
+    >>> flt = SquareRootContinuousDiscreteEKF(SDEModel([x], [-x], [x], Q=2.0, R=1.0), 0.1, substeps=4)
+    >>> b = flt.predict(flt.init([1.0], [[0.5]], (1,)), 0)
+    >>> round(float(b.mean[0, 0]), 6), round(float(b.factor[0, 0, 0] ** 2), 6)   # e^{-0.1}, 1 − 0.5 e^{-0.2}
+    (0.904837, 0.590635)
+    """
+
+    name = "sr-cd-ekf"
+    source = ("Jazwinski 1970, ch. 8 (continuous-discrete EKF); Särkkä 2007, IEEE TAC 52(9) (square-root moment "
+              "ODE); Morf & Kailath 1975, IEEE TAC 20(4) (array update)")
+    needs = ("f_x", "h_x")
+
+    def __init__(self, model, dt: float, *, scheme: str = "rk4", substeps: int = 1, start: str | None = None,
+                 t0: float | None = None):
+        self._continuous_discrete(model, dt, Taylor1(), scheme, substeps, start, t0)
+
+
+class SquareRootContinuousDiscreteUKF(ContinuousDiscreteSquareRoot, SquareRootFilter):
+    __doc__ = """Square-root continuous-discrete unscented Kalman filter (Särkkä 2007, §IV): the sigma
+    points ``m + S z_i`` of :class:`~nlfilter.filters.rules.Unscented` ``(alpha, beta, kappa)`` in the
+    square-root moment ODE (a negative centre weight is only a coefficient there), the square-root
+    UKF update at the measurements; :class:`~nlfilter.filters.ukf.ContinuousDiscreteUKF` in
+    square-root form.
+    """ + _PARAMS
+
+    name = "sr-cd-ukf"
+    source = ("Särkkä 2007, On unscented Kalman filtering for state estimation of continuous-time nonlinear "
+              "systems, IEEE TAC 52(9) (square-root form); van der Merwe & Wan 2001 (square-root update)")
+
+    def __init__(self, model, dt: float, *, alpha: float = 1.0, beta: float = 2.0, kappa: float = 0.0,
+                 scheme: str = "rk4", substeps: int = 1, start: str | None = None, t0: float | None = None):
+        self._continuous_discrete(model, dt, Unscented(alpha, beta, kappa), scheme, substeps, start, t0)
+        self.alpha, self.beta, self.kappa = self.rule.alpha, self.rule.beta, self.rule.kappa
+
+
+class SquareRootContinuousDiscreteCKF(ContinuousDiscreteSquareRoot, SquareRootFilter):
+    __doc__ = """Square-root continuous-discrete cubature Kalman filter (Arasaratnam, Haykin & Hurd 2010,
+    IEEE TSP 58(10)): the points ``m ± √n S e_i`` in the square-root moment ODE, the square-root CKF
+    update at the measurements; :class:`~nlfilter.filters.cubature.ContinuousDiscreteCKF` in
+    square-root form.
+    """ + _PARAMS
+
+    name = "sr-cd-ckf"
+    source = ("Arasaratnam, Haykin & Hurd 2010, Cubature Kalman filtering for continuous-discrete systems, "
+              "IEEE TSP 58(10) (square-root form)")
+
+    def __init__(self, model, dt: float, *, scheme: str = "rk4", substeps: int = 1, start: str | None = None,
+                 t0: float | None = None):
+        self._continuous_discrete(model, dt, Cubature(), scheme, substeps, start, t0)
