@@ -216,12 +216,17 @@ CASES = [
     # the registry's IMM (two EKF modes of one model, the second with fading memory: filters/imm.py)
     _gauss("imm", lambda model=D2, **k: TwoModeIMM(model, **k), D2, M2, P2,
            options=(("start", "bogus"), ("stay", 1.5), ("alpha", 0.5), ("alpha", 1.0)), extras={"mode_probs": (2,)}),
-    # every square-root filter (a linear model for those that need one): built generically from the registry
+    # every discrete square-root filter (a linear model for those that need one): built generically from the registry
     *[_gauss(name, lambda cls=cls, model=(LIN if "linear" in cls.needs else D2), **k: cls(model, **k),
              LIN if "linear" in cls.needs else D2, M2, P2,
              options=(("start", "bogus"),) + {"sr-ukf": (("alpha", 0.0),), "sr-ghkf": (("order", 1),),
-                                         "sr-iekf": (("iterations", 0), ("tol", -1.0))}.get(name, ()))
-      for name, cls in REGISTRY.items() if issubclass(cls, SquareRootFilter)],
+                                         "sr-iekf": (("iterations", 0), ("tol", -1.0)),
+                                         "sr-second-order": (("form", "bogus"),)}.get(name, ()))
+      for name, cls in REGISTRY.items() if issubclass(cls, SquareRootFilter) and "sde" not in cls.accepts],
+    # the continuous-discrete square-root filters, as the standard ones below
+    *[_gauss(name, lambda cls=cls, model=S2, **k: cls(model, DT, **k), euler_discretization(S2, DT), M2, P2,
+             options=(("scheme", "bogus"), ("start", "bogus"), ("substeps", 0)))
+      for name, cls in REGISTRY.items() if issubclass(cls, SquareRootFilter) and "sde" in cls.accepts],
     _gauss("cd-slf", lambda model=S2, **k: ContinuousDiscreteSLF(model, DT, **k), euler_discretization(S2, DT),
            M2, P2, options=(("scheme", "bogus"), ("start", "bogus"))),
     _gauss("iekf", lambda model=D2, **k: IteratedEKF(model, **k), D2, M2, P2,

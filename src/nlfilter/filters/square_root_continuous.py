@@ -34,7 +34,10 @@ import numpy as np
 
 from ..ode import ode_step
 from .gaussian import ContinuousDiscreteGaussianFilter, GaussianFilter
-from .linalg import mm
+from .base import GaussianState
+from .linalg import mm, sqrt_psd
+from .skeleton import propagate
+from .triangular import tria
 from .rules import Cubature, Taylor1, Unscented
 from .square_root import SqrtState, SquareRootFilter, _poison
 
@@ -47,51 +50,76 @@ def _phi(M):
     return np.tril(M, -1) + 0.5 * np.tril(np.triu(M))
 
 
-def sqrt_moment_rhs(rule, model, m, S, t, Lq):
-    """``(dm/dt, dS/dt, singular paths)`` of the square-root moment ODE (module docstring) at
-    ``(m, S)``, time ``t``, ``Lq`` a square root of ``model.Q``; a path whose ``S`` has a diagonal entry
-    that is not positive gets NaN (it is reported by the caller)."""
+def _rhs(rule, model, m, S, t, Lq):
+    """``(dm/dt, Φ(M))`` at ``(m, S)`` (``dS/dt = S Φ(M)``; module docstring)."""
     n = m.shape[-1]
     sing = ~np.all(np.diagonal(S, axis1=-2, axis2=-1) > 0, axis=-1)
     Ss = np.where(sing[..., None, None], np.eye(n), S)  # the solves stay finite; those paths are poisoned
-
-    def solve(B):
-        return np.linalg.solve(np.broadcast_to(Ss, (*np.broadcast_shapes(Ss.shape[:-2], B.shape[:-2]), n, n)), B)
-
     if rule.kind == "taylor1":
         dm = model.f(m, t)
-        A = solve(mm(model.f_x(m, t), S)).swapaxes(-1, -2)  # (S⁻¹ F S)ᵀ = S⁻¹ Cov[x, f] S⁻ᵀ
-        W = solve(model.G(m, t) @ Lq)
+        A = np.linalg.solve(Ss, mm(model.f_x(m, t), S)).swapaxes(-1, -2)  # (S⁻¹ F S)ᵀ = S⁻¹ Cov[x, f] S⁻ᵀ
+        W = np.linalg.solve(Ss, model.G(m, t) @ Lq)
         N = mm(W, W.swapaxes(-1, -2))
     else:
         z, wm, wc = rule.unit_nodes(n)
         X = rule.points(m, S)[0]
         FX = model.f(X, t)
         dm = np.einsum("i,...ij->...j", wm, FX)  # Σ wm_i f(X_i)
-        SD = solve((FX - dm[..., None, :]).swapaxes(-1, -2))  # columns S⁻¹ (f(X_i) − ḟ)
+        SD = np.linalg.solve(Ss, (FX - dm[..., None, :]).swapaxes(-1, -2))  # columns S⁻¹ (f(X_i) − ḟ)
         A = (z.T * wc) @ SD.swapaxes(-1, -2)  # Σ wc_i z_i (S⁻¹ D_i)ᵀ
         if model.G_constant:
-            W = solve(model.G(m, t) @ Lq)
+            W = np.linalg.solve(Ss, model.G(m, t) @ Lq)
             N = mm(W, W.swapaxes(-1, -2))
         else:  # Σ wm_i (S⁻¹ G(X_i) Q^½)(·)ᵀ
-            GL = model.G(X, t) @ Lq  # (..., N, n, r)
-            W = np.linalg.solve(Ss[..., None, :, :], GL)
+            W = np.linalg.solve(Ss[..., None, :, :], model.G(X, t) @ Lq)
             N = np.einsum("i,...iab,...icb->...ac", wm, W, W)
     M = A + A.swapaxes(-1, -2) + N  # S⁻¹ (dP/dt) S⁻ᵀ
-    dS = mm(S, _phi(M))
     if sing.any():
         dm = np.where(sing[..., None], np.nan, dm)
-    return dm, dS
+    return dm, _phi(M)
+
+
+def sqrt_moment_rhs(rule, model, m, S, t, Lq):
+    """``(dm/dt, dS/dt)`` of the square-root moment ODE (module docstring) at ``(m, S)``, time ``t``,
+    ``Lq`` a square root of ``model.Q``; a path whose lower-triangular ``S`` has a diagonal entry that
+    is not positive gets NaN (it is reported by the caller)."""
+    dm, Phi = _rhs(rule, model, m, S, t, Lq)
+    return dm, mm(S, Phi)
+
+
+#: the largest ``h·max|Φ(M)|`` (the factor's relative change over one substep) integrated in
+#: square-root form; beyond it (a singular or nearly singular factor: P0 = 0, a rank-deficient P0,
+#: a near-noiseless update before a noisy interval) that path's interval is integrated in
+#: covariance form instead (the standard filter's ODE, linear in P) and re-factored
+STIFF = 1.0
 
 
 def sqrt_propagate(rule, model, belief, t, dt, Lq, *, substeps: int = 1, scheme: str = "rk4") -> SqrtState:
     """The continuous-discrete square-root prediction: :func:`sqrt_moment_rhs` integrated from ``t``
-    to ``t + dt`` (:func:`~nlfilter.ode.ode_step`: ``scheme``, ``substeps``), the belief at ``t + dt``
-    (NaN on the paths whose factor became singular)."""
-    m, S = ode_step(lambda x, s: sqrt_moment_rhs(rule, model, x[0], x[1], s, Lq), (belief[0], belief[1]), t, dt,
-                    substeps=substeps, scheme=scheme)
-    bad = ~np.all(np.diagonal(S, axis1=-2, axis2=-1) > 0, axis=-1) | ~np.isfinite(m).all(axis=-1)
-    return _poison(SqrtState(m, S), bad)
+    to ``t + dt`` (:func:`~nlfilter.ode.ode_step`: ``scheme``, ``substeps``), the belief at ``t + dt``.
+    A path whose factor is not lower-triangular with a positive diagonal, or changes by more than
+    :data:`STIFF` of itself in a substep, is integrated in covariance form
+    (:func:`~nlfilter.filters.skeleton.propagate`, the standard filter's step) and re-factored by
+    ``tria``; a path that fails either way is NaN (``run`` raises or marks it)."""
+    m, S = belief[0], belief[1]
+    n = m.shape[-1]
+    tri = np.all(np.triu(S, 1) == 0, axis=(-2, -1)) & np.all(np.diagonal(S, axis1=-2, axis2=-1) > 0, axis=-1)
+    Ss = np.where(tri[..., None, None], S, np.eye(n))
+    with np.errstate(over="ignore", invalid="ignore"):
+        Phi = _rhs(rule, model, m, Ss, t, Lq)[1]
+        fall = ~tri | ~(dt / substeps * np.abs(Phi).max(axis=(-2, -1)) <= STIFF)
+    Ss = np.where(fall[..., None, None], np.eye(n), Ss)
+    mp, Sp = ode_step(lambda x, s: sqrt_moment_rhs(rule, model, x[0], x[1], s, Lq), (m, Ss), t, dt,
+                      substeps=substeps, scheme=scheme)
+    if fall.any():  # covariance form on those paths, re-factored
+        P = mm(S, S.swapaxes(-1, -2))
+        cov = propagate(rule, model, GaussianState(m, P), t, dt, substeps=substeps, scheme=scheme)
+        L, bad = sqrt_psd(cov.cov)
+        L = np.where(bad[..., None, None], np.nan, tria(np.where(bad[..., None, None], 0.0, L)))
+        mp = np.where(fall[..., None], cov.mean, mp)
+        Sp = np.where(fall[..., None, None], L, Sp)
+    failed = ~np.all(np.diagonal(Sp, axis1=-2, axis2=-1) > 0, axis=-1) & ~fall
+    return _poison(SqrtState(mp, Sp), failed | ~np.isfinite(mp).all(axis=-1))
 
 
 class ContinuousDiscreteSquareRoot:
