@@ -31,7 +31,9 @@ The same estimates as :class:`~nlfilter.filters.second_order.SecondOrderFilter` 
 in exact arithmetic (``tests/filters/test_square_root_second_order.py``: 1e-10 on every form,
 log-likelihood included); ``smooth`` is the square-root RTS smoother of the module above (the
 joint factor's lower block ``S`` under ``F S``: ``Cov[x_{k+1}, x_k] = F P``, third moments
-neglected, as the standard filter's smoother reads it).
+neglected, as the standard filter's smoother reads it), except for the ``"-quarter"`` prediction
+(truncated-Jazwinski), whose joint law has no factor (:meth:`SquareRootSecondOrderFilter._smooth`):
+there the moment-form RTS smoother from the reported moments.
 """
 
 from __future__ import annotations
@@ -41,6 +43,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .. import _validate as V
+from .gaussian import GaussianFilter
 from .linalg import mm
 from .rules import FORM_TABLE, FORMS, Taylor2
 from .square_root import SquareRootFilter, _broadcast_concat, _poison
@@ -210,6 +213,15 @@ class SquareRootSecondOrderFilter(SquareRootFilter):
         form = V.choice("form", form, set(FORMS))
         super().__init__(model, SqrtTaylor2(form), start=start)
         self.form = form
+
+    def _smooth(self, est, beliefs, ys, t0):
+        """The square-root RTS smoother; the ``"-quarter"`` prediction forms (truncated-Jazwinski) the
+        moment-form RTS from the reported moments, as the standard filter's: their joint law of
+        ``(x_{k+1}, x_k)`` is indefinite (its Schur complement ``P⁻ − F P Fᵀ = N − ¼ (P f_xx)(P f_xx)ᵀ``
+        need not be PSD though P⁻ is), so it has no factor."""
+        if FORM_TABLE[self.form].prediction == "-quarter":
+            return GaussianFilter._smooth(self, est, beliefs, ys, t0)
+        return super()._smooth(est, beliefs, ys, t0)
 
     def _conditioned(self, state, y, k, full: bool = False):
         """The array update (the rule's columns), then the forcing term of the form (module docstring)."""
