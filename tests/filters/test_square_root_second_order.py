@@ -105,7 +105,7 @@ def test_a_path_that_loses_definiteness_is_the_standard_filters(form):
 def test_noise_columns_are_the_second_order_noise(gaussian):
     """``tria`` of the noise columns, downdated, is :func:`noise_covariance` (004 eqs. 13-14, 19;
     the Gaussian fourth moments too) for a state-dependent G at random beliefs, to rounding
-    (measured ≤ 2e-16; 1e-12)."""
+    (measured ≤ 6e-17; 1e-12)."""
     rng = np.random.default_rng(3)
     m = rng.standard_normal((4, 3))
     A = rng.standard_normal((4, 3, 3))
