@@ -226,7 +226,8 @@ def test_every_rule_filter_is_the_kalman_filter(name, build, model, kind):
     square-root continuous-discrete filters integrate the factor ODE, whose rate
     ``‖S⁻¹ G Q Gᵀ S⁻ᵀ‖ ≈ ‖G Q Gᵀ‖ / λ_min(P)`` is ~40 here (P's smallest eigenvalue 0.013 after the
     updates) where the covariance ODE's is ‖F‖ ≈ 1: at one substep they are within 1.2e-6 of the
-    reference, falling 16x per doubling (7e-8, 4.2e-9); they run at 8 substeps (measured 2.6e-10 on the means, 2.7e-9 on the log-likelihood)."""
+    reference, falling 16x per doubling (7e-8, 4.2e-9); they run at 8 substeps (measured 2.6e-10
+    on the means, 2.7e-9 on the log-likelihood)."""
     continuous = REGISTRY[name].time == "continuous"
     ys = _data(model, continuous)
     tol = 1e-10

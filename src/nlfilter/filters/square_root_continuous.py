@@ -28,9 +28,10 @@ measures it falling ~16x per halving of h). Accuracy: RK4's error on the factor 
 the process noise is large against the covariance (after an informative update): on
 ``tests/filters/test_rule_tables.py``'s linear model (rate ~40 against ~1) at dt = 0.01 and one
 substep the square-root form is within 1.2e-6 of the exact discretisation, the covariance form
-within 1.2e-11; 8 substeps bring it to 2.6e-10 — give such problems more ``substeps``. ``smooth`` is the standard filter's moment-form RTS
-smoother (the continuous-discrete cross-covariance ``dC/dt = C P⁻¹ Cov[x, f]``) from the reported
-moments, as the fixed-lag smoother of every square-root filter.
+within 1.2e-11; 8 substeps bring it to 2.6e-10 — give such problems more ``substeps``.
+``smooth`` is the standard filter's moment-form RTS smoother (the continuous-discrete
+cross-covariance ``dC/dt = C P⁻¹ Cov[x, f]``) from the reported moments, as the fixed-lag smoother
+of every square-root filter.
 """
 
 from __future__ import annotations
