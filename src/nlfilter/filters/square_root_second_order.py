@@ -32,8 +32,9 @@ in exact arithmetic (``tests/filters/test_square_root_second_order.py``: 1e-10 o
 log-likelihood included); ``smooth`` is the square-root RTS smoother of the module above (the
 joint factor's lower block ``S`` under ``F S``: ``Cov[x_{k+1}, x_k] = F P``, third moments
 neglected, as the standard filter's smoother reads it), except for the ``"-quarter"`` prediction
-(truncated-Jazwinski), whose joint law has no factor (:meth:`SquareRootSecondOrderFilter._smooth`):
-there the moment-form RTS smoother from the reported moments.
+(truncated-Jazwinski), whose joint law of ``(x_{k+1}, x_k)`` is indefinite (its Schur complement
+``P⁻ − F P Fᵀ = N − ¼ (P f_xx)(P f_xx)ᵀ`` need not be PSD though P⁻ is) and so has no factor:
+there the moment-form RTS smoother from the reported moments, as the standard filter's.
 """
 
 from __future__ import annotations
@@ -49,7 +50,7 @@ from .rules import FORM_TABLE, FORMS, Taylor2
 from .square_root import SquareRootFilter, _broadcast_concat, _poison
 from .triangular import downdate, tria
 
-__all__ = ["SqrtTaylor2", "SquareRootSecondOrderFilter", "congruence", "quartic_columns", "noise_columns"]
+__all__ = ["SqrtTaylor2", "SquareRootSecondOrderFilter", "congruence", "quartic_columns", "noise_columns", "add_symmetric"]
 
 
 def congruence(S, A):
