@@ -47,7 +47,8 @@ from .triangular import tria
 from .rules import Cubature, Taylor1, Unscented
 from .square_root import SqrtState, SquareRootFilter, _poison
 
-__all__ = ["STIFF", "sqrt_moment_rhs", "sqrt_propagate", "ContinuousDiscreteSquareRoot", "SquareRootContinuousDiscreteEKF",
+__all__ = ["STIFF", "sqrt_moment_rhs", "sqrt_propagate", "ContinuousDiscreteSquareRoot",
+           "SquareRootContinuousDiscreteEKF",
            "SquareRootContinuousDiscreteUKF", "SquareRootContinuousDiscreteCKF"]
 
 

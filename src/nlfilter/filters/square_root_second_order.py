@@ -50,7 +50,8 @@ from .rules import FORM_TABLE, FORMS, Taylor2
 from .square_root import SquareRootFilter, _broadcast_concat, _poison
 from .triangular import downdate, tria
 
-__all__ = ["SqrtTaylor2", "SquareRootSecondOrderFilter", "congruence", "quartic_columns", "noise_columns", "add_symmetric"]
+__all__ = ["SqrtTaylor2", "SquareRootSecondOrderFilter", "congruence", "quartic_columns", "noise_columns",
+           "add_symmetric"]
 
 
 def congruence(S, A):
