@@ -47,7 +47,7 @@ from .triangular import tria
 from .rules import Cubature, Taylor1, Unscented
 from .square_root import SqrtState, SquareRootFilter, _poison
 
-__all__ = ["STIFF", "sqrt_moment_rhs", "sqrt_propagate", "ContinuousDiscreteSquareRoot",
+__all__ = ["STIFF", "sqrt_moment_rhs", "sqrt_propagate", "continuous_discrete",
            "SquareRootContinuousDiscreteEKF",
            "SquareRootContinuousDiscreteUKF", "SquareRootContinuousDiscreteCKF"]
 
@@ -129,12 +129,10 @@ def sqrt_propagate(rule, model, belief, t, dt, Lq, *, substeps: int = 1, scheme:
     return _poison(SqrtState(mp, Sp), failed | ~np.isfinite(mp).all(axis=-1))
 
 
-class ContinuousDiscreteSquareRoot:
-    """The continuous-discrete part of a square-root filter (a mixin before
-    :class:`~nlfilter.filters.square_root.SquareRootFilter`): the model, ``dt``, ``scheme``,
-    ``substeps``, ``start`` and ``t0`` as :class:`~nlfilter.filters.gaussian.ContinuousDiscreteGaussianFilter`
-    takes them; the prediction by :func:`sqrt_propagate`; the smoother the standard one's, from the
-    reported moments."""
+class _ContinuousDiscreteSteps:
+    """The continuous-discrete part of a square-root filter, copied onto each class by
+    :func:`continuous_discrete` (not a base class: the filters stay configurations of
+    :class:`~nlfilter.filters.square_root.SquareRootFilter`, ``Filter`` at most 4 places down their MRO)."""
 
     compiled = False  # continuous dynamics: no compiled loop
     accepts = ("sde",)
@@ -164,6 +162,19 @@ class ContinuousDiscreteSquareRoot:
     _smooth = GaussianFilter._smooth
 
 
+def continuous_discrete(cls):
+    """Class decorator: a :class:`~nlfilter.filters.square_root.SquareRootFilter` subclass made
+    continuous-discrete — the model, ``dt``, ``scheme``, ``substeps``, ``start`` and ``t0`` as
+    :class:`~nlfilter.filters.gaussian.ContinuousDiscreteGaussianFilter` takes them (its
+    ``__init__`` calls ``self._continuous_discrete(model, dt, rule, scheme, substeps, start, t0)``),
+    the prediction by :func:`sqrt_propagate`, the standard filter's moment-form RTS smoother from
+    the reported moments."""
+    for key, value in vars(_ContinuousDiscreteSteps).items():
+        if not key.startswith("__"):
+            setattr(cls, key, value)
+    return cls
+
+
 _PARAMS = """
     Parameters
     ----------
@@ -176,7 +187,8 @@ _PARAMS = """
 """
 
 
-class SquareRootContinuousDiscreteEKF(ContinuousDiscreteSquareRoot, SquareRootFilter):
+@continuous_discrete
+class SquareRootContinuousDiscreteEKF(SquareRootFilter):
     __doc__ = """Square-root continuous-discrete EKF: ``dm/dt = f(m)``, ``dS/dt = S Φ(S⁻¹ F S + (S⁻¹ F S)ᵀ
     + W Wᵀ)``, ``W = S⁻¹ G Q^½`` (module docstring), the square-root EKF update at the measurements;
     :class:`~nlfilter.filters.ekf.ContinuousDiscreteEKF` in square-root form.
@@ -201,7 +213,8 @@ class SquareRootContinuousDiscreteEKF(ContinuousDiscreteSquareRoot, SquareRootFi
         self._continuous_discrete(model, dt, Taylor1(), scheme, substeps, start, t0)
 
 
-class SquareRootContinuousDiscreteUKF(ContinuousDiscreteSquareRoot, SquareRootFilter):
+@continuous_discrete
+class SquareRootContinuousDiscreteUKF(SquareRootFilter):
     __doc__ = """Square-root continuous-discrete unscented Kalman filter (Särkkä 2007, §IV): the sigma
     points ``m + S z_i`` of :class:`~nlfilter.filters.rules.Unscented` ``(alpha, beta, kappa)`` in the
     square-root moment ODE (a negative centre weight is only a coefficient there), the square-root
@@ -219,7 +232,8 @@ class SquareRootContinuousDiscreteUKF(ContinuousDiscreteSquareRoot, SquareRootFi
         self.alpha, self.beta, self.kappa = self.rule.alpha, self.rule.beta, self.rule.kappa
 
 
-class SquareRootContinuousDiscreteCKF(ContinuousDiscreteSquareRoot, SquareRootFilter):
+@continuous_discrete
+class SquareRootContinuousDiscreteCKF(SquareRootFilter):
     __doc__ = """Square-root continuous-discrete cubature Kalman filter (Arasaratnam, Haykin & Hurd 2010,
     IEEE TSP 58(10)): the points ``m ± √n S e_i`` in the square-root moment ODE, the square-root CKF
     update at the measurements; :class:`~nlfilter.filters.cubature.ContinuousDiscreteCKF` in
