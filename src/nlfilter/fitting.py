@@ -236,6 +236,9 @@ def fit(model, ys, params0, *, filter="ukf", m0=None, P0=None, initial=None, bou
     label = label or getattr(first, "name", type(first).__name__)
     if getattr(first, "likelihood", None) is None:
         raise TypeError(f"filter: {label} defines no log-likelihood; use a Gaussian filter, grid or particle")
+    if not getattr(first, "diffuse_prior", False):
+        from .filters.checks import refuse_infinite
+        refuse_infinite(P0, f"filter {label!r}")  # before any evaluation: every one would refuse it
     fallback = backend == "auto"  # one choice for the fit, counting its evaluations (L-BFGS-B: ~20 gradients)
     if fallback:  # and the NumPy loop where numba cannot compile the model
         reps = 20 * (len(names) + 1) + (2 * len(names) ** 2 + 1 if se else 0)
@@ -439,8 +442,13 @@ def fit_em(ys, F, H, Q, R, m0, P0, *, estimate=("F", "H", "Q", "R"), iterations:
         raise ValueError("ys: fit_em takes complete records (no NaN); use fit() for missing data")
     F, H, Q, R = (np.array(V.as_float_array(nm, a, ndim=2)) for nm, a in (("F", F), ("H", H), ("Q", Q), ("R", R)))
     m0 = np.array(V.as_float_array("m0", m0, ndim=1))
+    from .filters.checks import is_diffuse
+    diffuse = is_diffuse(P0)
     P0 = np.array(V.as_float_array("P0", P0, ndim=2))
     est = set(estimate)
+    if diffuse and est & {"m0", "P0"}:
+        raise ValueError(f"P0: a diffuse prior (inf entries, {V.shown(P0)}) has no m0 or P0 to estimate; got "
+                         f"estimate={sorted(est)} (drop m0 and P0 from it, or give a finite P0)")
     unknown = est - {"F", "H", "Q", "R", "m0", "P0"}
     if unknown:
         raise ValueError(f"estimate: expected some of F, H, Q, R, m0, P0, got {sorted(unknown)}")

@@ -52,7 +52,7 @@ from .checks import is_diffuse
 from .estimates import Estimates
 from .linalg import symmetrize
 
-__all__ = ["is_diffuse", "diffuse_run", "diffuse_filter", "DiffuseTrack", "DIFFUSE_TOL"]
+__all__ = ["is_diffuse", "diffuse_run", "diffuse_filter", "kalman_steps", "DiffuseTrack", "DIFFUSE_TOL"]
 
 #: ``F∞ = z P∞ zᵀ`` counts as zero at or below this fraction of ``|z|²`` (``P∞``'s entries are
 #: O(1): a projected-out direction leaves rounding of ~1e-16 there)
@@ -153,7 +153,7 @@ def diffuse_update(a, Pinf, Pst, y, H, d, R) -> _Updated:
         Pinf = symmetrize(np.where(dif[:, None, None], Pinf - _outer(Minf, Minf) / Fi[:, None, None], Pinf))
         ll = ll + np.where(dif, -0.5 * (_LOG_2PI + np.log(Fi)), 0.0) \
             + np.where(ordinary, -0.5 * (_LOG_2PI + np.log(Fs) + v * v / Fs), 0.0)
-        for rows, x in zip(rec, (v, Minf, Mst, Fi, Fs, dif, ordinary)):
+        for rows, x in zip(rec, (v, Minf, Mst, Finf, Fst, dif, ordinary)):
             rows[:, i] = x
     return _Updated(a, Pinf, Pst, ll, Zt, *rec)
 
@@ -164,6 +164,11 @@ def diffuse_run(kf, ys, m0, P0, *, loglik: bool = False, on_divergence: str = "r
     ``loglik_failed``). A path whose moments become non-finite raises
     :class:`~nlfilter.errors.DivergenceError` (``on_divergence="raise"``) or is marked (``"mark"``:
     ``diverged``, ``diverged_step``, its outputs NaN from that step on), as the run loop does."""
+    return diffuse_filter(kf, ys, m0, P0, *kalman_steps(kf), loglik=loglik, on_divergence=on_divergence)[0]
+
+
+def kalman_steps(kf):
+    """``(predict, measure)`` of :func:`diffuse_filter` for the Kalman filter ``kf``: its model's matrices."""
 
     def predict(a, k):
         F, b, _, _, GQG = kf._mats if kf._const else kf._matrices(k)
@@ -171,7 +176,7 @@ def diffuse_run(kf, ys, m0, P0, *, loglik: bool = False, on_divergence: str = "r
 
     def measure(x, k):
         return (kf._mats if kf._const else kf._matrices(k))[2:4]
-    return diffuse_filter(kf, ys, m0, P0, predict, measure, loglik=loglik, on_divergence=on_divergence)[0]
+    return predict, measure
 
 
 def diffuse_filter(flt, ys, m0, P0, predict, measure, *, loglik: bool = False, on_divergence: str = "raise",
