@@ -219,37 +219,3 @@ def _backward(tr):
             lag[:, k] = np.where(reach[:, :, None] | nxt[:, None, :], np.inf, lk)
         after = (N0, N1, N2)
     return ms, Ps, lag
-
-
-def posterior_draws(sm, n, z):
-    """``n`` draws ``(B, n, T, nx)`` of the Gaussian Markov posterior whose marginals and lag-one
-    covariances are the smoothed ``sm`` (paths flattened; ``z (B, T, n, nx)`` standard normals):
-    ``x_{T-1} ~ N(x̂, V)``, then ``x_k | x_{k+1} ~ N(x̂_k + C_k V_{k+1}⁺ (x_{k+1} − x̂_{k+1}),
-    V_k − C_k V_{k+1}⁺ C_kᵀ)``, ``C_k = Cov[x_k, x_{k+1} | y]`` — the exact conditionals of the
-    posterior of a linear-Gaussian model, a Markov chain given the data (Frühwirth-Schnatter
-    1994)."""
-    from .sampling import _draw
-    from .smoothing import _solve_right
-    means, covs, C = sm.means, sm.covs, sm.extras["lag_one_cov"]
-    B, T, nx = means.shape
-    out = np.empty((B, n, T, nx))
-    x = _draw(np.broadcast_to(means[:, T - 1][:, None], (B, n, nx)), covs[:, T - 1], z[:, T - 1], T - 1)
-    out[:, :, T - 1] = x
-    for k in range(T - 2, -1, -1):
-        G = _solve_right(covs[:, k + 1], C[:, k])  # C_k V_{k+1}⁺
-        mean = means[:, k][:, None] + (x - means[:, k + 1][:, None]) @ np.swapaxes(G, -1, -2)
-        x = _draw(mean, symmetrize(covs[:, k] - G @ np.swapaxes(C[:, k], -1, -2)), z[:, k], k)
-        out[:, :, k] = x
-    return out
-
-
-def check_identified(sm, who: str = "sample_posterior") -> None:
-    """Refuse (ValueError naming ``P0``) smoothed moments with an infinite variance: the data do not
-    identify a diffuse direction, so the posterior is improper."""
-    inf = np.isinf(sm.covs).any(axis=tuple(range(sm.covs.ndim - 3, sm.covs.ndim)))
-    if inf.any():
-        idx = np.flatnonzero(inf.ravel())
-        raise ValueError(f"P0: {who}: the data do not identify the diffuse directions of P0 (inf entries) on "
-                         f"{idx.size} path(s), first {idx[:5].tolist()}: the posterior is improper there, nothing to "
-                         "draw; give a finite variance in the directions no measurement reaches")
-

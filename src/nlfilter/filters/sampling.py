@@ -28,6 +28,15 @@ represents — several modes included, which a Gaussian smoother's draws cannot 
 pass keeps every step's belief: ``B × T × N`` floats on the grid (``N`` grid points),
 ``B × T × Np × (n + 1)`` for the particles; pass fewer paths at a time to bound it.
 
+From a diffuse prior (``P0`` with ``inf``; the filters with ``diffuse_prior``: KF, EKF, IEKF) the
+draws come from the exact diffuse smoother's marginals and lag-one covariances
+(:func:`~nlfilter.filters.diffuse_prior.diffuse_smooth`): the posterior of a linear-Gaussian model
+is a Gauss–Markov chain given the data, so ``x_{T-1} ~ N(x̂_{T-1}, V_{T-1})`` and
+``x_k | x_{k+1} ~ N(x̂_k + C_k V_{k+1}⁺ (x_{k+1} − x̂_{k+1}), V_k − C_k V_{k+1}⁺ C_kᵀ)``,
+``C_k = Cov[x_k, x_{k+1} | y]`` (the same law as the backward pass above in the limit ``κ → ∞``).
+Where the data leave a diffuse direction unidentified the posterior is improper: refused, naming
+``P0``.
+
 Each path draws from a stream of its own (:mod:`nlfilter.streams`, sub-stream :data:`SAMPLE` of
 the root of ``rng``): path ``p``'s samples are the same in any batch or chunk. The particle
 filter's forward pass draws from that stream too (its clouds are those of
@@ -46,6 +55,7 @@ from ..simulation import Simulation
 from ..streams import PathRNG
 from .base import Filter
 from .beliefs import GaussianState
+from .checks import is_diffuse
 from .linalg import sqrt_psd, symmetrize
 from .smoothing import _solve_right, backward_steps
 
@@ -108,6 +118,8 @@ def sample_posterior(flt, ys, m0=None, P0=None, n: int = 1, rng=None, *, initial
         ys = ys.ys
     if reference:
         return _reference(flt, ys, m0, P0, n, rng, initial, t0, backend)
+    if is_diffuse(P0) and getattr(flt, "diffuse_prior", False):
+        return _from_diffuse(flt, ys, m0, P0, n, rng)
     est = flt.run(ys, m0, P0, initial=initial, backend=backend)  # raises where it diverges
     ys = flt.check_data(ys)
     batch, T = ys.shape[:-2], ys.shape[-2]
@@ -125,6 +137,34 @@ def sample_posterior(flt, ys, m0=None, P0=None, n: int = 1, rng=None, *, initial
         G = _solve_right(pred.cov, D)  # G_k = D_{k+1} (P⁻_{k+1})⁻¹
         mean = m[:, None] + (x - pred.mean[:, None]) @ np.swapaxes(G, -1, -2)
         x = _draw(mean, symmetrize(P - G @ np.swapaxes(D, -1, -2)), z[:, k], k)
+        out[:, :, k] = x
+    return out.reshape(*batch, n, T, nx)
+
+
+def _from_diffuse(flt, ys, m0, P0, n, rng):
+    """Draws from a diffuse prior (module docstring): the exact diffuse smoother's moments (its
+    forward or backward divergence raises), the Gauss–Markov chain's conditionals from the end."""
+    sm = flt.smooth(ys, m0, P0)
+    batch, T, nx = sm.means.shape[:-2], sm.means.shape[-2], sm.means.shape[-1]
+    B = int(np.prod(batch, dtype=int))
+    if T == 0:
+        return np.empty((*batch, n, 0, nx))
+    means, covs = sm.means.reshape(B, T, nx), sm.covs.reshape(B, T, nx, nx)
+    C = sm.extras["lag_one_cov"].reshape(B, T, nx, nx)
+    unknown = np.isinf(covs).any(axis=(1, 2, 3))
+    if unknown.any():
+        idx = np.flatnonzero(unknown)
+        raise ValueError(f"P0: the data do not identify every diffuse direction of P0 = {V.shown(P0)} on {idx.size} "
+                         f"path(s), first {idx[:5].tolist()}: the posterior is improper (an infinite smoothed "
+                         "variance), nothing to draw; give a finite variance where no measurement reaches")
+    z = PathRNG.of(rng, B, key=SAMPLE).standard_normal((T, n, nx))
+    out = np.empty((B, n, T, nx))
+    x = _draw(np.broadcast_to(means[:, T - 1][:, None], (B, n, nx)), covs[:, T - 1], z[:, T - 1], T - 1)
+    out[:, :, T - 1] = x
+    for k in range(T - 2, -1, -1):
+        G = _solve_right(covs[:, k + 1], C[:, k])  # C_k V_{k+1}⁺
+        mean = means[:, k][:, None] + (x - means[:, k + 1][:, None]) @ np.swapaxes(G, -1, -2)
+        x = _draw(mean, symmetrize(covs[:, k] - G @ np.swapaxes(C[:, k], -1, -2)), z[:, k], k)
         out[:, :, k] = x
     return out.reshape(*batch, n, T, nx)
 
