@@ -29,17 +29,21 @@ def is_diffuse(P0) -> bool:
     return bool(np.isposinf(P).any())
 
 
-def refuse_infinite(P0, who: str) -> None:
-    """Refuse, for ``who`` (a filter or a function with no diffuse form), a ``P0`` with an infinite
-    variance: a ValueError naming ``P0``, what was given and the filters that run it exactly."""
+def refuse_infinite(P0, who) -> None:
+    """Refuse, for ``who`` (the name of a function, or a filter, with no diffuse form), a ``P0``
+    with an infinite variance: a ValueError naming ``P0``, what was given and the filters that run
+    it exactly (a filter with ``diffuse_prior`` reaches here from its step functions' ``init``)."""
     if is_diffuse(P0):
+        if not isinstance(who, str):
+            who = type(who).__name__ + ("'s init (the step functions, fixed_lag; its run, smooth and "
+                                        "sample_posterior take it)" if getattr(who, "diffuse_prior", False) else "")
         raise ValueError(f"P0: an infinite variance (a diffuse prior) has an exact form only in the filters "
                          f"{', '.join(DIFFUSE_FILTERS)} (the exact diffuse initialisation, nlfilter.filters.diffuse_prior); "
                          f"{who} has none; got P0 = {V.shown(P0)}; give a finite P0 (e.g. a large variance)")
 
 
 def gaussian_prior(m0, P0, n: int, batch: tuple, *, data: str = "ys", one: bool = False,
-                   definite: bool = False, who: str = "this filter") -> GaussianState:
+                   definite: bool = False, who="this filter") -> GaussianState:
     """The prior ``N(m0, P0)`` checked and broadcast to ``B = prod(batch)`` paths: ``m0`` a scalar,
     ``(n,)`` or per path ``(*batch, n)``; ``P0`` ``(n, n)`` (a scalar for n = 1) or per path.
     ``one``: the filter takes one prior for all paths (off-line gains), so a per-path ``m0`` is

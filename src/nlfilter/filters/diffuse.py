@@ -62,7 +62,7 @@ _LOG_2PI = math.log(2.0 * math.pi)
 
 def _split(P0, n):
     """``(P∞, P*)`` from ``P0 (..., n, n)`` with ``inf`` on the diffuse diagonal entries."""
-    P = np.asarray(P0, dtype=float)
+    P = V.as_float_array("P0", P0)  # complex refused (NumPy would drop the imaginary part)
     if P.ndim == 0 and n == 1:
         P = P.reshape(1, 1)
     if P.shape[-2:] != (n, n):

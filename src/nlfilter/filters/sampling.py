@@ -56,7 +56,7 @@ from ..streams import PathRNG
 from .base import Filter
 from .beliefs import GaussianState
 from .checks import is_diffuse
-from .linalg import sqrt_psd, symmetrize
+from .linalg import PSD_TOL, sqrt_psd, symmetrize
 from .smoothing import _solve_right, backward_steps
 
 __all__ = ["sample_posterior", "SAMPLE"]
@@ -142,15 +142,18 @@ def sample_posterior(flt, ys, m0=None, P0=None, n: int = 1, rng=None, *, initial
 
 
 def _from_diffuse(flt, ys, m0, P0, n, rng):
-    """Draws from a diffuse prior (module docstring): the exact diffuse smoother's moments (its
-    forward or backward divergence raises), the Gauss–Markov chain's conditionals from the end."""
-    sm = flt.smooth(ys, m0, P0)
+    """Draws from a diffuse prior (module docstring): at a step whose filtered belief is proper the
+    backward pass above (its conditional ``P_k − G_k D_{k+1}ᵀ``, better conditioned than the
+    smoothed one); within the diffuse period the Gauss–Markov conditional of the exact diffuse
+    smoother's moments. A forward or backward divergence raises."""
+    sm, est = flt.smooth(ys, m0, P0), flt.run(ys, m0, P0)
+    ys = flt.check_data(ys)
     batch, T, nx = sm.means.shape[:-2], sm.means.shape[-2], sm.means.shape[-1]
     B = int(np.prod(batch, dtype=int))
     if T == 0:
         return np.empty((*batch, n, 0, nx))
-    means, covs = sm.means.reshape(B, T, nx), sm.covs.reshape(B, T, nx, nx)
-    C = sm.extras["lag_one_cov"].reshape(B, T, nx, nx)
+    flat = lambda a: a.reshape(B, T, *a.shape[len(batch) + 1:])  # noqa: E731
+    means, covs, C, fm, fP = (flat(a) for a in (sm.means, sm.covs, sm.extras["lag_one_cov"], est.means, est.covs))
     unknown = np.isinf(covs).any(axis=(1, 2, 3))
     if unknown.any():
         idx = np.flatnonzero(unknown)
@@ -158,15 +161,37 @@ def _from_diffuse(flt, ys, m0, P0, n, rng):
                          f"path(s), first {idx[:5].tolist()}: the posterior is improper (an infinite smoothed "
                          "variance), nothing to draw; give a finite variance where no measurement reaches")
     z = PathRNG.of(rng, B, key=SAMPLE).standard_normal((T, n, nx))
+    predict_cross, off = backward_steps(flt, ys.reshape(B, T, ys.shape[-1]))
     out = np.empty((B, n, T, nx))
     x = _draw(np.broadcast_to(means[:, T - 1][:, None], (B, n, nx)), covs[:, T - 1], z[:, T - 1], T - 1)
     out[:, :, T - 1] = x
+    tp = lambda a: np.swapaxes(a, -1, -2)  # noqa: E731
     for k in range(T - 2, -1, -1):
-        G = _solve_right(covs[:, k + 1], C[:, k])  # C_k V_{k+1}⁺
-        mean = means[:, k][:, None] + (x - means[:, k + 1][:, None]) @ np.swapaxes(G, -1, -2)
-        x = _draw(mean, symmetrize(covs[:, k] - G @ np.swapaxes(C[:, k], -1, -2)), z[:, k], k)
+        proper = np.isfinite(fP[:, k]).all(axis=(-1, -2))
+        P = np.where(proper[:, None, None], fP[:, k], np.eye(nx))
+        pred, D = predict_cross(GaussianState(fm[:, k], P), k + off)
+        G = _solve_right(pred.cov, D)  # the filtered belief's kernel (proper paths)
+        G2 = _solve_right(covs[:, k + 1], C[:, k])  # C_k V_{k+1}⁺ (the diffuse period)
+        mean = np.where(proper[:, None, None], fm[:, k][:, None] + (x - pred.mean[:, None]) @ tp(G),
+                        means[:, k][:, None] + (x - means[:, k + 1][:, None]) @ tp(G2))
+        cov = np.where(proper[:, None, None], P - G @ tp(D), covs[:, k] - G2 @ tp(C[:, k]))
+        x = _draw(mean, _rounded(cov, np.where(proper[:, None, None], P, covs[:, k])), z[:, k], k)
         out[:, :, k] = x
     return out.reshape(*batch, n, T, nx)
+
+
+def _rounded(cov, minuend):
+    """The conditional covariance ``cov = minuend − G Cᵀ`` (paths ``B``) with its eigenvalues in
+    ``[−PSD_TOL·max(1, |minuend|), 0)`` set to 0: the rounding of the difference is relative to
+    the terms subtracted, not to their (possibly singular) difference; a more negative eigenvalue
+    stays, for :func:`_draw` to refuse."""
+    cov = symmetrize(cov)
+    if not np.isfinite(cov).all():
+        return cov
+    w, U = np.linalg.eigh(cov)
+    tol = PSD_TOL * np.maximum(1.0, np.abs(minuend).max(axis=(-1, -2)))[:, None]
+    w = np.where((w < 0) & (w >= -tol), 0.0, w)
+    return symmetrize((U * w[:, None, :]) @ np.swapaxes(U, -1, -2))
 
 
 def _reference(flt, ys, m0, P0, n, rng, initial, t0, backend):
