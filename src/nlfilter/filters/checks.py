@@ -23,7 +23,8 @@ DIFFUSE_FILTERS = ("kf", "ekf", "iekf")
 def is_diffuse(P0) -> bool:
     """Whether ``P0`` states a diffuse prior (an infinite entry)."""
     try:
-        P = np.asarray(P0, dtype=float)
+        P = np.asarray(P0)
+        P = np.asarray(P.real if P.dtype.kind == "c" else P, dtype=float)  # complex: refused later, naming P0
     except (TypeError, ValueError):
         return False
     return bool(np.isposinf(P).any())
