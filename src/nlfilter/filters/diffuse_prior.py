@@ -105,8 +105,8 @@ class DiffusePrior:
         if getattr(self, "fading", 1.0) != 1.0:
             raise ValueError(f"alpha: the exact diffuse initialisation (P0 with inf) has no fading memory; got "
                              f"alpha = {self.fading!r} (expected 1, or a finite P0)")
-        given = {k: v for k, v in kw.items() if k not in ("on_divergence", "backend") and v not in (None, False)}
-        if given:  # any backend: a fit's automatic choice may name the compiled one; the loop is NumPy's
+        given = {k: v for k, v in kw.items() if k not in ("on_divergence", "backend", "rng") and v not in (None, False)}
+        if given:  # any backend (a fit's automatic choice may name the compiled one; the loop is NumPy's), rng ignored
             raise ValueError(f"P0: a diffuse prior (inf entries) runs on the NumPy loop with the default options; "
                              f"got {sorted(given)}")
         flt = self
