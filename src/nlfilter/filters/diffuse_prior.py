@@ -137,7 +137,7 @@ def diffuse_smooth(flt, ys, m0, P0, *, on_divergence: str = "raise") -> Estimate
     diffuse prior ``(m0, P0)``: smoothed means, covariances and ``extras["lag_one_cov"]``
     (``[..., k] = Cov[x_k, x_{k+1} | y]``, NaN at the last step). A path whose forward or backward
     pass is not finite raises :class:`~nlfilter.errors.DivergenceError` or is marked
-    (``on_divergence="mark"``: NaN outputs), as :meth:`Filter.smooth` does."""
+    (``on_divergence="mark"``: NaN outputs), as :meth:`Filter.smooth <nlfilter.filters.base.Filter.smooth>` does."""
     on = V.choice("on_divergence", on_divergence, {"raise", "mark"})
     est, tr = diffuse_filter(flt, ys, m0, P0, *flt._diffuse_steps(), iterate=flt._diffuse_iterate,
                              on_divergence=on, keep=True)
