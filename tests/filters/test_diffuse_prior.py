@@ -129,6 +129,27 @@ def test_lag_one_covariance_dense_limit_over_a_two_step_diffuse_period():
     _dense_ratio(errs)
 
 
+def test_smoother_with_correlated_sensors_and_missing_data_dense_limit():
+    """Level and slope diffuse, a third state finite, two sensors with correlated noise (the
+    whitening), a whole step and one component missing, the prediction first: the smoother's
+    means, covariances and lag-one covariances approach the dense limit as O(1/κ)."""
+    lv, sl, c = sp.symbols("lv sl c")
+    md = DiscreteModel([lv, sl, c], f=[lv + sl, sl, 0.7 * c], h=[lv + c, 0.5 * lv - c], G=np.eye(3),
+                       Q=np.diag([0.3, 0.05, 0.2]), R=[[0.8, 0.3], [0.3, 0.5]])
+    ys = np.random.default_rng(1).normal(size=(2, 8, 2)).cumsum(axis=1)
+    ys[0, 1] = np.nan
+    ys[1, 0, 1] = np.nan
+    kf, m0 = KalmanFilter(md, start="predict"), np.array([0.0, 0.0, 0.1])
+    sm = kf.smooth(ys, m0, np.diag([np.inf, np.inf, 0.4]))
+    assert np.isfinite(sm.covs).all()
+    errs = []
+    for kappa in (1e6, 1e7):
+        d = kf.smooth(ys, m0, np.diag([kappa, kappa, 0.4]), backend="numpy")
+        errs.append(np.array([np.abs(d.means - sm.means).max(), np.abs(d.covs - sm.covs).max(),
+                              np.nanmax(np.abs(d.extras["lag_one_cov"] - sm.extras["lag_one_cov"]))]))
+    _dense_ratio(errs)
+
+
 def test_posterior_draws_from_a_diffuse_prior():
     kf = KalmanFilter(_level(), start="update")
     sm = kf.smooth(YS, 0.0, np.inf)
