@@ -11,7 +11,6 @@ from __future__ import annotations
 import numpy as np
 import scipy.linalg as sla
 
-from ..simulation import Simulation
 from .base import ContinuousFilter, DiscreteFilter, GaussianState
 from .diffuse import kalman_steps
 from .diffuse_prior import DiffusePrior
