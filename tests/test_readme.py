@@ -165,7 +165,7 @@ def test_compare_blocks_run(tmp_path, monkeypatch):
 def test_likelihood_block_runs(tmp_path, monkeypatch, capsys):
     """The likelihood blocks run as written, the second after the first (sizes cut: 60 steps, 2
     paths, a 101-point grid; the code path is the same): a converged fit, the fixed-lag smoother,
-    posterior draws and a finite diffuse log-likelihood."""
+    posterior draws, a finite diffuse log-likelihood and the exact diffuse smoother."""
     first, second = rst_code(GUIDE / "likelihood.rst")
     code = (first + second).replace("300, paths=4", "60, paths=2").replace("401))", "101))")
     monkeypatch.chdir(tmp_path)
@@ -176,6 +176,7 @@ def test_likelihood_block_runs(tmp_path, monkeypatch, capsys):
     assert "converged" in out and ns["res"].se_ok
     assert ns["lagged"].means.shape == (2, 60, 1) and ns["draws"].shape == (2, 100, 60, 1)
     assert np.isfinite(ns["draws"]).all() and np.isfinite(ns["lagged"].covs).all()
+    assert np.isfinite(ns["flat"].covs).all()  # the exact diffuse smoother: the level identified at step 0
 
 
 def test_compiled_block_runs(tmp_path, monkeypatch, capsys):

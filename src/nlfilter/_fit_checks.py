@@ -117,3 +117,17 @@ def fit_data(ys, dt):
         elif not math.isclose(float(V.positive("dt", dt)), timing.dt, rel_tol=1e-12):
             raise ValueError(f"dt: fit was given dt={dt!r}, but the Simulation's measurement step is dt={timing.dt!r}")
     return (arr if sim is None else sim._replace(ys=arr)), arr, dt
+
+
+def diffuse_check(P0, *, flt=None, label=None, estimate=()) -> None:
+    """A ``P0`` with an infinite variance (a diffuse prior): refused for a fit whose filter ``flt``
+    has no diffuse form (:func:`~nlfilter.filters.checks.refuse_infinite`, naming ``label``), and
+    for an EM that would estimate ``m0`` or ``P0`` (``estimate``; a diffuse prior has neither)."""
+    from .filters.checks import is_diffuse, refuse_infinite
+    if not is_diffuse(P0):
+        return
+    if flt is not None and not getattr(flt, "diffuse_prior", False):
+        refuse_infinite(P0, f"filter {label!r}")
+    if set(estimate) & {"m0", "P0"}:
+        raise ValueError(f"P0: a diffuse prior (inf entries, {V.shown(P0)}) has no m0 or P0 to estimate; got "
+                         f"estimate={sorted(estimate)} (drop m0 and P0 from it, or give a finite P0)")

@@ -39,7 +39,7 @@ import numpy as np
 from scipy import optimize
 
 from . import _validate as V
-from ._fit_checks import check_options, fit_data, parameter_kinds
+from ._fit_checks import check_options, diffuse_check, fit_data, parameter_kinds
 from .errors import CompileError, DivergenceError
 
 __all__ = ["fit", "FitResult", "fit_em", "EMResult"]
@@ -236,6 +236,7 @@ def fit(model, ys, params0, *, filter="ukf", m0=None, P0=None, initial=None, bou
     label = label or getattr(first, "name", type(first).__name__)
     if getattr(first, "likelihood", None) is None:
         raise TypeError(f"filter: {label} defines no log-likelihood; use a Gaussian filter, grid or particle")
+    diffuse_check(P0, flt=first, label=label)  # an infinite variance: refused before any evaluation without a diffuse form
     fallback = backend == "auto"  # one choice for the fit, counting its evaluations (L-BFGS-B: ~20 gradients)
     if fallback:  # and the NumPy loop where numba cannot compile the model
         reps = 20 * (len(names) + 1) + (2 * len(names) ** 2 + 1 if se else 0)
@@ -273,11 +274,10 @@ def fit(model, ys, params0, *, filter="ukf", m0=None, P0=None, initial=None, bou
         total = float(np.sum(est.loglik))
         return total if math.isfinite(total) else -np.inf
 
-    bar = None
+    bar, best = None, [-np.inf]
     if progress:
         from tqdm.auto import tqdm
         bar = tqdm(desc=f"fit ({label})", unit="eval", leave=False)
-    best = [-np.inf]
     ll0 = loglik(theta0)
     if not math.isfinite(ll0):
         raise ValueError(f"params0: the filter's log-likelihood at the starting values {dict(zip(names, theta0.tolist()))} "
@@ -439,6 +439,7 @@ def fit_em(ys, F, H, Q, R, m0, P0, *, estimate=("F", "H", "Q", "R"), iterations:
         raise ValueError("ys: fit_em takes complete records (no NaN); use fit() for missing data")
     F, H, Q, R = (np.array(V.as_float_array(nm, a, ndim=2)) for nm, a in (("F", F), ("H", H), ("Q", Q), ("R", R)))
     m0 = np.array(V.as_float_array("m0", m0, ndim=1))
+    diffuse_check(P0, estimate=estimate)  # a diffuse P0: no m0 or P0 to estimate
     P0 = np.array(V.as_float_array("P0", P0, ndim=2))
     est = set(estimate)
     unknown = est - {"F", "H", "Q", "R", "m0", "P0"}
@@ -449,8 +450,7 @@ def fit_em(ys, F, H, Q, R, m0, P0, *, estimate=("F", "H", "Q", "R"), iterations:
     if T < 2 and est & {"F", "Q"}:
         raise ValueError(f"ys: fit_em estimates {sorted(est & {'F', 'Q'})} from the transitions between steps; "
                          f"expected at least 2 time steps, got T = {T}")
-    hist = []
-    converged = False
+    hist, converged = [], False
     steps = range(V.positive("iterations", iterations, integer=True))
     if progress:
         from tqdm.auto import tqdm

@@ -24,7 +24,7 @@ import sympy as sp
 
 from nlfilter import DiscreteModel
 from nlfilter.errors import DivergenceError
-from nlfilter.filters import EKF, KalmanFilter
+from nlfilter.filters import UKF, KalmanFilter
 
 YS = np.random.default_rng(0).normal(size=(3, 40, 1)).cumsum(axis=1)
 
@@ -93,10 +93,8 @@ def test_against_statsmodels_exact_diffuse_loglik():
 def test_bad_input_is_named():
     md = _level()
     kf = KalmanFilter(md)
-    with pytest.raises(ValueError, match="P0: an infinite variance .* KalmanFilter only"):
-        EKF(md).run(YS, 0.0, np.inf)
-    with pytest.raises(ValueError, match="P0: the smoother from a diffuse prior"):
-        kf.smooth(YS, 0.0, np.inf)
+    with pytest.raises(ValueError, match="P0: an infinite variance .* only in the filters kf, ekf, iekf"):
+        UKF(md).run(YS, 0.0, np.inf)
     with pytest.raises(ValueError, match=r"P0: a diffuse prior \(inf entries\) runs on the NumPy loop .*chunk"):
         kf.run(YS, 0.0, np.inf, chunk=2)
     md3 = _trend_two_sensors()

@@ -164,7 +164,7 @@ class Filter:
         if initial is not None:
             raise ValueError(f"initial: {type(self).__name__} starts from a Gaussian prior (m0, P0); "
                              f"expected None, got {type(initial).__name__}")
-        return gaussian_prior(m0, P0, self.state_dim, batch)
+        return gaussian_prior(m0, P0, self.state_dim, batch, who=self)
 
     def _run_init(self, m0, P0, batch, initial, rng, steps, t0):
         """The run loop's start: :meth:`init`; a filter whose start depends on the run's horizon

@@ -60,7 +60,7 @@ class _SteadyLinearRecursion(OfflineGainFilter):
     def schedule(self, m0, P0, batch, steps, t0):
         """The steady schedule (from ``t0``), ``ẑ0 = (m0, 1)`` on every path (``m0`` common or per
         path; ``P0`` checked only) and the steady error covariance."""
-        g = gaussian_prior(m0, P0, self.model.n, batch)
+        g = gaussian_prior(m0, P0, self.model.n, batch, who=type(self).__name__)
         z = g.mean if self.model.N == self.model.n else np.concatenate([g.mean, np.ones((len(g.mean), 1))], axis=1)
         ss = self.linear.steady_state()
         return _LinearSchedule(self.linear, t0, steady=ss), z, ss.P

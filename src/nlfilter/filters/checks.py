@@ -13,30 +13,47 @@ from .. import _validate as V
 from ..model_noise import check_horizon
 from .beliefs import GaussianState
 
-__all__ = ["gaussian_prior", "check_structure", "continuous_precision"]
+__all__ = ["gaussian_prior", "check_structure", "continuous_precision", "refuse_infinite", "DIFFUSE_FILTERS"]
+
+#: the registered filters with an exact diffuse form of a prior with infinite variance (their
+#: ``diffuse_prior`` attribute: :mod:`nlfilter.filters.diffuse_prior`)
+DIFFUSE_FILTERS = ("kf", "ekf", "iekf")
 
 
 def is_diffuse(P0) -> bool:
     """Whether ``P0`` states a diffuse prior (an infinite entry)."""
     try:
-        P = np.asarray(P0, dtype=float)
+        P = np.asarray(P0)
+        P = np.asarray(P.real if P.dtype.kind == "c" else P, dtype=float)  # complex: refused later, naming P0
     except (TypeError, ValueError):
         return False
     return bool(np.isposinf(P).any())
 
 
+def refuse_infinite(P0, who) -> None:
+    """Refuse, for ``who`` (the name of a function, or a filter, with no diffuse form), a ``P0``
+    with an infinite variance: a ValueError naming ``P0``, what was given and the filters that run
+    it exactly (a filter with ``diffuse_prior`` reaches here from its step functions' ``init``)."""
+    if is_diffuse(P0):
+        if not isinstance(who, str):
+            who = type(who).__name__ + ("'s init (the step functions, fixed_lag; its run, smooth and "
+                                        "sample_posterior take it)" if getattr(who, "diffuse_prior", False) else "")
+        raise ValueError(f"P0: an infinite variance (a diffuse prior) has an exact form only in the filters "
+                         f"{', '.join(DIFFUSE_FILTERS)} (the exact diffuse initialisation, nlfilter.filters.diffuse_prior); "
+                         f"{who} has none; got P0 = {V.shown(P0)}; give a finite P0 (e.g. a large variance)")
+
+
 def gaussian_prior(m0, P0, n: int, batch: tuple, *, data: str = "ys", one: bool = False,
-                   definite: bool = False) -> GaussianState:
+                   definite: bool = False, who="this filter") -> GaussianState:
     """The prior ``N(m0, P0)`` checked and broadcast to ``B = prod(batch)`` paths: ``m0`` a scalar,
     ``(n,)`` or per path ``(*batch, n)``; ``P0`` ``(n, n)`` (a scalar for n = 1) or per path.
     ``one``: the filter takes one prior for all paths (off-line gains), so a per-path ``m0`` is
-    refused; ``definite``: ``P0`` must be positive definite (a prior density)."""
+    refused; ``definite``: ``P0`` must be positive definite (a prior density); ``who``: the filter
+    named when ``P0`` has an infinite variance (:func:`refuse_infinite`)."""
     if m0 is None or P0 is None:
         raise ValueError(f"m0/P0: expected the prior mean and covariance, got m0={m0!r}, P0={P0!r}")
     m0 = V.mean("m0", m0, n)
-    if is_diffuse(P0):
-        raise ValueError("P0: an infinite variance (a diffuse prior) is run exactly by KalmanFilter only (the exact "
-                         "diffuse initialisation, nlfilter.filters.diffuse); give this filter a finite P0")
+    refuse_infinite(P0, who)  # a diffuse P0 reaches here only in a filter without its exact form
     P0 = V.covariance("P0", P0, n, batch=True)
     if one and (m0.ndim > 1 or P0.ndim > 2):
         raise ValueError(f"m0/P0: this filter takes one prior for all paths, shapes ({n},) and ({n}, {n}); "

@@ -28,6 +28,12 @@ Kalman filter. The sum of the terms is the diffuse log-likelihood ``log L_d = li
 maximum-likelihood fit of a model with unknown initial level maximises (statsmodels'
 ``initialization="diffuse"``).
 
+The extended and iterated extended Kalman filters run the same recursion on their linearised model
+(:mod:`~nlfilter.filters.diffuse_prior`): at each step ``F = f_x(a)``, ``a⁻ = f(a)`` and ``H =
+h_x(x)``, ``d = h(x) − H x`` at the predicted mean ``x = a⁻`` (the IEKF: at its Gauss–Newton
+iterate, the likelihood's terms from the first linearization); :func:`diffuse_filter` takes the
+step's linearization as two callables, and keeps what the exact diffuse smoother needs.
+
 Reported estimates: the mean ``a`` and, while a direction is still diffuse, ``inf`` in the rows and
 columns of the covariance that ``P∞`` reaches (not yet identified by the data), ``P*`` elsewhere.
 """
@@ -36,6 +42,7 @@ from __future__ import annotations
 
 import math
 from types import MappingProxyType
+from typing import NamedTuple
 
 import numpy as np
 
@@ -45,7 +52,7 @@ from .checks import is_diffuse
 from .estimates import Estimates
 from .linalg import symmetrize
 
-__all__ = ["is_diffuse", "diffuse_run", "DIFFUSE_TOL"]
+__all__ = ["is_diffuse", "diffuse_run", "diffuse_filter", "kalman_steps", "DiffuseTrack", "DIFFUSE_TOL"]
 
 #: ``F∞ = z P∞ zᵀ`` counts as zero at or below this fraction of ``|z|²`` (``P∞``'s entries are
 #: O(1): a projected-out direction leaves rounding of ~1e-16 there)
@@ -55,7 +62,7 @@ _LOG_2PI = math.log(2.0 * math.pi)
 
 def _split(P0, n):
     """``(P∞, P*)`` from ``P0 (..., n, n)`` with ``inf`` on the diffuse diagonal entries."""
-    P = np.asarray(P0, dtype=float)
+    P = V.as_float_array("P0", P0)  # complex refused (NumPy would drop the imaginary part)
     if P.ndim == 0 and n == 1:
         P = P.reshape(1, 1)
     if P.shape[-2:] != (n, n):
@@ -73,20 +80,122 @@ def _split(P0, n):
     return Pinf, Pstar
 
 
+class DiffuseTrack(NamedTuple):
+    """What the exact diffuse smoother (:func:`~nlfilter.filters.diffuse_prior.diffuse_smooth`)
+    reads of a forward pass, paths flattened: the predicted ``a (B, T, n)``, ``Pinf``, ``Pst (B, T,
+    n, n)`` of every step, the transition ``F (B, T, n, n)`` into it (step 0's unused), and each
+    whitened component's ``z (B, T, m, n)``, ``v``, ``M∞``, ``M*``, ``F∞``, ``F*`` and which update
+    it took (``dif``, ``ordinary``; neither: missing)."""
+
+    a: np.ndarray
+    Pinf: np.ndarray
+    Pst: np.ndarray
+    F: np.ndarray
+    z: np.ndarray
+    v: np.ndarray
+    Minf: np.ndarray
+    Mst: np.ndarray
+    Finf: np.ndarray
+    Fst: np.ndarray
+    dif: np.ndarray
+    ordinary: np.ndarray
+
+
+class _Updated(NamedTuple):
+    """One step's update (its mean first, for :func:`~nlfilter.filters.skeleton.gauss_newton`)."""
+
+    mean: np.ndarray
+    Pinf: np.ndarray
+    Pst: np.ndarray
+    ll: np.ndarray
+    z: np.ndarray
+    v: np.ndarray
+    Minf: np.ndarray
+    Mst: np.ndarray
+    Finf: np.ndarray
+    Fst: np.ndarray
+    dif: np.ndarray
+    ordinary: np.ndarray
+
+
+def _outer(p, q):
+    return p[:, :, None] * q[:, None, :]
+
+
+def diffuse_update(a, Pinf, Pst, y, H, d, R) -> _Updated:
+    """The update of ``(a, P∞, P*)`` (paths ``B``) by ``y (B, m)`` (NaN: missing) through ``y = H x
+    + d + ε``, ``ε ~ N(0, R)``, component by component after whitening (module docstring), with the
+    step's log-likelihood term and every component's quantities (:class:`DiffuseTrack`)."""
+    B, m, n = a.shape[0], y.shape[-1], a.shape[-1]
+    obs = ~np.isnan(y)
+    both = obs[:, :, None] & obs[:, None, :]
+    L = np.linalg.cholesky(np.where(both, R, np.eye(m)))  # the observed block's factor; 1 elsewhere
+    yt = np.linalg.solve(L, np.where(obs, y - d, 0.0)[..., None])[..., 0]
+    Zt = np.linalg.solve(L, np.broadcast_to(H, (B, m, n)))
+    ll = -np.sum(np.where(obs, np.log(np.diagonal(L, axis1=-2, axis2=-1)), 0.0), axis=-1)
+    rec = [np.zeros((B, m)), np.zeros((B, m, n)), np.zeros((B, m, n)), np.zeros((B, m)), np.zeros((B, m)),
+           np.zeros((B, m), bool), np.zeros((B, m), bool)]
+    for i in range(m):
+        z, o = Zt[:, i], obs[:, i]
+        v = yt[:, i] - np.einsum("bj,bj->b", z, a)
+        Minf, Mst = np.einsum("bij,bj->bi", Pinf, z), np.einsum("bij,bj->bi", Pst, z)
+        Finf, Fst = np.einsum("bi,bi->b", z, Minf), np.einsum("bi,bi->b", z, Mst) + 1.0
+        dif = o & (Finf > DIFFUSE_TOL * np.einsum("bi,bi->b", z, z))
+        ordinary = o & ~dif
+        Fi = np.where(dif, Finf, 1.0)
+        Fs = np.where(ordinary, Fst, 1.0)
+        a = a + np.where(dif[:, None], Minf * (v / Fi)[:, None], 0.0) \
+            + np.where(ordinary[:, None], Mst * (v / Fs)[:, None], 0.0)
+        Pst_dif = Pst + _outer(Minf, Minf) * (Fst / Fi**2)[:, None, None] \
+            - (_outer(Mst, Minf) + _outer(Minf, Mst)) / Fi[:, None, None]
+        Pst = symmetrize(np.where(dif[:, None, None], Pst_dif,
+                                  np.where(ordinary[:, None, None], Pst - _outer(Mst, Mst) / Fs[:, None, None], Pst)))
+        Pinf = symmetrize(np.where(dif[:, None, None], Pinf - _outer(Minf, Minf) / Fi[:, None, None], Pinf))
+        ll = ll + np.where(dif, -0.5 * (_LOG_2PI + np.log(Fi)), 0.0) \
+            + np.where(ordinary, -0.5 * (_LOG_2PI + np.log(Fs) + v * v / Fs), 0.0)
+        for rows, x in zip(rec, (v, Minf, Mst, Finf, Fst, dif, ordinary)):
+            rows[:, i] = x
+    return _Updated(a, Pinf, Pst, ll, Zt, *rec)
+
+
 def diffuse_run(kf, ys, m0, P0, *, loglik: bool = False, on_divergence: str = "raise") -> Estimates:
     """The Kalman filter ``kf`` over ``ys (..., T, m)`` from the diffuse prior ``(m0, P0)`` (module
     docstring); ``loglik``: ``extras["loglik"] (..., T)``, the diffuse log-likelihood's terms (and
     ``loglik_failed``). A path whose moments become non-finite raises
     :class:`~nlfilter.errors.DivergenceError` (``on_divergence="raise"``) or is marked (``"mark"``:
     ``diverged``, ``diverged_step``, its outputs NaN from that step on), as the run loop does."""
+    return diffuse_filter(kf, ys, m0, P0, *kalman_steps(kf), loglik=loglik, on_divergence=on_divergence)[0]
+
+
+def kalman_steps(kf):
+    """``(predict, measure)`` of :func:`diffuse_filter` for the Kalman filter ``kf``: its model's matrices."""
+
+    def predict(a, k):
+        F, b, _, _, GQG = kf._mats if kf._const else kf._matrices(k)
+        return a @ F.T + b, F, kf._gqg(GQG, a, k)
+
+    def measure(x, k):
+        return (kf._mats if kf._const else kf._matrices(k))[2:4]
+    return predict, measure
+
+
+def diffuse_filter(flt, ys, m0, P0, predict, measure, *, loglik: bool = False, on_divergence: str = "raise",
+                   iterate=None, keep: bool = False):
+    """The exact diffuse filter (module docstring) of the discrete filter ``flt`` over ``ys``:
+    ``predict(a, k) -> (a⁻, F, G Q Gᵀ)`` and ``measure(x, k) -> (H, d)`` give the model index
+    ``k``'s (linearized) matrices, batched or not; ``iterate = (iterations, tol)``: the update is
+    relinearized at its own mean (the IEKF's Gauss–Newton, :func:`~nlfilter.filters.skeleton.gauss_newton`),
+    the likelihood's terms those of the first linearization. Returns ``(Estimates, DiffuseTrack or
+    None)`` (``keep``: the track for the smoother)."""
+    from .skeleton import gauss_newton
     on = V.choice("on_divergence", on_divergence, {"raise", "mark"})
-    md = kf.model
-    if kf._cross.S is not None:
+    md = flt.model
+    if flt._cross.S is not None:
         raise ValueError("P0: a diffuse prior (inf entries) with correlated process and measurement noise "
                          "(cross_noise) is not supported; give a finite P0")
     n = md.n
     Pinf0, Pstar0 = _split(P0, n)
-    ys = kf.check_data(ys)
+    ys = flt.check_data(ys)
     batch, T, m = ys.shape[:-2], ys.shape[-2], ys.shape[-1]
     B = math.prod(batch)
     yf = ys.reshape(B, T, m)
@@ -98,47 +207,29 @@ def diffuse_run(kf, ys, m0, P0, *, loglik: bool = False, on_divergence: str = "r
     except ValueError:
         raise ValueError(f"m0/P0: shapes {m0.shape}, {np.shape(P0)} do not broadcast to the batch {batch} of ys") from None
     R = md.R if md.R_constant else None  # R_k given per step: read at each step (md.R_of)
-    off = 0 if kf.start == "update" else 1
+    off = 0 if flt.start == "update" else 1
     means, covs, terms = np.empty((B, T, n)), np.empty((B, T, n, n)), np.zeros((B, T))
     step, failed = np.full(B, -1), np.zeros((B, T), bool)
-    eye = np.eye(m)
+    track = [[] for _ in DiffuseTrack._fields] if keep else None
     for k in range(T):
+        F = np.eye(n)
         with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
             if k > 0 or off:
-                F, b, _, _, GQG = kf._mats if kf._const else kf._matrices(k + off - 1)
-                GQG = kf._gqg(GQG, a, k + off - 1)
-                a = a @ F.T + b
-                Pinf = F @ Pinf @ F.T
-                Pst = symmetrize(F @ Pst @ F.T + GQG)
-            _, _, H, d, _ = kf._mats if kf._const else kf._matrices(k + off)
-            y = yf[:, k]
-            obs = ~np.isnan(y)
-            both = obs[:, :, None] & obs[:, None, :]
+                a, F, GQG = predict(a, k + off - 1)
+                Ft = np.swapaxes(F, -1, -2)
+                Pinf = F @ Pinf @ Ft
+                Pst = symmetrize(F @ Pst @ Ft + GQG)
             Rk = md.R_of(a, k + off) if R is None else R
-            L = np.linalg.cholesky(np.where(both, Rk, eye))  # the observed block's factor; 1 elsewhere
-            yt = np.linalg.solve(L, np.where(obs, y - d, 0.0)[..., None])[..., 0]
-            Zt = np.linalg.solve(L, np.broadcast_to(H, (B, m, n)))
-            ll = -np.sum(np.where(obs, np.log(np.diagonal(L, axis1=-2, axis2=-1)), 0.0), axis=-1)
-            for i in range(m):
-                z, o = Zt[:, i], obs[:, i]
-                v = yt[:, i] - np.einsum("bj,bj->b", z, a)
-                Minf, Mst = np.einsum("bij,bj->bi", Pinf, z), np.einsum("bij,bj->bi", Pst, z)
-                Finf, Fst = np.einsum("bi,bi->b", z, Minf), np.einsum("bi,bi->b", z, Mst) + 1.0
-                dif = o & (Finf > DIFFUSE_TOL * np.einsum("bi,bi->b", z, z))
-                ordinary = o & ~dif
-                Fi = np.where(dif, Finf, 1.0)
-                Fs = np.where(ordinary, Fst, 1.0)
-                a = a + np.where(dif[:, None], Minf * (v / Fi)[:, None], 0.0) \
-                    + np.where(ordinary[:, None], Mst * (v / Fs)[:, None], 0.0)
-                outer = lambda p, q: p[:, :, None] * q[:, None, :]  # noqa: E731
-                Pst_dif = Pst + outer(Minf, Minf) * (Fst / Fi**2)[:, None, None] \
-                    - (outer(Mst, Minf) + outer(Minf, Mst)) / Fi[:, None, None]
-                Pst = symmetrize(np.where(dif[:, None, None], Pst_dif,
-                                          np.where(ordinary[:, None, None], Pst - outer(Mst, Mst) / Fs[:, None, None],
-                                                   Pst)))
-                Pinf = symmetrize(np.where(dif[:, None, None], Pinf - outer(Minf, Minf) / Fi[:, None, None], Pinf))
-                ll = ll + np.where(dif, -0.5 * (_LOG_2PI + np.log(Fi)), 0.0) \
-                    + np.where(ordinary, -0.5 * (_LOG_2PI + np.log(Fs) + v * v / Fs), 0.0)
+            H, d = measure(a, k + off)
+            new = diffuse_update(a, Pinf, Pst, yf[:, k], H, d, Rk)
+            if iterate is not None:
+                first = new.ll
+                new = gauss_newton(new, lambda x: diffuse_update(a, Pinf, Pst, yf[:, k], *measure(x, k + off), Rk),
+                                   *iterate)._replace(ll=first)
+            if keep:
+                for rows, x in zip(track, (a, Pinf, Pst, np.broadcast_to(F, (B, n, n)), *new[4:])):
+                    rows.append(x)
+            a, Pinf, Pst, ll = new[:4]
         unknown = np.abs(Pinf) > DIFFUSE_TOL
         reach = unknown.any(axis=-1)
         means[:, k] = a
@@ -149,7 +240,7 @@ def diffuse_run(kf, ys, m0, P0, *, loglik: bool = False, on_divergence: str = "r
         if bad.any():
             idx = np.flatnonzero(bad)
             if on == "raise":
-                raise DivergenceError(f"{kf.name}: the diffuse Kalman filter's moments are not finite at step {k} on "
+                raise DivergenceError(f"{flt.name}: the diffuse filter's moments are not finite at step {k} on "
                                       f"{idx.size} path(s), first {idx[:5].tolist()}; pass on_divergence='mark' to "
                                       "record such paths and go on", step=k, paths=idx, what="covariance")
             step[idx] = k
@@ -160,4 +251,8 @@ def diffuse_run(kf, ys, m0, P0, *, loglik: bool = False, on_divergence: str = "r
             means[dead, k], covs[dead, k], terms[dead, k] = np.nan, np.nan, np.nan
     out = lambda x: x.reshape(*batch, *x.shape[1:])  # noqa: E731
     extras = MappingProxyType({"loglik": out(terms), "loglik_failed": out(failed)} if loglik else {})
-    return Estimates(out(means), out(covs), (step >= 0).reshape(batch), step.reshape(batch), extras)
+    est = Estimates(out(means), out(covs), (step >= 0).reshape(batch), step.reshape(batch), extras)
+    if not keep:
+        return est, None
+    shapes = ((n,), (n, n), (n, n), (n, n), (m, n), (m,), (m, n), (m, n), (m,), (m,), (m,), (m,))
+    return est, DiffuseTrack(*(np.stack(x, axis=1) if T else np.zeros((B, 0, *s)) for x, s in zip(track, shapes)))

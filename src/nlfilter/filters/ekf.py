@@ -27,6 +27,7 @@ import numpy as np  # noqa: F401  (the doctests use it)
 
 from .. import _validate as V
 from .base import ContinuousFilter, GaussianState  # noqa: F401  (GaussianState: the doctests)
+from .diffuse_prior import DiffusePrior
 from .gaussian import ContinuousDiscreteGaussianFilter, ContinuousGaussianFilter, GaussianFilter
 from .rules import Taylor1
 from .skeleton import iterated_update
@@ -46,7 +47,7 @@ def _iterated_condition(flt, state, y, t, R=None):
     return new, None, moments
 
 
-class EKF(GaussianFilter):
+class EKF(DiffusePrior, GaussianFilter):
     """Extended Kalman filter for a :class:`~nlfilter.models.DiscreteModel` (batched): the
     :class:`~nlfilter.filters.gaussian.GaussianFilter` skeleton with the
     :class:`~nlfilter.filters.rules.Taylor1` rule (equations in the module docstring).
@@ -68,7 +69,7 @@ class EKF(GaussianFilter):
         super().__init__(model, Taylor1(), start=start)
 
 
-class IteratedEKF(GaussianFilter):
+class IteratedEKF(DiffusePrior, GaussianFilter):
     """Iterated extended Kalman filter (Bell & Cathey 1993).
 
     The EKF prediction (the skeleton with the Taylor-1 rule), and an update that repeats the
@@ -106,6 +107,10 @@ class IteratedEKF(GaussianFilter):
         _iterations(self, iterations, tol)
 
     _condition = _iterated_condition
+
+    @property
+    def _diffuse_iterate(self):  # the diffuse prior's update: Gauss–Newton (diffuse_prior.DiffusePrior)
+        return self.iterations, self.tol
 
 
 class ContinuousDiscreteEKF(ContinuousDiscreteGaussianFilter):

@@ -222,7 +222,7 @@ class IMM(DiscreteFilter):
         if initial is not None:
             raise ValueError(f"initial: IMM starts from a Gaussian prior (m0, P0); expected None, "
                              f"got {type(initial).__name__}")
-        g = gaussian_prior(m0, P0, self.state_dim, batch)
+        g = gaussian_prior(m0, P0, self.state_dim, batch, who=type(self).__name__)
         B, M = g.mean.shape[0], self.modes
         return IMMState(np.repeat(g.mean[:, None], M, axis=1), np.repeat(g.cov[:, None], M, axis=1),
                         np.broadcast_to(self.mode_probs0, (B, M)).copy())

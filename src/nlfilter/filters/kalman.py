@@ -11,9 +11,9 @@ from __future__ import annotations
 import numpy as np
 import scipy.linalg as sla
 
-from ..simulation import Simulation
 from .base import ContinuousFilter, DiscreteFilter, GaussianState
-from .diffuse import diffuse_run, is_diffuse
+from .diffuse import kalman_steps
+from .diffuse_prior import DiffusePrior
 from .fading import FadingMemory
 from .linalg import gaussian_update, innovation_info
 from .ekf import ContinuousEKF
@@ -27,7 +27,7 @@ def _require_linear(model, who):
                          f"got {model!r}; use EKF, UKF or a second-order filter")
 
 
-class KalmanFilter(DiscreteFilter, FadingMemory):
+class KalmanFilter(DiffusePrior, DiscreteFilter, FadingMemory):
     """Discrete Kalman filter on a linear :class:`~nlfilter.models.DiscreteModel` (batched, Joseph-form update).
 
     Correlated noise ``E[w_k v_kᵀ] = S`` (``cross_noise``; :class:`~nlfilter.filters.skeleton.CrossNoise`):
@@ -57,7 +57,7 @@ class KalmanFilter(DiscreteFilter, FadingMemory):
     structures = ("cross noise", "time-varying R")
     compiled = True  # backend="numba": its matrices as data (compiled.kalman_loop); cross noise runs here
     compiled_kind = "kalman"
-    diffuse_prior = True  # run(): P0 with inf entries is a diffuse prior (nlfilter.filters.diffuse)
+    diffuse_prior = True  # run(), smooth(): P0 with inf entries is a diffuse prior (diffuse_prior.DiffusePrior)
 
     def __init__(self, model, *, start: str | None = None):
         super().__init__(model, start=start)
@@ -67,27 +67,9 @@ class KalmanFilter(DiscreteFilter, FadingMemory):
             self._mats = self._matrices(0)
         self._cross = CrossNoise(model)
 
-    def run(self, ys, m0=None, P0=None, *, loglik: bool = False, **kw):
-        """As :meth:`Filter.run <nlfilter.filters.base.Filter.run>`; a ``P0`` with ``inf`` on the
-        diagonal entries of unknown directions is a diffuse prior, run by the exact diffuse
-        initialisation (:mod:`~nlfilter.filters.diffuse`; NumPy loop; ``loglik``: the diffuse
-        log-likelihood)."""
-        if is_diffuse(P0):
-            if self.fading != 1.0:
-                raise ValueError(f"alpha: the exact diffuse initialisation (P0 with inf) has no fading memory; got "
-                                 f"alpha = {self.fading!r} (expected 1, or a finite P0)")
-            if isinstance(ys, Simulation):
-                flt, _ = self.for_timing(ys.timing)
-                return flt.run(ys.ys, m0, P0, loglik=loglik, **kw)
-            _diffuse_options(kw)
-            return diffuse_run(self, ys, m0, P0, loglik=loglik, on_divergence=kw.get("on_divergence", "raise"))
-        return super().run(ys, m0, P0, loglik=loglik, **kw)
-
-    def smooth(self, ys, m0=None, P0=None, **kw):
-        if is_diffuse(P0):
-            raise ValueError("P0: the smoother from a diffuse prior (inf entries) is not implemented yet; run() "
-                             "filters from it (and gives the diffuse log-likelihood)")
-        return super().smooth(ys, m0, P0, **kw)
+    def _diffuse_steps(self):
+        """The diffuse prior's steps (:class:`~nlfilter.filters.diffuse_prior.DiffusePrior`): the model's matrices."""
+        return kalman_steps(self)
 
     def init(self, m0, P0, batch, *, initial=None, rng=None):
         return self._cross.unmeasured(super().init(m0, P0, batch, initial=initial, rng=rng))
@@ -158,16 +140,6 @@ class KalmanFilter(DiscreteFilter, FadingMemory):
         """The update and the step's log N(y; H m⁻ + d, H P⁻ Hᵀ + R) (prediction-error decomposition)."""
         new, yhat, S = self._update(state, y, k)
         return self._cross.carry(new, y), None, innovation_info(y, yhat, S)
-
-
-def _diffuse_options(kw):
-    """The run options a diffuse run honours: ``on_divergence``, any ``backend`` (its loop is NumPy's
-    whatever the backend: a fit's automatic choice may name the compiled one), the others at their
-    defaults (all paths at once, no progress bar)."""
-    given = {k: v for k, v in kw.items() if k not in ("on_divergence", "backend") and v not in (None, False)}
-    if given:
-        raise ValueError(f"P0: a diffuse prior (inf entries) runs on the NumPy loop with the default options; "
-                         f"got {sorted(given)}")
 
 
 def steady_state(model, k: int = 0):

@@ -222,7 +222,7 @@ class OptimalLinearFilter(OfflineGainFilter):
 
     def schedule(self, m0, P0, batch, steps, t0):
         """The gains of a run: the steady state (from t0) or the time-varying path of ``steps``."""
-        prior = gaussian_prior(m0, P0, self.model.n, (1,), one=True)
+        prior = gaussian_prior(m0, P0, self.model.n, (1,), one=True, who=type(self).__name__)
         z0, X0, Pa = augmented_second_moment(self.model, prior.mean[0], prior.cov[0])
         if self.gains == "steady":
             ss = self.steady_state(self.X0 if self.X0 is not None else (X0 if self._conserves() else None))
@@ -342,7 +342,7 @@ class DiscreteOptimalLinearFilter(OfflineGainFilter):
         set_start(self, start)
 
     def schedule(self, m0, P0, batch, steps, t0):
-        prior = gaussian_prior(m0, P0, self.model.n, (1,), one=True)
+        prior = gaussian_prior(m0, P0, self.model.n, (1,), one=True, who=type(self).__name__)
         z0, X0, Pa = augmented_second_moment(self.model, prior.mean[0], prior.cov[0])
         return _LinearDiscreteSchedule(self.model, X0, Pa, self.start), z0, Pa
 

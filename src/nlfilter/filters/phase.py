@@ -280,7 +280,7 @@ class CircleGridFilter(Filter):
             return CircleDensity(normalize(p))
         if m0 is None and P0 is None:
             return CircleDensity(np.full((B, self.size), 1.0 / self.size))
-        g = gaussian_prior(m0, P0, 2, batch)
+        g = gaussian_prior(m0, P0, 2, batch, who=type(self).__name__)
         rho = np.hypot(g.mean[:, 0], g.mean[:, 1])
         if np.any(rho >= 1):
             raise ValueError(f"m0: the mean of (sin θ0, cos θ0) lies inside the unit circle (|m0| < 1); got |m0| = "

@@ -28,6 +28,15 @@ represents — several modes included, which a Gaussian smoother's draws cannot 
 pass keeps every step's belief: ``B × T × N`` floats on the grid (``N`` grid points),
 ``B × T × Np × (n + 1)`` for the particles; pass fewer paths at a time to bound it.
 
+From a diffuse prior (``P0`` with ``inf``; the filters with ``diffuse_prior``: KF, EKF, IEKF) the
+draws come from the exact diffuse smoother's marginals and lag-one covariances
+(:func:`~nlfilter.filters.diffuse_prior.diffuse_smooth`): the posterior of a linear-Gaussian model
+is a Gauss–Markov chain given the data, so ``x_{T-1} ~ N(x̂_{T-1}, V_{T-1})`` and
+``x_k | x_{k+1} ~ N(x̂_k + C_k V_{k+1}⁺ (x_{k+1} − x̂_{k+1}), V_k − C_k V_{k+1}⁺ C_kᵀ)``,
+``C_k = Cov[x_k, x_{k+1} | y]`` (the same law as the backward pass above in the limit ``κ → ∞``).
+Where the data leave a diffuse direction unidentified the posterior is improper: refused, naming
+``P0``.
+
 Each path draws from a stream of its own (:mod:`nlfilter.streams`, sub-stream :data:`SAMPLE` of
 the root of ``rng``): path ``p``'s samples are the same in any batch or chunk. The particle
 filter's forward pass draws from that stream too (its clouds are those of
@@ -46,7 +55,8 @@ from ..simulation import Simulation
 from ..streams import PathRNG
 from .base import Filter
 from .beliefs import GaussianState
-from .linalg import sqrt_psd, symmetrize
+from .checks import is_diffuse
+from .linalg import PSD_TOL, sqrt_psd, symmetrize
 from .smoothing import _solve_right, backward_steps
 
 __all__ = ["sample_posterior", "SAMPLE"]
@@ -108,6 +118,8 @@ def sample_posterior(flt, ys, m0=None, P0=None, n: int = 1, rng=None, *, initial
         ys = ys.ys
     if reference:
         return _reference(flt, ys, m0, P0, n, rng, initial, t0, backend)
+    if is_diffuse(P0) and getattr(flt, "diffuse_prior", False):
+        return _from_diffuse(flt, ys, m0, P0, n, rng)
     est = flt.run(ys, m0, P0, initial=initial, backend=backend)  # raises where it diverges
     ys = flt.check_data(ys)
     batch, T = ys.shape[:-2], ys.shape[-2]
@@ -127,6 +139,59 @@ def sample_posterior(flt, ys, m0=None, P0=None, n: int = 1, rng=None, *, initial
         x = _draw(mean, symmetrize(P - G @ np.swapaxes(D, -1, -2)), z[:, k], k)
         out[:, :, k] = x
     return out.reshape(*batch, n, T, nx)
+
+
+def _from_diffuse(flt, ys, m0, P0, n, rng):
+    """Draws from a diffuse prior (module docstring): at a step whose filtered belief is proper the
+    backward pass above (its conditional ``P_k − G_k D_{k+1}ᵀ``, better conditioned than the
+    smoothed one); within the diffuse period the Gauss–Markov conditional of the exact diffuse
+    smoother's moments. A forward or backward divergence raises."""
+    sm, est = flt.smooth(ys, m0, P0), flt.run(ys, m0, P0)
+    ys = flt.check_data(ys)
+    batch, T, nx = sm.means.shape[:-2], sm.means.shape[-2], sm.means.shape[-1]
+    B = int(np.prod(batch, dtype=int))
+    if T == 0:
+        return np.empty((*batch, n, 0, nx))
+    flat = lambda a: a.reshape(B, T, *a.shape[len(batch) + 1:])  # noqa: E731
+    means, covs, C, fm, fP = (flat(a) for a in (sm.means, sm.covs, sm.extras["lag_one_cov"], est.means, est.covs))
+    unknown = np.isinf(covs).any(axis=(1, 2, 3))
+    if unknown.any():
+        idx = np.flatnonzero(unknown)
+        raise ValueError(f"P0: the data do not identify every diffuse direction of P0 = {V.shown(P0)} on {idx.size} "
+                         f"path(s), first {idx[:5].tolist()}: the posterior is improper (an infinite smoothed "
+                         "variance), nothing to draw; give a finite variance where no measurement reaches")
+    z = PathRNG.of(rng, B, key=SAMPLE).standard_normal((T, n, nx))
+    predict_cross, off = backward_steps(flt, ys.reshape(B, T, ys.shape[-1]))
+    out = np.empty((B, n, T, nx))
+    x = _draw(np.broadcast_to(means[:, T - 1][:, None], (B, n, nx)), covs[:, T - 1], z[:, T - 1], T - 1)
+    out[:, :, T - 1] = x
+    tp = lambda a: np.swapaxes(a, -1, -2)  # noqa: E731
+    for k in range(T - 2, -1, -1):
+        proper = np.isfinite(fP[:, k]).all(axis=(-1, -2))
+        P = np.where(proper[:, None, None], fP[:, k], np.eye(nx))
+        pred, D = predict_cross(GaussianState(fm[:, k], P), k + off)
+        G = _solve_right(pred.cov, D)  # the filtered belief's kernel (proper paths)
+        G2 = _solve_right(covs[:, k + 1], C[:, k])  # C_k V_{k+1}⁺ (the diffuse period)
+        mean = np.where(proper[:, None, None], fm[:, k][:, None] + (x - pred.mean[:, None]) @ tp(G),
+                        means[:, k][:, None] + (x - means[:, k + 1][:, None]) @ tp(G2))
+        cov = np.where(proper[:, None, None], P - G @ tp(D), covs[:, k] - G2 @ tp(C[:, k]))
+        x = _draw(mean, _rounded(cov, np.where(proper[:, None, None], P, covs[:, k])), z[:, k], k)
+        out[:, :, k] = x
+    return out.reshape(*batch, n, T, nx)
+
+
+def _rounded(cov, minuend):
+    """The conditional covariance ``cov = minuend − G Cᵀ`` (paths ``B``) with its eigenvalues in
+    ``[−PSD_TOL·max(1, |minuend|), 0)`` set to 0: the rounding of the difference is relative to
+    the terms subtracted, not to their (possibly singular) difference; a more negative eigenvalue
+    stays, for :func:`_draw` to refuse."""
+    cov = symmetrize(cov)
+    if not np.isfinite(cov).all():
+        return cov
+    w, U = np.linalg.eigh(cov)
+    tol = PSD_TOL * np.maximum(1.0, np.abs(minuend).max(axis=(-1, -2)))[:, None]
+    w = np.where((w < 0) & (w >= -tol), 0.0, w)
+    return symmetrize((U * w[:, None, :]) @ np.swapaxes(U, -1, -2))
 
 
 def _reference(flt, ys, m0, P0, n, rng, initial, t0, backend):

@@ -206,7 +206,7 @@ class GridFilter(_ReferenceFilter):
                 raise TypeError(f"initial: expected a law with a logpdf, got {type(initial).__name__}")
             logp = initial.logpdf(self.X)
         else:
-            prior = gaussian_prior(m0, P0, self.model.n, (), one=True)
+            prior = gaussian_prior(m0, P0, self.model.n, (), one=True, who=type(self).__name__)
             m0, P0 = prior.mean[0], prior.cov[0]
             law = Gaussian(P0)
             if law._singular:  # the test of Gaussian.logpdf, named here

@@ -16,6 +16,7 @@ from ... import _validate as V
 from ...sde_step import LEFT_POINT, SUBSTEPS, euler_maruyama, increment_loglik
 from ...noise import Gaussian, initial_states
 from ...streams import FILTER, PathRNG
+from ..checks import refuse_infinite
 from ..pointmass import cloud_moments, weights
 from ..linalg import gaussian_loglik, innovation_info, measurement_loglik, mm, no_information, observed_precision
 from ._reference_base import _ReferenceFilter
@@ -160,6 +161,7 @@ class ParticleFilter(_ReferenceFilter):
                              f"got shape {np.shape(m0)}")
         B, Np = int(np.prod(batch)), self.particles
         rng = PathRNG.of(rng, B, key=FILTER)
+        refuse_infinite(P0, type(self).__name__)
         x = initial_states(md.n, B, rng, m0=m0, P0=P0, initial=initial, shape=(Np,))
         return ParticleBelief(x, np.zeros((B, Np)), rng)
 

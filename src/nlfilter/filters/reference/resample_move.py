@@ -29,6 +29,7 @@ import numpy as np
 from ... import _validate as V
 from ...streams import FILTER, PathRNG
 from ..base import Filter, ode_step, set_start, set_t0
+from ..checks import refuse_infinite
 from ..linalg import observed_precision
 from ..pointmass import cloud_moments
 from .particle import systematic_resample
@@ -160,6 +161,7 @@ class ResampleMoveParticleFilter(Filter):
                              f"({n}, {n}) for all paths, "
                              f"got shapes {np.shape(m0)}, {np.shape(P0)}")
         m0 = V.mean("m0", m0, n)
+        refuse_infinite(P0, type(self).__name__)
         P0 = V.covariance("P0", P0, n)
         if not np.linalg.eigvalsh(P0)[0] > 1e-12 * max(1.0, float(np.max(np.abs(P0)))):
             raise ValueError(f"P0: the moves need the prior density, expected a positive definite matrix, "
