@@ -48,18 +48,32 @@ def reference():
     return get(EXP).run(PARAMS, quick=True, runs=5, seed=1)
 
 
+@pytest.fixture(scope="module")
+def scheduler():
+    """The address of one 2-worker LocalCluster for this module's Dask tests, started by the
+    executor as a run starts its own (single-threaded worker processes, their stderr quiet): each
+    LocalCluster costs its processes' start-up and imports (~3 s of CPU a worker), so the tests share
+    one; how a run starts and closes a cluster of its own is tested once (``workers=1``)."""
+    pytest.importorskip("dask.distributed")
+    ex = montecarlo.DaskExecutor(workers=2)
+    try:
+        yield ex._cluster.scheduler_address
+    finally:
+        ex.close()
+
+
 def test_chunks_give_identical_json(reference):
     exp = get(EXP)
     for chunk in (1, 3, 4, 100):
         assert _json(exp.run(PARAMS, quick=True, runs=5, seed=1, chunk=chunk)) == _json(reference), chunk
 
 
-def test_dask_workers_give_identical_json(reference):
-    pytest.importorskip("dask.distributed")
+def test_dask_workers_give_identical_json(reference, scheduler):
     exp = get(EXP)
-    for workers, chunk in ((1, None), (2, None), (2, 4)):
-        res = exp.run(PARAMS, quick=True, runs=5, seed=1, executor="dask", workers=workers, chunk=chunk)
-        assert res.meta["execution"]["executor"] == "dask" and res.meta["execution"]["workers"] == workers
+    for workers, chunk, address in ((1, None, None), (None, None, scheduler), (None, 4, scheduler)):
+        res = exp.run(PARAMS, quick=True, runs=5, seed=1, executor="dask", workers=workers, chunk=chunk,
+                      scheduler=address)
+        assert res.meta["execution"]["executor"] == "dask" and res.meta["execution"]["workers"] == (workers or 2)
         assert res.meta["execution"]["blocks_computed"] == 3
         assert _json(res) == _json(reference), (workers, chunk)
 
@@ -257,10 +271,9 @@ def _own_block(rows, *, flt, model):
     return {"mse": ((est.means - sim.xs) ** 2).mean(axis=(1, 2))}
 
 
-def test_a_users_filter_sweep_runs_on_dask():
+def test_a_users_filter_sweep_runs_on_dask(scheduler):
     """Filters built from a SymPy model pickle to Dask workers (the model's lazily generated
     functions travel without their weak back-reference) and give the local numbers bitwise."""
-    pytest.importorskip("dask.distributed")
     import functools
 
     import cloudpickle
@@ -279,7 +292,7 @@ def test_a_users_filter_sweep_runs_on_dask():
         cloudpickle.loads(cloudpickle.dumps(flt))
     local = {n: montecarlo.montecarlo(n, functools.partial(_own_block, flt=REGISTRY[n].for_model(md), model=md), 7,
                                       block=3)["mse"] for n in names}
-    with montecarlo.session(executor="dask", workers=2, chunk=3):
+    with montecarlo.session(executor="dask", scheduler=scheduler, chunk=3):
         remote = {n: montecarlo.montecarlo(n, functools.partial(_own_block, flt=REGISTRY[n].for_model(md), model=md),
                                            7, block=3)["mse"] for n in names}
     for n in names:
@@ -297,11 +310,10 @@ def _compare_json(res) -> str:
     return json.dumps(d, sort_keys=True)
 
 
-def test_compare_runs_on_dask_with_identical_json():
+def test_compare_runs_on_dask_with_identical_json(scheduler):
     """``compare`` on a 2-worker LocalCluster — its filters and the reference's rungs as tasks, one
     per filter and block of paths — writes the JSON of the local run, bitwise; and a block split
     of the paths changes no number beyond the last bits of a batch's arithmetic."""
-    pytest.importorskip("dask.distributed")
     import sympy as sp
 
     from nlfilter import DiscreteModel
@@ -313,7 +325,7 @@ def test_compare_runs_on_dask_with_identical_json():
     from nlfilter.filters import EKF, UKF, ParticleFilter
     filters = {"ekf": EKF(md), "ukf": UKF(md), "pf": ParticleFilter(md, 300)}  # one that draws
     local = compare(md, filters, 20, executor="local", **kw)
-    remote = compare(md, filters, 20, executor="dask", workers=2, **kw)
+    remote = compare(md, filters, 20, executor="dask", scheduler=scheduler, **kw)
     assert remote.meta["execution"]["executor"] == "dask" and remote.meta["execution"]["workers"] == 2
     assert local.params["block"] == 8 and local.params["reference"]["kind"] == "grid"
     assert _compare_json(remote) == _compare_json(local)
