@@ -56,6 +56,7 @@ from __future__ import annotations
 import numpy as np
 
 from .. import _validate as V
+from ..angles import angles_of
 from .base import ContinuousFilter, DiscreteFilter, GaussianState, continuous_precision, set_start, set_t0
 from .fading import FadingMemory
 from .linalg import innovation_info, observed_precision, poison, symmetrize
@@ -186,7 +187,7 @@ class GaussianFilter(DiscreteFilter, FadingMemory):
 
     def _smooth(self, est, beliefs, ys, t0):
         """The RTS backward pass through the rule (:func:`~nlfilter.filters.smoothing.rts`)."""
-        ms, Ps, lag = rts(est.means, est.covs, *backward_steps(self, ys))
+        ms, Ps, lag = rts(est.means, est.covs, *backward_steps(self, ys), angles=angles_of(self.model).states)
         return ms, Ps, {"lag_one_cov": lag}
 
 

@@ -1,0 +1,158 @@
+"""Angular components: wrapped residuals and circular means for states and measurements declared
+angles (``DiscreteModel(..., angles={"states": [psi], "measurements": [1]})``; a model file's
+``[model] angles = {...}``).
+
+An angle lives on the circle, represented in ``(−π, π]``: the difference of two angles is the
+wrapped residual ``wrap(a − b)`` (the shortest turn from b to a) and the mean of weighted angles
+is the circular weighted mean (Mardia & Jupp 2000, *Directional Statistics*, §2.2)::
+
+    wrap(x) = π − ((π − x) mod 2π)                 ∈ (−π, π]
+    θ̄ = atan2(Σ w_i sin θ_i, Σ w_i cos θ_i)        (the argument of Σ w_i e^{iθ_i})
+
+Every filter reads the declaration from the model (:attr:`~nlfilter.models.Model.angles`, an
+:class:`Angles` of component indices): the Gaussian rules average the angular components of f and
+h at their nodes by :func:`circular_mean` and take their deviations wrapped (:func:`deviations`);
+an update conditions on the wrapped innovation (:func:`near`: ``ŷ`` moved by whole turns to the
+branch of ``y``) and wraps its mean (:func:`wrap_components`); the smoothers wrap
+``mˢ_{k+1} − m⁻_{k+1}``; the reference filters average their particles (grid points) circularly,
+the grid being periodic along an angular state axis; simulation wraps its states and
+measurements; the MSE and NEES take wrapped errors (:func:`residual`). A model without angles
+(the default :data:`NO_ANGLES`) takes none of these paths: its arithmetic is unchanged.
+
+>>> import numpy as np
+>>> float(wrap(np.pi)), float(wrap(-np.pi)), round(float(wrap(3 * np.pi / 2)), 12)
+(3.141592653589793, 3.141592653589793, -1.570796327)
+>>> round(float(circular_mean(np.array([[3.0], [-3.0]]), np.array([0.5, 0.5]), (0,))[0]), 12)
+3.141592653590
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import numpy as np
+
+__all__ = ["Angles", "NO_ANGLES", "wrap", "wrap_components", "residual", "near", "circular_mean", "deviations", "angles_of",
+           "declare"]
+
+TWO_PI = 2.0 * np.pi
+
+
+class Angles(NamedTuple):
+    """The angular components of a model: indices into the state ``(n,)`` and the measurement
+    ``(m,)`` (sorted, distinct). Falsy when neither declares one."""
+
+    states: tuple = ()
+    measurements: tuple = ()
+
+    def __bool__(self):
+        return bool(self.states or self.measurements)
+
+
+#: no angular component (every model's default)
+NO_ANGLES = Angles()
+
+
+def wrap(x):
+    """``x`` wrapped to ``(−π, π]`` (elementwise; NaN stays NaN)."""
+    return np.pi - np.mod(np.pi - np.asarray(x, dtype=float), TWO_PI)
+
+
+def wrap_components(x, idx):
+    """``x (..., d)`` with its components ``idx`` wrapped (``x`` itself when ``idx`` is empty)."""
+    if not idx:
+        return x
+    out = np.array(x, dtype=float, copy=True)
+    out[..., idx] = wrap(out[..., idx])
+    return out
+
+
+def residual(a, b, idx):
+    """``a − b`` with the components ``idx`` wrapped: the shortest turn from b to a."""
+    d = np.asarray(a, dtype=float) - b
+    return wrap_components(d, idx) if idx else d
+
+
+def near(a, ref, idx):
+    """``a`` with its components ``idx`` moved by whole turns to the branch nearest ``ref``
+    (``ref − wrap(ref − a)``), so that ``ref − near(a, ref)`` is the wrapped residual; where
+    ``ref`` is NaN (a missing measurement) ``a`` as it is."""
+    if not idx:
+        return a
+    a = np.array(np.broadcast_to(a, np.broadcast_shapes(np.shape(a), np.shape(ref))), dtype=float)
+    r = np.broadcast_to(ref, a.shape)[..., idx]
+    moved = r - wrap(r - a[..., idx])
+    a[..., idx] = np.where(np.isnan(r), a[..., idx], moved)
+    return a
+
+
+def circular_mean(X, w, idx, axis: int = -2):
+    """The weighted mean of ``X`` over the nodes (``axis``; weights ``w`` along it, summing to 1),
+    the components ``idx`` (last axis) by the circular weighted mean ``atan2(Σ w sin, Σ w cos)``
+    and the others by ``Σ w X``."""
+    X = np.asarray(X, dtype=float)
+    shape = [1] * X.ndim
+    shape[axis] = -1
+    wb = np.reshape(w, shape)
+    mean = np.sum(wb * X, axis=axis)
+    if idx:
+        A = X[..., idx]
+        mean[..., idx] = np.arctan2(np.sum(wb * np.sin(A), axis=axis), np.sum(wb * np.cos(A), axis=axis))
+    return mean
+
+
+def deviations(X, mean, idx):
+    """``X − mean`` over the nodes (``X (..., N, d)``, ``mean (..., d)``), the components ``idx``
+    wrapped."""
+    return residual(X, mean[..., None, :], idx)
+
+
+def _index(name, item, size, names, what):
+    """One component: an index ``0 <= i < size`` or (states) a symbol or its name."""
+    if isinstance(item, (bool, np.bool_)):
+        raise TypeError(f"angles: {name} entry {item!r} is a bool; expected {what}")
+    if isinstance(item, (int, np.integer)):
+        if not 0 <= item < size:
+            raise ValueError(f"angles: {name} component {int(item)} does not exist; expected an index from 0 to "
+                             f"{size - 1} ({size} {name})")
+        return int(item)
+    if names is not None and str(item) in names:
+        return names.index(str(item))
+    raise ValueError(f"angles: {name} component {item!r} does not exist; expected {what}")
+
+
+def declare(angles, n: int, m: int, states=None) -> Angles:
+    """The :class:`Angles` of a declaration ``{"states": [...], "measurements": [...]}`` (either key
+    optional; a list alone declares states), states given by index, symbol or name, measurements by
+    index into ``h``. A component that does not exist, a repeated one or another key is refused,
+    naming it (``ValueError``/``TypeError``)."""
+    if angles is None:
+        return NO_ANGLES
+    if isinstance(angles, Angles):
+        angles = angles._asdict()
+    if isinstance(angles, (list, tuple)):
+        angles = {"states": angles}
+    if not isinstance(angles, dict):
+        raise TypeError(f"angles: expected a dict {{'states': [...], 'measurements': [...]}}, got "
+                        f"{type(angles).__name__}")
+    extra = set(angles) - {"states", "measurements"}
+    if extra:
+        raise ValueError(f"angles: unknown key(s) {sorted(map(str, extra))}; expected 'states' and/or 'measurements'")
+    names = None if states is None else [str(s) for s in states]
+    out = {}
+    for key, size in (("states", n), ("measurements", m)):
+        items = angles.get(key, ())
+        if isinstance(items, (str, int, np.integer)) or not hasattr(items, "__iter__"):
+            raise TypeError(f"angles: {key} expected a list of components, got {items!r}")
+        what = (f"an index from 0 to {size - 1}" + (f" or a state name {names}" if key == "states" and names else "")
+                + f" of the {size} {key}")
+        idx = [_index(key, it, size, names if key == "states" else None, what) for it in items]
+        if len(set(idx)) != len(idx):
+            raise ValueError(f"angles: {key} {list(items)!r} repeats a component; expected each at most once")
+        out[key] = tuple(sorted(idx))
+    return Angles(out["states"], out["measurements"])
+
+
+def angles_of(model) -> Angles:
+    """The model's :class:`Angles` (:data:`NO_ANGLES` for an object that declares none)."""
+    return getattr(model, "angles", NO_ANGLES)
