@@ -33,6 +33,7 @@ from typing import NamedTuple
 import numpy as np
 
 __all__ = ["Angles", "NO_ANGLES", "wrap", "wrap_components", "residual", "near", "circular_mean", "deviations", "angles_of",
+           "node_moments",
            "declare"]
 
 TWO_PI = 2.0 * np.pi
@@ -156,3 +157,14 @@ def declare(angles, n: int, m: int, states=None) -> Angles:
 def angles_of(model) -> Angles:
     """The model's :class:`Angles` (:data:`NO_ANGLES` for an object that declares none)."""
     return getattr(model, "angles", NO_ANGLES)
+
+
+def node_moments(GX, w, idx):
+    """``(mean (..., p), deviations (..., N, p))`` of node values ``GX (..., N, p)`` with mean weights
+    ``w (N,)``: ``Σ w_i g_i`` and ``g_i − ĝ`` (the node rules' sums, unchanged without angles), the
+    components ``idx`` by :func:`circular_mean` and wrapped deviations."""
+    if not idx:
+        mean = np.einsum("i,...ij->...j", w, GX)  # Σ w_i g(X_i)
+        return mean, GX - mean[..., None, :]
+    mean = circular_mean(GX, w, idx)
+    return mean, deviations(GX, mean, idx)

@@ -66,7 +66,7 @@ from typing import NamedTuple
 import numpy as np
 
 from .. import _validate as V
-from ..angles import circular_mean, deviations, wrap_components
+from ..angles import node_moments, wrap_components
 from ..moments.quadrature import MAX_ENTRIES, cubature5_rule, gauss_hermite_rule
 from .contractions import gaussian_quartic, hessian_trace, noise_covariance, quarter_outer  # (re-exported)
 from .linalg import axis_gather, mm, sqrt_psd
@@ -307,12 +307,7 @@ class NodeRule:
         m, P = state
         X, w, wc, bad = self.nodes(m, P)
         GX = g(X, t)
-        if angles:  # circular weighted mean, wrapped deviations (nlfilter.angles)
-            mean = circular_mean(GX, w, angles)
-            D = deviations(GX, mean, angles)
-        else:
-            mean = np.einsum("i,...ij->...j", w, GX)  # Σ w_i g(X_i)
-            D = GX - mean[..., None, :]
+        mean, D = node_moments(GX, w, angles)  # Σ w_i g(X_i), g_i − ĝ (angles: circular, wrapped)
         if m.shape[-1] < 4:  # small states: the einsums cost little (and keep their rounding)
             S = np.einsum("i,...ia,...ib->...ab", wc, D, D) if cov else None  # Σ wc_i (g_i − ĝ)(g_i − ĝ)ᵀ
             C = np.einsum("i,...ia,...ib->...ab", wc, X - m[..., None, :], D) if cross else None
