@@ -33,7 +33,7 @@ from typing import NamedTuple
 import numpy as np
 
 __all__ = ["Angles", "NO_ANGLES", "wrap", "wrap_components", "residual", "near", "circular_mean", "deviations", "angles_of",
-           "node_moments",
+           "node_moments", "mixture",
            "declare"]
 
 TWO_PI = 2.0 * np.pi
@@ -168,3 +168,17 @@ def node_moments(GX, w, idx):
         return mean, GX - mean[..., None, :]
     mean = circular_mean(GX, w, idx)
     return mean, deviations(GX, mean, idx)
+
+
+def mixture(w, m, P, idx):
+    """The moments of a Gaussian mixture over the axis of its components: weights ``w (..., M)``,
+    means ``m (..., M, n)``, covariances ``P (..., M, n, n)`` give ``(m̄, Σ_i w_i [P_i + d_i d_iᵀ])``,
+    ``m̄ = Σ_i w_i m_i`` and ``d_i = m_i − m̄``, the components ``idx`` by the circular weighted mean
+    and wrapped deviations (the IMM's mixing, combination and smoothing with angles)."""
+    m = np.broadcast_to(m, (*np.shape(w), np.shape(m)[-1]))
+    mean = np.sum(w[..., None] * m, axis=-2)
+    if idx:
+        A = m[..., idx]
+        mean[..., idx] = np.arctan2(np.sum(w[..., None] * np.sin(A), axis=-2), np.sum(w[..., None] * np.cos(A), axis=-2))
+    d = residual(m, mean[..., None, :], idx)
+    return mean, np.sum(w[..., None, None] * (P + d[..., :, None] * d[..., None, :]), axis=-3)
