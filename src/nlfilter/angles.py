@@ -33,7 +33,7 @@ from typing import NamedTuple
 import numpy as np
 
 __all__ = ["Angles", "NO_ANGLES", "wrap", "wrap_components", "residual", "near", "circular_mean", "deviations", "angles_of",
-           "node_moments", "mixture",
+           "node_moments", "mixture", "weighted_moments",
            "declare"]
 
 TWO_PI = 2.0 * np.pi
@@ -175,10 +175,19 @@ def mixture(w, m, P, idx):
     means ``m (..., M, n)``, covariances ``P (..., M, n, n)`` give ``(m̄, Σ_i w_i [P_i + d_i d_iᵀ])``,
     ``m̄ = Σ_i w_i m_i`` and ``d_i = m_i − m̄``, the components ``idx`` by the circular weighted mean
     and wrapped deviations (the IMM's mixing, combination and smoothing with angles)."""
-    m = np.broadcast_to(m, (*np.shape(w), np.shape(m)[-1]))
-    mean = np.sum(w[..., None] * m, axis=-2)
-    if idx:
-        A = m[..., idx]
-        mean[..., idx] = np.arctan2(np.sum(w[..., None] * np.sin(A), axis=-2), np.sum(w[..., None] * np.cos(A), axis=-2))
-    d = residual(m, mean[..., None, :], idx)
-    return mean, np.sum(w[..., None, None] * (P + d[..., :, None] * d[..., None, :]), axis=-3)
+    mean, spread = weighted_moments(w, m, idx)
+    return mean, np.sum(w[..., None, None] * P, axis=-3) + spread
+
+
+def weighted_moments(w, x, idx, cov: bool = True):
+    """Mean ``(..., n)`` and covariance ``(..., n, n)`` (None without ``cov``) of the points
+    ``x (..., N, n)`` with normalized weights ``w (..., N)`` (a particle cloud, a grid's points),
+    the components ``idx`` by the circular weighted mean and wrapped deviations."""
+    x = np.broadcast_to(x, (*np.shape(w), np.shape(x)[-1]))
+    mean = np.sum(w[..., None] * x, axis=-2)
+    A = x[..., idx]
+    mean[..., idx] = np.arctan2(np.sum(w[..., None] * np.sin(A), axis=-2), np.sum(w[..., None] * np.cos(A), axis=-2))
+    if not cov:
+        return mean, None
+    d = residual(x, mean[..., None, :], idx)
+    return mean, (d * w[..., None]).swapaxes(-1, -2) @ d
