@@ -111,15 +111,12 @@ def deviations(X, mean, idx):
 def _index(name, item, size, names, what):
     """One component: an index ``0 <= i < size`` or (states) a symbol or its name."""
     if isinstance(item, (bool, np.bool_)):
-        raise TypeError(f"angles: {name} entry {item!r} is a bool; expected {what}")
-    if isinstance(item, (int, np.integer)):
-        if not 0 <= item < size:
-            raise ValueError(f"angles: {name} component {int(item)} does not exist; expected an index from 0 to "
-                             f"{size - 1} ({size} {name})")
+        raise TypeError(f"angles: got the {name} entry {item!r} (a bool); expected {what}")
+    if isinstance(item, (int, np.integer)) and 0 <= item < size:
         return int(item)
-    if names is not None and str(item) in names:
+    if names is not None and not isinstance(item, (int, np.integer)) and str(item) in names:
         return names.index(str(item))
-    raise ValueError(f"angles: {name} component {item!r} does not exist; expected {what}")
+    raise ValueError(f"angles: got the {name} component {item!r}, which does not exist; expected {what}")
 
 
 def declare(angles, n: int, m: int, states=None) -> Angles:
@@ -134,22 +131,23 @@ def declare(angles, n: int, m: int, states=None) -> Angles:
     if isinstance(angles, (list, tuple)):
         angles = {"states": angles}
     if not isinstance(angles, dict):
-        raise TypeError(f"angles: expected a dict {{'states': [...], 'measurements': [...]}}, got "
-                        f"{type(angles).__name__}")
+        raise TypeError(f"angles: got {type(angles).__name__}; expected a dict {{'states': [...], "
+                        "'measurements': [...]}")
     extra = set(angles) - {"states", "measurements"}
     if extra:
-        raise ValueError(f"angles: unknown key(s) {sorted(map(str, extra))}; expected 'states' and/or 'measurements'")
+        raise ValueError(f"angles: got the unknown key(s) {sorted(map(str, extra))}; expected 'states' and/or "
+                         "'measurements'")
     names = None if states is None else [str(s) for s in states]
     out = {}
     for key, size in (("states", n), ("measurements", m)):
         items = angles.get(key, ())
         if isinstance(items, (str, int, np.integer)) or not hasattr(items, "__iter__"):
-            raise TypeError(f"angles: {key} expected a list of components, got {items!r}")
-        what = (f"an index from 0 to {size - 1}" + (f" or a state name {names}" if key == "states" and names else "")
-                + f" of the {size} {key}")
+            raise TypeError(f"angles: got {key} = {items!r}; expected a list of components")
+        what = (f"an index from 0 to {size - 1} of the {size} {key}"
+                + (f" or a state name {names}" if key == "states" and names else "" if key == "states" else " (of h)"))
         idx = [_index(key, it, size, names if key == "states" else None, what) for it in items]
         if len(set(idx)) != len(idx):
-            raise ValueError(f"angles: {key} {list(items)!r} repeats a component; expected each at most once")
+            raise ValueError(f"angles: got {key} {list(items)!r}, which repeats a component; expected each at most once")
         out[key] = tuple(sorted(idx))
     return Angles(out["states"], out["measurements"])
 
