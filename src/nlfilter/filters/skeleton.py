@@ -257,10 +257,10 @@ def propagate(rule, model, belief, t, dt, *, substeps: int = 1, scheme: str = "r
     if not cross:
         m, P = ode_step(lambda x, s: moment_rhs(rule, model, x[0], x[1], s), (m, P), t, dt, substeps=substeps,
                         scheme=scheme, finish=lambda x: (x[0], symmetrize(x[1])))
-        return GaussianState(m, P)
+        return GaussianState(wrap_components(m, angles_of(model).states), P)  # angles wrapped
     m, P, C = ode_step(lambda x, s: moment_rhs(rule, model, x[0], x[1], s, C=x[2]), (m, P, P), t, dt,
                        substeps=substeps, scheme=scheme, finish=lambda x: (x[0], symmetrize(x[1]), x[2]))
-    return GaussianState(m, P), C
+    return GaussianState(wrap_components(m, angles_of(model).states), P), C
 
 
 def ito_gain(rule, model, m, P, t, obs, Rinv, *, measure: bool = True):
