@@ -168,11 +168,14 @@ class IMM(DiscreteFilter):
             check_structure(self, f.model)
         first = filters[0]
         for j, f in enumerate(filters[1:], 1):
-            dims = (f.state_dim, f.data_dim, f.model.kind, getattr(f, "dt", None), angles_of(f.model))
-            want = (first.state_dim, first.data_dim, first.model.kind, getattr(first, "dt", None), angles_of(first.model))
+            dims = (f.state_dim, f.data_dim, f.model.kind, getattr(f, "dt", None))
+            want = (first.state_dim, first.data_dim, first.model.kind, getattr(first, "dt", None))
+            if angles_of(f.model) != angles_of(first.model):
+                raise ValueError(f"filters: every mode must declare the same angles (nlfilter.angles); filter {j} "
+                                 f"has {angles_of(f.model)}, filter 0 {angles_of(first.model)}")
             if dims != want:
                 raise ValueError(f"filters: every mode must have the same state and measurement dimensions, model "
-                                 f"kind, dt and angles; filter {j} ({type(f).__name__}) has (n, m, kind, dt, angles) = {dims}, "
+                                 f"kind and dt; filter {j} ({type(f).__name__}) has (n, m, kind, dt) = {dims}, "
                                  f"filter 0 ({type(first).__name__}) {want}")
         M = len(filters)
         Pi = _probability_rows("transition", transition)
