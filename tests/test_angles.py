@@ -230,3 +230,13 @@ def test_model_file(tmp_path):
     p.write_text(TOML.replace("{ANGLES}", '{ states = ["psi"] }'))
     with pytest.raises(ModelFileError, match=r"bearing\.toml:5: model\.angles: got the states component 'psi'"):
         load_model(p)
+
+
+def test_compare_on_angles():
+    """``compare`` on a bearing that turns over ±π many times (rate ≈ 0.5 rad/step over 30 steps):
+    MSE and NEES from wrapped errors — the EKF's bearing MSE is its noise level, its NEES ≈ n = 2
+    (an unwrapped error of 2π at each crossing would make both ~10-100× larger)."""
+    from nlfilter import compare
+    res = compare(MODEL2, ["ekf"], 30, paths=16, m0=[3.0, 0.5], P0=np.diag([0.05, 0.05]), rng=1)
+    got = {(r.quantity, r.params.get("component")): r.value for r in res.rows if r.filter == "ekf"}
+    assert got[("mse", 0)] < 0.05 and 1.0 < got[("nees", None)] < 3.5

@@ -131,9 +131,8 @@ class _Rung:
 
     def build(self, model, kw):
         if self.kind == "grid":
-            n, ang = model.n, angles_of(model).states  # an angular axis is the circle (periodic grid)
-            bounds = [(-math.pi, math.pi) if d in ang else b for d, b in enumerate(self.bounds)]
-            return GridFilter(model, bounds[0] if n == 1 else bounds,
+            n = model.n
+            return GridFilter(model, self.bounds[0] if n == 1 else self.bounds,
                               int(self.size[0]) if n == 1 else [int(s) for s in self.size], **kw["grid"])
         return ParticleFilter(model, int(self.size), **kw["particle"])
 
@@ -219,6 +218,8 @@ def _first_rung(model, sim, m0, P0, dt, post_sd, widen=1.0):
     hi = np.maximum(xs.max(axis=0), m0) + 4 * big
     mid, half = (lo + hi) / 2, widen * (hi - lo) / 2
     lo, hi = mid - half, mid + half
+    for d in angles_of(model).states:  # an angular axis is the whole circle (a periodic grid)
+        lo[d], hi[d] = -math.pi, math.pi
     size = np.maximum(np.ceil((hi - lo) / (small / RESOLUTION)).astype(int) + 1, GRID_MIN[n])
     size = [int(s) for s in size]
     bounds = [(float(a), float(b)) for a, b in zip(lo, hi)]
