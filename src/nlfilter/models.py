@@ -54,6 +54,9 @@ each filter lists in ``structures`` what it handles and refuses the rest at cons
   (``R`` the ``p x p`` covariance of v); :meth:`Model.measurement` evaluates it (``h_aug``),
   ``model.h`` is ``h(x, 0)``.
 
+Angular components (``angles={"states": [...], "measurements": [...]}``): wrapped residuals and
+circular means in every filter, :mod:`nlfilter.angles`.
+
 Functions (checked at construction, :data:`~nlfilter.model_expressions.SUPPORTED_FUNCTIONS`): f, h,
 G and symbolic Q, R are real, finite expressions (no ``I``, ``oo``, ``zoo``, ``nan``; a ``ValueError`` names the field
 and the entry) of ``+ * **`` (``sqrt`` included), ``pi``, ``E`` and ``exp log sin cos tan cot
