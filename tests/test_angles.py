@@ -240,3 +240,19 @@ def test_compare_on_angles():
     res = compare(MODEL2, ["ekf"], 30, paths=16, m0=[3.0, 0.5], P0=np.diag([0.05, 0.05]), rng=1)
     got = {(r.quantity, r.params.get("component")): r.value for r in res.rows if r.filter == "ekf"}
     assert got[("mse", 0)] < 0.05 and 1.0 < got[("nees", None)] < 3.5
+
+
+@pytest.mark.parametrize("name", ["kf", "sr-kf"])
+def test_kalman_filters_rotation(name):
+    """The Kalman filters on a linear bearing-and-rate model: filter, log-likelihood and RTS smoother
+    equal to their rotated runs to TOL (measured ≤ 1e-14)."""
+    linear = DiscreteModel([th, om], [th + om, 0.9 * om], [th], Q=np.diag([0.01, 0.05]), R=[[0.02]],
+                           angles={"states": [th], "measurements": [0]})
+    flt = REGISTRY[name](linear)
+    y0, m0, P0, x0 = _track2(0.0)
+    y1, m1, P1, _ = _track2(ALPHA)
+    e0, e1 = flt.run(y0, m0, P0, loglik=True), flt.run(y1, m1, P1, loglik=True)
+    _same(e0, e1, ALPHA, name)
+    assert np.abs(e0.loglik - e1.loglik).max() <= TOL * np.abs(e0.loglik).max()
+    _same(flt.smooth(y0, m0, P0), flt.smooth(y1, m1, P1), ALPHA, name + " smoothed")
+    assert np.abs(wrap(e0.means[..., 0] - x0[:, 0])).max() < 0.45
