@@ -256,3 +256,29 @@ def test_kalman_filters_rotation(name):
     assert np.abs(e0.loglik - e1.loglik).max() <= TOL * np.abs(e0.loglik).max()
     _same(flt.smooth(y0, m0, P0), flt.smooth(y1, m1, P1), ALPHA, name + " smoothed")
     assert np.abs(wrap(e0.means[..., 0] - x0[:, 0])).max() < 0.45
+
+
+def test_filters_without_angles_refuse_them():
+    """A filter that does not treat angles refuses the model at construction, naming ``angles``
+    (its ``structures``): never a silent jump at ±π."""
+    from nlfilter import SDEModel
+    with pytest.raises(ValueError, match=r"^angles: the model declares angular components.*DiscreteConditionalMomentFilter"):
+        REGISTRY["discrete-conditional-moment"](MODEL2)
+    sde = SDEModel([th], [-0.1 * th], [th], Q=0.1, R=0.1, angles={"states": [th]})
+    with pytest.raises(ValueError, match=r"^angles: .*ContinuousEKF"):
+        REGISTRY["continuous-ekf"](sde, 0.1)
+
+
+def test_augmented_ukf_rotation():
+    """The UKF's augmented sigma points (noise entering f non-additively) average circularly too."""
+    w = sp.Symbol("w")
+    md = DiscreteModel([th, om], [th + om + w, 0.9 * om], [th + 0.2 * om * om], noise=[w], Q=[[0.01]], R=[[0.02]],
+                       angles={"states": [th], "measurements": [0]})
+    flt = REGISTRY["ukf"](md)
+    assert flt.augmented
+    y0, m0, P0, x0 = _track2(0.0)
+    y1, m1, P1, _ = _track2(ALPHA)
+    e0, e1 = flt.run(y0, m0, P0, loglik=True), flt.run(y1, m1, P1, loglik=True)
+    _same(e0, e1, ALPHA, "augmented ukf")
+    assert np.abs(e0.loglik - e1.loglik).max() <= TOL * np.abs(e0.loglik).max()
+    assert np.abs(wrap(e0.means[..., 0] - x0[:, 0])).max() < 0.5

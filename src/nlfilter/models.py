@@ -193,8 +193,8 @@ class Model:
         """What the model has beyond additive, uncorrelated noise with one constant R:
         ``"state-dependent R"`` (:meth:`R_of`), ``"time-varying R"`` (R per step: :meth:`R_of` at
         the step; a filter that takes R(x) takes it), ``"cross noise"`` (``cross_noise``),
-        ``"non-additive noise"``; a filter refuses a structure it does not handle (its
-        ``structures``, :func:`~nlfilter.filters.base.check_structure`)."""
+        ``"non-additive noise"``, ``"angles"`` (:mod:`nlfilter.angles`); a filter refuses a structure
+        it does not handle (its ``structures``, :func:`~nlfilter.filters.base.check_structure`)."""
         out = set()
         if not getattr(self, "R_constant", True):
             out.add("time-varying R" if getattr(self, "_R_kind", None) == "time" else "state-dependent R")
@@ -204,6 +204,8 @@ class Model:
             out.add("non-additive noise")
         if not getattr(self, "additive_measurement", True):
             out.add("non-additive measurement noise")
+        if self.angles:
+            out.add("angles")
         return frozenset(out)
 
     # -- the measurement noise covariance: one matrix, or R(x, k) --------------------------------

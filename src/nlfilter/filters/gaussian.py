@@ -102,7 +102,7 @@ class GaussianFilter(DiscreteFilter, FadingMemory):
     family = "gaussian"
     source = "Ito & Xiong 2000 (Gaussian filters); Särkkä 2013, Bayesian Filtering and Smoothing, ch. 6"
     accepts = ("discrete",)
-    structures = ("state-dependent R", "time-varying R", "cross noise")
+    structures = ("state-dependent R", "time-varying R", "cross noise", "angles")
     needs: tuple = ()
     time = "discrete"
     raises = False  # True: predict/update raise DivergenceError on a failed path (the second-order filters)

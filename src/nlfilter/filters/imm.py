@@ -151,7 +151,8 @@ class IMM(DiscreteFilter):
     source = ("Blom & Bar-Shalom 1988, IEEE TAC 33(8); Bar-Shalom, Li & Kirubarajan 2001, Estimation with "
               "Applications to Tracking and Navigation, §11.6.6")
     accepts = ("discrete",)
-    structures = ("state-dependent R", "time-varying R", "non-additive noise", "non-additive measurement noise")
+    structures = ("state-dependent R", "time-varying R", "non-additive noise", "non-additive measurement noise",
+                  "angles")
     likelihood = "mixture-prediction-error"
     compiled = False  # the mixing is not lowered: the compiled loop refuses the IMM (auto: NumPy)
     smoother = "imm-kim"
@@ -389,4 +390,4 @@ class TwoModeIMM(IMM):
         Pi = [[stay, 1.0 - stay], [1.0 - stay, stay]]
         super().__init__([base, base.fading_memory(alpha)], Pi, start=start)
 
-    structures = ("state-dependent R", "time-varying R")  # the EKF's, but correlated noise (the IMM's beliefs)
+    structures = ("state-dependent R", "time-varying R", "angles")  # the EKF's, but correlated noise (the IMM's beliefs)

@@ -55,7 +55,7 @@ class KalmanFilter(DiscreteFilter, FadingMemory):
     family = "gaussian"
     source = "seed 000 eqs. 1.33-1.36 (Kalman 1960)"
     needs = ("linear",)
-    structures = ("cross noise", "time-varying R")
+    structures = ("cross noise", "time-varying R", "angles")
     compiled = True  # backend="numba": its matrices as data (compiled.kalman_loop); cross noise runs here
     compiled_kind = "kalman"
     diffuse_prior = True  # run(): P0 with inf entries is a diffuse prior (nlfilter.filters.diffuse)

@@ -314,7 +314,7 @@ class SquareRootFilter(GaussianFilter):
     name = "square-root"
     source = ("Morf & Kailath 1975, Square-root algorithms for least-squares estimation, IEEE TAC 20(4); "
               "Bierman 1977, Factorization Methods for Discrete Sequential Estimation")
-    structures = ("state-dependent R", "cross noise")
+    structures = ("state-dependent R", "cross noise", "angles")
     compiled = False  # no compiled kernel propagates a factor (compiled_refusal says so)
     compiled_refusal = ("the square-root filters propagate a Cholesky factor by QR steps, which the compiled loop "
                         "has no kernel for; they run on the NumPy loop (backend='numpy', or 'auto')")

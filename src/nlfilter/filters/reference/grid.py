@@ -99,7 +99,7 @@ class GridFilter(_ReferenceFilter):
     source = ("point-mass filter (Bucy & Senne); SDEs: Kushner's Markov-chain approximation of the "
               "Fokker–Planck operator and the Kallianpur–Striebel likelihood")
     needs = ("n ≤ 2", "noise density")
-    structures = ("state-dependent R", "time-varying R",)
+    structures = ("state-dependent R", "time-varying R", "angles")
     # SDEs: a grid density carries no path, so no ∫ h ds: the increment is read with h at the
     # interval's end point after the chain's transition (the simulator's left-point sum to first order)
     measurement_convention = END_POINT

@@ -113,7 +113,7 @@ class ParticleFilter(_ReferenceFilter):
     source = "bootstrap particle filter (Gordon, Salmond & Smith 1993), systematic resampling"
     needs = ("noise density",)
     random = True
-    structures = ("state-dependent R", "time-varying R", "non-additive noise")
+    structures = ("state-dependent R", "time-varying R", "non-additive noise", "angles")
     measurement_convention = LEFT_POINT
     blas_threads = 1  # small dense products per step (the summary's): one BLAS thread (base.Filter.blas_threads)
     means_only = False  # True: the summary's covariance is not computed (NaN in the output): a run read for its MSE only
