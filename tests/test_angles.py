@@ -5,8 +5,8 @@ by a constant angle so that it never crosses.
 
 Why 1e-10: the rotated problem is the same problem with every angle shifted by α, so each filter
 computes the same numbers up to rounding (the node rules' points shift by α exactly, a circular
-mean is rotation-equivariant, every residual is wrapped): the differences measured are 1e-15 to
-2e-12 (the log-likelihood's, a sum of 30 terms of size ~1). The grid filter is rotated by a whole
+mean is rotation-equivariant, every residual is wrapped): the differences measured are at most
+1.2e-14 in the means and covariances and 6e-14 in the log-likelihood (a sum of 30 terms). The grid filter is rotated by a whole
 number of cells (its points on the circle are then permuted exactly); the particle filter draws the
 same noises (common random numbers) for the rotated clouds, and its resampling reads only the
 weights, which agree to rounding.
