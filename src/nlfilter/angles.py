@@ -9,7 +9,7 @@ is the circular weighted mean (Mardia & Jupp 2000, *Directional Statistics*, §2
     wrap(x) = π − ((π − x) mod 2π)                 ∈ (−π, π]
     θ̄ = atan2(Σ w_i sin θ_i, Σ w_i cos θ_i)        (the argument of Σ w_i e^{iθ_i})
 
-Every filter reads the declaration from the model (:attr:`~nlfilter.models.Model.angles`, an
+Every filter reads the declaration from the model (``model.angles``, an
 :class:`Angles` of component indices): the Gaussian rules average the angular components of f and
 h at their nodes by :func:`circular_mean` and take their deviations wrapped (:func:`deviations`);
 an update conditions on the wrapped innovation (:func:`near`: ``ŷ`` moved by whole turns to the
