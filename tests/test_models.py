@@ -148,7 +148,7 @@ def test_constructor_signatures_are_visible():
     from nlfilter import BilinearModel
     from nlfilter.filters.quasilinear import MQLF, QLF, QuasilinearFilter
     want = ["states", "f", "h", "G", "Q", "R", "params", "inputs", "time", "process_noise", "measurement_noise", "name",
-            "cross_noise", "noise", "meas_noise"]
+            "cross_noise", "noise", "meas_noise", "angles"]
     for cls in (DiscreteModel, SDEModel):
         sig = inspect.signature(cls)
         assert list(sig.parameters) == want, cls

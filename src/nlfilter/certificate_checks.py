@@ -75,14 +75,14 @@ def nees_band(per, *, alpha: float = NEES_ALPHA, slack: float = NEES_SLACK, comp
     return out
 
 
-def nees_per_component(est, xs, *, window=0.5):
+def nees_per_component(est, xs, *, window=0.5, angles=()):
     """``(paths, n)``: each path's window average of ``e_i² / P_ii`` (the estimates' error and
     their own variance; a zero variance under an error is infinite), the paths that diverged left
     out; None when the estimates have no covariances."""
     covs = getattr(est, "covs", None)
     if covs is None:
         return None
-    means, xs, ok = _means_and_mask(est, xs)
+    means, xs, ok = _means_and_mask(est, xs, angles)  # angles: wrapped errors
     n, T = xs.shape[-1], xs.shape[-2]
     means, xs, ok = means.reshape(-1, T, n), xs.reshape(-1, T, n), np.reshape(ok, -1)
     var = np.diagonal(np.asarray(covs, float), axis1=-2, axis2=-1).reshape(-1, T, n)
@@ -93,10 +93,11 @@ def nees_per_component(est, xs, *, window=0.5):
     return np.mean(q, axis=1)
 
 
-def nees_check(est, xs, *, window=0.5, alpha: float = NEES_ALPHA, slack: float = NEES_SLACK, components=None):
+def nees_check(est, xs, *, window=0.5, alpha: float = NEES_ALPHA, slack: float = NEES_SLACK, components=None,
+               angles=()):
     """Check (a) on a reference's estimates: :func:`nees_band` of :func:`nees_per_component`
     (empty when fewer than :data:`CHECK_PATHS` paths did not diverge or there are no covariances)."""
-    per = nees_per_component(est, xs, window=window)
+    per = nees_per_component(est, xs, window=window, angles=angles)
     return [] if per is None else nees_band(per, alpha=alpha, slack=slack, components=components)
 
 
@@ -112,7 +113,7 @@ def gap_verdict(name, component, gap, stderr, paths, *, scale: float = 0.0):
             "ok": bool(gap >= -BEATEN_Z * stderr - 1e-9 * abs(scale))}
 
 
-def beaten_check(ref_est, judged, xs, *, window=0.5, reference_error=None, components=None):
+def beaten_check(ref_est, judged, xs, *, window=0.5, reference_error=None, components=None, angles=()):
     """Check (b) on estimates: :func:`gap_verdict` of every judged filter (name -> Estimates) and
     component, its paired gap to ``ref_est`` on the same paths with the standard error of the
     table (the paired one and ``reference_error(i)``, the reference's own, in quadrature).
@@ -120,13 +121,13 @@ def beaten_check(ref_est, judged, xs, *, window=0.5, reference_error=None, compo
     gap over selected survivors)."""
     out = []
     n = xs.shape[-1]
-    scale = [abs(mse(ref_est, xs, component=i, window=window).value) for i in range(n)]
+    scale = [abs(mse(ref_est, xs, component=i, window=window, angles=angles).value) for i in range(n)]
     for name, e in judged.items():
         div = np.asarray(getattr(e, "diverged", np.zeros(1, bool)), bool)
         if div.size and np.mean(div) > BEATEN_MAX_DIVERGED:
             continue
         for i in range(n):
-            d = paired_difference(e, ref_est, xs, component=i, window=window)
+            d = paired_difference(e, ref_est, xs, component=i, window=window, angles=angles)
             se = math.hypot(d.stderr, reference_error(i) if reference_error else 0.0)
             row = gap_verdict(name, components[i] if components else f"x{i + 1}", d.value, se, d.paths, scale=scale[i])
             if row is not None:
@@ -152,15 +153,15 @@ def _failures(nees_rows, gap_rows):
     return fails, texts, tags
 
 
-def contradictions(cert, ref_est, judged, xs, *, window=0.5, components=None, who="compare"):
+def contradictions(cert, ref_est, judged, xs, *, window=0.5, components=None, who="compare", angles=()):
     """Run :func:`nees_check` and :func:`beaten_check` on a reference (its estimates ``ref_est``,
     the compared filters' ``judged``: name -> Estimates, the truth ``xs``) and record the failures
     in ``cert.contradicted``; when any fails, the reference loses the word "optimal":
     ``cert.label`` becomes ``"reference (contradicted: <check>, <where>)"`` (the first failure of
     each check) and a :class:`~nlfilter.errors.ReferenceWarning` (``who``: the caller's name)
     says what failed. Returns ``cert.contradicted`` (empty: the reference stands)."""
-    fails, texts, tags = _failures(nees_check(ref_est, xs, window=window, components=components),
-                                   beaten_check(ref_est, judged or {}, xs, window=window,
+    fails, texts, tags = _failures(nees_check(ref_est, xs, window=window, components=components, angles=angles),
+                                   beaten_check(ref_est, judged or {}, xs, window=window, angles=angles,
                                                 reference_error=cert.reference_error, components=components))
     cert.contradicted = fails
     if fails:

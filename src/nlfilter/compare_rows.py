@@ -58,7 +58,7 @@ def _divergence_note(name, e, paths) -> str | None:
             f"its {paths - k} surviving paths only")
 
 
-def filter_rows(res, est, every, sim, *, n, steps, paths, window, cert, ref_name, gap):
+def filter_rows(res, est, every, sim, *, n, steps, paths, window, cert, ref_name, gap, angles=()):
     """The rows of every filter and of the reference (``est``: name -> Estimates; ``every``: name
     -> filter instance or None) — per component ``mse`` and ``gap`` (paired with the reference,
     its s.e. and the reference's error in quadrature), ``nees`` (posterior covariances) or
@@ -72,17 +72,17 @@ def filter_rows(res, est, every, sim, *, n, steps, paths, window, cert, ref_name
             continue
         judged = cert is not None and name != ref_name and enough_paths(est[ref_name], paths)
         for i in range(n):
-            s_ = mse(e, sim.xs, component=i, window=window)
+            s_ = mse(e, sim.xs, component=i, window=window, angles=angles)
             res.add(name, "mse", s_.value, s_.stderr, component=i)
             if judged and np.any(~(np.asarray(e.diverged, bool) | np.asarray(est[ref_name].diverged, bool))):
-                d = paired_difference(e, est[ref_name], sim.xs, component=i, window=window)
+                d = paired_difference(e, est[ref_name], sim.xs, component=i, window=window, angles=angles)
                 res.add(name, gap, d.value, math.hypot(d.stderr, cert.reference_error(i)), component=i)
         flt = every.get(name)
         covariance = getattr(flt, "covariance", "posterior") if flt is not None else "posterior"
         ok = ~np.asarray(e.diverged, bool)
         if covariance == "posterior" and ok.any() and np.all(np.isfinite(e.covs[ok])):
             try:
-                s_ = nees(e, sim.xs, window=window, label=name)
+                s_ = nees(e, sim.xs, window=window, label=name, angles=angles)
                 res.add(name, "nees", s_.value, s_.stderr)
             except ValueError as exc:
                 res.notes.append(f"nees of {name} not computed: {exc}")
@@ -95,14 +95,14 @@ def filter_rows(res, est, every, sim, *, n, steps, paths, window, cert, ref_name
         res.add(name, "divergence_rate", float(np.mean(e.diverged)))
 
 
-def mse_series(res, est, sim, comps, *, paths, kind):
+def mse_series(res, est, sim, comps, *, paths, kind, angles=()):
     """One figure panel per component: MSE per step of every reported filter, ± 2 s.e. bands."""
     for i, c in enumerate(comps):
         lines, bands = {}, {}
         for name, e in est.items():
             if not enough_paths(e, paths):
                 continue  # nothing to draw honestly: most paths diverged (module docstring)
-            lines[name], se = mse_per_step(e, sim.xs, component=i)
+            lines[name], se = mse_per_step(e, sim.xs, component=i, angles=angles)
             bands[name] = (lines[name] - 2 * se, lines[name] + 2 * se)
         res.series[f"MSE of {c} per step ({paths} paths)"] = {
             "x": sim.t, "lines": lines, "bands": bands, "ylabel": f"E ({c} − {c}̂)²",
@@ -163,7 +163,7 @@ def smoothers(filters, est, failed, ref_name, ref_flt, cert, sim, run, on_diverg
     return sm, info
 
 
-def smoothed_rows(res, sm, ref_name, cert, sim, n, window):
+def smoothed_rows(res, sm, ref_name, cert, sim, n, window, angles=()):
     """``smoothed_mse`` per smoother and component; ``smoothed_gap_to_optimal`` (or ``_to_reference``)
     against the reference smoother on the same paths, ± the paired s.e. and the reference's error."""
     ref = sm.get(ref_name)
@@ -174,11 +174,11 @@ def smoothed_rows(res, sm, ref_name, cert, sim, n, window):
         if not enough_paths(e, paths):
             continue  # as the filters' rows (module docstring)
         for i in range(n):
-            s_ = mse(e, sim.xs, component=i, window=window)
+            s_ = mse(e, sim.xs, component=i, window=window, angles=angles)
             res.add(name, "smoothed_mse", s_.value, s_.stderr, component=i)
             if (ref is not None and name != ref_name and enough_paths(ref, paths)
                     and np.any(ok & ~np.asarray(ref.diverged, bool))):
-                d = paired_difference(e, ref, sim.xs, component=i, window=window)
+                d = paired_difference(e, ref, sim.xs, component=i, window=window, angles=angles)
                 res.add(name, gap, d.value, math.hypot(d.stderr, cert.reference_error(i)), component=i)
 
 

@@ -49,6 +49,7 @@ from .compare_filters import _check_filter, _check_filters, _component_names, _r
 from .compare_rows import (certificate_note, filter_rows, mse_series, smoothed_rows, smoothers,
                            smoothing_note, uninformed_note)
 from .compare_tasks import Tasks
+from .angles import angles_of
 from .errors import DivergenceError
 from .evaluate import _window
 from .filters.registry import model_kind
@@ -277,7 +278,8 @@ def compare(model, filters, steps, *, paths=200, m0, P0, rng=0, reference="auto"
                 cert = check_given_reference(reference, ref_est, model, sim, run=ref_run, judged=est, window=window, rtol=rtol,
                                              certify_paths=certify_paths)
             # checks that can fail (NEES band, no filter below −2 s.e.): a failure relabels the reference
-            contradictions(cert, ref_est, est, sim.xs, window=window, components=_component_names(model))
+            contradictions(cert, ref_est, est, sim.xs, window=window, components=_component_names(model),
+                           angles=angles_of(model).states)
             params["reference"] = cert.to_dict()
         else:
             params["reference"] = None
@@ -313,11 +315,11 @@ def compare(model, filters, steps, *, paths=200, m0, P0, rng=0, reference="auto"
         comps = _component_names(model)
         every = dict(filters, **({ref_name: None if isinstance(reference, str) else reference} if cert is not None else {}))
         filter_rows(res, est, every, sim, n=model.n, steps=steps, paths=paths, window=window, cert=cert,
-                    ref_name=ref_name, gap=gap)
+                    ref_name=ref_name, gap=gap, angles=angles_of(model).states)
         for name in failed:
             res.add(name, "divergence_rate", 1.0)
         if smooth:
-            smoothed_rows(res, sm, ref_name, cert, sim, model.n, window)
+            smoothed_rows(res, sm, ref_name, cert, sim, model.n, window, angles=angles_of(model).states)
         if cert is not None:
             for i, (d, se) in enumerate(cert.error):
                 res.add(ref_name, "reference_error", d, se, component=i)
@@ -326,7 +328,7 @@ def compare(model, filters, steps, *, paths=200, m0, P0, rng=0, reference="auto"
                 res.add(ref_name, "edge_mass", diag["edge_mass_max"])
             if "ess_min" in diag:
                 res.add(ref_name, "ess_min", diag["ess_min"])
-        mse_series(res, est, sim, comps, paths=paths, kind=kind)
+        mse_series(res, est, sim, comps, paths=paths, kind=kind, angles=angles_of(model).states)
         blind = uninformed_note(est, filters)
         if blind:
             res.notes.append(blind)

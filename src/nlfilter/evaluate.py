@@ -16,6 +16,7 @@ from typing import NamedTuple
 import numpy as np
 
 from . import _validate as V
+from .angles import near
 from . import streams
 from .filters.estimates import Estimates
 from .simulation import Simulation
@@ -30,10 +31,12 @@ class Summary(NamedTuple):
     diverged: int
 
 
-def _means_and_mask(est, xs):
+def _means_and_mask(est, xs, angles=()):
     """The estimates' means, the truth ``xs (..., T, n)`` and the paths that did not diverge, checked:
     a truth with NaN/inf (a simulation's diverged paths: drop them first) or an empty batch would
-    give a NaN summary, and a non-finite mean on a path that did not diverge is not an estimate."""
+    give a NaN summary, and a non-finite mean on a path that did not diverge is not an estimate.
+    ``angles``: the angular state components, whose means are moved by whole turns to the branch of
+    the truth (:func:`~nlfilter.angles.near`), so that every error ``mean − x`` is wrapped."""
     means = est.means if hasattr(est, "means") else V.as_float_array("estimates", est)
     xs = V.finite("xs", V.as_float_array("xs", xs, ndim_min=2))
     if means.shape != xs.shape:
@@ -46,7 +49,7 @@ def _means_and_mask(est, xs):
     if bad.any():
         raise ValueError(f"estimates: expected finite means on the paths that did not diverge, got non-finite "
                          f"ones on {int(bad.sum())} path(s) (first {np.argwhere(bad)[0].tolist()})")
-    return means, xs, ok
+    return near(means, xs, tuple(angles)), xs, ok
 
 
 def _component(component, n: int) -> int:
@@ -77,14 +80,16 @@ def _summary(per_path: np.ndarray, ok: np.ndarray) -> Summary:
     return Summary(float(np.mean(vals)), se, npaths, int((~ok).sum()))
 
 
-def squared_errors(est, xs, component=None) -> np.ndarray:
-    """Squared errors ``(paths, T)`` of one component (or ``(paths, T, n)`` when ``None``)."""
-    means, xs, _ = _means_and_mask(est, xs)
+def squared_errors(est, xs, component=None, *, angles=()) -> np.ndarray:
+    """Squared errors ``(paths, T)`` of one component (or ``(paths, T, n)`` when ``None``);
+    ``angles``: the angular state components, their errors wrapped (:mod:`nlfilter.angles`; every
+    function of this module takes it)."""
+    means, xs, _ = _means_and_mask(est, xs, angles)
     e2 = (means - xs) ** 2
     return e2 if component is None else e2[..., _component(component, e2.shape[-1])]
 
 
-def mse(est, xs, *, component: int = 0, window=None) -> Summary:
+def mse(est, xs, *, component: int = 0, window=None, angles=()) -> Summary:
     """Window-averaged MSE of ``component`` over paths, with its standard error.
 
     ``window``: ``None`` (whole run), a ``slice`` of steps, or a fraction in ``[0, 1)`` of the
@@ -94,7 +99,7 @@ def mse(est, xs, *, component: int = 0, window=None) -> Summary:
     >>> mse(m, xs).value
     3.5
     """
-    means, xs, ok = _means_and_mask(est, xs)
+    means, xs, ok = _means_and_mask(est, xs, angles)
     component = _component(component, xs.shape[-1])
     e2 = (means[..., component] - xs[..., component]) ** 2
     w = _window(e2.shape[-1], window)
@@ -102,9 +107,9 @@ def mse(est, xs, *, component: int = 0, window=None) -> Summary:
     return _summary(np.reshape(per_path, -1), np.reshape(ok, -1))
 
 
-def mse_per_step(est, xs, *, component: int = 0):
+def mse_per_step(est, xs, *, component: int = 0, angles=()):
     """MSE at each step ``(T,)`` and its standard error ``(T,)`` (diverged paths left out)."""
-    means, xs, ok = _means_and_mask(est, xs)
+    means, xs, ok = _means_and_mask(est, xs, angles)
     component = _component(component, xs.shape[-1])
     e2 = ((means[..., component] - xs[..., component]) ** 2).reshape(-1, means.shape[-2])
     return _per_step(e2, np.reshape(ok, -1))
@@ -119,7 +124,7 @@ def _per_step(e2: np.ndarray, ok: np.ndarray):
     return e2.mean(axis=0), e2.std(axis=0, ddof=1) / np.sqrt(e2.shape[0])
 
 
-def nees(est, xs, *, window=None, label: str = "estimates") -> Summary:
+def nees(est, xs, *, window=None, label: str = "estimates", angles=()) -> Summary:
     """Average normalized estimation error squared ``eᵀ P⁻¹ e`` (≈ n for a consistent filter).
 
     Meaningful only where ``est.covs`` is the filter's own error covariance (a filter's
@@ -137,14 +142,14 @@ def nees(est, xs, *, window=None, label: str = "estimates") -> Summary:
     ...
     ValueError: ukf: NEES undefined: the covariance at path 1, step 2 is not positive definite (smallest eigenvalue 0)
     """
-    return _summary(*nees_per_path(est, xs, window=window, label=label))
+    return _summary(*nees_per_path(est, xs, window=window, label=label, angles=angles))
 
 
-def nees_per_path(est, xs, *, window=None, label: str = "estimates"):
+def nees_per_path(est, xs, *, window=None, label: str = "estimates", angles=()):
     """The per-path window means of :func:`nees` and the flags of the paths that did not diverge ->
     ``(per_path (paths,), ok (paths,))``, whose mean over the paths ``ok`` is :func:`nees` (for the
     per-path arrays of Monte Carlo blocks, :mod:`nlfilter.montecarlo`); errors as :func:`nees`."""
-    means, xs, ok = _means_and_mask(est, xs)
+    means, xs, ok = _means_and_mask(est, xs, angles)
     covs = np.asarray(est.covs, dtype=float)
     w = _window(means.shape[-2], window)
     e = (xs - means)[..., w, :]
@@ -164,10 +169,10 @@ def nees_per_path(est, xs, *, window=None, label: str = "estimates"):
     return np.reshape(np.mean(q, axis=-1), -1), np.reshape(ok, -1)
 
 
-def paired_difference(est_a, est_b, xs, *, component: int = 0, window=None) -> Summary:
+def paired_difference(est_a, est_b, xs, *, component: int = 0, window=None, angles=()) -> Summary:
     """MSE(a) − MSE(b) on the same paths (common random numbers), with its standard error."""
-    ma, xs_, ok_a = _means_and_mask(est_a, xs)
-    mb, _, ok_b = _means_and_mask(est_b, xs)
+    ma, xs_, ok_a = _means_and_mask(est_a, xs, angles)
+    mb, _, ok_b = _means_and_mask(est_b, xs, angles)
     component = _component(component, xs_.shape[-1])
     d = (ma[..., component] - xs_[..., component]) ** 2 - (mb[..., component] - xs_[..., component]) ** 2
     w = _window(d.shape[-1], window)

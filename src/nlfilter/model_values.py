@@ -100,3 +100,24 @@ def param_value(name, value):
     V.finite(name, arr)
     arr.setflags(write=False)
     return arr
+
+
+def rows_of(model, paths: range):
+    """The model for the paths ``paths`` (rows of every per-path parameter array, and of a
+    per-path Q or R given per step), or the model itself (``Model._rows``)."""
+    vals = getattr(model, "_values", NO_VALUES)
+    steps = {nm: a for nm, a in getattr(model, "_steps", {}).items() if a.ndim == 4}
+    if not vals.per_path and not steps:
+        return model
+    new = {}
+    for p in vals.per_path:
+        v = vals.values[p]
+        if v.ndim != 2 or v.shape[0] < paths.stop:
+            raise ValueError(f"{p}: a per-path array of shape {v.shape} for paths {paths!r}; expected "
+                             f"(P, T) with P >= {paths.stop}")
+        new[p] = v[paths.start:paths.stop]
+    for nm, a in steps.items():
+        if a.shape[0] < paths.stop:
+            raise ValueError(f"{nm}: a per-path array of shape {a.shape} for paths {paths!r}; expected "
+                             f"(P, T, d, d) with P >= {paths.stop}")
+    return model.with_params(new, **{nm: a[paths.start:paths.stop] for nm, a in steps.items()})

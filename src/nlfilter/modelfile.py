@@ -11,6 +11,8 @@ A pendulum observed through the sine of its angle (``examples/models/pendulum.to
     kind = "discrete"              # "discrete": x[k+1] = f + G w, y = h + v
                                    # "sde": dx = drift dt + diffusion dβ, dy = h dt + dη
     states = ["theta", "omega"]
+    # angles = { states = ["theta"], measurements = [0] }   # optional: angular components, wrapped
+                                   # to (−π, π] (states by name, measurements by index into h)
 
     [parameters]                   # optional: numbers substituted into the expressions
     g = 9.81
@@ -103,7 +105,7 @@ DEFAULTS = {"steps": 100, "paths": 200, "filters": "all", "seed": 0}
 
 # the schema: table -> {key: required?}; the dynamics' keys depend on the kind
 _TABLES = {
-    "model": {"name": False, "kind": True, "states": True},
+    "model": {"name": False, "kind": True, "states": True, "angles": False},
     "parameters": None,  # any identifier
     "dynamics": None,    # by kind, below
     "measurement": None,
@@ -459,13 +461,15 @@ def load_model(path) -> ModelSpec:
 
     cls = DiscreteModel if kind == "discrete" else SDEModel
     try:
-        model = cls(list(syms.values()), f, h, G=G, Q=Q, R=R, name=title)
+        model = cls(list(syms.values()), f, h, G=G, Q=Q, R=R, name=title, angles=mt.get("angles"))
     except (ValueError, TypeError) as exc:  # what the checks above do not anticipate
         text = str(exc).splitlines()[0]
         # the model's message names its argument (f, h, G, Q, R): the file's key, at its line
         arg, _, rest = text.partition(": ")
         where = {"f": ("dynamics", fkey), "G": ("dynamics", gkey), "Q": ("dynamics", "Q"),
-                 "h": ("measurement", "h"), "R": ("measurement", "R")}.get(arg)
+                 "h": ("measurement", "h"), "R": ("measurement", "R"), "angles": ("model", "angles")}.get(arg)
+        if arg == "angles" and rest:  # the declaration's own message: what was given, what was expected
+            rd.fail("model", "angles", rest)
         if where is not None and rest:
             rd.fail(*where, f"got an expression the library refuses ({rest}); expected a valid {cls.__name__}")
         rd.fail("dynamics", None, f"got a model the library refuses ({text}); expected a "

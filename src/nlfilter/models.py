@@ -54,6 +54,9 @@ each filter lists in ``structures`` what it handles and refuses the rest at cons
   (``R`` the ``p x p`` covariance of v); :meth:`Model.measurement` evaluates it (``h_aug``),
   ``model.h`` is ``h(x, 0)``.
 
+Angular components (``angles={"states": [...], "measurements": [...]}``): wrapped residuals and
+circular means in every filter, :mod:`nlfilter.angles`.
+
 Functions (checked at construction, :data:`~nlfilter.model_expressions.SUPPORTED_FUNCTIONS`): f, h,
 G and symbolic Q, R are real, finite expressions (no ``I``, ``oo``, ``zoo``, ``nan``; a ``ValueError`` names the field
 and the entry) of ``+ * **`` (``sqrt`` included), ``pi``, ``E`` and ``exp log sin cos tan cot
@@ -103,7 +106,8 @@ from .model_expressions import (SUPPORTED_FUNCTIONS, check_expressions, check_fr
                                 model_symbols, noise_symbols, vector)
 from .model_functions import bind_functions, build_functions
 from .model_noise import STATE_R, STEP_R, LazyGaussian, R_at, bind_noise, cross_noise_matrix, new_noise, noise_covariances
-from .model_values import NO_VALUES, Broadcast, Values, param_value
+from .angles import NO_ANGLES, declare
+from .model_values import NO_VALUES, Broadcast, Values, param_value, rows_of
 from .noise import Gaussian, NoiseLaw
 
 __all__ = ["Model", "DiscreteModel", "SDEModel", "SUPPORTED_FUNCTIONS"]
@@ -119,14 +123,17 @@ class Model:
         :meth:`with_params`).
     inputs : control-input symbols ``[u1, ..., up]`` fed by :meth:`with_inputs`.
     Q, R : numbers or matrices, or SymPy expressions in the parameters (``[[q]]``, ``[[r**2]]``).
+    angles : ``{"states": [...], "measurements": [...]}``: the components that are angles (states
+        by symbol, name or index; measurements by index into h): :mod:`nlfilter.angles`.
     """
 
     kind = "model"
     time_name = "t"
+    angles = NO_ANGLES  # the angular components, :class:`~nlfilter.angles.Angles` (``angles=``)
 
     def __init__(self, states, f, h, G=None, Q=None, R=None, *, params=None, inputs=None, time=None,
                  process_noise: NoiseLaw | None = None, measurement_noise: NoiseLaw | None = None,
-                 name: str = "", cross_noise=None, noise=None, meas_noise=None):
+                 name: str = "", cross_noise=None, noise=None, meas_noise=None, angles=None):
         states, params, inputs = model_symbols(states, time, params, inputs)
         self.states, self.time, self.name, self.inputs = states, time, name, inputs
         self._psyms = tuple(params) + inputs  # every argument beyond states and time
@@ -158,6 +165,7 @@ class Model:
         noise_covariances(self, Q, R, process_noise, measurement_noise)
         build_functions(self, fM, hM, GM, f_aug, h_aug)
         self.cross_noise = cross_noise_matrix(self, cross_noise)
+        self.angles = declare(angles, n, self.m, states)  # angular components (nlfilter.angles)
         self._uses.update({k: set(kn.params) for k, kn in self._QR.items()})
         values = {p: param_value(str(p), v) for p, v in params.items()}
         values.update({u: None for u in inputs})
@@ -185,8 +193,8 @@ class Model:
         """What the model has beyond additive, uncorrelated noise with one constant R:
         ``"state-dependent R"`` (:meth:`R_of`), ``"time-varying R"`` (R per step: :meth:`R_of` at
         the step; a filter that takes R(x) takes it), ``"cross noise"`` (``cross_noise``),
-        ``"non-additive noise"``; a filter refuses a structure it does not handle (its
-        ``structures``, :func:`~nlfilter.filters.base.check_structure`)."""
+        ``"non-additive noise"``, ``"angles"`` (:mod:`nlfilter.angles`); a filter refuses a structure
+        it does not handle (its ``structures``, :func:`~nlfilter.filters.base.check_structure`)."""
         out = set()
         if not getattr(self, "R_constant", True):
             out.add("time-varying R" if getattr(self, "_R_kind", None) == "time" else "state-dependent R")
@@ -196,6 +204,8 @@ class Model:
             out.add("non-additive noise")
         if not getattr(self, "additive_measurement", True):
             out.add("non-additive measurement noise")
+        if self.angles:
+            out.add("angles")
         return frozenset(out)
 
     # -- the measurement noise covariance: one matrix, or R(x, k) --------------------------------
@@ -362,25 +372,7 @@ class Model:
                              f"got {u.shape}")
         return self.with_params({s: u[..., j] for j, s in enumerate(self.inputs)}, dt=dt, t0=t0)
 
-    def _rows(self, paths: range):
-        """The model for the paths ``paths`` (rows of every per-path parameter array, and of a
-        per-path Q or R given per step), or itself."""
-        vals = getattr(self, "_values", NO_VALUES)
-        steps = {nm: a for nm, a in getattr(self, "_steps", {}).items() if a.ndim == 4}
-        if not vals.per_path and not steps:
-            return self
-        new = {}
-        for p in vals.per_path:
-            v = vals.values[p]
-            if v.ndim != 2 or v.shape[0] < paths.stop:
-                raise ValueError(f"{p}: a per-path array of shape {v.shape} for paths {paths!r}; expected "
-                                 f"(P, T) with P >= {paths.stop}")
-            new[p] = v[paths.start:paths.stop]
-        for nm, a in steps.items():
-            if a.shape[0] < paths.stop:
-                raise ValueError(f"{nm}: a per-path array of shape {a.shape} for paths {paths!r}; expected "
-                                 f"(P, T, d, d) with P >= {paths.stop}")
-        return self.with_params(new, **{nm: a[paths.start:paths.stop] for nm, a in steps.items()})
+    _rows = rows_of  # the model for a range of paths (nlfilter.model_values.rows_of)
 
     # -- construction without SymPy text (nlfilter.model_builders) -----------------------------
     from_functions = classmethod(from_functions)
@@ -449,6 +441,7 @@ class DiscreteModel(Model):
     cross_noise : ``(r, m)`` ``E[w_k v_kᵀ]``, correlated process and measurement noise (module docstring)
     noise : the process-noise symbols when they enter ``f`` non-additively (module docstring)
     meas_noise : the measurement-noise symbols when they enter ``h`` non-additively
+    angles : the angular states and measurements (:class:`Model`; :mod:`nlfilter.angles`)
 
     Examples
     --------
@@ -481,14 +474,14 @@ class SDEModel(Model):
 
     def __init__(self, states, f, h, G=None, Q=None, R=None, *, params=None, inputs=None, time=None,
                  process_noise: NoiseLaw | None = None, measurement_noise: NoiseLaw | None = None,
-                 name: str = "", cross_noise=None, noise=None, meas_noise=None):
+                 name: str = "", cross_noise=None, noise=None, meas_noise=None, angles=None):
         for nm, val in (("cross_noise", cross_noise), ("noise", noise), ("meas_noise", meas_noise)):
             if val is not None:
                 raise ValueError(f"{nm}: correlated (cross_noise) or non-additive (noise, meas_noise) noise is supported for "
                                  f"DiscreteModel only; an SDEModel is dx = f dt + G dβ, dy = h dt + dη with "
                                  f"independent β and η; expected None, got {val!r}")
         super().__init__(states, f, h, G, Q, R, params=params, inputs=inputs, time=time,
-                         process_noise=process_noise, measurement_noise=measurement_noise, name=name)
+                         process_noise=process_noise, measurement_noise=measurement_noise, name=name, angles=angles)
         if not self.R_constant:
             raise ValueError("R: an SDEModel's measurement intensity (E dη dηᵀ = R dt) must not depend on the "
                              "state: a state-dependent R(x) is supported for DiscreteModel only (a "

@@ -26,6 +26,7 @@ import math
 import numpy as np
 
 from . import _validate as V
+from .angles import angles_of, wrap_components
 from .errors import DivergenceError
 from .filters.linalg import sqrt_psd
 from .model_noise import check_horizon
@@ -205,10 +206,12 @@ def _simulate(model, steps, paths, rng, x, x_init, xs, ys, m, start, dt, substep
         else:
             vlaw = Gaussian(np.eye(m)) if Rx else model.measurement_noise
             w, v = rng.draw(lambda g, s: (model.process_noise.sample(g, s), vlaw.sample(g, s)), (steps,))
+        ang = angles_of(model)  # angular states and measurements wrapped to (−π, π] (nlfilter.angles)
+        x = wrap_components(x, ang.states)
         for k in range(steps):
             if k > 0 or offset:
                 j = k + offset - 1
-                x = model.transition(x, w[:, k], j)
+                x = wrap_components(model.transition(x, w[:, k], j), ang.states)
                 x = screen.check(k, x, x=x, restart=x_init)
             xs[:, k] = x
             vk = v[:, k]
@@ -216,8 +219,8 @@ def _simulate(model, steps, paths, rng, x, x_init, xs, ys, m, start, dt, substep
                 Rk = model.R_of(x, k + offset)
                 L = sqrt_psd(Rk)[0] if model._R_kind == "time" else np.linalg.cholesky(Rk)
                 vk = np.einsum("...ij,...j->...i", L, vk)
-            ys[:, k] = (model.h(x, k + offset) + vk if getattr(model, "additive_measurement", True)
-                        else model.measurement(x, vk, k + offset))
+            ys[:, k] = wrap_components(model.h(x, k + offset) + vk if getattr(model, "additive_measurement", True)
+                                       else model.measurement(x, vk, k + offset), ang.measurements)
             screen.check(k, ys[:, k])
         return Simulation(xs, ys, x_init, np.arange(steps) + offset, Timing("discrete", start, 0.0, None))
     if model.kind != "sde":
@@ -236,6 +239,7 @@ def _simulate(model, steps, paths, rng, x, x_init, xs, ys, m, start, dt, substep
         for k in range(k0, k1):
             dB = z[:, k - k0, :substeps * r].reshape(paths, substeps, r) @ LQ.T * sq_h
             x, ydt = euler_maruyama(model, x, t0 + k * dt, dt, substeps, dB)  # ∫ h dt, left point
+            x = wrap_components(x, angles_of(model).states)  # angular states (increments dy are not angles)
             xs[:, k] = x
             ys[:, k] = ydt + z[:, k - k0, substeps * r:] @ LR.T * np.sqrt(dt)
             x = screen.check(k, x, ys[:, k], x=x, restart=x_init)
@@ -382,8 +386,9 @@ def simulate_continuous_discrete(model, steps: int, *, paths: int | range = 1, r
             x = ode_step(model.f, x, tk, dt, substeps=substeps, scheme="rk4")
             if noisy:
                 x = x + np.einsum("pia,pa->pi", model.G(x, tk), w[:, k] @ SQ.T)
+            x = wrap_components(x, angles_of(model).states)  # angles wrapped (nlfilter.angles)
             xs[:, k] = x
-            ys[:, k] = model.h(xs[:, k], t[k]) + v[:, k]
+            ys[:, k] = wrap_components(model.h(xs[:, k], t[k]) + v[:, k], angles_of(model).measurements)
             x = screen.check(k, x, ys[:, k], x=x, restart=x_init)
     screen.finish(xs, ys)
     return Simulation(xs, ys, x_init, t, Timing("continuous-discrete", "predict", t0, dt))

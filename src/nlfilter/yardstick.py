@@ -58,6 +58,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from .angles import angles_of
 from .errors import ReferenceWarning
 from .evaluate import mse, paired_difference
 from .filters.reference import GridFilter, ParticleFilter
@@ -217,6 +218,8 @@ def _first_rung(model, sim, m0, P0, dt, post_sd, widen=1.0):
     hi = np.maximum(xs.max(axis=0), m0) + 4 * big
     mid, half = (lo + hi) / 2, widen * (hi - lo) / 2
     lo, hi = mid - half, mid + half
+    for d in angles_of(model).states:  # an angular axis is the whole circle (a periodic grid)
+        lo[d], hi[d] = -math.pi, math.pi
     size = np.maximum(np.ceil((hi - lo) / (small / RESOLUTION)).astype(int) + 1, GRID_MIN[n])
     size = [int(s) for s in size]
     bounds = [(float(a), float(b)) for a, b in zip(lo, hi)]
@@ -257,23 +260,23 @@ def _diagnostics(est):
     return out
 
 
-def _refinement_error(fine, coarse, xs, window):
+def _refinement_error(fine, coarse, xs, window, angles=()):
     """Per component ``(Δ, se)``: MSE(fine) − MSE(coarse) on the same paths."""
     out = []
     for i in range(xs.shape[-1]):
-        d = paired_difference(fine, coarse, xs, component=i, window=window)
+        d = paired_difference(fine, coarse, xs, component=i, window=window, angles=angles)
         out.append((d.value, d.stderr))
     return out
 
 
-def _tolerance(est, judged, xs, window, rtol):
+def _tolerance(est, judged, xs, window, rtol, angles=()):
     """Per component, the largest error bound a certified reference may have: ``rtol`` times its
     MSE, or the smallest standard error of the gaps it judges (``judged``: name -> Estimates),
     whichever is larger — an error below the comparison's own resolution changes no verdict."""
     out = []
     for i in range(xs.shape[-1]):
-        tol = rtol * abs(mse(est, xs, component=i, window=window).value)
-        ses = [paired_difference(e, est, xs, component=i, window=window).stderr for e in judged.values()]
+        tol = rtol * abs(mse(est, xs, component=i, window=window, angles=angles).value)
+        ses = [paired_difference(e, est, xs, component=i, window=window, angles=angles).stderr for e in judged.values()]
         ses = [s for s in ses if np.isfinite(s)]
         out.append(max(tol, min(ses)) if ses else tol)
     return out
@@ -299,9 +302,10 @@ def _check(est, diag, fine, sim, sub, judged, window, rtol, run, tag):
     A particle ``fine`` runs ``means_only`` (the check reads its MSE alone: no covariances)."""
     if isinstance(fine, ParticleFilter):
         fine.means_only = True
-    error = _refinement_error(run(fine, sim.ys[sub], tag), est.take(sub), sim.xs[sub], window)
-    ref_mse = [mse(est, sim.xs, component=i, window=window).value for i in range(sim.xs.shape[-1])]
-    tol = _tolerance(est, judged, sim.xs, window, rtol)
+    ang = angles_of(fine.model).states  # angular states: wrapped errors (nlfilter.angles)
+    error = _refinement_error(run(fine, sim.ys[sub], tag), est.take(sub), sim.xs[sub], window, ang)
+    ref_mse = [mse(est, sim.xs, component=i, window=window, angles=ang).value for i in range(sim.xs.shape[-1])]
+    tol = _tolerance(est, judged, sim.xs, window, rtol, ang)
     bound, ok = _verdict(error, tol)
     ok = ok and diag.get("edge_mass_max", 0.0) <= EDGE_MASS and diag["diverged"] == 0
     return {"error": [list(e) for e in error], "bound": bound, "tolerance": tol, "mse": ref_mse}, ok

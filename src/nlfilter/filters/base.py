@@ -487,7 +487,7 @@ class ContinuousFilter(Filter):
     def __init__(self, model, dt: float, *, scheme: str = "rk4", substeps: int = 1):
         if getattr(model, "kind", None) != "sde":
             raise TypeError(f"model: {type(self).__name__} expects an SDEModel, got {type(model).__name__}")
-        self.model = model
+        self.model = check_structure(self, model)  # angles: refused (increments dy are not angles)
         self.dt = float(V.positive("dt", dt))
         self.scheme = V.choice("scheme", scheme, {"rk4", "euler"})
         self.substeps = V.positive("substeps", substeps, integer=True)

@@ -72,7 +72,8 @@ def gaussian_prior(m0, P0, n: int, batch: tuple, *, data: str = "ys", one: bool 
 def check_structure(flt, model) -> None:
     """Refuse, naming it, a model structure (:attr:`~nlfilter.models.Model.structure`: a
     state-dependent R, correlated process and measurement noise, non-additive noise) that the
-    filter ``flt`` does not handle (its ``structures``): a filter never ignores one silently."""
+    filter ``flt`` does not handle (its ``structures``): a filter never ignores one silently.
+    Returns the model."""
     has = getattr(model, "structure", frozenset())
     missing = sorted(set(has) - set(flt.structures))
     if missing:
@@ -80,11 +81,14 @@ def check_structure(flt, model) -> None:
                 "time-varying R": "R: the model's measurement noise covariance varies over the steps (R_k)",
                 "cross noise": "cross_noise: the model's process and measurement noises are correlated",
                 "non-additive noise": "noise: the model's process noise enters f non-additively",
-                "non-additive measurement noise": "meas_noise: the model's measurement noise enters h non-additively"}
+                "non-additive measurement noise": "meas_noise: the model's measurement noise enters h non-additively",
+                "angles": "angles: the model declares angular components (wrapped residuals, circular means: nlfilter.angles)"}
         raise ValueError(f"{'; '.join(what[k] for k in missing)}; {type(flt).__name__} handles "
                          f"{list(flt.structures) or 'none of these'} (see each filter's structures attribute: "
                          "the Gaussian filters take R(x), R_k and cross noise, the Kalman filter R_k, the UKF non-additive noise (augmented "
-                         "sigma points), GridFilter and ParticleFilter R(x), ParticleFilter non-additive process noise)")
+                         "sigma points), GridFilter and ParticleFilter R(x), ParticleFilter non-additive process noise; angles: the "
+                         "discrete and continuous-discrete Gaussian, Kalman, square-root and IMM filters, GridFilter, ParticleFilter)")
+    return model
 
 
 def noise_horizon(flt, T: int, B: int) -> None:

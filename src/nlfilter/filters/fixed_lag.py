@@ -19,6 +19,7 @@ from collections import deque
 import numpy as np
 
 from .. import _validate as V
+from ..angles import angles_of
 from ..errors import DivergenceError
 from .beliefs import GaussianState
 from .estimates import Estimates
@@ -77,7 +78,7 @@ def _smoothed(flt, means, covs, window, first):
     """The RTS pass over the window's filtered moments (steps ``first..``): the smoothed beliefs."""
     ms, Ps = np.stack(means, axis=1), np.stack(covs, axis=1)
     with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
-        sm, sP, _ = rts(ms, Ps, *backward_steps(flt, np.stack(window, axis=1), first))
+        sm, sP, _ = rts(ms, Ps, *backward_steps(flt, np.stack(window, axis=1), first), angles=angles_of(flt.model).states)
     _finite(sm, sP, first, "smoothed")
     return [GaussianState(sm[:, i], sP[:, i]) for i in range(sm.shape[1])]
 

@@ -56,6 +56,7 @@ from __future__ import annotations
 import numpy as np
 
 from .. import _validate as V
+from ..angles import angles_of
 from .base import ContinuousFilter, DiscreteFilter, GaussianState, continuous_precision, set_start, set_t0
 from .fading import FadingMemory
 from .linalg import innovation_info, observed_precision, poison, symmetrize
@@ -101,7 +102,7 @@ class GaussianFilter(DiscreteFilter, FadingMemory):
     family = "gaussian"
     source = "Ito & Xiong 2000 (Gaussian filters); Särkkä 2013, Bayesian Filtering and Smoothing, ch. 6"
     accepts = ("discrete",)
-    structures = ("state-dependent R", "time-varying R", "cross noise")
+    structures = ("state-dependent R", "time-varying R", "cross noise", "angles")
     needs: tuple = ()
     time = "discrete"
     raises = False  # True: predict/update raise DivergenceError on a failed path (the second-order filters)
@@ -186,7 +187,7 @@ class GaussianFilter(DiscreteFilter, FadingMemory):
 
     def _smooth(self, est, beliefs, ys, t0):
         """The RTS backward pass through the rule (:func:`~nlfilter.filters.smoothing.rts`)."""
-        ms, Ps, lag = rts(est.means, est.covs, *backward_steps(self, ys))
+        ms, Ps, lag = rts(est.means, est.covs, *backward_steps(self, ys), angles=angles_of(self.model).states)
         return ms, Ps, {"lag_one_cov": lag}
 
 

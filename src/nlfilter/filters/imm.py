@@ -76,6 +76,7 @@ import numpy as np
 from scipy.special import logsumexp
 
 from .. import _validate as V
+from ..angles import angles_of, mixture, residual, wrap_components
 from .base import DiscreteFilter, Filter, check_structure, gaussian_prior, set_start
 from .beliefs import GaussianState
 from .gaussian import GaussianFilter
@@ -111,9 +112,12 @@ def _probability_rows(name, value, M=None):
     return a
 
 
-def _combine(w, m, P):
+def _combine(w, m, P, angles=()):
     """``(Σ_i w_i m_i, Σ_i w_i [P_i + (m_i − m̄)(m_i − m̄)ᵀ])`` over the mode axis: ``w (B, M)``,
-    ``m (B, M, n)``, ``P (B, M, n, n)`` (the moments of a Gaussian mixture)."""
+    ``m (B, M, n)``, ``P (B, M, n, n)`` (the moments of a Gaussian mixture; angular components
+    ``angles``: :func:`~nlfilter.angles.mixture`)."""
+    if angles:
+        return mixture(w, m, P, angles)
     mean = np.einsum("bi,bin->bn", w, m)
     d = m - mean[:, None, :]
     cov = np.einsum("bi,bikl->bkl", w, P) + np.einsum("bi,bik,bil->bkl", w, d, d)
@@ -147,7 +151,8 @@ class IMM(DiscreteFilter):
     source = ("Blom & Bar-Shalom 1988, IEEE TAC 33(8); Bar-Shalom, Li & Kirubarajan 2001, Estimation with "
               "Applications to Tracking and Navigation, §11.6.6")
     accepts = ("discrete",)
-    structures = ("state-dependent R", "time-varying R", "non-additive noise", "non-additive measurement noise")
+    structures = ("state-dependent R", "time-varying R", "non-additive noise", "non-additive measurement noise",
+                  "angles")
     likelihood = "mixture-prediction-error"
     compiled = False  # the mixing is not lowered: the compiled loop refuses the IMM (auto: NumPy)
     smoother = "imm-kim"
@@ -166,6 +171,9 @@ class IMM(DiscreteFilter):
         for j, f in enumerate(filters[1:], 1):
             dims = (f.state_dim, f.data_dim, f.model.kind, getattr(f, "dt", None))
             want = (first.state_dim, first.data_dim, first.model.kind, getattr(first, "dt", None))
+            if angles_of(f.model) != angles_of(first.model):
+                raise ValueError(f"filters: every mode must declare the same angles (nlfilter.angles); filter {j} "
+                                 f"has {angles_of(f.model)}, filter 0 {angles_of(first.model)}")
             if dims != want:
                 raise ValueError(f"filters: every mode must have the same state and measurement dimensions, model "
                                  f"kind and dt; filter {j} ({type(f).__name__}) has (n, m, kind, dt) = {dims}, "
@@ -180,6 +188,7 @@ class IMM(DiscreteFilter):
             raise ValueError(f"mode_probs0: expected a vector of {M} probabilities, got shape {mu0.shape}")
         self.filters, self.transition, self.mode_probs0 = tuple(filters), Pi, mu0
         self.model = first.model  # the first mode's (state_dim, data_dim, the data's kind)
+        self._angles = angles_of(first.model).states  # angular states: circular mixing (nlfilter.angles)
         set_start(self, start)
 
     @classmethod
@@ -235,6 +244,8 @@ class IMM(DiscreteFilter):
         w = Pi[None] * mu[:, :, None]  # (B, i, j): Π_ij μ_i
         pos = cbar > 0
         w = np.where(pos[:, None, :], w / np.where(pos, cbar, 1.0)[:, None, :], mu[:, :, None])  # μ_{i|j}
+        if self._angles:  # circular mixing (nlfilter.angles)
+            return (cbar, *mixture(w.swapaxes(1, 2), state.mean[:, None], state.cov[:, None], self._angles))
         m0 = np.einsum("bij,bin->bjn", w, state.mean)
         d = state.mean[:, :, None, :] - m0[:, None, :, :]  # (B, i, j, n): m_i − m⁰_j
         P0 = np.einsum("bij,bikl->bjkl", w, state.cov) + np.einsum("bij,bijk,bijl->bjkl", w, d, d)
@@ -294,7 +305,7 @@ class IMM(DiscreteFilter):
 
     def summary(self, state):
         """Step 5: the combination ``(Σ μ_j m_j, Σ μ_j [P_j + (m_j − m)(m_j − m)ᵀ])``."""
-        return _combine(state.probs, state.mean, state.cov)
+        return _combine(state.probs, state.mean, state.cov, self._angles)
 
     def extras(self, state):
         return {"mode_probs": state.probs}
@@ -310,7 +321,8 @@ class IMM(DiscreteFilter):
         off = 0 if self.start == "update" else 1
         xs, Xs, mus = mean[:, -1], cov[:, -1], mu[:, -1]
         out_m, out_P, out_mu = np.empty((B, T, n)), np.empty((B, T, n, n)), np.empty((B, T, M))
-        out_m[:, -1], out_P[:, -1] = _combine(mus, xs, Xs)
+        ang = self._angles
+        out_m[:, -1], out_P[:, -1] = _combine(mus, xs, Xs, ang)
         out_mu[:, -1] = mus
         for k in range(T - 2, -1, -1):
             m, P = mean[:, k], cov[:, k]
@@ -325,13 +337,17 @@ class IMM(DiscreteFilter):
                 for j, f in enumerate(self.filters):  # mode i's filtered belief through model j
                     pred, D = f._predict_cross(GaussianState(m[:, i], P[:, i]), k + off)
                     G = _solve_right(pred.cov, D)
-                    x_ij[:, i, j] = m[:, i] + np.einsum("...ij,...j->...i", G, xs[:, j] - pred.mean)
+                    x_ij[:, i, j] = wrap_components(m[:, i] + np.einsum("...ij,...j->...i", G, residual(
+                        xs[:, j], pred.mean, ang)), ang)
                     P_ij[:, i, j] = symmetrize(P[:, i] + G @ (Xs[:, j] - pred.cov) @ np.swapaxes(G, -1, -2))
-            xs = np.einsum("bij,bijn->bin", w, x_ij)
-            d = x_ij - xs[:, :, None, :]
-            Xs = np.einsum("bij,bijkl->bikl", w, P_ij) + np.einsum("bij,bijk,bijl->bikl", w, d, d)
+            if ang:  # circular (nlfilter.angles)
+                xs, Xs = mixture(w, x_ij, P_ij, ang)
+            else:
+                xs = np.einsum("bij,bijn->bin", w, x_ij)
+                d = x_ij - xs[:, :, None, :]
+                Xs = np.einsum("bij,bijkl->bikl", w, P_ij) + np.einsum("bij,bijk,bijl->bikl", w, d, d)
             mus = mus_k
-            out_m[:, k], out_P[:, k] = _combine(mus, xs, Xs)
+            out_m[:, k], out_P[:, k] = _combine(mus, xs, Xs, ang)
             out_mu[:, k] = mus
         return out_m, out_P, {"mode_probs": out_mu}
 
@@ -374,4 +390,4 @@ class TwoModeIMM(IMM):
         Pi = [[stay, 1.0 - stay], [1.0 - stay, stay]]
         super().__init__([base, base.fading_memory(alpha)], Pi, start=start)
 
-    structures = ("state-dependent R", "time-varying R")  # the EKF's, but correlated noise (the IMM's beliefs)
+    structures = ("state-dependent R", "time-varying R", "angles")  # the EKF's, but correlated noise (the IMM's beliefs)

@@ -11,6 +11,7 @@ from __future__ import annotations
 import numpy as np
 import scipy.linalg as sla
 
+from ..angles import angles_of, near, wrap_components
 from .base import ContinuousFilter, DiscreteFilter, GaussianState
 from .diffuse import kalman_steps
 from .diffuse_prior import DiffusePrior
@@ -54,7 +55,7 @@ class KalmanFilter(DiffusePrior, DiscreteFilter, FadingMemory):
     family = "gaussian"
     source = "seed 000 eqs. 1.33-1.36 (Kalman 1960)"
     needs = ("linear",)
-    structures = ("cross noise", "time-varying R")
+    structures = ("cross noise", "time-varying R", "angles")
     compiled = True  # backend="numba": its matrices as data (compiled.kalman_loop); cross noise runs here
     compiled_kind = "kalman"
     diffuse_prior = True  # run(), smooth(): P0 with inf entries is a diffuse prior (diffuse_prior.DiffusePrior)
@@ -120,7 +121,7 @@ class KalmanFilter(DiffusePrior, DiscreteFilter, FadingMemory):
 
     def _smooth(self, est, beliefs, ys, t0):
         """The Rauch–Tung–Striebel smoother (Rauch, Tung & Striebel 1965; :func:`~nlfilter.filters.smoothing.rts`)."""
-        ms, Ps, lag = rts(est.means, est.covs, *backward_steps(self, ys))
+        ms, Ps, lag = rts(est.means, est.covs, *backward_steps(self, ys), angles=angles_of(self.model).states)
         return ms, Ps, {"lag_one_cov": lag}
 
     likelihood = "prediction-error"
@@ -133,8 +134,10 @@ class KalmanFilter(DiffusePrior, DiscreteFilter, FadingMemory):
         R = md.R if md.R_constant else md.R_of(m, k)  # R_k given per step (the structure "time-varying R")
         C = P @ H.T
         S = H @ C + R
-        yhat = m @ H.T + d
-        return gaussian_update(state, y, yhat, S, C, H=np.broadcast_to(H, (*m.shape[:-1], *H.shape)), R=R), yhat, S
+        ang = angles_of(md)
+        yhat = near(m @ H.T + d, y, ang.measurements)  # angles: the wrapped innovation (nlfilter.angles)
+        new = gaussian_update(state, y, yhat, S, C, H=np.broadcast_to(H, (*m.shape[:-1], *H.shape)), R=R)
+        return GaussianState(wrap_components(new.mean, ang.states), new.cov), yhat, S
 
     def _update_info(self, state, y, k):
         """The update and the step's log N(y; H m⁻ + d, H P⁻ Hᵀ + R) (prediction-error decomposition)."""

@@ -66,6 +66,7 @@ from typing import NamedTuple
 import numpy as np
 
 from .. import _validate as V
+from ..angles import node_moments, wrap_components
 from ..moments.quadrature import MAX_ENTRIES, cubature5_rule, gauss_hermite_rule
 from .contractions import gaussian_quartic, hessian_trace, noise_covariance, quarter_outer  # (re-exported)
 from .linalg import axis_gather, mm, sqrt_psd
@@ -114,17 +115,19 @@ class Taylor1:
         return ("f_x", "h_x")
 
     def moments(self, state, g, t, *, jac, hess=None, cross: bool = True, cov: bool = True, noise_of=None,
-                role=None) -> GaussMoments:
+                role=None, angles=()) -> GaussMoments:
         """``jac``: the Jacobian ``g_x(X, t) -> (..., p, n)``; ``cross``/``cov``: whether
-        Cov[x, g] / Cov[g] are wanted (else None); ``noise_of``: a model whose ``E[G Q Gᵀ]`` to add."""
+        Cov[x, g] / Cov[g] are wanted (else None); ``noise_of``: a model whose ``E[G Q Gᵀ]`` to add;
+        ``angles``: the angular components of g, their mean wrapped (:mod:`nlfilter.angles`)."""
         m, P = state
         J = jac(m, t)
         Q = None if noise_of is None else noise_of.GQGT(m, t)  # G(m) Q G(m)ᵀ
+        mean = wrap_components(g(m, t), angles)
         if cross:
             C = mm(P, J.swapaxes(-1, -2))  # Cov[x, g] = P Jᵀ
-            return GaussMoments(g(m, t), C, mm(J, C) if cov else None, J, None, Q)
+            return GaussMoments(mean, C, mm(J, C) if cov else None, J, None, Q)
         S = mm(mm(J, P), J.swapaxes(-1, -2)) if cov else None  # J P Jᵀ
-        return GaussMoments(g(m, t), None, S, J, None, Q)
+        return GaussMoments(mean, None, S, J, None, Q)
 
 
 #: the forms of the Taylor-2 rule (:class:`Taylor2`), the ``form=`` of the second-order filters
@@ -223,7 +226,7 @@ class Taylor2:
         return None
 
     def moments(self, state, g, t, *, jac, hess=None, cross: bool = True, cov: bool = True, noise_of=None,
-                role=None) -> GaussMoments:
+                role=None, angles=()) -> GaussMoments:
         m, P = state
         J = jac(m, t)
         mean = g(m, t)
@@ -231,6 +234,7 @@ class Taylor2:
         if self.second:
             A = hess(m, t)
             mean = mean + 0.5 * hessian_trace(P, A)  # 004 eqs. 18, 20
+        mean = wrap_components(mean, angles)  # angular components in (−π, π] (the Taylor terms at m)
         form = FORM_TABLE[self.form]
         kind = form.prediction if role == "dynamics" else form.innovation if role == "measurement" else "gaussian"
         quartic = None
@@ -297,13 +301,13 @@ class NodeRule:
         return ()
 
     def moments(self, state, g, t, *, jac=None, hess=None, cross: bool = True, cov: bool = True,
-                noise_of=None, role=None) -> GaussMoments:
-        """As :meth:`Taylor1.moments` (``jac``, ``hess``, ``role`` are not used)."""
+                noise_of=None, role=None, angles=()) -> GaussMoments:
+        """As :meth:`Taylor1.moments` (``jac``, ``hess``, ``role`` are not used); the ``angles``
+        components of g averaged by the circular weighted mean, their deviations wrapped."""
         m, P = state
         X, w, wc, bad = self.nodes(m, P)
         GX = g(X, t)
-        mean = np.einsum("i,...ij->...j", w, GX)  # Σ w_i g(X_i)
-        D = GX - mean[..., None, :]
+        mean, D = node_moments(GX, w, angles)  # Σ w_i g(X_i), g_i − ĝ (angles: circular, wrapped)
         if m.shape[-1] < 4:  # small states: the einsums cost little (and keep their rounding)
             S = np.einsum("i,...ia,...ib->...ab", wc, D, D) if cov else None  # Σ wc_i (g_i − ĝ)(g_i − ĝ)ᵀ
             C = np.einsum("i,...ia,...ib->...ab", wc, X - m[..., None, :], D) if cross else None

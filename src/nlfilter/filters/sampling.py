@@ -50,6 +50,7 @@ import copy
 import numpy as np
 
 from .. import _validate as V
+from ..angles import angles_of, residual, wrap_components
 from ..errors import DivergenceError
 from ..simulation import Simulation
 from ..streams import PathRNG
@@ -129,14 +130,15 @@ def sample_posterior(flt, ys, m0=None, P0=None, n: int = 1, rng=None, *, initial
     z = PathRNG.of(rng, B, key=SAMPLE).standard_normal((T, n, nx))  # path by path: one call each
     predict_cross, off = backward_steps(flt, ys.reshape(B, T, ys.shape[-1]))
     out = np.empty((B, n, T, nx))
-    x = _draw(means[:, T - 1][:, None], covs[:, T - 1], z[:, T - 1], T - 1)
+    ang = angles_of(flt.model).states  # angular states: wrapped residuals and draws (nlfilter.angles)
+    x = wrap_components(_draw(means[:, T - 1][:, None], covs[:, T - 1], z[:, T - 1], T - 1), ang)
     out[:, :, T - 1] = x
     for k in range(T - 2, -1, -1):
         m, P = means[:, k], covs[:, k]
         pred, D = predict_cross(GaussianState(m, P), k + off)
         G = _solve_right(pred.cov, D)  # G_k = D_{k+1} (P⁻_{k+1})⁻¹
-        mean = m[:, None] + (x - pred.mean[:, None]) @ np.swapaxes(G, -1, -2)
-        x = _draw(mean, symmetrize(P - G @ np.swapaxes(D, -1, -2)), z[:, k], k)
+        mean = m[:, None] + residual(x, pred.mean[:, None], ang) @ np.swapaxes(G, -1, -2)
+        x = wrap_components(_draw(mean, symmetrize(P - G @ np.swapaxes(D, -1, -2)), z[:, k], k), ang)
         out[:, :, k] = x
     return out.reshape(*batch, n, T, nx)
 

@@ -39,6 +39,7 @@ from typing import NamedTuple
 
 import numpy as np
 
+from ..angles import angles_of, near, residual, wrap_components
 from ..errors import DivergenceError
 from .base import GaussianState, ode_step
 from .beliefs import where_paths
@@ -132,7 +133,8 @@ def _decorrelated(md, D, e):
     nb = e.ndim - 1
 
     def f(X, t):
-        return md.f(X, t) + np.einsum("...ij,...j->...i", _lift(D, nb, X, 2), _lift(e, nb, X, 1) - md.h(X, t))
+        e_h = residual(_lift(e, nb, X, 1), md.h(X, t), angles_of(md).measurements)  # e − h (angles wrapped)
+        return md.f(X, t) + np.einsum("...ij,...j->...i", _lift(D, nb, X, 2), e_h)
 
     def f_x(X, t):
         return md.f_x(X, t) - _lift(D, nb, X, 2) @ md.h_x(X, t)
@@ -166,7 +168,8 @@ def predict(rule, model, belief, t, *, decorrelation=None, cross: bool = False):
     if decorrelation is not None:  # correlated noise: the decorrelated dynamics f̃ (CrossNoise)
         D, e, sub = decorrelation
         f, f_x, f_xx = _decorrelated(md, D, e)
-    mo = rule.moments(as_gaussian(belief), f, t, jac=f_x, hess=f_xx, cross=cross, noise_of=md, role="dynamics")
+    mo = rule.moments(as_gaussian(belief), f, t, jac=f_x, hess=f_xx, cross=cross, noise_of=md, role="dynamics",
+                      **_angles(angles_of(md).states))
     P = mo.cov + mo.noise  # P⁻ = Cov[f] + E[G Q Gᵀ]
     if sub is not None:  # Cov[w̃] = Q − S R⁻¹ Sᵀ
         P = P - sub
@@ -202,7 +205,10 @@ def condition(rule, model, belief, y, t, R=None):
     state = as_gaussian(belief)
     if R is None:  # a state-dependent R(x) at the predicted mean (the EKF convention)
         R = md.R if getattr(md, "R_constant", True) else md.R_of(state.mean, t)
-    mo = rule.moments(state, md.h, t, jac=md.h_x, hess=md.h_xx, role="measurement")
+    ang = angles_of(md)
+    mo = rule.moments(state, md.h, t, jac=md.h_x, hess=md.h_xx, role="measurement", **_angles(ang.measurements))
+    if ang:  # angles: ŷ on the branch of y (the innovation y − ŷ wrapped, nlfilter.angles)
+        mo = mo._replace(mean=near(mo.mean, y, ang.measurements))
     S = _plus(mo.cov + R, mo.quartic)
     bad = mo.bad
     if rule.screen:
@@ -217,7 +223,15 @@ def condition(rule, model, belief, y, t, R=None):
         Sm = np.where(miss[..., :, None] | miss[..., None, :], np.eye(S.shape[-1]), S)
         u = np.linalg.solve(Sm, e[..., None])[..., 0]
         new = GaussianState(new.mean, symmetrize(new.cov + np.einsum("...ijk,...k->...ij", mo.forcing, u)))
+    if ang.states:
+        new = GaussianState(wrap_components(new.mean, ang.states), new.cov)
     return new, bad, (mo.mean, S)
+
+
+def _angles(idx):
+    """The ``angles=`` keyword of a rule's moments when ``idx`` declares angular components
+    (none: the call of a model without angles, unchanged)."""
+    return {"angles": idx} if idx else {}
 
 
 def moment_rhs(rule, model, m, P, t, C=None):
@@ -243,10 +257,10 @@ def propagate(rule, model, belief, t, dt, *, substeps: int = 1, scheme: str = "r
     if not cross:
         m, P = ode_step(lambda x, s: moment_rhs(rule, model, x[0], x[1], s), (m, P), t, dt, substeps=substeps,
                         scheme=scheme, finish=lambda x: (x[0], symmetrize(x[1])))
-        return GaussianState(m, P)
+        return GaussianState(wrap_components(m, angles_of(model).states), P)  # angles wrapped
     m, P, C = ode_step(lambda x, s: moment_rhs(rule, model, x[0], x[1], s, C=x[2]), (m, P, P), t, dt,
                        substeps=substeps, scheme=scheme, finish=lambda x: (x[0], symmetrize(x[1]), x[2]))
-    return GaussianState(m, P), C
+    return GaussianState(wrap_components(m, angles_of(model).states), P), C
 
 
 def ito_gain(rule, model, m, P, t, obs, Rinv, *, measure: bool = True):
@@ -306,14 +320,18 @@ def iterated_update(model, state, y, t, iterations: int, tol: float, *, info: bo
     R = md.R if getattr(md, "R_constant", True) else md.R_of(m, t)  # R(x) at the predicted mean, as the first update
     first = []
 
+    ang = angles_of(md)
+
     def linear_update(x, at_mean):
         H = md.h_x(x, t)
         C = mm(P, H.swapaxes(-1, -2))
         S = mm(H, C) + R
-        y_pred = md.h(x, t) if at_mean else md.h(x, t) + np.einsum("...ij,...j->...i", H, m - x)
+        y_pred = md.h(x, t) if at_mean else md.h(x, t) + np.einsum("...ij,...j->...i", H, residual(m, x, ang.states))
+        y_pred = near(y_pred, y, ang.measurements)  # angles: the wrapped innovation
         if at_mean:
             first.append((y_pred, S))
-        return gaussian_update(state, y, y_pred, S, C, H=H, R=R)
+        new = gaussian_update(state, y, y_pred, S, C, H=H, R=R)
+        return GaussianState(wrap_components(new.mean, ang.states), new.cov) if ang.states else new
 
     new = gauss_newton(linear_update(m, True), lambda x: linear_update(x, False), iterations, tol)
     return (new, first[0]) if info else new

@@ -42,6 +42,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..angles import residual, wrap_components
 from .beliefs import GaussianState
 from .linalg import symmetrize
 
@@ -108,14 +109,15 @@ def _solve_right(A, B):
     return np.where(ok[..., None, None] & np.isfinite(out), out, np.nan)
 
 
-def rts(means: np.ndarray, covs: np.ndarray, predict_cross, offset: int = 0):
+def rts(means: np.ndarray, covs: np.ndarray, predict_cross, offset: int = 0, angles=()):
     """The RTS backward pass over filtered moments ``means (B, T, n)``, ``covs (B, T, n, n)``.
 
     ``predict_cross(state, k) -> (GaussianState predicted, D (B, n, n))`` gives the prediction
     from step ``k`` of the run to step ``k + 1`` (model index ``k + offset``, the run's start
     convention) and ``D = Cov[x_k, x_{k+1}]``. Returns the smoothed ``(means, covs, lag)`` with
     ``lag[:, k] = Cov[x_k, x_{k+1} | y_0..y_{T-1}] = G_k Pˢ_{k+1}`` (the lag-one covariance of
-    the smoothed law, for EM; NaN at the last step).
+    the smoothed law, for EM; NaN at the last step). ``angles``: the angular state components
+    (``mˢ_{k+1} − m⁻_{k+1}`` and ``mˢ_k`` wrapped, :mod:`nlfilter.angles`).
 
     >>> import numpy as np
     >>> F, Q = 0.9, 0.5      # scalar random walk, two filtered steps: the smoother revises step 0
@@ -132,7 +134,8 @@ def rts(means: np.ndarray, covs: np.ndarray, predict_cross, offset: int = 0):
         pred, D = predict_cross(GaussianState(m, P), k + offset)
         G = _solve_right(pred.cov, D)  # G = D (P⁻)⁻¹
         Gt = np.swapaxes(G, -1, -2)
-        ms[:, k] = m + np.einsum("...ij,...j->...i", G, ms[:, k + 1] - pred.mean)
+        ms[:, k] = wrap_components(m + np.einsum("...ij,...j->...i", G, residual(ms[:, k + 1], pred.mean, angles)),
+                                   angles)
         Ps[:, k] = symmetrize(P + G @ (Ps[:, k + 1] - pred.cov) @ Gt)
         lag[:, k] = G @ Ps[:, k + 1]
     return ms, Ps, lag

@@ -61,6 +61,7 @@ from typing import NamedTuple
 import numpy as np
 
 from .. import _validate as V
+from ..angles import angles_of, near, node_moments, residual, wrap_components
 from .gaussian import GaussianFilter
 from .linalg import LOG_2PI, decorrelation, mm, sqrt_psd, symmetrize
 from .triangular import downdate, tria
@@ -130,18 +131,18 @@ def sqrt_predict(rule, model, belief, t, Lq, *, joint: bool = False, f=None, f_x
     m, S = belief[0], belief[1]
     n = m.shape[-1]
     f, f_x = model.f if f is None else f, model.f_x if f_x is None else f_x
+    ang = angles_of(model).states
     if hasattr(rule, "sqrt_dynamics"):  # the rule's own columns (square_root_second_order)
         mean, cols, low, neg, noise, nneg = rule.sqrt_dynamics(model, m, S, t, Lq, f, f_x, f_xx, joint)
+        mean = wrap_components(mean, ang)
     elif rule.kind == "taylor1":
-        mean = f(m, t)
+        mean = wrap_components(f(m, t), ang)
         cols, low, neg = mm(f_x(m, t), S), S, []  # F S over S
         noise, nneg = _noise_columns(model, m, None, None, t, Lq)
     else:
         z, wm, wc, pos, negi = _signed_nodes(rule, n)
         X = rule.points(m, S)[0]
-        FX = f(X, t)
-        mean = np.einsum("i,...ij->...j", wm, FX)  # Σ wm_i f(X_i)
-        D = FX - mean[..., None, :]
+        mean, D = node_moments(f(X, t), wm, ang)  # Σ wm_i f(X_i), f_i − m⁻ (angles: nlfilter.angles)
         cols, low = _columns(D, wc, pos), _columns(X - m[..., None, :], wc, pos)
         neg = _rows(np.concatenate([D, X - m[..., None, :]], axis=-1) if joint else D, wc, negi)
         noise, nneg = _noise_columns(model, m, X, wm, t, Lq)
@@ -172,7 +173,7 @@ def _gain(Gb, Sp):
     return G
 
 
-def sqrt_rts(beliefs, joint_predict):
+def sqrt_rts(beliefs, joint_predict, angles=()):
     """The square-root RTS smoother over the filtered beliefs ``beliefs`` (T :class:`SqrtState` of
     ``(B, n)``, ``(B, n, n)``; ``joint_predict(belief, k)``: :func:`sqrt_predict` with ``joint`` from
     run step k, the filter's rule, time and noise): ``(means (B, T, n),
@@ -194,7 +195,7 @@ def sqrt_rts(beliefs, joint_predict):
         m = beliefs[k].mean
         mp, J, failed = joint_predict(beliefs[k], k)
         G = _gain(J[..., n:, :n], J[..., :n, :n])
-        ms[:, k] = m + np.einsum("...ij,...j->...i", G, ms[:, k + 1] - mp)
+        ms[:, k] = wrap_components(m + np.einsum("...ij,...j->...i", G, residual(ms[:, k + 1], mp, angles)), angles)
         GS = G @ Ss[:, k + 1]
         Ss[:, k] = tria(np.concatenate([J[..., n:, n:], GS], axis=-1))
         lag[:, k] = GS @ Ss[:, k + 1].swapaxes(-1, -2)
@@ -213,19 +214,20 @@ def sqrt_condition(rule, model, belief, y, t, Lr, *, full: bool = False, at=None
     linearized at ``x`` instead of the mean, ``ŷ = h(x) + H (m⁻ − x)`` (an iterated update's step)."""
     m, S = belief[0], belief[1]
     n, p = m.shape[-1], y.shape[-1]
+    ang = angles_of(model)
     if hasattr(rule, "sqrt_measurement"):  # the rule's own columns (square_root_second_order)
         yhat, Y, Xc, neg = rule.sqrt_measurement(model, m, S, t)
     elif rule.kind == "taylor1":
         xl = m if at is None else at
         H = model.h_x(xl, t)
-        yhat = model.h(xl, t) if at is None else model.h(xl, t) + np.einsum("...ij,...j->...i", H, m - xl)
+        yhat = (model.h(xl, t) if at is None else
+                model.h(xl, t) + np.einsum("...ij,...j->...i", H, residual(m, xl, ang.states)))
         Y, Xc, neg = mm(H, S), S, []  # H S⁻ over S⁻
     else:
         z, wm, wc, pos, negi = _signed_nodes(rule, n)
         X = rule.points(m, S)[0]
-        HX = model.h(X, t)
-        yhat = np.einsum("i,...ij->...j", wm, HX)  # Σ wm_i h(X_i)
-        D, Z = HX - yhat[..., None, :], X - m[..., None, :]  # Z_i = S⁻ z_i
+        yhat, D = node_moments(model.h(X, t), wm, ang.measurements)  # Σ wm_i h(X_i), h_i − ŷ
+        Z = X - m[..., None, :]  # Z_i = S⁻ z_i
         Y, Xc = _columns(D, wc, pos), _columns(Z, wc, pos)
         neg = _rows(np.concatenate([D, np.broadcast_to(Z, (*D.shape[:-1], n))], axis=-1), wc, negi)
     R, LR = Lr if Lr is not None else (model.R_of(m, t), None)
@@ -250,10 +252,11 @@ def sqrt_condition(rule, model, belief, y, t, Lr, *, full: bool = False, at=None
     for more in (failed, bad):
         if more is not None and np.ndim(more):
             sing = sing | more
+    yhat = near(yhat, y, ang.measurements)  # angles: the wrapped innovation (nlfilter.angles)
     e = np.where(miss, 0.0, y - yhat)
     safe = np.where(sing[..., None, None], np.eye(p), Sy)
     u = e / safe[..., 0, :] if p == 1 else np.linalg.solve(safe, e[..., None])[..., 0]  # S_y⁻¹ e
-    mean = m + np.einsum("...ij,...j->...i", Kb, u)  # m⁻ + K̄ S_y⁻¹ (y − ŷ)
+    mean = wrap_components(m + np.einsum("...ij,...j->...i", Kb, u), ang.states)  # m⁻ + K̄ S_y⁻¹ (y − ŷ)
     return SqrtState(mean, Sp), (sing if sing.any() else None), (yhat, Sy, u, Sfull)
 
 
@@ -318,7 +321,7 @@ class SquareRootFilter(GaussianFilter):
     name = "square-root"
     source = ("Morf & Kailath 1975, Square-root algorithms for least-squares estimation, IEEE TAC 20(4); "
               "Bierman 1977, Factorization Methods for Discrete Sequential Estimation")
-    structures = ("state-dependent R", "cross noise")
+    structures = ("state-dependent R", "cross noise", "angles")
     compiled = False  # no compiled kernel propagates a factor (compiled_refusal says so)
     compiled_refusal = ("the square-root filters propagate a Cholesky factor by QR steps, which the compiled loop "
                         "has no kernel for; they run on the NumPy loop (backend='numpy', or 'auto')")
@@ -426,7 +429,7 @@ class SquareRootFilter(GaussianFilter):
         if not beliefs:  # no step: nothing to smooth
             return est.means.copy(), est.covs.copy(), {"lag_one_cov": np.full_like(est.covs, np.nan)}
         off = 0 if self.start == "update" else 1
-        ms, Ps, lag = sqrt_rts(beliefs, lambda b, k: self._joint(b, k + off))
+        ms, Ps, lag = sqrt_rts(beliefs, lambda b, k: self._joint(b, k + off), angles_of(self.model).states)
         return ms, Ps, {"lag_one_cov": lag}
 
     def _joint(self, belief, k):

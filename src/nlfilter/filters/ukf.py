@@ -23,6 +23,7 @@ from __future__ import annotations
 import numpy as np
 
 from .. import _validate as V
+from ..angles import angles_of, near, wrap_components
 from .base import DiscreteFilter, GaussianState  # noqa: F401  (GaussianState: the doctests)
 from .gaussian import ContinuousDiscreteGaussianFilter, GaussianFilter
 from .linalg import gaussian_update, poison
@@ -51,7 +52,7 @@ class UKF(GaussianFilter):
     compiled = True  # its steps are the family's (backend="numba"; augmented sigma points: refused)
     source = "Julier & Uhlmann 1997; van der Merwe 2004 (scaled sigma points); Wan & van der Merwe 2000 (augmented)"
     structures = ("state-dependent R", "time-varying R", "cross noise", "non-additive noise",
-                  "non-additive measurement noise")
+                  "non-additive measurement noise", "angles")
 
     def __init__(self, model, *, alpha: float = 1.0, beta: float = 2.0, kappa: float = 0.0,
                  start: str | None = None, augmented: bool | None = None):
@@ -87,7 +88,8 @@ class UKF(GaussianFilter):
             return md.f_aug(Z, t) if not getattr(md, "additive", True) else md.transition(Z[..., :n], Z[..., n:], t)
 
         # the filter's own rule on (x, w): its n + κ > 0 holds in any larger dimension
-        mo = self.rule.moments(_augmented(state, md.Q), f, self._time(k), cross=cross)
+        ang = angles_of(md).states  # angular states: circular mean over the augmented points (nlfilter.angles)
+        mo = self.rule.moments(_augmented(state, md.Q), f, self._time(k), cross=cross, **({"angles": ang} if ang else {}))
         new = GaussianState(mo.mean, mo.cov)
         new = new if mo.bad is None else poison(new, mo.bad)
         return (new, mo.cross[..., :n, :]) if cross else new
@@ -98,9 +100,11 @@ class UKF(GaussianFilter):
         md = self.model
         if getattr(md, "additive_measurement", True) or R is not None:
             return super()._condition(state, y, t, R=R)
-        mo = self.rule.moments(_augmented(state, md.R), md.h_aug, t)
-        new = gaussian_update(state, y, mo.mean, mo.cov, mo.cross[..., :md.n, :])  # S = Cov[h(x, v)], C = Cov[x, h]
-        return new, mo.bad, (mo.mean, mo.cov)
+        ang = angles_of(md)
+        mo = self.rule.moments(_augmented(state, md.R), md.h_aug, t, **({"angles": ang.measurements} if ang else {}))
+        yhat = near(mo.mean, y, ang.measurements)  # angles: the wrapped innovation
+        new = gaussian_update(state, y, yhat, mo.cov, mo.cross[..., :md.n, :])  # S = Cov[h(x, v)], C = Cov[x, h]
+        return GaussianState(wrap_components(new.mean, ang.states), new.cov), mo.bad, (yhat, mo.cov)
 
 
 def _augmented(state, C) -> GaussianState:

@@ -132,6 +132,8 @@ def static_refusal(flt) -> str | None:
     if getattr(flt, "augmented", False):
         return f"{name} with augmented sigma points has no compiled form"
     md = flt.model
+    if getattr(md, "angles", None):
+        return "the model declares angular components (angles=): wrapped residuals and circular means run on NumPy"
     if kind == "kalman":
         return _kalman_refusal(md)
     if getattr(md, "kind", None) != "discrete" or md.expressions is None:

@@ -56,6 +56,7 @@ from __future__ import annotations
 import numpy as np
 
 from ...errors import DivergenceError
+from ...angles import angles_of, residual, weighted_moments
 from ..pointmass import apply_kernel, cloud_moments, moments, weights
 
 __all__ = ["grid_smoother", "ffbsm", "transition_logpdf", "grid_ffbs", "backward_simulation"]
@@ -63,12 +64,13 @@ __all__ = ["grid_smoother", "ffbsm", "transition_logpdf", "grid_ffbs", "backward
 BLOCK = 2**22  #: elements of the pairwise arrays (paths × Np × Np × n) per block of the particle smoother
 
 
-def grid_smoother(filtered, kernel, X):
+def grid_smoother(filtered, kernel, X, angles=()):
     """The forward–backward grid smoother (module docstring).
 
     ``filtered``: the filtered probability vectors of steps ``0..T-1``, a sequence of ``(B, N)``;
     ``kernel(k)``: the transition kernel from step ``k`` to step ``k + 1`` (``(N, N)``, dense or
-    scipy sparse, ``p⁻ ∝ p @ K``); ``X (N, n)`` the grid points. Returns the smoothed
+    scipy sparse, ``p⁻ ∝ p @ K``); ``X (N, n)`` the grid points (``angles``: its periodic axes,
+    averaged circularly, :func:`~nlfilter.angles.weighted_moments`). Returns the smoothed
     ``(means (B, T, n), covs (B, T, n, n))``.
 
     >>> import numpy as np
@@ -85,7 +87,8 @@ def grid_smoother(filtered, kernel, X):
     if T == 0:
         return means, covs
     ps = filtered[-1]
-    means[:, -1], covs[:, -1] = moments(ps, X)
+    summary = (lambda p_, X_: weighted_moments(p_, X_, angles)) if angles else moments
+    means[:, -1], covs[:, -1] = summary(ps, X)
     for k in range(T - 2, -1, -1):
         p = filtered[k]
         K = kernel(k)
@@ -96,11 +99,11 @@ def grid_smoother(filtered, kernel, X):
         ps = p * apply_kernel(r, K.T)  # K r, for each path: r @ Kᵀ
         s = ps.sum(axis=-1, keepdims=True)
         ps = np.where(s > 0, ps / np.where(s > 0, s, 1.0), p)  # a dead path keeps its filtered density
-        means[:, k], covs[:, k] = moments(ps, X)
+        means[:, k], covs[:, k] = summary(ps, X)
     return means, covs
 
 
-def ffbsm(xs, logws, logtau, block: int | None = None, logg=None):
+def ffbsm(xs, logws, logtau, block: int | None = None, logg=None, angles=()):
     """The forward-filtering backward-smoothing of the marginals (module docstring).
 
     ``xs``, ``logws``: the filtered particles ``(B, Np, n)`` and their (unnormalized) log-weights
@@ -111,7 +114,8 @@ def ffbsm(xs, logws, logtau, block: int | None = None, logg=None):
     the state of step ``k`` (an SDE's increment over ``[t_{k+1}, t_{k+2}]`` with the left-point
     ``∫ h ds = h(x_k) dt``, one Euler–Maruyama substep), its log-likelihood at the particles
     ``x`` of step ``k`` (paths ``sl``): the backward kernel is then ``∝ w_k τ g_{k+1}(x_k)``.
-    Returns the smoothed ``(means (B, T, n), covs (B, T, n, n))``.
+    Returns the smoothed ``(means (B, T, n), covs (B, T, n, n))`` (``angles``: the angular state
+    components, averaged circularly, :func:`~nlfilter.angles.weighted_moments`).
 
     >>> import numpy as np
     >>> x0, x1 = np.array([[[0.0], [1.0]]]), np.array([[[0.0]]])   # two particles, then one
@@ -131,7 +135,8 @@ def ffbsm(xs, logws, logtau, block: int | None = None, logg=None):
     for lo in range(0, B, block):
         sl = slice(lo, min(lo + block, B))
         ws = weights(logws[-1][sl])
-        means[sl, -1], covs[sl, -1] = cloud_moments(ws, xs[-1][sl])
+        summary = (lambda w_, x_: weighted_moments(w_, x_, angles)) if angles else cloud_moments
+        means[sl, -1], covs[sl, -1] = summary(ws, xs[-1][sl])
         for k in range(T - 2, -1, -1):
             w = weights(logws[k][sl])
             lt = logtau(xs[k][sl], xs[k + 1][sl], k)  # (b, i, j): log τ(x_{k+1,j} | x_k,i)
@@ -146,7 +151,7 @@ def ffbsm(xs, logws, logtau, block: int | None = None, logg=None):
             new = w * np.einsum("bij,bj->bi", A, v)
             s = new.sum(axis=-1, keepdims=True)
             ws = np.where(s > 0, new / np.where(s > 0, s, 1.0), w)  # no support at all: keep the filter's
-            means[sl, k], covs[sl, k] = cloud_moments(ws, xs[k][sl])
+            means[sl, k], covs[sl, k] = summary(ws, xs[k][sl])
     return means, covs
 
 
@@ -188,6 +193,11 @@ def transition_logpdf(model, x, x1, k, dt=None):
                          "(a state without process noise)") from None
     Li = np.linalg.inv(L)
     logdet = 2.0 * np.sum(np.log(np.diagonal(L, axis1=-2, axis2=-1)), axis=-1) + n * np.log(2 * np.pi)
+    ang = angles_of(md).states
+    if ang:  # angular states: the pairwise residuals x1_j − f_i wrapped (nlfilter.angles)
+        z = np.einsum("...ab,...ijb->...ija" if fixed else "...iab,...ijb->...ija", Li,
+                      residual(x1[..., None, :, :], f[..., :, None, :], ang))
+        return -0.5 * np.sum(z * z, axis=-1) - 0.5 * (logdet if fixed else logdet[..., :, None])
     if fixed:  # whitened clouds a = L⁻¹ x1, b = L⁻¹ f: one matrix product per path
         a, b = x1 @ Li.T, f @ Li.T
         q = b @ np.swapaxes(a, -1, -2)  # in place below: the (..., Np, Np1) array is the cost

@@ -13,6 +13,7 @@ import scipy.linalg as sla
 from scipy import sparse
 
 from ... import _validate as V
+from ...angles import angles_of, near, residual, weighted_moments
 from ...noise import Gaussian
 from ...sde_step import END_POINT
 from ..base import gaussian_prior
@@ -98,7 +99,7 @@ class GridFilter(_ReferenceFilter):
     source = ("point-mass filter (Bucy & Senne); SDEs: Kushner's Markov-chain approximation of the "
               "Fokker–Planck operator and the Kallianpur–Striebel likelihood")
     needs = ("n ≤ 2", "noise density")
-    structures = ("state-dependent R", "time-varying R",)
+    structures = ("state-dependent R", "time-varying R", "angles")
     # SDEs: a grid density carries no path, so no ∫ h ds: the increment is read with h at the
     # interval's end point after the chain's transition (the simulator's left-point sum to first order)
     measurement_convention = END_POINT
@@ -123,7 +124,13 @@ class GridFilter(_ReferenceFilter):
             V.positive("size", s.item() if isinstance(s, np.generic) else s, integer=True)
             if s < 3:
                 raise ValueError(f"size: expected at least 3 points per axis, got {size!r}")
-        self.axes = [axis_points(lo, hi, s) for (lo, hi), s in zip(b, sizes)]
+        self._angles = angles_of(model).states  # periodic axes: the circle (−π, π] (nlfilter.angles)
+        for d in self._angles:
+            if not np.allclose(b[d], (-np.pi, np.pi), rtol=0, atol=1e-12):
+                raise ValueError(f"bounds: state {d} is an angle, its axis the circle; expected (-pi, pi) for it, "
+                                 f"got {tuple(b[d].tolist())}")
+        self.axes = [(-np.pi + 2 * np.pi * np.arange(1, s + 1) / s) if d in self._angles else axis_points(lo, hi, s)
+                     for d, ((lo, hi), s) in enumerate(zip(b, sizes))]  # an angle: size points in (−π, π]
         self.steps = np.array([ax[1] - ax[0] for ax in self.axes])
         mesh = np.meshgrid(*self.axes, indexing="ij")
         self.X = np.stack([g.ravel() for g in mesh], axis=-1)  # (N, n), first axis slowest
@@ -142,7 +149,7 @@ class GridFilter(_ReferenceFilter):
         md, X = self.model, self.X
         f = md.f(X, k)  # (N, n)
         G = md.G(X, k)  # (N, n, r)
-        D = X[None, :, :] - f[:, None, :]  # (from i, to j, n)
+        D = residual(X[None, :, :], f[:, None, :], self._angles)  # (from i, to j, n); angles wrapped
         law = md.process_noise
         if md.r == md.n and law.has_density:
             det = np.linalg.det(G)
@@ -180,8 +187,9 @@ class GridFilter(_ReferenceFilter):
             bad = (up < 0) | (down < 0)  # central differences would give a negative rate: upwind
             up = np.where(bad, diff + np.maximum(drift, 0.0), up)
             down = np.where(bad, diff + np.maximum(-drift, 0.0), down)
-            src = idx.take(range(0, sizes[d] - 1), axis=d).ravel()
-            dst = idx.take(range(1, sizes[d]), axis=d).ravel()
+            last = sizes[d] if d in self._angles else sizes[d] - 1  # periodic: the last point's neighbour is the first
+            src = idx.take(range(0, last), axis=d).ravel()
+            dst = np.roll(idx, -1, axis=d).take(range(0, last), axis=d).ravel()
             rows += [src, dst]
             cols += [dst, src]
             vals += [up[src], down[dst]]
@@ -213,7 +221,7 @@ class GridFilter(_ReferenceFilter):
                 raise ValueError(f"P0: the grid filter needs a prior density (positive definite P0: smallest "
                                  f"eigenvalue > 1e-14 · max(1, largest)), got smallest eigenvalue "
                                  f"{np.linalg.eigvalsh(P0)[0]:.3g}; pass initial= for another law")
-            logp = law.logpdf(self.X - m0)
+            logp = law.logpdf(residual(self.X, m0, self._angles))
         p = np.exp(logp - np.max(logp))
         if not np.isfinite(p).all() or p.sum() <= 0:
             raise ValueError("m0/P0: the prior has no mass on the grid; widen bounds")
@@ -239,15 +247,15 @@ class GridFilter(_ReferenceFilter):
         return belief
 
     def summary(self, belief: GridBelief):
-        """Mean and covariance of the grid density."""
-        return moments(belief.p, self.X)
+        """Mean and covariance of the grid density (angular axes: circular, :mod:`nlfilter.angles`)."""
+        return weighted_moments(belief.p, self.X, self._angles) if self._angles else moments(belief.p, self.X)
 
     def edge_mass(self, p) -> np.ndarray:
         """The probability ``(B,)`` on the grid's outermost points (any axis at its first or last
         point): mass the bounds may be cutting off. Near 0 when the bounds hold the density;
         ``compare`` checks it at every step (its reference certificate)."""
         q = p.reshape(p.shape[0], *(len(a) for a in self.axes))
-        inner = q[(slice(None), *(slice(1, -1) for _ in self.axes))]
+        inner = q[(slice(None), *self._inner())]
         return 1.0 - inner.reshape(p.shape[0], -1).sum(axis=-1)
 
     def edge_ratio(self, p) -> np.ndarray:
@@ -257,9 +265,15 @@ class GridFilter(_ReferenceFilter):
         (``edge_limit`` in the class docstring)."""
         q = p.reshape(p.shape[0], *(len(a) for a in self.axes))
         edge = np.ones(q.shape[1:], bool)
-        edge[tuple(slice(1, -1) for _ in self.axes)] = False
+        edge[self._inner()] = False
+        if not edge.any():  # every axis periodic: no edge
+            return np.zeros(p.shape[0])
         with np.errstate(divide="ignore", invalid="ignore"):
             return q[:, edge].max(axis=-1) / p.max(axis=-1)
+
+    def _inner(self):
+        """The index of the grid's inner points: all points along a periodic (angular) axis."""
+        return tuple(slice(None) if d in self._angles else slice(1, -1) for d in range(len(self.axes)))
 
     def _left(self, p):
         """``(B,)`` the paths whose density reaches ``edge_limit`` of its peak on the edge, or None."""
@@ -346,7 +360,7 @@ class GridFilter(_ReferenceFilter):
         hX = md.h(X, k)  # (N, m)
         RX = None
         if md.kind == "discrete":
-            resid = np.where(obs[..., None, :], y[..., None, :] - hX, 0.0)
+            resid = np.where(obs[..., None, :], residual(y[..., None, :], hX, angles_of(md).measurements), 0.0)
             if md.R_constant:
                 ll = measurement_loglik(md.measurement_noise, resid, obs)
             else:  # v ~ N(0, R(x)) exactly at each point (observed components: their marginal)
@@ -372,7 +386,9 @@ class GridFilter(_ReferenceFilter):
         if md.kind != "discrete":  # times the density of dy under pure noise, N(dy; 0, R dt)
             ll = ll + innovation_info(y, np.zeros_like(y), md.R * self.dt)["loglik"]
         scale = 1.0 if md.kind == "discrete" else self.dt
-        Eh, Ch = moments(p, hX)  # predictive moments of h
+        ang = angles_of(md).measurements
+        Eh, Ch = weighted_moments(p / p.sum(axis=-1, keepdims=True), hX, ang) if ang else moments(p, hX)  # of h
+        Eh = near(Eh, y / scale, ang)  # angles: the wrapped innovation
         # dy/dt: Cov[h] + R/dt, times dt² below; a state-dependent R: Cov[h] + E[R(x)]
         S = Ch * scale + (md.R if RX is None else np.einsum("...k,kij->...ij", p, RX) / p.sum(axis=-1)[..., None, None])
         ll = np.where(dead, -np.inf, np.where(obs.any(axis=-1), ll, 0.0))  # nothing measured: exactly 0
@@ -390,7 +406,7 @@ class GridFilter(_ReferenceFilter):
         Keeps every step's density: ``B × T × N`` floats (``smooth(..., chunk=)`` bounds B)."""
         if not beliefs:  # T = 0: nothing to smooth
             return est.means, est.covs
-        return grid_smoother([b.p for b in beliefs], self._step_kernel(t0), self.X)
+        return grid_smoother([b.p for b in beliefs], self._step_kernel(t0), self.X, angles=self._angles)
 
     def _step_kernel(self, t0):
         """``k ↦`` the kernel from step ``k`` to step ``k + 1`` of a run from ``t0``."""

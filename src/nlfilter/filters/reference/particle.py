@@ -13,6 +13,7 @@ from typing import NamedTuple
 import numpy as np
 
 from ... import _validate as V
+from ...angles import angles_of, near, residual, weighted_moments, wrap_components
 from ...sde_step import LEFT_POINT, SUBSTEPS, euler_maruyama, increment_loglik
 from ...noise import Gaussian, initial_states
 from ...streams import FILTER, PathRNG
@@ -113,7 +114,7 @@ class ParticleFilter(_ReferenceFilter):
     source = "bootstrap particle filter (Gordon, Salmond & Smith 1993), systematic resampling"
     needs = ("noise density",)
     random = True
-    structures = ("state-dependent R", "time-varying R", "non-additive noise")
+    structures = ("state-dependent R", "time-varying R", "non-additive noise", "angles")
     measurement_convention = LEFT_POINT
     blas_threads = 1  # small dense products per step (the summary's): one BLAS thread (base.Filter.blas_threads)
     means_only = False  # True: the summary's covariance is not computed (NaN in the output): a run read for its MSE only
@@ -192,6 +193,9 @@ class ParticleFilter(_ReferenceFilter):
     def summary(self, belief: ParticleBelief):
         """Weighted mean and covariance of the particles (the mean alone, covariance None, when
         ``means_only``: the certificate's refinement run, the yardstick's ``_check``)."""
+        ang = angles_of(self.model).states
+        if ang:  # circular means of the angular states (nlfilter.angles)
+            return weighted_moments(_weights(belief), belief.x, ang, cov=not self.means_only)
         return cloud_moments(_weights(belief), belief.x, cov=not self.means_only)
 
     def extras(self, belief: ParticleBelief):
@@ -260,7 +264,9 @@ class ParticleFilter(_ReferenceFilter):
             mx = np.max(a, axis=-1)
             lev = mx + np.log(np.sum(np.exp(a - np.where(np.isfinite(mx), mx, 0.0)[:, None]), axis=-1))
         hx = md.h(x, k) if hbar is None else hbar
-        Eh, Ch = cloud_moments(w, hx)
+        ang = angles_of(md).measurements
+        Eh, Ch = weighted_moments(w, hx, ang) if ang else cloud_moments(w, hx)
+        Eh = near(Eh, y, ang)  # angles: the wrapped innovation
         if md.kind == "discrete":  # Cov[y] = Cov[h] + E[R(x)]
             res = innovation_info(y, Eh, Ch + (md.R if md.R_constant else np.einsum("bp,bpij->bij", w, md.R_of(x, k))))
         else:  # the Kallianpur–Striebel ratio times the density of dy under pure noise N(0, R dt)
@@ -296,7 +302,8 @@ class ParticleFilter(_ReferenceFilter):
         md = self.model
         if md.kind == "discrete":
             w = _draw(md.process_noise, rng, x.shape[1:-1])
-            return md.transition(x, w, t)  # f(x) + G(x) w, or f(x, w) for non-additive noise
+            # f(x) + G(x) w, or f(x, w) for non-additive noise (angular states wrapped)
+            return wrap_components(md.transition(x, w, t), angles_of(md).states)
         sq = np.sqrt(self.dt / self.substeps)
         L = md.process_noise._sqrt
         x, ih = euler_maruyama(md, x, t, self.dt, self.substeps,
@@ -307,7 +314,7 @@ class ParticleFilter(_ReferenceFilter):
         md = self.model
         obs = ~np.isnan(y)
         if md.kind == "discrete":
-            resid = y[..., None, :] - md.h(x, k)
+            resid = residual(y[..., None, :], md.h(x, k), angles_of(md).measurements)
             if not obs.all():
                 resid = np.where(obs[..., None, :], resid, 0.0)
             if not md.R_constant:  # v ~ N(0, R(x)) exactly at each particle
@@ -344,7 +351,8 @@ class ParticleFilter(_ReferenceFilter):
         if not beliefs:  # T = 0: nothing to smooth
             return est.means, est.covs
         logtau, logg, block = self._backward(ys, t0)
-        return ffbsm([b.x for b in beliefs], [b.logw for b in beliefs], logtau, block=block, logg=logg)
+        return ffbsm([b.x for b in beliefs], [b.logw for b in beliefs], logtau, block=block, logg=logg,
+                     angles=angles_of(self.model).states)
 
     def _sample(self, beliefs, ys, t0, u):
         """Trajectory draws ``(B, d, T, n)`` by backward simulation through the filtered clouds

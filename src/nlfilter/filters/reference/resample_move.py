@@ -28,7 +28,7 @@ import numpy as np
 
 from ... import _validate as V
 from ...streams import FILTER, PathRNG
-from ..base import Filter, ode_step, set_start, set_t0
+from ..base import Filter, check_structure, ode_step, set_start, set_t0
 from ..checks import refuse_infinite
 from ..linalg import observed_precision
 from ..pointmass import cloud_moments
@@ -117,7 +117,7 @@ class ResampleMoveParticleFilter(Filter):
             raise TypeError(f"model: {type(self).__name__} expects an SDEModel, got {type(model).__name__}")
         if np.any(model.Q != 0):
             raise ValueError("model: the resample-move filter assumes no process noise (Q = 0), got a nonzero Q")
-        self.model = model
+        self.model = check_structure(self, model)  # angles: refused, naming them
         self.particles = V.positive("particles", particles, integer=True)
         self.dt = float(V.positive("dt", dt))
         self.substeps = V.positive("substeps", substeps, integer=True)
