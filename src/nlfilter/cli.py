@@ -1,7 +1,9 @@
 """The ``nlfilter`` command: ``nlfilter list`` (``--filters``: the filter registry), ``nlfilter
 reproduce ID | all``, ``nlfilter compare MODEL.toml`` (every filter that applies against the
-certified reference, on a model stated in a file: :mod:`nlfilter.modelfile`) and ``nlfilter results
-list | show | export`` (the results store, :mod:`nlfilter.store`).
+certified reference, on a model stated in a file: :mod:`nlfilter.modelfile`), ``nlfilter simulate
+MODEL.toml --out DATA.csv`` and ``nlfilter fit MODEL.toml DATA.csv --params q,r``
+(:mod:`nlfilter._cli_model`) and ``nlfilter results list | show | export`` (the results store,
+:mod:`nlfilter.store`).
 
 Errors in what the user typed (unknown experiment, unknown or malformed ``--param``, a model file
 that cannot be read, an unknown filter, an output path that cannot be written) print one line on
@@ -113,6 +115,8 @@ def _parser() -> argparse.ArgumentParser:
                    help="cap the reference by its cost estimated from a pilot: fewer particles, or a ladder "
                         "that stops early (said in a note); the estimate is printed before a long reference")
     _execution_options(c)
+    from ._cli_model import add_commands
+    add_commands(sub)  # simulate, fit
     return p
 
 
@@ -235,6 +239,9 @@ def _main(argv) -> int:
         return 0
     if args.command == "compare":
         return _compare(args, argv)
+    if args.command in ("simulate", "fit"):
+        from ._cli_model import run
+        return run(args, argv, _error)
     if args.command == "results":
         try:
             return _results(args)

@@ -93,6 +93,8 @@ import sympy as sp
 
 from ._modelexpr import (CONSTANTS, FUNCTIONS, MAX_CHARS, MAX_STATES, MAX_WORK, ExpressionError, clip,
                          finite_double, read_expression, short)
+from .modelfile_kinds import KINDS, at_values, filters as _filters, measurement_names, measurement_times, spec_with_params
+from .modelfile_kinds import Lines as _Lines
 from .models import DiscreteModel, SDEModel
 
 _NUMBERS = {"Integer": sp.Integer, "Float": sp.Float, "Rational": sp.Rational}  # reserved: SymPy's number names
@@ -112,7 +114,10 @@ _TABLES = {
 }
 _REQUIRED_TABLES = ("model", "dynamics", "measurement", "prior")
 _DYNAMICS = {"discrete": {"f": True, "G": False, "Q": False}, "sde": {"drift": True, "diffusion": False, "Q": False}}
-_MEASUREMENT = {"discrete": {"h": True, "R": True}, "sde": {"h": True, "R": True, "dt": True}}
+_DYNAMICS["continuous-discrete"] = _DYNAMICS["sde"]
+_MEASUREMENT = {"discrete": {"h": True, "R": True, "names": False},
+                "sde": {"h": True, "R": True, "dt": True, "names": False},
+                "continuous-discrete": {"h": True, "R": True, "dt": False, "times": False, "names": False}}
 
 
 class ModelFileError(ValueError):
@@ -136,44 +141,16 @@ class ModelSpec(NamedTuple):
     seed: int
     path: str
     sha256: str
+    kind: str = "discrete"
+    names: tuple = ()
+    symbolic: dict | None = None
+    times: tuple | None = None
 
-
-class _Lines:
-    """Where tables and keys sit in the file's text (tomllib gives values, not positions):
-    ``line(table, key)`` is the line of ``key`` within ``table`` (header or dotted key), else
-    that of the table's header, else 1."""
-
-    _HEADER = re.compile(r"^\s*\[\[?\s*([^\[\]]+?)\s*\]\]?\s*(#.*)?$")
-    _KEY = re.compile(r"""^\s*((?:[A-Za-z0-9_-]+|"[^"]*"|'[^']*')(?:\s*\.\s*(?:[A-Za-z0-9_-]+|"[^"]*"|'[^']*'))*)\s*=(?!=)""")
-
-    def __init__(self, text: str):
-        self.tables, self.keys = {}, {}
-        table = ()
-        for no, line in enumerate(text.splitlines(), 1):
-            h = self._HEADER.match(line)
-            if h:
-                table = self._parts(h.group(1))
-                self.tables.setdefault(table, no)
-                continue
-            k = self._KEY.match(line)
-            if k:
-                path = table + self._parts(k.group(1))
-                for i in range(1, len(path)):
-                    self.tables.setdefault(path[:i], no)
-                self.keys.setdefault(path, no)
-
-    @staticmethod
-    def _parts(dotted: str) -> tuple:
-        return tuple(p.strip().strip("\"'") for p in re.findall(r"""(?:"[^"]*"|'[^']*'|[^.]+)""", dotted))
-
-    def line(self, table: str, key: str | None = None) -> int:
-        if key is not None and (table, key) in self.keys:
-            return self.keys[(table, key)]
-        if key is not None and (table, key) in self.tables:  # a sub-table [table.key]
-            return self.tables[(table, key)]
-        if (table,) in self.tables:
-            return self.tables[(table,)]
-        return self.keys.get((table,), 1)  # an inline table: `model = {...}`
+    def with_params(self, values=None, /, **named) -> ModelSpec:
+        """This spec with other parameter values (a dict by name, or keywords): the model's
+        :meth:`~nlfilter.models.Model.with_params` and the prior's covariance when it is in the
+        parameters (:func:`~nlfilter.modelfile_kinds.spec_with_params`)."""
+        return spec_with_params(self, values, **named)
 
 
 class _Reader:
@@ -183,6 +160,8 @@ class _Reader:
         self.path, self.lines = path, _Lines(text)
         self.states = ()  # the model's state names, once read (the expressions' degree bounds)
         self.work = 0  # Σ (SymPy nodes × states used) over the expressions read (MAX_WORK)
+        self.values = {}  # parameter symbol -> its value in the file (the parameters stay symbols)
+        self.symbolic = {}  # (table, key) -> the SymPy matrix of a covariance in the parameters
 
     def fail(self, table: str, key: str | None, what: str, field: str | None = None):
         field = field or (f"{table}.{key}" if key else table)
@@ -316,11 +295,10 @@ class _Reader:
                 self.fail(table, key, f"got a diagonal of {len(value)} entries; expected {size}×{size} (or its "
                                       f"diagonal of {size}){why}")
             diag = [self.expr(table, key, f"{table}.{key}[{i}]", v, params, what) for i, v in enumerate(value)]
-            M = np.diag([float(d) for d in diag])
+            E = sp.diag(*diag)
         else:
-            M = np.array([[float(e) for e in row]
-                          for row in self.matrix(table, key, value, params, what, size, size,
-                                                 why + f" (or its diagonal of {size})")])
+            E = sp.Matrix(self.matrix(table, key, value, params, what, size, size, why + f" (or its diagonal of {size})"))
+        M = at_values(self, table, key, E)
         if not np.all(np.isfinite(M)):
             self.fail(table, key, f"got {M.tolist()}; expected finite entries")
         scale = max(1.0, float(np.max(np.abs(M))))
@@ -385,7 +363,7 @@ def load_model(path) -> ModelSpec:
     rd.keys("model", mt, _TABLES["model"])
     kind = rd.string("model", "kind", mt["kind"])
     if kind not in _DYNAMICS:
-        rd.fail("model", "kind", f"got {kind!r}; expected 'discrete' or 'sde'")
+        rd.fail("model", "kind", f"got {kind!r}; expected one of {', '.join(map(repr, KINDS))}")
     states = rd.names("model", "states", mt["states"])
     if len(states) > MAX_STATES:
         rd.fail("model", "states", f"got {len(states)} states; expected at most {MAX_STATES} (MAX_STATES)")
@@ -406,7 +384,8 @@ def load_model(path) -> ModelSpec:
             rd.fail("parameters", key, f"got {key!r}, a state's name; expected a parameter name distinct from the "
                                        f"states {states}")
         rd.number("parameters", key, value)
-        params[key] = sp.Integer(value) if isinstance(value, numbers.Integral) else sp.Float(value)
+        params[key] = sp.Symbol(key)  # kept a symbol: ModelSpec.with_params, nlfilter fit
+        rd.values[params[key]] = value
     allowed = {**syms, **params}
     what = f"a state {states}" + (f" or a parameter {sorted(params)}" if params else "")
 
@@ -431,7 +410,8 @@ def load_model(path) -> ModelSpec:
     h = rd.vector("measurement", "h", mt_["h"], None, allowed, what)
     m = len(h)
     R = rd.covariance("measurement", "R", mt_["R"], m, params, f" (m × m, m = {m}: the entries of h)", definite=True)
-    dt = float(rd.number("measurement", "dt", mt_["dt"], positive=True)) if kind == "sde" else None
+    dt, times = measurement_times(rd, mt_, kind)
+    names = measurement_names(rd, mt_, m)
 
     # [prior]
     pr = rd.table(doc, "prior", True)
@@ -459,7 +439,8 @@ def load_model(path) -> ModelSpec:
 
     cls = DiscreteModel if kind == "discrete" else SDEModel
     try:
-        model = cls(list(syms.values()), f, h, G=G, Q=Q, R=R, name=title)
+        model = cls(list(syms.values()), f, h, G=G, Q=rd.symbolic.get(("dynamics", "Q"), Q),
+                    R=rd.symbolic.get(("measurement", "R"), R), params=rd.values, name=title)
     except (ValueError, TypeError) as exc:  # what the checks above do not anticipate
         text = str(exc).splitlines()[0]
         # the model's message names its argument (f, h, G, Q, R): the file's key, at its line
@@ -471,22 +452,7 @@ def load_model(path) -> ModelSpec:
         rd.fail("dynamics", None, f"got a model the library refuses ({text}); expected a "
                                   f"valid {cls.__name__}", field="model")
     return ModelSpec(model, m0, P0, dt, run["steps"], run["paths"], run["filters"], run["seed"], name,
-                     hashlib.sha256(data).hexdigest())
-
-
-def _filters(rd: _Reader, value):
-    """``"all"`` or a tuple of registry names (a list in the file)."""
-    from .filters import REGISTRY
-
-    if value == "all":
-        return "all"
-    if not isinstance(value, list) or not value or not all(isinstance(v, str) for v in value):
-        rd.fail("run", "filters", f"got {value!r}; expected \"all\" or a non-empty list of registry names")
-    unknown = [v for v in value if v not in REGISTRY]
-    if unknown:
-        rd.fail("run", "filters", f"got the unknown filter(s) {unknown}; expected registry names from "
-                                  f"{sorted(REGISTRY)}")
-    return tuple(dict.fromkeys(value))
+                     hashlib.sha256(data).hexdigest(), kind, names, rd.symbolic, times)
 
 
 __all__ = ["ModelFileError", "ModelSpec", "load_model"]

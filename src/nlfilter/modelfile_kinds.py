@@ -1,0 +1,170 @@
+"""What a model file states beyond one model with numbers (the hooks of :mod:`nlfilter.modelfile`):
+parameters kept as symbols and covariances in them (:func:`at_values`), a spec with other parameter
+values (:func:`spec_with_params`, ``ModelSpec.with_params``), the measurement names (the columns of
+a data file, :mod:`nlfilter.data_csv`) and the ``continuous-discrete`` kind with its measurement
+times.
+
+The parameters of a file stay SymPy symbols of the model (``params=``): a model with other values is
+:meth:`~nlfilter.models.Model.with_params` (no code generated again), which is what
+:func:`~nlfilter.fitting.fit` and ``nlfilter fit MODEL.toml DATA.csv --params q,r`` need. A
+covariance (``Q``, ``R``, the prior's ``cov``) in the parameters is checked symmetric and positive
+(semi-)definite at the file's values; the model evaluates it at every value it is given.
+"""
+
+from __future__ import annotations
+
+import re
+
+import numpy as np
+import sympy as sp
+
+#: the kinds of model a file may state: the dynamics' and the measurement's keys of each
+KINDS = ("discrete", "sde", "continuous-discrete")
+
+
+def at_values(rd, table: str, key: str, E: sp.Matrix) -> np.ndarray:
+    """The covariance ``E`` (a SymPy matrix of numbers and parameters) at the file's parameter
+    values, as floats; a matrix in the parameters is recorded in ``rd.symbolic[(table, key)]``
+    (the model keeps it as an expression). A value that is not a real number is an error naming
+    the field."""
+    if E.free_symbols:
+        rd.symbolic[(table, key)] = E
+    out = np.empty(E.shape)
+    for i in range(E.rows):
+        for j in range(E.cols):
+            e = E[i, j].subs(rd.values) if E[i, j].free_symbols else E[i, j]
+            try:
+                out[i, j] = float(e)
+            except (TypeError, ValueError):
+                rd.fail(table, key, f"got {E[i, j]} = {e} at the parameters' values; expected a real number",
+                        field=f"{table}.{key}[{i}][{j}]")
+    return out
+
+
+def positive_parameters(spec) -> dict:
+    """``{name: (0, None)}``: the parameters of ``spec`` that appear on the diagonal of a noise
+    covariance (``Q``, ``R``, the prior's ``cov``) with a positive value in the file — scales, which
+    ``nlfilter fit`` moves on the log scale (:func:`~nlfilter.fitting.fit`'s ``bounds``)."""
+    out = {}
+    values = spec.model.params
+    for M in (spec.symbolic or {}).values():
+        for i in range(min(M.shape)):
+            for s in M[i, i].free_symbols:
+                if str(s) in values and np.ndim(values[str(s)]) == 0 and values[str(s)] > 0:
+                    out[str(s)] = (0.0, None)
+    return out
+
+
+def spec_with_params(spec, values=None, /, **named):
+    """``spec`` (a :class:`~nlfilter.modelfile.ModelSpec`) with other parameter values: its model's
+    :meth:`~nlfilter.models.Model.with_params` and the prior covariance evaluated again when it is in
+    the parameters (checked positive semi-definite: a ``ValueError`` naming ``P0`` otherwise)."""
+    model = spec.model.with_params(values, **named)
+    P0 = spec.P0
+    prior = (spec.symbolic or {}).get(("prior", "cov"))
+    if prior is not None:
+        sub = {model.symbol(k): v for k, v in model.params.items()}
+        P0 = np.array(prior.subs(sub).evalf(), dtype=float)
+        scale = max(1.0, float(np.max(np.abs(P0))))
+        if not np.all(np.isfinite(P0)) or float(np.min(np.linalg.eigvalsh(P0))) < -1e-10 * scale:
+            raise ValueError(f"P0: the prior covariance {prior.tolist()} is {P0.tolist()} at {dict(model.params)}; "
+                             "expected a finite positive semi-definite matrix")
+    return spec._replace(model=model, P0=P0)
+
+
+def measurement_times(rd, table: dict, kind: str):
+    """``(dt, times)`` of ``[measurement]``: an SDE's ``dt`` (required); a continuous-discrete
+    model's ``dt`` (regular times ``dt, 2 dt, ...``) or ``times`` (a list of strictly increasing
+    times after the prior's, 0), or neither (the data's ``t`` column gives them), never both;
+    ``(None, None)`` for a discrete model."""
+    from ._validate import measurement_times as check
+
+    if kind == "discrete":
+        return None, None
+    dt = float(rd.number("measurement", "dt", table["dt"], positive=True)) if "dt" in table else None
+    if "times" not in table:
+        return dt, None
+    if dt is not None:
+        rd.fail("measurement", "times", "got both dt and times; expected one of them (regular or given times)")
+    value = table["times"]
+    if not isinstance(value, list) or not value:
+        rd.fail("measurement", "times", f"got {value!r}; expected a non-empty list of increasing times")
+    for v in value:
+        rd.number("measurement", "times", v)
+    try:
+        return None, tuple(check("times", [float(v) for v in value]).tolist())
+    except ValueError as exc:
+        rd.fail("measurement", "times", str(exc).partition(": ")[2])
+
+
+def measurement_names(rd, table: dict, m: int) -> tuple:
+    """The measurements' names (``[measurement] names``: the columns of a data file), default
+    ``y1 .. ym``; distinct identifiers, one per entry of ``h``, none of them ``t`` or ``path``."""
+    if "names" not in table:
+        return tuple(f"y{i + 1}" for i in range(m))
+    names = rd.names("measurement", "names", table["names"])
+    if len(names) != m:
+        rd.fail("measurement", "names", f"got {len(names)} name(s); expected {m} (one per entry of h)")
+    for s in names:
+        if s in ("t", "path"):
+            rd.fail("measurement", "names", f"got the name {s!r}; expected a name other than 't' and 'path' (the "
+                                            "columns of the times and of the record in a data file)")
+    return tuple(names)
+
+
+class Lines:
+    """Where tables and keys sit in the file's text (tomllib gives values, not positions):
+    ``line(table, key)`` is the line of ``key`` within ``table`` (header or dotted key), else
+    that of the table's header, else 1."""
+
+    _HEADER = re.compile(r"^\s*\[\[?\s*([^\[\]]+?)\s*\]\]?\s*(#.*)?$")
+    _KEY = re.compile(r"""^\s*((?:[A-Za-z0-9_-]+|"[^"]*"|'[^']*')(?:\s*\.\s*(?:[A-Za-z0-9_-]+|"[^"]*"|'[^']*'))*)\s*=(?!=)""")
+
+    def __init__(self, text: str):
+        self.tables, self.keys = {}, {}
+        table = ()
+        for no, line in enumerate(text.splitlines(), 1):
+            h = self._HEADER.match(line)
+            if h:
+                table = self._parts(h.group(1))
+                self.tables.setdefault(table, no)
+                continue
+            k = self._KEY.match(line)
+            if k:
+                path = table + self._parts(k.group(1))
+                for i in range(1, len(path)):
+                    self.tables.setdefault(path[:i], no)
+                self.keys.setdefault(path, no)
+
+    @staticmethod
+    def _parts(dotted: str) -> tuple:
+        return tuple(p.strip().strip("\"'") for p in re.findall(r"""(?:"[^"]*"|'[^']*'|[^.]+)""", dotted))
+
+    def line(self, table: str, key: str | None = None) -> int:
+        if key is not None and (table, key) in self.keys:
+            return self.keys[(table, key)]
+        if key is not None and (table, key) in self.tables:  # a sub-table [table.key]
+            return self.tables[(table, key)]
+        if (table,) in self.tables:
+            return self.tables[(table,)]
+        return self.keys.get((table,), 1)  # an inline table: `model = {...}`
+
+
+
+
+def filters(rd, value):
+    """``"all"`` or a tuple of registry names (a list in the file)."""
+    from .filters import REGISTRY
+
+    if value == "all":
+        return "all"
+    if not isinstance(value, list) or not value or not all(isinstance(v, str) for v in value):
+        rd.fail("run", "filters", f"got {value!r}; expected \"all\" or a non-empty list of registry names")
+    unknown = [v for v in value if v not in REGISTRY]
+    if unknown:
+        rd.fail("run", "filters", f"got the unknown filter(s) {unknown}; expected registry names from "
+                                  f"{sorted(REGISTRY)}")
+    return tuple(dict.fromkeys(value))
+
+
+__all__ = ["Lines", "filters", "measurement_times", "KINDS", "at_values", "positive_parameters", "spec_with_params", "measurement_names"]
