@@ -122,9 +122,11 @@ def measurement_times(name: str, value, t0: float = 0.0) -> np.ndarray:
     d = np.diff(t)
     if np.any(d <= 0):
         k = int(np.flatnonzero(d <= 0)[0]) + 1
-        what = "repeats" if d[k - 1] == 0 else "comes before"
-        raise ValueError(f"{name}: entry {k} ({float(t[k])!r}) {what} entry {k - 1} ({float(t[k - 1])!r}); expected strictly "
-                         "increasing times (each time once, in order)")
+        if d[k - 1] == 0:
+            raise ValueError(f"{name}: got the time {float(t[k])!r} twice (entries {k - 1} and {k}); expected "
+                             "strictly increasing times, each once")
+        raise ValueError(f"{name}: got the time {float(t[k])!r} (entry {k}) after {float(t[k - 1])!r} (entry {k - 1}); "
+                         "expected strictly increasing times, in order")
     time_grid(t0, float(d.min()) if d.size else float(t[0] - t0), t.size)
     t.setflags(write=False)
     return t

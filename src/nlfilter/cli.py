@@ -344,7 +344,8 @@ def _compare(args, argv) -> int:
             from .compare_filters import check_names
             check_names(filters)
         paths = spec.paths if args.paths is None else args.paths
-        steps = spec.steps if args.steps is None else args.steps
+        from .modelfile_times import compare_timing
+        steps, timing = compare_timing(spec, args.steps)  # dt, or a continuous-discrete model's times
         seed = spec.seed if args.seed is None else args.seed
         _check_seed(seed)
         ref_kw = {"reference": None if args.reference == "none" else args.reference,
@@ -366,7 +367,7 @@ def _compare(args, argv) -> int:
         with mc.session(executor=args.executor, store=store, experiment="compare", seed=seed,
                         scheduler=args.scheduler, workers=args.workers):
             result = compare(spec.model, filters if filters == "all" else list(filters), steps, paths=paths,
-                             m0=spec.m0, P0=spec.P0, rng=seed, dt=spec.dt, progress=not args.no_progress,
+                             m0=spec.m0, P0=spec.P0, rng=seed, **timing, progress=not args.no_progress,
                              block=args.block, chunk=args.chunk, **ref_kw)
         status = "done"
     except KeyboardInterrupt:

@@ -49,11 +49,20 @@ def simulate_spec(spec, steps, paths, seed, times_text=None):
     kw = {"paths": paths, "rng": seed, "m0": spec.m0, "P0": spec.P0}
     if spec.kind == "continuous-discrete":
         times = spec_times(spec, steps, times_text)
-        sim = simulate_continuous_discrete(spec.model, len(times), times=times, **kw)
+        sim = simulate_continuous_discrete(spec.model, len(times), times=times, process="euler-maruyama", **kw)
         return sim, times
     n = spec.steps if steps is None else steps
     sim = simulate(spec.model, n, **kw, **({"dt": spec.dt} if spec.kind == "sde" else {}))
     return sim, np.asarray(sim.t, dtype=float)
+
+
+def compare_timing(spec, steps):
+    """``(steps, keywords of compare)`` for ``nlfilter compare`` on ``spec`` (``steps`` None:
+    the file's): ``dt`` of an SDE, the measurement times of a continuous-discrete model."""
+    if spec.kind != "continuous-discrete":
+        return (spec.steps if steps is None else steps), {"dt": spec.dt}
+    times = spec_times(spec, steps)
+    return len(times), {"times": times}
 
 
 def fit_inputs(spec, data, cls):
@@ -80,4 +89,4 @@ def fit_inputs(spec, data, cls):
     return data.ys, {"filter": lambda md: cls(md, None).at_times(times)}
 
 
-__all__ = ["simulate_spec", "spec_times", "fit_inputs"]
+__all__ = ["simulate_spec", "spec_times", "compare_timing", "fit_inputs"]

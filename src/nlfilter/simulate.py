@@ -335,14 +335,19 @@ def simulate_ou(q: float, r: float, dt: float, steps: int, paths: int | range, r
 
 def simulate_continuous_discrete(model, steps: int, *, paths: int | range = 1, rng=None, m0=None, P0=None, x0=None,
                                  initial: NoiseLaw | None = None, dt: float | None = None, substeps: int = 20,
-                                 t0: float = 0.0, on_divergence: str = "raise", times=None) -> Simulation:
+                                 t0: float = 0.0, on_divergence: str = "raise", times=None,
+                                 process: str = "flow") -> Simulation:
     """An :class:`~nlfilter.models.SDEModel` with *discrete* measurements (the continuous-discrete
     setting of :class:`~nlfilter.filters.second_order.ContinuousDiscreteSecondOrderFilter`: the
     model's ``h``/``R`` read as ``y_k = h(x(t_k)) + v_k``, ``v_k ~ N(0, R)``, ``t_k = t0 + k dt``,
     k = 1..steps). Between measurements the drift is integrated by classical RK4 in ``substeps``
     steps (:func:`~nlfilter.ode.ode_step`); when ``Q ≠ 0`` one Euler–Maruyama noise
     increment ``G(x, t_k) w``, ``w ~ N(0, Q dt)``, is added per interval after the flow (a coarse
-    model of the process noise: meant for nearly deterministic dynamics such as the falling body).
+    model of the process noise: meant for nearly deterministic dynamics such as the falling body;
+    ``process="flow"``, the default). ``process="euler-maruyama"``: ``substeps`` Euler–Maruyama
+    steps per interval, ``x += f(x, s) h + G(x, s) w``, ``w ~ N(0, Q h)``, ``h`` the interval over
+    ``substeps`` (the SDE's law up to the scheme's O(h) error, whatever the dynamics; draws
+    ``steps × substeps × r`` normals in place of ``steps × r``).
     Returns a :class:`Simulation` with ``xs[:, k] = x(t_{k+1})``, ``ys[:, k]`` its measurement, and
     ``timing = Timing("continuous-discrete", "predict", t0, dt)``: the prior at ``t0``, the first
     measurement one interval later (the continuous-discrete filters' default). ``times`` in place
@@ -374,6 +379,7 @@ def simulate_continuous_discrete(model, steps: int, *, paths: int | range = 1, r
         dt = float(V.positive("dt", dt))
     V.positive("substeps", substeps, integer=True)
     V.choice("on_divergence", on_divergence, {"raise", "mark"})
+    em = V.choice("process", process, {"flow", "euler-maruyama"}) == "euler-maruyama"
     rng, x, x_init, xs = _start(model, steps, paths, rng, m0, P0, x0, initial, width=2 * model.m + model.r)
     screen = _Screen(on_divergence, rng, "simulate_continuous_discrete")
     model = _path_rows(model, rng, paths)
@@ -382,7 +388,8 @@ def simulate_continuous_discrete(model, steps: int, *, paths: int | range = 1, r
     L = np.linalg.cholesky(model.R)
     grid = None if times is None else np.concatenate([[t0], times])
     SQ = Gaussian(model.Q * dt)._sqrt if times is None else None  # Q dt = SQ SQᵀ (Q may be singular)
-    w, v = rng.draw(lambda g, s: (g.standard_normal((*s, model.r)) if noisy else np.empty((*s, 0)),
+    wshape = (substeps, model.r) if em else (model.r,)
+    w, v = rng.draw(lambda g, s: (g.standard_normal((*s, *wshape)) if noisy else np.empty((*s, 0)),
                                   g.standard_normal((*s, m))), (steps,))
     v = v @ L.T
     if times is None:
@@ -392,8 +399,11 @@ def simulate_continuous_discrete(model, steps: int, *, paths: int | range = 1, r
     with np.errstate(over="ignore", invalid="ignore", divide="ignore"):  # what overflows is screened
         for k in range(steps):
             tk, dk = (t0 + k * dt, dt) if times is None else (grid[k], grid[k + 1] - grid[k])
-            x = ode_step(model.f, x, tk, dk, substeps=substeps, scheme="rk4")
-            if noisy:
+            if em:
+                x = _euler_maruyama(model, x, tk, dk, substeps, w[:, k] if noisy else None)
+            else:
+                x = ode_step(model.f, x, tk, dk, substeps=substeps, scheme="rk4")
+            if noisy and not em:
                 S = SQ if times is None else Gaussian(model.Q * dk)._sqrt
                 x = x + np.einsum("pia,pa->pi", model.G(x, tk), w[:, k] @ S.T)
             xs[:, k] = x
@@ -402,3 +412,18 @@ def simulate_continuous_discrete(model, steps: int, *, paths: int | range = 1, r
     screen.finish(xs, ys)
     timing = Timing("continuous-discrete", "predict", t0, dt, None, None if times is None else tuple(times.tolist()))
     return Simulation(xs, ys, x_init, t, timing)
+
+
+def _euler_maruyama(model, x, t, dt, substeps, z):
+    """``substeps`` Euler–Maruyama steps of ``dx = f dt + G dβ`` over ``[t, t + dt]`` from ``x (P, n)``;
+    ``z (P, substeps, r)`` standard normals (None: no process noise)."""
+    h = dt / substeps
+    S = Gaussian(model.Q * h)._sqrt if z is not None else None
+    for j in range(substeps):
+        s = t + j * h
+        step = model.f(x, s) * h
+        if z is not None:
+            step = step + np.einsum("pia,pa->pi", model.G(x, s), z[:, j] @ S.T)
+        x = x + step
+    return x
+
