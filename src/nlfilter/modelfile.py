@@ -10,9 +10,10 @@ A pendulum observed through the sine of its angle (``examples/models/pendulum.to
     name = "pendulum"              # optional (default: the file's name)
     kind = "discrete"              # "discrete": x[k+1] = f + G w, y = h + v
                                    # "sde": dx = drift dt + diffusion dβ, dy = h dt + dη
+                                   # "continuous-discrete": the sde's dx, y(t_k) = h + v_k
     states = ["theta", "omega"]
 
-    [parameters]                   # optional: numbers substituted into the expressions
+    [parameters]                   # optional: numbers; they stay symbols of the model (fit them)
     g = 9.81
     dt = 0.05
 
@@ -25,6 +26,8 @@ A pendulum observed through the sine of its angle (``examples/models/pendulum.to
     h = ["sin(theta)"]
     R = [[0.1]]                    # m × m, positive definite (an SDE: intensity, E dη dηᵀ = R dt)
     # dt = 0.01                    # an SDE only (required there): the measurement interval
+    # names = ["y"]                # optional: the measurements' names (a data file's columns;
+                                   # default y1 .. ym)
 
     [prior]                        # x[0] ~ N(mean, cov); every filter starts there
     mean = [1.0, 0.0]
@@ -44,6 +47,23 @@ indexing, strings, ``^``: powers are ``**``) is an error naming it, and nothing 
 evaluated as Python. The covariances ``Q``, ``R`` and ``cov`` hold numbers, or strings in the
 parameters only (``"q*dt"``); each is checked symmetric and positive semi-definite (``R``
 positive definite: the reference filters need its density).
+
+Parameters, measurement times, data
+-----------------------------------
+The parameters stay SymPy symbols of the model (``params=``, :mod:`nlfilter.modelfile_kinds`):
+``load_model(path).with_params(q=0.2)`` is the spec with another value (the model's
+:meth:`~nlfilter.models.Model.with_params`, no code generated again, and the prior's ``cov``
+evaluated again when it is in the parameters), and ``nlfilter fit MODEL.toml DATA.csv --params
+q,r`` estimates them (maximum likelihood, :func:`~nlfilter.fitting.fit`; a parameter on the
+diagonal of a covariance is moved on the log scale). A covariance in the parameters is checked
+at the file's values. ``kind = "continuous-discrete"`` states an SDE (``drift``, ``diffusion``, as
+``"sde"``) measured at discrete times ``y_k = h(x(t_k)) + v_k``, ``v_k ~ N(0, R)``, the prior at
+time 0: ``[measurement]`` gives ``dt`` (regular times ``dt, 2 dt, ...``), or ``times = [0.1, 0.35,
+...]`` (strictly increasing, after 0: irregular intervals), or neither (a data file's ``t`` column
+gives them); never both. ``nlfilter simulate MODEL.toml --out DATA.csv`` writes data (a CSV
+whose columns are the measurements' names and ``t``: :mod:`nlfilter.data_csv`, which checks a
+data file against its model), ``nlfilter compare`` runs the continuous-discrete filters at the
+file's times (:mod:`nlfilter.modelfile_times`).
 
 Errors
 ------

@@ -167,4 +167,4 @@ def filters(rd, value):
     return tuple(dict.fromkeys(value))
 
 
-__all__ = ["Lines", "filters", "measurement_times", "KINDS", "at_values", "positive_parameters", "spec_with_params", "measurement_names"]
+__all__ = ["measurement_times", "KINDS", "at_values", "positive_parameters", "spec_with_params", "measurement_names"]
