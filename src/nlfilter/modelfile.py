@@ -20,11 +20,14 @@ A pendulum observed through the sine of its angle (``examples/models/pendulum.to
     [dynamics]
     f = ["theta + dt*omega", "omega - dt*g*sin(theta)"]   # an SDE: drift = [...]
     G = [["0"], ["1"]]             # optional noise input (n × r; default the identity); an SDE: diffusion
+    # noise = ["w"]                # discrete only: non-additive noise, f in w (then no G; Q: Cov w)
     Q = [[0.001]]                  # optional r × r covariance of w (an SDE: intensity, E dβ dβᵀ = Q dt);
                                    # default the identity
     [measurement]
     h = ["sin(theta)"]
-    R = [[0.1]]                    # m × m, positive definite (an SDE: intensity, E dη dηᵀ = R dt)
+    R = [[0.1]]                    # m × m, positive definite (an SDE: intensity, E dη dηᵀ = R dt);
+                                   # discrete: may use the states, R(x) ("0.1 + theta**2")
+    # noise = ["v"]                # discrete only: non-additive noise, h in v (R: Cov v)
     # dt = 0.01                    # an SDE only (required there): the measurement interval
     # names = ["y"]                # optional: the measurements' names (a data file's columns;
                                    # default y1 .. ym)
@@ -113,7 +116,8 @@ import sympy as sp
 
 from ._modelexpr import (CONSTANTS, FUNCTIONS, MAX_CHARS, MAX_STATES, MAX_WORK, ExpressionError, clip,
                          finite_double, read_expression, short)
-from .modelfile_kinds import KINDS, at_values, filters as _filters, measurement_names, measurement_times, spec_with_params
+from .modelfile_kinds import KINDS, at_values, check_R, filters as _filters, measurement_names, measurement_times, noise_names
+from .modelfile_kinds import spec_with_params
 from .modelfile_kinds import Lines as _Lines
 from .models import DiscreteModel, SDEModel
 
@@ -133,9 +137,9 @@ _TABLES = {
     "run": {"steps": False, "paths": False, "filters": False, "seed": False},
 }
 _REQUIRED_TABLES = ("model", "dynamics", "measurement", "prior")
-_DYNAMICS = {"discrete": {"f": True, "G": False, "Q": False}, "sde": {"drift": True, "diffusion": False, "Q": False}}
+_DYNAMICS = {"discrete": {"f": True, "G": False, "Q": False, "noise": False}, "sde": {"drift": True, "diffusion": False, "Q": False}}
 _DYNAMICS["continuous-discrete"] = _DYNAMICS["sde"]
-_MEASUREMENT = {"discrete": {"h": True, "R": True, "names": False},
+_MEASUREMENT = {"discrete": {"h": True, "R": True, "names": False, "noise": False},
                 "sde": {"h": True, "R": True, "dt": True, "names": False},
                 "continuous-discrete": {"h": True, "R": True, "dt": False, "times": False, "names": False}}
 
@@ -319,6 +323,8 @@ class _Reader:
         else:
             E = sp.Matrix(self.matrix(table, key, value, params, what, size, size, why + f" (or its diagonal of {size})"))
         M = at_values(self, table, key, E)
+        if M is None:  # R in the states: R(x), checked at the prior's mean (modelfile_kinds.check_R)
+            return None
         if not np.all(np.isfinite(M)):
             self.fail(table, key, f"got {M.tolist()}; expected finite entries")
         scale = max(1.0, float(np.max(np.abs(M))))
@@ -414,11 +420,12 @@ def load_model(path) -> ModelSpec:
     fkey, gkey = ("f", "G") if kind == "discrete" else ("drift", "diffusion")
     rd.keys("dynamics", dt_, _DYNAMICS[kind], f" (kind = {kind!r}: " + ("x[k+1] = f + G w)" if kind == "discrete" else
                                                                        "dx = drift dt + diffusion dβ)"))
-    f = rd.vector("dynamics", fkey, dt_[fkey], n, allowed, what)
+    wn = noise_names(rd, "dynamics", dt_, allowed)  # non-additive noise: its symbols in f
+    f = rd.vector("dynamics", fkey, dt_[fkey], n, {**allowed, **wn}, what + (f" or a noise {list(wn)}" if wn else ""))
     G = None
     if gkey in dt_:
         G = rd.matrix("dynamics", gkey, dt_[gkey], allowed, what, rows=n, why=f" (n × r, n = {n} states)")
-    r = n if G is None else len(G[0])
+    r = len(wn) if wn else n if G is None else len(G[0])
     Q = (rd.covariance("dynamics", "Q", dt_["Q"], r, params,
                        f" (r × r, r = {r}: the columns of {gkey})" if G is not None else
                        f" (r × r, r = n = {n}: {gkey} is the identity)")
@@ -427,9 +434,12 @@ def load_model(path) -> ModelSpec:
     # [measurement]
     mt_ = rd.table(doc, "measurement", True)
     rd.keys("measurement", mt_, _MEASUREMENT[kind], " (dt: an SDE's measurement interval)" if kind == "discrete" else "")
-    h = rd.vector("measurement", "h", mt_["h"], None, allowed, what)
+    vn = noise_names(rd, "measurement", mt_, {**allowed, **wn})
+    h = rd.vector("measurement", "h", mt_["h"], None, {**allowed, **vn}, what + (f" or a noise {list(vn)}" if vn else ""))
     m = len(h)
-    R = rd.covariance("measurement", "R", mt_["R"], m, params, f" (m × m, m = {m}: the entries of h)", definite=True)
+    R = rd.covariance("measurement", "R", mt_["R"], len(vn) or m, {**params, **(syms if kind == "discrete" else {})},
+                      f" (p × p, p = {len(vn)}: the noises of h)" if vn else f" (m × m, m = {m}: the entries of h)",
+                      definite=True)
     dt, times = measurement_times(rd, mt_, kind)
     names = measurement_names(rd, mt_, m)
 
@@ -460,7 +470,8 @@ def load_model(path) -> ModelSpec:
     cls = DiscreteModel if kind == "discrete" else SDEModel
     try:
         model = cls(list(syms.values()), f, h, G=G, Q=rd.symbolic.get(("dynamics", "Q"), Q),
-                    R=rd.symbolic.get(("measurement", "R"), R), params=rd.values, name=title)
+                    R=rd.symbolic.get(("measurement", "R"), R), params=rd.values, name=title,
+                    **({"noise": list(wn.values()) or None, "meas_noise": list(vn.values()) or None} if wn or vn else {}))
     except (ValueError, TypeError) as exc:  # what the checks above do not anticipate
         text = str(exc).splitlines()[0]
         # the model's message names its argument (f, h, G, Q, R): the file's key, at its line
@@ -471,6 +482,7 @@ def load_model(path) -> ModelSpec:
             rd.fail(*where, f"got an expression the library refuses ({rest}); expected a valid {cls.__name__}")
         rd.fail("dynamics", None, f"got a model the library refuses ({text}); expected a "
                                   f"valid {cls.__name__}", field="model")
+    check_R(rd, model, m0)
     return ModelSpec(model, m0, P0, dt, run["steps"], run["paths"], run["filters"], run["seed"], name,
                      hashlib.sha256(data).hexdigest(), kind, names, rd.symbolic, times)
 

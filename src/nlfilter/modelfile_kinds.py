@@ -29,6 +29,8 @@ def at_values(rd, table: str, key: str, E: sp.Matrix) -> np.ndarray:
     the field."""
     if E.free_symbols:
         rd.symbolic[(table, key)] = E
+    if E.free_symbols & {sp.Symbol(s) for s in rd.states}:
+        return None  # R in the states (a discrete model): checked at the prior's mean (check_R)
     out = np.empty(E.shape)
     for i in range(E.rows):
         for j in range(E.cols):
@@ -95,6 +97,34 @@ def measurement_times(rd, table: dict, kind: str):
         return None, tuple(check("times", [float(v) for v in value]).tolist())
     except ValueError as exc:
         rd.fail("measurement", "times", str(exc).partition(": ")[2])
+
+
+def noise_names(rd, table: str, value: dict, taken: dict) -> dict:
+    """``{name: Symbol}`` of the non-additive noise of ``[dynamics]`` (``noise = ["w"]``:
+    ``x[k+1] = f(x, w)``, ``Q`` the covariance of w, no ``G``) or ``[measurement]`` (``noise =
+    ["v"]``: ``y = h(x, v)``, ``R`` the covariance of v); names distinct from ``taken`` (the states,
+    the parameters, the other noise). Empty when not given."""
+    if "noise" not in value:
+        return {}
+    names = rd.names(table, "noise", value["noise"])
+    clash = [s for s in names if s in taken]
+    if clash:
+        rd.fail(table, "noise", f"got the name {clash[0]!r}, already a state, parameter or noise; expected new names")
+    if table == "dynamics" and "G" in value:
+        rd.fail(table, "G", "got G with a non-additive noise; expected no G (the noise enters f: x[k+1] = f(x, w))")
+    return {s: sp.Symbol(s) for s in names}
+
+
+def check_R(rd, model, m0) -> None:
+    """A measurement covariance in the states, ``R(x)``, positive definite at the prior's mean
+    ``m0`` (where else it is not is named by the model when it is evaluated: ``Model.R_of``)."""
+    if getattr(model, "R_constant", True):
+        return
+    try:
+        model.R_of(np.asarray(m0, dtype=float)[None, :], 0)
+    except ValueError as exc:
+        rd.fail("measurement", "R", f"got R(x) that is not positive definite at the prior's mean {np.asarray(m0).tolist()} "
+                                    f"({str(exc).splitlines()[0]}); expected a covariance")
 
 
 def measurement_names(rd, table: dict, m: int) -> tuple:
@@ -167,4 +197,4 @@ def filters(rd, value):
     return tuple(dict.fromkeys(value))
 
 
-__all__ = ["measurement_times", "KINDS", "at_values", "positive_parameters", "spec_with_params", "measurement_names"]
+__all__ = ["measurement_times", "noise_names", "check_R", "KINDS", "at_values", "positive_parameters", "spec_with_params", "measurement_names"]
