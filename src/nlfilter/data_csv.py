@@ -184,7 +184,7 @@ def _check_times(spec, times, first, fail) -> None:
     T = len(times)
     if spec.kind == "continuous-discrete" and spec.dt is None:
         if times[0] <= 0:
-            fail(first[0][0], "t", f"got the first time {times[0]!r}; expected a time after the prior's, 0 (the "
+            fail(first[0][0], "t", f"got the first time {float(times[0])!r}; expected a time after the prior's, 0 (the "
                                    "first measurement follows the prior)")
         return
     if spec.kind == "discrete":
@@ -194,4 +194,4 @@ def _check_times(spec, times, first, fail) -> None:
     bad = np.flatnonzero(~np.isclose(times, want, rtol=1e-9, atol=1e-12 * max(1.0, abs(float(want[-1])))))
     if bad.size:
         k = int(bad[0])
-        fail(first[k][0], "t", f"got the time {times[k]!r}; expected {want[k]!r}: {what}")
+        fail(first[k][0], "t", f"got the time {float(times[k])!r}; expected {float(want[k])!r}: {what}")

@@ -108,7 +108,6 @@ import numbers
 import pathlib
 import re
 import tokenize
-import tomllib
 from typing import NamedTuple
 
 import numpy as np
@@ -117,7 +116,7 @@ import sympy as sp
 from ._modelexpr import (CONSTANTS, FUNCTIONS, MAX_CHARS, MAX_STATES, MAX_WORK, ExpressionError, clip,
                          finite_double, read_expression, short)
 from .modelfile_kinds import KINDS, at_values, check_R, filters as _filters, measurement_names, measurement_times, noise_names
-from .modelfile_kinds import spec_with_params
+from .modelfile_kinds import read_toml, spec_with_params
 from .modelfile_kinds import Lines as _Lines
 from .models import DiscreteModel, SDEModel
 
@@ -355,27 +354,7 @@ def load_model(path) -> ModelSpec:
     """
     if not isinstance(path, (str, pathlib.PurePath)):
         raise TypeError(f"path: expected a file path (str or pathlib.Path), got {type(path).__name__}")
-    name = str(path)
-    try:
-        data = pathlib.Path(path).read_bytes()
-    except OSError as exc:
-        raise ModelFileError(f"{name}:1: file: got {type(exc).__name__} ({exc.strerror or exc}); expected a "
-                             "readable TOML model file") from None
-    try:
-        text = data.decode("utf-8")
-    except UnicodeDecodeError as exc:
-        raise ModelFileError(f"{name}:1: file: got bytes that are not UTF-8 ({exc.reason}); expected a TOML "
-                             "file (UTF-8 text)") from None
-    try:
-        doc = tomllib.loads(text)
-    except tomllib.TOMLDecodeError as exc:
-        msg = str(exc)
-        at = re.search(r"\(at line (\d+), column (\d+)\)", msg)
-        line = int(at.group(1)) if at else max(1, len(text.splitlines()))
-        where = f"column {at.group(2)}" if at else "the end of the file"
-        msg = re.sub(r"\s*\(at (line \d+, column \d+|end of document)\)", "", msg)
-        raise ModelFileError(f"{name}:{line}: toml: got invalid TOML at {where} ({msg}); expected a valid TOML "
-                             "file") from None
+    name, data, text, doc = read_toml(path, ModelFileError)
     rd = _Reader(name, text)
     for key, value in doc.items():
         if key not in _TABLES:

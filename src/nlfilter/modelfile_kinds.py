@@ -13,13 +13,43 @@ covariance (``Q``, ``R``, the prior's ``cov``) in the parameters is checked symm
 
 from __future__ import annotations
 
+import pathlib
 import re
+import tomllib
 
 import numpy as np
 import sympy as sp
 
 #: the kinds of model a file may state: the dynamics' and the measurement's keys of each
 KINDS = ("discrete", "sde", "continuous-discrete")
+
+
+def read_toml(path, error):
+    """``(name, bytes, text, document)`` of the TOML file ``path``; an unreadable file, bytes that
+    are not UTF-8 or a TOML syntax error raise ``error`` (:class:`~nlfilter.modelfile.ModelFileError`)
+    with one line ``FILE:LINE: FIELD: ...`` (the line and column ``tomllib`` reports)."""
+    name = str(path)
+    try:
+        data = pathlib.Path(path).read_bytes()
+    except OSError as exc:
+        raise error(f"{name}:1: file: got {type(exc).__name__} ({exc.strerror or exc}); expected a "
+                             "readable TOML model file") from None
+    try:
+        text = data.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        raise error(f"{name}:1: file: got bytes that are not UTF-8 ({exc.reason}); expected a TOML "
+                             "file (UTF-8 text)") from None
+    try:
+        doc = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        msg = str(exc)
+        at = re.search(r"\(at line (\d+), column (\d+)\)", msg)
+        line = int(at.group(1)) if at else max(1, len(text.splitlines()))
+        where = f"column {at.group(2)}" if at else "the end of the file"
+        msg = re.sub(r"\s*\(at (line \d+, column \d+|end of document)\)", "", msg)
+        raise error(f"{name}:{line}: toml: got invalid TOML at {where} ({msg}); expected a valid TOML "
+                             "file") from None
+    return name, data, text, doc
 
 
 def at_values(rd, table: str, key: str, E: sp.Matrix) -> np.ndarray:
