@@ -2,7 +2,7 @@
 reproduce ID | all``, ``nlfilter compare MODEL.toml`` (every filter that applies against the
 certified reference, on a model stated in a file: :mod:`nlfilter.modelfile`), ``nlfilter simulate
 MODEL.toml --out DATA.csv`` and ``nlfilter fit MODEL.toml DATA.csv --params q,r``
-(:mod:`nlfilter._cli_model`) and ``nlfilter results list | show | export`` (the results store,
+(``nlfilter._cli_model``) and ``nlfilter results list | show | export`` (the results store,
 :mod:`nlfilter.store`).
 
 Errors in what the user typed (unknown experiment, unknown or malformed ``--param``, a model file
