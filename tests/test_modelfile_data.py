@@ -227,6 +227,8 @@ def test_fit_coverage_over_seeds(ou, tmp_path, capsys):
                          "--json", str(res)]) == 0
         d = json.loads(res.read_text())
         assert d["converged"], d["message"]
+        assert d["notes"] == ["the prior's cov is written in ['a', 'q']: it is held at the file's values (P0 = "
+                              "[[0.25]]), not moved with the estimate"]
         for name, truth in (("a", 1.0), ("q", 0.5)):
             lo, hi = d["intervals95"][name]
             covered += lo <= truth <= hi

@@ -106,6 +106,12 @@ def _fit(args, argv, error) -> int:
     except (ValueError, TypeError) as exc:
         return error(exc)
     print(str(res))
+    prior = (spec.symbolic or {}).get(("prior", "cov"))
+    held = sorted(str(v) for v in (prior.free_symbols if prior is not None else ()) if str(v) in names)
+    note = (f"the prior's cov is written in {held}: it is held at the file's values (P0 = {spec.P0.tolist()}), not "
+            "moved with the estimate" if held else None)
+    if note:
+        print(f"  note: {note}")
     rows = {}
     for p in names:
         v, se = res.params[p], res.se[p]
@@ -115,7 +121,8 @@ def _fit(args, argv, error) -> int:
     if args.json:
         out = dict(res.to_dict(), intervals95={p: r["interval95"] for p, r in rows.items()},
                    model_file=str(args.model), model_sha256=spec.sha256, data_file=str(args.data),
-                   records=int(ys.shape[0]), measurements=int(ys.shape[1]), command=_command(argv))
+                   records=int(ys.shape[0]), measurements=int(ys.shape[1]), command=_command(argv),
+                   notes=[note] if note else [])
         with open(args.json, "w", encoding="utf-8") as fh:
             json.dump(out, fh, indent=1)
         print(f"wrote {args.json}")
