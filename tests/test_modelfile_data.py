@@ -216,7 +216,7 @@ def test_fit_coverage_over_seeds(ou, tmp_path, capsys):
     the true (a, q) = (1, 0.5). Of
     24 intervals, at least 20 must cover: with a true rate of 0.95 fewer than 20 has probability
     0.6 % (binomial, the two intervals of a seed taken as independent), while a rate of 0.8
-    (intervals a third too narrow) passes with probability 0.42 only. The continuous-discrete EKF's
+    (intervals a third too narrow) passes with probability 0.46 only. The continuous-discrete EKF's
     likelihood is exact up to its RK4 step on this linear model; every fit must converge."""
     data, res = tmp_path / "data.csv", tmp_path / "fit.json"
     covered, estimates = 0, []
