@@ -109,6 +109,29 @@ def time_grid(t0: float, dt: float, steps: int) -> float:
     return t0
 
 
+def measurement_times(name: str, value, t0: float = 0.0) -> np.ndarray:
+    """Measurement times ``t_1 < t_2 < ...`` after the prior's ``t0`` (irregular intervals of a
+    continuous-discrete model), as a read-only float array ``(T,)``: finite, strictly increasing
+    (a time repeated or out of order is a ValueError naming ``name`` and the first such entry)."""
+    t = as_float_array(name, value, ndim=1).copy()
+    if t.size == 0:
+        raise ValueError(f"{name}: got no times; expected at least one measurement time")
+    finite(name, t)
+    if not t[0] > t0:
+        raise ValueError(f"{name}: got the first time {float(t[0])!r}; expected times after the prior's time t0 = {t0!r}")
+    d = np.diff(t)
+    if np.any(d <= 0):
+        k = int(np.flatnonzero(d <= 0)[0]) + 1
+        if d[k - 1] == 0:
+            raise ValueError(f"{name}: got the time {float(t[k])!r} twice (entries {k - 1} and {k}); expected "
+                             "strictly increasing times, each once")
+        raise ValueError(f"{name}: got the time {float(t[k])!r} (entry {k}) after {float(t[k - 1])!r} (entry {k - 1}); "
+                         "expected strictly increasing times, in order")
+    time_grid(t0, float(d.min()) if d.size else float(t[0] - t0), t.size)
+    t.setflags(write=False)
+    return t
+
+
 MEMORY_BOUND = 8 * 2 ** 30  # bytes: a run or simulation that would allocate more is refused up front
 
 

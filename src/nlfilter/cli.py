@@ -1,7 +1,9 @@
 """The ``nlfilter`` command: ``nlfilter list`` (``--filters``: the filter registry), ``nlfilter
 reproduce ID | all``, ``nlfilter compare MODEL.toml`` (every filter that applies against the
-certified reference, on a model stated in a file: :mod:`nlfilter.modelfile`) and ``nlfilter results
-list | show | export`` (the results store, :mod:`nlfilter.store`).
+certified reference, on a model stated in a file: :mod:`nlfilter.modelfile`), ``nlfilter simulate
+MODEL.toml --out DATA.csv`` and ``nlfilter fit MODEL.toml DATA.csv --params q,r``
+(``nlfilter._cli_model``) and ``nlfilter results list | show | export`` (the results store,
+:mod:`nlfilter.store`).
 
 Errors in what the user typed (unknown experiment, unknown or malformed ``--param``, a model file
 that cannot be read, an unknown filter, an output path that cannot be written) print one line on
@@ -113,6 +115,8 @@ def _parser() -> argparse.ArgumentParser:
                    help="cap the reference by its cost estimated from a pilot: fewer particles, or a ladder "
                         "that stops early (said in a note); the estimate is printed before a long reference")
     _execution_options(c)
+    from ._cli_model import add_commands
+    add_commands(sub)  # simulate, fit
     return p
 
 
@@ -235,6 +239,9 @@ def _main(argv) -> int:
         return 0
     if args.command == "compare":
         return _compare(args, argv)
+    if args.command in ("simulate", "fit"):
+        from ._cli_model import run
+        return run(args, argv, _error)
     if args.command == "results":
         try:
             return _results(args)
@@ -337,7 +344,8 @@ def _compare(args, argv) -> int:
             from .compare_filters import check_names
             check_names(filters)
         paths = spec.paths if args.paths is None else args.paths
-        steps = spec.steps if args.steps is None else args.steps
+        from .modelfile_times import compare_timing
+        steps, timing = compare_timing(spec, args.steps)  # dt, or a continuous-discrete model's times
         seed = spec.seed if args.seed is None else args.seed
         _check_seed(seed)
         ref_kw = {"reference": None if args.reference == "none" else args.reference,
@@ -359,7 +367,7 @@ def _compare(args, argv) -> int:
         with mc.session(executor=args.executor, store=store, experiment="compare", seed=seed,
                         scheduler=args.scheduler, workers=args.workers):
             result = compare(spec.model, filters if filters == "all" else list(filters), steps, paths=paths,
-                             m0=spec.m0, P0=spec.P0, rng=seed, dt=spec.dt, progress=not args.no_progress,
+                             m0=spec.m0, P0=spec.P0, rng=seed, **timing, progress=not args.no_progress,
                              block=args.block, chunk=args.chunk, **ref_kw)
         status = "done"
     except KeyboardInterrupt:

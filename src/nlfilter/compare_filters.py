@@ -84,15 +84,16 @@ def check_names(names) -> None:
         raise ValueError(f"filters: expected registry names from {sorted(REGISTRY)!r}, got {V.shown(bad)}")
 
 
-def _resolve(filters, model, sim_model, dt, start):
+def _resolve(filters, model, sim_model, dt, start, measured=None):
     """``(dict name -> filter instance, dict name -> reason skipped)`` from a dict of instances,
     ``"all"`` (every registered filter that accepts the kind of ``model`` or of ``sim_model``: it
     runs, or is skipped with the reason — the reference family, the other time's data, or what
     ``cls.for_model`` refused; module docstring), or a list of registry names (built with
-    ``cls.for_model``; one that cannot be built is an error)."""
+    ``cls.for_model``; one that cannot be built is an error). ``measured="discrete"``: an SDE
+    measured at discrete times (the continuous-discrete filters run)."""
     if isinstance(filters, dict):
         return dict(filters), {}
-    data = "continuous" if sim_model.kind == "sde" else "discrete"
+    data = measured or ("continuous" if sim_model.kind == "sde" else "discrete")
     models = [sim_model] + ([model] if model is not sim_model else [])
     skipped = {}
     if isinstance(filters, str) and filters == "all":
@@ -126,7 +127,8 @@ def _resolve(filters, model, sim_model, dt, start):
                 raise ValueError(f"{name} reads {getattr(cls, 'time', '?')}-time data (accepts "
                                  f"{', '.join(getattr(cls, 'accepts', ()))} models); this comparison has a "
                                  f"{model_kind(model)!r} model and {data}-time data"
-                                 + (" (measurement increments)" if data == "continuous" else " (samples)"))
+                                 + (" (measurement increments)" if data == "continuous" else
+                                    " (samples at the measurement times)" if measured else " (samples)"))
             out[name] = cls.for_model(target, dt=dt, start=start)
         except (ValueError, TypeError, NotImplementedError) as exc:  # the model lacks what it needs
             if explicit:

@@ -55,7 +55,7 @@ from .evaluate import _window
 from .filters.registry import model_kind
 from .results import Result, provenance
 from .sde_step import SUBSTEPS
-from .simulate import simulate
+from .simulate import simulate, simulate_continuous_discrete
 from .certificate_checks import contradiction_note, contradictions
 from .yardstick import MAX_PARTICLES, OPTIMAL, certified_reference, check_given_reference, reference_filter
 
@@ -65,7 +65,7 @@ REFERENCES = ("auto", "grid", "particle")  # the automatic reference's kinds (co
 def compare(model, filters, steps, *, paths=200, m0, P0, rng=0, reference="auto", window=0.5, dt=None,
             substeps=SUBSTEPS, start="update", progress=False, on_divergence="mark", rtol=0.02, certify_paths=64,
             max_particles=MAX_PARTICLES, reference_budget=None, chunk=None, full_output=False, smooth=False,
-            block=None, executor=None, scheduler=None, workers=None):
+            block=None, executor=None, scheduler=None, workers=None, times=None):
     """Run every filter and a near-optimal reference on one shared simulation; a :class:`Result`.
 
     Parameters
@@ -133,6 +133,12 @@ def compare(model, filters, steps, *, paths=200, m0, P0, rng=0, reference="auto"
         the simulation (default :data:`~nlfilter.sde_step.SUBSTEPS`), of an automatic particle
         reference and of any particle filter given without ``substeps``
     start : discrete models: step convention (see :mod:`nlfilter.filters.base`)
+    times : SDE models measured at discrete times (continuous-discrete, ``y_k = h(x(t_k)) + v_k``):
+        the measurement times ``t_1 < ... < t_steps`` after the prior at 0, regular or not, in
+        place of ``dt``; simulated by :func:`~nlfilter.simulate.simulate_continuous_discrete`,
+        filtered by the continuous-discrete filters at those times (``start="predict"``). No
+        filter of the reference family reads such data: ``reference="auto"`` is then no
+        reference (a note says so), and the rows are ``mse``, ``nees`` and ``divergence_rate``
     progress : show progress bars naming what runs (the filters, each rung and check of the
         reference, with their paths), and print the reference's estimated cost before a long
         reference (above ``compare_budget.LONG`` seconds) on stderr
@@ -183,7 +189,9 @@ def compare(model, filters, steps, *, paths=200, m0, P0, rng=0, reference="auto"
     V.positive("paths", paths, integer=True)
     if paths < 2:
         raise ValueError(f"paths: expected at least 2 paths (for standard errors), got {paths!r}")
-    if kind == "sde" and dt is None:
+    if times is not None:
+        times, start, reference = _measured_at(times, kind, dt, steps, reference, reference_budget)
+    elif kind == "sde" and dt is None:
         raise ValueError("dt: expected the measurement step for an SDEModel, got None")
     if kind == "discrete" and dt is not None:
         raise ValueError(f"dt: a DiscreteModel has no time step; expected None, got {dt!r}")
@@ -206,7 +214,7 @@ def compare(model, filters, steps, *, paths=200, m0, P0, rng=0, reference="auto"
         raise ValueError(f"reference: expected one of {REFERENCES}, None or a filter instance, got {V.shown(reference)}")
     if not (reference is None or isinstance(reference, str)):
         reference = _check_filter("reference", reference, model, dt, start, substeps)
-    filters, skipped = _resolve(filters, given, model, dt, start)
+    filters, skipped = _resolve(filters, given, model, dt, start, None if times is None else "discrete")
     _check_filters(filters, model, dt, start, reference, substeps)
     m0v = V.mean("m0", m0, model.n, ndim=1)
     P0m = V.covariance("P0", P0, model.n)
@@ -225,13 +233,21 @@ def compare(model, filters, steps, *, paths=200, m0, P0, rng=0, reference="auto"
         ex = mc.make_executor(executor, scheduler=scheduler, workers=workers)
     t_start = time.perf_counter()
     try:
-        sim_kw = {"dt": dt, "substeps": substeps} if kind == "sde" else {"start": start}
-        sim = simulate(model, steps, paths=paths, rng=root, m0=m0v, P0=P0m, **sim_kw)
+        if times is None:
+            sim_kw = {"dt": dt, "substeps": substeps} if kind == "sde" else {"start": start}
+            sim = simulate(model, steps, paths=paths, rng=root, m0=m0v, P0=P0m, **sim_kw)
+        else:  # continuous-discrete: every filter at the data's times
+            sim = simulate_continuous_discrete(model, steps, paths=paths, rng=root, m0=m0v, P0=P0m, times=times,
+                                               process="euler-maruyama")
+            filters = {k: f.for_timing(sim.timing)[0] if callable(getattr(f, "for_timing", None)) else f
+                       for k, f in filters.items()}
 
         params = {"steps": steps, "paths": paths, "window": window, "seed": seed, "start": start,
                   "on_divergence": on_divergence, "m0": m0v.tolist(),
                   "P0": P0m.tolist()}
-        if kind == "sde":
+        if times is not None:
+            params.update(times=times.tolist(), measurements="continuous-discrete")
+        elif kind == "sde":
             params.update(dt=dt, substeps=substeps)
         if block is not None:  # the blocks' batches: the last bits of the numbers may depend on it
             params["block"] = block
@@ -348,8 +364,28 @@ def compare(model, filters, steps, *, paths=200, m0, P0, rng=0, reference="auto"
                          f"on the same paths, ± its paired s.e. and the reference's error; NEES ≈ {model.n} for a "
                          f"consistent filter (posterior covariances only; offline_mse: the off-line error "
                          f"variance an off-line-gain filter predicts)" if cert is not None else
-                         f"window {window!r} of {steps} steps, {paths} paths; no reference")
+                         f"window {window!r} of {steps} steps, {paths} paths; no reference"
+                         + (" (no reference filter reads an SDE measured at discrete times)" if times is not None
+                            else ""))
         return (res, sim, est) if full_output else res
     finally:
         if ex is not executor and (sess is None or ex is not sess.executor):
             ex.close()
+
+
+def _measured_at(times, kind, dt, steps, reference, reference_budget):
+    """``(times, start, reference)`` of a continuous-discrete comparison (``compare(times=)``):
+    the times checked against the model's kind, ``dt`` and ``steps``; start ``"predict"``; no
+    reference (``"auto"``; another is refused: none reads such data)."""
+    if kind != "sde":
+        raise ValueError(f"times: measurement times are for an SDEModel measured at discrete times; got a {kind} model")
+    if dt is not None:
+        raise ValueError(f"dt, times: expected one of them, got dt={dt!r} and times")
+    times = V.measurement_times("times", times)
+    if len(times) != steps:
+        raise ValueError(f"steps: got {steps}; expected the number of measurement times, {len(times)}")
+    if not (reference is None or reference == "auto") or reference_budget is not None:
+        raise ValueError(f"reference: no reference filter reads an SDE measured at discrete times; expected "
+                         f"'auto' or None (no reference) without reference_budget, got {V.shown(reference)}")
+    return times, "predict", None
+

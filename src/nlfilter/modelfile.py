@@ -10,23 +10,29 @@ A pendulum observed through the sine of its angle (``examples/models/pendulum.to
     name = "pendulum"              # optional (default: the file's name)
     kind = "discrete"              # "discrete": x[k+1] = f + G w, y = h + v
                                    # "sde": dx = drift dt + diffusion dβ, dy = h dt + dη
+                                   # "continuous-discrete": the sde's dx, y(t_k) = h + v_k
     states = ["theta", "omega"]
     # angles = { states = ["theta"], measurements = [0] }   # optional: angular components, wrapped
                                    # to (−π, π] (states by name, measurements by index into h)
 
-    [parameters]                   # optional: numbers substituted into the expressions
+    [parameters]                   # optional: numbers; they stay symbols of the model (fit them)
     g = 9.81
     dt = 0.05
 
     [dynamics]
     f = ["theta + dt*omega", "omega - dt*g*sin(theta)"]   # an SDE: drift = [...]
     G = [["0"], ["1"]]             # optional noise input (n × r; default the identity); an SDE: diffusion
+    # noise = ["w"]                # discrete only: non-additive noise, f in w (then no G; Q: Cov w)
     Q = [[0.001]]                  # optional r × r covariance of w (an SDE: intensity, E dβ dβᵀ = Q dt);
                                    # default the identity
     [measurement]
     h = ["sin(theta)"]
-    R = [[0.1]]                    # m × m, positive definite (an SDE: intensity, E dη dηᵀ = R dt)
+    R = [[0.1]]                    # m × m, positive definite (an SDE: intensity, E dη dηᵀ = R dt);
+                                   # discrete: may use the states, R(x) ("0.1 + theta**2")
+    # noise = ["v"]                # discrete only: non-additive noise, h in v (R: Cov v)
     # dt = 0.01                    # an SDE only (required there): the measurement interval
+    # names = ["y"]                # optional: the measurements' names (a data file's columns;
+                                   # default y1 .. ym)
 
     [prior]                        # x[0] ~ N(mean, cov); every filter starts there
     mean = [1.0, 0.0]
@@ -46,6 +52,23 @@ indexing, strings, ``^``: powers are ``**``) is an error naming it, and nothing 
 evaluated as Python. The covariances ``Q``, ``R`` and ``cov`` hold numbers, or strings in the
 parameters only (``"q*dt"``); each is checked symmetric and positive semi-definite (``R``
 positive definite: the reference filters need its density).
+
+Parameters, measurement times, data
+-----------------------------------
+The parameters stay SymPy symbols of the model (``params=``, :mod:`nlfilter.modelfile_kinds`):
+``load_model(path).with_params(q=0.2)`` is the spec with another value (the model's
+:meth:`~nlfilter.models.Model.with_params`, no code generated again, and the prior's ``cov``
+evaluated again when it is in the parameters), and ``nlfilter fit MODEL.toml DATA.csv --params
+q,r`` estimates them (maximum likelihood, :func:`~nlfilter.fitting.fit`; a parameter on the
+diagonal of a covariance is moved on the log scale). A covariance in the parameters is checked
+at the file's values. ``kind = "continuous-discrete"`` states an SDE (``drift``, ``diffusion``, as
+``"sde"``) measured at discrete times ``y_k = h(x(t_k)) + v_k``, ``v_k ~ N(0, R)``, the prior at
+time 0: ``[measurement]`` gives ``dt`` (regular times ``dt, 2 dt, ...``), or ``times = [0.1, 0.35,
+...]`` (strictly increasing, after 0: irregular intervals), or neither (a data file's ``t`` column
+gives them); never both. ``nlfilter simulate MODEL.toml --out DATA.csv`` writes data (a CSV
+whose columns are the measurements' names and ``t``: :mod:`nlfilter.data_csv`, which checks a
+data file against its model), ``nlfilter compare`` runs the continuous-discrete filters at the
+file's times (:mod:`nlfilter.modelfile_times`).
 
 Errors
 ------
@@ -82,12 +105,10 @@ from __future__ import annotations
 import hashlib
 import io
 import keyword
-import math
 import numbers
 import pathlib
 import re
 import tokenize
-import tomllib
 from typing import NamedTuple
 
 import numpy as np
@@ -95,6 +116,9 @@ import sympy as sp
 
 from ._modelexpr import (CONSTANTS, FUNCTIONS, MAX_CHARS, MAX_STATES, MAX_WORK, ExpressionError, clip,
                          finite_double, read_expression, short)
+from .modelfile_kinds import KINDS, at_values, check_R, filters as _filters, measurement_names, measurement_times, noise_names
+from .modelfile_kinds import read_toml, spec_with_params
+from .modelfile_kinds import Lines as _Lines
 from .models import DiscreteModel, SDEModel
 
 _NUMBERS = {"Integer": sp.Integer, "Float": sp.Float, "Rational": sp.Rational}  # reserved: SymPy's number names
@@ -113,8 +137,11 @@ _TABLES = {
     "run": {"steps": False, "paths": False, "filters": False, "seed": False},
 }
 _REQUIRED_TABLES = ("model", "dynamics", "measurement", "prior")
-_DYNAMICS = {"discrete": {"f": True, "G": False, "Q": False}, "sde": {"drift": True, "diffusion": False, "Q": False}}
-_MEASUREMENT = {"discrete": {"h": True, "R": True}, "sde": {"h": True, "R": True, "dt": True}}
+_DYNAMICS = {"discrete": {"f": True, "G": False, "Q": False, "noise": False}, "sde": {"drift": True, "diffusion": False, "Q": False}}
+_DYNAMICS["continuous-discrete"] = _DYNAMICS["sde"]
+_MEASUREMENT = {"discrete": {"h": True, "R": True, "names": False, "noise": False},
+                "sde": {"h": True, "R": True, "dt": True, "names": False},
+                "continuous-discrete": {"h": True, "R": True, "dt": False, "times": False, "names": False}}
 
 
 class ModelFileError(ValueError):
@@ -138,44 +165,16 @@ class ModelSpec(NamedTuple):
     seed: int
     path: str
     sha256: str
+    kind: str = "discrete"
+    names: tuple = ()
+    symbolic: dict | None = None
+    times: tuple | None = None
 
-
-class _Lines:
-    """Where tables and keys sit in the file's text (tomllib gives values, not positions):
-    ``line(table, key)`` is the line of ``key`` within ``table`` (header or dotted key), else
-    that of the table's header, else 1."""
-
-    _HEADER = re.compile(r"^\s*\[\[?\s*([^\[\]]+?)\s*\]\]?\s*(#.*)?$")
-    _KEY = re.compile(r"""^\s*((?:[A-Za-z0-9_-]+|"[^"]*"|'[^']*')(?:\s*\.\s*(?:[A-Za-z0-9_-]+|"[^"]*"|'[^']*'))*)\s*=(?!=)""")
-
-    def __init__(self, text: str):
-        self.tables, self.keys = {}, {}
-        table = ()
-        for no, line in enumerate(text.splitlines(), 1):
-            h = self._HEADER.match(line)
-            if h:
-                table = self._parts(h.group(1))
-                self.tables.setdefault(table, no)
-                continue
-            k = self._KEY.match(line)
-            if k:
-                path = table + self._parts(k.group(1))
-                for i in range(1, len(path)):
-                    self.tables.setdefault(path[:i], no)
-                self.keys.setdefault(path, no)
-
-    @staticmethod
-    def _parts(dotted: str) -> tuple:
-        return tuple(p.strip().strip("\"'") for p in re.findall(r"""(?:"[^"]*"|'[^']*'|[^.]+)""", dotted))
-
-    def line(self, table: str, key: str | None = None) -> int:
-        if key is not None and (table, key) in self.keys:
-            return self.keys[(table, key)]
-        if key is not None and (table, key) in self.tables:  # a sub-table [table.key]
-            return self.tables[(table, key)]
-        if (table,) in self.tables:
-            return self.tables[(table,)]
-        return self.keys.get((table,), 1)  # an inline table: `model = {...}`
+    def with_params(self, values=None, /, **named) -> ModelSpec:
+        """This spec with other parameter values (a dict by name, or keywords): the model's
+        :meth:`~nlfilter.models.Model.with_params` and the prior's covariance when it is in the
+        parameters (:func:`~nlfilter.modelfile_kinds.spec_with_params`)."""
+        return spec_with_params(self, values, **named)
 
 
 class _Reader:
@@ -185,6 +184,8 @@ class _Reader:
         self.path, self.lines = path, _Lines(text)
         self.states = ()  # the model's state names, once read (the expressions' degree bounds)
         self.work = 0  # Σ (SymPy nodes × states used) over the expressions read (MAX_WORK)
+        self.values = {}  # parameter symbol -> its value in the file (the parameters stay symbols)
+        self.symbolic = {}  # (table, key) -> the SymPy matrix of a covariance in the parameters
 
     def fail(self, table: str, key: str | None, what: str, field: str | None = None):
         field = field or (f"{table}.{key}" if key else table)
@@ -318,11 +319,12 @@ class _Reader:
                 self.fail(table, key, f"got a diagonal of {len(value)} entries; expected {size}×{size} (or its "
                                       f"diagonal of {size}){why}")
             diag = [self.expr(table, key, f"{table}.{key}[{i}]", v, params, what) for i, v in enumerate(value)]
-            M = np.diag([float(d) for d in diag])
+            E = sp.diag(*diag)
         else:
-            M = np.array([[float(e) for e in row]
-                          for row in self.matrix(table, key, value, params, what, size, size,
-                                                 why + f" (or its diagonal of {size})")])
+            E = sp.Matrix(self.matrix(table, key, value, params, what, size, size, why + f" (or its diagonal of {size})"))
+        M = at_values(self, table, key, E)
+        if M is None:  # R in the states: R(x), checked at the prior's mean (modelfile_kinds.check_R)
+            return None
         if not np.all(np.isfinite(M)):
             self.fail(table, key, f"got {M.tolist()}; expected finite entries")
         scale = max(1.0, float(np.max(np.abs(M))))
@@ -353,27 +355,7 @@ def load_model(path) -> ModelSpec:
     """
     if not isinstance(path, (str, pathlib.PurePath)):
         raise TypeError(f"path: expected a file path (str or pathlib.Path), got {type(path).__name__}")
-    name = str(path)
-    try:
-        data = pathlib.Path(path).read_bytes()
-    except OSError as exc:
-        raise ModelFileError(f"{name}:1: file: got {type(exc).__name__} ({exc.strerror or exc}); expected a "
-                             "readable TOML model file") from None
-    try:
-        text = data.decode("utf-8")
-    except UnicodeDecodeError as exc:
-        raise ModelFileError(f"{name}:1: file: got bytes that are not UTF-8 ({exc.reason}); expected a TOML "
-                             "file (UTF-8 text)") from None
-    try:
-        doc = tomllib.loads(text)
-    except tomllib.TOMLDecodeError as exc:
-        msg = str(exc)
-        at = re.search(r"\(at line (\d+), column (\d+)\)", msg)
-        line = int(at.group(1)) if at else max(1, len(text.splitlines()))
-        where = f"column {at.group(2)}" if at else "the end of the file"
-        msg = re.sub(r"\s*\(at (line \d+, column \d+|end of document)\)", "", msg)
-        raise ModelFileError(f"{name}:{line}: toml: got invalid TOML at {where} ({msg}); expected a valid TOML "
-                             "file") from None
+    name, data, text, doc = read_toml(path, ModelFileError)
     rd = _Reader(name, text)
     for key, value in doc.items():
         if key not in _TABLES:
@@ -387,7 +369,7 @@ def load_model(path) -> ModelSpec:
     rd.keys("model", mt, _TABLES["model"])
     kind = rd.string("model", "kind", mt["kind"])
     if kind not in _DYNAMICS:
-        rd.fail("model", "kind", f"got {kind!r}; expected 'discrete' or 'sde'")
+        rd.fail("model", "kind", f"got {kind!r}; expected one of {', '.join(map(repr, KINDS))}")
     states = rd.names("model", "states", mt["states"])
     if len(states) > MAX_STATES:
         rd.fail("model", "states", f"got {len(states)} states; expected at most {MAX_STATES} (MAX_STATES)")
@@ -408,7 +390,8 @@ def load_model(path) -> ModelSpec:
             rd.fail("parameters", key, f"got {key!r}, a state's name; expected a parameter name distinct from the "
                                        f"states {states}")
         rd.number("parameters", key, value)
-        params[key] = sp.Integer(value) if isinstance(value, numbers.Integral) else sp.Float(value)
+        params[key] = sp.Symbol(key)  # kept a symbol: ModelSpec.with_params, nlfilter fit
+        rd.values[params[key]] = value
     allowed = {**syms, **params}
     what = f"a state {states}" + (f" or a parameter {sorted(params)}" if params else "")
 
@@ -417,11 +400,12 @@ def load_model(path) -> ModelSpec:
     fkey, gkey = ("f", "G") if kind == "discrete" else ("drift", "diffusion")
     rd.keys("dynamics", dt_, _DYNAMICS[kind], f" (kind = {kind!r}: " + ("x[k+1] = f + G w)" if kind == "discrete" else
                                                                        "dx = drift dt + diffusion dβ)"))
-    f = rd.vector("dynamics", fkey, dt_[fkey], n, allowed, what)
+    wn = noise_names(rd, "dynamics", dt_, allowed)  # non-additive noise: its symbols in f
+    f = rd.vector("dynamics", fkey, dt_[fkey], n, {**allowed, **wn}, what + (f" or a noise {list(wn)}" if wn else ""))
     G = None
     if gkey in dt_:
         G = rd.matrix("dynamics", gkey, dt_[gkey], allowed, what, rows=n, why=f" (n × r, n = {n} states)")
-    r = n if G is None else len(G[0])
+    r = len(wn) if wn else n if G is None else len(G[0])
     Q = (rd.covariance("dynamics", "Q", dt_["Q"], r, params,
                        f" (r × r, r = {r}: the columns of {gkey})" if G is not None else
                        f" (r × r, r = n = {n}: {gkey} is the identity)")
@@ -430,10 +414,14 @@ def load_model(path) -> ModelSpec:
     # [measurement]
     mt_ = rd.table(doc, "measurement", True)
     rd.keys("measurement", mt_, _MEASUREMENT[kind], " (dt: an SDE's measurement interval)" if kind == "discrete" else "")
-    h = rd.vector("measurement", "h", mt_["h"], None, allowed, what)
+    vn = noise_names(rd, "measurement", mt_, {**allowed, **wn})
+    h = rd.vector("measurement", "h", mt_["h"], None, {**allowed, **vn}, what + (f" or a noise {list(vn)}" if vn else ""))
     m = len(h)
-    R = rd.covariance("measurement", "R", mt_["R"], m, params, f" (m × m, m = {m}: the entries of h)", definite=True)
-    dt = float(rd.number("measurement", "dt", mt_["dt"], positive=True)) if kind == "sde" else None
+    R = rd.covariance("measurement", "R", mt_["R"], len(vn) or m, {**params, **(syms if kind == "discrete" else {})},
+                      f" (p × p, p = {len(vn)}: the noises of h)" if vn else f" (m × m, m = {m}: the entries of h)",
+                      definite=True)
+    dt, times = measurement_times(rd, mt_, kind)
+    names = measurement_names(rd, mt_, m)
 
     # [prior]
     pr = rd.table(doc, "prior", True)
@@ -461,7 +449,10 @@ def load_model(path) -> ModelSpec:
 
     cls = DiscreteModel if kind == "discrete" else SDEModel
     try:
-        model = cls(list(syms.values()), f, h, G=G, Q=Q, R=R, name=title, angles=mt.get("angles"))
+        model = cls(list(syms.values()), f, h, G=G, Q=rd.symbolic.get(("dynamics", "Q"), Q),
+                    R=rd.symbolic.get(("measurement", "R"), R), params=rd.values, name=title,
+                    angles=mt.get("angles"),
+                    **({"noise": list(wn.values()) or None, "meas_noise": list(vn.values()) or None} if wn or vn else {}))
     except (ValueError, TypeError) as exc:  # what the checks above do not anticipate
         text = str(exc).splitlines()[0]
         # the model's message names its argument (f, h, G, Q, R): the file's key, at its line
@@ -474,23 +465,9 @@ def load_model(path) -> ModelSpec:
             rd.fail(*where, f"got an expression the library refuses ({rest}); expected a valid {cls.__name__}")
         rd.fail("dynamics", None, f"got a model the library refuses ({text}); expected a "
                                   f"valid {cls.__name__}", field="model")
+    check_R(rd, model, m0)
     return ModelSpec(model, m0, P0, dt, run["steps"], run["paths"], run["filters"], run["seed"], name,
-                     hashlib.sha256(data).hexdigest())
-
-
-def _filters(rd: _Reader, value):
-    """``"all"`` or a tuple of registry names (a list in the file)."""
-    from .filters import REGISTRY
-
-    if value == "all":
-        return "all"
-    if not isinstance(value, list) or not value or not all(isinstance(v, str) for v in value):
-        rd.fail("run", "filters", f"got {value!r}; expected \"all\" or a non-empty list of registry names")
-    unknown = [v for v in value if v not in REGISTRY]
-    if unknown:
-        rd.fail("run", "filters", f"got the unknown filter(s) {unknown}; expected registry names from "
-                                  f"{sorted(REGISTRY)}")
-    return tuple(dict.fromkeys(value))
+                     hashlib.sha256(data).hexdigest(), kind, names, rd.symbolic, times)
 
 
 __all__ = ["ModelFileError", "ModelSpec", "load_model"]

@@ -338,18 +338,26 @@ def simulate_ou(q: float, r: float, dt: float, steps: int, paths: int | range, r
 
 
 def simulate_continuous_discrete(model, steps: int, *, paths: int | range = 1, rng=None, m0=None, P0=None, x0=None,
-                                 initial: NoiseLaw | None = None, dt: float, substeps: int = 20,
-                                 t0: float = 0.0, on_divergence: str = "raise") -> Simulation:
+                                 initial: NoiseLaw | None = None, dt: float | None = None, substeps: int = 20,
+                                 t0: float = 0.0, on_divergence: str = "raise", times=None,
+                                 process: str = "flow") -> Simulation:
     """An :class:`~nlfilter.models.SDEModel` with *discrete* measurements (the continuous-discrete
     setting of :class:`~nlfilter.filters.second_order.ContinuousDiscreteSecondOrderFilter`: the
     model's ``h``/``R`` read as ``y_k = h(x(t_k)) + v_k``, ``v_k ~ N(0, R)``, ``t_k = t0 + k dt``,
     k = 1..steps). Between measurements the drift is integrated by classical RK4 in ``substeps``
     steps (:func:`~nlfilter.ode.ode_step`); when ``Q ≠ 0`` one Euler–Maruyama noise
     increment ``G(x, t_k) w``, ``w ~ N(0, Q dt)``, is added per interval after the flow (a coarse
-    model of the process noise: meant for nearly deterministic dynamics such as the falling body).
+    model of the process noise: meant for nearly deterministic dynamics such as the falling body;
+    ``process="flow"``, the default). ``process="euler-maruyama"``: ``substeps`` Euler–Maruyama
+    steps per interval, ``x += f(x, s) h + G(x, s) w``, ``w ~ N(0, Q h)``, ``h`` the interval over
+    ``substeps`` (the SDE's law up to the scheme's O(h) error, whatever the dynamics; draws
+    ``steps × substeps × r`` normals in place of ``steps × r``).
     Returns a :class:`Simulation` with ``xs[:, k] = x(t_{k+1})``, ``ys[:, k]`` its measurement, and
     ``timing = Timing("continuous-discrete", "predict", t0, dt)``: the prior at ``t0``, the first
-    measurement one interval later (the continuous-discrete filters' default).
+    measurement one interval later (the continuous-discrete filters' default). ``times`` in place
+    of ``dt``: the measurement times ``t_1 < ... < t_steps`` after ``t0`` (irregular intervals, each
+    integrated in ``substeps`` steps; ``timing.times`` carries them, ``timing.dt`` is None, and a
+    continuous-discrete filter built with ``dt=None`` takes them: :mod:`nlfilter.filters.irregular`).
     ``paths``, ``rng``: as :func:`simulate`. Draws of a path: its initial state (unless ``x0``),
     the ``steps × r`` standard normals of the process noise (only when ``Q ≠ 0``), then the
     ``steps × m`` of the measurement noise. ``on_divergence``: as :func:`simulate`.
@@ -363,32 +371,64 @@ def simulate_continuous_discrete(model, steps: int, *, paths: int | range = 1, r
 
     if getattr(model, "kind", None) != "sde":
         raise TypeError(f"model: expected an SDEModel (continuous dynamics), got {type(model).__name__}")
-    dt = float(V.positive("dt", dt))
-    V.positive("substeps", substeps, integer=True)
     t0 = V.real("t0", t0)
+    if (dt is None) == (times is None):
+        raise ValueError(f"dt, times: expected one of them (a regular interval or the measurement times), got "
+                         f"dt={dt!r} and times={'None' if times is None else 'an array'}")
+    if times is not None:
+        times = V.measurement_times("times", times, t0)
+        if len(times) != steps:
+            raise ValueError(f"times: got {len(times)} times; expected steps = {steps}")
+    else:
+        dt = float(V.positive("dt", dt))
+    V.positive("substeps", substeps, integer=True)
     V.choice("on_divergence", on_divergence, {"raise", "mark"})
+    em = V.choice("process", process, {"flow", "euler-maruyama"}) == "euler-maruyama"
     rng, x, x_init, xs = _start(model, steps, paths, rng, m0, P0, x0, initial, width=2 * model.m + model.r)
     screen = _Screen(on_divergence, rng, "simulate_continuous_discrete")
     model = _path_rows(model, rng, paths)
     m, paths = model.m, len(rng)
     noisy = np.any(model.Q != 0)
     L = np.linalg.cholesky(model.R)
-    SQ = Gaussian(model.Q * dt)._sqrt  # Q dt = SQ SQᵀ (Q may be singular)
-    w, v = rng.draw(lambda g, s: (g.standard_normal((*s, model.r)) if noisy else np.empty((*s, 0)),
+    grid = None if times is None else np.concatenate([[t0], times])
+    SQ = Gaussian(model.Q * dt)._sqrt if times is None else None  # Q dt = SQ SQᵀ (Q may be singular)
+    wshape = (substeps, model.r) if em else (model.r,)
+    w, v = rng.draw(lambda g, s: (g.standard_normal((*s, *wshape)) if noisy else np.empty((*s, 0)),
                                   g.standard_normal((*s, m))), (steps,))
     v = v @ L.T
-    V.time_grid(t0, dt, steps)
-    t = t0 + dt * np.arange(1, steps + 1)
+    if times is None:
+        V.time_grid(t0, dt, steps)
+    t = t0 + dt * np.arange(1, steps + 1) if times is None else np.array(times)
     ys = np.empty((paths, steps, m))
     with np.errstate(over="ignore", invalid="ignore", divide="ignore"):  # what overflows is screened
         for k in range(steps):
-            tk = t0 + k * dt
-            x = ode_step(model.f, x, tk, dt, substeps=substeps, scheme="rk4")
-            if noisy:
-                x = x + np.einsum("pia,pa->pi", model.G(x, tk), w[:, k] @ SQ.T)
+            tk, dk = (t0 + k * dt, dt) if times is None else (grid[k], grid[k + 1] - grid[k])
+            if em:
+                x = _euler_maruyama(model, x, tk, dk, substeps, w[:, k] if noisy else None)
+            else:
+                x = ode_step(model.f, x, tk, dk, substeps=substeps, scheme="rk4")
+            if noisy and not em:
+                S = SQ if times is None else Gaussian(model.Q * dk)._sqrt
+                x = x + np.einsum("pia,pa->pi", model.G(x, tk), w[:, k] @ S.T)
             x = wrap_components(x, angles_of(model).states)  # angles wrapped (nlfilter.angles)
             xs[:, k] = x
             ys[:, k] = wrap_components(model.h(xs[:, k], t[k]) + v[:, k], angles_of(model).measurements)
             x = screen.check(k, x, ys[:, k], x=x, restart=x_init)
     screen.finish(xs, ys)
-    return Simulation(xs, ys, x_init, t, Timing("continuous-discrete", "predict", t0, dt))
+    timing = Timing("continuous-discrete", "predict", t0, dt, None, None if times is None else tuple(times.tolist()))
+    return Simulation(xs, ys, x_init, t, timing)
+
+
+def _euler_maruyama(model, x, t, dt, substeps, z):
+    """``substeps`` Euler–Maruyama steps of ``dx = f dt + G dβ`` over ``[t, t + dt]`` from ``x (P, n)``;
+    ``z (P, substeps, r)`` standard normals (None: no process noise)."""
+    h = dt / substeps
+    S = Gaussian(model.Q * h)._sqrt if z is not None else None
+    for j in range(substeps):
+        s = t + j * h
+        step = model.f(x, s) * h
+        if z is not None:
+            step = step + np.einsum("pia,pa->pi", model.G(x, s), z[:, j] @ S.T)
+        x = x + step
+    return x
+

@@ -25,13 +25,16 @@ class Timing(NamedTuple):
     per interval of :func:`~nlfilter.simulate.simulate` (:mod:`nlfilter.sde_step`: the model a particle reference
     must share to have the simulator's), None when not made by them (a 4-field Timing, the
     exact-transition simulators). The filters read it (:meth:`nlfilter.filters.base.Filter.for_timing`;
-    a ParticleFilter built without ``substeps`` takes these)."""
+    a ParticleFilter built without ``substeps`` takes these); ``times``: continuous-discrete only,
+    the measurement times ``t_1 < t_2 < ...`` (a tuple) when irregular, ``dt`` then None
+    (:mod:`nlfilter.filters.irregular`)."""
 
     kind: str
     start: str | None
     t0: float
     dt: float | None
     substeps: int | None = None
+    times: tuple | None = None
 
 
 def _check_timing(timing) -> None:
@@ -45,7 +48,12 @@ def _check_timing(timing) -> None:
     else:
         V.choice("timing.start", timing.start, {"update", "predict"})
     V.real("timing.t0", timing.t0)
-    if timing.kind == "discrete":
+    if timing.times is not None:
+        if timing.kind != "continuous-discrete" or timing.dt is not None:
+            raise ValueError(f"timing.times: irregular times are for continuous-discrete measurements with dt=None; "
+                             f"got kind {timing.kind!r}, dt={timing.dt!r}")
+        V.measurement_times("timing.times", timing.times, timing.t0 if timing.start == "predict" else -np.inf)
+    elif timing.kind == "discrete":
         if timing.dt is not None:
             raise ValueError(f"timing.dt: a discrete model has no time step; expected None, got {timing.dt!r}")
     else:

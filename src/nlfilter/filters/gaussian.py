@@ -59,6 +59,7 @@ from .. import _validate as V
 from ..angles import angles_of
 from .base import ContinuousFilter, DiscreteFilter, GaussianState, continuous_precision, set_start, set_t0
 from .fading import FadingMemory
+from .irregular import at_times, belief_time, check_length, interval
 from .linalg import innovation_info, observed_precision, poison, symmetrize
 from .skeleton import (CrossNoise, MeasuredState, as_belief, as_gaussian, check_paths, condition, ito_gain, ito_rhs,
                        iterated_update, predict, propagate)
@@ -198,7 +199,8 @@ class ContinuousDiscreteGaussianFilter(GaussianFilter):
     ----------
     model : SDEModel; its ``h`` and ``R`` are read as the *discrete* measurement
         ``y_k = h(x(t_k)) + v_k``, ``v_k ~ N(0, R)``, ``t_k = t0 + k dt``
-    dt : float — the measurement interval
+    dt : float — the measurement interval; None: the data's (a Simulation's ``dt`` or its
+        irregular ``times``), or given by :meth:`at_times` (:mod:`nlfilter.filters.irregular`)
     rule : a rule of :mod:`nlfilter.filters.rules`
     scheme : ``"rk4"`` (default) or ``"euler"``
     substeps : int — integration steps per interval
@@ -224,26 +226,38 @@ class ContinuousDiscreteGaussianFilter(GaussianFilter):
     accepts = ("sde",)
     start = "predict"  # the default: the prior at t0, y_0 at t0 + dt (as simulate_continuous_discrete)
 
-    def __init__(self, model, dt: float, rule, *, scheme: str = "rk4", substeps: int = 1,
+    times = None  # the measurement times t_1 < t_2 < ... when irregular (at_times)
+
+    def __init__(self, model, dt: float | None, rule, *, scheme: str = "rk4", substeps: int = 1,
                  start: str | None = None, t0: float | None = None, by: str | None = None):
         if getattr(model, "kind", None) != "sde":
             raise TypeError(f"model: {type(self).__name__} expects an SDEModel, got {type(model).__name__}")
         self.model = model
         set_start(self, start)
-        self.dt = float(V.positive("dt", dt))
+        self.dt = None if dt is None else float(V.positive("dt", dt))
         self.scheme = V.choice("scheme", scheme, {"rk4", "euler"})
         self.substeps = V.positive("substeps", substeps, integer=True)
         set_t0(self, t0)
         self._set_rule(rule, by=by)
 
     def _time(self, k):
-        return self.t0 + k * self.dt
+        return belief_time(self, k)
+
+    def at_times(self, times):
+        """A copy measuring at the times ``t_1 < t_2 < ... (T,)`` (irregular intervals; the prior
+        at ``t0``): :func:`~nlfilter.filters.irregular.at_times`."""
+        return at_times(self, times)
+
+    def check_data(self, ys):
+        ys = super().check_data(ys)
+        check_length(self, ys.shape[-2])
+        return ys
 
     def _predict(self, state, k, cross: bool = False):
         """The belief at ``t_{k+1}`` from the belief at ``t_k = t0 + k dt`` (no measurement):
         :func:`~nlfilter.filters.skeleton.propagate`; with ``cross`` also
         ``C(t_{k+1}) = Cov[x(t_k), x(t_{k+1})]`` (``dC/dt = C P⁻¹ Cov[x, f]``, ``C(t_k) = P_k``)."""
-        return propagate(self.rule, self.model, state, self._time(k), self.dt, substeps=self.substeps,
+        return propagate(self.rule, self.model, state, self._time(k), interval(self, k), substeps=self.substeps,
                          scheme=self.scheme, cross=cross)
 
 

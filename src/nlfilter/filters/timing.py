@@ -63,6 +63,8 @@ def for_timing(flt, timing, *, t0=None):
                              f"start={timing.start!r}, or without start to take the data's")
         changes["start"] = timing.start
     if cd:
+        from .irregular import for_times
+        flt = for_times(flt, timing)  # the data's times, or its dt for a filter built with dt=None
         same_dt(flt, timing)
         if getattr(flt, "t0", timing.t0) != timing.t0:
             if getattr(flt, "t0_stated", True):
@@ -71,6 +73,6 @@ def for_timing(flt, timing, *, t0=None):
             changes["t0"] = timing.t0
     if not changes:
         return flt, t0
-    flt = copy.copy(flt)
+    flt = copy.copy(flt)  # (a copy already when for_times made one: copying again is harmless)
     flt.__dict__.update(changes)
     return flt, t0
