@@ -1,12 +1,17 @@
-"""The tables of ``choosing.rst``: small :func:`nlfilter.compare` runs made at build time.
+"""The tables of ``choosing.rst``: small :func:`nlfilter.compare` runs, committed as JSON.
 
-    PYTHONPATH=src python docs/choosing_tables.py      # writes docs/_generated/choosing_*.rst
+    PYTHONPATH=src python docs/choosing_tables.py      # reruns them: writes docs/choosing/<case>.json
 
 Each table is one ``compare(model, "all", ...)`` on common random numbers against the certified
-reference; sizes are small (a few seconds each) so that the documentation build stays fast; the
-standard errors printed beside the numbers say how far they can be trusted.
+reference; the standard errors printed beside the numbers say how far they can be trusted. The runs
+(a minute of CPU with every registered filter, most of it the certified references) are made by
+the command above and committed, like the reproduction report; the documentation build renders
+the committed JSON (:func:`write`) with each run's provenance. ``tests/test_docs.py`` checks that
+each committed run covers exactly the filters ``compare(model, "all")`` would run or skip today, so a
+newly registered filter cannot be missing from the tables.
 """
 
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -19,23 +24,23 @@ x = sp.Symbol("x")
 
 
 def cases():
-    """name -> (title, the ``compare`` call as a zero-argument function, its description)."""
+    """name -> (title, model, the ``compare(model, "all", steps, **kwargs)`` arguments
+    ``(steps, kwargs)``, its description)."""
     cubic = DiscreteModel([x], f=[0.99 * x], h=[x**3], Q=0.01, R=0.1)
     quad = quadratic()
     oh_shin = SDEModel([x], [-x**3], [x], Q=0.05, R=0.05)
     return {
-        "cubic": ("Discrete cubic sensor (the README's quickstart)",
-                  lambda: compare(cubic, "all", 200, paths=200, m0=0.5, P0=0.1, rng=0),
+        "cubic": ("Discrete cubic sensor (the README's quickstart)", cubic,
+                  (200, dict(paths=200, m0=0.5, P0=0.1, rng=0)),
                   "``x[k+1] = 0.99 x + w``, ``y = x³ + v``, Q = 0.01, R = 0.1, m0 = 0.5, P0 = 0.1; "
                   "200 steps, 200 paths, MSE over the second half."),
-        "quadratic": ("Strong quadratic measurement (Henriksen's (1979) problem)",
-                      lambda: compare(quad.model, "all", quad.steps, paths=200, m0=quad.m0, P0=quad.P0, rng=0,
-                                      on_divergence="mark"),
+        "quadratic": ("Strong quadratic measurement (Henriksen's (1979) problem)", quad.model,
+                      (quad.steps, dict(paths=200, m0=quad.m0, P0=quad.P0, rng=0, on_divergence="mark")),
                       ":func:`nlfilter.problems.quadratic`: "
                       "``x[k+1] = 0.7 x + 0.02 x² + w``, ``y = x + 0.3 x² + v``, q = 1, r = 0.2, P0 = 1; "
                       "50 steps, 200 paths, MSE over the second half."),
-        "oh-shin": ("Continuous time: Oh & Shin's (1995) example",
-                    lambda: compare(oh_shin, "all", 100, paths=60, m0=4.0, P0=0.05, dt=0.01, substeps=5, rng=0),
+        "oh-shin": ("Continuous time: Oh & Shin's (1995) example", oh_shin,
+                    (100, dict(paths=60, m0=4.0, P0=0.05, dt=0.01, substeps=5, rng=0)),
                     "``dx = −x³ dt + dβ``, ``dy = x dt + dη``, Q = R = 0.05, m0 = 4, D0 = 0.05, dt = 0.01; "
                     "t ∈ [0, 1], 60 paths, MSE over the second half."),
     }
@@ -71,18 +76,40 @@ def table(res) -> str:
     return "\n".join(lines) + "\n"
 
 
-def write(out: Path) -> None:
-    """Write ``choosing_<case>.rst`` (a title-less block: description, table, reference) to ``out``."""
+#: the committed runs, one ``<case>.json`` (:meth:`nlfilter.results.Result.to_json`) per case
+RUNS = Path(__file__).resolve().parent / "choosing"
+
+
+def run_all(folder: Path = RUNS) -> None:
+    """Run every case's ``compare`` and write its Result to ``folder/<case>.json``."""
+    folder.mkdir(parents=True, exist_ok=True)
+    for key, (_, model, (steps, kwargs), _) in cases().items():
+        compare(model, "all", steps, **kwargs).to_json(folder / f"{key}.json")
+
+
+def _provenance(meta: dict) -> str:
+    secs = (meta.get("execution") or {}).get("seconds")
+    return (f"Computed by ``python docs/choosing_tables.py`` with nlfilter {meta['nlfilter']}, NumPy "
+            f"{meta['numpy']} and Python {meta['python']} on {meta['timestamp'][:10]}"
+            + (f" ({secs:.0f} s)." if isinstance(secs, (int, float)) else "."))
+
+
+def write(out: Path, folder: Path = RUNS) -> None:
+    """Write ``choosing_<case>.rst`` (a title-less block: description, table, reference, provenance)
+    to ``out`` from the committed runs in ``folder``."""
+    from nlfilter.results import Result
+
     out.mkdir(parents=True, exist_ok=True)
-    for key, (title, run, desc) in cases().items():
-        res = run()
+    for key, (title, _, _, desc) in cases().items():
+        res = Result.from_json(folder / f"{key}.json")
         ref = res.params["reference"]
         skipped = res.params.get("skipped") or {}
         text = [f"**{title}.** {desc}", "", table(res), "",
                 f"Reference: {ref['label']} ({ref['kind']}). "
-                + (f"Not run on this model: {', '.join(f'``{s}``' for s in skipped)}." if skipped else ""), ""]
+                + (f"Not run on this model: {', '.join(f'``{s}``' for s in skipped)}. " if skipped else "")
+                + _provenance(res.meta), ""]
         (out / f"choosing_{key}.rst").write_text("\n".join(text), encoding="utf-8")
 
 
 if __name__ == "__main__":
-    write(Path(__file__).resolve().parent / "_generated")
+    run_all(Path(sys.argv[1]) if len(sys.argv) > 1 else RUNS)

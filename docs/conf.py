@@ -6,8 +6,8 @@ Build (from the repository root, after ``pip install ".[docs]"``)::
 
 The API reference comes from the numpydoc docstrings (``api.rst`` and one page per area in
 ``api/``), the gallery from ``examples/plot_*.py`` (sphinx-gallery runs every one of them during
-the build), the table of the "choosing a filter" page from a small :func:`nlfilter.compare` run
-made at build time (``choosing_tables.py``), and the reproduction and benchmarks pages from the
+the build), the tables of the "choosing a filter" page from small :func:`nlfilter.compare` runs
+committed as JSON (``choosing/``, rerun by ``choosing_tables.py``), and the reproduction and benchmarks pages from the
 committed JSON (``make_pages.py``). Maths is written as MathML by the build (``_ext/mathml.py``):
 the site loads nothing from the network. ``nitpicky``: every cross-reference must resolve
 (``_ext/pyrefs.py`` resolves a name the way Python does).

@@ -334,3 +334,28 @@ def test_pages_render_in_a_browser(built, tmp_path):
         assert not re.search(r"\\(frac|hat|qquad|operatorname)\b", visible_text(dom)), name
         with Image.open(shot) as img:  # a page, not a blank canvas
             assert img.size == (1280, 1600) and len(img.convert("L").getcolors(1 << 16) or range(300)) > 20, name
+
+
+def test_choosing_tables_cover_every_filter_that_compare_runs_today():
+    """The "choosing a filter" page renders committed runs (``docs/choosing/<case>.json``, made by
+    ``python docs/choosing_tables.py``: a minute of CPU the documentation build no longer spends).
+    Each run holds a row for exactly the filters ``compare(model, "all")`` runs on its case's model
+    today and the same skips, so a filter registered after the runs were made fails here until they
+    are rerun; and every table renders from them."""
+    sys.path.insert(0, str(ROOT / "docs"))
+    try:
+        import choosing_tables
+    finally:
+        sys.path.remove(str(ROOT / "docs"))
+    from nlfilter.compare_filters import _resolve
+    from nlfilter.results import Result
+
+    for key, (_, model, (steps, kw), _) in choosing_tables.cases().items():
+        res = Result.from_json(ROOT / "docs" / "choosing" / f"{key}.json")
+        run, skipped = _resolve("all", model, model, kw.get("dt"), kw.get("start", "update"))
+        label = res.params["reference"]["label"]
+        assert {r.filter for r in res.rows} - {label} == set(run), key
+        assert set(res.params["skipped"]) == set(skipped), key
+        assert (res.params["steps"], res.params["paths"], res.meta["seed"]) == (steps, kw["paths"], kw["rng"]), key
+        text = choosing_tables.table(res)
+        assert all(f"``{name}``" in text for name in run), key
