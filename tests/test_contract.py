@@ -937,14 +937,19 @@ NAN_OK = [c for c in CASES if not c.random]
 @given(case=hst.sampled_from(NAN_OK), seed=hst.integers(0, 2**16), rate=hst.sampled_from([0.2, 0.5]))
 def test_random_missing_patterns_keep_paths_independent(case, seed, rate):
     """Random NaN patterns (components, whole steps, whole paths' steps): each path's estimates in the
-    batch equal those of the path run alone."""
+    batch equal those of the path run alone. Tolerance 1e-12 (rounding), but 1e-11 for the SDE grids:
+    their prediction multiplies the batch's densities (paths × up to 441 cells) by the transition
+    matrix in one BLAS product, whose summation order depends on the number of rows; measured ≤ 1.9e-12
+    (relative to max(1, |x|)) over 80 random patterns of ``grid-2d-sde``, where a formula error moves
+    the outputs by 1e-3 or more."""
+    tol = 1e-11 if case.name in ("grid-sde", "grid-2d-sde") else 1e-12
     rng = np.random.default_rng(seed)
     d = case.data((3,), 5, seed)
     e = np.where(rng.random(d.shape) < rate, np.nan, d)
     e[0, 2] = np.nan
     full = outputs(case.run(e, on_divergence="mark"))
     for i in range(3):
-        close(_take(full, slice(i, i + 1)), outputs(case.run(e[i:i + 1], on_divergence="mark")))
+        close(_take(full, slice(i, i + 1)), outputs(case.run(e[i:i + 1], on_divergence="mark")), tol=tol)
 
 
 @pytest.mark.parametrize("make", [lambda: FirstOrderMomentFilter(BN1, 1, w_moments=uniform_moments(1)),

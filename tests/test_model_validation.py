@@ -252,7 +252,7 @@ def test_model_file_with_piecewise_functions_runs(tmp_path: pathlib.Path):
 def test_model_file_refusal_names_file_line_and_field(tmp_path: pathlib.Path, monkeypatch):
     path = tmp_path / "bad.toml"
     path.write_text(FILE.format(a=0, f="0.9*x", h="x/a"))
-    with pytest.raises(ModelFileError, match=r"bad\.toml:10: measurement\.h\[0\]: got x/a \(a division by zero\)"):
+    with pytest.raises(ModelFileError, match=r"bad\.toml:10: measurement\.h\[0\]: got x/a \(a division by zero at the file's parameter values a = 0\)"):
         load_model(path)
     # a refusal the file's own checks do not anticipate: the model's message, at its key's line
     import nlfilter.modelfile as mf

@@ -104,10 +104,23 @@ def test_readme_own_model_runs_and_prints_what_it_shows(tmp_path, monkeypatch, c
 def test_guide_noise_per_step_runs_as_written():
     """docs/guide/model.rst's second block (R given per step, issue 31 item 4) after its model (the
     README's pendulum), as written: the EKF's log-likelihood is finite on every path."""
-    model_code, per_step = rst_code(GUIDE / "model.rst")
+    model_code, per_step = rst_code(GUIDE / "model.rst")[:2]
     ns = {}
     exec(compile(model_code + per_step, "model.rst", "exec"), ns)
     assert ns["est"].means.shape == (4, 100, 2) and np.isfinite(ns["est"].loglik).all()
+
+
+def test_guide_angles_block_builds_its_model():
+    """docs/guide/model.rst's third block (angles, issue 31 item 1), as written: the bearing state and
+    measurement are declared angular, and a UKF on it keeps its bearing estimates in (−π, π]."""
+    ns = {}
+    exec(compile(rst_code(GUIDE / "model.rst")[2], "model.rst", "exec"), ns)
+    model = ns["model"]
+    assert list(model.angles.states) == [0] and list(model.angles.measurements) == [1]
+    from nlfilter import simulate
+    sim = simulate(model, 40, paths=2, rng=0, m0=[3.0, 10.0, 2.0], P0=np.diag([0.01, 0.1, 0.1]))
+    est = ns["UKF"](model).run(sim.ys, [3.0, 10.0, 2.0], np.diag([0.01, 0.1, 0.1]))
+    assert np.all(np.abs(est.means[..., 0]) <= np.pi) and np.isfinite(est.covs).all()
 
 
 def test_readme_model_file_is_the_example():

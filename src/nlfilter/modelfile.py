@@ -278,6 +278,11 @@ class _Reader:
             e = read_expression(text, allowed, self.states)
         except ExpressionError as exc:
             self.fail(table, key, str(exc), field)
+        held = {p: v for p, v in self.values.items() if p in e.free_symbols}
+        if held and e.subs(held).has(sp.zoo, sp.nan):  # the parameters stay symbols: x/a at the file's a = 0
+            self.fail(table, key, f"got {clip(text)} (a division by zero at the file's parameter values "
+                                  f"{', '.join(f'{p} = {v}' for p, v in held.items())}); expected a finite expression",
+                      field)
         used = len(e.free_symbols)
         if used:  # what the model's derivatives will cost (MAX_WORK)
             self.work += used * sum(1 for _ in sp.preorder_traversal(e))

@@ -40,7 +40,8 @@ import numpy as np
 
 from ..ode import ode_step
 from .gaussian import ContinuousDiscreteGaussianFilter, GaussianFilter
-from .base import GaussianState
+from .base import Filter, GaussianState
+from .irregular import belief_time, check_length, interval
 from .linalg import mm, sqrt_psd
 from .skeleton import propagate
 from .triangular import tria
@@ -139,6 +140,8 @@ class _ContinuousDiscreteSteps:
     start = "predict"  # the prior at t0, y_0 at t0 + dt (as simulate_continuous_discrete)
     structures = ("state-dependent R",)
     smoother_keeps = False  # the moment-form RTS pass reads the reported moments
+    times = None  # the measurement times t_1 < t_2 < ... when irregular (at_times)
+    at_times = ContinuousDiscreteGaussianFilter.at_times  # nlfilter.filters.irregular
 
     def _continuous_discrete(self, model, dt, rule, scheme, substeps, start, t0):
         # the standard filter's set-up (model kind, start, dt, scheme, substeps, t0, the rule's needs)
@@ -147,11 +150,16 @@ class _ContinuousDiscreteSteps:
         self._square_root_rule(rule)
 
     def _time(self, k):
-        return self.t0 + k * self.dt
+        return belief_time(self, k)
+
+    def check_data(self, ys):
+        ys = Filter.check_data(self, ys)
+        check_length(self, ys.shape[-2])
+        return ys
 
     def _predict(self, state, k):
         self._check_belief(state)
-        return sqrt_propagate(self.rule, self.model, state, self._time(k), self.dt, self._root("Q", self.model.Q),
+        return sqrt_propagate(self.rule, self.model, state, self._time(k), interval(self, k), self._root("Q", self.model.Q),
                               substeps=self.substeps, scheme=self.scheme)
 
     def _predict_cross(self, state, k):
