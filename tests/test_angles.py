@@ -256,6 +256,10 @@ def test_kalman_filters_rotation(name):
     assert np.abs(e0.loglik - e1.loglik).max() <= TOL * np.abs(e0.loglik).max()
     _same(flt.smooth(y0, m0, P0), flt.smooth(y1, m1, P1), ALPHA, name + " smoothed")
     assert np.abs(wrap(e0.means[..., 0] - x0[:, 0])).max() < 0.45
+    if name == "kf":  # the prediction wraps too: 3.1 + 0.2 -> 3.3 - 2π
+        from nlfilter.filters.base import GaussianState
+        pred = flt.predict(GaussianState(np.array([3.1, 0.2]), 0.1 * np.eye(2)), 0)
+        assert pred.mean[0] == pytest.approx(3.3 - 2 * np.pi, abs=1e-12)
 
 
 def test_filters_without_angles_refuse_them():

@@ -95,7 +95,7 @@ class KalmanFilter(DiffusePrior, DiscreteFilter, FadingMemory):
             F, b, _, _, GQG = self._mats if self._const else self._matrices(k)
             m, P = state
             GQG = self._gqg(GQG, m, k)
-            return GaussianState(m @ F.T + b, F @ P @ F.T + GQG)
+            return GaussianState(wrap_components(m @ F.T + b, angles_of(self.model).states), F @ P @ F.T + GQG)
         return self._predict_cross(state, k)[0]
 
     def update(self, state, y, k):
@@ -111,11 +111,13 @@ class KalmanFilter(DiffusePrior, DiscreteFilter, FadingMemory):
         GQG = self._gqg(GQG, m, k)
         dec = self._cross.decorrelation(state, k)
         if dec is None:
-            return self._cross.unmeasured(GaussianState(m @ F.T + b, F @ P @ F.T + GQG)), self._deflate(P @ F.T)
+            mean = wrap_components(m @ F.T + b, angles_of(self.model).states)  # angles: wrapped (nlfilter.angles)
+            return self._cross.unmeasured(GaussianState(mean, F @ P @ F.T + GQG)), self._deflate(P @ F.T)
         D, e, sub = dec
         Ft = F - D @ H  # F̃ = F − G K_w H
         mean = np.einsum("...ij,...j->...i", Ft, m) + b + np.einsum("...ij,...j->...i", D, e - d)
         cov = Ft @ P @ np.swapaxes(Ft, -1, -2) + GQG - sub
+        mean = wrap_components(mean, angles_of(self.model).states)
         return (self._cross.unmeasured(GaussianState(mean, 0.5 * (cov + np.swapaxes(cov, -1, -2)))),
                 self._deflate(P @ np.swapaxes(Ft, -1, -2)))
 
