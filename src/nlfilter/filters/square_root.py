@@ -47,8 +47,10 @@ What ``run`` reports is ``covs = S Sᵀ`` (symmetric), so the likelihood, the co
 read them as any Gaussian filter's. ``smooth`` is the square-root RTS smoother (:func:`sqrt_rts`:
 the joint factor of ``(x_{k+1}, x_k)``, ``Sˢ_k = tria([S_c, G Sˢ_{k+1}])``); the fixed-lag
 smoother and the posterior sampler run the rule's moment form from the reported moments
-(:mod:`~nlfilter.filters.smoothing`). These forms run on the NumPy loop (the
-compiled backend refuses them, naming why). Correlated process and measurement noise
+(:mod:`~nlfilter.filters.smoothing`). The Taylor-1 and node forms run on the compiled loop too
+(``backend="numba"``, or ``"auto"`` by its rule: :mod:`nlfilter.filters.compiled.sqrt_kernels`, the
+same steps on one path, a hand-written Householder ``tria``); fading memory, angles, correlated noise
+and a state-dependent R stay on the NumPy loop. Correlated process and measurement noise
 (``cross_noise``) is decorrelated as in the standard filters (the prediction's dynamics
 ``f + G K_w (y_k − h)``, the factor of ``Q − K_w Sᵀ``); non-additive noise is refused at construction
 (``structures``).
@@ -322,9 +324,15 @@ class SquareRootFilter(GaussianFilter):
     source = ("Morf & Kailath 1975, Square-root algorithms for least-squares estimation, IEEE TAC 20(4); "
               "Bierman 1977, Factorization Methods for Discrete Sequential Estimation")
     structures = ("state-dependent R", "cross noise", "angles")
-    compiled = False  # no compiled kernel propagates a factor (compiled_refusal says so)
-    compiled_refusal = ("the square-root filters propagate a Cholesky factor by QR steps, which the compiled loop "
-                        "has no kernel for; they run on the NumPy loop (backend='numpy', or 'auto')")
+    compiled = True  # Taylor-1 and node rules: the compiled loop's square-root kinds (compiled.sqrt_kernels)
+
+    @property
+    def compiled_kind(self):
+        """The compiled loop's kernels: ``"sqrt-taylor1"``, ``"sqrt-nodes"`` (a rule with its own
+        square-root columns has none: ``"sqrt-own"``, refused)."""
+        if hasattr(self.rule, "sqrt_dynamics"):
+            return "sqrt-own"
+        return f"sqrt-{getattr(self.rule, 'kind', None)}"
 
     def __init__(self, model, rule, *, start: str | None = None):
         super().__init__(model, rule, start=start)

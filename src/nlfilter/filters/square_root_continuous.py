@@ -136,6 +136,7 @@ class _ContinuousDiscreteSteps:
     :class:`~nlfilter.filters.square_root.SquareRootFilter`, ``Filter`` at most 4 places down their MRO)."""
 
     compiled = False  # continuous dynamics: no compiled loop
+    compiled_refusal = "its continuous-time prediction (an ODE of the factor) has no compiled kernel"
     accepts = ("sde",)
     start = "predict"  # the prior at t0, y_0 at t0 + dt (as simulate_continuous_discrete)
     structures = ("state-dependent R",)

@@ -167,6 +167,9 @@ class SquareRootIEKF(SquareRootFilter):
               "Morf & Kailath 1975, IEEE TAC 20(4) (array form)")
     needs = ("f_x", "h_x")
 
+    compiled = False
+    compiled_refusal = "its iterated (Gauss–Newton) update has no compiled kernel; it runs on the NumPy loop"
+
     def __init__(self, model, *, iterations: int = 10, tol: float = 1e-10, start: str | None = None):
         super().__init__(model, Taylor1(), start=start)
         _iterations(self, iterations, tol)

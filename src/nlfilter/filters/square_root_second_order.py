@@ -210,6 +210,8 @@ class SquareRootSecondOrderFilter(SquareRootFilter):
     source = ("seed 004 eqs. 18-23 (Henriksen 1979) in the array form of Morf & Kailath 1975, IEEE TAC 20(4); "
               "Bierman 1977 (Cholesky up- and downdates)")
     needs = ("f_x", "f_xx", "h_x", "h_xx")
+    compiled = False
+    compiled_refusal = "its second-order square-root columns have no compiled kernel; it runs on the NumPy loop"
 
     def __init__(self, model, *, form: str = "truncated", start: str | None = None):
         form = V.choice("form", form, set(FORMS))

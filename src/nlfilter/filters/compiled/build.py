@@ -17,7 +17,7 @@ from __future__ import annotations
 import functools
 import inspect
 
-from . import batch_loop, loops, path_linalg, rule_kernels, step_kernels
+from . import batch_loop, loops, path_linalg, rule_kernels, sqrt_kernels, step_kernels
 from .cache import load_source
 from .flatten import flatten
 from .kalman_loop import KALMAN_KEY, SCALAR
@@ -31,7 +31,9 @@ __all__ = ["FUNCTION_ARGS", "SPECIALIZE_UP_TO", "loop_of", "source", "steps", "t
 FUNCTION_ARGS = {"steps_scalar_": ("f", "fx", "h", "hx", "G"), "steps_": ("predict", "update"),
                  "predict_taylor1_": ("f", "fx", "G"), "update_taylor1_": ("h", "hx"),
                  "predict_nodes_": ("f", "G"), "update_nodes_": ("h",),
-                 "predict_taylor2_": ("f", "fx", "fxx"), "update_taylor2_": ("h", "hx", "hxx")}
+                 "predict_taylor2_": ("f", "fx", "fxx"), "update_taylor2_": ("h", "hx", "hxx"),
+                 "predict_sqrt_taylor1_": ("f", "fx", "G"), "update_sqrt_taylor1_": ("h", "hx"),
+                 "predict_sqrt_nodes_": ("f", "G"), "update_sqrt_nodes_": ("h",)}
 
 #: loops of models up to this state and measurement dimension are specialized: the dimensions
 #: compiled in as constants and the helpers expanded into the loop (:func:`_flat`; the compiler
@@ -40,12 +42,15 @@ FUNCTION_ARGS = {"steps_scalar_": ("f", "fx", "h", "hx", "G"), "steps_": ("predi
 #: larger models take the general loop. The arithmetic is the same (no fast-math), so both give
 #: the same numbers to the last bit.
 SPECIALIZE_UP_TO = 4
+#: the square-root filters' kinds (:mod:`.sqrt_kernels`): always the general loop (their QR steps
+#: gain little from dimensions compiled in, and the flattened loop would double the compile)
+SQRT_KINDS = ("sqrt-taylor1", "sqrt-nodes")
 
 _KERNEL_MODULES = (path_linalg, step_kernels)
 #: the kernels whose first parameter is a model function (:func:`_helpers`)
 _TAKES_FUNCTIONS = ("nodes_moments_",)
 _SOURCE = {f.__name__: inspect.getsource(f)  # read once, at import
-           for f in (*path_linalg.SOURCES, *step_kernels.SOURCES, *loops.SOURCES.values(),
+           for f in (*path_linalg.SOURCES, *step_kernels.SOURCES, *sqrt_kernels.SOURCES, *loops.SOURCES.values(),
                      *(k for pair in rule_kernels.KERNELS_BY_KIND.values() for k in pair))}
 
 
@@ -54,11 +59,11 @@ def _jit_line(name: str, src_name: str, **kw) -> str:
     return f"{name} = _jit({src_name}{args})\n"
 
 
-def _helpers() -> list:
-    """The kernels of :mod:`.path_linalg` and :mod:`.step_kernels` as source, each jitted under its
-    name (``chol_`` as ``chol``; the general loops')."""
+def _helpers(kind: str = "") -> list:
+    """The kernels of :mod:`.path_linalg` and :mod:`.step_kernels` (and :mod:`.sqrt_kernels`' for the
+    square-root kinds) as source, each jitted under its name (``chol_`` as ``chol``; the general loops')."""
     out = []
-    for mod in _KERNEL_MODULES:
+    for mod in _KERNEL_MODULES + ((sqrt_kernels,) if kind in SQRT_KINDS else ()):
         for f in mod.SOURCES:
             h = f.__name__
             # a kernel taking a model function as argument is always inlined: called, it would get
@@ -144,7 +149,7 @@ def source(kind: str, fns: dict, scalar: bool = False, dims=None) -> str:
     parts = [_HEADER.format(log2pi=step_kernels.LOG_2PI)]
     if dims is not None and not scalar:
         return "\n\n".join(p.rstrip("\n") + "\n" for p in parts + _flat(kind, fns, dims))
-    parts += _helpers()
+    parts += _helpers(kind)
     for arg, k in fns.items():
         if k is None:
             parts.append(f"{arg} = unused3\n")
@@ -175,13 +180,15 @@ def loop_of(flt):
     key = md._kernels["f"]
     if kind == "taylor1" and n == mdim == r == 1:
         return kind, scalar_kernels(md), True, None, key
-    dims = (n, mdim, r, None) if max(n, mdim) <= SPECIALIZE_UP_TO else None  # N stays: UKF/CKF/GHKF share
+    dims = (n, mdim, r, None) if max(n, mdim) <= SPECIALIZE_UP_TO and kind not in SQRT_KINDS else None
     second = kind == "taylor2" and flt.rule.second
     fns = model_kernels(md, second=second)
     # the kernels' parameter names -> model_kernels' (first-order Taylor-2: the Hessian slots are
     # never called; None, a compiled no-op, fills them)
     args = {"taylor1": {"f": "f", "fx": "f_x", "h": "h", "hx": "h_x", "G": "G"}, "nodes": {"f": "f", "h": "h", "G": "G"},
-            "taylor2": {"f": "f", "fx": "f_x", "fxx": "f_xx", "h": "h", "hx": "h_x", "hxx": "h_xx"}}[kind]
+            "taylor2": {"f": "f", "fx": "f_x", "fxx": "f_xx", "h": "h", "hx": "h_x", "hxx": "h_xx"},
+            "sqrt-taylor1": {"f": "f", "fx": "f_x", "h": "h", "hx": "h_x", "G": "G"},
+            "sqrt-nodes": {"f": "f", "h": "h", "G": "G"}}[kind]
     fns = {a: fns.get(w) for a, w in args.items()}
     if batch_loop.serves(kind, n, mdim):  # the batch-inner loop (the model's functions over blocks too)
         return kind, {**fns, **batch_loop.block_kernels(md)}, False, batch_loop.dims_of(n, mdim, r), key

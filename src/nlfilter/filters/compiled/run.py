@@ -12,7 +12,7 @@ import numpy as np
 
 from ...errors import CompileError, DivergenceError
 from ..estimates import Estimates
-from ..linalg import PSD_TOL
+from ..linalg import PSD_TOL, mm, symmetrize
 from ..recorder import loglik_divergence
 from ..rules import FORM_TABLE
 from . import batch_loop, build
@@ -62,8 +62,10 @@ def _run(flt, yf, batch, m0, P0, on, loglik, progress):
     B, T, mdim = yf.shape
     n = md.n
     prior = flt.init(m0, P0, batch)
+    kind, fns, scalar, dims, key = build.loop_of(flt)
+    sqrt = kind in build.SQRT_KINDS  # the loop's P holds the factor S (P = S Sᵀ)
     mean0 = _plain(prior.mean).reshape(B, n)
-    cov0 = _plain(prior.cov).reshape(B, n, n)
+    cov0 = _plain(prior.factor if sqrt else prior.cov).reshape(B, n, n)
     ys = _plain(yf)
     offset = 0 if flt.start == "update" else 1
     absent = np.isnan(ys).all(axis=(0, 2)) if B else np.zeros(T, bool)
@@ -74,7 +76,6 @@ def _run(flt, yf, batch, m0, P0, on, loglik, progress):
     inn = np.empty((B, T, mdim) if want else (0, 0, 0))
     icov = np.empty((B, T, mdim, mdim) if want else (0, 0, 0, 0))
     step = np.full(B, -1, np.int64)
-    kind, fns, scalar, dims, key = build.loop_of(flt)
     steps, entry = build.steps(kind, fns, key, scalar=scalar, dims=dims)
     R = _plain(md.R)
     if kind == "kalman":  # the model's matrices as data (F, b, H, d, G Q Gᵀ): no code per model
@@ -92,7 +93,7 @@ def _run(flt, yf, batch, m0, P0, on, loglik, progress):
         vals = md._values.values
         p = np.array([float(vals[s]) for s in md._psyms], float)
         Q = _plain(md.Q)
-        G_const = bool(md._G_fixed)
+        G_const = bool(md.G_constant if sqrt else md._G_fixed)  # the square-root rule: G(m) where G is free of x
         GQG0 = _plain(md.GQGT(np.zeros(n))) if G_const else np.zeros((n, n))
     if scalar:  # the scalar batch loop, time-major outputs
         outm, outP = np.empty((T, B)), np.empty((T, B))
@@ -104,7 +105,10 @@ def _run(flt, yf, batch, m0, P0, on, loglik, progress):
         if want:
             ll, inn, icov = sll.T, sinn.T[:, :, None], sicov.T[:, :, None, None]
         return finish(flt, on, step, batch, means, covs, want, ll, inn, icov)
-    if kind == "nodes":
+    if sqrt:  # the roots of Q and R the NumPy filter takes; the nodes' table
+        roots = (_plain(flt._root("Q", md.Q)), _plain(flt._root("R", md.R)))
+        ks, N = ((*_nodes(flt, n), *roots), len(_nodes(flt, n)[0])) if kind == "sqrt-nodes" else (roots, 0)
+    elif kind == "nodes":
         z, wm, wc = _nodes(flt, n)
         ks, N = (z, wm, wc), z.shape[0]
     elif kind == "taylor1":
@@ -132,6 +136,8 @@ def _run(flt, yf, batch, m0, P0, on, loglik, progress):
     else:
         block(0, B)
     seal(entry)
+    if sqrt:  # what the square-root filters report: S Sᵀ, symmetrized (their summary)
+        covs = symmetrize(mm(covs, covs.swapaxes(-1, -2)))
     return finish(flt, on, step, batch, means, covs, want, ll, inn, icov)
 
 

@@ -23,7 +23,7 @@ def numba():
 
 #: the rule kinds (``rule.kind``) the compiled loop has a step kernel for; ``"kalman"``: the linear
 #: Kalman filter (its class's ``compiled_kind``; the model's matrices as data, :mod:`.kalman_loop`)
-KINDS = ("taylor1", "nodes", "taylor2", "kalman")
+KINDS = ("taylor1", "nodes", "taylor2", "kalman", "sqrt-taylor1", "sqrt-nodes")
 
 #: what a subclass of a class declaring ``compiled = True`` may redefine and still run compiled:
 #: its constructor and representation. Any other method of the family it redefines (``predict``,
