@@ -37,10 +37,11 @@ __all__ = ["Choice", "choose", "numpy_seconds", "COMPILE_SECONDS", "LOAD_SECONDS
            "PATH_STEP_US"]
 
 #: the NumPy loop's cost per step, µs (one trajectory: its Python overhead), by rule kind
-STEP_US = {"kalman": 40.0, "taylor1": 50.0, "nodes": 110.0, "taylor2": 160.0}
+STEP_US = {"kalman": 40.0, "taylor1": 50.0, "nodes": 110.0, "taylor2": 160.0, "sqrt-taylor1": 120.0, "sqrt-nodes": 240.0}
 #: and per path-step at ``n = 1``, µs, scaled by ``n^1.5`` (1000 paths: 0.12 µs for the EKF at
-#: n = 1, 3.6 at n = 4, 22.7 at n = 16; the UKF and second-order filters 2-3× the EKF)
-PATH_STEP_US = {"kalman": 0.2, "taylor1": 0.25, "nodes": 0.45, "taylor2": 0.6}
+#: n = 1, 3.6 at n = 4, 22.7 at n = 16; the UKF and second-order filters 2-3× the EKF; the square-root
+#: filters 2.2-2.4× their standard form per step, 1.5-1.9× per path-step, measured at n = 2)
+PATH_STEP_US = {"kalman": 0.2, "taylor1": 0.25, "nodes": 0.45, "taylor2": 0.6, "sqrt-taylor1": 0.5, "sqrt-nodes": 0.7}
 #: a loop's first compile, CPU seconds: the scalar EKF's batch loop, the loops specialized to the
 #: dimensions (n, m ≤ :data:`~.build.SPECIALIZE_UP_TO`; flattened: 10-21 s measured by
 #: benchmarks/bench_compile.py on a loaded machine), the general loop, the EKF's batch-inner loop
