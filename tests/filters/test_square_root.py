@@ -362,15 +362,22 @@ def test_bad_input_is_named():
             step()
 
 
-def test_the_compiled_backend_refuses_them_naming_why():
-    """``backend="numba"`` is a TypeError saying why (no compiled kernel propagates a factor);
-    ``backend="auto"`` runs the NumPy loop."""
-    flt = SquareRootCKF(D2)
+def test_the_compiled_backend_refuses_the_forms_without_kernels_naming_why():
+    """The Taylor-1 and node forms run on the compiled loop too (tests/filters/test_compiled_sqrt.py);
+    the iterated one, the second-order one and fading memory do not: ``backend="numba"`` is a
+    TypeError saying why, and ``backend="auto"`` runs the NumPy loop (no compile here)."""
     ys = np.zeros((2, 3, 2))
-    with pytest.raises(TypeError, match=r"^backend: 'numba' cannot run SquareRootCKF: .*propagate a Cholesky factor"):
+    flt = SquareRootIEKF(D2)
+    with pytest.raises(TypeError, match=r"^backend: 'numba' cannot run SquareRootIEKF: .*iterated"):
         flt.run(ys, M3[:2], P3[:2, :2], backend="numba")
     assert flt.backend_for(1000, 1000)[0] == "numpy"
     flt.run(ys, M3[:2], P3[:2, :2])
+    sec = REGISTRY["sr-second-order"](D2)
+    with pytest.raises(TypeError, match=r"^backend: 'numba' cannot run SquareRootSecondOrderFilter: .*second-order"):
+        sec.run(ys, M3[:2], P3[:2, :2], backend="numba")
+    faded = SquareRootCKF(D2).fading_memory(1.1)
+    assert faded.backend_for(1000, 1000) == ("numpy", "no compiled loop: SquareRootCKF with fading memory (alpha = "
+                                                      "1.1, nlfilter.filters.fading) has no compiled form")
 
 
 def test_the_fifth_degree_rule_runs_square_root_with_its_negative_weights():

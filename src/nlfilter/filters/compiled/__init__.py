@@ -16,6 +16,11 @@ Taylor-2 (``truncated``, …,     seed 004 eqs. 18-23 in every form of :data:`~n
 ``modified-gaussian``)          ½(P g_xx), the fourth-moment terms, the forcing tensor, S screened
 Kalman (``kf``)                 the model's matrices F, b, H, d, G Q Gᵀ read as data (per time when
                                 they vary): one loop for every linear model (:mod:`.kalman_loop`)
+square-root Taylor-1            the loop's ``P`` holds the factor S: ``S⁻ = tria([F S, G Q^½])``
+(``sr-ekf``, ``sr-kf``)         (Householder), the array update ``tria([[H S, R^½], [S, 0]])``
+square-root nodes (``sr-ukf``,  ``tria`` of the weighted deviations, Cholesky downdates for negative
+``sr-ckf``, ``sr-ghkf``,        weights (a failed one: the path diverges, as on NumPy); the run
+``sr-slf``)                     reports ``S Sᵀ`` (:mod:`.sqrt_kernels`; always the general loop)
 ==============================  ================================================================
 
 A model with one state, one measurement and one noise runs the EKF's scalar batch loop
@@ -37,7 +42,7 @@ the eigenvectors, which a symmetric rule does not see; only repeated nonzero eig
 rotation free (then any root is as right, and the moments agree to the rule's exactness).
 
 What it takes: a filter whose class declares ``compiled = True`` (the discrete Gaussian filters
-above), with no step overridden below it (:func:`steps_refusal`); a :class:`~nlfilter.models.DiscreteModel` stated in SymPy, additive noise, constant
+above, their square-root forms but the iterated and second-order ones), with no step overridden below it (:func:`steps_refusal`); a :class:`~nlfilter.models.DiscreteModel` stated in SymPy, additive noise, constant
 Q and R, no correlated noise, parameters with one value each (arrays over time, inputs: the NumPy
 loop); Taylor-2 also a G free of the states; the Kalman filter any linear DiscreteModel (SymPy or
 matrices, time-varying too) without correlated noise or parameters per path. :func:`unsupported` names what a filter or model
@@ -54,6 +59,7 @@ The package, one concept a module:
 :mod:`.path_linalg`     one-path linear algebra: Cholesky, the divergence test, Jacobi, LU, products
 :mod:`.step_kernels`    one-path step pieces: covariances, node moments, Taylor-2 terms, the update
 :mod:`.rule_kernels`    one predict and one update kernel per rule kind, and their work arrays
+:mod:`.sqrt_kernels`    the square-root filters' kernels: Householder ``tria``, downdates, the array update
 :mod:`.kalman_loop`     the Kalman filter's kernels: the matrices as data (the template's, and the scalar
                         batch loop's f, h, G reading them from ``p``)
 :mod:`.loops`           one loop template for every rule kind; the scalar EKF's batch loop
