@@ -286,9 +286,8 @@ class Filter:
             ``extras["loglik_failed"] (..., T)``; a filter whose ``likelihood`` is None refuses
             (TypeError)
         backend : ``"auto"`` (default: the compiled loop where it is loaded, on disk or repaid by
-            the run, :meth:`backend_for`; else this loop), ``"numpy"`` or ``"numba"`` (the KF, EKF,
-            UKF, CKF, GHKF, SLF, second-order filters and their square-root forms but the iterated and
-            second-order ones compiled, ``nlfilter.filters.compiled``:
+            the run, :meth:`backend_for`; else this loop), ``"numpy"`` or ``"numba"`` (KF, EKF, UKF,
+            CKF, GHKF, SLF, second-order and sr-kf/-ekf/-ukf/-ckf/-ghkf/-slf compiled, ``nlfilter.filters.compiled``:
             the same estimates to 1e-12, kept on disk, ``NLFILTER_CACHE``; refuses what it does not take)
 
         Returns

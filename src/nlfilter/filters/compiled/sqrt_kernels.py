@@ -230,12 +230,10 @@ def sr_points_(m, S, z, X, n, N):
     """``X_i = m + S z_i``."""
     for i in range(N):
         for j in range(n):
-            X[i, j] = m[j]
-        for q in range(n):
-            w = z[i, q]
-            if w != 0.0:
-                for j in range(n):
-                    X[i, j] += w * S[j, q]
+            s = m[j]
+            for q in range(n):
+                s += z[i, q] * S[j, q]
+            X[i, j] = s
 
 
 def sr_moments_(GX, wm, N, pdim, mean, D):
@@ -250,6 +248,24 @@ def sr_moments_(GX, wm, N, pdim, mean, D):
             D[i, a] = GX[i, a] - mean[a]
 
 
+def sr_split_(D, wc, N, pdim, A, NV, off):
+    """The columns ``√wc_i D_i`` of the nodes of positive weight into ``A[off:off+pdim]`` and the
+    downdates ``√|wc_i| D_i`` of those of negative weight into ``NV[:, off:off+pdim]``; returns
+    their counts ``(c, nneg)``."""
+    c, nneg = 0, 0
+    for i in range(N):
+        w = math.sqrt(abs(wc[i]))
+        if wc[i] > 0.0:
+            for a in range(pdim):
+                A[off + a, c] = D[i, a] * w
+            c += 1
+        elif wc[i] < 0.0:
+            for a in range(pdim):
+                NV[nneg, off + a] = D[i, a] * w
+            nneg += 1
+    return c, nneg
+
+
 def predict_sqrt_nodes_(f, G, m, S, t, p, Q, GQG0, G_const, tol, ks, ws, n, mdim):
     """``m⁻ = Σ wm_i f(X_i)``, ``S⁻ = tria([√wc_i (f(X_i) − m⁻), noise])`` (``wc_i > 0``), downdated
     by the nodes of negative weight; the noise ``G(m) Q^½``, or ``√wm_i G(X_i) Q^½`` for a G of the state."""
@@ -260,17 +276,7 @@ def predict_sqrt_nodes_(f, G, m, S, t, p, Q, GQG0, G_const, tol, ks, ws, n, mdim
     for i in range(N):
         f(X[i], t, p, GX[i])
     sr_moments(GX, wm, N, n, mp, D)
-    c, nneg = 0, 0
-    for i in range(N):
-        w = math.sqrt(abs(wc[i]))
-        if wc[i] > 0.0:
-            for a in range(n):
-                A[a, c] = D[i, a] * w
-            c += 1
-        elif wc[i] < 0.0:
-            for a in range(n):
-                NV[nneg, a] = D[i, a] * w
-            nneg += 1
+    c, nneg = sr_split(D, wc, N, n, A, NV, 0)
     if G_const:
         G(m, t, p, Gm)
         mm(Gm, Lq, GL, n, r, r, False)
@@ -317,26 +323,16 @@ def update_sqrt_nodes_(h, m, S, y, t, p, R, tol, want, l1, i1, c1, ks, ws, n, md
     for i in range(N):
         h(X[i], t, p, GX[i])
     sr_moments(GX, wm, N, mdim, yhat, D)
-    c, nneg = 0, 0
-    for i in range(N):
-        w = math.sqrt(abs(wc[i]))
-        if wc[i] > 0.0:
-            for a in range(mdim):
-                A[a, c] = D[i, a] * w
-            for j in range(n):
-                A[mdim + j, c] = (X[i, j] - m[j]) * w
-            c += 1
-        elif wc[i] < 0.0:
-            for a in range(mdim):
-                NV[nneg, a] = D[i, a] * w
-            for j in range(n):
-                NV[nneg, mdim + j] = (X[i, j] - m[j]) * w
-            nneg += 1
+    for i in range(N):  # Z_i = X_i − m⁻ (GX is free again)
+        for j in range(n):
+            GX[i, j] = X[i, j] - m[j]
+    sr_split(D, wc, N, mdim, A, NV, 0)
+    c, nneg = sr_split(GX, wc, N, n, A, NV, mdim)
     return array_update(m, S, y, yhat, A, c, NV, nneg, R, LR, n, mdim, tol, want, l1, i1, c1, v, Rm, Lm, W, ev, V, u)
 
 
 #: the helpers' Python sources (compiled in the generated loops of the square-root kinds, :mod:`.build`)
-SOURCES = (tria_, downdate_, array_update_, finite_, sr_points_, sr_moments_)
+SOURCES = (tria_, downdate_, array_update_, finite_, sr_points_, sr_moments_, sr_split_)
 #: the kernels' sources by rule kind: ``(predict, update)``
 KERNELS = {"sqrt-taylor1": (predict_sqrt_taylor1_, update_sqrt_taylor1_),
            "sqrt-nodes": (predict_sqrt_nodes_, update_sqrt_nodes_)}
@@ -348,4 +344,5 @@ downdate = jit(downdate_, _nrt=False)
 finite = jit(finite_, _nrt=False)
 sr_points = jit(sr_points_, _nrt=False)
 sr_moments = jit(sr_moments_, _nrt=False)
+sr_split = jit(sr_split_, _nrt=False)
 array_update = jit(array_update_, _nrt=False)
