@@ -171,3 +171,12 @@ def test_tria_and_downdate_kernels_as_numpy():
         assert ok == (not failed) and bool(failed) == fails
         if ok:
             np.testing.assert_allclose(L, ref, rtol=0, atol=1e-13)
+
+
+def test_smoothing_after_the_compiled_forward_pass(data):
+    """``smooth(..., backend="numba")``: the compiled forward pass keeps no beliefs; the square-root
+    RTS pass runs from the Cholesky factors of its reported ``S Sᵀ`` (the propagated factors, to
+    rounding), so the smoothed moments and lag-one covariances equal the NumPy smoother's."""
+    md, ys = data
+    for flt in (SquareRootEKF(md), SquareRootUKF(md, alpha=0.5, kappa=1.0)):
+        same(flt.smooth(ys, M0, P0, backend="numpy"), flt.smooth(ys, M0, P0, backend="numba"))

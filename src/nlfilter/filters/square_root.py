@@ -433,7 +433,10 @@ class SquareRootFilter(GaussianFilter):
     smoother_keeps = True  # the backward pass reads the filtered factors (sqrt_rts)
 
     def _smooth(self, est, beliefs, ys, t0):
-        """The square-root RTS backward pass over the filtered factors (:func:`sqrt_rts`)."""
+        """The square-root RTS backward pass over the filtered factors (:func:`sqrt_rts`); after the
+        compiled forward pass, which keeps none, the Cholesky factors of its ``S Sᵀ`` (S itself, to rounding)."""
+        if beliefs is None and est.means.shape[1]:
+            beliefs = [SqrtState(est.means[:, k], sqrt_psd(est.covs[:, k])[0]) for k in range(est.means.shape[1])]
         if not beliefs:  # no step: nothing to smooth
             return est.means.copy(), est.covs.copy(), {"lag_one_cov": np.full_like(est.covs, np.nan)}
         off = 0 if self.start == "update" else 1
