@@ -22,7 +22,8 @@ def numba():
     return nb, None
 
 #: the rule kinds (``rule.kind``) the compiled loop has a step kernel for; ``"kalman"``: the linear
-#: Kalman filter (its class's ``compiled_kind``; the model's matrices as data, :mod:`.kalman_loop`)
+#: Kalman filter (its class's ``compiled_kind``; the model's matrices as data, :mod:`.kalman_loop`);
+#: ``"sqrt-taylor1"``, ``"sqrt-nodes"``: the square-root filters' (:mod:`.sqrt_kernels`)
 KINDS = ("taylor1", "nodes", "taylor2", "kalman", "sqrt-taylor1", "sqrt-nodes")
 
 #: what a subclass of a class declaring ``compiled = True`` may redefine and still run compiled:
@@ -91,7 +92,7 @@ def steps_refusal(flt) -> str | None:
             return f"{cls.__name__} has no compiled loop: {why}"
         by = "" if at is None else f" ({mro[at].__name__} sets compiled = False)"
         return (f"{cls.__name__} has no compiled loop{by}; it runs the discrete Gaussian filters (kf, ekf, ukf, ckf, "
-                "ghkf, slf, the discrete second-order forms)")
+                "ghkf, slf, the discrete second-order forms; sr-kf, sr-ekf, sr-ukf, sr-ckf, sr-ghkf, sr-slf)")
     family = set().union(*(_methods(c) for c in mro[at:])) - set(ALLOWED_OVERRIDES)
     for c in mro[:at]:
         for meth in sorted(_methods(c) & family):
@@ -105,7 +106,8 @@ def steps_refusal(flt) -> str | None:
 
 def rule_kind(flt):
     """The rule's step kernel (``rule.kind``: ``"taylor1"``, ``"nodes"``, ``"taylor2"``; the
-    filter's ``compiled_kind``: ``"kalman"``), or None."""
+    filter's ``compiled_kind``: ``"kalman"``, the square-root filters' ``"sqrt-taylor1"``,
+    ``"sqrt-nodes"``), or None."""
     kind = getattr(flt, "compiled_kind", None) or getattr(getattr(flt, "rule", None), "kind", None)
     return kind if kind in KINDS else None
 
