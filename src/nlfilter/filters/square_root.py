@@ -48,7 +48,7 @@ read them as any Gaussian filter's. ``smooth`` is the square-root RTS smoother (
 the joint factor of ``(x_{k+1}, x_k)``, ``Sˢ_k = tria([S_c, G Sˢ_{k+1}])``); the fixed-lag
 smoother and the posterior sampler run the rule's moment form from the reported moments
 (:mod:`~nlfilter.filters.smoothing`). The Taylor-1 and node forms run on the compiled loop too
-(``backend="numba"``, or ``"auto"`` by its rule: :mod:`nlfilter.filters.compiled.sqrt_kernels`, the
+(``backend="numba"``, or ``"auto"`` by its rule: ``nlfilter.filters.compiled.sqrt_kernels``, the
 same steps on one path, a hand-written Householder ``tria``); fading memory, angles, correlated noise
 and a state-dependent R stay on the NumPy loop. Correlated process and measurement noise
 (``cross_noise``) is decorrelated as in the standard filters (the prediction's dynamics
