@@ -190,6 +190,27 @@ def test_fit_options_refused(ou, tmp_path, capsys):
         _one_error(capsys, words)
 
 
+def test_a_file_without_times_asks_for_them(ou, tmp_path, capsys):
+    """A continuous-discrete file with neither ``dt`` nor ``times``: ``simulate`` and ``compare`` ask
+    for the times (``simulate`` names ``--times``, which it takes), ``fit`` reads them from the
+    data's ``t`` column and refuses data without one; ``simulate --times`` then works."""
+    bare = tmp_path / "bare.toml"
+    bare.write_text(OU.replace("times = [" + ", ".join(map(str, TIMES)) + "]\n", ""))
+    expected = "measurement: a continuous-discrete model with neither dt nor times; expected the measurement times"
+    assert cli.main(["simulate", str(bare), "--out", str(tmp_path / "d.csv"), "--steps", "5"]) == 2
+    assert "--times" in _one_error(capsys, "bare.toml", expected)
+    assert cli.main(["compare", str(bare), "--paths", "4"]) == 2
+    assert "--times" not in _one_error(capsys, "bare.toml", expected)
+    data = tmp_path / "d.csv"
+    assert cli.main(["simulate", str(bare), "--out", str(data), "--times", "0.5,1,2.5"]) == 0
+    capsys.readouterr()
+    lines = data.read_text().splitlines()
+    assert lines[0] == "t,y" and [float(l.split(",")[0]) for l in lines[1:]] == [0.5, 1.0, 2.5]
+    data.write_text("y\n" + "\n".join(l.split(",")[1] for l in lines[1:]) + "\n")
+    assert cli.main(["fit", str(bare), str(data), "--params", "q"]) == 2
+    _one_error(capsys, "t", "expected the measurement times")
+
+
 def test_compare_on_a_continuous_discrete_file(ou, tmp_path, capsys):
     """``nlfilter compare`` on a continuous-discrete file: its continuous-discrete filters at the
     file's irregular times, no reference (none reads such data, a note says so); the model is
