@@ -170,7 +170,9 @@ def sqrt_psd(P: np.ndarray, tol: float = PSD_TOL):
     w, U = np.linalg.eigh(symmetrize(safe))
     pd = finite & (w[..., 0] > 0)
     bad = ~finite | (w[..., 0] < -tol * np.maximum(1.0, np.max(np.abs(safe), axis=(-1, -2))))
-    L = np.linalg.cholesky(np.where(pd[..., None, None], safe, eye))  # the same factor as alone
+    with np.errstate(invalid="ignore", over="ignore", divide="ignore"):
+        L = _cholesky(np.where(pd[..., None, None], safe, eye))  # the same factor as alone (NaN: failed)
+    pd &= np.all(np.isfinite(L), axis=(-1, -2))  # a tiny positive eigenvalue the factorization rounds away: the root
     root = U * np.sqrt(np.maximum(w, 0.0))[..., None, :]
     return np.where(pd[..., None, None], L, np.where(bad[..., None, None], eye, root)), bad
 
