@@ -313,7 +313,7 @@ EXPERIMENTS = _index(
         target="nlfilter.experiments.square_root_pairs:run",
         params={"problem": "all",  # "all" or a comma list of noiseless, long-run, stiff, quadratic, falling-body
                 "r": [1e-8, 1e-10, 1e-12, 1e-14, 1e-16, 1e-18], "noiseless_q": 0.0,
-                "long_steps": 20000, "long_pairs": ["kf", "ukf"], "long_tau": 1e4, "long_r": 1e-2,
+                "long_steps": 200000, "long_pairs": ["kf", "ukf"], "long_tau": 1e4, "long_r": 1e-2,
                 "stiff_lambda": 1000.0, "stiff_r": 1e-8, "stiff_dt": 0.1, "stiff_substeps": 100,
                 "quad_r": 0.2, "fb_r": 1e4, "fb_substeps": 20},
         ranges={"r": ">0,<1", "noiseless_q": ">=0", "long_steps": ">=2,<=10000000", "long_tau": ">0",

@@ -17,7 +17,7 @@ param ``problem``):
 * ``long-run`` — a constant-velocity model ``x1' = x1 + τ x2``, ``x2' = x2`` (``τ = long_tau``),
   the position measured with ``R = long_r``, a negligible process noise: the covariance's
   condition number grows like ``τ² k²`` over the run (5e16 after 2·10⁴ steps at τ = 10⁴), the
-  run the round-off of the standard forms accumulates over (``long_steps``; the issue's 10⁶-step run
+  run the round-off of the standard forms accumulates over (``long_steps``, 2·10⁵ by default; the issue's 10⁶-step run
   is ``--param long_steps=1000000``, ~20 min of CPU for the kf and ukf pairs);
 * ``stiff`` — a stiff continuous-discrete model, ``dx1 = (−λ x1 + λ x2) dt``, ``dx2 = −x2 dt + dβ``
   (``λ = stiff_lambda``), ``y_k = x1(t_k) + v_k``, ``R = stiff_r``, measurements ``stiff_dt``
@@ -232,14 +232,19 @@ def run(params, *, quick=False, runs=None, seed=0, progress=False):
     res = Result("square-root", exp.title, exp.source, p)
     every = pairs()
     res.used("pairs", sorted(every))
+    unknown = [x for x in p["long_pairs"] if x not in every]
+    if unknown:
+        raise ValueError(f"param long_pairs={p['long_pairs']!r}: {unknown} have no registered square-root form; "
+                         f"expected names among {sorted(every)}")
     for problem in chosen:
-        todo = every if problem != "long-run" else {x: every[x] for x in p["long_pairs"] if x in every}
-        paths = res.params.setdefault("paths", {})[problem] = runs or (QUICK["runs"] if quick else RUNS)[problem]
+        todo = every if problem != "long-run" else {x: every[x] for x in p["long_pairs"]}
+        paths = runs or (QUICK["runs"] if quick else RUNS)[problem]
         steps = p["long_steps"] if problem == "long-run" else (
             QUICK["steps"][problem] if quick else STEPS.get(problem, {"quadratic": 50, "falling-body": 60}.get(problem)))
         skipped = {}
         for models, sim, m0, P0, row in CASES[problem](res, p, paths, steps, seed, todo):
-            res.params.setdefault("problem_steps", {})[problem] = steps
+            res.params.setdefault("problem_steps", {})[problem] = steps  # what ran (nothing: not recorded)
+            res.params.setdefault("paths", {})[problem] = paths
             for x, pair in todo.items():
                 why = compare_pair(res, x, pair, models, sim, m0, P0, problem=problem, **row)
                 if why:  # refused by the model (its needs): named in the notes
