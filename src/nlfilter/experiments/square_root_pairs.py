@@ -307,13 +307,10 @@ def _figure(res, p, chosen, every):
         res.series["noiseless: paths whose covariance lost PSD, vs R/P0"] = {
             "x": rs, "lines": {**lines, "every sr- form": sr_max}, "logx": True, "logy": False,
             "xlabel": "R/P0 (δ²)", "ylabel": "PSD-loss rate", "styles": {"every sr- form": "k--"}}
-        mse = {}
-        for x in lines:
-            for f in (x, f"sr-{x}"):
-                mse[f] = [res.get(f, "mse", problem="noiseless", r=r).value for r in rs]
-        res.series["noiseless: MSE E|x − x̂|² vs R/P0 (missing: PSD lost)"] = {
-            "x": rs, "lines": mse, "logx": True, "xlabel": "R/P0 (δ²)", "ylabel": "MSE",
-            "styles": {f: "--" for f in mse if f.startswith("sr-")}}
+        rel = {x: [abs(res.get(x, "mse_excess", problem="noiseless", r=r).value)
+                   / res.get(f"sr-{x}", "mse", problem="noiseless", r=r).value for r in rs] for x in lines}
+        res.series["noiseless: |MSE(X) − MSE(sr-X)| / MSE(sr-X), paired (missing: PSD lost; 0: identical)"] = {
+            "x": rs, "lines": rel, "logx": True, "xlabel": "R/P0 (δ²)", "ylabel": "relative MSE difference"}
     probs = [q for q in chosen if q != "noiseless" and _rows(res, "psd_loss_rate", problem=q)]
     ran = [x for x in names if any(_rows(res, "psd_loss_rate", problem=q) and x in
                                    {r.filter for r in _rows(res, "psd_loss_rate", problem=q)} for q in probs)]
@@ -323,8 +320,7 @@ def _figure(res, p, chosen, every):
             return hits[0] if hits else 0.0
         res.series["other problems: PSD-loss rate of the standard forms (square-root forms: 0 everywhere "
                    "unless drawn)"] = {
-            "kind": "bar", "categories": ran + [f"sr-{x}" for x in ran],
-            "bars": {q: [rate(f, q) for f in ran + [f"sr-{x}" for x in ran]] for q in probs},
+            "kind": "bar", "categories": ran, "bars": {q: [rate(f, q) for f in ran] for q in probs},
             "ylabel": "PSD-loss rate", "ylim": (0.0, 1.05)}
     cost_problem = next((q for q in ("quadratic", *chosen) if _rows(res, "cpu_us_per_step", problem=q)), None)
     if cost_problem:
