@@ -29,7 +29,8 @@ param ``problem``):
 Rows per filter (``X`` and ``sr-X``) and problem: ``psd_loss_rate`` (fraction of paths whose
 covariance, at some step, is non-finite or has an eigenvalue below ``−n·eps·λ_max``, eigvalsh's
 own rounding: :func:`psd_lost`; a path the run marked diverged counts; binomial s.e.),
-``psd_loss_steps`` (the fraction of path-steps), ``divergence_rate`` (the paths the run loop
+``psd_loss_steps`` (the fraction of path-steps), ``log10_cond_max`` (the largest condition
+number of a covariance the form kept, log10: how ill-conditioned the run got), ``divergence_rate`` (the paths the run loop
 marked diverged, ``on_divergence="mark"``: :mod:`nlfilter.filters.base`), ``mse`` (of the whole
 state vector, ``E|x − x̂|²`` over the steps, the paths neither form lost; s.e. across paths),
 ``cpu_us_per_step`` (CPU time of one step of the whole batch of paths, both on the NumPy loop)
@@ -82,12 +83,22 @@ def psd_lost(covs) -> np.ndarray:
     """``(..., T)`` bool: the covariance ``covs (..., T, n, n)`` is non-finite, or its symmetric
     part has an eigenvalue below ``−n·eps·λ_max`` (the backward error of ``eigvalsh``: a smaller
     negative eigenvalue is rounding of a PSD matrix, e.g. of a square-root form's ``S Sᵀ``)."""
+    return _spectrum(covs)[0]
+
+
+def _spectrum(covs):
+    """``(lost, log10 of the condition number)`` per path-step (:func:`psd_lost`; NaN where lost or
+    singular)."""
     covs = np.asarray(covs, dtype=float)
     n = covs.shape[-1]
     finite = np.isfinite(covs).all(axis=(-1, -2))
     sym = np.where(finite[..., None, None], 0.5 * (covs + np.swapaxes(covs, -1, -2)), 0.0)
     lam = np.linalg.eigvalsh(sym)
-    return ~finite | (lam[..., 0] < -n * np.finfo(float).eps * np.abs(lam).max(axis=-1))
+    top = np.abs(lam).max(axis=-1)
+    lost = ~finite | (lam[..., 0] < -n * np.finfo(float).eps * top)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        cond = np.where(~lost & (lam[..., 0] > 0), np.log10(top / lam[..., 0]), np.nan)
+    return lost, cond
 
 
 # -- the problems: (model, m0, P0, x0, dt or None, steps, data) -------------------------------------
@@ -150,7 +161,9 @@ def compare_pair(res, x, pair, models, sim, m0, P0, **row):
     for name, flt in flts.items():
         with np.errstate(all="ignore"):
             est, cost = _timed(flt, sim.ys, m0, P0)
-        bad = psd_lost(est.covs) | est.diverged[:, None]
+        bad, cond = _spectrum(est.covs)
+        bad |= est.diverged[:, None]
+        res.add(name, "log10_cond_max", float(np.nanmax(cond)) if np.isfinite(cond).any() else np.nan, **row)
         lost[name] = bad.any(axis=-1)
         p, n = float(lost[name].mean()), lost[name].size
         res.add(name, "psd_loss_rate", p, np.sqrt(p * (1 - p) / n), **row)
@@ -263,6 +276,12 @@ def _rows(res, quantity, **params):
     return [r for r in res.rows if r.quantity == quantity and all(r.params.get(k) == v for k, v in params.items())]
 
 
+def _ran(res, every, problem) -> list:
+    """The standard forms of ``every`` pair that ran on ``problem``, in the registry's order."""
+    done = {r.filter for r in _rows(res, "psd_loss_rate", problem=problem)}
+    return [x for x in every if x in done]
+
+
 def _claims(res, p, chosen, every):
     """The claims as rows and notes, computed from the rows (module docstring)."""
     sr = [r for r in _rows(res, "psd_loss_rate") if r.filter.startswith("sr-")]
@@ -271,16 +290,13 @@ def _claims(res, p, chosen, every):
         worst = max(sr, key=lambda r: r.value)
         res.add("sr-*", "max_psd_loss_rate", worst.value, worst.stderr)
         res.notes.append("Claim: no square-root form loses positive definiteness: " + (
-            f"holds (0 of the paths of {len(sr)} runs)." if worst.value == 0 else
+            f"holds (no path lost in any of the {len(sr)} runs: pair × problem × R/P0)." if worst.value == 0 else
             f"FAILS: {worst.filter} on {worst.params} (rate {worst.value:.3g})."))
     if "noiseless" in chosen:
         parts = []
-        for x in every:
+        for x in _ran(res, every, "noiseless"):
             hit = [r.params["r"] for r in std if r.filter == x and r.params.get("problem") == "noiseless"
                    and r.value > 0]
-            if not _rows(res, "psd_loss_rate", problem="noiseless") or not any(
-                    r.filter == x for r in _rows(res, "psd_loss_rate", problem="noiseless")):
-                continue
             res.add(x, "largest_r_lost", max(hit) if hit else np.nan, problem="noiseless")
             parts.append(f"{x} at R/P0 ≤ {max(hit):g}" if hit else f"{x} never (down to {min(p['r']):g})")
         res.notes.append("Claim: the standard forms lose positive definiteness on the near-noiseless "
@@ -288,6 +304,10 @@ def _claims(res, p, chosen, every):
     others = sorted({(r.filter, r.params["problem"]) for r in std if r.value > 0 and r.params["problem"] != "noiseless"})
     res.notes.append("Standard forms that lost positive definiteness on the other problems: " + (
         ", ".join(f"{f} ({q})" for f, q in others) if others else "none") + ".")
+    if "long-run" in chosen:
+        conds = [r for r in _rows(res, "log10_cond_max", problem="long-run")]
+        res.notes.append(f"long-run: {p['long_steps']} steps; the covariances reached a condition number of "
+                         + ", ".join(f"1e{r.value:.1f} ({r.filter})" for r in conds) + ".")
     res.notes.append("psd_loss: non-finite, or an eigenvalue < −n·eps·λ_max (eigvalsh's rounding), at some step, "
                      "or marked diverged; mse: E|x − x̂|² of the whole state over the steps, the paths the form "
                      "kept; mse_excess: MSE(X) − MSE(sr-X) on the paths both kept (paired); cpu_us_per_step: CPU "
@@ -300,9 +320,8 @@ def _figure(res, p, chosen, every):
     rs = list(p["r"])
     names = list(every)
     if "noiseless" in chosen:
-        lines = {x: [res.get(x, "psd_loss_rate", problem="noiseless", r=r).value for r in rs] for x in names
-                 if _rows(res, "psd_loss_rate", problem="noiseless", r=rs[0]) and
-                 any(q.filter == x for q in _rows(res, "psd_loss_rate", problem="noiseless", r=rs[0]))}
+        lines = {x: [res.get(x, "psd_loss_rate", problem="noiseless", r=r).value for r in rs]
+                 for x in _ran(res, every, "noiseless")}
         sr_max = [max(res.get(f"sr-{x}", "psd_loss_rate", problem="noiseless", r=r).value for x in lines) for r in rs]
         res.series["noiseless: paths whose covariance lost PSD, vs R/P0"] = {
             "x": rs, "lines": {**lines, "every sr- form": sr_max}, "logx": True, "logy": False,
@@ -311,22 +330,20 @@ def _figure(res, p, chosen, every):
                    / res.get(f"sr-{x}", "mse", problem="noiseless", r=r).value for r in rs] for x in lines}
         res.series["noiseless: |MSE(X) − MSE(sr-X)| / MSE(sr-X), paired (missing: PSD lost; 0: identical)"] = {
             "x": rs, "lines": rel, "logx": True, "xlabel": "R/P0 (δ²)", "ylabel": "relative MSE difference"}
-    probs = [q for q in chosen if q != "noiseless" and _rows(res, "psd_loss_rate", problem=q)]
-    ran = [x for x in names if any(_rows(res, "psd_loss_rate", problem=q) and x in
-                                   {r.filter for r in _rows(res, "psd_loss_rate", problem=q)} for q in probs)]
-    if probs and ran:
-        def rate(f, q):
-            hits = [r.value for r in _rows(res, "psd_loss_rate", problem=q) if r.filter == f]
-            return hits[0] if hits else 0.0
-        res.series["other problems: PSD-loss rate of the standard forms (square-root forms: 0 everywhere "
-                   "unless drawn)"] = {
+    probs = [q for q in chosen if q != "noiseless" and _ran(res, every, q)]
+    ran = [x for x in names if any(x in _ran(res, every, q) for q in probs)]
+    if probs:
+        def rate(f, q):  # 0: not run there
+            return next((r.value for r in _rows(res, "psd_loss_rate", problem=q) if r.filter == f), 0.0)
+        res.series["other problems: PSD-loss rate of the standard forms (of the square-root forms: the "
+                   "max_psd_loss_rate row)"] = {
             "kind": "bar", "categories": ran, "bars": {q: [rate(f, q) for f in ran] for q in probs},
             "ylabel": "PSD-loss rate", "ylim": (0.0, 1.05)}
     cost_problem = next((q for q in ("quadratic", *chosen) if _rows(res, "cpu_us_per_step", problem=q)), None)
     if cost_problem:
-        ran = [x for x in names if any(r.filter == x for r in _rows(res, "cpu_us_per_step", problem=cost_problem))]
-        pick = lambda f: next(r.value for r in _rows(res, "cpu_us_per_step", problem=cost_problem)  # noqa: E731
-                              if r.filter == f)
+        ran = _ran(res, every, cost_problem)
+        at = {"r": rs[0]} if cost_problem == "noiseless" else {}
+        pick = lambda f: res.get(f, "cpu_us_per_step", problem=cost_problem, **at).value  # noqa: E731
         res.series[f"cost on {cost_problem} ({res.params['paths'][cost_problem]} paths a batch)"] = {
             "kind": "bar", "categories": ran, "bars": {"standard": [pick(x) for x in ran],
                                                        "square-root": [pick(f"sr-{x}") for x in ran]},
