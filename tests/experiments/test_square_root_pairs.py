@@ -11,6 +11,10 @@ from nlfilter.experiments import get
 from nlfilter.experiments.square_root_pairs import collinear, kind, pairs, psd_lost
 from nlfilter.filters import REGISTRY, ContinuousDiscreteEKF
 
+# the discrete pairs registered when the experiment was written: the claims below are theirs (a
+# pair registered later is checked by the claim of every square-root form, max_psd_loss_rate)
+DISCRETE = ("kf", "ekf", "iekf", "ukf", "ckf", "ghkf", "slf")
+
 
 @pytest.fixture(scope="module")
 def quick():
@@ -46,7 +50,7 @@ def test_standard_forms_lose_positive_definiteness_on_the_near_noiseless_measure
     """Every standard form loses it in the sweep (R/P0 down to 1e-18: below eps, the updated
     covariance is the difference of nearly equal numbers) and none at R/P0 = 1e-8 (eps·cond ≈ 1e-8);
     measured: the node rules (P⁻ − K S Kᵀ) from 1e-12, the Joseph-form EKF and KF from 1e-14."""
-    for x in pairs():
+    for x in DISCRETE:
         lost = quick.get(x, "largest_r_lost", problem="noiseless").value
         assert 1e-18 <= lost <= 1e-10, x
         assert quick.get(x, "psd_loss_rate", problem="noiseless", r=1e-8).value == 0.0, x
@@ -60,7 +64,7 @@ def test_forms_agree_where_well_conditioned(quick):
     for the KF, EKF, IEKF (Joseph form) and 7e-6 for the node rules (P⁻ − K S Kᵀ; 1e-2 already at
     R/P0 = 1e-10), is below 1e-4 of it; on Henriksen's quadratic problem (well conditioned),
     measured ≤ 3e-16, below 1e-12."""
-    for x in pairs():
+    for x in DISCRETE:
         mse = quick.get(f"sr-{x}", "mse", problem="noiseless", r=1e-8).value
         assert abs(quick.get(x, "mse_excess", problem="noiseless", r=1e-8).value) < 1e-4 * mse, x
         if x != "kf":  # the Kalman filter needs a linear model: refused, and named in the notes
@@ -70,8 +74,7 @@ def test_forms_agree_where_well_conditioned(quick):
 
 
 def test_rows_figure_and_what_ran(quick):
-    assert set(quick.params["problem_steps"]) == {"noiseless", "long-run", "quadratic", "falling-body"} or \
-        "stiff" in quick.params["problem_steps"]
+    assert set(quick.params["problem_steps"]) >= {"noiseless", "long-run", "quadratic", "falling-body"}
     assert quick.params["problem_steps"]["long-run"] == 200 and quick.params["paths"]["noiseless"] == 6
     for r in quick.rows:
         if r.quantity == "cpu_us_per_step":
@@ -89,7 +92,7 @@ def test_stiff_continuous_discrete_problem_runs_a_registered_pair(monkeypatch):
     a = res.get("continuous-discrete-ekf", "mse", problem="stiff")
     assert res.get("sr-continuous-discrete-ekf", "mse", problem="stiff").value == a.value and np.isfinite(a.value)
     assert res.get("continuous-discrete-ekf", "mse_excess", problem="stiff").value == 0.0
-    assert res.params["problem_steps"] == {"stiff": 10} and res.params["paths"] == {"stiff": 3}
+    assert res.params["problem_steps"] == {"stiff": 5} and res.params["paths"] == {"stiff": 3}
 
 
 def test_bad_input_is_named():
