@@ -94,7 +94,7 @@ def test_stiff_continuous_discrete_problem_runs_a_registered_pair(monkeypatch):
     a = res.get("continuous-discrete-ekf", "mse", problem="stiff")
     assert res.get("sr-continuous-discrete-ekf", "mse", problem="stiff").value == a.value and np.isfinite(a.value)
     assert res.get("continuous-discrete-ekf", "mse_excess", problem="stiff").value == 0.0
-    assert res.params["problem_steps"] == {"stiff": 5} and res.params["paths"] == {"stiff": 3}
+    assert res.params["problem_steps"] == {"stiff": 2} and res.params["paths"] == {"stiff": 3}
 
 
 def test_bad_input_is_named():

@@ -59,8 +59,8 @@ from . import get
 
 PROBLEMS = ("noiseless", "long-run", "stiff", "quadratic", "falling-body")
 RUNS = {"noiseless": 200, "long-run": 2, "stiff": 100, "quadratic": 1000, "falling-body": 200}
-QUICK = {"runs": {"noiseless": 6, "long-run": 2, "stiff": 4, "quadratic": 16, "falling-body": 3},
-         "steps": {"noiseless": 4, "stiff": 5, "quadratic": 10, "falling-body": 6}, "long_steps": 200}
+QUICK = {"runs": {"noiseless": 6, "long-run": 2, "stiff": 3, "quadratic": 16, "falling-body": 3},
+         "steps": {"noiseless": 4, "stiff": 2, "quadratic": 10, "falling-body": 6}, "long_steps": 200}
 STEPS = {"noiseless": 20, "stiff": 100}  # the others: the problem's own (quadratic 50, falling body 60)
 
 
