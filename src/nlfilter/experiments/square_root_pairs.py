@@ -1,7 +1,7 @@
 """Experiment ``square-root``: every square-root filter beside its standard form on ill-conditioned
 problems (issue 30, item 2: the evidence that the square-root forms matter).
 
-Pairs (:func:`pairs`): every registered ``sr-X`` whose standard ``X`` is registered too
+Pairs (``pairs()``): every registered ``sr-X`` whose standard ``X`` is registered too
 (:data:`nlfilter.filters.REGISTRY`), so a square-root form joins the experiment when it is
 registered. A pair runs on a problem when both of its filters accept the problem's model (a
 discrete-time filter of a ``"discrete"`` model, or a continuous-discrete one of an ``"sde"``
@@ -28,7 +28,7 @@ param ``problem``):
 
 Rows per filter (``X`` and ``sr-X``) and problem: ``psd_loss_rate`` (fraction of paths whose
 covariance, at some step, is non-finite or has an eigenvalue below ``−n·eps·λ_max``, eigvalsh's
-own rounding: :func:`psd_lost`; a path the run marked diverged counts; binomial s.e.),
+own rounding: ``psd_lost``; a path the run marked diverged counts; binomial s.e.),
 ``psd_loss_steps`` (the fraction of path-steps), ``log10_cond_max`` (the largest condition
 number of a covariance the form kept, log10: how ill-conditioned the run got), ``divergence_rate`` (the paths the run loop
 marked diverged, ``on_divergence="mark"``: :mod:`nlfilter.filters.base`), ``mse`` (of the whole
