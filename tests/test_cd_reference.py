@@ -6,11 +6,14 @@ model, beating the continuous-discrete EKF on a nonlinear one; and its refusals.
 
 from __future__ import annotations
 
+import warnings
+
 import numpy as np
 import pytest
 import sympy as sp
 
 from nlfilter import SDEModel, compare
+from nlfilter.errors import ReferenceWarning
 from nlfilter.filters import ContinuousDiscreteEKF, ContinuousDiscreteParticleFilter, Estimates, GridFilter
 from nlfilter.simulate import simulate_continuous_discrete
 
@@ -81,7 +84,9 @@ def test_nonlinear_reference_beats_the_cd_ekf():
 
 def test_the_filter_reads_the_data_and_refuses():
     """The filter takes the Simulation's times and substeps (its run on the arrays at those times
-    is the same, bitwise); a grid reference and a filter of increments are refused, naming them."""
+    is the same, bitwise); one given as ``compare``'s reference with other substeps than the
+    simulation's has another model, which its certificate says; a grid reference is refused,
+    naming it."""
     sim = simulate_continuous_discrete(OU, 4, paths=3, rng=1, m0=M0, P0=P0, times=TIMES[:4],
                                        process="euler-maruyama", substeps=3)
     assert sim.timing.substeps == 3
@@ -89,6 +94,11 @@ def test_the_filter_reads_the_data_and_refuses():
     a = flt.run(sim, M0, P0, rng=4)
     b = ContinuousDiscreteParticleFilter(OU, None, 50, substeps=3).at_times(TIMES[:4]).run(sim.ys, M0, P0, rng=4)
     np.testing.assert_array_equal(a.means, b.means)
+    with warnings.catch_warnings():  # 200 particles on 4 paths: whether it is certified is not the point here
+        warnings.simplefilter("ignore", ReferenceWarning)
+        res = compare(OU, ["continuous-discrete-ekf"], 4, paths=4, m0=M0, P0=P0, times=TIMES[:4], certify_paths=4,
+                      reference=ContinuousDiscreteParticleFilter(OU, None, 200, substeps=3))  # the data's: 10
+    assert "substeps=3 where the simulation has 10" in res.params["reference"]["reason"]
     with pytest.raises(ValueError, match=r"reference: no grid filter reads an SDE measured at discrete times"):
         compare(OU, ["continuous-discrete-ekf"], 4, paths=2, m0=M0, P0=P0, times=TIMES[:4], reference="grid")
     with pytest.raises(ValueError, match=r"reference: no grid filter"):
