@@ -34,12 +34,14 @@ class ExactKF:
         B, T, _ = ys.shape
         m, P = np.full(B, float(m0[0])), float(P0[0][0])
         means, covs = np.empty((B, T, 1)), np.empty((B, T, 1, 1))
-        for k, dk in enumerate(np.diff(np.concatenate([[0.0], TIMES]))):
+        self.loglik = np.zeros(B)  # log p(y_1..y_T): the innovations' Gaussian densities
+        for k, dk in enumerate(np.diff(np.concatenate([[0.0], TIMES[:T]]))):
             d = dk / SUB
             a = (1 - A * d) ** np.arange(SUB)
             m, P = m * (1 - A * d) ** SUB, P * (1 - A * d) ** (2 * SUB) + Q * d * np.sum(a * a)
-            K = P / (P + R)
-            m, P = m + K * (ys[:, k, 0] - m), (1 - K) * P
+            S, r = P + R, ys[:, k, 0] - m
+            self.loglik -= 0.5 * (np.log(2 * np.pi * S) + r * r / S)
+            m, P = m + P / S * r, R / S * P
             means[:, k, 0], covs[:, k, 0, 0] = m, P
         return Estimates(means, covs, np.zeros(B, bool), np.full(B, -1))
 
@@ -84,7 +86,7 @@ def test_nonlinear_reference_beats_the_cd_ekf():
 
 def test_the_filter_reads_the_data_and_refuses():
     """The filter takes the Simulation's times and substeps (its run on the arrays at those times
-    is the same, bitwise); one given as ``compare``'s reference with other substeps than the
+    is the same, bitwise) and estimates the exact log-likelihood; one given as ``compare``'s reference with other substeps than the
     simulation's has another model, which its certificate says; a grid reference is refused,
     naming it."""
     sim = simulate_continuous_discrete(OU, 4, paths=3, rng=1, m0=M0, P0=P0, times=TIMES[:4],
@@ -94,6 +96,14 @@ def test_the_filter_reads_the_data_and_refuses():
     a = flt.run(sim, M0, P0, rng=4)
     b = ContinuousDiscreteParticleFilter(OU, None, 50, substeps=3).at_times(TIMES[:4]).run(sim.ys, M0, P0, rng=4)
     np.testing.assert_array_equal(a.means, b.means)
+    # the log-likelihood estimate against the exact one (16 times, 4000 particles: its s.d. over
+    # seeds, measured, 0.04-0.11 per path; 0.4 is ~4 s.d. of the widest)
+    sim = simulate_continuous_discrete(OU, len(TIMES), paths=5, rng=1, m0=M0, P0=P0, times=TIMES,
+                                       process="euler-maruyama", substeps=SUB)
+    kf = ExactKF()
+    kf.run(sim.ys, M0, P0)
+    est = ContinuousDiscreteParticleFilter(OU, None, 4000).run(sim, M0, P0, rng=2, loglik=True)
+    assert np.max(np.abs(est.loglik - kf.loglik)) < 0.4, est.loglik - kf.loglik
     with warnings.catch_warnings():  # 200 particles on 4 paths: whether it is certified is not the point here
         warnings.simplefilter("ignore", ReferenceWarning)
         res = compare(OU, ["continuous-discrete-ekf"], 4, paths=4, m0=M0, P0=P0, times=TIMES[:4], certify_paths=4,
