@@ -46,7 +46,11 @@ On a continuously measured SDE the grid reads each increment with ``h`` at the i
 point (:class:`~nlfilter.filters.reference.GridFilter`, first order in ``dt``), the particle
 filter exactly as the simulator does (:mod:`nlfilter.sde_step`, at the simulator's ``substeps``);
 the automatic reference takes particles where the end-point reading is not accurate
-(:func:`endpoint_error` above :data:`ENDPOINT_TOL`).
+(:func:`endpoint_error` above :data:`ENDPOINT_TOL`). An SDE measured at discrete times
+(``compare(times=)``) has no grid rung: its reference is
+:class:`~nlfilter.filters.reference.ContinuousDiscreteParticleFilter` through the simulator's
+Euler–Maruyama steps (its ``substeps`` per interval: the simulator's model exactly), on the same
+particle ladder (``certified_reference(..., times=)``).
 """
 
 from __future__ import annotations

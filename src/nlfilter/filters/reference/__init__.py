@@ -40,7 +40,10 @@ Bootstrap filter: particles propagated through the model (Euler–Maruyama subst
 weighted by the measurement likelihood, resampled (systematic) when the effective sample size
 falls below ``threshold · particles``. The estimate is the weighted mean/covariance before
 resampling: the weights of an update are kept in the belief, and the next ``predict`` (``step``
-for SDEs) resamples first.
+for SDEs) resamples first. An SDE measured at discrete times (``y_k = h(x(t_k)) + v_k``, regular
+or irregular ``t_k``) has :class:`ContinuousDiscreteParticleFilter`: the same filter, its
+particles moved between measurements by the simulator's Euler–Maruyama steps
+(:mod:`~nlfilter.filters.reference.cd_particle`).
 
 Both filters flag a measurement that is impossible under every grid point / particle (zero
 likelihood everywhere, e.g. bounded noise and a too-narrow grid) as a divergence of that path.
