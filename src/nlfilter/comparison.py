@@ -129,9 +129,10 @@ def compare(model, filters, steps, *, paths=200, m0, P0, rng=0, reference="auto"
         ``O(particles²)`` per step and path to smooth, and on an SDE (``substeps > 1``) has no
         smoother: then no smoothed gaps, and a note
     window : what :func:`~nlfilter.evaluate.mse` averages over (``0.5``: the second half)
-    dt, substeps : SDE models only: measurement step (required) and Euler–Maruyama substeps of
-        the simulation (default :data:`~nlfilter.sde_step.SUBSTEPS`), of an automatic particle
-        reference and of any particle filter given without ``substeps``
+    dt, substeps : SDE models only: measurement step (required, unless ``times``) and
+        Euler–Maruyama substeps per measurement interval of the simulation (default
+        :data:`~nlfilter.sde_step.SUBSTEPS`; with ``times`` too, whatever each interval's length),
+        of an automatic particle reference and of any particle filter given without ``substeps``
     start : discrete models: step convention (see :mod:`nlfilter.filters.base`)
     times : SDE models measured at discrete times (continuous-discrete, ``y_k = h(x(t_k)) + v_k``):
         the measurement times ``t_1 < ... < t_steps`` after the prior at 0, regular or not, in
