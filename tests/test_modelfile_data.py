@@ -213,22 +213,30 @@ def test_a_file_without_times_asks_for_them(ou, tmp_path, capsys):
 
 def test_compare_on_a_continuous_discrete_file(ou, tmp_path, capsys):
     """``nlfilter compare`` on a continuous-discrete file: its continuous-discrete filters at the
-    file's irregular times, no reference (none reads such data, a note says so); the model is
-    linear, so the EKF and the UKF are the same filter (to rounding) with a NEES near 1."""
+    file's irregular times against the certified particle reference through the simulator's
+    Euler–Maruyama steps (500 particles, its check 2000: plenty for a 1-D Gaussian posterior, and a
+    quarter of the default's cost); the model is linear, so the EKF and the UKF are the same filter (to
+    rounding) with a NEES near 1, and near-optimal: no gap beyond 3 s.e. and the reference's
+    tolerance (RK4 moments for the simulator's Euler steps: a change of the transition below 1 %)."""
     out = tmp_path / "out.json"
     assert cli.main(["compare", str(ou), "--paths", "40", "--filters", "continuous-discrete-ekf,continuous-discrete-ukf",
-                     "--no-progress", "--no-store", "--json", str(out)]) == 0
+                     "--max-particles", "500", "--no-progress", "--no-store", "--json", str(out)]) == 0
     capsys.readouterr()
     d = json.loads(out.read_text())
-    assert d["params"]["times"] == TIMES and d["params"]["reference"] is None and d["params"]["steps"] == 20
+    ref = d["params"]["reference"]
+    assert d["params"]["times"] == TIMES and ref["certified"] and ref["kind"] == "particle" and d["params"]["steps"] == 20
     rows = {(r["filter"], r["quantity"]): r for r in d["rows"]}
     mse = [rows[(f, "mse")]["value"] for f in ("continuous-discrete-ekf", "continuous-discrete-ukf")]
     assert mse[0] == pytest.approx(mse[1], rel=1e-10) and 0 < mse[0] < 0.1  # below R = 0.1: the filter helps
     nees = rows[("continuous-discrete-ekf", "nees")]
     assert abs(nees["value"] - 1.0) < 3 * nees["stderr"] + 0.05, nees  # a consistent filter: NEES ≈ n = 1
-    assert any("no reference filter reads an SDE measured at discrete times" in n for n in d["notes"])
+    gap = rows[("continuous-discrete-ekf", "gap_to_optimal")]
+    assert abs(gap["value"]) <= 3 * gap["stderr"] + ref["rungs"][-1]["tolerance"][0], gap
+    assert not any("no reference" in n for n in d["notes"])
     assert cli.main(["compare", str(ou), "--paths", "4", "--steps", "5", "--no-progress", "--no-store"]) == 2
     _one_error(capsys, "--steps: got 5; the measurement times are 20")
+    assert cli.main(["compare", str(ou), "--paths", "4", "--reference", "grid", "--no-progress", "--no-store"]) == 2
+    _one_error(capsys, "reference: no grid filter reads an SDE measured at discrete times")
 
 
 def test_fit_coverage_over_seeds(ou, tmp_path, capsys):
