@@ -310,8 +310,8 @@ class ParticleFilter(_ReferenceFilter):
                                lambda j: mm(rng.standard_normal((*x.shape[1:-1], md.r)), L.T) * sq)
         return x, ih / self.dt
 
-    def _loglik(self, x, y, k, hbar=None):
-        md = self.model
+    def _loglik(self, x, y, k, hbar=None, md=None):
+        md = self.model if md is None else md
         obs = ~np.isnan(y)
         if md.kind == "discrete":
             resid = residual(y[..., None, :], md.h(x, k), angles_of(md).measurements)
