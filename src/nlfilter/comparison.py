@@ -45,7 +45,7 @@ import time
 import numpy as np
 
 from . import _validate as V
-from .compare_filters import _check_filter, _check_filters, _component_names, _resolve, _streams
+from .compare_filters import _check_filter, _check_filters, _component_names, _resolve, _streams, model_ident
 from .compare_rows import (certificate_note, filter_rows, mse_series, smoothed_rows, smoothers,
                            smoothing_note, uninformed_note)
 from .compare_switching import mode_rows, switching_filters, switching_setup
@@ -266,8 +266,9 @@ def compare(model, filters, steps, *, paths=200, m0, P0, rng=0, reference="auto"
         ident = {"m0": m0v.tolist(), "P0": P0m.tolist(), "on_divergence": on_divergence,
                  "root": [str(root.entropy), list(root.spawn_key)]}  # the stored tasks' keys
         if switching is not None:
-            params["switching"] = ident["switching"] = {"modes": switching.modes, "transition": switching.transition.tolist(),
-                                                        "mode_probs0": switching.mode_probs0.tolist()}
+            params["switching"] = {"modes": switching.modes, "transition": switching.transition.tolist(),
+                                   "mode_probs0": switching.mode_probs0.tolist()}
+            ident["switching"] = dict(params["switching"], models=[model_ident(md) for md in switching.models])
         tasks = Tasks(ex, sess, root=root, block=block, chunk=chunk, on_divergence=on_divergence, progress=progress,
                       given=given, model=model, m0=m0v, P0=P0m, ident=ident)
         run = tasks.run
