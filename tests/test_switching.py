@@ -159,3 +159,17 @@ def test_a_given_jump_particle_reference_is_checked_by_refinement():
     ref = res.params["reference"]
     assert ref["kind"] == "particle" and ref["size"] == 500 and ref["paths"] == 8 and len(ref["error"]) == 2
     assert ref["label"] == "optimal"
+
+
+def test_start_predict_draws_the_first_mode_one_step_after_the_prior():
+    """With ``start="predict"`` the mode probabilities ``μ0`` are the prior's, one step before the
+    first measurement (the IMM's and the particle filter's convention): with ``μ0 = (1, 0)`` and
+    a chain that always jumps to mode 1, every simulated mode is 1 (with ``start="update"`` the
+    first is 0), and the jump particle filter reports mode 1 with probability 1 at every step (to the rounding of the weights' sum)."""
+    jump = SwitchingModel([CV, REV], [[0.0, 1.0], [0.0, 1.0]], [1.0, 0.0])
+    pred = simulate_switching(jump, 4, paths=2, rng=0, m0=M0, P0=P0, start="predict")
+    upd = simulate_switching(jump, 4, paths=2, rng=0, m0=M0, P0=P0)
+    assert pred.modes.tolist() == [[1] * 4] * 2 and upd.modes.tolist() == [[0, 1, 1, 1]] * 2
+    est = JumpParticleFilter(jump, 50, start="predict").run(pred, M0, P0, rng=1)
+    probs = est.extras["mode_probs"]
+    assert np.all(probs[..., 0] == 0.0) and np.abs(probs[..., 1] - 1.0).max() < 1e-12  # the weights' sum, rounded

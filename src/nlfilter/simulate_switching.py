@@ -2,8 +2,9 @@
 drawn from its Markov chain, the states and measurements from each step's mode.
 
 Each path draws from a stream of its own (:mod:`nlfilter.streams`, as :func:`~nlfilter.simulate.simulate`),
-in this order: the initial state, then ``steps`` uniforms (the modes: ``r_0`` from ``μ0``, then
-``r_k`` from row ``r_{k−1}`` of ``Π``, by inversion of the cumulative probabilities), then for each
+in this order: the initial state, then ``steps`` uniforms (``steps + 1`` with ``start="predict"``,
+the first for the prior's mode) for the modes (the first from ``μ0``, then
+each from its predecessor's row of ``Π``, by inversion of the cumulative probabilities), then for each
 mode ``j`` in turn its process and measurement noises for every step (every mode's, whichever
 mode is active: the draws of a path do not depend on its modes, so two switching models with the
 same noise laws share their noises). ``paths=range(a, b)`` gives the rows ``a..b−1`` of the run
@@ -58,8 +59,10 @@ def simulate_switching(model, steps: int, *, paths=1, rng=None, m0=None, P0=None
     ----------
     model : SwitchingModel
     steps, paths, rng, m0, P0, x0, on_divergence : as :func:`~nlfilter.simulate.simulate`
-    start : ``"update"`` (``ys[:, 0]`` measures the initial state, under the mode ``r_0``) or
-        ``"predict"`` (one transition, under ``r_0``, first); additive Gaussian or non-additive
+    start : ``"update"`` (``ys[:, 0]`` measures the initial state, under the mode ``r_0 ~ μ0``) or
+        ``"predict"`` (``μ0`` is the mode's law at the prior, one step before: ``r_0 ~ μ0 Π``, and
+        the transition into ``xs[:, 0]`` is under ``r_0``; the IMM's and the particle filter's
+        convention); additive Gaussian or non-additive
         process noise, additive measurement noise with a constant covariance per mode
 
     Examples
@@ -84,10 +87,10 @@ def simulate_switching(model, steps: int, *, paths=1, rng=None, m0=None, P0=None
     first = model.models[0]
     rng, x, x_init, xs = _start(first, steps, paths, rng, m0, P0, x0, None, width=3 * first.m + first.r + 1)
     screen = _Screen(on_divergence, rng, "simulate_switching")
-    u = rng.random((steps,))
+    u = rng.random((steps + offset,))
     noises = [rng.draw(lambda g, s, md=md: (md.process_noise.sample(g, s), md.measurement_noise.sample(g, s)), (steps,))
               for md in model.models]
-    modes = draw_modes(u, model.transition, model.mode_probs0)
+    modes = draw_modes(u, model.transition, model.mode_probs0)[:, offset:]  # predict: μ0 is the prior's, one step before
     P = len(rng)
     ys = np.empty((P, steps, first.m))
     ang = angles_of(first)
