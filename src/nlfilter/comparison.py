@@ -45,17 +45,20 @@ import time
 import numpy as np
 
 from . import _validate as V
-from .compare_filters import _check_filter, _check_filters, _component_names, _resolve, _streams
+from .compare_filters import _check_filter, _check_filters, _component_names, _resolve, _streams, model_ident
 from .compare_rows import (certificate_note, filter_rows, mse_series, smoothed_rows, smoothers,
                            smoothing_note, uninformed_note)
+from .compare_switching import mode_rows, switching_filters, switching_setup
 from .compare_tasks import Tasks
 from .angles import angles_of
 from .errors import DivergenceError
 from .evaluate import _window
 from .filters.registry import model_kind
 from .results import Result, provenance
+from .switching import SwitchingModel
 from .sde_step import SUBSTEPS
 from .simulate import simulate, simulate_continuous_discrete
+from .simulate_switching import simulate_switching
 from .certificate_checks import contradiction_note, contradictions
 from .yardstick import MAX_PARTICLES, OPTIMAL, certified_reference, check_given_reference, reference_filter
 
@@ -72,7 +75,10 @@ def compare(model, filters, steps, *, paths=200, m0, P0, rng=0, reference="auto"
     ----------
     model : DiscreteModel, SDEModel or BilinearModel (simulated through its SDE/discrete view —
         for a lift, the SDE it lifts; the filters of the bilinear family run on the bilinear model
-        from the lifted prior, and are read at the base state's coordinates)
+        from the lifted prior, and are read at the base state's coordinates), or a
+        :class:`~nlfilter.switching.SwitchingModel` (jump-Markov: simulated with its modes, judged
+        against a certified :class:`~nlfilter.filters.reference.JumpParticleFilter`, ``"all"`` the
+        IMMs and the single-mode EKF/UKF, ``mode_error`` rows: :mod:`nlfilter.compare_switching`)
     filters : ``"all"`` — every filter of :data:`nlfilter.filters.REGISTRY` that accepts the model
         and reads its data (increments for an SDE), the reference family aside, each built with
         ``cls.for_model(model, dt=dt, start=start)``; those the model cannot serve (e.g. the KF on
@@ -183,6 +189,9 @@ def compare(model, filters, steps, *, paths=200, m0, P0, rng=0, reference="auto"
     >>> res.params["reference"]["label"], res.params["reference"]["kind"]
     ('optimal', 'grid')
     """
+    switching = model if isinstance(model, SwitchingModel) else None
+    if switching is not None:  # a jump-Markov model: its simulator, filters and reference (compare_switching)
+        model, reference = switching_setup(switching, reference, smooth, times, dt)
     given = model
     if model_kind(model) in ("bilinear", "bilinear-discrete"):
         # simulated (and the reference run) on its DiscreteModel/SDEModel view: for a lift, the SDE
@@ -220,7 +229,8 @@ def compare(model, filters, steps, *, paths=200, m0, P0, rng=0, reference="auto"
         raise ValueError(f"reference: expected one of {REFERENCES}, None or a filter instance, got {V.shown(reference)}")
     if not (reference is None or isinstance(reference, str)):
         reference = _check_filter("reference", reference, model, dt, start, substeps)
-    filters, skipped = _resolve(filters, given, model, dt, start, None if times is None else "discrete")
+    filters, skipped = (switching_filters(switching, filters, start) if switching is not None else
+                        _resolve(filters, given, model, dt, start, None if times is None else "discrete"))
     _check_filters(filters, model, dt, start, reference, substeps)
     m0v = V.mean("m0", m0, model.n, ndim=1)
     P0m = V.covariance("P0", P0, model.n)
@@ -239,7 +249,9 @@ def compare(model, filters, steps, *, paths=200, m0, P0, rng=0, reference="auto"
         ex = mc.make_executor(executor, scheduler=scheduler, workers=workers)
     t_start = time.perf_counter()
     try:
-        if times is None:
+        if switching is not None:
+            sim = simulate_switching(switching, steps, paths=paths, rng=root, m0=m0v, P0=P0m, start=start)
+        elif times is None:
             sim_kw = {"dt": dt, "substeps": substeps} if kind == "sde" else {"start": start}
             sim = simulate(model, steps, paths=paths, rng=root, m0=m0v, P0=P0m, **sim_kw)
         else:  # continuous-discrete: every filter at the data's times
@@ -261,6 +273,10 @@ def compare(model, filters, steps, *, paths=200, m0, P0, rng=0, reference="auto"
             params["block"] = block
         ident = {"m0": m0v.tolist(), "P0": P0m.tolist(), "on_divergence": on_divergence,
                  "root": [str(root.entropy), list(root.spawn_key)]}  # the stored tasks' keys
+        if switching is not None:
+            params["switching"] = {"modes": switching.modes, "transition": switching.transition.tolist(),
+                                   "mode_probs0": switching.mode_probs0.tolist()}
+            ident["switching"] = dict(params["switching"], models=[model_ident(md) for md in switching.models])
         tasks = Tasks(ex, sess, root=root, block=block, chunk=chunk, on_divergence=on_divergence, progress=progress,
                       given=given, model=model, m0=m0v, P0=P0m, ident=ident)
         run = tasks.run
@@ -289,11 +305,12 @@ def compare(model, filters, steps, *, paths=200, m0, P0, rng=0, reference="auto"
                     from .compare_budget import ReferenceBudget, stderr_say
                     from .yardstick import _filter_kw
                     kw = _filter_kw(model, dt, start, substeps, times)
+                    rungs_of = switching or model
                     budget = ReferenceBudget(reference_budget, ys=sim.ys, certify_paths=certify_paths,
-                                             build=lambda r: r.build(model, kw), say=stderr_say if progress else None,
+                                             build=lambda r: r.build(rungs_of, kw), say=stderr_say if progress else None,
                                              run=lambda flt, ys, tag: run(OPTIMAL, flt, ys, key=tag, keep=False,
                                                                           desc=f"{tag} × {ys.shape[0]} paths"))
-                ref_est, cert = certified_reference(model, sim, m0v, P0m, run=ref_run, judged=est, dt=dt, start=start,
+                ref_est, cert = certified_reference(switching or model, sim, m0v, P0m, run=ref_run, judged=est, dt=dt, start=start,
                                                     substeps=substeps, window=window, rtol=rtol,
                                                     certify_paths=certify_paths, max_particles=max_particles,
                                                     first=reference, budget=budget, times=times)
@@ -325,7 +342,7 @@ def compare(model, filters, steps, *, paths=200, m0, P0, rng=0, reference="auto"
                            if isinstance(reference, str) else reference)
             sm, smoothing = smoothers(filters, est, failed, ref_name, ref_flt, cert, sim, run, on_divergence)
             params["smoothing"] = smoothing
-        what = getattr(model, "name", "") or repr(model)
+        what = getattr(switching or model, "name", "") or repr(switching or model)
         res = Result("compare", f"{len(filters)} filter(s) against the optimal reference on {what}",
                      "nlfilter.compare: Monte Carlo on common random numbers", params)
         res.meta = provenance("compare", seed=seed, runs=paths, paths=paths)
@@ -342,6 +359,8 @@ def compare(model, filters, steps, *, paths=200, m0, P0, rng=0, reference="auto"
                     ref_name=ref_name, gap=gap, angles=angles_of(model).states)
         for name in failed:
             res.add(name, "divergence_rate", 1.0)
+        if switching is not None:
+            mode_rows(res, est, sim.modes, window)
         if smooth:
             smoothed_rows(res, sm, ref_name, cert, sim, model.n, window, angles=angles_of(model).states)
         if cert is not None:

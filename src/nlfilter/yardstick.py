@@ -28,7 +28,9 @@ itself:
    every component ``se`` is within it and the decrease ``−Δ`` is within it or within ``2 se``
    (no gain beyond the noise), the reference is *certified* and named ``"optimal"``. Otherwise the next rung replaces it (run on all paths:
    particles after a grid, ``4×`` the particles after particles, up to ``max_particles``) and is
-   checked the same way; a reference that never
+   checked the same way (on a :class:`~nlfilter.switching.SwitchingModel` the rungs are
+   :class:`~nlfilter.filters.reference.JumpParticleFilter` s, particles over (mode, state),
+   from the first); a reference that never
    passes is named ``"reference (not converged)"`` and a :class:`~nlfilter.errors.ReferenceWarning`
    says what to raise.
 
@@ -65,8 +67,9 @@ import numpy as np
 from .angles import angles_of
 from .errors import ReferenceWarning
 from .evaluate import mse, paired_difference
-from .filters.reference import ContinuousDiscreteParticleFilter, GridFilter, ParticleFilter
+from .filters.reference import ContinuousDiscreteParticleFilter, GridFilter, JumpParticleFilter, ParticleFilter
 from .sde_step import SUBSTEPS
+from .switching import SwitchingModel
 
 RESOLUTION = 4          # grid points per (smallest) scale
 POSTERIOR_QUANTILE = 0.1
@@ -140,6 +143,8 @@ class _Rung:
             n = model.n
             return GridFilter(model, self.bounds[0] if n == 1 else self.bounds,
                               int(self.size[0]) if n == 1 else [int(s) for s in self.size], **kw["grid"])
+        if isinstance(model, SwitchingModel):  # particles over (mode, state): the optimal filter of a switching model
+            return JumpParticleFilter(model, int(self.size), **kw["particle"])
         return ParticleFilter(model, int(self.size), **kw["particle"])
 
     def refined(self):
@@ -457,6 +462,9 @@ def check_given_reference(flt, est, model, sim, *, run, judged=None, window=0.5,
         import copy
         finer, kind, size = copy.copy(flt), "particle", flt.particles
         finer.particles = 4 * flt.particles
+    elif isinstance(flt, JumpParticleFilter):
+        finer = JumpParticleFilter(flt.switching, 4 * flt.particles, threshold=flt.threshold, start=flt.start)
+        kind, size = "particle", flt.particles
     elif isinstance(flt, ParticleFilter):
         kw = {"dt": flt.dt, "substeps": flt.substeps} if flt.model.kind == "sde" else {"start": flt.start}
         finer = ParticleFilter(flt.model, 4 * flt.particles, threshold=flt.threshold, **kw)

@@ -9,6 +9,7 @@ module            contents
 ================  ==========================================================================
 grid              :class:`GridFilter` over a :class:`GridBelief` (probability vectors on a grid)
 particle          :class:`ParticleFilter` over a :class:`ParticleBelief` (weighted particles)
+jump_particle     :class:`JumpParticleFilter`: particles over (mode, state) of a switching model
 resample_move     :class:`ResampleMoveParticleFilter`: noise-free continuous dynamics, moves on x0
 cd_particle       :class:`ContinuousDiscreteParticleFilter`: an SDE measured at discrete times
 bounded           the grid and particle yardsticks of the bounded-noise problems (seed 000)
@@ -58,8 +59,10 @@ last bits of the BLAS products over the batch).
 from .bounded import BoundedGridFilter1D, BoundedParticleFilter
 from .cd_particle import ContinuousDiscreteParticleFilter
 from .grid import GridBelief, GridFilter
+from .jump_particle import JumpParticleFilter
 from .particle import ParticleBelief, ParticleFilter
 from .resample_move import ResampleMoveBelief, ResampleMoveParticleFilter
 
 __all__ = ["GridFilter", "GridBelief", "ParticleFilter", "ParticleBelief", "BoundedGridFilter1D", "BoundedParticleFilter",
-           "ResampleMoveParticleFilter", "ResampleMoveBelief", "ContinuousDiscreteParticleFilter"]
+           "ResampleMoveParticleFilter", "ResampleMoveBelief", "ContinuousDiscreteParticleFilter",
+           "JumpParticleFilter"]

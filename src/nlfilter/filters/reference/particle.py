@@ -326,8 +326,8 @@ class ParticleFilter(_ReferenceFilter):
         subclass: its time ``t_k``)."""
         return k
 
-    def _loglik(self, x, y, k, hbar=None):
-        md = self.model
+    def _loglik(self, x, y, k, hbar=None, md=None):
+        md = self.model if md is None else md
         obs = ~np.isnan(y)
         if self.time == "discrete":  # samples y = h(x) + v (also an SDE's, measured at discrete times)
             resid = residual(y[..., None, :], md.h(x, self._at(k)), angles_of(md).measurements)
