@@ -126,7 +126,7 @@ def sqrt_propagate(rule, model, belief, t, dt, Lq, *, substeps: int = 1, scheme:
     :data:`STIFF` of itself in a substep, is integrated in covariance form
     (:func:`~nlfilter.filters.skeleton.propagate`, the standard filter's step) and re-factored by
     ``tria``; where that fails too (its RK stages turn the covariance indefinite: a near-noiseless
-    update before a noisy interval), by discrete array steps (:func:`_array_substeps`); a path that
+    update before a noisy interval), by discrete square-root array steps of the flow; a path that
     fails every way is NaN (``run`` raises or marks it)."""
     m, S = belief[0], belief[1]
     n = m.shape[-1]
