@@ -26,16 +26,16 @@ LAYERS = (
     ("codegen",),
     # 2 models: symbolic models, the papers' problems, the bounded-noise models
     ("models", "model_values", "model_expressions", "model_functions", "model_noise", "model_builders", "problems",
-     "bounded"),
+     "bounded", "switching"),
     # 3 the moment engine and the bilinear models built on it
     ("moments", "bilinear", "bilinear_analysis"),
     # 4 the filters (they consume models and data; they know no simulator, no evaluation)
     ("filters",),
     # 5 simulating models and scoring filters on the data
-    ("simulate", "evaluate", "yardstick", "certificate_checks"),
+    ("simulate", "simulate_switching", "evaluate", "yardstick", "certificate_checks"),
     # 6 comparisons, Monte Carlo runs, the results store, fitting, model files
     ("results", "store", "montecarlo", "compare_budget", "compare_filters", "compare_rows", "compare_tasks",
-     "comparison", "_fit_checks", "fitting", "modelfile", "modelfile_kinds", "modelfile_times", "data_csv"),
+     "compare_switching", "comparison", "_fit_checks", "fitting", "modelfile", "modelfile_kinds", "modelfile_times", "data_csv"),
     # 7 the papers' experiments
     ("experiments",),
     # 8 figures and reports of the experiments, and the command line

@@ -49,8 +49,8 @@ seed = 3
 
 
 def test_examples_are_there():
-    assert [p.name for p in EXAMPLES] == ["bearings-only.toml", "cubic-sensor.toml", "pendulum.toml",
-                                          "van-der-pol.toml"]
+    assert [p.name for p in EXAMPLES] == ["bearings-only.toml", "cubic-sensor.toml", "double-well.toml",
+                                          "pendulum.toml", "van-der-pol.toml"]
 
 
 @pytest.mark.parametrize("path", EXAMPLES, ids=lambda p: p.stem)

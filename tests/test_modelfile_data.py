@@ -190,24 +190,53 @@ def test_fit_options_refused(ou, tmp_path, capsys):
         _one_error(capsys, words)
 
 
+def test_a_file_without_times_asks_for_them(ou, tmp_path, capsys):
+    """A continuous-discrete file with neither ``dt`` nor ``times``: ``simulate`` and ``compare`` ask
+    for the times (``simulate`` names ``--times``, which it takes), ``fit`` reads them from the
+    data's ``t`` column and refuses data without one; ``simulate --times`` then works."""
+    bare = tmp_path / "bare.toml"
+    bare.write_text(OU.replace("times = [" + ", ".join(map(str, TIMES)) + "]\n", ""))
+    expected = "measurement: a continuous-discrete model with neither dt nor times; expected the measurement times"
+    assert cli.main(["simulate", str(bare), "--out", str(tmp_path / "d.csv"), "--steps", "5"]) == 2
+    assert "--times" in _one_error(capsys, "bare.toml", expected)
+    assert cli.main(["compare", str(bare), "--paths", "4"]) == 2
+    assert "--times" not in _one_error(capsys, "bare.toml", expected)
+    data = tmp_path / "d.csv"
+    assert cli.main(["simulate", str(bare), "--out", str(data), "--times", "0.5,1,2.5"]) == 0
+    capsys.readouterr()
+    lines = data.read_text().splitlines()
+    assert lines[0] == "t,y" and [float(l.split(",")[0]) for l in lines[1:]] == [0.5, 1.0, 2.5]
+    data.write_text("y\n" + "\n".join(l.split(",")[1] for l in lines[1:]) + "\n")
+    assert cli.main(["fit", str(bare), str(data), "--params", "q"]) == 2
+    _one_error(capsys, "t", "expected the measurement times")
+
+
 def test_compare_on_a_continuous_discrete_file(ou, tmp_path, capsys):
     """``nlfilter compare`` on a continuous-discrete file: its continuous-discrete filters at the
-    file's irregular times, no reference (none reads such data, a note says so); the model is
-    linear, so the EKF and the UKF are the same filter (to rounding) with a NEES near 1."""
+    file's irregular times against the certified particle reference through the simulator's
+    Euler–Maruyama steps (500 particles, its check 2000: plenty for a 1-D Gaussian posterior, and a
+    quarter of the default's cost); the model is linear, so the EKF and the UKF are the same filter (to
+    rounding) with a NEES near 1, and near-optimal: no gap beyond 3 s.e. and the reference's
+    tolerance (RK4 moments for the simulator's Euler steps: a change of the transition below 1 %)."""
     out = tmp_path / "out.json"
     assert cli.main(["compare", str(ou), "--paths", "40", "--filters", "continuous-discrete-ekf,continuous-discrete-ukf",
-                     "--no-progress", "--no-store", "--json", str(out)]) == 0
+                     "--max-particles", "500", "--no-progress", "--no-store", "--json", str(out)]) == 0
     capsys.readouterr()
     d = json.loads(out.read_text())
-    assert d["params"]["times"] == TIMES and d["params"]["reference"] is None and d["params"]["steps"] == 20
+    ref = d["params"]["reference"]
+    assert d["params"]["times"] == TIMES and ref["certified"] and ref["kind"] == "particle" and d["params"]["steps"] == 20
     rows = {(r["filter"], r["quantity"]): r for r in d["rows"]}
     mse = [rows[(f, "mse")]["value"] for f in ("continuous-discrete-ekf", "continuous-discrete-ukf")]
     assert mse[0] == pytest.approx(mse[1], rel=1e-10) and 0 < mse[0] < 0.1  # below R = 0.1: the filter helps
     nees = rows[("continuous-discrete-ekf", "nees")]
     assert abs(nees["value"] - 1.0) < 3 * nees["stderr"] + 0.05, nees  # a consistent filter: NEES ≈ n = 1
-    assert any("no reference filter reads an SDE measured at discrete times" in n for n in d["notes"])
+    gap = rows[("continuous-discrete-ekf", "gap_to_optimal")]
+    assert abs(gap["value"]) <= 3 * gap["stderr"] + ref["rungs"][-1]["tolerance"][0], gap
+    assert not any("no reference" in n for n in d["notes"])
     assert cli.main(["compare", str(ou), "--paths", "4", "--steps", "5", "--no-progress", "--no-store"]) == 2
     _one_error(capsys, "--steps: got 5; the measurement times are 20")
+    assert cli.main(["compare", str(ou), "--paths", "4", "--reference", "grid", "--no-progress", "--no-store"]) == 2
+    _one_error(capsys, "reference: no grid filter reads an SDE measured at discrete times")
 
 
 def test_fit_coverage_over_seeds(ou, tmp_path, capsys):

@@ -15,7 +15,8 @@ from nlfilter.results import Result, Row
 HORIZON = {"cubic-sensor": "steps", "cubic-sensor-closures": "steps", "linear-gaussian": "steps",
            "moment-first-order": "T", "moment-second-order": "T", "oh-shin": "steps",
            "phase-tracking": "steps", "second-order": "problem_steps", "zero-order": None,
-           "zero-order-adaptive": "n_max", "zero-order-robustness": "n", "smoothing": "steps"}
+           "zero-order-adaptive": "n_max", "zero-order-robustness": "n", "smoothing": "steps",
+           "square-root": "problem_steps"}
 # and the one that holds the simulated paths: "paths", but zero-order's Table 1 check draws its
 # "paths" i.i.d. samples as sample_paths paths of samples_per_path samples (per-path streams)
 PATHS = {"zero-order": "sample_paths"}
@@ -75,7 +76,8 @@ def test_quick_params_differ_from_defaults_where_quick_overrides(quick_runs):
         "moment-second-order": {"T", "skip", "particles"}, "oh-shin": {"grid_size"},
         "phase-tracking": {"time_constants", "discard", "grid", "sweep"},
         "second-order": {"grid_size", "fb_particles", "fb_pf_runs"}, "zero-order": set(),
-        "zero-order-adaptive": {"n_max"}, "zero-order-robustness": {"n"}, "smoothing": {"steps", "particles"}}
+        "zero-order-adaptive": {"n_max"}, "zero-order-robustness": {"n"}, "smoothing": {"steps", "particles"},
+        "square-root": {"long_steps"}}
     cubic = quick_runs["cubic-sensor"][0].params
     assert (cubic["T"], cubic["burn"], cubic["paths"]) == (5.0, 2.5, 64)  # not the defaults T = 60, burn = 5
 

@@ -41,10 +41,10 @@ _WHERE = {"BilinearModel": "bilinear", "compare": "comparison", "mse": "evaluate
           "load_model": "modelfile", "DiscreteModel": "models", "SDEModel": "models", "Gaussian": "noise",
           "Independent": "noise", "Sampler": "noise", "Result": "results", "Row": "results",
           "Simulation": "simulate", "simulate": "simulate", "sample_posterior": "filters.sampling",
-          "fixed_lag": "filters.fixed_lag"}
+          "fixed_lag": "filters.fixed_lag", "SwitchingModel": "switching"}
 _SUBMODULES = ("filters", "moments", "problems")
 
-__all__ = ["DiscreteModel", "SDEModel", "BilinearModel", "Gaussian", "Independent", "Sampler",
+__all__ = ["DiscreteModel", "SDEModel", "BilinearModel", "SwitchingModel", "Gaussian", "Independent", "Sampler",
            "simulate", "Simulation", "compare", "load_model", "fit", "fit_em", "sample_posterior", "fixed_lag", "mse", "mse_per_step", "nees", "paired_difference", "Result", "Row",
            "filters", "moments", "problems"]
 

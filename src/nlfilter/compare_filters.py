@@ -66,7 +66,8 @@ def _check_filter(label, flt, model, dt, start, substeps=None):
     fdt = getattr(flt, "dt", None)
     if model.kind == "sde" and isinstance(fdt, numbers.Real) and not math.isclose(fdt, dt, rel_tol=1e-12):
         raise ValueError(f"{label}: its dt={fdt!r} differs from dt={dt!r} of the comparison")
-    if model.kind == "sde" and substeps is not None and getattr(flt, "substeps_stated", True) is False:
+    if (model.kind == "sde" and substeps is not None and getattr(flt, "substeps_stated", True) is False
+            and getattr(flt, "time", None) == "continuous"):  # (continuous-discrete: the data's, at for_timing)
         flt = flt.for_timing(Timing("increments", None, 0.0, dt, substeps))[0]
     return flt
 

@@ -45,17 +45,20 @@ import time
 import numpy as np
 
 from . import _validate as V
-from .compare_filters import _check_filter, _check_filters, _component_names, _resolve, _streams
+from .compare_filters import _check_filter, _check_filters, _component_names, _resolve, _streams, model_ident
 from .compare_rows import (certificate_note, filter_rows, mse_series, smoothed_rows, smoothers,
                            smoothing_note, uninformed_note)
+from .compare_switching import mode_rows, switching_filters, switching_setup
 from .compare_tasks import Tasks
 from .angles import angles_of
 from .errors import DivergenceError
 from .evaluate import _window
 from .filters.registry import model_kind
 from .results import Result, provenance
+from .switching import SwitchingModel
 from .sde_step import SUBSTEPS
 from .simulate import simulate, simulate_continuous_discrete
+from .simulate_switching import simulate_switching
 from .certificate_checks import contradiction_note, contradictions
 from .yardstick import MAX_PARTICLES, OPTIMAL, certified_reference, check_given_reference, reference_filter
 
@@ -72,7 +75,10 @@ def compare(model, filters, steps, *, paths=200, m0, P0, rng=0, reference="auto"
     ----------
     model : DiscreteModel, SDEModel or BilinearModel (simulated through its SDE/discrete view —
         for a lift, the SDE it lifts; the filters of the bilinear family run on the bilinear model
-        from the lifted prior, and are read at the base state's coordinates)
+        from the lifted prior, and are read at the base state's coordinates), or a
+        :class:`~nlfilter.switching.SwitchingModel` (jump-Markov: simulated with its modes, judged
+        against a certified :class:`~nlfilter.filters.reference.JumpParticleFilter`, ``"all"`` the
+        IMMs and the single-mode EKF/UKF, ``mode_error`` rows: :mod:`nlfilter.compare_switching`)
     filters : ``"all"`` — every filter of :data:`nlfilter.filters.REGISTRY` that accepts the model
         and reads its data (increments for an SDE), the reference family aside, each built with
         ``cls.for_model(model, dt=dt, start=start)``; those the model cannot serve (e.g. the KF on
@@ -129,16 +135,22 @@ def compare(model, filters, steps, *, paths=200, m0, P0, rng=0, reference="auto"
         ``O(particles²)`` per step and path to smooth, and on an SDE (``substeps > 1``) has no
         smoother: then no smoothed gaps, and a note
     window : what :func:`~nlfilter.evaluate.mse` averages over (``0.5``: the second half)
-    dt, substeps : SDE models only: measurement step (required) and Euler–Maruyama substeps of
-        the simulation (default :data:`~nlfilter.sde_step.SUBSTEPS`), of an automatic particle
-        reference and of any particle filter given without ``substeps``
+    dt, substeps : SDE models only: measurement step (required, unless ``times``) and
+        Euler–Maruyama substeps per measurement interval of the simulation (default
+        :data:`~nlfilter.sde_step.SUBSTEPS`; with ``times`` too, whatever each interval's length),
+        of an automatic particle reference and of any particle filter given without ``substeps``
     start : discrete models: step convention (see :mod:`nlfilter.filters.base`)
     times : SDE models measured at discrete times (continuous-discrete, ``y_k = h(x(t_k)) + v_k``):
         the measurement times ``t_1 < ... < t_steps`` after the prior at 0, regular or not, in
         place of ``dt``; simulated by :func:`~nlfilter.simulate.simulate_continuous_discrete`,
-        filtered by the continuous-discrete filters at those times (``start="predict"``). No
-        filter of the reference family reads such data: ``reference="auto"`` is then no
-        reference (a note says so), and the rows are ``mse``, ``nees`` and ``divergence_rate``
+        filtered by the continuous-discrete filters at those times (``start="predict"``). The
+        simulation takes ``substeps`` Euler–Maruyama steps per interval (``process=
+        "euler-maruyama"``), and the reference (``"auto"`` or ``"particle"``; ``"grid"`` is
+        refused) is a :class:`~nlfilter.filters.reference.ContinuousDiscreteParticleFilter`
+        through the same steps — the simulator's model exactly —, certified on the particle
+        ladder as any other (:func:`~nlfilter.yardstick.certified_reference`); a
+        ``ContinuousDiscreteParticleFilter`` given as ``reference`` takes the data's times and
+        is checked the same way (one refinement)
     progress : show progress bars naming what runs (the filters, each rung and check of the
         reference, with their paths), and print the reference's estimated cost before a long
         reference (above ``compare_budget.LONG`` seconds) on stderr
@@ -177,6 +189,9 @@ def compare(model, filters, steps, *, paths=200, m0, P0, rng=0, reference="auto"
     >>> res.params["reference"]["label"], res.params["reference"]["kind"]
     ('optimal', 'grid')
     """
+    switching = model if isinstance(model, SwitchingModel) else None
+    if switching is not None:  # a jump-Markov model: its simulator, filters and reference (compare_switching)
+        model, reference = switching_setup(switching, reference, smooth, times, dt)
     given = model
     if model_kind(model) in ("bilinear", "bilinear-discrete"):
         # simulated (and the reference run) on its DiscreteModel/SDEModel view: for a lift, the SDE
@@ -190,7 +205,7 @@ def compare(model, filters, steps, *, paths=200, m0, P0, rng=0, reference="auto"
     if paths < 2:
         raise ValueError(f"paths: expected at least 2 paths (for standard errors), got {paths!r}")
     if times is not None:
-        times, start, reference = _measured_at(times, kind, dt, steps, reference, reference_budget)
+        times, start = _measured_at(times, kind, dt, steps, reference)
     elif kind == "sde" and dt is None:
         raise ValueError("dt: expected the measurement step for an SDEModel, got None")
     if kind == "discrete" and dt is not None:
@@ -214,7 +229,8 @@ def compare(model, filters, steps, *, paths=200, m0, P0, rng=0, reference="auto"
         raise ValueError(f"reference: expected one of {REFERENCES}, None or a filter instance, got {V.shown(reference)}")
     if not (reference is None or isinstance(reference, str)):
         reference = _check_filter("reference", reference, model, dt, start, substeps)
-    filters, skipped = _resolve(filters, given, model, dt, start, None if times is None else "discrete")
+    filters, skipped = (switching_filters(switching, filters, start) if switching is not None else
+                        _resolve(filters, given, model, dt, start, None if times is None else "discrete"))
     _check_filters(filters, model, dt, start, reference, substeps)
     m0v = V.mean("m0", m0, model.n, ndim=1)
     P0m = V.covariance("P0", P0, model.n)
@@ -233,26 +249,34 @@ def compare(model, filters, steps, *, paths=200, m0, P0, rng=0, reference="auto"
         ex = mc.make_executor(executor, scheduler=scheduler, workers=workers)
     t_start = time.perf_counter()
     try:
-        if times is None:
+        if switching is not None:
+            sim = simulate_switching(switching, steps, paths=paths, rng=root, m0=m0v, P0=P0m, start=start)
+        elif times is None:
             sim_kw = {"dt": dt, "substeps": substeps} if kind == "sde" else {"start": start}
             sim = simulate(model, steps, paths=paths, rng=root, m0=m0v, P0=P0m, **sim_kw)
         else:  # continuous-discrete: every filter at the data's times
             sim = simulate_continuous_discrete(model, steps, paths=paths, rng=root, m0=m0v, P0=P0m, times=times,
-                                               process="euler-maruyama")
+                                               process="euler-maruyama", substeps=substeps)
             filters = {k: f.for_timing(sim.timing)[0] if callable(getattr(f, "for_timing", None)) else f
                        for k, f in filters.items()}
+            if callable(getattr(reference, "for_timing", None)):  # a given reference: the data's times, substeps
+                reference = reference.for_timing(sim.timing)[0]
 
         params = {"steps": steps, "paths": paths, "window": window, "seed": seed, "start": start,
                   "on_divergence": on_divergence, "m0": m0v.tolist(),
                   "P0": P0m.tolist()}
         if times is not None:
-            params.update(times=times.tolist(), measurements="continuous-discrete")
+            params.update(times=times.tolist(), measurements="continuous-discrete", substeps=substeps)
         elif kind == "sde":
             params.update(dt=dt, substeps=substeps)
         if block is not None:  # the blocks' batches: the last bits of the numbers may depend on it
             params["block"] = block
         ident = {"m0": m0v.tolist(), "P0": P0m.tolist(), "on_divergence": on_divergence,
                  "root": [str(root.entropy), list(root.spawn_key)]}  # the stored tasks' keys
+        if switching is not None:
+            params["switching"] = {"modes": switching.modes, "transition": switching.transition.tolist(),
+                                   "mode_probs0": switching.mode_probs0.tolist()}
+            ident["switching"] = dict(params["switching"], models=[model_ident(md) for md in switching.models])
         tasks = Tasks(ex, sess, root=root, block=block, chunk=chunk, on_divergence=on_divergence, progress=progress,
                       given=given, model=model, m0=m0v, P0=P0m, ident=ident)
         run = tasks.run
@@ -280,15 +304,16 @@ def compare(model, filters, steps, *, paths=200, m0, P0, rng=0, reference="auto"
                 if reference_budget is not None or progress:
                     from .compare_budget import ReferenceBudget, stderr_say
                     from .yardstick import _filter_kw
-                    kw = _filter_kw(model, dt, start, substeps)
+                    kw = _filter_kw(model, dt, start, substeps, times)
+                    rungs_of = switching or model
                     budget = ReferenceBudget(reference_budget, ys=sim.ys, certify_paths=certify_paths,
-                                             build=lambda r: r.build(model, kw), say=stderr_say if progress else None,
+                                             build=lambda r: r.build(rungs_of, kw), say=stderr_say if progress else None,
                                              run=lambda flt, ys, tag: run(OPTIMAL, flt, ys, key=tag, keep=False,
                                                                           desc=f"{tag} × {ys.shape[0]} paths"))
-                ref_est, cert = certified_reference(model, sim, m0v, P0m, run=ref_run, judged=est, dt=dt, start=start,
+                ref_est, cert = certified_reference(switching or model, sim, m0v, P0m, run=ref_run, judged=est, dt=dt, start=start,
                                                     substeps=substeps, window=window, rtol=rtol,
                                                     certify_paths=certify_paths, max_particles=max_particles,
-                                                    first=reference, budget=budget)
+                                                    first=reference, budget=budget, times=times)
             else:
                 ref_est = run(OPTIMAL, reference, sim.ys, bar=progress, desc=f"reference × {paths} paths")
                 cert = check_given_reference(reference, ref_est, model, sim, run=ref_run, judged=est, window=window, rtol=rtol,
@@ -313,11 +338,11 @@ def compare(model, filters, steps, *, paths=200, m0, P0, rng=0, reference="auto"
         if smooth:
             ref_flt = None
             if cert is not None:
-                ref_flt = (reference_filter(cert, model, dt=dt, start=start, substeps=substeps)
+                ref_flt = (reference_filter(cert, model, dt=dt, start=start, substeps=substeps, times=times)
                            if isinstance(reference, str) else reference)
             sm, smoothing = smoothers(filters, est, failed, ref_name, ref_flt, cert, sim, run, on_divergence)
             params["smoothing"] = smoothing
-        what = getattr(model, "name", "") or repr(model)
+        what = getattr(switching or model, "name", "") or repr(switching or model)
         res = Result("compare", f"{len(filters)} filter(s) against the optimal reference on {what}",
                      "nlfilter.compare: Monte Carlo on common random numbers", params)
         res.meta = provenance("compare", seed=seed, runs=paths, paths=paths)
@@ -334,6 +359,8 @@ def compare(model, filters, steps, *, paths=200, m0, P0, rng=0, reference="auto"
                     ref_name=ref_name, gap=gap, angles=angles_of(model).states)
         for name in failed:
             res.add(name, "divergence_rate", 1.0)
+        if switching is not None:
+            mode_rows(res, est, sim.modes, window)
         if smooth:
             smoothed_rows(res, sm, ref_name, cert, sim, model.n, window, angles=angles_of(model).states)
         if cert is not None:
@@ -364,19 +391,17 @@ def compare(model, filters, steps, *, paths=200, m0, P0, rng=0, reference="auto"
                          f"on the same paths, ± its paired s.e. and the reference's error; NEES ≈ {model.n} for a "
                          f"consistent filter (posterior covariances only; offline_mse: the off-line error "
                          f"variance an off-line-gain filter predicts)" if cert is not None else
-                         f"window {window!r} of {steps} steps, {paths} paths; no reference"
-                         + (" (no reference filter reads an SDE measured at discrete times)" if times is not None
-                            else ""))
+                         f"window {window!r} of {steps} steps, {paths} paths; no reference")
         return (res, sim, est) if full_output else res
     finally:
         if ex is not executor and (sess is None or ex is not sess.executor):
             ex.close()
 
 
-def _measured_at(times, kind, dt, steps, reference, reference_budget):
-    """``(times, start, reference)`` of a continuous-discrete comparison (``compare(times=)``):
-    the times checked against the model's kind, ``dt`` and ``steps``; start ``"predict"``; no
-    reference (``"auto"``; another is refused: none reads such data)."""
+def _measured_at(times, kind, dt, steps, reference):
+    """``(times, start)`` of a continuous-discrete comparison (``compare(times=)``): the times
+    checked against the model's kind, ``dt`` and ``steps``; start ``"predict"``; a grid reference
+    refused (no grid filter reads such data)."""
     if kind != "sde":
         raise ValueError(f"times: measurement times are for an SDEModel measured at discrete times; got a {kind} model")
     if dt is not None:
@@ -384,8 +409,7 @@ def _measured_at(times, kind, dt, steps, reference, reference_budget):
     times = V.measurement_times("times", times)
     if len(times) != steps:
         raise ValueError(f"steps: got {steps}; expected the number of measurement times, {len(times)}")
-    if not (reference is None or reference == "auto") or reference_budget is not None:
-        raise ValueError(f"reference: no reference filter reads an SDE measured at discrete times; expected "
-                         f"'auto' or None (no reference) without reference_budget, got {V.shown(reference)}")
-    return times, "predict", None
-
+    if isinstance(reference, str) and reference == "grid" or type(reference).__name__ == "GridFilter":
+        raise ValueError(f"reference: no grid filter reads an SDE measured at discrete times; expected 'auto', "
+                         f"'particle', None or a ContinuousDiscreteParticleFilter, got {V.shown(reference)}")
+    return times, "predict"

@@ -24,7 +24,7 @@ def _times_option(text: str) -> np.ndarray:
     return times
 
 
-def spec_times(spec, steps=None, text=None):
+def spec_times(spec, steps=None, text=None, option: bool = True):
     """The measurement times of a continuous-discrete ``spec``: ``--times`` (``text``), else the
     file's ``times``, else ``dt, 2 dt, ..., steps dt``; checked strictly increasing after 0."""
     from ._validate import measurement_times
@@ -33,11 +33,17 @@ def spec_times(spec, steps=None, text=None):
     elif spec.times is not None:
         times = np.asarray(spec.times, dtype=float)
     else:
+        if spec.dt is None:
+            raise ValueError(_NO_TIMES.format(path=spec.path, how=" or --times T1,T2,..." if option else ""))
         n = spec.steps if steps is None else steps
         return spec.dt * np.arange(1, n + 1)
     if steps is not None and steps != len(times):
         raise ValueError(f"--steps: got {steps}; the measurement times are {len(times)} (give one or the other)")
     return times
+
+
+_NO_TIMES = ("{path}: measurement: a continuous-discrete model with neither dt nor times; expected the "
+             "measurement times: [measurement] dt or times in the file{how}, or data with a t column")
 
 
 def simulate_spec(spec, steps, paths, seed, times_text=None):
@@ -61,7 +67,7 @@ def compare_timing(spec, steps):
     the file's): ``dt`` of an SDE, the measurement times of a continuous-discrete model."""
     if spec.kind != "continuous-discrete":
         return (spec.steps if steps is None else steps), {"dt": spec.dt}
-    times = spec_times(spec, steps)
+    times = spec_times(spec, steps, option=False)
     return len(times), {"times": times}
 
 
@@ -85,6 +91,8 @@ def fit_inputs(spec, data, cls):
         return data.ys, {}
     if spec.kind == "sde":
         return data.ys, {"dt": spec.dt}
+    if data.times is None and spec.dt is None:
+        raise ValueError(_NO_TIMES.format(path=spec.path, how=""))
     times = data.times if data.times is not None else spec.dt * np.arange(1, data.ys.shape[1] + 1)
     return data.ys, {"filter": lambda md: cls(md, None).at_times(times)}
 

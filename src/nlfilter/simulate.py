@@ -351,7 +351,9 @@ def simulate_continuous_discrete(model, steps: int, *, paths: int | range = 1, r
     ``process="flow"``, the default). ``process="euler-maruyama"``: ``substeps`` Euler–Maruyama
     steps per interval, ``x += f(x, s) h + G(x, s) w``, ``w ~ N(0, Q h)``, ``h`` the interval over
     ``substeps`` (the SDE's law up to the scheme's O(h) error, whatever the dynamics; draws
-    ``steps × substeps × r`` normals in place of ``steps × r``).
+    ``steps × substeps × r`` normals in place of ``steps × r``; ``timing.substeps`` records
+    ``substeps``: the scheme :class:`~nlfilter.filters.reference.ContinuousDiscreteParticleFilter`
+    takes, so that the reference has the simulator's model).
     Returns a :class:`Simulation` with ``xs[:, k] = x(t_{k+1})``, ``ys[:, k]`` its measurement, and
     ``timing = Timing("continuous-discrete", "predict", t0, dt)``: the prior at ``t0``, the first
     measurement one interval later (the continuous-discrete filters' default). ``times`` in place
@@ -415,7 +417,8 @@ def simulate_continuous_discrete(model, steps: int, *, paths: int | range = 1, r
             ys[:, k] = wrap_components(model.h(xs[:, k], t[k]) + v[:, k], angles_of(model).measurements)
             x = screen.check(k, x, ys[:, k], x=x, restart=x_init)
     screen.finish(xs, ys)
-    timing = Timing("continuous-discrete", "predict", t0, dt, None, None if times is None else tuple(times.tolist()))
+    timing = Timing("continuous-discrete", "predict", t0, dt, substeps if em else None,
+                    None if times is None else tuple(times.tolist()))
     return Simulation(xs, ys, x_init, t, timing)
 
 

@@ -21,10 +21,11 @@ class Timing(NamedTuple):
     ``start``: ``"update"`` (``ys[..., 0, :]`` measures the state whose prior is ``(m0, P0)``, at
     ``t0``) or ``"predict"`` (it measures the state one step or ``dt`` after the prior), None for
     increments; ``t0``: the prior's time (0 for a discrete model); ``dt``: the measurement
-    interval (None for a discrete model); ``substeps``: increments only, the Euler–Maruyama steps
-    per interval of :func:`~nlfilter.simulate.simulate` (:mod:`nlfilter.sde_step`: the model a particle reference
-    must share to have the simulator's), None when not made by them (a 4-field Timing, the
-    exact-transition simulators). The filters read it (:meth:`nlfilter.filters.base.Filter.for_timing`;
+    interval (None for a discrete model); ``substeps``: an SDE's data, the Euler–Maruyama steps
+    per interval of :func:`~nlfilter.simulate.simulate` (increments) or of
+    :func:`~nlfilter.simulate.simulate_continuous_discrete` with ``process="euler-maruyama"``
+    (:mod:`nlfilter.sde_step`: the model a particle reference must share to have the simulator's),
+    None when not made by them (a 4-field Timing, the exact-transition simulators, the flow). The filters read it (:meth:`nlfilter.filters.base.Filter.for_timing`;
     a ParticleFilter built without ``substeps`` takes these); ``times``: continuous-discrete only,
     the measurement times ``t_1 < t_2 < ...`` (a tuple) when irregular, ``dt`` then None
     (:mod:`nlfilter.filters.irregular`)."""
@@ -59,9 +60,9 @@ def _check_timing(timing) -> None:
     else:
         V.positive("timing.dt", timing.dt)
     if timing.substeps is not None:
-        if timing.kind != "increments":
-            raise ValueError(f"timing.substeps: only increments are made by Euler–Maruyama substeps; expected None "
-                             f"for {timing.kind} measurements, got {timing.substeps!r}")
+        if timing.kind == "discrete":
+            raise ValueError(f"timing.substeps: only an SDE's measurements are made by Euler–Maruyama substeps; "
+                             f"expected None for {timing.kind} measurements, got {timing.substeps!r}")
         V.positive("timing.substeps", timing.substeps, integer=True)
 
 

@@ -28,7 +28,9 @@ itself:
    every component ``se`` is within it and the decrease ``−Δ`` is within it or within ``2 se``
    (no gain beyond the noise), the reference is *certified* and named ``"optimal"``. Otherwise the next rung replaces it (run on all paths:
    particles after a grid, ``4×`` the particles after particles, up to ``max_particles``) and is
-   checked the same way; a reference that never
+   checked the same way (on a :class:`~nlfilter.switching.SwitchingModel` the rungs are
+   :class:`~nlfilter.filters.reference.JumpParticleFilter` s, particles over (mode, state),
+   from the first); a reference that never
    passes is named ``"reference (not converged)"`` and a :class:`~nlfilter.errors.ReferenceWarning`
    says what to raise.
 
@@ -46,7 +48,11 @@ On a continuously measured SDE the grid reads each increment with ``h`` at the i
 point (:class:`~nlfilter.filters.reference.GridFilter`, first order in ``dt``), the particle
 filter exactly as the simulator does (:mod:`nlfilter.sde_step`, at the simulator's ``substeps``);
 the automatic reference takes particles where the end-point reading is not accurate
-(:func:`endpoint_error` above :data:`ENDPOINT_TOL`).
+(:func:`endpoint_error` above :data:`ENDPOINT_TOL`). An SDE measured at discrete times
+(``compare(times=)``) has no grid rung: its reference is
+:class:`~nlfilter.filters.reference.ContinuousDiscreteParticleFilter` through the simulator's
+Euler–Maruyama steps (its ``substeps`` per interval: the simulator's model exactly), on the same
+particle ladder (``certified_reference(..., times=)``).
 """
 
 from __future__ import annotations
@@ -61,8 +67,9 @@ import numpy as np
 from .angles import angles_of
 from .errors import ReferenceWarning
 from .evaluate import mse, paired_difference
-from .filters.reference import GridFilter, ParticleFilter
+from .filters.reference import ContinuousDiscreteParticleFilter, GridFilter, JumpParticleFilter, ParticleFilter
 from .sde_step import SUBSTEPS
+from .switching import SwitchingModel
 
 RESOLUTION = 4          # grid points per (smallest) scale
 POSTERIOR_QUANTILE = 0.1
@@ -130,10 +137,14 @@ class _Rung:
     bounds: object = None
 
     def build(self, model, kw):
+        if "cd" in kw:  # an SDE measured at discrete times: particles through the simulator's scheme
+            return ContinuousDiscreteParticleFilter(model, None, int(self.size), **kw["cd"]).at_times(kw["times"])
         if self.kind == "grid":
             n = model.n
             return GridFilter(model, self.bounds[0] if n == 1 else self.bounds,
                               int(self.size[0]) if n == 1 else [int(s) for s in self.size], **kw["grid"])
+        if isinstance(model, SwitchingModel):  # particles over (mode, state): the optimal filter of a switching model
+            return JumpParticleFilter(model, int(self.size), **kw["particle"])
         return ParticleFilter(model, int(self.size), **kw["particle"])
 
     def refined(self):
@@ -311,15 +322,19 @@ def _check(est, diag, fine, sim, sub, judged, window, rtol, run, tag):
     return {"error": [list(e) for e in error], "bound": bound, "tolerance": tol, "mse": ref_mse}, ok
 
 
-def _filter_kw(model, dt, start, substeps):
-    """The constructor options of the reference filters on ``model``."""
+def _filter_kw(model, dt, start, substeps, times=None):
+    """The constructor options of the reference filters on ``model``; ``times``: an SDE measured
+    at those discrete times (:class:`~nlfilter.filters.reference.ContinuousDiscreteParticleFilter`,
+    its prior at 0, with ``substeps`` Euler–Maruyama steps per interval)."""
+    if times is not None:
+        return {"cd": {"substeps": substeps, "start": start}, "times": times}
     return {"grid": {"dt": dt} if model.kind == "sde" else {"start": start},
             "particle": ({"dt": dt, "substeps": substeps} if model.kind == "sde" else {"start": start})}
 
 
 def certified_reference(model, sim, m0, P0, *, run, judged=None, dt=None, start="update", substeps=SUBSTEPS,
                         window=0.5, rtol=0.02, certify_paths=64, max_particles=MAX_PARTICLES, first="auto",
-                        budget=None):
+                        budget=None, times=None):
     """``(estimates on all paths, Certificate)`` of the automatic reference (module docstring).
 
     ``run(flt, ys, tag) -> Estimates`` runs a filter on (some of) the simulation's measurements
@@ -333,14 +348,22 @@ def certified_reference(model, sim, m0, P0, *, run, judged=None, dt=None, start=
     ``reference`` when the model cannot have one; no particle rung after it) or ``"particle"``
     (particles from the first rung); ``budget``: None or a
     :class:`~nlfilter.compare_budget.ReferenceBudget`, which may replace the first rung and stop
-    the ladder by the estimated cost of each rung."""
+    the ladder by the estimated cost of each rung. ``times``: an SDE measured at those discrete
+    times (``dt`` None): particles from the first rung,
+    :class:`~nlfilter.filters.reference.ContinuousDiscreteParticleFilter` with the simulation's
+    ``substeps`` (its Euler–Maruyama scheme: the simulator's model); ``first="grid"`` is refused."""
     judged = judged or {}
     t_start = time.perf_counter()
-    kw = _filter_kw(model, dt, start, substeps)
+    kw = _filter_kw(model, dt, start, substeps, times)
     sub = slice(0, min(certify_paths, sim.ys.shape[0]))
-    if first == "particle":
+    if times is not None and first == "grid":
+        raise ValueError("reference: 'grid' cannot serve an SDE measured at discrete times (no grid filter reads "
+                         "such data); expected 'auto' or 'particle'")
+    if first == "particle" or times is not None:
         post_sd = np.full(model.n, np.nan)
-        rung, reason = _Rung("particle", PARTICLES), "reference='particle': particles"
+        rung, reason = _Rung("particle", PARTICLES), ("reference='particle': particles" if times is None else
+                                                      "measured at discrete times: particles through the "
+                                                      "simulator's Euler–Maruyama steps")
     else:
         post_sd = _pilot_posterior_sd(model, sim, m0, P0, kw, run) if model.n <= 2 else np.full(model.n, np.nan)
         rung, reason = _first_rung(model, sim, m0, P0, dt, post_sd)
@@ -349,7 +372,7 @@ def certified_reference(model, sim, m0, P0, *, run, judged=None, dt=None, start=
     if rung.kind == "particle" and rung.size > max_particles:
         rung = _Rung("particle", max_particles)
     if budget is not None:
-        rung, reason = budget.first(rung, reason, switch=first == "auto")
+        rung, reason = budget.first(rung, reason, switch=first == "auto" and times is None)
     rungs, widen = [], 1.0
     est = run(rung.build(model, kw), sim.ys, f"reference {rung.kind} {rung.size}")
     while True:
@@ -400,14 +423,14 @@ def certified_reference(model, sim, m0, P0, *, run, judged=None, dt=None, start=
     return est, cert
 
 
-def reference_filter(cert, model, *, dt=None, start="update", substeps=SUBSTEPS):
+def reference_filter(cert, model, *, dt=None, start="update", substeps=SUBSTEPS, times=None):
     """The filter of the rung a :class:`Certificate` of :func:`certified_reference` names (kind,
     size, bounds), built again on ``model`` with the comparison's options: what a smoother of the
     reference runs (the same grid, or the same particles on the same streams)."""
     if cert.kind not in ("grid", "particle"):
         raise ValueError(f"cert: expected the certificate of an automatic grid or particle reference, got kind "
                          f"{cert.kind!r}")
-    return _Rung(cert.kind, cert.size, cert.bounds).build(model, _filter_kw(model, dt, start, substeps))
+    return _Rung(cert.kind, cert.size, cert.bounds).build(model, _filter_kw(model, dt, start, substeps, times))
 
 
 def check_given_reference(flt, est, model, sim, *, run, judged=None, window=0.5, rtol=0.02, certify_paths=64):
@@ -435,17 +458,24 @@ def check_given_reference(flt, est, model, sim, *, run, judged=None, window=0.5,
             finer = _Rung("particle", 4 * PARTICLES).build(md, kw)
             reason = (f"given by the caller; its 2× refinement ({math.prod(rung.size)} points) exceeds "
                       f"{REFINE_POINTS[md.n]}: checked against {4 * PARTICLES} particles")
+    elif isinstance(flt, ContinuousDiscreteParticleFilter):  # the same filter (times, substeps), 4× the particles
+        import copy
+        finer, kind, size = copy.copy(flt), "particle", flt.particles
+        finer.particles = 4 * flt.particles
+    elif isinstance(flt, JumpParticleFilter):
+        finer = JumpParticleFilter(flt.switching, 4 * flt.particles, threshold=flt.threshold, start=flt.start)
+        kind, size = "particle", flt.particles
     elif isinstance(flt, ParticleFilter):
         kw = {"dt": flt.dt, "substeps": flt.substeps} if flt.model.kind == "sde" else {"start": flt.start}
         finer = ParticleFilter(flt.model, 4 * flt.particles, threshold=flt.threshold, **kw)
         kind, size = "particle", flt.particles
-        if flt.model.kind == "sde" and data_substeps is not None and flt.substeps != data_substeps:
-            reason = (f"given by the caller, with substeps={flt.substeps} where the simulation has {data_substeps}: "
-                      f"the posterior of a {'finer' if flt.substeps > data_substeps else 'coarser'} Euler–Maruyama "
-                      "model than the simulator's (equal substeps: its model exactly; sde_step)")
     else:
         return Certificate(type(flt).__name__, None, OPTIMAL, rungs=[diag], reason="given by the caller: not checked",
                            seconds=time.perf_counter() - t_start)
+    if kind == "particle" and flt.model.kind == "sde" and data_substeps is not None and flt.substeps != data_substeps:
+        reason = (f"given by the caller, with substeps={flt.substeps} where the simulation has {data_substeps}: "
+                  f"the posterior of a {'finer' if flt.substeps > data_substeps else 'coarser'} Euler–Maruyama "
+                  "model than the simulator's (equal substeps: its model exactly; sde_step)")
     fields, ok = _check(est, diag, finer, sim, sub, judged or {}, window, rtol, run, "refine given")
     error, tol = [tuple(e) for e in fields["error"]], fields["tolerance"]
     cert = Certificate(kind, ok, OPTIMAL if ok else NOT_CONVERGED, size, None, rtol, sub.stop, error,

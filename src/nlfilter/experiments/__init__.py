@@ -305,6 +305,21 @@ EXPERIMENTS = _index(
                 "fb_particles": ">=10,<=10000000", "fb_pf_runs": ">=2,<=100000", "grid_size": ">=11,<=100001",
                 **_BLOCK_RANGE}),
     Experiment(
+        "square-root",
+        title="Square-root filters beside their standard forms on ill-conditioned problems: PSD loss, "
+              "divergence, MSE, cost",
+        source="nlfilter check (no paper): Grewal & Andrews, Kalman Filtering: Theory and Practice (square-root "
+               "filtering); issue 30",
+        target="nlfilter.experiments.square_root_pairs:run",
+        params={"problem": "all",  # "all" or a comma list of noiseless, long-run, stiff, quadratic, falling-body
+                "r": [1e-8, 1e-10, 1e-12, 1e-14, 1e-16, 1e-18], "noiseless_q": 0.0,
+                "long_steps": 200000, "long_pairs": ["kf", "ukf"], "long_tau": 1e4, "long_r": 1e-2,
+                "stiff_lambda": 1000.0, "stiff_r": 1e-8, "stiff_dt": 0.1, "stiff_substeps": 100,
+                "quad_r": 0.2, "fb_r": 1e4, "fb_substeps": 20},
+        ranges={"r": ">0,<1", "noiseless_q": ">=0", "long_steps": ">=2,<=10000000", "long_tau": ">0",
+                "long_r": ">0", "stiff_lambda": ">0", "stiff_r": ">0", "stiff_dt": ">0,<=10",
+                "stiff_substeps": ">=1,<=100000", "quad_r": ">0", "fb_r": ">0", "fb_substeps": ">=1,<=10000"}),
+    Experiment(
         "smoothing",
         title="RTS smoothers of every Gaussian filter against the optimal smoother (cubic sensors)",
         source="nlfilter check (no paper): Särkkä 2013 ch. 8-9 (Gaussian RTS smoothers); issue 12",

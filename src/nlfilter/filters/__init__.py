@@ -34,7 +34,8 @@ phase                     PLL, LinearQuadratureFilter, PhaseTensorFilter, Circle
 moment_bayes              ZeroOrderMomentFilter, FirstOrderMomentFilter, SecondOrderMomentFilter,
                           ScaledNoiseZeroOrderFilter (000)
 reference.bounded         BoundedGridFilter1D, BoundedParticleFilter: the yardsticks of moment_bayes
-reference                 GridFilter, ParticleFilter, ResampleMoveParticleFilter: the near-optimal yardsticks
+reference                 GridFilter, ParticleFilter, ResampleMoveParticleFilter, ContinuousDiscreteParticleFilter:
+                          the near-optimal yardsticks
 ========================  ==================================================================
 """
 
@@ -52,7 +53,7 @@ from .moment_bayes import (FirstOrderMomentFilter, ScaledNoiseZeroOrderFilter, S
 from .moment_filters import ConditionalMomentFilter, DiscreteConditionalMomentFilter
 from .phase import PLL, CircleGridFilter, LinearQuadratureFilter, PhaseTensorFilter
 from .quasilinear import MQLF, QLF, DiscreteQuasilinearFilter, QuasilinearFilter
-from .reference import GridFilter, ParticleFilter, ResampleMoveParticleFilter
+from .reference import ContinuousDiscreteParticleFilter, GridFilter, ParticleFilter, ResampleMoveParticleFilter
 from .reference.bounded import BoundedGridFilter1D, BoundedParticleFilter
 from .square_root_filters import (SquareRootCKF, SquareRootEKF, SquareRootGHKF, SquareRootIEKF, SquareRootKF,
                                   SquareRootSLF, SquareRootUKF)
@@ -113,6 +114,7 @@ __all__ = ["REGISTRY", "get", "GaussianState", "Estimates", "DiscreteFilter", "C
            "LinearQuadratureFilter", "PhaseTensorFilter", "CircleGridFilter", "ZeroOrderMomentFilter",
            "FirstOrderMomentFilter", "SecondOrderMomentFilter", "ScaledNoiseZeroOrderFilter", "GridFilter",
            "ParticleFilter", "BoundedGridFilter1D", "BoundedParticleFilter", "ResampleMoveParticleFilter",
+           "ContinuousDiscreteParticleFilter",
            "CKF", "GHKF", "IteratedEKF", "ContinuousDiscreteEKF", "ContinuousDiscreteIEKF", "ContinuousDiscreteUKF",
            "ContinuousDiscreteCKF", "ContinuousDiscreteGHKF", "GaussianFilter", "ContinuousDiscreteGaussianFilter",
            "StatisticallyLinearizedFilter", "ContinuousDiscreteSLF", "rule_filter", "IMM", "TwoModeIMM",

@@ -76,6 +76,7 @@ import numpy as np
 from scipy.special import logsumexp
 
 from .. import _validate as V
+from ..switching import probability_rows as _probability_rows
 from ..angles import angles_of, mixture, residual, wrap_components
 from .base import DiscreteFilter, Filter, check_structure, gaussian_prior, set_start
 from .beliefs import GaussianState
@@ -94,22 +95,6 @@ class IMMState(NamedTuple):
     mean: np.ndarray
     cov: np.ndarray
     probs: np.ndarray
-
-
-def _probability_rows(name, value, M=None):
-    """``value`` as a float array whose last axis is a probability vector (rows summing to 1 to
-    1e-9, non-negative), of length ``M`` when given."""
-    a = V.finite(name, V.as_float_array(name, value))
-    if a.ndim == 0 or (M is not None and a.shape[-1] != M):
-        raise ValueError(f"{name}: expected {'a vector' if M is None else f'{M} entries'} of probabilities, "
-                         f"got shape {a.shape}")
-    if (a < 0).any():
-        raise ValueError(f"{name}: expected non-negative probabilities, got {V.shown(a.tolist())}")
-    s = a.sum(axis=-1)
-    if not np.all(np.abs(s - 1.0) <= 1e-9):
-        raise ValueError(f"{name}: expected probabilities summing to 1 (to 1e-9){' in every row' if a.ndim > 1 else ''}"
-                         f", got sums {V.shown(np.atleast_1d(s).tolist())}")
-    return a
 
 
 def _combine(w, m, P, angles=()):

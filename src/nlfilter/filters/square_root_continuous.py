@@ -46,7 +46,7 @@ from .linalg import mm, sqrt_psd
 from .skeleton import propagate
 from .triangular import tria
 from .rules import Cubature, Taylor1, Unscented
-from .square_root import SqrtState, SquareRootFilter, _poison
+from .square_root import SqrtState, SquareRootFilter, _poison, sqrt_predict
 
 __all__ = ["STIFF", "sqrt_moment_rhs", "sqrt_propagate", "continuous_discrete",
            "SquareRootContinuousDiscreteEKF",
@@ -102,13 +102,32 @@ def sqrt_moment_rhs(rule, model, m, S, t, Lq):
 STIFF = 1.0
 
 
+def _array_substeps(rule, model, m, S, t, dt, Lq, substeps, scheme) -> SqrtState:
+    """The interval in ``substeps`` discrete square-root predictions (:func:`~nlfilter.filters.square_root.sqrt_predict`,
+    a triangularised array: a factor by construction) of the flow over ``h = dt / substeps``
+    (one ``scheme`` step of ``f``; Taylor-1: its Jacobian ``I + h f_x``) with the noise ``h G Q Gᵀ``:
+    first order in ``h``, the fallback where both ODE forms fail (a near-singular factor whose
+    covariance-form stages turn indefinite)."""
+    h, n = dt / substeps, m.shape[-1]
+    state = SqrtState(m, S)
+    for j in range(substeps):
+        s = t + j * h
+        flow = lambda x, k: ode_step(model.f, x, k, h, scheme=scheme)  # noqa: E731
+        jac = lambda x, k: np.eye(n) + h * model.f_x(x, k)  # noqa: E731
+        state = sqrt_predict(rule, model, state, s, np.sqrt(h) * Lq, f=flow,
+                             f_x=jac if rule.kind == "taylor1" else None)[0]
+    return state
+
+
 def sqrt_propagate(rule, model, belief, t, dt, Lq, *, substeps: int = 1, scheme: str = "rk4") -> SqrtState:
     """The continuous-discrete square-root prediction: :func:`sqrt_moment_rhs` integrated from ``t``
     to ``t + dt`` (:func:`~nlfilter.ode.ode_step`: ``scheme``, ``substeps``), the belief at ``t + dt``.
     A path whose factor is not lower-triangular with a positive diagonal, or changes by more than
     :data:`STIFF` of itself in a substep, is integrated in covariance form
     (:func:`~nlfilter.filters.skeleton.propagate`, the standard filter's step) and re-factored by
-    ``tria``; a path that fails either way is NaN (``run`` raises or marks it)."""
+    ``tria``; where that fails too (its RK stages turn the covariance indefinite: a near-noiseless
+    update before a noisy interval), by discrete square-root array steps of the flow; a path that
+    fails every way is NaN (``run`` raises or marks it)."""
     m, S = belief[0], belief[1]
     n = m.shape[-1]
     tri = np.all(np.triu(S, 1) == 0, axis=(-2, -1)) & np.all(np.diagonal(S, axis1=-2, axis2=-1) > 0, axis=-1)
@@ -123,9 +142,15 @@ def sqrt_propagate(rule, model, belief, t, dt, Lq, *, substeps: int = 1, scheme:
         P = mm(S, S.swapaxes(-1, -2))
         cov = propagate(rule, model, GaussianState(m, P), t, dt, substeps=substeps, scheme=scheme)
         L, bad = sqrt_psd(cov.cov)
+        bad = bad | ~np.isfinite(cov.mean).all(axis=-1)
         L = np.where(bad[..., None, None], np.nan, tria(np.where(bad[..., None, None], 0.0, L)))
         mp = np.where(fall[..., None], cov.mean, mp)
         Sp = np.where(fall[..., None, None], L, Sp)
+        last = fall & bad & tri  # where that fails too: the array form, a factor by construction
+        if last.any():
+            arr = _array_substeps(rule, model, m, S, t, dt, Lq, substeps, scheme)
+            mp = np.where(last[..., None], arr.mean, mp)
+            Sp = np.where(last[..., None, None], arr.factor, Sp)
     failed = ~np.all(np.diagonal(Sp, axis1=-2, axis2=-1) > 0, axis=-1) & ~fall
     return _poison(SqrtState(mp, Sp), failed | ~np.isfinite(mp).all(axis=-1))
 

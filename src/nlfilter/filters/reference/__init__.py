@@ -9,7 +9,9 @@ module            contents
 ================  ==========================================================================
 grid              :class:`GridFilter` over a :class:`GridBelief` (probability vectors on a grid)
 particle          :class:`ParticleFilter` over a :class:`ParticleBelief` (weighted particles)
+jump_particle     :class:`JumpParticleFilter`: particles over (mode, state) of a switching model
 resample_move     :class:`ResampleMoveParticleFilter`: noise-free continuous dynamics, moves on x0
+cd_particle       :class:`ContinuousDiscreteParticleFilter`: an SDE measured at discrete times
 bounded           the grid and particle yardsticks of the bounded-noise problems (seed 000)
 forward_backward  their optimal smoothers: forward–backward on the grid, FFBSm on particles
 _reference_base   what both share: the time-step check, the registry attributes
@@ -39,7 +41,10 @@ Bootstrap filter: particles propagated through the model (Euler–Maruyama subst
 weighted by the measurement likelihood, resampled (systematic) when the effective sample size
 falls below ``threshold · particles``. The estimate is the weighted mean/covariance before
 resampling: the weights of an update are kept in the belief, and the next ``predict`` (``step``
-for SDEs) resamples first.
+for SDEs) resamples first. An SDE measured at discrete times (``y_k = h(x(t_k)) + v_k``, regular
+or irregular ``t_k``) has :class:`ContinuousDiscreteParticleFilter`: the same filter, its
+particles moved between measurements by the simulator's Euler–Maruyama steps
+(:mod:`~nlfilter.filters.reference.cd_particle`).
 
 Both filters flag a measurement that is impossible under every grid point / particle (zero
 likelihood everywhere, e.g. bounded noise and a too-narrow grid) as a divergence of that path.
@@ -52,9 +57,12 @@ last bits of the BLAS products over the batch).
 """
 
 from .bounded import BoundedGridFilter1D, BoundedParticleFilter
+from .cd_particle import ContinuousDiscreteParticleFilter
 from .grid import GridBelief, GridFilter
+from .jump_particle import JumpParticleFilter
 from .particle import ParticleBelief, ParticleFilter
 from .resample_move import ResampleMoveBelief, ResampleMoveParticleFilter
 
 __all__ = ["GridFilter", "GridBelief", "ParticleFilter", "ParticleBelief", "BoundedGridFilter1D", "BoundedParticleFilter",
-           "ResampleMoveParticleFilter", "ResampleMoveBelief"]
+           "ResampleMoveParticleFilter", "ResampleMoveBelief", "ContinuousDiscreteParticleFilter",
+           "JumpParticleFilter"]

@@ -121,14 +121,18 @@ class ParticleFilter(_ReferenceFilter):
 
     def __init__(self, model, particles: int = 2000, *, dt: float | None = None, substeps: int | None = None,
                  threshold: float = 0.5, start: str | None = None):
+        self._options(particles, substeps, threshold)
+        self._setup(model, dt, start, "particle filter")
+        self._set_smoother()
+
+    def _options(self, particles, substeps, threshold):
+        """``particles``, ``substeps`` (and whether stated) and ``threshold``, checked."""
         self.particles = V.positive("particles", particles, integer=True)
         self.threshold = V.real("threshold", threshold)
         if not 0.0 <= self.threshold <= 1.0:
             raise ValueError(f"threshold: expected a number in [0, 1], got {threshold!r}")
         self.substeps_stated = substeps is not None
         self.substeps = SUBSTEPS if substeps is None else V.positive("substeps", substeps, integer=True)
-        self._setup(model, dt, start, "particle filter")
-        self._set_smoother()
 
     def _set_smoother(self):
         """No smoother on an SDE with ``substeps > 1``: it needs the transition density of one
@@ -143,8 +147,8 @@ class ParticleFilter(_ReferenceFilter):
         ``substeps`` also takes the data's Euler–Maruyama substeps (``timing.substeps``: the
         simulator's model, :mod:`nlfilter.sde_step`); one built with ``substeps`` keeps its own."""
         flt, t0 = super().for_timing(timing, t0=t0)
-        sub = getattr(timing, "substeps", None)
-        if self.time != "continuous" or getattr(self, "substeps_stated", True) or sub is None or sub == flt.substeps:
+        sub = getattr(timing, "substeps", None)  # None but for SDE data (increments, continuous-discrete)
+        if getattr(self, "substeps_stated", True) or sub is None or sub == flt.substeps:
             return flt, t0
         import copy
         flt = copy.copy(flt)
@@ -263,11 +267,11 @@ class ParticleFilter(_ReferenceFilter):
         with np.errstate(divide="ignore", invalid="ignore"):
             mx = np.max(a, axis=-1)
             lev = mx + np.log(np.sum(np.exp(a - np.where(np.isfinite(mx), mx, 0.0)[:, None]), axis=-1))
-        hx = md.h(x, k) if hbar is None else hbar
+        hx = md.h(x, self._at(k)) if hbar is None else hbar
         ang = angles_of(md).measurements
         Eh, Ch = weighted_moments(w, hx, ang) if ang else cloud_moments(w, hx)
         Eh = near(Eh, y, ang)  # angles: the wrapped innovation
-        if md.kind == "discrete":  # Cov[y] = Cov[h] + E[R(x)]
+        if hbar is None:  # samples y = h(x) + v: Cov[y] = Cov[h] + E[R(x)]
             res = innovation_info(y, Eh, Ch + (md.R if md.R_constant else np.einsum("bp,bpij->bij", w, md.R_of(x, k))))
         else:  # the Kallianpur–Striebel ratio times the density of dy under pure noise N(0, R dt)
             lev = lev + innovation_info(y, np.zeros_like(y), md.R * self.dt)["loglik"]
@@ -304,17 +308,29 @@ class ParticleFilter(_ReferenceFilter):
             w = _draw(md.process_noise, rng, x.shape[1:-1])
             # f(x) + G(x) w, or f(x, w) for non-additive noise (angular states wrapped)
             return wrap_components(md.transition(x, w, t), angles_of(md).states)
-        sq = np.sqrt(self.dt / self.substeps)
-        L = md.process_noise._sqrt
-        x, ih = euler_maruyama(md, x, t, self.dt, self.substeps,
-                               lambda j: mm(rng.standard_normal((*x.shape[1:-1], md.r)), L.T) * sq)
+        x, ih = self._euler_maruyama(x, t, self.dt, rng)
         return x, ih / self.dt
 
-    def _loglik(self, x, y, k, hbar=None):
+    def _euler_maruyama(self, x, t, dt, rng):
+        """``(x at t + dt, ∫ h ds)``: the ``substeps`` Euler–Maruyama steps of ``[t, t + dt]``
+        (:func:`~nlfilter.sde_step.euler_maruyama`), each particle's increments drawn from its
+        path's stream."""
         md = self.model
+        sq = np.sqrt(dt / self.substeps)
+        L = md.process_noise._sqrt
+        return euler_maruyama(md, x, t, dt, self.substeps,
+                              lambda j: mm(rng.standard_normal((*x.shape[1:-1], md.r)), L.T) * sq)
+
+    def _at(self, k):
+        """The model's time argument of measurement ``k``: ``k`` (the continuous-discrete
+        subclass: its time ``t_k``)."""
+        return k
+
+    def _loglik(self, x, y, k, hbar=None, md=None):
+        md = self.model if md is None else md
         obs = ~np.isnan(y)
-        if md.kind == "discrete":
-            resid = residual(y[..., None, :], md.h(x, k), angles_of(md).measurements)
+        if self.time == "discrete":  # samples y = h(x) + v (also an SDE's, measured at discrete times)
+            resid = residual(y[..., None, :], md.h(x, self._at(k)), angles_of(md).measurements)
             if not obs.all():
                 resid = np.where(obs[..., None, :], resid, 0.0)
             if not md.R_constant:  # v ~ N(0, R(x)) exactly at each particle
