@@ -1,10 +1,11 @@
 """Regenerate the gallery docs/figures/ID.png from the quick runs (seed 0) of every experiment.
 
-    PYTHONPATH=src python docs/make_figures.py
+    PYTHONPATH=src python docs/make_figures.py [ID ...]     # every experiment, or those named
 
 The PNGs are quantized to 256 colours so that each stays under 150 kB.
 """
 
+import sys
 import tempfile
 from pathlib import Path
 
@@ -16,10 +17,15 @@ from nlfilter.plots import plot_result
 OUT = Path(__file__).parent / "figures"
 
 
-def main():
+def main(ids=()):
     OUT.mkdir(exist_ok=True)
     tmp = Path(tempfile.mkdtemp())
+    unknown = sorted(set(ids) - set(registry()))
+    if unknown:
+        raise SystemExit(f"make_figures.py: unknown experiment(s) {unknown}; expected ids from {sorted(registry())}")
     for id, exp in registry().items():
+        if ids and id not in ids:
+            continue
         raw = tmp / f"{id}.png"  # plot_result writes a file (atomically), then quantized here
         plot_result(exp.run({}, quick=True, seed=0), raw, dpi=90)
         img = Image.open(raw).convert("RGB").quantize(256)
@@ -29,4 +35,4 @@ def main():
 
 
 if __name__ == "__main__":
-    main()
+    main(sys.argv[1:])

@@ -9,11 +9,11 @@ import pytest
 
 from nlfilter.experiments import get
 from nlfilter.experiments.square_root_pairs import collinear, kind, pairs, psd_lost
-from nlfilter.filters import REGISTRY, ContinuousDiscreteEKF
+from nlfilter.filters import REGISTRY
 
-# the discrete pairs registered when the experiment was written: the claims below are theirs (a
-# pair registered later is checked by the claim of every square-root form, max_psd_loss_rate)
-DISCRETE = ("kf", "ekf", "iekf", "ukf", "ckf", "ghkf", "slf")
+# the discrete pairs (the continuous-discrete ones run on the stiff and falling-body problems only)
+DISCRETE = ("kf", "ekf", "iekf", "ukf", "ckf", "ghkf", "slf", "second-order")
+CONTINUOUS_DISCRETE = ("continuous-discrete-ekf", "continuous-discrete-ukf", "continuous-discrete-ckf")
 
 
 @pytest.fixture(scope="module")
@@ -23,11 +23,13 @@ def quick():
 
 def test_pairs_are_every_registered_square_root_form_and_pick_up_new_ones(monkeypatch):
     """The table is read from the registry: a new ``sr-X`` joins as soon as it is registered (here
-    the standard continuous-discrete EKF stands in for its square-root form)."""
-    assert set(pairs()) == {n[3:] for n in REGISTRY if n.startswith("sr-") and n[3:] in REGISTRY} >= {"kf", "ukf"}
-    monkeypatch.setitem(REGISTRY, "sr-continuous-discrete-ekf", ContinuousDiscreteEKF)
-    assert pairs()["continuous-discrete-ekf"] == (ContinuousDiscreteEKF, ContinuousDiscreteEKF)
-    assert kind(ContinuousDiscreteEKF) == "continuous-discrete" and kind(REGISTRY["ukf"]) == "discrete"
+    the fifth-degree cubature filter stands in for a square-root form of itself)."""
+    assert set(pairs()) == {n[3:] for n in REGISTRY if n.startswith("sr-") and n[3:] in REGISTRY} == set(
+        DISCRETE + CONTINUOUS_DISCRETE)
+    assert "ckf5" not in pairs()
+    monkeypatch.setitem(REGISTRY, "sr-ckf5", REGISTRY["ckf5"])
+    assert pairs()["ckf5"] == (REGISTRY["ckf5"], REGISTRY["ckf5"])
+    assert kind(REGISTRY["continuous-discrete-ekf"]) == "continuous-discrete" and kind(REGISTRY["ukf"]) == "discrete"
     assert kind(REGISTRY["grid"]) is None  # a reference, not a discrete-time Gaussian filter
 
 
@@ -40,12 +42,13 @@ def test_psd_lost_is_beyond_rounding():
 
 
 def test_no_square_root_form_loses_positive_definiteness(quick):
-    """Every square-root form of the discrete pairs keeps its covariance on every path of every
-    problem (a count: exactly 0); the claim row is the largest PSD-loss rate of every square-root
-    form registered (a continuous-discrete form that fails shows there, and in the notes)."""
+    """Every square-root form keeps its covariance on every path of every problem (a count: exactly
+    0), the continuous-discrete ones included; the claim row is the largest PSD-loss rate of every
+    square-root form registered."""
     rates = [r for r in quick.rows if r.filter.startswith("sr-") and r.quantity in ("psd_loss_rate", "divergence_rate")]
-    assert all(r.value == 0.0 for r in rates if r.filter[3:] in DISCRETE)
-    assert quick.get("sr-*", "max_psd_loss_rate").value == max(r.value for r in rates if r.quantity == "psd_loss_rate")
+    assert {r.filter[3:] for r in rates} == set(DISCRETE + CONTINUOUS_DISCRETE)
+    assert all(r.value == 0.0 for r in rates)
+    assert quick.get("sr-*", "max_psd_loss_rate").value == 0.0
 
 
 def test_standard_forms_lose_positive_definiteness_on_the_near_noiseless_measurement(quick):
@@ -86,15 +89,18 @@ def test_rows_figure_and_what_ran(quick):
     assert sweep["lines"]["every sr- form"] == [0.0] * 6
 
 
-def test_stiff_continuous_discrete_problem_runs_a_registered_pair(monkeypatch):
-    """The stiff problem runs the continuous-discrete pairs (none is registered yet here: the
-    standard CD-EKF stands in for its square-root form, so the two rows of the pair are equal)."""
-    monkeypatch.setitem(REGISTRY, "sr-continuous-discrete-ekf", ContinuousDiscreteEKF)
-    res = get("square-root").run({"problem": "stiff"}, quick=True, runs=3)
-    a = res.get("continuous-discrete-ekf", "mse", problem="stiff")
-    assert res.get("sr-continuous-discrete-ekf", "mse", problem="stiff").value == a.value and np.isfinite(a.value)
-    assert res.get("continuous-discrete-ekf", "mse_excess", problem="stiff").value == 0.0
-    assert res.params["problem_steps"] == {"stiff": 2} and res.params["paths"] == {"stiff": 3}
+def test_stiff_continuous_discrete_problem(quick):
+    """The stiff problem (λ = 1000, R = 1e-8) runs the continuous-discrete pairs: the standard UKF and
+    CKF lose positive definiteness on every path (the first prediction after the near-noiseless
+    update), their square-root forms on none; the EKF pair keeps it and agrees to the two ODE forms'
+    RK4 difference (the paired MSE difference, measured 3e-8 of the MSE in the full run, below 1e-4)."""
+    for x in ("continuous-discrete-ukf", "continuous-discrete-ckf"):
+        assert quick.get(x, "psd_loss_rate", problem="stiff").value == 1.0, x
+        assert quick.get(f"sr-{x}", "psd_loss_rate", problem="stiff").value == 0.0, x
+        assert np.isfinite(quick.get(f"sr-{x}", "mse", problem="stiff").value), x
+    mse = quick.get("sr-continuous-discrete-ekf", "mse", problem="stiff").value
+    assert abs(quick.get("continuous-discrete-ekf", "mse_excess", problem="stiff").value) < 1e-4 * mse
+    assert quick.params["problem_steps"]["stiff"] == 2 and quick.params["paths"]["stiff"] == 3
 
 
 def test_bad_input_is_named():
