@@ -29,7 +29,7 @@ import numpy as np
 
 from . import _validate as V
 
-__all__ = ["SwitchingModel", "probability_rows"]
+__all__ = ["SwitchingModel", "probability_rows", "markov_chain"]
 
 
 def probability_rows(name, value, M=None):
@@ -48,6 +48,20 @@ def probability_rows(name, value, M=None):
         raise ValueError(f"{name}: expected probabilities summing to 1 (to 1e-9){' in every row' if a.ndim > 1 else ''}"
                          f", got sums {V.shown(np.atleast_1d(s).tolist())}{rows}")
     return a
+
+
+def markov_chain(transition, mode_probs0, M: int, per: str):
+    """``(Π, μ0)``: the ``(M, M)`` Markov matrix ``transition`` and the initial mode probabilities
+    ``mode_probs0`` (None: uniform) checked by :func:`probability_rows`; ``per`` says what a row
+    and column stand for in the message (``"mode: 2 models"``, ``"filter"``)."""
+    Pi = probability_rows("transition", transition)
+    if Pi.shape != (M, M):
+        raise ValueError(f"transition: expected a ({M}, {M}) Markov matrix (one row and column per {per}), "
+                         f"got shape {Pi.shape}")
+    mu0 = np.full(M, 1.0 / M) if mode_probs0 is None else probability_rows("mode_probs0", mode_probs0, M)
+    if mu0.ndim != 1:
+        raise ValueError(f"mode_probs0: expected a vector of {M} probabilities, got shape {mu0.shape}")
+    return Pi, mu0
 
 
 class SwitchingModel:
@@ -83,13 +97,7 @@ class SwitchingModel:
                 raise ValueError(f"models: every mode must have the same state and measurement dimensions; model {j} "
                                  f"has (n, m) = {(md.n, md.m)}, model 0 {(first.n, first.m)}")
         M = len(models)
-        Pi = probability_rows("transition", transition)
-        if Pi.shape != (M, M):
-            raise ValueError(f"transition: expected a ({M}, {M}) Markov matrix (one row and column per mode: "
-                             f"{M} models), got shape {Pi.shape}")
-        mu0 = np.full(M, 1.0 / M) if mode_probs0 is None else probability_rows("mode_probs0", mode_probs0, M)
-        if mu0.ndim != 1:
-            raise ValueError(f"mode_probs0: expected a vector of {M} probabilities, got shape {mu0.shape}")
+        Pi, mu0 = markov_chain(transition, mode_probs0, M, f"mode: {M} models")
         if not isinstance(name, str):
             raise TypeError(f"name: expected a string, got {V.shown(name)}")
         self.models, self.transition, self.mode_probs0 = tuple(models), Pi, mu0

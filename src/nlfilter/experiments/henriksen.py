@@ -58,15 +58,20 @@ QUICK = {"runs": 24, "steps": {"quadratic": 15, "state-noise": 40, "falling-body
          "grid_size": 151, "fb_particles": 200, "fb_pf_runs": 8}
 
 
+def chosen_problems(value, problems: tuple) -> tuple:
+    """The problems a ``problem`` parameter names: ``"all"`` (every one of ``problems``) or a comma
+    list of them; any other name is a ValueError naming the parameter."""
+    chosen = problems if value == "all" else tuple(p.strip() for p in str(value).split(",") if p.strip())
+    for p in chosen:
+        if p not in problems:
+            raise ValueError(f"param problem={value!r}: expected 'all' or a comma list of {list(problems)}, got {p!r}")
+    return chosen
+
+
 def run(params, *, quick, runs, seed, progress):
     """The experiment ``second-order`` (its title, source and parameters: :data:`nlfilter.experiments.EXPERIMENTS`)."""
     res = Result("second-order", "second-order filters (seed 004)", "seed 004", params)
-    chosen = PROBLEMS if params["problem"] == "all" else tuple(
-        p.strip() for p in str(params["problem"]).split(",") if p.strip())
-    for p in chosen:
-        if p not in PROBLEMS:
-            raise ValueError(f"param problem={params['problem']!r}: expected 'all' or a comma list of "
-                             f"{list(PROBLEMS)}, got {p!r}")
+    chosen = chosen_problems(params["problem"], PROBLEMS)
     if params["steps"] < 0:
         raise ValueError(f"param steps={params['steps']}: expected 0 (problem default) or a positive integer")
     for i, name in enumerate(PROBLEMS):  # one independent stream per problem (SeedSequence.spawn)

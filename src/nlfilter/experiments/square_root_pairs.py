@@ -56,6 +56,7 @@ from ..models import DiscreteModel, SDEModel
 from ..results import Result
 from ..simulate import simulate, simulate_continuous_discrete
 from . import get
+from .henriksen import chosen_problems
 
 PROBLEMS = ("noiseless", "long-run", "stiff", "quadratic", "falling-body")
 RUNS = {"noiseless": 200, "long-run": 2, "stiff": 100, "quadratic": 1000, "falling-body": 200}
@@ -226,13 +227,7 @@ CASES = {"noiseless": _noiseless, "long-run": _long_run, "stiff": _stiff, "quadr
 
 
 def _chosen(params) -> tuple:
-    chosen = PROBLEMS if params["problem"] == "all" else tuple(
-        q.strip() for q in str(params["problem"]).split(",") if q.strip())
-    for q in chosen:
-        if q not in PROBLEMS:
-            raise ValueError(f"param problem={params['problem']!r}: expected 'all' or a comma list of "
-                             f"{list(PROBLEMS)}, got {q!r}")
-    return chosen
+    return chosen_problems(params["problem"], PROBLEMS)
 
 
 def run(params, *, quick=False, runs=None, seed=0, progress=False):

@@ -243,10 +243,7 @@ class ContinuousDiscreteGaussianFilter(GaussianFilter):
     def _time(self, k):
         return belief_time(self, k)
 
-    def at_times(self, times):
-        """A copy measuring at the times ``t_1 < t_2 < ... (T,)`` (irregular intervals; the prior
-        at ``t0``): :func:`~nlfilter.filters.irregular.at_times`."""
-        return at_times(self, times)
+    at_times = at_times  # flt.at_times(times): a copy measuring at t_1 < t_2 < ... (nlfilter.filters.irregular)
 
     def check_data(self, ys):
         ys = super().check_data(ys)

@@ -76,7 +76,7 @@ import numpy as np
 from scipy.special import logsumexp
 
 from .. import _validate as V
-from ..switching import probability_rows as _probability_rows
+from ..switching import markov_chain
 from ..angles import angles_of, mixture, residual, wrap_components
 from .base import DiscreteFilter, Filter, check_structure, gaussian_prior, set_start
 from .beliefs import GaussianState
@@ -164,13 +164,7 @@ class IMM(DiscreteFilter):
                                  f"kind and dt; filter {j} ({type(f).__name__}) has (n, m, kind, dt) = {dims}, "
                                  f"filter 0 ({type(first).__name__}) {want}")
         M = len(filters)
-        Pi = _probability_rows("transition", transition)
-        if Pi.shape != (M, M):
-            raise ValueError(f"transition: expected a ({M}, {M}) Markov matrix (one row and column per filter), "
-                             f"got shape {Pi.shape}")
-        mu0 = np.full(M, 1.0 / M) if mode_probs0 is None else _probability_rows("mode_probs0", mode_probs0, M)
-        if mu0.ndim != 1:
-            raise ValueError(f"mode_probs0: expected a vector of {M} probabilities, got shape {mu0.shape}")
+        Pi, mu0 = markov_chain(transition, mode_probs0, M, "filter")
         self.filters, self.transition, self.mode_probs0 = tuple(filters), Pi, mu0
         self.model = first.model  # the first mode's (state_dim, data_dim, the data's kind)
         self._angles = angles_of(first.model).states  # angular states: circular mixing (nlfilter.angles)
