@@ -87,18 +87,16 @@ def near(a, ref, idx):
     return a
 
 
-def circular_mean(X, w, idx, axis: int = -2):
-    """The weighted mean of ``X`` over the nodes (``axis``; weights ``w`` along it, summing to 1),
-    the components ``idx`` (last axis) by the circular weighted mean ``atan2(Σ w sin, Σ w cos)``
+def circular_mean(X, w, idx):
+    """The weighted mean of the points ``X (..., N, d)`` with weights ``w`` (``(N,)`` or ``(..., N)``,
+    summing to 1), the components ``idx`` by the circular weighted mean ``atan2(Σ w sin, Σ w cos)``
     and the others by ``Σ w X``."""
     X = np.asarray(X, dtype=float)
-    shape = [1] * X.ndim
-    shape[axis] = -1
-    wb = np.reshape(w, shape)
-    mean = np.sum(wb * X, axis=axis)
+    wb = np.asarray(w)[..., None]
+    mean = np.sum(wb * X, axis=-2)
     if idx:
         A = X[..., idx]
-        mean[..., idx] = np.arctan2(np.sum(wb * np.sin(A), axis=axis), np.sum(wb * np.cos(A), axis=axis))
+        mean[..., idx] = np.arctan2(np.sum(wb * np.sin(A), axis=-2), np.sum(wb * np.cos(A), axis=-2))
     return mean
 
 
@@ -182,9 +180,7 @@ def weighted_moments(w, x, idx, cov: bool = True):
     ``x (..., N, n)`` with normalized weights ``w (..., N)`` (a particle cloud, a grid's points),
     the components ``idx`` by the circular weighted mean and wrapped deviations."""
     x = np.broadcast_to(x, (*np.shape(w), np.shape(x)[-1]))
-    mean = np.sum(w[..., None] * x, axis=-2)
-    A = x[..., idx]
-    mean[..., idx] = np.arctan2(np.sum(w[..., None] * np.sin(A), axis=-2), np.sum(w[..., None] * np.cos(A), axis=-2))
+    mean = circular_mean(x, w, idx)
     if not cov:
         return mean, None
     d = residual(x, mean[..., None, :], idx)
