@@ -36,7 +36,7 @@ from nlfilter.filters.imm import TwoModeIMM
 from nlfilter.filters.rule_filter import RuleFilter
 from nlfilter.filters.square_root import SquareRootFilter
 from nlfilter.filters.rules import Taylor2
-from nlfilter.filters.reference import ResampleMoveParticleFilter
+from nlfilter.filters.reference import ContinuousDiscreteParticleFilter, ResampleMoveParticleFilter
 from nlfilter.bounded import BoundedNoiseModel
 from nlfilter.filters.moment_bayes import ScaledNoiseZeroOrderFilter
 from nlfilter.filters.bilinear import PseudoObservablesFilter, UpdatedInnovationsFilter
@@ -285,6 +285,8 @@ CASES = [
            options=(("start", "bogus"),), extras=("ess",)),
     _gauss("particle-sde", lambda model=S2, **k: ParticleFilter(model, 200, dt=DT, **k), S2, M2, P2, dt=DT,
            run_kw={"rng": 5}, random=True, extras=("ess",)),
+    _gauss("particle-cd", lambda model=S2, **k: ContinuousDiscreteParticleFilter(model, DT, 200, **k),
+           euler_discretization(S2, DT), M2, P2, run_kw={"rng": 5}, random=True, extras=("ess",)),
     _gauss("resample-move", lambda model=S2_DET, **k: ResampleMoveParticleFilter(model, 200, dt=DT, **k),
            euler_discretization(S2, DT), M2, P2, run_kw={"rng": 5}, random=True,
            options=(("start", "bogus"), ("moves", -1), ("scale", 0.0)), extras=("accepted", "proposed")),
@@ -558,7 +560,7 @@ def test_singular_psd_prior(case):
 
 
 ONE_PRIOR = {"qlf", "mqlf", "dqlf", "linear", "linear-tv", "linear-discrete", "grid", "grid-2d",
-             "grid-sde", "grid-2d-sde", "particle", "particle-sde", "resample-move"}  # off-line gains / one prior for all paths
+             "grid-sde", "grid-2d-sde", "particle", "particle-sde", "particle-cd", "resample-move"}  # off-line gains / one prior for all paths
 
 
 @pytest.mark.parametrize("case", WITH_PRIOR, ids=[c.name for c in WITH_PRIOR])
@@ -992,7 +994,7 @@ def test_likelihood_and_smoother_families():
     for c in CASES:
         f = c.filter()
         assert (f.likelihood is not None) == (f.family in ("gaussian", "second-order", "conditional moments",
-                                                           "multiple-model") or f.name in ("grid", "particle")), c.name
+                                                           "multiple-model") or f.name in ("grid", "particle", "cd-particle")), c.name
         if f.family in ("gaussian", "second-order"):
             assert f.smoother == "rts", c.name
         if f.name == "grid":

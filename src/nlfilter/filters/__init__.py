@@ -94,7 +94,7 @@ REGISTRY = {
     "zero-order-moment": ZeroOrderMomentFilter, "first-order-moment": FirstOrderMomentFilter,
     "second-order-moment": SecondOrderMomentFilter, "scaled-noise-zero-order-moment": ScaledNoiseZeroOrderFilter,
     "bounded-grid": BoundedGridFilter1D, "bounded-particle": BoundedParticleFilter,
-    "grid": GridFilter, "particle": ParticleFilter,
+    "grid": GridFilter, "particle": ParticleFilter, "continuous-discrete-particle": ContinuousDiscreteParticleFilter,
     "resample-move": ResampleMoveParticleFilter,
     "imm": TwoModeIMM,
 }

@@ -84,6 +84,10 @@ class ContinuousDiscreteParticleFilter(ParticleFilter):
             raise TypeError(f"model: {type(self).__name__} expects an SDEModel, got {type(model).__name__}")
         self._options(particles, substeps, threshold)
         check_structure(self, model)
+        if not model.measurement_noise.has_density:  # the weights are the density of y_k = h + v_k
+            raise ValueError(f"measurement_noise: the continuous-discrete particle filter needs a law with a density "
+                             f"(logpdf); got {model.measurement_noise!r} (a Gaussian has none when its covariance R "
+                             "is singular)")
         self.model = model
         set_start(self, start)
         self.dt = None if dt is None else float(V.positive("dt", dt))
