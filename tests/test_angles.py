@@ -273,6 +273,19 @@ def test_filters_without_angles_refuse_them():
         REGISTRY["continuous-ekf"](sde, 0.1)
 
 
+@pytest.mark.parametrize("name", ["particle", "grid"])
+def test_reference_refuses_angular_increments(name):
+    """On an SDEModel the grid and particle references read increments dy = h dt + dη, which are not
+    angles: a bearing declared angular is refused naming ``angles`` (angular states are taken)."""
+    from nlfilter import SDEModel
+    sde = SDEModel([th], [-0.1 * th], [th], Q=0.1, R=0.1, angles={"states": [th], "measurements": [0]})
+    args = (sde,) if name == "particle" else (sde, [(-np.pi, np.pi)])
+    with pytest.raises(ValueError, match=r"^angles: .*increments.*\[0\]"):
+        REGISTRY[name](*args, dt=0.1)
+    states_only = SDEModel([th], [-0.1 * th], [th], Q=0.1, R=0.1, angles={"states": [th]})
+    assert REGISTRY[name](*((states_only,) + args[1:]), dt=0.1).time == "continuous"
+
+
 def test_augmented_ukf_rotation():
     """The UKF's augmented sigma points (noise entering f non-additively) average circularly too."""
     w = sp.Symbol("w")

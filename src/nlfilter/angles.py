@@ -16,7 +16,9 @@ an update conditions on the wrapped innovation (:func:`near`: ``ŷ`` moved by wh
 branch of ``y``) and wraps its mean (:func:`wrap_components`); the smoothers wrap
 ``mˢ_{k+1} − m⁻_{k+1}``; the reference filters average their particles (grid points) circularly,
 the grid being periodic along an angular state axis; simulation wraps its states and
-measurements; the MSE and NEES take wrapped errors (:func:`residual`). A model without angles
+measurements; the MSE and NEES take wrapped errors (:func:`residual`). An SDEModel's measurements
+read as increments ``dy = h dt + dη`` (the grid and particle references on an SDE) are not angles:
+those filters refuse angular measurements there (angular states they take). A model without angles
 (the default :data:`NO_ANGLES`) takes none of these paths: its arithmetic is unchanged.
 
 >>> import numpy as np

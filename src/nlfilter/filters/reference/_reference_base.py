@@ -19,6 +19,11 @@ def _check_time_step(flt, model, dt, who):
         flt.dt = float(V.positive("dt", dt))
         flt._Rinv = continuous_precision(model)
         flt.time = "continuous"
+        meas = getattr(getattr(model, "angles", None), "measurements", ())
+        if meas:  # dy = h dt + dη: an increment of a wrapped angle is not a wrapped angle
+            raise ValueError(f"angles: the {who} reads an SDEModel's measurements as increments dy = h dt + dη, which "
+                             f"are not angles; got measurements {list(meas)} declared angular (declare them on "
+                             "discrete measurements: the continuous-discrete particle filter)")
     elif dt is not None:
         raise ValueError(f"dt: a DiscreteModel has no time step; expected None, got {dt!r}")
     elif getattr(model, "R_constant", True) and not model.measurement_noise.has_density:
