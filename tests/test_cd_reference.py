@@ -15,6 +15,7 @@ import sympy as sp
 from nlfilter import SDEModel, compare
 from nlfilter.errors import ReferenceWarning
 from nlfilter.filters import ContinuousDiscreteEKF, ContinuousDiscreteParticleFilter, Estimates, GridFilter
+from nlfilter.sde_step import SUBSTEPS
 from nlfilter.simulate import simulate_continuous_discrete
 
 X = sp.Symbol("x")
@@ -118,3 +119,30 @@ def test_the_filter_reads_the_data_and_refuses():
         ContinuousDiscreteParticleFilter(object(), None)
     with pytest.raises(ValueError, match=r"times"):
         ContinuousDiscreteParticleFilter(OU, None).at_times(TIMES[::-1])
+
+
+def test_the_simulators_default_is_the_references_model():
+    """Simulated with the defaults, the data are the SDE by Euler–Maruyama at
+    :data:`~nlfilter.sde_step.SUBSTEPS` steps per interval — the scheme the reference integrates,
+    at the substeps it takes unless told (the one constant; ``compare`` and ``nlfilter simulate``
+    read the same defaults) —, not the RK4 flow with noise added once per interval (only on
+    request). Statistically, one interval Δ = 0.5 of ``dx = −2x dt + dβ`` from N(2, 0.01): the
+    simulator's and the reference's prediction (20000 particles, the measurement missing) both
+    have the moments of SUBSTEPS Euler steps, ``c = (1 − 2δ)^N``, mean ``2c``, variance ``0.01 c²
+    + Q δ Σ_j (1 − 2δ)^{2j}`` (4 standard errors); the flow's mean ``2e^{−1}`` is 10 s.e. away."""
+    import inspect
+    sig = inspect.signature(simulate_continuous_discrete).parameters
+    assert sig["process"].default == "euler-maruyama" and sig["substeps"].default is SUBSTEPS
+    md, dt, paths, m0, p0 = SDEModel([X], [-2 * X], [X], Q=Q, R=R), 0.5, 20000, [2.0], [[0.01]]
+    sim = simulate_continuous_discrete(md, 1, paths=paths, rng=4, m0=m0, P0=p0, dt=dt)
+    flt = ContinuousDiscreteParticleFilter(md, dt, paths)
+    assert sim.timing.substeps == SUBSTEPS == flt.substeps == flt.for_timing(sim.timing)[0].substeps
+    pred = flt.run(np.full((1, 1, 1), np.nan), m0, p0, rng=5)  # nothing measured: the prediction
+    d = dt / SUBSTEPS
+    c, w = (1 - 2 * d) ** SUBSTEPS, (1 - 2 * d) ** (2 * np.arange(SUBSTEPS))
+    mean, var = 2 * c, 0.01 * c * c + Q * d * w.sum()
+    se = np.sqrt(var / paths)
+    for got_mean, got_var in ((sim.xs[:, 0, 0].mean(), sim.xs[:, 0, 0].var(ddof=1)),
+                              (pred.means[0, 0, 0], pred.covs[0, 0, 0, 0])):
+        assert abs(got_mean - mean) < 4 * se and abs(got_var / var - 1) < 4 * np.sqrt(2 / (paths - 1))
+    assert abs(2 * np.exp(-1.0) - mean) > 10 * se  # the flow's mean: this check tells the two apart

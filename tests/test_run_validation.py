@@ -151,7 +151,8 @@ REFERENCE = {
                   "5d011beab063a50b7e7f2692cd5d96c2"),
     "phase": (lambda: simulate_phase(1.0, 0.5, 0.05, 6, 3, np.random.default_rng(3)), "f8c123c38a4018a3498f73e143a15dc0"),
     "ou": (lambda: simulate_ou(2.0, 1.0, 0.01, 6, 3, np.random.default_rng(4)), "97d5e0ef946583754cb3a2050756e26f"),
-    "cd": (lambda: simulate_continuous_discrete(FALL.model, 4, paths=2, rng=5, x0=FALL.x0, dt=FALL.dt),
+    "cd": (lambda: simulate_continuous_discrete(FALL.model, 4, paths=2, rng=5, x0=FALL.x0, dt=FALL.dt,
+                                                process="flow", substeps=20),  # the default then
            "f3590d92090dc51fd367f26d5fbd6e59"),
 }
 

@@ -74,14 +74,15 @@ def test_simulate_ou_shapes_seed_and_stationary_law():
 
 
 def test_simulate_continuous_discrete_flow_noise_and_measurements():
-    """RK4 flow of dx = −x dt (relative error < 1e-7 at 20 substeps per 0.5), discrete measurements y = x + v with
-    Var v = R (4 standard errors), Euler–Maruyama noise per interval: stationary variance
+    """``process="flow"``: RK4 flow of dx = −x dt (relative error < 1e-7 at 20 substeps per 0.5), discrete
+    measurements y = x + v with Var v = R (4 standard errors), Euler–Maruyama noise per interval: stationary variance
     q dt / (1 − e^{−2 dt}) (4 standard errors)."""
     from nlfilter.simulate import simulate_continuous_discrete
     x = sp.Symbol("x")
     det = SDEModel([x], [-x], [x], Q=0.0, R=0.3)
-    s = simulate_continuous_discrete(det, 10, paths=3000, rng=2, x0=[2.0], dt=0.5)
-    s2 = simulate_continuous_discrete(det, 10, paths=3000, rng=2, x0=[2.0], dt=0.5)
+    flow = {"process": "flow", "substeps": 20}  # asked for: the default is Euler–Maruyama (test_cd_reference)
+    s = simulate_continuous_discrete(det, 10, paths=3000, rng=2, x0=[2.0], dt=0.5, **flow)
+    s2 = simulate_continuous_discrete(det, 10, paths=3000, rng=2, x0=[2.0], dt=0.5, **flow)
     assert s.xs.shape == (3000, 10, 1) and s.ys.shape == (3000, 10, 1)
     np.testing.assert_array_equal(s.ys, s2.ys)
     np.testing.assert_allclose(s.t, 0.5 * np.arange(1, 11))
@@ -90,7 +91,7 @@ def test_simulate_continuous_discrete_flow_noise_and_measurements():
     assert abs(v.var(ddof=1) / 0.3 - 1) < 4 * np.sqrt(2 / (v.size - 1))
     q, dt, paths = 0.8, 0.2, 4000
     noisy = SDEModel([x], [-x], [x], Q=q, R=0.3)
-    n = simulate_continuous_discrete(noisy, 60, paths=paths, rng=3, m0=0.0, P0=1.0, dt=dt)
+    n = simulate_continuous_discrete(noisy, 60, paths=paths, rng=3, m0=0.0, P0=1.0, dt=dt, **flow)
     var = q * dt / (1 - np.exp(-2 * dt))
     assert abs(n.xs[:, -1, 0].var(ddof=1) - var) < 4 * var * np.sqrt(2 / (paths - 1))
     with pytest.raises(TypeError, match=r"^model\b"):

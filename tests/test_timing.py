@@ -13,6 +13,7 @@ from nlfilter import DiscreteModel, SDEModel, simulate
 from nlfilter.evaluate import loglik
 from nlfilter.filters import EKF, KalmanBucy, KalmanFilter
 from nlfilter.filters.ekf import ContinuousDiscreteEKF
+from nlfilter.sde_step import SUBSTEPS
 from nlfilter.simulate import Simulation, Timing, simulate_continuous_discrete
 
 x1, x2 = sp.symbols("x1 x2")
@@ -76,7 +77,7 @@ def test_default_call_on_cd_simulation_is_exact(cd_sim):
 
 def test_cd_t0_and_dt_are_read_or_refused():
     sim = simulate_continuous_discrete(LIN_SDE, 5, paths=2, rng=1, m0=M0, P0=P0, dt=DT, t0=3.0)
-    assert sim.timing == Timing("continuous-discrete", "predict", 3.0, DT)
+    assert sim.timing == Timing("continuous-discrete", "predict", 3.0, DT, SUBSTEPS)  # Euler–Maruyama's
     a = ContinuousDiscreteEKF(LIN_SDE, DT, substeps=4).run(sim, M0, P0, loglik=True)
     b = ContinuousDiscreteEKF(LIN_SDE, DT, substeps=4, t0=3.0, start="predict").run(sim.ys, M0, P0, loglik=True)
     np.testing.assert_array_equal(a.loglik, b.loglik)  # the same filter: bitwise

@@ -144,8 +144,8 @@ def compare(model, filters, steps, *, paths=200, m0, P0, rng=0, reference="auto"
         the measurement times ``t_1 < ... < t_steps`` after the prior at 0, regular or not, in
         place of ``dt``; simulated by :func:`~nlfilter.simulate.simulate_continuous_discrete`,
         filtered by the continuous-discrete filters at those times (``start="predict"``). The
-        simulation takes ``substeps`` Euler–Maruyama steps per interval (``process=
-        "euler-maruyama"``), and the reference (``"auto"`` or ``"particle"``; ``"grid"`` is
+        simulation takes ``substeps`` Euler–Maruyama steps per interval (the simulator's default
+        process), and the reference (``"auto"`` or ``"particle"``; ``"grid"`` is
         refused) is a :class:`~nlfilter.filters.reference.ContinuousDiscreteParticleFilter`
         through the same steps — the simulator's model exactly —, certified on the particle
         ladder as any other (:func:`~nlfilter.yardstick.certified_reference`); a
@@ -256,7 +256,7 @@ def compare(model, filters, steps, *, paths=200, m0, P0, rng=0, reference="auto"
             sim = simulate(model, steps, paths=paths, rng=root, m0=m0v, P0=P0m, **sim_kw)
         else:  # continuous-discrete: every filter at the data's times
             sim = simulate_continuous_discrete(model, steps, paths=paths, rng=root, m0=m0v, P0=P0m, times=times,
-                                               process="euler-maruyama", substeps=substeps)
+                                               substeps=substeps)  # its default process: Euler–Maruyama
             filters = {k: f.for_timing(sim.timing)[0] if callable(getattr(f, "for_timing", None)) else f
                        for k, f in filters.items()}
             if callable(getattr(reference, "for_timing", None)):  # a given reference: the data's times, substeps

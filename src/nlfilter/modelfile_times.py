@@ -55,7 +55,7 @@ def simulate_spec(spec, steps, paths, seed, times_text=None):
     kw = {"paths": paths, "rng": seed, "m0": spec.m0, "P0": spec.P0}
     if spec.kind == "continuous-discrete":
         times = spec_times(spec, steps, times_text)
-        sim = simulate_continuous_discrete(spec.model, len(times), times=times, process="euler-maruyama", **kw)
+        sim = simulate_continuous_discrete(spec.model, len(times), times=times, **kw)  # its Euler–Maruyama default
         return sim, times
     n = spec.steps if steps is None else steps
     sim = simulate(spec.model, n, **kw, **({"dt": spec.dt} if spec.kind == "sde" else {}))

@@ -18,18 +18,23 @@ weighs ``dy`` with that ratio has the simulator's model exactly (not only to an 
 :func:`~nlfilter.simulate.simulate` and :class:`~nlfilter.filters.reference.ParticleFilter`
 call :func:`euler_maruyama`, both with :data:`SUBSTEPS` steps per interval unless told otherwise
 (a particle filter built without ``substeps`` and run on a Simulation takes the simulator's:
-``sim.timing.substeps``); the other continuous filters approximate this convention to a stated
-order (their ``measurement_convention`` attribute, shown by ``nlfilter list --filters``).
+``sim.timing.substeps``); :func:`~nlfilter.simulate.simulate_continuous_discrete` (its default
+``process="euler-maruyama"``: ``x(t_k)`` through the same steps, no sum of h) and
+:class:`~nlfilter.filters.reference.ContinuousDiscreteParticleFilter` take :data:`SUBSTEPS` too;
+the other continuous filters approximate this convention to a stated order (their
+``measurement_convention`` attribute, shown by ``nlfilter list --filters``).
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-# Euler–Maruyama steps per measurement interval when none is given: the default of both
-# :func:`~nlfilter.simulate.simulate` (and ``compare``) and :class:`~nlfilter.filters.reference.ParticleFilter`,
-# so that a particle reference built without ``substeps`` has the simulator's model; a Simulation
-# records the substeps it was made with (``sim.timing.substeps``), which such a filter takes.
+# Euler–Maruyama steps per measurement interval when none is given: the default of
+# :func:`~nlfilter.simulate.simulate`, :func:`~nlfilter.simulate.simulate_continuous_discrete` (and
+# ``compare``, ``nlfilter simulate``), :class:`~nlfilter.filters.reference.ParticleFilter` and
+# :class:`~nlfilter.filters.reference.ContinuousDiscreteParticleFilter`, so that a particle reference
+# built without ``substeps`` has the simulator's model; a Simulation records the substeps it was
+# made with (``sim.timing.substeps``), which such a filter takes.
 SUBSTEPS = 10  #: Euler–Maruyama steps per measurement interval, the simulators' and particle filters' default
 
 # What each continuous filter's ``measurement_convention`` says (``nlfilter list --filters``): how it

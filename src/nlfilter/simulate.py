@@ -338,22 +338,27 @@ def simulate_ou(q: float, r: float, dt: float, steps: int, paths: int | range, r
 
 
 def simulate_continuous_discrete(model, steps: int, *, paths: int | range = 1, rng=None, m0=None, P0=None, x0=None,
-                                 initial: NoiseLaw | None = None, dt: float | None = None, substeps: int = 20,
-                                 t0: float = 0.0, on_divergence: str = "raise", times=None,
-                                 process: str = "flow") -> Simulation:
+                                 initial: NoiseLaw | None = None, dt: float | None = None,
+                                 substeps: int = SUBSTEPS, t0: float = 0.0, on_divergence: str = "raise", times=None,
+                                 process: str = "euler-maruyama") -> Simulation:
     """An :class:`~nlfilter.models.SDEModel` with *discrete* measurements (the continuous-discrete
     setting of :class:`~nlfilter.filters.second_order.ContinuousDiscreteSecondOrderFilter`: the
     model's ``h``/``R`` read as ``y_k = h(x(t_k)) + v_k``, ``v_k ~ N(0, R)``, ``t_k = t0 + k dt``,
-    k = 1..steps). Between measurements the drift is integrated by classical RK4 in ``substeps``
-    steps (:func:`~nlfilter.ode.ode_step`); when ``Q ≠ 0`` one Euler–Maruyama noise
-    increment ``G(x, t_k) w``, ``w ~ N(0, Q dt)``, is added per interval after the flow (a coarse
-    model of the process noise: meant for nearly deterministic dynamics such as the falling body;
-    ``process="flow"``, the default). ``process="euler-maruyama"``: ``substeps`` Euler–Maruyama
-    steps per interval, ``x += f(x, s) h + G(x, s) w``, ``w ~ N(0, Q h)``, ``h`` the interval over
-    ``substeps`` (the SDE's law up to the scheme's O(h) error, whatever the dynamics; draws
-    ``steps × substeps × r`` normals in place of ``steps × r``; ``timing.substeps`` records
-    ``substeps``: the scheme :class:`~nlfilter.filters.reference.ContinuousDiscreteParticleFilter`
-    takes, so that the reference has the simulator's model).
+    k = 1..steps). Between measurements, ``process="euler-maruyama"`` (the default): the SDE
+    ``dx = f dt + G dβ`` by ``substeps`` Euler–Maruyama steps per interval (default
+    :data:`~nlfilter.sde_step.SUBSTEPS`, whatever the interval's length), ``x += f(x, s) h +
+    G(x, s) w``, ``w ~ N(0, Q h)``, ``h`` the interval over ``substeps`` (the SDE's law up to the
+    scheme's O(h) error, whatever the dynamics; ``timing.substeps`` records ``substeps``). It is
+    the scheme of :class:`~nlfilter.filters.reference.ContinuousDiscreteParticleFilter` (which
+    takes the data's ``substeps``, and :data:`~nlfilter.sde_step.SUBSTEPS` too when not told),
+    of :func:`~nlfilter.comparison.compare` and of ``nlfilter simulate`` on a continuous-discrete
+    model file, which read these defaults: the reference has the simulator's model exactly.
+    ``process="flow"`` (only when asked for): the drift integrated by classical RK4 in ``substeps``
+    steps (:func:`~nlfilter.ode.ode_step`), and when ``Q ≠ 0`` one Euler–Maruyama noise increment
+    ``G(x, t_k) w``, ``w ~ N(0, Q dt)``, added per interval after the flow (a coarse model of the
+    process noise, for nearly deterministic dynamics such as the falling body, whose RK4 flow is
+    far more accurate than Euler steps; ``timing.substeps`` None: no particle reference has this
+    model). Draws ``steps × substeps × r`` process normals (``steps × r`` with the flow).
     Returns a :class:`Simulation` with ``xs[:, k] = x(t_{k+1})``, ``ys[:, k]`` its measurement, and
     ``timing = Timing("continuous-discrete", "predict", t0, dt)``: the prior at ``t0``, the first
     measurement one interval later (the continuous-discrete filters' default). ``times`` in place
@@ -361,8 +366,8 @@ def simulate_continuous_discrete(model, steps: int, *, paths: int | range = 1, r
     integrated in ``substeps`` steps; ``timing.times`` carries them, ``timing.dt`` is None, and a
     continuous-discrete filter built with ``dt=None`` takes them: :mod:`nlfilter.filters.irregular`).
     ``paths``, ``rng``: as :func:`simulate`. Draws of a path: its initial state (unless ``x0``),
-    the ``steps × r`` standard normals of the process noise (only when ``Q ≠ 0``), then the
-    ``steps × m`` of the measurement noise. ``on_divergence``: as :func:`simulate`.
+    the standard normals of the process noise (only when ``Q ≠ 0``), then the ``steps × m`` of
+    the measurement noise. ``on_divergence``: as :func:`simulate`.
 
     >>> from nlfilter import problems
     >>> p = problems.falling_body()

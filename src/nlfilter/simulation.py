@@ -23,8 +23,8 @@ class Timing(NamedTuple):
     increments; ``t0``: the prior's time (0 for a discrete model); ``dt``: the measurement
     interval (None for a discrete model); ``substeps``: an SDE's data, the Euler–Maruyama steps
     per interval of :func:`~nlfilter.simulate.simulate` (increments) or of
-    :func:`~nlfilter.simulate.simulate_continuous_discrete` with ``process="euler-maruyama"``
-    (:mod:`nlfilter.sde_step`: the model a particle reference must share to have the simulator's),
+    :func:`~nlfilter.simulate.simulate_continuous_discrete` (its default ``process="euler-maruyama"``;
+    :mod:`nlfilter.sde_step`: the model a particle reference must share to have the simulator's),
     None when not made by them (a 4-field Timing, the exact-transition simulators, the flow). The filters read it (:meth:`nlfilter.filters.base.Filter.for_timing`;
     a ParticleFilter built without ``substeps`` takes these); ``times``: continuous-discrete only,
     the measurement times ``t_1 < t_2 < ...`` (a tuple) when irregular, ``dt`` then None

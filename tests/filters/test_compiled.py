@@ -142,8 +142,46 @@ def test_second_order_forms_as_numpy(form):
     ys[0, 3, 1] = np.nan
     ys[:, 7] = np.nan
     flt = SecondOrderFilter(md, form=form)
-    same(flt.run(ys, [0.1, 0.2], 0.2 * np.eye(2), loglik=True, on_divergence="mark"),
-         flt.run(ys, [0.1, 0.2], 0.2 * np.eye(2), loglik=True, on_divergence="mark", backend="numba"))
+    ref = flt.run(ys, [0.1, 0.2], 0.2 * np.eye(2), loglik=True, on_divergence="mark")
+    new = flt.run(ys, [0.1, 0.2], 0.2 * np.eye(2), loglik=True, on_divergence="mark", backend="numba")
+    same(ref, new)
+    for a, b in ((ref.means, new.means), (ref.covs, new.covs), (ref.loglik[..., None], new.loglik[..., None])):
+        assert relative(a, b) <= RTOL  # relative to each output's own size, not to max(1, ·)
+
+
+def relative(a, b):
+    """The largest ``‖a − b‖ / max(‖a‖, ‖b‖)`` over the path-steps (a mean vector, a covariance
+    matrix, a log-likelihood each; NaN path-steps, diverged alike in both, skipped): relative to the
+    output's size, however small (entries near 0 inside a vector or matrix are held to its norm)."""
+    axes = tuple(range(2, a.ndim))
+    d = np.sqrt(np.sum((a - b) ** 2, axis=axes))
+    size = np.maximum(np.sqrt(np.sum(a**2, axis=axes)), np.sqrt(np.sum(b**2, axis=axes)))
+    return float(np.nanmax(d / np.maximum(size, np.finfo(float).tiny), initial=0.0))
+
+
+@pytest.mark.parametrize("make", [lambda md: SecondOrderFilter(md, form="truncated"),
+                                  lambda md: SecondOrderFilter(md, form="first-order"), UKF],
+                         ids=["truncated", "first-order", "ukf"])
+def test_scalar_models_as_numpy_relative(make, monkeypatch):
+    """One state and one measurement: the update is NumPy's scalar branch, its products in its order
+    (``(1 − K H)² P + K² R``). Another order rounds apart by 1e-16 a step, which the cubic sensor
+    grows along some paths (here 9e-12 relative for the truncated form before the branch; 4e-11 over
+    1000 × 200 compiled; now NumPy's bits compiled, for every rule). The loop runs as plain Python
+    (the text numba compiles, exec'd: no compile here; Python's ``x**3`` may round apart from
+    NumPy's by an ulp, so 1e-12 relative, not bits), on a model of its own that no compiled run
+    reuses."""
+    from tests.filters.test_compiled_flatten import _python
+    _python(monkeypatch)
+    monkeypatch.setattr(compiled_build, "KERNELS", {})
+    x = sp.Symbol("x")
+    md = DiscreteModel([x], [0.99 * x], [x**3], Q=0.01, R=0.1, name="cubic sensor, as Python")
+    ys = simulate(md, 200, paths=20, rng=7, m0=0.5, P0=0.1).ys.copy()
+    ys[1, 9] = np.nan
+    flt = make(md)
+    ref = flt.run(ys, 0.5, 0.1, loglik=True)
+    new = flt.run(ys, 0.5, 0.1, loglik=True, backend="numba")
+    for a, b in ((ref.means, new.means), (ref.covs, new.covs), (ref.loglik[..., None], new.loglik[..., None])):
+        assert relative(a, b) <= RTOL
 
 
 def test_slf_and_smoother_as_numpy():

@@ -228,7 +228,8 @@ def _falling_body_block(rows, *, r, steps, substeps, seed, npf, particles):
     prob = pb.falling_body(r=r)
     md, dt = prob.model, prob.dt
     rng = ev.stream(seed, 2)
-    sim = simulate_continuous_discrete(md, steps, paths=rows, rng=rng, x0=prob.x0, dt=dt, substeps=substeps)
+    sim = simulate_continuous_discrete(md, steps, paths=rows, rng=rng, x0=prob.x0, dt=dt, substeps=substeps,
+                                       process="flow")  # the RK4 flow (no process noise)
     ys = sim.ys
     mk = lambda form: ContinuousDiscreteSecondOrderFilter(md, dt, form=form, substeps=substeps,  # noqa: E731
                                                           start="predict")

@@ -202,7 +202,7 @@ def _stiff(res, p, paths, steps, seed, todo):
     if not any(kind(c) == "continuous-discrete" for pr in todo.values() for c in pr):
         return  # nothing to run: no simulation either
     sim = simulate_continuous_discrete(md, steps, paths=paths, rng=ev.stream(seed, 2), m0=m0, P0=P0, dt=dt,
-                                       substeps=sub)
+                                       substeps=sub, process="flow")  # RK4 flow + noise per interval
     yield {"continuous-discrete": (md, dt, sub, None)}, sim, m0, P0, {}
 
 
@@ -216,7 +216,7 @@ def _falling_body(res, p, paths, steps, seed, todo):
     prob = pb.falling_body(r=p["fb_r"])
     md, dt, sub = prob.model, prob.dt, p["fb_substeps"]
     sim = simulate_continuous_discrete(md, steps, paths=paths, rng=ev.stream(seed, 4), x0=prob.x0, dt=dt,
-                                       substeps=sub)
+                                       substeps=sub, process="flow")  # the RK4 flow (no process noise)
     models = {"continuous-discrete": (md, dt, sub, "predict"), "discrete": (_flow_model(md, dt, sub), None, 1,
                                                                              "predict")}
     yield models, sim, prob.m0, prob.P0, {}

@@ -136,7 +136,14 @@ def condition_(m, P, y, yhat, S, C, H, R, joseph, M, forcing, screen, n, mdim, w
         for a in range(mo):
             v += K[i, a] * e[a]
         m[i] += v
-    if joseph:  # (I − K H_o) P (I − K H_o)ᵀ + K R_oo Kᵀ
+    if n == 1 and mdim == 1:  # gaussian_update's scalar branch, its products in its order (not
+        k1 = K[0, 0]  # (1 − K H) P (1 − K H) + (K R) K: each order rounds apart, 1e-16 a step that
+        if joseph:  # a cubic sensor grows to 1e-11 over 200 steps)
+            a1 = 1.0 - k1 * Ho[0, 0]
+            P[0, 0] = a1 * a1 * P[0, 0] + k1 * k1 * Ro[0, 0]
+        else:
+            P[0, 0] = P[0, 0] - k1 * k1 * Sc[0, 0]
+    elif joseph:  # (I − K H_o) P (I − K H_o)ᵀ + K R_oo Kᵀ
         for i in range(n):
             for j in range(n):
                 IKH[i, j] = 1.0 if i == j else 0.0

@@ -10,15 +10,16 @@ weights, moments and per-path streams): between ``t_{k-1}`` and ``t_k`` every pa
 
     x_{j+1} = x_j + f(x_j, s_j) δ_k + G(x_j, s_j) ΔB_j,   ΔB_j ~ N(0, Q δ_k),   s_j = t_{k-1} + j δ_k,
 
-which is :func:`~nlfilter.simulate.simulate_continuous_discrete`'s ``process="euler-maruyama"``
-scheme term by term (the same number of steps per interval, whatever its length): at equal
-``substeps`` the filter has the simulator's model exactly, and is the optimal filter of the data
+which is :func:`~nlfilter.simulate.simulate_continuous_discrete`'s default scheme
+(``process="euler-maruyama"``, :data:`~nlfilter.sde_step.SUBSTEPS` steps) term by term (the
+same number of steps per interval, whatever its length): at equal ``substeps`` the filter has
+the simulator's model exactly, and is the optimal filter of the data
 as the particles grow (a reference integrating more finely would have another model, which a
 filter can beat). Each particle is then weighted by the measurement density ``N(y_k; h(x_i,
 t_k), R)`` (missing components: their marginal; angular measurements: wrapped residuals).
 
 ``substeps`` None takes the data's when run on a Simulation that records them
-(``sim.timing.substeps``, made with ``process="euler-maruyama"``), else
+(``sim.timing.substeps``, made by the default ``process="euler-maruyama"``), else
 :data:`~nlfilter.sde_step.SUBSTEPS`. The times are those of the data (``dt=None``: a Simulation's
 ``times`` or ``dt``), a regular ``dt``, or :meth:`at_times` (:mod:`nlfilter.filters.irregular`),
 with the prior at ``t0`` and the first measurement at ``t_1`` (``start="predict"``, the default)
@@ -60,7 +61,7 @@ class ContinuousDiscreteParticleFilter(ParticleFilter):
     >>> x = sp.Symbol("x")
     >>> md = SDEModel([x], [-x], [x], Q=1.0, R=0.1)
     >>> sim = simulate_continuous_discrete(md, 3, paths=2, rng=0, m0=[0.0], P0=[[0.5]], times=[0.2, 0.5, 1.5],
-    ...                                    process="euler-maruyama", substeps=4)
+    ...                                    substeps=4)    # Euler–Maruyama, the default process
     >>> flt = ContinuousDiscreteParticleFilter(md, None, 500)
     >>> est = flt.run(sim, [0.0], [[0.5]], rng=1)          # the data's times and substeps
     >>> est.means.shape, flt.for_timing(sim.timing)[0].substeps
