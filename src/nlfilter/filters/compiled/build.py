@@ -40,7 +40,8 @@ FUNCTION_ARGS = {"steps_scalar_": ("f", "fx", "h", "hx", "G"), "steps_": ("predi
 #: loops of models up to this state and measurement dimension are specialized: the dimensions
 #: compiled in as constants and the helpers expanded into the loop (:func:`_flat`; the compiler
 #: then unrolls the small loops: 2-5× faster at n ≤ 4 than the general loop, at a compile time of
-#: 8-16 s CPU per model and rule kind — 21-34 s with numba's own inlining — against 3-7 s);
+#: 3.4-5.2 s CPU per model and rule kind on an idle core — 4.7-9.1 s as one flat function, 2-3×
+#: that with numba's own inlining — against 3-7 s for the general loop);
 #: larger models take the general loop. The arithmetic is the same (no fast-math), so both give
 #: the same numbers to the last bit.
 SPECIALIZE_UP_TO = 4
