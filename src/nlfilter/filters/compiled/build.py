@@ -102,7 +102,7 @@ def _bind(name, fns, dims):
 #: with the dimensions compiled in and inlined into the loop by LLVM (``forceinline``: the machine
 #: code of one flat function). numba's front end takes a time growing faster than a function's size
 #: (its liveness and SSA passes: blocks × variables): the loop, its predict and its update compiled
-#: apart take 0.6-0.8× the CPU time of one flat function of all three (benchmarks/bench_compile.py)
+#: apart take 0.55-0.7× the CPU time of one flat function of all three (benchmarks/bench_compile.py)
 _APART = ("predict", "update")
 _UNUSED3 = "def unused3_(x, t, p, out):\n    pass\n"
 _HEADER = """# nlfilter: a compiled loop, generated (nlfilter.filters.compiled.build); not to be edited: the

@@ -40,7 +40,7 @@ def flatten_apart(root: str, defs: dict, apart) -> tuple:
     each becomes a call of a function of its own, flattened the same way, made once per callee and
     constant arguments (``psd_check(m, P, 4, tol, W, L, ev)`` → ``psd_check_1(m, P, tol, W, L, ev)``,
     the 4 compiled in and what it decides folded). Returns ``(root's source, {name: source})``, the
-    functions' ``def`` named ``name + "_"``, those called by others first."""
+    functions' ``def`` named ``name + "_"``."""
     made = {}
     text = _Inliner(defs, apart, made).run(root)
     return text, {name: src for name, src in made.values()}
@@ -115,12 +115,13 @@ class _Inliner:
         if len(call.args) != len(params) or call.keywords or any(isinstance(a, ast.Starred) for a in call.args):
             raise ValueError(f"flatten: {callee} takes {len(params)} positional arguments")
         fixed = {i: a.value for i, a in enumerate(call.args) if isinstance(a, ast.Constant)}
-        key = (callee, tuple(sorted(fixed.items())))
+        key = (callee, tuple((i, type(v).__name__, v) for i, v in sorted(fixed.items())))  # True, 1, 1.0 apart
         if key not in self.made:
             name = f"{callee}_{sum(k[0] == callee for k in self.made) + 1}"
             keep = [p for i, p in enumerate(params) if i not in fixed]
             wrap = (f"def {name}_({', '.join(keep)}):\n    return {callee}("
                     + ", ".join(repr(fixed[i]) if i in fixed else p for i, p in enumerate(params)) + ")\n")
+            self.made[key] = (name, None)  # the name taken before the callee's own calls are made
             inner = _Inliner(self.sources, [a for a in self.apart if a != callee], self.made)
             self.made[key] = (name, inner.run(wrap))
         call.func.id = self.made[key][0]
