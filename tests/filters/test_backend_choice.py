@@ -114,14 +114,14 @@ def test_loaded_and_cached_loops_are_used(tmp_path, monkeypatch):
 
 def test_the_loop_text_is_written_once_per_loop(monkeypatch):
     """The automatic choice asks for the loop's text (to find it on disk) on every run past the
-    load threshold; writing a specialized loop's text (:func:`~nlfilter.filters.compiled.flatten.flatten`)
+    load threshold; writing a specialized loop's text (:func:`~nlfilter.filters.compiled.flatten.flatten_apart`)
     takes 0.1-0.6 s, more than the small runs it decides about (it made the contract suite 3.5x
     slower once numba was imported). It is written once per loop — also for a new model object
     with the same expressions (the same text) — and again for another loop."""
     from nlfilter.filters.compiled import build
     calls = []
-    real = build.flatten
-    monkeypatch.setattr(build, "flatten", lambda *a: calls.append(1) or real(*a))
+    real = build.flatten_apart
+    monkeypatch.setattr(build, "flatten_apart", lambda *a: calls.append(1) or real(*a))
     build._text.cache_clear()
     x1, x2 = sp.symbols("x1 x2")
     make = lambda: DiscreteModel([x1, x2], [x1 + 0.1 * x2, 0.9 * x2 - 0.2 * sp.sin(x1)], [x1], Q=0.01 * np.eye(2), R=0.1)  # noqa: E731

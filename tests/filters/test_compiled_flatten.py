@@ -18,7 +18,7 @@ import sympy as sp
 
 from nlfilter import DiscreteModel
 from nlfilter.filters.compiled import build, run as compiled_run
-from nlfilter.filters.compiled.flatten import flatten
+from nlfilter.filters.compiled.flatten import flatten, flatten_apart
 from nlfilter.filters.ekf import EKF
 from nlfilter.filters.second_order import SecondOrderFilter
 from nlfilter.filters.ukf import UKF
@@ -103,6 +103,33 @@ def test_constant_dimensions_fold_the_branches_of_other_sizes():
     y = [0.0]
     _run(flat, "root", {}, y)
     assert y == [20.0]
+
+
+def test_calls_kept_apart_become_functions_of_their_constants():
+    """``flatten_apart``: a call of a name kept apart becomes a call of a function of its own, one
+    per callee and constant arguments (those compiled in, their branches folded), flattened the
+    same way; the program does what the calls did."""
+    size = "def size(n, y):\n    if n == 1:\n        return 10.0 + y\n    return first_negative(y, n)\n"
+    root = ("def root(a, x, log, n):\n    u = size(1, a[0]) + size(1, a[1])\n    v = size(3, a)\n"
+            "    w = bump(x, n)\n    return u, v, w\n")
+    defs = {**DEFS, "size": size}
+    text, made = flatten_apart(root, defs, ("size", "bump"))
+    assert sorted(made) == ["bump_1", "size_1", "size_2"]  # size(1, .) once, size(3, .) once
+    one, three = sorted(("size_1", "size_2"), key=lambda k: "10.0" not in made[k])  # size(1, .), size(3, .)
+    assert f"{one}(a[0]) + {one}(a[1])" in text and f"{three}(a)" in text and "bump_1(x, n)" in text
+    assert "first_negative(" not in made[one] + made[three] and "n == 1" not in made[three]
+    ns = {}
+    for src in made.values():
+        exec(src, ns)  # noqa: S102 - the generated functions, run as Python
+    for name in made:
+        ns[name] = ns[name + "_"]
+    exec(text, ns)  # noqa: S102
+    for a in ([1.0, 2.0, 3.0], [1.0, -2.0, 3.0]):
+        outs = []
+        for run in (lambda *args: _run(root, "root", defs, *args), ns["root"]):
+            x = [0.0, 0.0]
+            outs.append((run(np.array(a), x, [], 3), x))
+        assert outs[0] == outs[1]
 
 
 @pytest.mark.parametrize("bad, what", [

@@ -120,7 +120,7 @@ def source(base: str, dims) -> str:
     unrolls the sums; :data:`_INLINED`, called with several dimensions, take theirs inlined), and the
     loop as ``steps`` (its machine code kept on disk)."""
     _, n, mdim, r = dims
-    parts = [base, f"# the batch-inner loop (nlfilter.filters.compiled.batch_loop)\nNB = {NB}\nupdate1 = _jit(update_taylor1_)\n"]
+    parts = [base, f"# the batch-inner loop (nlfilter.filters.compiled.batch_loop)\nNB = {NB}\nupdate1 = _inner(update_taylor1_)\n"]
     for f in batch_kernels.SOURCES:
         name = f.__name__
         head, body = _split(_SOURCE[name])
@@ -132,6 +132,6 @@ def source(base: str, dims) -> str:
             fixed = [f"n, mdim, r = {n}, {mdim}, {r}"]
         text = head + "".join(f"    {x}\n" for x in fixed) + body
         kw = ", inline='always'" if name in _INLINED else ", cache=True" if name == "steps_batch_" else ""
-        parts += [text, f"{name[:-1]} = _jit({name}{kw})\n"]
+        parts += [text, f"{name[:-1]} = {'_jit' if name == 'steps_batch_' else '_inner'}({name}{kw})\n"]
     parts.append("steps = steps_batch\n")
     return "\n\n".join(p.rstrip("\n") + "\n" for p in parts)

@@ -6,10 +6,12 @@ Each loop is one generated module (:func:`source`): the kernels of :mod:`.path_l
 :mod:`.step_kernels`, the model's functions, the kind's kernels and the loop, as text, written to
 the disk cache and imported from there (:mod:`.cache`), so numba keeps its machine code for the
 next process. The specialized loops (:data:`SPECIALIZE_UP_TO`) get the dimensions as constants
-and every kernel expanded into the loop's own text (:mod:`.flatten`: one function for numba to
-type and compile, 2-2.5× shorter compiles than numba's ``inline="always"`` of each kernel, the
-same machine arithmetic). The sources are read once, at import: later edits of the files cannot
-skew the compiled code.
+and every kernel expanded into the text of three functions, the loop, its predict and its update
+(:mod:`.flatten`; LLVM inlines the two into the loop: 3-4× shorter compiles than numba's
+``inline="always"`` of each kernel, the same machine arithmetic). Every function but the loop is
+compiled without the wrappers that would let Python or C call it (the loop alone is called from
+Python). The sources are read once, at import: later edits of the files cannot skew the compiled
+code.
 """
 
 from __future__ import annotations
@@ -19,7 +21,7 @@ import inspect
 
 from . import batch_loop, loops, path_linalg, rule_kernels, sqrt_kernels, step_kernels
 from .cache import load_source
-from .flatten import flatten
+from .flatten import flatten_apart
 from .kalman_loop import KALMAN_KEY, SCALAR
 from .kernels import KERNELS, model_kernels, scalar_kernels
 from .support import rule_kind
@@ -38,7 +40,8 @@ FUNCTION_ARGS = {"steps_scalar_": ("f", "fx", "h", "hx", "G"), "steps_": ("predi
 #: loops of models up to this state and measurement dimension are specialized: the dimensions
 #: compiled in as constants and the helpers expanded into the loop (:func:`_flat`; the compiler
 #: then unrolls the small loops: 2-5× faster at n ≤ 4 than the general loop, at a compile time of
-#: 8-16 s CPU per model and rule kind — 21-34 s with numba's own inlining — against 3-7 s);
+#: 3.4-5.2 s CPU per model and rule kind on an idle core — 4.7-9.1 s as one flat function, 2-3×
+#: that with numba's own inlining — against 3-7 s for the general loop);
 #: larger models take the general loop. The arithmetic is the same (no fast-math), so both give
 #: the same numbers to the last bit.
 SPECIALIZE_UP_TO = 4
@@ -56,7 +59,7 @@ _SOURCE = {f.__name__: inspect.getsource(f)  # read once, at import
 
 def _jit_line(name: str, src_name: str, **kw) -> str:
     args = "".join(f", {k}={v!r}" for k, v in kw.items())
-    return f"{name} = _jit({src_name}{args})\n"
+    return f"{name} = {'_jit' if kw.get('cache') else '_inner'}({src_name}{args})\n"
 
 
 def _helpers(kind: str = "") -> list:
@@ -95,6 +98,12 @@ def _bind(name, fns, dims):
     return head + "(" + ", ".join(plist[len(drop):]) + "):\n" + body
 
 
+#: the kernels a specialized loop calls as functions of their own (:func:`_flat`), each flattened
+#: with the dimensions compiled in and inlined into the loop by LLVM (``forceinline``: the machine
+#: code of one flat function). numba's front end takes a time growing faster than a function's size
+#: (its liveness and SSA passes: blocks × variables): the loop, its predict and its update compiled
+#: apart take 0.55-0.7× the CPU time of one flat function of all three (benchmarks/bench_compile.py)
+_APART = ("predict", "update")
 _UNUSED3 = "def unused3_(x, t, p, out):\n    pass\n"
 _HEADER = """# nlfilter: a compiled loop, generated (nlfilter.filters.compiled.build); not to be edited: the
 # cache compares this file with the source it must hold and writes it again where they differ.
@@ -108,6 +117,10 @@ def _jit(fn, **kw):
     return njit(error_model="numpy", nogil=True, _nrt=False, **kw)(fn)
 
 
+def _inner(fn, **kw):  # called by the loop only: no wrapper for Python or C to compile
+    return _jit(fn, no_cpython_wrapper=True, no_cfunc_wrapper=True, **kw)
+
+
 LOG_2PI = {log2pi!r}
 
 
@@ -115,15 +128,17 @@ def unused3_(x, t, p, out):  # the Hessian slots of a first-order Taylor-2 form:
     pass
 
 
-unused3 = _jit(unused3_)
+unused3 = _inner(unused3_)
 """
 
 
 def _flat(kind: str, fns: dict, dims) -> list:
     """The parts of a specialized loop's module after the header: ``jacobi`` (rare, long: a call),
-    the model's functions too large to inline, and the loop with every other kernel expanded into
-    its text (:func:`.flatten.flatten`; numba then types one function instead of inlining its
-    kernels call site by call site: the same arithmetic, a fraction of the compile)."""
+    the model's functions too large to inline, the predict and update kernels (:data:`_APART`) each
+    a flat function of its own with the dimensions compiled in, and the loop calling them, every
+    other kernel expanded into their text (:func:`.flatten.flatten_apart`; numba then types three
+    functions instead of inlining the kernels call site by call site: the same arithmetic, a
+    fraction of the compile)."""
     defs = {f.__name__[:-1]: _SOURCE[f.__name__] for mod in _KERNEL_MODULES for f in mod.SOURCES
             if f.__name__ != "jacobi_"}
     parts = [_SOURCE["jacobi_"], _jit_line("jacobi", "jacobi_")]
@@ -137,7 +152,10 @@ def _flat(kind: str, fns: dict, dims) -> list:
     for role, f in zip(("predict", "update"), rule_kernels.KERNELS_BY_KIND[kind]):
         defs[role] = _bind(f.__name__, fns, dims)
     loop = _bind(loops.steps_.__name__, {"predict": None, "update": None}, dims)
-    return parts + [flatten(loop, defs), _jit_line("steps", loops.steps_.__name__, cache=True)]
+    text, made = flatten_apart(loop, defs, _APART)
+    for name, src in made.items():
+        parts += [src, _jit_line(name, name + "_", forceinline=True)]
+    return parts + [text, _jit_line("steps", loops.steps_.__name__, cache=True)]
 
 
 def source(kind: str, fns: dict, scalar: bool = False, dims=None) -> str:

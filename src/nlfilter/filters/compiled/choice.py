@@ -43,10 +43,12 @@ STEP_US = {"kalman": 40.0, "taylor1": 50.0, "nodes": 110.0, "taylor2": 160.0, "s
 #: filters 2.2-2.4× their standard form per step, 1.5-1.9× per path-step, measured at n = 2)
 PATH_STEP_US = {"kalman": 0.2, "taylor1": 0.25, "nodes": 0.45, "taylor2": 0.6, "sqrt-taylor1": 0.5, "sqrt-nodes": 0.7}
 #: a loop's first compile, CPU seconds: the scalar EKF's batch loop, the loops specialized to the
-#: dimensions (n, m ≤ :data:`~.build.SPECIALIZE_UP_TO`; flattened: 10-21 s measured by
-#: benchmarks/bench_compile.py on a loaded machine), the general loop, the EKF's batch-inner loop
-#: (:mod:`.batch_loop`, 4-8 states: 33-44 s measured)
-COMPILE_SECONDS = {"scalar": 2.0, "specialized": 20.0, "general": 10.0, "batch": 45.0}
+#: dimensions (n, m ≤ :data:`~.build.SPECIALIZE_UP_TO`; the loop, its predict and its update
+#: flattened apart: 3.4-5.2 s measured by benchmarks/bench_compile.py on an idle core, run
+#: "compile-split", against 4.7-9.1 s for one flat loop, which took 10-21 s on a loaded machine),
+#: the general loop (EKF n = 16: 5.8 s idle), the EKF's batch-inner loop (:mod:`.batch_loop`,
+#: 4-8 states: 11-12 s idle, 33-44 s measured loaded)
+COMPILE_SECONDS = {"scalar": 2.0, "specialized": 10.0, "general": 10.0, "batch": 45.0}
 #: a cached loop's first run in a new process (numba's import, reading its code), seconds
 LOAD_SECONDS = 1.0
 #: the same once numba is imported in the process (reading the loop's code)

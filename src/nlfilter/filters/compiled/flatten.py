@@ -25,7 +25,7 @@ import copy
 import itertools
 import textwrap
 
-__all__ = ["flatten"]
+__all__ = ["flatten", "flatten_apart"]
 
 
 def flatten(root: str, defs: dict) -> str:
@@ -33,6 +33,17 @@ def flatten(root: str, defs: dict) -> str:
     in ``defs`` (``{name called: source of its def}``; the def's own name does not matter) expanded,
     recursively (a kernel calling another). Calls of other names are left as they are."""
     return _Inliner(defs).run(root)
+
+
+def flatten_apart(root: str, defs: dict, apart) -> tuple:
+    """:func:`flatten`, but the calls of the names in ``apart`` (names of ``defs``) are not expanded:
+    each becomes a call of a function of its own, flattened the same way, made once per callee and
+    constant arguments (``psd_check(m, P, 4, tol, W, L, ev)`` → ``psd_check_1(m, P, tol, W, L, ev)``,
+    the 4 compiled in and what it decides folded). Returns ``(root's source, {name: source})``, the
+    functions' ``def`` named ``name + "_"``."""
+    made = {}
+    text = _Inliner(defs, apart, made).run(root)
+    return text, {name: src for name, src in made.values()}
 
 
 def _parse(src: str) -> ast.FunctionDef:
@@ -78,8 +89,11 @@ def _name(id_, store=False):
 
 
 class _Inliner:
-    def __init__(self, defs: dict):
-        self.defs = {name: _parse(src) for name, src in defs.items()}
+    def __init__(self, defs: dict, apart=(), made=None):
+        self.sources = defs
+        self.defs = {name: _parse(src) for name, src in defs.items() if name not in apart}
+        self.apart = {name: _parse(src) for name, src in defs.items() if name in apart}
+        self.made = {} if made is None else made  # (callee, constant arguments) -> (name, source)
         self.count = itertools.count(1)
 
     def run(self, root: str) -> str:
@@ -87,7 +101,31 @@ class _Inliner:
         self.root_names = _stored(fn) | {a.arg for a in fn.args.args}
         fn = ast.fix_missing_locations(_Consts(_const_locals(fn)).visit(fn))
         fn.body = self.block(fn.body)
+        if self.apart:
+            for node in ast.walk(fn):
+                if isinstance(node, ast.Call) and isinstance(node.func, ast.Name) and node.func.id in self.apart:
+                    self.call_apart(node)
         return ast.unparse(ast.fix_missing_locations(ast.Module(body=[fn], type_ignores=[]))) + "\n"
+
+    def call_apart(self, call: ast.Call) -> None:
+        """``call`` (of a name in ``apart``) made a call of the callee's function for its constant
+        arguments (made here the first time: the callee flattened around those constants)."""
+        callee = call.func.id
+        params = [a.arg for a in self.apart[callee].args.args]
+        if len(call.args) != len(params) or call.keywords or any(isinstance(a, ast.Starred) for a in call.args):
+            raise ValueError(f"flatten: {callee} takes {len(params)} positional arguments")
+        fixed = {i: a.value for i, a in enumerate(call.args) if isinstance(a, ast.Constant)}
+        key = (callee, tuple((i, type(v).__name__, v) for i, v in sorted(fixed.items())))  # True, 1, 1.0 apart
+        if key not in self.made:
+            name = f"{callee}_{sum(k[0] == callee for k in self.made) + 1}"
+            keep = [p for i, p in enumerate(params) if i not in fixed]
+            wrap = (f"def {name}_({', '.join(keep)}):\n    return {callee}("
+                    + ", ".join(repr(fixed[i]) if i in fixed else p for i, p in enumerate(params)) + ")\n")
+            self.made[key] = (name, None)  # the name taken before the callee's own calls are made
+            inner = _Inliner(self.sources, [a for a in self.apart if a != callee], self.made)
+            self.made[key] = (name, inner.run(wrap))
+        call.func.id = self.made[key][0]
+        call.args = [a for i, a in enumerate(call.args) if i not in fixed]
 
     def fresh(self, base: str) -> str:
         return f"{base}__{next(self.count)}"
