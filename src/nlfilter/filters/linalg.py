@@ -31,7 +31,7 @@ def symmetrize(P: np.ndarray) -> np.ndarray:
     return 0.5 * (P + P.swapaxes(-1, -2))
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def _eye(n: int) -> np.ndarray:
     e = np.eye(n)
     e.flags.writeable = False
@@ -140,14 +140,20 @@ def _screen_ok(mean: np.ndarray, cov: np.ndarray, tol: float = PSD_TOL) -> bool:
     component) becomes positive definite with the shift, so it passes as it does the exact test.
     False (some path may fail, the sum overflowed, or n is too large): the exact test decides.
     Called with NumPy's invalid/overflow warnings off (the run loop's errstate, :func:`bad_paths`'):
-    the factorization fails where its factor is NaN (:func:`_cholesky`; A is finite here)."""
+    the factorization fails where its factor is NaN (:func:`_cholesky`), and a non-finite cov
+    leaves a non-finite factor (NaN, or the inf it carried)."""
     n = cov.shape[-1]
-    if n > SCREEN_MAX_N or not math.isfinite(_total(cov) + _total(mean)):
+    if n > SCREEN_MAX_N:
         return False
     A = cov + cov.swapaxes(-1, -2)
-    shift = (0.5 * tol) * np.maximum(2.0, _max(A.diagonal(0, -2, -1), axis=-1))  # A's diagonal: 2 cov_ii
-    A += shift[..., None, None] * _eye(n)
-    return not math.isnan(_total(_cholesky(A)))
+    d = A.reshape(*A.shape[:-2], n * n)[..., ::n + 1]  # A's diagonal (2 cov_ii), a view: shifted in place
+    if d.size == n:  # one path: its shift a number (max(2, nan) is 2 where np.maximum is NaN: A has the NaN)
+        d += (0.5 * tol) * max(2.0, _max(d, axis=None))
+    else:
+        d += (0.5 * tol) * np.maximum(2.0, _max(d, axis=-1))[..., None]
+    # a NaN or inf in cov (A's lower triangle: A is symmetric) or mean leaves a non-finite sum: no
+    # separate test of cov (a factor whose sum overflows defers to the exact test, as ever)
+    return math.isfinite(_sum(_cholesky(A), axis=None) + _total(mean))
 
 
 def sqrt_psd(P: np.ndarray, tol: float = PSD_TOL):
