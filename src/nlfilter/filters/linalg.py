@@ -21,8 +21,37 @@ try:  # the gufuncs behind numpy.linalg: the same numbers without its Python wra
 except ImportError:  # pragma: no cover - a NumPy without them: the public functions
     _gufuncs = None
 
+try:  # np.einsum without ``optimize`` calls this, after its Python wrapper: the same numbers
+    from numpy._core._multiarray_umath import c_einsum as _einsum
+except ImportError:  # pragma: no cover
+    _einsum = np.einsum
+
+try:  # np.errstate's context variable, set and reset without its Python wrapper (µs a call)
+    from numpy._core._multiarray_umath import _make_extobj
+    from numpy._core._ufunc_config import _extobj_contextvar
+except ImportError:  # pragma: no cover - a NumPy without them: np.errstate
+    _extobj_contextvar = None
+
 PSD_TOL = 1e-9
 _F8 = np.dtype(float)
+_QUIET = [None, None]  # (the error state it was made from, that state with over/invalid/divide ignored)
+
+
+def _quiet(fn, *args, **kwargs):
+    """``fn(*args, **kwargs)`` with NumPy's overflow/invalid/divide warnings off, as under
+    ``np.errstate(over="ignore", invalid="ignore", divide="ignore")`` (the same state: made from
+    the current one, kept while that one is current)."""
+    if _extobj_contextvar is None:  # pragma: no cover
+        with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
+            return fn(*args, **kwargs)
+    cur = _extobj_contextvar.get()
+    if _QUIET[0] is not cur:
+        _QUIET[:] = cur, _make_extobj(over="ignore", invalid="ignore", divide="ignore")
+    token = _extobj_contextvar.set(_QUIET[1])
+    try:
+        return fn(*args, **kwargs)
+    finally:
+        _extobj_contextvar.reset(token)
 
 
 def symmetrize(P: np.ndarray) -> np.ndarray:
@@ -64,8 +93,7 @@ def _solve(A: np.ndarray, B: np.ndarray) -> np.ndarray | None:
     the same numbers, the same exceptions)."""
     if _gufuncs is None or A.dtype != _F8 or B.dtype != _F8:
         return None
-    with np.errstate(invalid="ignore", over="ignore", divide="ignore"):
-        X = _gufuncs.solve(A, B, signature="dd->d")
+    X = _quiet(_gufuncs.solve, A, B, signature="dd->d")
     return X if math.isfinite(_total(X)) else None
 
 
@@ -162,12 +190,18 @@ def sqrt_psd(P: np.ndarray, tol: float = PSD_TOL):
     initial state) the eigen root ``U √w`` (any root serves sigma points and quadrature nodes);
     the identity where P is non-finite or has an eigenvalue below ``−tol·scale`` (``bad``: the
     caller poisons those paths, so that ``run`` raises or marks them)."""
-    with np.errstate(invalid="ignore", over="ignore", divide="ignore"):
-        L = _cholesky(P)
+    L, bad = psd_root(P, tol)
+    return L, (np.zeros(P.shape[:-2], bool) if bad is None else bad)
+
+
+def psd_root(P: np.ndarray, tol: float = PSD_TOL):
+    """:func:`sqrt_psd` with ``bad`` None where every path has its Cholesky factor (the node
+    rules' common case, without an all-False array to build and test)."""
+    L = _quiet(_cholesky, P)
     if math.isfinite(_total(L)):  # every factorization succeeded: np.linalg.cholesky's factor
-        return L, np.zeros(P.shape[:-2], bool)
+        return L, None
     try:
-        return np.linalg.cholesky(P), np.zeros(P.shape[:-2], bool)
+        return np.linalg.cholesky(P), None
     except np.linalg.LinAlgError:
         pass
     eye = np.eye(P.shape[-1])
@@ -180,7 +214,7 @@ def sqrt_psd(P: np.ndarray, tol: float = PSD_TOL):
         L = _cholesky(np.where(pd[..., None, None], safe, eye))  # the same factor as alone
     pd = pd & np.all(np.isfinite(L), axis=(-1, -2))  # eigh's λ_min > 0 but a pivot ≤ 0 (λ_min ~ eps): the root
     root = U * np.sqrt(np.maximum(w, 0.0))[..., None, :]
-    return np.where(pd[..., None, None], L, np.where(bad[..., None, None], eye, root)), bad
+    return np.where(pd[..., None, None], L, np.where(bad[..., None, None], eye, root)), (bad if bad.any() else None)
 
 
 def screened(run):
@@ -276,7 +310,7 @@ def gaussian_update(state: GaussianState, y: np.ndarray, y_pred: np.ndarray, S: 
                 K = np.swapaxes(np.linalg.solve(S, Ct), -1, -2)
             except np.linalg.LinAlgError:  # a (numerically) singular S on some path: poison those paths only
                 K, singular = _solve_paths(S, C)
-    mean = m + (K[..., 0] * e if e.shape[-1] == 1 else np.einsum("...ij,...j->...i", K, e))
+    mean = m + (K[..., 0] * e if e.shape[-1] == 1 else _einsum("...ij,...j->...i", K, e))
     Kt = K.swapaxes(-1, -2)
     if H is not None:  # Joseph form; K's missing columns are zero, so R's missing rows never enter
         IKH = _eye(m.shape[-1]) - mm(K, H)
