@@ -208,9 +208,12 @@ class Taylor2:
 
     def noise(self, model, m, P, t):
         """``E[G(x) V G(x)ᵀ]`` to second order (004 eqs. 13-14, 19; :func:`noise_covariance`)."""
+        if model.G_constant and not getattr(model, "_per_path_G", True):  # one G for every path: once, broadcast
+            G = model.G(np.zeros(model.n), t)  # (the same sums as over a batch of it)
+            return np.broadcast_to(_einsum("...ia,ab,...qb->...iq", G, model.Q, G), (*m.shape[:-1], model.n, model.n))
         G = model.G(m, t)
         if model.G_constant or not self.second:
-            return np.einsum("...ia,ab,...qb->...iq", G, model.Q, G)
+            return _einsum("...ia,ab,...qb->...iq", G, model.Q, G)
         return noise_covariance(P, model.Q, G, model.G_x(m, t), model.G_xx(m, t), gaussian=FORM_TABLE[self.form].gaussian_noise)
 
     def forcing(self, P, A):
