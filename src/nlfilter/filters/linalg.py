@@ -164,7 +164,8 @@ def _screen_ok(mean: np.ndarray, cov: np.ndarray, tol: float = PSD_TOL) -> bool:
     cov shifted by half the tolerance. Why it is never weaker: if that factorization succeeds, the
     symmetrized cov has no eigenvalue below ``−tol·d/2`` up to rounding (Cholesky is backward
     stable, error ≲ n³·eps·d ≪ tol·d/2 for n ≤ :data:`SCREEN_MAX_N`), and the exact test's
-    threshold ``−tol·scale ≤ −tol·d`` lies below that. A PSD-but-singular cov (a known state
+    threshold ``−tol·scale ≤ −tol·d`` lies below that; a factorization of A itself, tried first,
+    says more still (no eigenvalue below ``−n³·eps·d``). A PSD-but-singular cov (a known state
     component) becomes positive definite with the shift, so it passes as it does the exact test.
     False (some path may fail, the sum overflowed, or n is too large): the exact test decides.
     Called with NumPy's invalid/overflow warnings off (the run loop's errstate, :func:`bad_paths`'):
@@ -174,6 +175,8 @@ def _screen_ok(mean: np.ndarray, cov: np.ndarray, tol: float = PSD_TOL) -> bool:
     if n > SCREEN_MAX_N:
         return False
     A = cov + cov.swapaxes(-1, -2)
+    if math.isfinite(_sum(_cholesky(A), axis=None) + _total(mean)):  # A itself positive definite: the stronger
+        return True  # statement (the common case: no shift to build; a singular cov needs the shift below)
     d = A.reshape(*A.shape[:-2], n * n)[..., ::n + 1]  # A's diagonal (2 cov_ii), a view: shifted in place
     if d.size == n:  # one path: its shift a number (max(2, nan) is 2 where np.maximum is NaN: A has the NaN)
         d += (0.5 * tol) * max(2.0, _max(d, axis=None))
