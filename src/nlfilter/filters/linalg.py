@@ -281,6 +281,11 @@ def gaussian_update(state: GaussianState, y: np.ndarray, y_pred: np.ndarray, S: 
     Paths whose ``S`` is singular come back as NaN (:func:`poison`: ``run`` raises or marks them).
     """
     m, P = state
+    if m.shape == y.shape == _ONE and S.shape == C.shape == P.shape == _ONE3 and y_pred.size == 1 and (
+            H is None or (H.shape == _ONE3 and R.size == 1 and R.ndim <= 3)):  # one scalar trajectory
+        new = _scalar_update(m, P, y, y_pred, S, C, H, R)
+        if new is not None:
+            return new
     # a NaN anywhere makes the sum NaN: one reduction screens the common complete case
     miss = np.isnan(y) if math.isnan(_total(y)) else None
     if miss is not None and miss.any():
@@ -321,6 +326,29 @@ def gaussian_update(state: GaussianState, y: np.ndarray, y_pred: np.ndarray, S: 
     else:
         cov = P - mm(mm(K, S), Kt)
     return poison(GaussianState(mean, symmetrize(cov)), singular)
+
+
+_ONE, _ONE3 = (1, 1), (1, 1, 1)
+
+
+def _scalar_update(m, P, y, y_pred, S, C, H, R):
+    """:func:`gaussian_update` of one path with a scalar state and measurement (a single scalar
+    trajectory): the same operations, in the same order, on Python floats (IEEE doubles, as
+    NumPy's float64), a missing y masked as there (C = 0, S = 1, H = 0, innovation 0); None for
+    S = 0 (a Python float division raises where NumPy's gives inf or NaN: the array path)."""
+    y_, s_ = y.item(), S.item()
+    if math.isnan(y_):
+        c_, s_, h_, e_ = 0.0, 1.0, 0.0, 0.0
+    elif s_ == 0.0:
+        return None
+    else:
+        c_, h_, e_ = C.item(), (None if H is None else H.item()), y_ - y_pred.item()
+    K = c_ / s_
+    mean = np.array([[m.item() + K * e_]])
+    if H is not None:  # Joseph form (1 − K H)² P + K² R
+        IKH = 1.0 - K * h_
+        return GaussianState(mean, np.array([[[IKH * IKH * P.item() + K * K * R.item()]]]))
+    return GaussianState(mean, np.array([[[P.item() - K * K * s_]]]))
 
 
 def observed_precision(R: np.ndarray, Rinv: np.ndarray, obs: np.ndarray) -> np.ndarray:
