@@ -43,7 +43,7 @@ from ..angles import angles_of, near, residual, wrap_components
 from ..errors import DivergenceError
 from .base import GaussianState, ode_step
 from .beliefs import where_paths
-from .linalg import bad_paths, decorrelation, gaussian_update, mm, poison, symmetrize
+from .linalg import _einsum, bad_paths, decorrelation, gaussian_update, mm, poison, symmetrize
 from .contractions import hessian_trace
 from .smoothing import _solve_right
 
@@ -134,13 +134,13 @@ def _decorrelated(md, D, e):
 
     def f(X, t):
         e_h = residual(_lift(e, nb, X, 1), md.h(X, t), angles_of(md).measurements)  # e − h (angles wrapped)
-        return md.f(X, t) + np.einsum("...ij,...j->...i", _lift(D, nb, X, 2), e_h)
+        return md.f(X, t) + _einsum("...ij,...j->...i", _lift(D, nb, X, 2), e_h)
 
     def f_x(X, t):
         return md.f_x(X, t) - _lift(D, nb, X, 2) @ md.h_x(X, t)
 
     def f_xx(X, t):
-        return md.f_xx(X, t) - np.einsum("...ij,...jkl->...ikl", _lift(D, nb, X, 2), md.h_xx(X, t))
+        return md.f_xx(X, t) - _einsum("...ij,...jkl->...ikl", _lift(D, nb, X, 2), md.h_xx(X, t))
 
     return f, f_x, f_xx
 
@@ -222,7 +222,7 @@ def condition(rule, model, belief, y, t, R=None):
         e = np.where(miss, 0.0, y - mo.mean)
         Sm = np.where(miss[..., :, None] | miss[..., None, :], np.eye(S.shape[-1]), S)
         u = np.linalg.solve(Sm, e[..., None])[..., 0]
-        new = GaussianState(new.mean, symmetrize(new.cov + np.einsum("...ijk,...k->...ij", mo.forcing, u)))
+        new = GaussianState(new.mean, symmetrize(new.cov + _einsum("...ijk,...k->...ij", mo.forcing, u)))
     if ang.states:
         new = GaussianState(wrap_components(new.mean, ang.states), new.cov)
     return new, bad, (mo.mean, S)
@@ -280,7 +280,7 @@ def ito_gain(rule, model, m, P, t, obs, Rinv, *, measure: bool = True):
             hhat = hhat + 0.5 * hessian_trace(P, h_xx)  # 004 eq. 35
         M = rule.forcing(P, h_xx)
         if M is not None:
-            M = np.einsum("...ijk,...kl->...ijl", M * obs[..., None, None, :], Rinv)  # M R⁻¹
+            M = _einsum("...ijk,...kl->...ijl", M * obs[..., None, None, :], Rinv)  # M R⁻¹
     return K, PHt, (hhat * obs if measure else None), M
 
 
@@ -290,13 +290,13 @@ def ito_rhs(rule, model, m, P, t, obs, Rinv):
     (:func:`ito_gain`; ``K R Kᵀ = K (P Hᵀ)ᵀ``)."""
     F = model.f_x(m, t)
     K, PHt, hhat, M = ito_gain(rule, model, m, P, t, obs, Rinv)
-    dm = model.f(m, t) - np.einsum("...ij,...j->...i", K, hhat)
+    dm = model.f(m, t) - _einsum("...ij,...j->...i", K, hhat)
     if rule.second:
         dm = dm + 0.5 * hessian_trace(P, model.f_xx(m, t))  # 004 eq. 35, drift part
     FP = mm(F, P)
     dP = FP + FP.swapaxes(-1, -2) + rule.noise(model, m, P, t) - mm(K, PHt.swapaxes(-1, -2))
     if M is not None:
-        dP = dP - np.einsum("...ijk,...k->...ij", M, hhat)  # forcing term, its dt part
+        dP = dP - _einsum("...ijk,...k->...ij", M, hhat)  # forcing term, its dt part
     return dm, dP
 
 
@@ -326,7 +326,7 @@ def iterated_update(model, state, y, t, iterations: int, tol: float, *, info: bo
         H = md.h_x(x, t)
         C = mm(P, H.swapaxes(-1, -2))
         S = mm(H, C) + R
-        y_pred = md.h(x, t) if at_mean else md.h(x, t) + np.einsum("...ij,...j->...i", H, residual(m, x, ang.states))
+        y_pred = md.h(x, t) if at_mean else md.h(x, t) + _einsum("...ij,...j->...i", H, residual(m, x, ang.states))
         y_pred = near(y_pred, y, ang.measurements)  # angles: the wrapped innovation
         if at_mean:
             first.append((y_pred, S))
