@@ -209,8 +209,8 @@ class Taylor2:
     def noise(self, model, m, P, t):
         """``E[G(x) V G(x)ᵀ]`` to second order (004 eqs. 13-14, 19; :func:`noise_covariance`)."""
         if model.G_constant and not getattr(model, "_per_path_G", True):  # one G for every path: once, broadcast
-            G = model.G(np.zeros(model.n), t)  # (the same sums as over a batch of it)
-            return np.broadcast_to(_einsum("...ia,ab,...qb->...iq", G, model.Q, G), (*m.shape[:-1], model.n, model.n))
+            return np.broadcast_to(_einsum("...ia,ab,...qb->...iq", G := model.G(np.zeros(model.n), t), model.Q, G),
+                                   (*m.shape[:-1], model.n, model.n))  # (the same sums as over a batch of it)
         G = model.G(m, t)
         if model.G_constant or not self.second:
             return _einsum("...ia,ab,...qb->...iq", G, model.Q, G)
@@ -308,12 +308,8 @@ class NodeRule:
         """As :meth:`Taylor1.moments` (``jac``, ``hess``, ``role`` are not used); the ``angles``
         components of g averaged by the circular weighted mean, their deviations wrapped."""
         m, P = state
-        if type(self).nodes is NodeRule.nodes:  # the points of the square root (bad: None when P has one everywhere)
-            L, bad = psd_root(P)
-            X, w, wc = self.points(m, L)
-        else:  # a rule with nodes of its own
-            X, w, wc, bad = self.nodes(m, P)
-            bad = bad if bad.any() else None
+        L, bad = psd_root(P) if type(self).nodes is NodeRule.nodes else (None, None)  # bad None: a root everywhere
+        X, w, wc, bad = (*self.points(m, L), bad) if L is not None else self.nodes(m, P)  # (or a rule's own nodes)
         GX = g(X, t)
         mean, D = node_moments(GX, w, angles)  # Σ w_i g(X_i), g_i − ĝ (angles: circular, wrapped)
         if m.shape[-1] < 4:  # small states: the einsums cost little (and keep their rounding)
@@ -327,7 +323,7 @@ class NodeRule:
         if noise_of is not None:  # E[G Q Gᵀ]: G Q Gᵀ for constant G, else Σ w_i G(X_i) Q G(X_i)ᵀ
             Q = (noise_of.GQGT(m, t) if noise_of.G_constant
                  else _einsum("i,...iab->...ab", w, noise_of.GQGT(X, t)))
-        return GaussMoments(mean, C, S, None, bad, Q)
+        return GaussMoments(mean, C, S, None, None if bad is None or not bad.any() else bad, Q)
 
 
 def sigma_points(m, P, alpha, beta, kappa):

@@ -35,6 +35,7 @@ decorrelation, then the fourth-moment term, then the symmetrization.
 
 from __future__ import annotations
 
+import math
 from typing import NamedTuple
 
 import numpy as np
@@ -43,7 +44,8 @@ from ..angles import angles_of, near, residual, wrap_components
 from ..errors import DivergenceError
 from .base import GaussianState, ode_step
 from .beliefs import where_paths
-from .linalg import _einsum, bad_paths, decorrelation, gaussian_update, mm, poison, symmetrize
+from .linalg import (SCREEN_MAX_N, _cholesky, _einsum, _quiet, _total, bad_paths, decorrelation, gaussian_update, mm,
+                     poison, symmetrize)
 from .contractions import hessian_trace
 from .smoothing import _solve_right
 
@@ -183,10 +185,22 @@ def predict(rule, model, belief, t, *, decorrelation=None, cross: bool = False):
 
 
 def _pd_mask(S):
-    """Boolean ``(...)``: innovation covariances that are not positive definite."""
-    if S.shape[-1] == 1:
+    """Boolean ``(...)``: innovation covariances whose symmetrized eigenvalues (``eigvalsh``) are
+    not all positive. A batch of at most 64 x 64 matrices is first cleared in one call when every
+    ``sym(S) − δ I``, ``δ = 1e-8 m max_i S_ii`` (per path), has a Cholesky factor: then λ_min > δ
+    less the factorization's backward error (≲ m³ eps max_i S_ii), and eigvalsh, backward stable,
+    finds every eigenvalue positive (a non-positive or NaN diagonal fails the factorization)."""
+    m = S.shape[-1]
+    if m == 1:
         return ~(S[..., 0, 0] > 0)
-    return ~np.all(np.linalg.eigvalsh(symmetrize(S)) > 0, axis=-1)
+    Ss = symmetrize(S)
+    if m <= SCREEN_MAX_N:
+        A = Ss.copy()
+        d = A.reshape(*A.shape[:-2], m * m)[..., ::m + 1]  # A's diagonal, a view
+        d -= (1e-8 * m) * np.maximum.reduce(d, axis=-1)[..., None]
+        if math.isfinite(_total(_quiet(_cholesky, A))):
+            return np.zeros(S.shape[:-2], bool)
+    return ~np.all(np.linalg.eigvalsh(Ss) > 0, axis=-1)
 
 
 def condition(rule, model, belief, y, t, R=None):
@@ -213,9 +227,9 @@ def condition(rule, model, belief, y, t, R=None):
     bad = mo.bad
     if rule.screen:
         nd = _pd_mask(S)
-        if nd.any():  # keep the algebra finite; these paths are reported as diverged
+        if nd.any():  # keep the algebra finite; these paths are reported as diverged (none: bad stays None,
             S = np.where(nd[..., None, None], np.eye(S.shape[-1]) * np.abs(S).max(initial=1.0) + R, S)
-        bad = nd if bad is None else bad | nd
+            bad = nd if bad is None else bad | nd  # and the run loop's check takes its one-call screen)
     new = gaussian_update(state, y, mo.mean, S, mo.cross, H=mo.jac, R=R)  # R is read with H only
     if mo.forcing is not None:  # P⁺ += Σ_k M_k [S⁻¹(y − ŷ)]_k
         miss = np.isnan(y)
