@@ -9,8 +9,7 @@ import pytest
 import sympy as sp
 
 from nlfilter import DiscreteModel
-from nlfilter.filters import EKF, SecondOrderFilter
-from nlfilter.filters import recorder
+from nlfilter.filters import EKF, SecondOrderFilter, recorder
 from nlfilter.filters.beliefs import GaussianState
 from nlfilter.filters.linalg import gaussian_update, symmetrize
 from nlfilter.filters.skeleton import _pd_mask
