@@ -142,10 +142,11 @@ class Batched:
         return self._eval(x, t)
 
     def _scalar_safe(self) -> bool:
-        """Whether the kernel gives the same numbers on NumPy scalars as on arrays of one entry:
-        no parameters, and no ``**`` (a scalar's power is C ``pow``, an array's NumPy's own loop,
-        which differ in the last bit; the four operations and the ufunc calls, ``sin``, ``exp``,
-        ..., are the same loops on both)."""
+        """Whether the kernel gives the same numbers on Python floats (NumPy scalars where Python
+        raises) as on arrays of one entry: no parameters, and no ``**`` (a scalar's power is C
+        ``pow``, an array's NumPy's own loop, which differ in the last bit; the four operations,
+        ``%``, ``//`` are IEEE's or NumPy's Python rule on both, and the ufunc calls, ``sin``,
+        ``exp``, ..., the same loops)."""
         kn = self.kernel
         ok = not kn.params and not any(i.opname.startswith("BINARY") and "**" in i.argrepr
                                        for i in dis.get_instructions(kn.fn))
@@ -156,9 +157,13 @@ class Batched:
         batch = x.shape[:-1]
         kn = self.kernel
         if x.size == kn.n and (self._scalar if self._scalar is not None else self._scalar_safe()):
-            # one state (a single trajectory): its entries as NumPy scalars, ~5x cheaper than arrays
-            # of one entry for the same numbers (_scalar_safe)
-            vals = kn.fn(*x.reshape(-1), np.float64(t))
+            # one state (a single trajectory): its entries as Python floats, ~5x cheaper than arrays of
+            # one entry for the same numbers (_scalar_safe); where Python raises (x/0, 0/0) and NumPy
+            # gives inf or NaN, as NumPy scalars
+            try:
+                vals = kn.fn(*x.reshape(-1).tolist(), float(t))
+            except ZeroDivisionError:
+                vals = kn.fn(*x.reshape(-1), np.float64(t))
             return np.array(vals, dtype=float).reshape(*batch, *self.shape)
         extra = [self.values.at(p, t, batch) for p in kn.params] if kn.params else ()
         vals = kn.fn(*(x[..., i] for i in range(kn.n)), np.float64(t), *extra)
