@@ -34,7 +34,7 @@ except ImportError:  # pragma: no cover - a NumPy without them: np.errstate
 
 PSD_TOL = 1e-9
 _F8 = np.dtype(float)
-_QUIET = [None, None]  # (the error state it was made from, that state with over/invalid/divide ignored)
+_QUIET = (None, None)  # (the error state it was made from, that state with over/invalid/divide ignored)
 
 
 def _quiet(fn, *args, **kwargs):
@@ -44,10 +44,11 @@ def _quiet(fn, *args, **kwargs):
     if _extobj_contextvar is None:  # pragma: no cover
         with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
             return fn(*args, **kwargs)
-    cur = _extobj_contextvar.get()
-    if _QUIET[0] is not cur:
-        _QUIET[:] = cur, _make_extobj(over="ignore", invalid="ignore", divide="ignore")
-    token = _extobj_contextvar.set(_QUIET[1])
+    global _QUIET
+    cur, q = _extobj_contextvar.get(), _QUIET  # one pair, read and replaced whole (threads)
+    if q[0] is not cur:
+        q = _QUIET = (cur, _make_extobj(over="ignore", invalid="ignore", divide="ignore"))
+    token = _extobj_contextvar.set(q[1])
     try:
         return fn(*args, **kwargs)
     finally:
