@@ -209,8 +209,8 @@ class Taylor2:
     def noise(self, model, m, P, t):
         """``E[G(x) V G(x)ᵀ]`` to second order (004 eqs. 13-14, 19; :func:`noise_covariance`)."""
         if model.G_constant and not getattr(model, "_per_path_G", True):  # one G for every path: once, broadcast
-            return np.broadcast_to(_einsum("...ia,ab,...qb->...iq", G := model.G(np.zeros(model.n), t), model.Q, G),
-                                   (*m.shape[:-1], model.n, model.n))  # (the same sums as over a batch of it)
+            GQG = _einsum("...ia,ab,...qb->...iq", G := model.G(np.zeros(model.n), t), model.Q, G)  # (the same sums)
+            return np.ndarray((*m.shape[:-1], *GQG.shape), float, GQG, 0, (0,) * (m.ndim - 1) + GQG.strides)
         G = model.G(m, t)
         if model.G_constant or not self.second:
             return _einsum("...ia,ab,...qb->...iq", G, model.Q, G)
