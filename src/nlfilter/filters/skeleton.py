@@ -152,9 +152,7 @@ def as_gaussian(belief) -> GaussianState:
     return belief if type(belief) is GaussianState else GaussianState(belief[0], belief[1])
 
 
-def _plus(A, B):
-    """``A + B``, B an optional term of the rule (None: absent)."""
-    return A if B is None else A + B
+_NO_KW = {}  # the keywords of a rule's moments for a model without angles (never written)
 
 
 def predict(rule, model, belief, t, *, decorrelation=None, cross: bool = False):
@@ -170,12 +168,13 @@ def predict(rule, model, belief, t, *, decorrelation=None, cross: bool = False):
     if decorrelation is not None:  # correlated noise: the decorrelated dynamics f̃ (CrossNoise)
         D, e, sub = decorrelation
         f, f_x, f_xx = _decorrelated(md, D, e)
-    mo = rule.moments(as_gaussian(belief), f, t, jac=f_x, hess=f_xx, cross=cross, noise_of=md, role="dynamics",
-                      **_angles(angles_of(md).states))
+    idx = angles_of(md).states
+    mo = rule.moments(belief if type(belief) is GaussianState else as_gaussian(belief), f, t, jac=f_x, hess=f_xx,
+                      cross=cross, noise_of=md, role="dynamics", **({"angles": idx} if idx else _NO_KW))
     P = mo.cov + mo.noise  # P⁻ = Cov[f] + E[G Q Gᵀ]
     if sub is not None:  # Cov[w̃] = Q − S R⁻¹ Sᵀ
         P = P - sub
-    P = _plus(P, mo.quartic)
+    P = P if mo.quartic is None else P + mo.quartic
     if rule.symmetrize:
         P = symmetrize(P)
     new = GaussianState(mo.mean, P)
@@ -216,14 +215,15 @@ def condition(rule, model, belief, y, t, R=None):
     seed 004 eq. 17, see :mod:`nlfilter.filters.second_order`). The updated belief is not
     poisoned: the caller decides (a filter that raises, or :func:`~nlfilter.filters.linalg.poison`)."""
     md = model
-    state = as_gaussian(belief)
+    state = belief if type(belief) is GaussianState else as_gaussian(belief)
     if R is None:  # a state-dependent R(x) at the predicted mean (the EKF convention)
         R = md.R if getattr(md, "R_constant", True) else md.R_of(state.mean, t)
     ang = angles_of(md)
-    mo = rule.moments(state, md.h, t, jac=md.h_x, hess=md.h_xx, role="measurement", **_angles(ang.measurements))
+    mo = rule.moments(state, md.h, t, jac=md.h_x, hess=md.h_xx, role="measurement",
+                      **({"angles": ang.measurements} if ang.measurements else _NO_KW))
     if ang:  # angles: ŷ on the branch of y (the innovation y − ŷ wrapped, nlfilter.angles)
         mo = mo._replace(mean=near(mo.mean, y, ang.measurements))
-    S = _plus(mo.cov + R, mo.quartic)
+    S = mo.cov + R if mo.quartic is None else mo.cov + R + mo.quartic
     bad = mo.bad
     if rule.screen:
         nd = _pd_mask(S)
@@ -240,12 +240,6 @@ def condition(rule, model, belief, y, t, R=None):
     if ang.states:
         new = GaussianState(wrap_components(new.mean, ang.states), new.cov)
     return new, bad, (mo.mean, S)
-
-
-def _angles(idx):
-    """The ``angles=`` keyword of a rule's moments when ``idx`` declares angular components
-    (none: the call of a model without angles, unchanged)."""
-    return {"angles": idx} if idx else {}
 
 
 def moment_rhs(rule, model, m, P, t, C=None):
