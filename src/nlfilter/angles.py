@@ -34,6 +34,11 @@ from typing import NamedTuple
 
 import numpy as np
 
+try:  # np.einsum without ``optimize`` calls this, after its Python wrapper: the same numbers
+    from numpy._core._multiarray_umath import c_einsum as _einsum
+except ImportError:  # pragma: no cover
+    _einsum = np.einsum
+
 __all__ = ["Angles", "NO_ANGLES", "wrap", "wrap_components", "residual", "near", "circular_mean", "deviations", "angles_of",
            "node_moments", "mixture", "weighted_moments",
            "declare"]
@@ -162,7 +167,7 @@ def node_moments(GX, w, idx):
     ``w (N,)``: ``Σ w_i g_i`` and ``g_i − ĝ`` (the node rules' sums, unchanged without angles), the
     components ``idx`` by :func:`circular_mean` and wrapped deviations."""
     if not idx:
-        mean = np.einsum("i,...ij->...j", w, GX)  # Σ w_i g(X_i)
+        mean = _einsum("i,...ij->...j", w, GX)  # Σ w_i g(X_i)
         return mean, GX - mean[..., None, :]
     mean = circular_mean(GX, w, idx)
     return mean, deviations(GX, mean, idx)

@@ -13,6 +13,7 @@ derivatives and G's derivatives generated on their first call, once for a model 
 
 from __future__ import annotations
 
+import dis
 import weakref
 
 import numpy as np
@@ -29,7 +30,7 @@ class Kernel:
     :meth:`~nlfilter.models.Model.with_params` copy of a model."""
 
     @classmethod
-    def zeros(cls, shape, n: int) -> "Kernel":
+    def zeros(cls, shape, n: int) -> Kernel:
         """The kernel of an all-zero array (G's derivatives when G is free of the states), no SymPy."""
         self = cls.__new__(cls)
         self.shape, self.params, self.varies, self.const, self.n = tuple(shape), (), False, True, n
@@ -66,7 +67,7 @@ class LazyKernels:
         self._makers = {k: make for k, (_, make) in makers.items()}
         self.built = {}
 
-    def kernel(self, key) -> "Kernel":
+    def kernel(self, key) -> Kernel:
         kn = self.built.get(key)
         if kn is None:
             kn = self.built[key] = self._makers[key]()
@@ -92,7 +93,7 @@ class Lazy:
         self._model, self._fn = weakref.ref(model), None
 
     @property
-    def kernel(self) -> "Kernel":
+    def kernel(self) -> Kernel:
         return self.store.kernel(self.key)
 
     def __getstate__(self):  # pickled (e.g. to a Dask worker) without the weak back-reference
@@ -128,6 +129,7 @@ class Batched:
         self.kernel, self.values, self.shape = kernel, values, kernel.shape
         self._fixed = None
         self._tmpl = None  # the output's constant entries for the last batch shape (_eval)
+        self._scalar = None  # whether one state may be evaluated on NumPy scalars (_scalar_safe)
         if kernel.const:
             self._fixed = Broadcast(kernel.value)
         elif not kernel.varies and values.scalar(kernel.params):
@@ -139,9 +141,30 @@ class Batched:
             return self._fixed(x.shape[:-1])
         return self._eval(x, t)
 
+    def _scalar_safe(self) -> bool:
+        """Whether the kernel gives the same numbers on Python floats (NumPy scalars where Python
+        raises) as on arrays of one entry: no parameters, and no ``**`` (a scalar's power is C
+        ``pow``, an array's NumPy's own loop, which differ in the last bit; the four operations,
+        ``%``, ``//`` are IEEE's or NumPy's Python rule on both, and the ufunc calls, ``sin``,
+        ``exp``, ..., the same loops)."""
+        kn = self.kernel
+        ok = not kn.params and not any(i.opname.startswith("BINARY") and "**" in i.argrepr
+                                       for i in dis.get_instructions(kn.fn))
+        self._scalar = ok
+        return ok
+
     def _eval(self, x, t):
         batch = x.shape[:-1]
         kn = self.kernel
+        if x.size == kn.n and (self._scalar if self._scalar is not None else self._scalar_safe()):
+            # one state (a single trajectory): its entries as Python floats, ~5x cheaper than arrays of
+            # one entry for the same numbers (_scalar_safe); where Python raises (x/0, 0/0) and NumPy
+            # gives inf or NaN, as NumPy scalars
+            try:
+                vals = kn.fn(*x.reshape(-1).tolist(), float(t))
+            except ZeroDivisionError:
+                vals = kn.fn(*x.reshape(-1), np.float64(t))
+            return np.array(vals, dtype=float).reshape(*batch, *self.shape)
         extra = [self.values.at(p, t, batch) for p in kn.params] if kn.params else ()
         vals = kn.fn(*(x[..., i] for i in range(kn.n)), np.float64(t), *extra)
         if len(vals) == 1 and getattr(vals[0], "shape", None) == batch:  # one entry: a reshape, no copy

@@ -10,6 +10,11 @@ from __future__ import annotations
 
 import numpy as np
 
+try:  # np.einsum without ``optimize`` calls this, after its Python wrapper: the same numbers
+    from numpy._core._multiarray_umath import c_einsum as _einsum
+except ImportError:  # pragma: no cover
+    _einsum = np.einsum
+
 __all__ = ["hessian_trace", "quarter_outer", "gaussian_quartic", "noise_covariance"]
 
 
@@ -20,7 +25,7 @@ def hessian_trace(X: np.ndarray, A: np.ndarray) -> np.ndarray:
     >>> hessian_trace(np.eye(2), np.arange(8.0).reshape(2, 2, 2)).tolist()
     [3.0, 11.0]
     """
-    return np.einsum("...jl,...ijl->...i", X, A)  # i: output component, j,l: summed state indices
+    return _einsum("...jl,...ijl->...i", X, A)  # i: output component, j,l: summed state indices
 
 
 def quarter_outer(X: np.ndarray, A: np.ndarray) -> np.ndarray:
@@ -31,8 +36,8 @@ def quarter_outer(X: np.ndarray, A: np.ndarray) -> np.ndarray:
 
 def gaussian_quartic(X: np.ndarray, A: np.ndarray) -> np.ndarray:
     """``½ tr(A_i X A_j X)``: ``Cov[½δᵀA_iδ, ½δᵀA_jδ]`` for ``δ ~ N(0, X)``, ``(..., p, p)``."""
-    AX = np.einsum("...iab,...bc->...iac", A, X)  # (A_i X)_ac: i component, a,b,c state indices
-    return 0.5 * np.einsum("...iac,...jca->...ij", AX, AX)  # tr((A_i X)(A_j X)) over a, c
+    AX = _einsum("...iab,...bc->...iac", A, X)  # (A_i X)_ac: i component, a,b,c state indices
+    return 0.5 * _einsum("...iac,...jca->...ij", AX, AX)  # tr((A_i X)(A_j X)) over a, c
 
 
 def noise_covariance(X, V, G, G_x=None, G_xx=None, *, gaussian: bool = False) -> np.ndarray:

@@ -60,7 +60,7 @@ from ..angles import angles_of
 from .base import ContinuousFilter, DiscreteFilter, GaussianState, continuous_precision, set_start, set_t0
 from .fading import FadingMemory
 from .irregular import at_times, belief_time, check_length, interval
-from .linalg import innovation_info, observed_precision, poison, symmetrize
+from .linalg import _einsum, innovation_info, observed_precision, poison, symmetrize
 from .skeleton import (CrossNoise, MeasuredState, as_belief, as_gaussian, check_paths, condition, ito_gain, ito_rhs,
                        iterated_update, predict, propagate)
 from .smoothing import backward_steps, continuous_rts, rts
@@ -339,10 +339,10 @@ class ContinuousGaussianFilter(ContinuousFilter):
         Rinv = observed_precision(self.model.R, self._Rinv, obs)
         K, _, _, M = ito_gain(self.rule, self.model, m, P, t, obs, Rinv, measure=False)  # Itô: gain at the start
         new = self.integrate(self._drift(obs, Rinv), GaussianState(m, P), None, t)
-        mean = new.mean + np.einsum("...ij,...j->...i", K, dy0)
+        mean = new.mean + _einsum("...ij,...j->...i", K, dy0)
         cov = new.cov
         if M is not None:
-            cov = symmetrize(cov + np.einsum("...ijk,...k->...ij", M, dy0))
+            cov = symmetrize(cov + _einsum("...ijk,...k->...ij", M, dy0))
         return (GaussianState(mean, cov), None, out) if info else (GaussianState(mean, cov), None)
 
     def step(self, state, dy, t):

@@ -21,8 +21,38 @@ try:  # the gufuncs behind numpy.linalg: the same numbers without its Python wra
 except ImportError:  # pragma: no cover - a NumPy without them: the public functions
     _gufuncs = None
 
+try:  # np.einsum without ``optimize`` calls this, after its Python wrapper: the same numbers
+    from numpy._core._multiarray_umath import c_einsum as _einsum
+except ImportError:  # pragma: no cover
+    _einsum = np.einsum
+
+try:  # np.errstate's context variable, set and reset without its Python wrapper (µs a call)
+    from numpy._core._multiarray_umath import _make_extobj
+    from numpy._core._ufunc_config import _extobj_contextvar
+except ImportError:  # pragma: no cover - a NumPy without them: np.errstate
+    _extobj_contextvar = None
+
 PSD_TOL = 1e-9
 _F8 = np.dtype(float)
+_QUIET = (None, None)  # (the error state it was made from, that state with over/invalid/divide ignored)
+
+
+def _quiet(fn, *args, **kwargs):
+    """``fn(*args, **kwargs)`` with NumPy's overflow/invalid/divide warnings off, as under
+    ``np.errstate(over="ignore", invalid="ignore", divide="ignore")`` (the same state: made from
+    the current one, kept while that one is current)."""
+    if _extobj_contextvar is None:  # pragma: no cover
+        with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
+            return fn(*args, **kwargs)
+    global _QUIET
+    cur, q = _extobj_contextvar.get(), _QUIET  # one pair, read and replaced whole (threads)
+    if q[0] is not cur:
+        q = _QUIET = (cur, _make_extobj(over="ignore", invalid="ignore", divide="ignore"))
+    token = _extobj_contextvar.set(q[1])
+    try:
+        return fn(*args, **kwargs)
+    finally:
+        _extobj_contextvar.reset(token)
 
 
 def symmetrize(P: np.ndarray) -> np.ndarray:
@@ -31,7 +61,7 @@ def symmetrize(P: np.ndarray) -> np.ndarray:
     return 0.5 * (P + P.swapaxes(-1, -2))
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def _eye(n: int) -> np.ndarray:
     e = np.eye(n)
     e.flags.writeable = False
@@ -64,8 +94,7 @@ def _solve(A: np.ndarray, B: np.ndarray) -> np.ndarray | None:
     the same numbers, the same exceptions)."""
     if _gufuncs is None or A.dtype != _F8 or B.dtype != _F8:
         return None
-    with np.errstate(invalid="ignore", over="ignore", divide="ignore"):
-        X = _gufuncs.solve(A, B, signature="dd->d")
+    X = _quiet(_gufuncs.solve, A, B, signature="dd->d")
     return X if math.isfinite(_total(X)) else None
 
 
@@ -136,18 +165,27 @@ def _screen_ok(mean: np.ndarray, cov: np.ndarray, tol: float = PSD_TOL) -> bool:
     cov shifted by half the tolerance. Why it is never weaker: if that factorization succeeds, the
     symmetrized cov has no eigenvalue below ``−tol·d/2`` up to rounding (Cholesky is backward
     stable, error ≲ n³·eps·d ≪ tol·d/2 for n ≤ :data:`SCREEN_MAX_N`), and the exact test's
-    threshold ``−tol·scale ≤ −tol·d`` lies below that. A PSD-but-singular cov (a known state
+    threshold ``−tol·scale ≤ −tol·d`` lies below that; a factorization of A itself, tried first,
+    says more still (no eigenvalue below ``−n³·eps·d``). A PSD-but-singular cov (a known state
     component) becomes positive definite with the shift, so it passes as it does the exact test.
     False (some path may fail, the sum overflowed, or n is too large): the exact test decides.
     Called with NumPy's invalid/overflow warnings off (the run loop's errstate, :func:`bad_paths`'):
-    the factorization fails where its factor is NaN (:func:`_cholesky`; A is finite here)."""
+    the factorization fails where its factor is NaN (:func:`_cholesky`), and a non-finite cov
+    leaves a non-finite factor (NaN, or the inf it carried)."""
     n = cov.shape[-1]
-    if n > SCREEN_MAX_N or not math.isfinite(_total(cov) + _total(mean)):
+    if n > SCREEN_MAX_N:
         return False
     A = cov + cov.swapaxes(-1, -2)
-    shift = (0.5 * tol) * np.maximum(2.0, _max(A.diagonal(0, -2, -1), axis=-1))  # A's diagonal: 2 cov_ii
-    A += shift[..., None, None] * _eye(n)
-    return not math.isnan(_total(_cholesky(A)))
+    if math.isfinite(_sum(_cholesky(A), axis=None) + _total(mean)):  # A itself positive definite: the stronger
+        return True  # statement (the common case: no shift to build; a singular cov needs the shift below)
+    d = A.reshape(*A.shape[:-2], n * n)[..., ::n + 1]  # A's diagonal (2 cov_ii), a view: shifted in place
+    if d.size == n:  # one path: its shift a number (max(2, nan) is 2 where np.maximum is NaN: A has the NaN)
+        d += (0.5 * tol) * max(2.0, _max(d, axis=None))
+    else:
+        d += (0.5 * tol) * np.maximum(2.0, _max(d, axis=-1))[..., None]
+    # a NaN or inf in cov (A's lower triangle: A is symmetric) or mean leaves a non-finite sum: no
+    # separate test of cov (a factor whose sum overflows defers to the exact test, as ever)
+    return math.isfinite(_sum(_cholesky(A), axis=None) + _total(mean))
 
 
 def sqrt_psd(P: np.ndarray, tol: float = PSD_TOL):
@@ -156,12 +194,18 @@ def sqrt_psd(P: np.ndarray, tol: float = PSD_TOL):
     initial state) the eigen root ``U √w`` (any root serves sigma points and quadrature nodes);
     the identity where P is non-finite or has an eigenvalue below ``−tol·scale`` (``bad``: the
     caller poisons those paths, so that ``run`` raises or marks them)."""
-    with np.errstate(invalid="ignore", over="ignore", divide="ignore"):
-        L = _cholesky(P)
+    L, bad = psd_root(P, tol)
+    return L, (np.zeros(P.shape[:-2], bool) if bad is None else bad)
+
+
+def psd_root(P: np.ndarray, tol: float = PSD_TOL):
+    """:func:`sqrt_psd` with ``bad`` None where every path has its Cholesky factor (the node
+    rules' common case, without an all-False array to build and test)."""
+    L = _quiet(_cholesky, P)
     if math.isfinite(_total(L)):  # every factorization succeeded: np.linalg.cholesky's factor
-        return L, np.zeros(P.shape[:-2], bool)
+        return L, None
     try:
-        return np.linalg.cholesky(P), np.zeros(P.shape[:-2], bool)
+        return np.linalg.cholesky(P), None
     except np.linalg.LinAlgError:
         pass
     eye = np.eye(P.shape[-1])
@@ -174,7 +218,7 @@ def sqrt_psd(P: np.ndarray, tol: float = PSD_TOL):
         L = _cholesky(np.where(pd[..., None, None], safe, eye))  # the same factor as alone
     pd = pd & np.all(np.isfinite(L), axis=(-1, -2))  # eigh's λ_min > 0 but a pivot ≤ 0 (λ_min ~ eps): the root
     root = U * np.sqrt(np.maximum(w, 0.0))[..., None, :]
-    return np.where(pd[..., None, None], L, np.where(bad[..., None, None], eye, root)), bad
+    return np.where(pd[..., None, None], L, np.where(bad[..., None, None], eye, root)), (bad if bad.any() else None)
 
 
 def screened(run):
@@ -238,6 +282,11 @@ def gaussian_update(state: GaussianState, y: np.ndarray, y_pred: np.ndarray, S: 
     Paths whose ``S`` is singular come back as NaN (:func:`poison`: ``run`` raises or marks them).
     """
     m, P = state
+    if m.shape == y.shape == _ONE and S.shape == C.shape == P.shape == _ONE3 and y_pred.size == 1 and (
+            H is None or (H.shape == _ONE3 and R.size == 1 and R.ndim <= 3)):  # one scalar trajectory
+        new = _scalar_update(m, P, y, y_pred, S, C, H, R)
+        if new is not None:
+            return new
     # a NaN anywhere makes the sum NaN: one reduction screens the common complete case
     miss = np.isnan(y) if math.isnan(_total(y)) else None
     if miss is not None and miss.any():
@@ -270,7 +319,7 @@ def gaussian_update(state: GaussianState, y: np.ndarray, y_pred: np.ndarray, S: 
                 K = np.swapaxes(np.linalg.solve(S, Ct), -1, -2)
             except np.linalg.LinAlgError:  # a (numerically) singular S on some path: poison those paths only
                 K, singular = _solve_paths(S, C)
-    mean = m + (K[..., 0] * e if e.shape[-1] == 1 else np.einsum("...ij,...j->...i", K, e))
+    mean = m + (K[..., 0] * e if e.shape[-1] == 1 else _einsum("...ij,...j->...i", K, e))
     Kt = K.swapaxes(-1, -2)
     if H is not None:  # Joseph form; K's missing columns are zero, so R's missing rows never enter
         IKH = _eye(m.shape[-1]) - mm(K, H)
@@ -278,6 +327,29 @@ def gaussian_update(state: GaussianState, y: np.ndarray, y_pred: np.ndarray, S: 
     else:
         cov = P - mm(mm(K, S), Kt)
     return poison(GaussianState(mean, symmetrize(cov)), singular)
+
+
+_ONE, _ONE3 = (1, 1), (1, 1, 1)
+
+
+def _scalar_update(m, P, y, y_pred, S, C, H, R):
+    """:func:`gaussian_update` of one path with a scalar state and measurement (a single scalar
+    trajectory): the same operations, in the same order, on Python floats (IEEE doubles, as
+    NumPy's float64), a missing y masked as there (C = 0, S = 1, H = 0, innovation 0); None for
+    S = 0 (a Python float division raises where NumPy's gives inf or NaN: the array path)."""
+    y_, s_ = y.item(), S.item()
+    if math.isnan(y_):
+        c_, s_, h_, e_ = 0.0, 1.0, 0.0, 0.0
+    elif s_ == 0.0:
+        return None
+    else:
+        c_, h_, e_ = C.item(), (None if H is None else H.item()), y_ - y_pred.item()
+    K = c_ / s_
+    mean = np.array([[m.item() + K * e_]])
+    if H is not None:  # Joseph form (1 − K H)² P + K² R
+        IKH = 1.0 - K * h_
+        return GaussianState(mean, np.array([[[IKH * IKH * P.item() + K * K * R.item()]]]))
+    return GaussianState(mean, np.array([[[P.item() - K * K * s_]]]))
 
 
 def observed_precision(R: np.ndarray, Rinv: np.ndarray, obs: np.ndarray) -> np.ndarray:

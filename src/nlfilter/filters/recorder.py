@@ -27,6 +27,10 @@ def loglik_divergence(name: str, k: int, idx) -> DivergenceError:
         "(extras['loglik_failed']) and go on", step=k, paths=idx, what="loglik")
 
 
+#: a batch's outputs are written through a time-major buffer of at most this many steps and bytes
+CHUNK_STEPS, CHUNK_BYTES = 64, 1 << 21
+
+
 class Recorder:
     """Bookkeeping of :meth:`~nlfilter.filters.base.Filter.run`: output arrays (path-major ``(B, T, ...)`` while filling,
     the layout of the result: no transposing copy at the end), the divergence check after each
@@ -41,18 +45,20 @@ class Recorder:
         self.diverged = np.zeros(B, dtype=bool)
         self.step = np.full(B, -1)
         self.any_diverged = False
+        self._chunk, self._buffers, self._k0 = 1, {}, 0  # the time-major buffer of a batch (_put)
 
     def _store(self, k, mean, cov, belief, d=None, info=None):
         if self.means is None:
             n = mean.shape[-1]
             self.means = np.empty((self.B, self.T, n))
             self.covs = np.empty((self.B, self.T, n, n))
+            self._chunk = min(CHUNK_STEPS, CHUNK_BYTES // (8 * self.B * (n + n * n))) if self.B > 1 else 1
         if d is None:
-            self.means[:, k] = mean
-            self.covs[:, k] = np.nan if cov is None else cov
+            self._put(k, "means", self.means, mean)
+            self._put(k, "covs", self.covs, np.nan if cov is None else cov)
         else:
-            self.means[:, k] = np.where(d[:, None], np.nan, mean)
-            self.covs[:, k] = np.nan if cov is None else np.where(d[:, None, None], np.nan, cov)
+            self._put(k, "means", self.means, np.where(d[:, None], np.nan, mean))
+            self._put(k, "covs", self.covs, np.nan if cov is None else np.where(d[:, None, None], np.nan, cov))
         ex = self.flt.extras(belief)
         if info is not None:
             ex = {**(ex or {}), **info}
@@ -63,7 +69,28 @@ class Recorder:
                     v = np.where(d.reshape(-1, *(1,) * (v.ndim - 1)), np.nan, v)
                 if name not in self.extras:
                     self.extras[name] = np.empty((v.shape[0], self.T, *v.shape[1:]), v.dtype)
-                self.extras[name][:, k] = v
+                self._put(k, name, self.extras[name], v)
+        if self._buffers and (k + 1 - self._k0 == self._chunk or k == self.T - 1):
+            self._flush(k)
+
+    def _put(self, k, name, out, v):
+        """Step ``k`` of the output ``out (B, T, ...)``: written in place, or, for a batch of paths, into a
+        time-major buffer of ``_chunk`` steps (contiguous writes) copied into ``out`` by :meth:`_flush`
+        (a path-major column written step by step strides over the whole output: twice the time)."""
+        if self._chunk <= 1:
+            out[:, k] = v
+            return
+        buf = self._buffers.get(name)
+        if buf is None:
+            buf = self._buffers[name] = (np.empty((self._chunk, *out.shape[:1], *out.shape[2:]), out.dtype), out, k)
+        buf[0][k - self._k0] = v
+
+    def _flush(self, k):
+        """The buffered steps ``_k0..k`` into the outputs."""
+        for buf, out, first in self._buffers.values():
+            out[:, first:k + 1] = buf[first - self._k0:k + 1 - self._k0].swapaxes(0, 1)
+        self._buffers = {}
+        self._k0 = k + 1
 
     def record(self, k, belief, bad, start, *, write: bool = True, info=None):
         """Check step ``k``'s belief (raise or mark), write its summary (and the step's likelihood

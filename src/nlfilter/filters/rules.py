@@ -69,7 +69,7 @@ from .. import _validate as V
 from ..angles import node_moments, wrap_components
 from ..moments.quadrature import MAX_ENTRIES, cubature5_rule, gauss_hermite_rule
 from .contractions import gaussian_quartic, hessian_trace, noise_covariance, quarter_outer  # (re-exported)
-from .linalg import axis_gather, mm, sqrt_psd
+from .linalg import _einsum, axis_gather, mm, psd_root, sqrt_psd
 
 __all__ = ["GaussMoments", "Taylor1", "Taylor2", "FORMS", "Form", "FORM_TABLE", "Unscented", "Cubature", "GaussHermite", "NodeRule",
            "sigma_points", "hessian_trace", "quarter_outer", "gaussian_quartic", "noise_covariance"]
@@ -208,9 +208,12 @@ class Taylor2:
 
     def noise(self, model, m, P, t):
         """``E[G(x) V G(x)ᵀ]`` to second order (004 eqs. 13-14, 19; :func:`noise_covariance`)."""
+        if model.G_constant and not getattr(model, "_per_path_G", True):  # one G for every path: once, broadcast
+            GQG = _einsum("...ia,ab,...qb->...iq", G := model.G(np.zeros(model.n), t), model.Q, G)  # (the same sums)
+            return np.ndarray((*m.shape[:-1], *GQG.shape), float, GQG, 0, (0,) * (m.ndim - 1) + GQG.strides)
         G = model.G(m, t)
         if model.G_constant or not self.second:
-            return np.einsum("...ia,ab,...qb->...iq", G, model.Q, G)
+            return _einsum("...ia,ab,...qb->...iq", G, model.Q, G)
         return noise_covariance(P, model.Q, G, model.G_x(m, t), model.G_xx(m, t), gaussian=FORM_TABLE[self.form].gaussian_noise)
 
     def forcing(self, P, A):
@@ -305,12 +308,13 @@ class NodeRule:
         """As :meth:`Taylor1.moments` (``jac``, ``hess``, ``role`` are not used); the ``angles``
         components of g averaged by the circular weighted mean, their deviations wrapped."""
         m, P = state
-        X, w, wc, bad = self.nodes(m, P)
+        L, bad = psd_root(P) if type(self).nodes is NodeRule.nodes else (None, None)  # bad None: a root everywhere
+        X, w, wc, bad = (*self.points(m, L), bad) if L is not None else self.nodes(m, P)  # (or a rule's own nodes)
         GX = g(X, t)
         mean, D = node_moments(GX, w, angles)  # Σ w_i g(X_i), g_i − ĝ (angles: circular, wrapped)
         if m.shape[-1] < 4:  # small states: the einsums cost little (and keep their rounding)
-            S = np.einsum("i,...ia,...ib->...ab", wc, D, D) if cov else None  # Σ wc_i (g_i − ĝ)(g_i − ĝ)ᵀ
-            C = np.einsum("i,...ia,...ib->...ab", wc, X - m[..., None, :], D) if cross else None
+            S = _einsum("i,...ia,...ib->...ab", wc, D, D) if cov else None  # Σ wc_i (g_i − ĝ)(g_i − ĝ)ᵀ
+            C = _einsum("i,...ia,...ib->...ab", wc, X - m[..., None, :], D) if cross else None
         else:  # batched matmuls Σ_i A_ia (wc_i D_ib): a three-operand einsum is a naive loop, 5-20x
             Dw = D * wc[:, None]  # slower from n = 4 (the sums differ from it by rounding only)
             S = D.swapaxes(-1, -2) @ Dw if cov else None
@@ -318,8 +322,8 @@ class NodeRule:
         Q = None
         if noise_of is not None:  # E[G Q Gᵀ]: G Q Gᵀ for constant G, else Σ w_i G(X_i) Q G(X_i)ᵀ
             Q = (noise_of.GQGT(m, t) if noise_of.G_constant
-                 else np.einsum("i,...iab->...ab", w, noise_of.GQGT(X, t)))
-        return GaussMoments(mean, C, S, None, bad if bad.any() else None, Q)
+                 else _einsum("i,...iab->...ab", w, noise_of.GQGT(X, t)))
+        return GaussMoments(mean, C, S, None, None if bad is None or not bad.any() else bad, Q)
 
 
 def sigma_points(m, P, alpha, beta, kappa):

@@ -35,6 +35,7 @@ decorrelation, then the fourth-moment term, then the symmetrization.
 
 from __future__ import annotations
 
+import math
 from typing import NamedTuple
 
 import numpy as np
@@ -43,7 +44,8 @@ from ..angles import angles_of, near, residual, wrap_components
 from ..errors import DivergenceError
 from .base import GaussianState, ode_step
 from .beliefs import where_paths
-from .linalg import bad_paths, decorrelation, gaussian_update, mm, poison, symmetrize
+from .linalg import (SCREEN_MAX_N, _cholesky, _einsum, _quiet, _total, bad_paths, decorrelation, gaussian_update, mm,
+                     poison, symmetrize)
 from .contractions import hessian_trace
 from .smoothing import _solve_right
 
@@ -134,13 +136,13 @@ def _decorrelated(md, D, e):
 
     def f(X, t):
         e_h = residual(_lift(e, nb, X, 1), md.h(X, t), angles_of(md).measurements)  # e − h (angles wrapped)
-        return md.f(X, t) + np.einsum("...ij,...j->...i", _lift(D, nb, X, 2), e_h)
+        return md.f(X, t) + _einsum("...ij,...j->...i", _lift(D, nb, X, 2), e_h)
 
     def f_x(X, t):
         return md.f_x(X, t) - _lift(D, nb, X, 2) @ md.h_x(X, t)
 
     def f_xx(X, t):
-        return md.f_xx(X, t) - np.einsum("...ij,...jkl->...ikl", _lift(D, nb, X, 2), md.h_xx(X, t))
+        return md.f_xx(X, t) - _einsum("...ij,...jkl->...ikl", _lift(D, nb, X, 2), md.h_xx(X, t))
 
     return f, f_x, f_xx
 
@@ -150,9 +152,7 @@ def as_gaussian(belief) -> GaussianState:
     return belief if type(belief) is GaussianState else GaussianState(belief[0], belief[1])
 
 
-def _plus(A, B):
-    """``A + B``, B an optional term of the rule (None: absent)."""
-    return A if B is None else A + B
+_NO_KW = {}  # the keywords of a rule's moments for a model without angles (never written)
 
 
 def predict(rule, model, belief, t, *, decorrelation=None, cross: bool = False):
@@ -168,12 +168,13 @@ def predict(rule, model, belief, t, *, decorrelation=None, cross: bool = False):
     if decorrelation is not None:  # correlated noise: the decorrelated dynamics f̃ (CrossNoise)
         D, e, sub = decorrelation
         f, f_x, f_xx = _decorrelated(md, D, e)
-    mo = rule.moments(as_gaussian(belief), f, t, jac=f_x, hess=f_xx, cross=cross, noise_of=md, role="dynamics",
-                      **_angles(angles_of(md).states))
+    idx = angles_of(md).states
+    mo = rule.moments(belief if type(belief) is GaussianState else as_gaussian(belief), f, t, jac=f_x, hess=f_xx,
+                      cross=cross, noise_of=md, role="dynamics", **({"angles": idx} if idx else _NO_KW))
     P = mo.cov + mo.noise  # P⁻ = Cov[f] + E[G Q Gᵀ]
     if sub is not None:  # Cov[w̃] = Q − S R⁻¹ Sᵀ
         P = P - sub
-    P = _plus(P, mo.quartic)
+    P = P if mo.quartic is None else P + mo.quartic
     if rule.symmetrize:
         P = symmetrize(P)
     new = GaussianState(mo.mean, P)
@@ -183,10 +184,22 @@ def predict(rule, model, belief, t, *, decorrelation=None, cross: bool = False):
 
 
 def _pd_mask(S):
-    """Boolean ``(...)``: innovation covariances that are not positive definite."""
-    if S.shape[-1] == 1:
+    """Boolean ``(...)``: innovation covariances whose symmetrized eigenvalues (``eigvalsh``) are
+    not all positive. A batch of at most 64 x 64 matrices is first cleared in one call when every
+    ``sym(S) − δ I``, ``δ = 1e-8 m max_i S_ii`` (per path), has a Cholesky factor: then λ_min > δ
+    less the factorization's backward error (≲ m³ eps max_i S_ii), and eigvalsh, backward stable,
+    finds every eigenvalue positive (a non-positive or NaN diagonal fails the factorization)."""
+    m = S.shape[-1]
+    if m == 1:
         return ~(S[..., 0, 0] > 0)
-    return ~np.all(np.linalg.eigvalsh(symmetrize(S)) > 0, axis=-1)
+    Ss = symmetrize(S)
+    if m <= SCREEN_MAX_N:
+        A = Ss.copy()
+        d = A.reshape(*A.shape[:-2], m * m)[..., ::m + 1]  # A's diagonal, a view
+        d -= (1e-8 * m) * np.maximum.reduce(d, axis=-1)[..., None]
+        if math.isfinite(_total(_quiet(_cholesky, A))):
+            return np.zeros(S.shape[:-2], bool)
+    return ~np.all(np.linalg.eigvalsh(Ss) > 0, axis=-1)
 
 
 def condition(rule, model, belief, y, t, R=None):
@@ -202,36 +215,31 @@ def condition(rule, model, belief, y, t, R=None):
     seed 004 eq. 17, see :mod:`nlfilter.filters.second_order`). The updated belief is not
     poisoned: the caller decides (a filter that raises, or :func:`~nlfilter.filters.linalg.poison`)."""
     md = model
-    state = as_gaussian(belief)
+    state = belief if type(belief) is GaussianState else as_gaussian(belief)
     if R is None:  # a state-dependent R(x) at the predicted mean (the EKF convention)
         R = md.R if getattr(md, "R_constant", True) else md.R_of(state.mean, t)
     ang = angles_of(md)
-    mo = rule.moments(state, md.h, t, jac=md.h_x, hess=md.h_xx, role="measurement", **_angles(ang.measurements))
+    mo = rule.moments(state, md.h, t, jac=md.h_x, hess=md.h_xx, role="measurement",
+                      **({"angles": ang.measurements} if ang.measurements else _NO_KW))
     if ang:  # angles: ŷ on the branch of y (the innovation y − ŷ wrapped, nlfilter.angles)
         mo = mo._replace(mean=near(mo.mean, y, ang.measurements))
-    S = _plus(mo.cov + R, mo.quartic)
+    S = mo.cov + R if mo.quartic is None else mo.cov + R + mo.quartic
     bad = mo.bad
     if rule.screen:
         nd = _pd_mask(S)
-        if nd.any():  # keep the algebra finite; these paths are reported as diverged
+        if nd.any():  # keep the algebra finite; these paths are reported as diverged (none: bad stays None,
             S = np.where(nd[..., None, None], np.eye(S.shape[-1]) * np.abs(S).max(initial=1.0) + R, S)
-        bad = nd if bad is None else bad | nd
+            bad = nd if bad is None else bad | nd  # and the run loop's check takes its one-call screen)
     new = gaussian_update(state, y, mo.mean, S, mo.cross, H=mo.jac, R=R)  # R is read with H only
     if mo.forcing is not None:  # P⁺ += Σ_k M_k [S⁻¹(y − ŷ)]_k
         miss = np.isnan(y)
         e = np.where(miss, 0.0, y - mo.mean)
         Sm = np.where(miss[..., :, None] | miss[..., None, :], np.eye(S.shape[-1]), S)
         u = np.linalg.solve(Sm, e[..., None])[..., 0]
-        new = GaussianState(new.mean, symmetrize(new.cov + np.einsum("...ijk,...k->...ij", mo.forcing, u)))
+        new = GaussianState(new.mean, symmetrize(new.cov + _einsum("...ijk,...k->...ij", mo.forcing, u)))
     if ang.states:
         new = GaussianState(wrap_components(new.mean, ang.states), new.cov)
     return new, bad, (mo.mean, S)
-
-
-def _angles(idx):
-    """The ``angles=`` keyword of a rule's moments when ``idx`` declares angular components
-    (none: the call of a model without angles, unchanged)."""
-    return {"angles": idx} if idx else {}
 
 
 def moment_rhs(rule, model, m, P, t, C=None):
@@ -280,7 +288,7 @@ def ito_gain(rule, model, m, P, t, obs, Rinv, *, measure: bool = True):
             hhat = hhat + 0.5 * hessian_trace(P, h_xx)  # 004 eq. 35
         M = rule.forcing(P, h_xx)
         if M is not None:
-            M = np.einsum("...ijk,...kl->...ijl", M * obs[..., None, None, :], Rinv)  # M R⁻¹
+            M = _einsum("...ijk,...kl->...ijl", M * obs[..., None, None, :], Rinv)  # M R⁻¹
     return K, PHt, (hhat * obs if measure else None), M
 
 
@@ -290,13 +298,13 @@ def ito_rhs(rule, model, m, P, t, obs, Rinv):
     (:func:`ito_gain`; ``K R Kᵀ = K (P Hᵀ)ᵀ``)."""
     F = model.f_x(m, t)
     K, PHt, hhat, M = ito_gain(rule, model, m, P, t, obs, Rinv)
-    dm = model.f(m, t) - np.einsum("...ij,...j->...i", K, hhat)
+    dm = model.f(m, t) - _einsum("...ij,...j->...i", K, hhat)
     if rule.second:
         dm = dm + 0.5 * hessian_trace(P, model.f_xx(m, t))  # 004 eq. 35, drift part
     FP = mm(F, P)
     dP = FP + FP.swapaxes(-1, -2) + rule.noise(model, m, P, t) - mm(K, PHt.swapaxes(-1, -2))
     if M is not None:
-        dP = dP - np.einsum("...ijk,...k->...ij", M, hhat)  # forcing term, its dt part
+        dP = dP - _einsum("...ijk,...k->...ij", M, hhat)  # forcing term, its dt part
     return dm, dP
 
 
@@ -326,7 +334,7 @@ def iterated_update(model, state, y, t, iterations: int, tol: float, *, info: bo
         H = md.h_x(x, t)
         C = mm(P, H.swapaxes(-1, -2))
         S = mm(H, C) + R
-        y_pred = md.h(x, t) if at_mean else md.h(x, t) + np.einsum("...ij,...j->...i", H, residual(m, x, ang.states))
+        y_pred = md.h(x, t) if at_mean else md.h(x, t) + _einsum("...ij,...j->...i", H, residual(m, x, ang.states))
         y_pred = near(y_pred, y, ang.measurements)  # angles: the wrapped innovation
         if at_mean:
             first.append((y_pred, S))
