@@ -45,10 +45,13 @@ def test_ctrl_c_at_seeded_moments_is_one_line_and_exit_130(fuzz, tmp_path):
     env = {**os.environ, "PYTHONPATH": os.pathsep.join(filter(None, [str(ROOT / "src"), os.environ.get("PYTHONPATH")]))}
     procs = []
     for t, extra in _moments():
+        out = tmp_path / str(t)  # a folder and a store each: no process reuses another's finished tasks
+        out.mkdir()              # (a run that did would finish with a line saying so)
         cmd = [sys.executable, "-m", "nlfilter.cli", "compare", str(MODEL), "--no-progress", "--paths", "8",
-               "--steps", "20", "--filters", "ekf,ukf", "--json", str(tmp_path / f"{t}.json"), *extra]
+               "--steps", "20", "--filters", "ekf,ukf", "--json", str(out / "out.json"), *extra]
         procs.append((t, extra, subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                                                 env=env, preexec_fn=_session)))
+                                                 env={**env, "NLFILTER_STORE": str(out / "results.sqlite")},
+                                                 preexec_fn=_session)))
     start = time.monotonic()
     pending = sorted(procs, key=lambda p: p[0])
     for t, extra, p in pending:  # send each its SIGINT at its moment
