@@ -58,6 +58,15 @@ def bmt_(A, B, C, ni, nj, nk, nb):
                 C[i, j, b] = s
 
 
+def bmirror_(P, n, nb):
+    """The lower triangle of every lane of ``P`` from its upper one. (A product storing both
+    ``P[i, j]`` and ``P[j, i]`` in one loop body is not vectorized: the two stores may alias.)"""
+    for i in range(n):
+        for j in range(i + 1, n):
+            for b in range(nb):
+                P[j, i, b] = P[i, j, b]
+
+
 def bscreen_(M, P, n, nb, tol, W, L, d, acc, ok):
     """``ok[b] = 1.0`` where lane ``b`` passes the Cholesky screen of :func:`~.path_linalg.psd_ok_`
     (finite ``m`` and ``P``, ``P + Pᵀ + ½ tol·max(2, 2 max P_ii) I`` positive definite), else 0.0
@@ -138,14 +147,14 @@ def bpredict_(t, p, Q, GQG0, G_const, n, r, nb, bw):
                         s += GQ[a, b] * Gm[j, a, b]
                     N[i, j, b] = s
     bmt(Pb, F, Wn, n, n, n, nb)  # Wn = P Fᵀ
-    for i in range(n):  # P = N + F Wn, symmetric: the upper triangle, mirrored
+    for i in range(n):  # P = N + F Wn, symmetric: the upper triangle, then mirrored (bmirror)
         for j in range(i, n):
             for b in range(nb):
                 s = N[i, j, b]
                 for q in range(n):
                     s += F[i, q, b] * Wn[q, j, b]
                 Pb[i, j, b] = s
-                Pb[j, i, b] = s
+    bmirror(Pb, n, nb)
     for i in range(n):
         for b in range(nb):
             Mb[i, b] = Mp[i, b]
@@ -167,7 +176,10 @@ def bupdate_(ys, k, t, lo, nb, n, mdim, p, R, tol, want, ks, w1, bw, m, P, yk, l
                 for q in range(n):
                     s += H[a, q, b] * C[q, c, b]
                 S[a, c, b] = s
-                LiS[a, c, b] = s
+    for a in range(mdim):  # (a loop of its own: one store per loop body keeps the loops vectorized)
+        for c in range(mdim):
+            for b in range(nb):
+                LiS[a, c, b] = S[a, c, b]
     for b in range(nb):
         okv[b] = 1.0
     bchol(S, Ls, mdim, nb, dv, acc, okv)
@@ -241,7 +253,7 @@ def bupdate_(ys, k, t, lo, nb, n, mdim, p, R, tol, want, ks, w1, bw, m, P, yk, l
                 for c in range(mdim):
                     s += K[i, c, b] * R[c, a]
                 KR[i, a, b] = s
-    for i in range(n):  # P = T1 Aᵀ + KR Kᵀ, symmetric: the upper triangle, mirrored
+    for i in range(n):  # P = T1 Aᵀ + KR Kᵀ, symmetric: the upper triangle, then mirrored
         for j in range(i, n):
             for b in range(nb):
                 s = 0.0
@@ -250,7 +262,7 @@ def bupdate_(ys, k, t, lo, nb, n, mdim, p, R, tol, want, ks, w1, bw, m, P, yk, l
                 for a in range(mdim):
                     s += KR[i, a, b] * K[j, a, b]
                 Pb[i, j, b] = s
-                Pb[j, i, b] = s
+    bmirror(Pb, n, nb)
     for b in range(nb):  # the one-path lanes' results
         if irr[b] and not dead[b]:
             for i in range(n):
@@ -337,4 +349,4 @@ def steps_batch_(ys, m0, P0, p, Q, R, GQG0, G_const, offset, absent, tol, means,
 
 
 #: the loop and its kernels, in the order the generated module defines them
-SOURCES = (bchol_, bmt_, bscreen_, bgather_, kill_, settle_, bpredict_, blik_, bupdate_, steps_batch_)
+SOURCES = (bchol_, bmt_, bmirror_, bscreen_, bgather_, kill_, settle_, bpredict_, blik_, bupdate_, steps_batch_)

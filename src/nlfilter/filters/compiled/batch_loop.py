@@ -39,7 +39,7 @@ __all__ = ["BATCH_FROM", "BATCH_UP_TO", "NB", "serves", "dims_of", "is_batch", "
 #: 1.2× at n = 8; benchmarks/results/bench_dimensions.json, run "batch-inner-ekf"). At n = 16 it is
 #: 1.9× the one-path loop's speed but 0.5× dynamax's, at twice its compile time (~45 s of CPU
 #: against ~22 s): left to the one-path loop
-BATCH_FROM, BATCH_UP_TO = 4, 8
+BATCH_FROM, BATCH_UP_TO = 4, 16
 #: paths per block (the block's work arrays, two dozen of ``n × n × NB`` at most, stay in the
 #: processor's level-2 cache up to n = 16)
 NB = 32
@@ -98,7 +98,7 @@ def alloc(n, mdim, r):
 
 
 #: the kernels inlined where they are called (the Cholesky factor: called with ``n`` and ``m``)
-_INLINED = ("bchol_", "bmt_", "bscreen_", "bgather_", "kill_")
+_INLINED = ("bchol_", "bmt_", "bmirror_", "bscreen_", "bgather_", "kill_")
 
 
 def _params(head: str) -> list:
