@@ -75,13 +75,17 @@ def bscreen_(M, P, n, nb, tol, W, L, d, acc, ok):
     for b in range(nb):
         ok[b] = 1.0
         d[b] = 2.0
-    for i in range(n):
+    for i in range(n):  # (one array stored per loop body: the loops vectorize)
         for b in range(nb):
             ok[b] = ok[b] if abs(M[i, b]) <= big else 0.0
+        for b in range(nb):
             d[b] = max(d[b], 2.0 * P[i, i, b])
         for j in range(n):
             for b in range(nb):
                 ok[b] = ok[b] if abs(P[i, j, b]) <= big else 0.0
+    for i in range(n):
+        for j in range(n):
+            for b in range(nb):
                 W[i, j, b] = P[i, j, b] + P[j, i, b]
     for i in range(n):
         for b in range(nb):
