@@ -32,13 +32,13 @@ def bchol_(A, L, n, nb, d, acc, ok):
         for q in range(j):
             for b in range(nb):
                 acc[b] -= L[j, q, b] * L[j, q, b]
+        for b in range(nb):  # (one array stored per loop: the square roots and divisions vectorize)
+            ok[b] = ok[b] if acc[b] > 0.0 else 0.0
         for b in range(nb):
             s = acc[b]
-            good = s > 0.0
-            ok[b] = ok[b] if good else 0.0
-            r = math.sqrt(s) if good else 1.0
-            L[j, j, b] = r
-            d[b] = 1.0 / r
+            L[j, j, b] = math.sqrt(s) if s > 0.0 else 1.0
+        for b in range(nb):
+            d[b] = 1.0 / L[j, j, b]
         for i in range(j + 1, n):
             for b in range(nb):
                 acc[b] = A[i, j, b]
@@ -192,6 +192,7 @@ def bupdate_(ys, k, t, lo, nb, n, mdim, p, R, tol, want, ks, w1, bw, m, P, yk, l
     for a in range(mdim):  # e = y − ŷ; Li: 1 / the factor's diagonal
         for b in range(nb):
             E[a, b] = ys[lo + b, k, a] - Yh[a, b]
+        for b in range(nb):
             Li[a, b] = 1.0 / Ls[a, a, b]
     for b in range(nb):  # the lanes the one-path kernel updates (partly missing y, no factor of S)
         bad = okv[b] == 0.0
