@@ -32,7 +32,8 @@ from ...codegen import array_source
 from . import batch_kernels
 from .kernels import KERNELS, Kernel, model_kernels
 
-__all__ = ["BATCH_FROM", "BATCH_UP_TO", "NB", "serves", "dims_of", "is_batch", "block_kernels", "source", "alloc"]
+__all__ = ["BATCH_FROM", "BATCH_UP_TO", "NB", "NB_LARGE", "block_size", "serves", "dims_of", "is_batch",
+           "block_kernels", "source", "alloc"]
 
 #: the Taylor-1 loops of models with ``BATCH_FROM ≤ n ≤ BATCH_UP_TO`` states take the batch-inner
 #: loop (the chain of benchmarks/bench_dimensions.py, 1000 × 200, one core, run "batch-inner-ekf-2"
@@ -42,9 +43,13 @@ __all__ = ["BATCH_FROM", "BATCH_UP_TO", "NB", "serves", "dims_of", "is_batch", "
 #: CPU time, paired). At n = 16 it is 1.9× the one-path loop's speed (user CPU time: 4.3 µs
 #: against 8.3), at 2.6× its compile time (~26 s of CPU against ~10 s): taken up to 16
 BATCH_FROM, BATCH_UP_TO = 4, 16
-#: paths per block (the block's work arrays, two dozen of ``n × n × NB`` at most, stay in the
-#: processor's level-2 cache up to n = 16)
+#: paths per block up to 8 states (the block's work arrays, two dozen of ``n × n × NB`` at most,
+#: stay in the processor's level-2 cache; 16 paths: 1.3× slower at n = 8, 64: the same within noise)
 NB = 32
+#: paths per block above 8 states (n = 16: 0.91× the time of blocks of 32 on 320 × 200, 0.97× on
+#: 1000 × 200, user CPU time, 10 paired runs: the loops over the paths twice as long for the same
+#: overhead)
+NB_LARGE = 64
 #: the work arrays' rows are ``NB + PAD`` long: rows a power of two apart in memory (``NB = 32``,
 #: ``n = 16``: 4 KiB) map to the same level-1 cache set, and a product's column of rows evicts itself
 PAD = 4
@@ -88,15 +93,22 @@ def block_kernels(model) -> dict:
     return store["blocks"]
 
 
+def block_size(n) -> int:
+    """Paths per block of the loop on ``n`` states: :data:`NB`, :data:`NB_LARGE` above 8."""
+    return NB if n <= 8 else NB_LARGE
+
+
 def alloc(n, mdim, r):
     """The block's work arrays (the tuple :mod:`.batch_kernels` unpacks, in its order), every row
-    ``NB + PAD`` long."""
+    ``block_size(n) + PAD`` long."""
+    nb = block_size(n)
+
     def e(*shape):
-        return np.empty((*shape, NB + PAD))
+        return np.empty((*shape, nb + PAD))
     return (e(n), e(n, n), e(n), e(n, n), e(n, r), e(n, n), e(n, n), e(n, n),  # Mb Pb Mp F Gm N Wn T1
             e(mdim), e(mdim, n), e(n, mdim), e(mdim, mdim), e(mdim, mdim), e(mdim),  # Yh H C S Ls E
             e(n, mdim), e(n, mdim), e(max(n, mdim)), e(n, n), e(), e(mdim),  # K KR u A okv Li
-            e(mdim, mdim), e(), e(), e(), e(), e(), np.zeros(NB + PAD, np.int64), e(r))  # LiS dv acc qv ldv irr dead GQ
+            e(mdim, mdim), e(), e(), e(), e(), e(), np.zeros(nb + PAD, np.int64), e(r))  # LiS dv acc qv ldv irr dead GQ
 
 
 #: the kernels inlined where they are called (the Cholesky factor: called with ``n`` and ``m``)
@@ -122,7 +134,7 @@ def source(base: str, dims) -> str:
     unrolls the sums; :data:`_INLINED`, called with several dimensions, take theirs inlined), and the
     loop as ``steps`` (its machine code kept on disk)."""
     _, n, mdim, r = dims
-    parts = [base, f"# the batch-inner loop (nlfilter.filters.compiled.batch_loop)\nNB = {NB}\nupdate1 = _inner(update_taylor1_)\n"]
+    parts = [base, f"# the batch-inner loop (nlfilter.filters.compiled.batch_loop)\nNB = {block_size(n)}\nupdate1 = _inner(update_taylor1_)\n"]
     for f in batch_kernels.SOURCES:
         name = f.__name__
         head, body = _split(_SOURCE[name])
