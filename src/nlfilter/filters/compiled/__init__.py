@@ -27,7 +27,7 @@ A model with one state, one measurement and one noise runs the EKF's scalar batc
 (:func:`~.loops.steps_scalar_`: every path at each step, the arithmetic of NumPy's scalar branch, bit for
 bit); models up to :data:`~.build.SPECIALIZE_UP_TO` states and measurements get loops with their
 dimensions compiled in and the helpers inlined (the same bits, faster, longer to compile); the EKF
-on 4 to 8 states runs blocks of paths with the paths innermost (:mod:`.batch_loop`: vectorized over
+on 4 to 16 states runs blocks of paths with the paths innermost (:mod:`.batch_loop`: vectorized over
 paths, the same numbers to rounding).
 
 The same conventions as the NumPy loop, which the tests hold it to (1e-12): both starts, partly

@@ -4,7 +4,9 @@
 Products loop over the entries, then the paths, then the summation index (``s`` in a register; the
 dimensions are constants of the generated module, so the compiler unrolls the sum and vectorizes
 over the paths); the Cholesky factors and triangular solves keep a sum per path in ``acc`` (their
-trip counts vary). Sums run in the one-path kernels' order (:func:`~.step_kernels.predict_cov_`,
+trip counts vary). One array stored per loop body: the compiler does not vectorize a loop storing
+two (it cannot tell that they do not overlap the arrays read) — a symmetric product stores its
+upper triangle, :func:`bmirror_` the lower one after (2.4× faster at n = 16). Sums run in the one-path kernels' order (:func:`~.step_kernels.predict_cov_`,
 :func:`~.step_kernels.meas_cov_`, :func:`~.step_kernels.condition_`'s Joseph form).
 
 Sources, never called as Python: :func:`.batch_loop.source` compiles them in the module of the
@@ -30,13 +32,13 @@ def bchol_(A, L, n, nb, d, acc, ok):
         for q in range(j):
             for b in range(nb):
                 acc[b] -= L[j, q, b] * L[j, q, b]
+        for b in range(nb):  # (one array stored per loop: the square roots and divisions vectorize)
+            ok[b] = ok[b] if acc[b] > 0.0 else 0.0
         for b in range(nb):
             s = acc[b]
-            good = s > 0.0
-            ok[b] = ok[b] if good else 0.0
-            r = math.sqrt(s) if good else 1.0
-            L[j, j, b] = r
-            d[b] = 1.0 / r
+            L[j, j, b] = math.sqrt(s) if s > 0.0 else 1.0
+        for b in range(nb):
+            d[b] = 1.0 / L[j, j, b]
         for i in range(j + 1, n):
             for b in range(nb):
                 acc[b] = A[i, j, b]
@@ -58,6 +60,15 @@ def bmt_(A, B, C, ni, nj, nk, nb):
                 C[i, j, b] = s
 
 
+def bmirror_(P, n, nb):
+    """The lower triangle of every lane of ``P`` from its upper one. (A product storing both
+    ``P[i, j]`` and ``P[j, i]`` in one loop body is not vectorized: the two stores may alias.)"""
+    for i in range(n):
+        for j in range(i + 1, n):
+            for b in range(nb):
+                P[j, i, b] = P[i, j, b]
+
+
 def bscreen_(M, P, n, nb, tol, W, L, d, acc, ok):
     """``ok[b] = 1.0`` where lane ``b`` passes the Cholesky screen of :func:`~.path_linalg.psd_ok_`
     (finite ``m`` and ``P``, ``P + Pᵀ + ½ tol·max(2, 2 max P_ii) I`` positive definite), else 0.0
@@ -66,13 +77,17 @@ def bscreen_(M, P, n, nb, tol, W, L, d, acc, ok):
     for b in range(nb):
         ok[b] = 1.0
         d[b] = 2.0
-    for i in range(n):
+    for i in range(n):  # (one array stored per loop body: the loops vectorize)
         for b in range(nb):
             ok[b] = ok[b] if abs(M[i, b]) <= big else 0.0
+        for b in range(nb):
             d[b] = max(d[b], 2.0 * P[i, i, b])
         for j in range(n):
             for b in range(nb):
                 ok[b] = ok[b] if abs(P[i, j, b]) <= big else 0.0
+    for i in range(n):
+        for j in range(n):
+            for b in range(nb):
                 W[i, j, b] = P[i, j, b] + P[j, i, b]
     for i in range(n):
         for b in range(nb):
@@ -138,14 +153,14 @@ def bpredict_(t, p, Q, GQG0, G_const, n, r, nb, bw):
                         s += GQ[a, b] * Gm[j, a, b]
                     N[i, j, b] = s
     bmt(Pb, F, Wn, n, n, n, nb)  # Wn = P Fᵀ
-    for i in range(n):  # P = N + F Wn, symmetric: the upper triangle, mirrored
+    for i in range(n):  # P = N + F Wn, symmetric: the upper triangle, then mirrored (bmirror)
         for j in range(i, n):
             for b in range(nb):
                 s = N[i, j, b]
                 for q in range(n):
                     s += F[i, q, b] * Wn[q, j, b]
                 Pb[i, j, b] = s
-                Pb[j, i, b] = s
+    bmirror(Pb, n, nb)
     for i in range(n):
         for b in range(nb):
             Mb[i, b] = Mp[i, b]
@@ -167,13 +182,17 @@ def bupdate_(ys, k, t, lo, nb, n, mdim, p, R, tol, want, ks, w1, bw, m, P, yk, l
                 for q in range(n):
                     s += H[a, q, b] * C[q, c, b]
                 S[a, c, b] = s
-                LiS[a, c, b] = s
+    for a in range(mdim):  # (a loop of its own: one store per loop body keeps the loops vectorized)
+        for c in range(mdim):
+            for b in range(nb):
+                LiS[a, c, b] = S[a, c, b]
     for b in range(nb):
         okv[b] = 1.0
     bchol(S, Ls, mdim, nb, dv, acc, okv)
     for a in range(mdim):  # e = y − ŷ; Li: 1 / the factor's diagonal
         for b in range(nb):
             E[a, b] = ys[lo + b, k, a] - Yh[a, b]
+        for b in range(nb):
             Li[a, b] = 1.0 / Ls[a, a, b]
     for b in range(nb):  # the lanes the one-path kernel updates (partly missing y, no factor of S)
         bad = okv[b] == 0.0
@@ -241,7 +260,7 @@ def bupdate_(ys, k, t, lo, nb, n, mdim, p, R, tol, want, ks, w1, bw, m, P, yk, l
                 for c in range(mdim):
                     s += K[i, c, b] * R[c, a]
                 KR[i, a, b] = s
-    for i in range(n):  # P = T1 Aᵀ + KR Kᵀ, symmetric: the upper triangle, mirrored
+    for i in range(n):  # P = T1 Aᵀ + KR Kᵀ, symmetric: the upper triangle, then mirrored
         for j in range(i, n):
             for b in range(nb):
                 s = 0.0
@@ -250,7 +269,7 @@ def bupdate_(ys, k, t, lo, nb, n, mdim, p, R, tol, want, ks, w1, bw, m, P, yk, l
                 for a in range(mdim):
                     s += KR[i, a, b] * K[j, a, b]
                 Pb[i, j, b] = s
-                Pb[j, i, b] = s
+    bmirror(Pb, n, nb)
     for b in range(nb):  # the one-path lanes' results
         if irr[b] and not dead[b]:
             for i in range(n):
@@ -337,4 +356,4 @@ def steps_batch_(ys, m0, P0, p, Q, R, GQG0, G_const, offset, absent, tol, means,
 
 
 #: the loop and its kernels, in the order the generated module defines them
-SOURCES = (bchol_, bmt_, bscreen_, bgather_, kill_, settle_, bpredict_, blik_, bupdate_, steps_batch_)
+SOURCES = (bchol_, bmt_, bmirror_, bscreen_, bgather_, kill_, settle_, bpredict_, blik_, bupdate_, steps_batch_)

@@ -32,17 +32,24 @@ from ...codegen import array_source
 from . import batch_kernels
 from .kernels import KERNELS, Kernel, model_kernels
 
-__all__ = ["BATCH_FROM", "BATCH_UP_TO", "NB", "serves", "dims_of", "is_batch", "block_kernels", "source", "alloc"]
+__all__ = ["BATCH_FROM", "BATCH_UP_TO", "NB", "NB_LARGE", "block_size", "serves", "dims_of", "is_batch",
+           "block_kernels", "source", "alloc"]
 
 #: the Taylor-1 loops of models with ``BATCH_FROM ≤ n ≤ BATCH_UP_TO`` states take the batch-inner
-#: loop: there it is ahead of dynamax's jit+vmap EKF (CPU time, 1000 × 200, one core: 2.0× at n = 4,
-#: 1.2× at n = 8; benchmarks/results/bench_dimensions.json, run "batch-inner-ekf"). At n = 16 it is
-#: 1.9× the one-path loop's speed but 0.5× dynamax's, at twice its compile time (~45 s of CPU
-#: against ~22 s): left to the one-path loop
-BATCH_FROM, BATCH_UP_TO = 4, 8
-#: paths per block (the block's work arrays, two dozen of ``n × n × NB`` at most, stay in the
-#: processor's level-2 cache up to n = 16)
+#: loop (the chain of benchmarks/bench_dimensions.py, 1000 × 200, one core, run "batch-inner-ekf-2"
+#: of benchmarks/results/bench_dimensions.json: 0.22, 0.92, 4.8 µs per path-step at n = 4, 8, 16,
+#: dynamax's jit+vmap EKF 0.32, 0.92, 3.6: 1.5×, 1.0×, 0.75× its speed, wall time on a loaded
+#: machine — 1.3-1.8×, 1.0-1.15×, 0.7-0.8× over four such runs; 1.5×, 1.0-1.1×, 0.75-0.86× in user
+#: CPU time, paired). At n = 16 it is 1.9× the one-path loop's speed (user CPU time: 4.3 µs
+#: against 8.3), at 2.6× its compile time (~26 s of CPU against ~10 s): taken up to 16
+BATCH_FROM, BATCH_UP_TO = 4, 16
+#: paths per block up to 8 states (the block's work arrays, two dozen of ``n × n × NB`` at most,
+#: stay in the processor's level-2 cache; 16 paths: 1.3× slower at n = 8, 64: the same within noise)
 NB = 32
+#: paths per block above 8 states (n = 16: 0.91× the time of blocks of 32 on 320 × 200, 0.97× on
+#: 1000 × 200, user CPU time, 10 paired runs: the loops over the paths twice as long for the same
+#: overhead)
+NB_LARGE = 64
 #: the work arrays' rows are ``NB + PAD`` long: rows a power of two apart in memory (``NB = 32``,
 #: ``n = 16``: 4 KiB) map to the same level-1 cache set, and a product's column of rows evicts itself
 PAD = 4
@@ -86,19 +93,26 @@ def block_kernels(model) -> dict:
     return store["blocks"]
 
 
+def block_size(n) -> int:
+    """Paths per block of the loop on ``n`` states: :data:`NB`, :data:`NB_LARGE` above 8."""
+    return NB if n <= 8 else NB_LARGE
+
+
 def alloc(n, mdim, r):
     """The block's work arrays (the tuple :mod:`.batch_kernels` unpacks, in its order), every row
-    ``NB + PAD`` long."""
+    ``block_size(n) + PAD`` long."""
+    nb = block_size(n)
+
     def e(*shape):
-        return np.empty((*shape, NB + PAD))
+        return np.empty((*shape, nb + PAD))
     return (e(n), e(n, n), e(n), e(n, n), e(n, r), e(n, n), e(n, n), e(n, n),  # Mb Pb Mp F Gm N Wn T1
             e(mdim), e(mdim, n), e(n, mdim), e(mdim, mdim), e(mdim, mdim), e(mdim),  # Yh H C S Ls E
             e(n, mdim), e(n, mdim), e(max(n, mdim)), e(n, n), e(), e(mdim),  # K KR u A okv Li
-            e(mdim, mdim), e(), e(), e(), e(), e(), np.zeros(NB + PAD, np.int64), e(r))  # LiS dv acc qv ldv irr dead GQ
+            e(mdim, mdim), e(), e(), e(), e(), e(), np.zeros(nb + PAD, np.int64), e(r))  # LiS dv acc qv ldv irr dead GQ
 
 
 #: the kernels inlined where they are called (the Cholesky factor: called with ``n`` and ``m``)
-_INLINED = ("bchol_", "bmt_", "bscreen_", "bgather_", "kill_")
+_INLINED = ("bchol_", "bmt_", "bmirror_", "bscreen_", "bgather_", "kill_")
 
 
 def _params(head: str) -> list:
@@ -120,7 +134,7 @@ def source(base: str, dims) -> str:
     unrolls the sums; :data:`_INLINED`, called with several dimensions, take theirs inlined), and the
     loop as ``steps`` (its machine code kept on disk)."""
     _, n, mdim, r = dims
-    parts = [base, f"# the batch-inner loop (nlfilter.filters.compiled.batch_loop)\nNB = {NB}\nupdate1 = _inner(update_taylor1_)\n"]
+    parts = [base, f"# the batch-inner loop (nlfilter.filters.compiled.batch_loop)\nNB = {block_size(n)}\nupdate1 = _inner(update_taylor1_)\n"]
     for f in batch_kernels.SOURCES:
         name = f.__name__
         head, body = _split(_SOURCE[name])
