@@ -109,8 +109,12 @@ def default_backend():
 
     from nlfilter.filters import EKF  # in every version of the package (its run is the family's)
 
-    p = inspect.signature(EKF.run).parameters.get("backend")
-    return None if p is None else p.default
+    for cls in EKF.__mro__:  # the first run that names backend (a subclass's run may pass **kw on)
+        run = cls.__dict__.get("run")
+        p = None if run is None else inspect.signature(run).parameters.get("backend")
+        if p is not None:
+            return p.default
+    return None
 
 
 def _git(path, *args):
