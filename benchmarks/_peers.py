@@ -145,7 +145,8 @@ def dynamax_filters(spec, ys, repeat, vmap=True, kinds=("ekf", "ukf", "ckf")):
 
 def per_step(timing: dict, steps: int) -> dict:
     """A :func:`_pin.first_and_best` timing with ``best`` also per (path-)step in µs."""
-    return {**timing, "us_per_step": timing["best"] / steps * 1e6}
+    cpu = {"cpu_us_per_step": timing["best_cpu"] / steps * 1e6} if "best_cpu" in timing else {}
+    return {**timing, "us_per_step": timing["best"] / steps * 1e6, **cpu}
 
 
 def column_name(col: str) -> str:
@@ -186,5 +187,9 @@ def scaled(timing: dict, factor: float) -> dict:
     """A :func:`_pin.first_and_best` timing of a job ``factor`` times shorter than the peers', as if
     of the whole job: the best and the run part of the first call scaled, the compile kept."""
     best = timing["best"] * factor
+    cpu = {}
+    if "best_cpu" in timing:
+        cpu = {"best_cpu": timing["best_cpu"] * factor,
+               "first_cpu": max(timing["first_cpu"] - timing["best_cpu"], 0.0) + timing["best_cpu"] * factor}
     return {**timing, "best": best, "first": timing["compile"] + best, "included": timing["compile"] + best,
-            "scaled_by": factor}
+            **cpu, "scaled_by": factor}
