@@ -7,6 +7,7 @@ so that the handler is in place before NumPy, SymPy and the filters load.
 
 from __future__ import annotations
 
+import atexit
 import os
 import signal
 import sys
@@ -22,7 +23,32 @@ def install():
         return None
     if signal.getsignal(signal.SIGINT) is signal.SIG_IGN:  # started with Ctrl-C ignored (`nohup`, `cmd &`)
         return None
+    if not _LATE:
+        _LATE.append(None)
+        atexit.register(_ignore_late)  # registered first, so run after the other exit hooks
     return signal.signal(signal.SIGINT, on_sigint)
+
+
+_LATE: list = []  # whether _ignore_late is registered
+
+
+def finished(code: int) -> None:
+    """The command has returned ``code``: a Ctrl-C from here to the process's end exits at once
+    with ``code`` (the run is complete; nothing to report), and once the exit hooks have run it is
+    ignored (:func:`_ignore_late`)."""
+    def late(signum, frame):  # pragma: no cover - exercised by the fuzz suite's processes
+        _exit(int(code or 0))
+    late.nlfilter_late = True
+    signal.signal(signal.SIGINT, late)
+
+
+def _ignore_late():
+    """Python's finalization puts the default action back for the signals it handles (a Ctrl-C
+    in its last moments would kill the process by the signal, exit −2, no line), but leaves an
+    ignored one ignored: after a finished command nothing is left to interrupt."""
+    if threading.current_thread() is threading.main_thread() and \
+            getattr(signal.getsignal(signal.SIGINT), "nlfilter_late", False):
+        signal.signal(signal.SIGINT, signal.SIG_IGN)
 
 
 def on_sigint(signum, frame):
@@ -50,13 +76,18 @@ def _unraisable(unraisable):
 
 
 def exit_on_sigint(signum, frame):  # pragma: no cover - exercised by the fuzz suite's processes
+    _exit(130)
+
+
+def _exit(code: int) -> None:  # pragma: no cover - exercised by the fuzz suite's processes
+    """Flush the standard streams and end the process at once with ``code`` (no exit hooks)."""
     try:
         sys.stdout.flush()
         sys.stderr.flush()
     except (OSError, ValueError):
         pass
     finally:
-        os._exit(130)
+        os._exit(code)
 
 
 def quiet() -> None:

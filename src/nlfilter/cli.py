@@ -150,14 +150,16 @@ def _parse_params(items) -> dict:
 
 def main(argv=None) -> int:
     """The ``nlfilter`` command (``python -m nlfilter.cli`` and the console script both enter
-    here). ``argv`` None: ``sys.argv[1:]``, a program run — the Ctrl-C handler then stays
-    installed through the interpreter's shutdown; given (a test), the caller's handler is put back."""
+    here). ``argv`` None: ``sys.argv[1:]``, a program run — a Ctrl-C after the command has returned
+    then ends the process at once with the command's exit code, and is ignored once the exit hooks
+    have run (:func:`nlfilter._interrupt.finished`); given (a test), the caller's handler is put back."""
     previous = _interrupt.install()
+    code = 1  # the exit code, for a Ctrl-C that lands after the command has returned (_interrupt.finished)
     try:
-        return _main(argv)
+        return (code := _main(argv))
     except BrokenPipeError:  # output piped into e.g. `head`, which closed early: not an error
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())  # no second error at exit
-        return 0
+        return (code := 0)
     except KeyboardInterrupt:  # Ctrl-C: one line, exit 130 (the store keeps every finished block)
         _interrupt.quiet()
         print("nlfilter: interrupted" + _KEPT.get(), file=sys.stderr)
@@ -177,8 +179,8 @@ def main(argv=None) -> int:
         if _interrupt.HOOK and argv is not None:  # a test's process: its own hook back
             sys.unraisablehook = _interrupt.HOOK.pop()
         if previous is not None:
-            if argv is None:  # a program run: a Ctrl-C from here to the process's end exits quietly
-                signal.signal(signal.SIGINT, _interrupt.exit_on_sigint)
+            if argv is None:  # a program run: a Ctrl-C from here to the process's end exits quietly with its code
+                _interrupt.finished(code)
             else:
                 signal.signal(signal.SIGINT, previous)
 

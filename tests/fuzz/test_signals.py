@@ -78,3 +78,30 @@ def test_ctrl_c_at_seeded_moments_is_one_line_and_exit_130(fuzz, tmp_path):
         if not clean:
             failures.append(label)
     assert not failures, failures
+
+
+_LATE = """
+import os, signal, sys, time
+from nlfilter import _interrupt
+_interrupt.install()
+_interrupt.finished(3 if sys.argv[1] == "returned" else 0)
+if sys.argv[1] == "returned":        # after the command returned: at once, its code
+    os.kill(os.getpid(), signal.SIGINT)
+    time.sleep(5)
+class Late:                          # during finalization, after the exit hooks: ignored
+    def __del__(self):
+        os.kill(os.getpid(), signal.SIGINT)
+        time.sleep(0.05)
+late = Late()
+"""
+
+
+@pytest.mark.parametrize("when", ["returned", "finalization"])
+def test_ctrl_c_after_the_command_returned(when):
+    """A Ctrl-C after the command has returned ends the process with the command's code at once;
+    in the interpreter's last moments (after the exit hooks, where Python restores the default
+    action: exit −2, no line) it is ignored (nlfilter._interrupt.finished)."""
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join(filter(None, [str(ROOT / "src"), os.environ.get("PYTHONPATH")]))}
+    p = subprocess.run([sys.executable, "-c", _LATE, when], capture_output=True, text=True, env=env, timeout=60,
+                       preexec_fn=_session)
+    assert (p.returncode, p.stderr) == ((3, "") if when == "returned" else (0, ""))
