@@ -152,7 +152,7 @@ def main(argv=None) -> int:
     """The ``nlfilter`` command (``python -m nlfilter.cli`` and the console script both enter
     here). ``argv`` None: ``sys.argv[1:]``, a program run — a Ctrl-C after the command has returned
     then ends the process at once with the command's exit code, and is ignored once the exit hooks
-    have run (:func:`nlfilter._interrupt.finished`); given (a test), the caller's handler is put back."""
+    have run (``nlfilter._interrupt.finished``); given (a test), the caller's handler is put back."""
     previous = _interrupt.install()
     code = 1  # the exit code, for a Ctrl-C that lands after the command has returned (_interrupt.finished)
     try:
