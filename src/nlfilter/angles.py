@@ -34,10 +34,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-try:  # np.einsum without ``optimize`` calls this, after its Python wrapper: the same numbers
-    from numpy._core._multiarray_umath import c_einsum as _einsum
-except ImportError:  # pragma: no cover
-    _einsum = np.einsum
+from ._npcall import einsum as _einsum
 
 __all__ = ["Angles", "NO_ANGLES", "wrap", "wrap_components", "residual", "near", "circular_mean", "deviations", "angles_of",
            "node_moments", "mixture", "weighted_moments",

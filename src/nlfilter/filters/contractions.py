@@ -10,10 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
-try:  # np.einsum without ``optimize`` calls this, after its Python wrapper: the same numbers
-    from numpy._core._multiarray_umath import c_einsum as _einsum
-except ImportError:  # pragma: no cover
-    _einsum = np.einsum
+from .._npcall import einsum as _einsum
 
 __all__ = ["hessian_trace", "quarter_outer", "gaussian_quartic", "noise_covariance"]
 

@@ -56,11 +56,12 @@ from __future__ import annotations
 import numpy as np
 
 from .. import _validate as V
+from .._npcall import einsum as _einsum
 from ..angles import angles_of
 from .base import ContinuousFilter, DiscreteFilter, GaussianState, continuous_precision, set_start, set_t0
 from .fading import FadingMemory
 from .irregular import at_times, belief_time, check_length, interval
-from .linalg import _einsum, innovation_info, observed_precision, poison, symmetrize
+from .linalg import innovation_info, observed_precision, poison, symmetrize
 from .skeleton import (CrossNoise, MeasuredState, as_belief, as_gaussian, check_paths, condition, ito_gain, ito_rhs,
                        iterated_update, predict, propagate)
 from .smoothing import backward_steps, continuous_rts, rts

@@ -66,10 +66,11 @@ from typing import NamedTuple
 import numpy as np
 
 from .. import _validate as V
+from .._npcall import einsum as _einsum
 from ..angles import node_moments, wrap_components
 from ..moments.quadrature import MAX_ENTRIES, cubature5_rule, gauss_hermite_rule
 from .contractions import gaussian_quartic, hessian_trace, noise_covariance, quarter_outer  # (re-exported)
-from .linalg import _einsum, axis_gather, mm, psd_root, sqrt_psd
+from .linalg import axis_gather, mm, psd_root, sqrt_psd
 
 __all__ = ["GaussMoments", "Taylor1", "Taylor2", "FORMS", "Form", "FORM_TABLE", "Unscented", "Cubature", "GaussHermite", "NodeRule",
            "sigma_points", "hessian_trace", "quarter_outer", "gaussian_quartic", "noise_covariance"]

@@ -41,10 +41,11 @@ from typing import NamedTuple
 import numpy as np
 
 from ..angles import angles_of, near, residual, wrap_components
+from .._npcall import einsum as _einsum, quiet as _quiet
 from ..errors import DivergenceError
 from .base import GaussianState, ode_step
 from .beliefs import where_paths
-from .linalg import (SCREEN_MAX_N, _cholesky, _einsum, _quiet, _total, bad_paths, decorrelation, gaussian_update, mm,
+from .linalg import (SCREEN_MAX_N, _cholesky, _total, bad_paths, decorrelation, gaussian_update, mm,
                      poison, symmetrize)
 from .contractions import hessian_trace
 from .smoothing import _solve_right

@@ -1,0 +1,39 @@
+"""NumPy's calls without their Python wrappers, for the filters' per-step hot paths: the same C
+functions, the same numbers, microseconds less a call. Standard NumPy where a version lacks them."""
+
+from __future__ import annotations
+
+import numpy as np
+
+try:  # np.einsum without ``optimize`` calls this, after its Python wrapper: the same numbers
+    from numpy._core._multiarray_umath import c_einsum as einsum
+except ImportError:  # pragma: no cover - a NumPy without it
+    einsum = np.einsum
+
+try:  # np.errstate's context variable, set and reset without its Python wrapper (µs a call)
+    from numpy._core._multiarray_umath import _make_extobj
+    from numpy._core._ufunc_config import _extobj_contextvar
+except ImportError:  # pragma: no cover - a NumPy without them: np.errstate
+    _extobj_contextvar = None
+
+__all__ = ["einsum", "quiet"]
+
+_QUIET = (None, None)  # (the error state it was made from, that state with over/invalid/divide ignored)
+
+
+def quiet(fn, *args, **kwargs):
+    """``fn(*args, **kwargs)`` with NumPy's overflow/invalid/divide warnings off, as under
+    ``np.errstate(over="ignore", invalid="ignore", divide="ignore")`` (the same state: made from
+    the current one, kept while that one is current)."""
+    if _extobj_contextvar is None:  # pragma: no cover
+        with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
+            return fn(*args, **kwargs)
+    global _QUIET
+    cur, q = _extobj_contextvar.get(), _QUIET  # one pair, read and replaced whole (threads)
+    if q[0] is not cur:
+        q = _QUIET = (cur, _make_extobj(over="ignore", invalid="ignore", divide="ignore"))
+    token = _extobj_contextvar.set(q[1])
+    try:
+        return fn(*args, **kwargs)
+    finally:
+        _extobj_contextvar.reset(token)
