@@ -32,8 +32,8 @@ from ...codegen import array_source
 from . import batch_kernels
 from .kernels import KERNELS, Kernel, model_kernels
 
-__all__ = ["BATCH_FROM", "BATCH_UP_TO", "NB", "NB_LARGE", "block_size", "serves", "dims_of", "is_batch",
-           "block_kernels", "source", "alloc"]
+__all__ = ["BATCH_FROM", "BATCH_UP_TO", "PATHS_FROM", "NB", "NB_LARGE", "block_size", "serves", "paths_from",
+           "dims_of", "is_batch", "block_kernels", "source", "alloc"]
 
 #: the Taylor-1 loops of models with ``BATCH_FROM ≤ n ≤ BATCH_UP_TO`` states take the batch-inner
 #: loop (the chain of benchmarks/bench_dimensions.py, 1000 × 200, one core, run "batch-inner-ekf-2"
@@ -43,6 +43,13 @@ __all__ = ["BATCH_FROM", "BATCH_UP_TO", "NB", "NB_LARGE", "block_size", "serves"
 #: CPU time, paired). At n = 16 it is 1.9× the one-path loop's speed (user CPU time: 4.3 µs
 #: against 8.3), at 2.6× its compile time (~26 s of CPU against ~10 s): taken up to 16
 BATCH_FROM, BATCH_UP_TO = 4, 16
+#: the fewest paths a run takes the batch-inner loop with; fewer take the one-path loop — specialized
+#: at n = 4 (:data:`~.build.SPECIALIZE_UP_TO`), the general loop above. A block of fewer paths than
+#: :data:`NB` pays the step's overhead for few paths: chain(4) EKF, µs per path-step (user CPU,
+#: best of 5, 200 000 path-steps, one core, loaded machine), batch-inner 1.21, 0.69, 0.42, 0.29, 0.24,
+#: 0.20 at B = 1, 2, 4, 8, 16, 32 (0.20 at 1000) against the specialized loop's 0.36-0.32 at every B;
+#: chain(5): batch-inner 3.56, 0.99, 0.36 at B = 1, 8, 32 against the general loop's 1.50-1.29
+PATHS_FROM = {"specialized": 8, "general": 4}
 #: paths per block up to 8 states (the block's work arrays, two dozen of ``n × n × NB`` at most,
 #: stay in the processor's level-2 cache; 16 paths: 1.3× slower at n = 8, 64: the same within noise)
 NB = 32
@@ -59,8 +66,15 @@ _SOURCE = {f.__name__: inspect.getsource(f) for f in batch_kernels.SOURCES}  # r
 
 
 def serves(kind: str, n: int, mdim: int) -> bool:
-    """Whether the loop of rule ``kind`` on ``n`` states (``mdim`` measurements) is the batch-inner one."""
+    """Whether rule ``kind`` on ``n`` states (``mdim`` measurements) has the batch-inner loop (taken
+    by runs of :func:`paths_from` paths or more; :func:`.build.loop_of`)."""
     return kind == "taylor1" and BATCH_FROM <= n <= BATCH_UP_TO
+
+
+def paths_from(specialized: bool) -> int:
+    """The fewest paths a run takes the batch-inner loop with (:data:`PATHS_FROM`), where the
+    one-path loop it would take otherwise is ``specialized`` (the dimensions compiled in) or not."""
+    return PATHS_FROM["specialized" if specialized else "general"]
 
 
 def dims_of(n, mdim, r) -> tuple:

@@ -184,12 +184,20 @@ def source(kind: str, fns: dict, scalar: bool = False, dims=None) -> str:
     return "\n\n".join(p.rstrip("\n") + "\n" for p in parts)
 
 
-def loop_of(flt):
-    """``(kind, fns, scalar, dims, key)``: the loop that runs ``flt`` (:func:`steps`' arguments): its
-    rule kind, the model's functions (:mod:`.kernels`, generated once per model), whether it is the
-    scalar batch loop (the EKF on one state, measurement and noise; the KF on one state and
-    measurement), the dimensions compiled in (models up to :data:`SPECIALIZE_UP_TO`) or None, the
-    store its loops are kept in (:data:`~.kernels.KERNELS`: the model's, the KF's one)."""
+def loop_of(flt, B: int | None = None):
+    """``(kind, fns, scalar, dims, key)``: the loop that runs ``flt`` on ``B`` paths (:func:`steps`'
+    arguments): its rule kind, the model's functions (:mod:`.kernels`, generated once per model),
+    whether it is the scalar batch loop (the EKF on one state, measurement and noise; the KF on one
+    state and measurement), the dimensions compiled in (models up to :data:`SPECIALIZE_UP_TO`) or
+    None, the store its loops are kept in (:data:`~.kernels.KERNELS`: the model's, the KF's one).
+
+    The run's size matters to the EKF on 4-16 states (:func:`.batch_loop.serves`): from
+    :func:`.batch_loop.paths_from` paths (8 where the one-path loop is specialized, n = 4; 4 above)
+    the batch-inner loop, below it the one-path loop (one trajectory of chain(4): 0.36 µs per step
+    against the batch-inner loop's 1.2; see :data:`.batch_loop.PATHS_FROM`) — unless only the other
+    of the two is in this process already (compiled or loaded by an earlier run): that one, so that
+    a process compiles one loop per model (the other costs 1.5-3.5× per path-step at most, a compile
+    5-30 s). ``B`` None: a batch of any size (the batch-inner loop where the rule has one)."""
     md = flt.model
     n, mdim, r = md.n, md.m, md.r
     kind = rule_kind(flt)
@@ -209,7 +217,12 @@ def loop_of(flt):
             "sqrt-nodes": {"f": "f", "h": "h", "G": "G"}}[kind]
     fns = {a: fns.get(w) for a, w in args.items()}
     if batch_loop.serves(kind, n, mdim):  # the batch-inner loop (the model's functions over blocks too)
-        return kind, {**fns, **batch_loop.block_kernels(md)}, False, batch_loop.dims_of(n, mdim, r), key
+        wide = batch_loop.dims_of(n, mdim, r)
+        batch = B is None or B >= batch_loop.paths_from(dims is not None)
+        if B is not None and not loaded(kind, fns, key, False, wide if batch else dims):
+            batch = batch != loaded(kind, fns, key, False, dims if batch else wide)  # only the other one is loaded
+        if batch:
+            return kind, {**fns, **batch_loop.block_kernels(md)}, False, wide, key
     return kind, fns, False, dims, key
 
 

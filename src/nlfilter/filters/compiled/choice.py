@@ -6,6 +6,10 @@ loop once the process has shown it repeats the work:
 
 1. A filter or model the compiled loop does not take (:func:`~.support.static_refusal`: the
    filter's declaration, its rule, the model's structure) runs on the NumPy loop.
+   Every later step asks about the loop that would run these ``B`` paths
+   (:func:`~.build.loop_of`: the EKF on 4-16 states has two, the one-path loop below
+   :func:`~.batch_loop.paths_from` paths and the batch-inner one from there — or the one of them
+   already in this process), with its own compile time.
 2. A loop already in this process (compiled or loaded by an earlier run) runs compiled.
 3. ``W``: the NumPy loop's estimated time for this run (:func:`numpy_seconds`:
    ``repeats × T × (a + B·b·n^1.5)`` µs with the per-step and per-path-step costs of the rule kind,
@@ -78,7 +82,7 @@ def choose(flt, B: int, T: int, repeats: int = 1, record: bool = False) -> Choic
         return Choice("numpy", f"no compiled loop: {reason}")
     from . import batch_loop, build, cache
 
-    kind, fns, scalar, dims, key = build.loop_of(flt)
+    kind, fns, scalar, dims, key = build.loop_of(flt, B)
     if build.loaded(kind, fns, key, scalar, dims):
         return Choice("numba", "the compiled loop is loaded in this process")
     store = build.KERNELS.setdefault(key, {})

@@ -62,7 +62,7 @@ def _run(flt, yf, batch, m0, P0, on, loglik, progress):
     B, T, mdim = yf.shape
     n = md.n
     prior = flt.init(m0, P0, batch)
-    kind, fns, scalar, dims, key = build.loop_of(flt)
+    kind, fns, scalar, dims, key = build.loop_of(flt, B)
     sqrt = kind in build.SQRT_KINDS  # the loop's P holds the factor S (P = S Sᵀ)
     mean0 = _plain(prior.mean).reshape(B, n)
     cov0 = _plain(prior.factor if sqrt else prior.cov).reshape(B, n, n)
