@@ -45,10 +45,15 @@ __all__ = ["BATCH_FROM", "BATCH_UP_TO", "PATHS_FROM", "NB", "NB_LARGE", "block_s
 BATCH_FROM, BATCH_UP_TO = 4, 16
 #: the fewest paths a run takes the batch-inner loop with; fewer take the one-path loop — specialized
 #: at n = 4 (:data:`~.build.SPECIALIZE_UP_TO`), the general loop above. A block of fewer paths than
-#: :data:`NB` pays the step's overhead for few paths: chain(4) EKF, µs per path-step (user CPU,
-#: best of 5, 200 000 path-steps, one core, loaded machine), batch-inner 1.21, 0.69, 0.42, 0.29, 0.24,
-#: 0.20 at B = 1, 2, 4, 8, 16, 32 (0.20 at 1000) against the specialized loop's 0.36-0.32 at every B;
-#: chain(5): batch-inner 3.56, 0.99, 0.36 at B = 1, 8, 32 against the general loop's 1.50-1.29
+#: :data:`NB` pays the step's work for a whole vector of paths. chain(4) EKF of
+#: benchmarks/_models.py, 100 000 path-steps per run, both loops in one process, alternating (7
+#: rounds, user CPU time, one core of a loaded machine), µs per path-step specialized / batch-inner
+#: (median of the paired time ratios): B = 1: 0.35 / 1.17 (0.32), 2: 0.34 / 0.72 (0.47), 4: 0.33 /
+#: 0.43 (0.77), 8: 0.33 / 0.31 (1.06), 16: 0.34 / 0.25 (1.36), 32: 0.33 / 0.23 (1.41), 1000: 0.35 /
+#: 0.24 (1.46); outputs within 1e-15 of each other. First compiles (fresh process, numba's import
+#: included): 6.1 s and 18.6 s. The specialized loop for every B would keep n = 4 under 5 s of
+#: compile but at 0.33-0.35 µs on 1000 × 200 it runs at 0.9-1.2× dynamax's jit+vmap (0.32-0.39 µs,
+#: runs "batch-inner-ekf-2" and "session-8" of bench_dimensions.json), short of the 1.5× of issue 28.
 PATHS_FROM = {"specialized": 8, "general": 4}
 #: paths per block up to 8 states (the block's work arrays, two dozen of ``n × n × NB`` at most,
 #: stay in the processor's level-2 cache; 16 paths: 1.3× slower at n = 8, 64: the same within noise)

@@ -193,10 +193,11 @@ def loop_of(flt, B: int | None = None):
 
     The run's size matters to the EKF on 4-16 states (:func:`.batch_loop.serves`): from
     :func:`.batch_loop.paths_from` paths (8 where the one-path loop is specialized, n = 4; 4 above)
-    the batch-inner loop, below it the one-path loop (one trajectory of chain(4): 0.36 µs per step
-    against the batch-inner loop's 1.2; see :data:`.batch_loop.PATHS_FROM`) — unless only the other
-    of the two is in this process already (compiled or loaded by an earlier run): that one, so that
-    a process compiles one loop per model (the other costs 1.5-3.5× per path-step at most, a compile
+    the batch-inner loop, below it the one-path loop (one trajectory of chain(4): 0.35 µs per step,
+    user CPU time, against the batch-inner loop's 1.17; see :data:`.batch_loop.PATHS_FROM`) — unless
+    only the other of the two is in this process already (compiled or loaded by an earlier run):
+    that one, so that a process compiles one loop per model (the loaded one costs at most 1.5× the
+    time per path-step of the other at n = 4 from 8 paths, 3.3× on one path; a compile costs
     5-30 s). ``B`` None: a batch of any size (the batch-inner loop where the rule has one)."""
     md = flt.model
     n, mdim, r = md.n, md.m, md.r

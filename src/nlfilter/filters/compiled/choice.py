@@ -52,7 +52,9 @@ PATH_STEP_US = {"kalman": 0.2, "taylor1": 0.25, "nodes": 0.45, "taylor2": 0.6, "
 #: "compile-split", against 4.7-9.1 s for one flat loop, which took 10-21 s on a loaded machine),
 #: the general loop (EKF n = 16: 5.8 s idle), the EKF's batch-inner loop (:mod:`.batch_loop`,
 #: 4-16 states: 11-12 s idle at n = 4; loaded, 16-27 s at n = 4-16, benchmarks/bench_dimensions.py
-#: run "batch-inner-ekf-2", and 33-44 s at n = 4-8 in an earlier run)
+#: run "batch-inner-ekf-2", and 33-44 s at n = 4-8 in an earlier run; loaded, run "smallbatch":
+#: 18.8 s on 200 paths at n = 4, where one path takes the specialized loop, 5.8 s — see
+#: :func:`~.build.loop_of`)
 COMPILE_SECONDS = {"scalar": 2.0, "specialized": 10.0, "general": 10.0, "batch": 30.0}
 #: a cached loop's first run in a new process (numba's import, reading its code), seconds
 LOAD_SECONDS = 1.0
