@@ -197,13 +197,14 @@ def _four_state():
 
 def test_the_loop_by_the_runs_paths(tmp_path, monkeypatch):
     """The EKF on 4-16 states has two loops (:func:`~nlfilter.filters.compiled.build.loop_of`): the
-    one-path loop below ``paths_from`` paths (specialized at n = 4, the general loop at n = 5), the
+    one-path loop below ``paths_from`` paths (specialized at n = 4, the general loop above), the
     batch-inner loop from there; the automatic choice weighs the compile of the loop that will run
     (no loop is compiled here: the choice only reads the rule and the store)."""
     from nlfilter.filters.compiled import batch_loop, build
     monkeypatch.setenv("NLFILTER_CACHE", str(tmp_path / "empty"))
-    assert batch_loop.paths_from(True) == batch_loop.PATHS_FROM["specialized"] == 8
-    assert batch_loop.paths_from(False) == batch_loop.PATHS_FROM["general"] == 4
+    assert batch_loop.paths_from(4, True) == batch_loop.PATHS_FROM["specialized"] == 8
+    assert batch_loop.paths_from(5, False) == batch_loop.paths_from(8, False) == batch_loop.PATHS_FROM["general"] == 4
+    assert batch_loop.paths_from(9, False) == batch_loop.PATHS_FROM["general-large"] == 16
     flt = EKF(_four_state())
     spec = (4, 2, 4, None)
     assert [build.loop_of(flt, B)[3] for B in (0, 1, 7)] == [spec] * 3

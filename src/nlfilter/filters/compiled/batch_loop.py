@@ -54,7 +54,12 @@ BATCH_FROM, BATCH_UP_TO = 4, 16
 #: included): 6.1 s and 18.6 s. The specialized loop for every B would keep n = 4 under 5 s of
 #: compile but at 0.33-0.35 µs on 1000 × 200 it runs at 0.9-1.2× dynamax's jit+vmap (0.32-0.39 µs,
 #: runs "batch-inner-ekf-2" and "session-8" of bench_dimensions.json), short of the 1.5× of issue 28.
-PATHS_FROM = {"specialized": 8, "general": 4}
+#: Against the general loop, the same measure, B = 1, 2, 4, 8, 16, 64, 1000: chain(5) 0.69, 0.97,
+#: 1.58, 2.35, 3.30, 3.66, 3.31 (one path: 1.24 µs / 1.85), chain(8) 0.50, 0.68, 1.21, 1.51, 1.53,
+#: 2.60, 2.60 (2.46 / 5.65), chain(16), blocks of :data:`NB_LARGE`: 0.35, 0.58, 0.83, 0.98, 1.12,
+#: 1.86 (9.8 / 36.4; 5 rounds): from 4 paths up to 8 states, from 16 above. First compiles of the
+#: general and the batch-inner loop: 7.7 and 22.0 s at n = 5, 7.4 and 23.8 s at n = 8
+PATHS_FROM = {"specialized": 8, "general": 4, "general-large": 16}
 #: paths per block up to 8 states (the block's work arrays, two dozen of ``n × n × NB`` at most,
 #: stay in the processor's level-2 cache; 16 paths: 1.3× slower at n = 8, 64: the same within noise)
 NB = 32
@@ -76,10 +81,11 @@ def serves(kind: str, n: int, mdim: int) -> bool:
     return kind == "taylor1" and BATCH_FROM <= n <= BATCH_UP_TO
 
 
-def paths_from(specialized: bool) -> int:
-    """The fewest paths a run takes the batch-inner loop with (:data:`PATHS_FROM`), where the
-    one-path loop it would take otherwise is ``specialized`` (the dimensions compiled in) or not."""
-    return PATHS_FROM["specialized" if specialized else "general"]
+def paths_from(n: int, specialized: bool) -> int:
+    """The fewest paths a run on ``n`` states takes the batch-inner loop with (:data:`PATHS_FROM`),
+    where the one-path loop it would take otherwise is ``specialized`` (the dimensions compiled in)
+    or the general loop."""
+    return PATHS_FROM["specialized" if specialized else "general" if n <= 8 else "general-large"]
 
 
 def dims_of(n, mdim, r) -> tuple:

@@ -192,7 +192,8 @@ def loop_of(flt, B: int | None = None):
     None, the store its loops are kept in (:data:`~.kernels.KERNELS`: the model's, the KF's one).
 
     The run's size matters to the EKF on 4-16 states (:func:`.batch_loop.serves`): from
-    :func:`.batch_loop.paths_from` paths (8 where the one-path loop is specialized, n = 4; 4 above)
+    :func:`.batch_loop.paths_from` paths (8 where the one-path loop is specialized, n = 4; 4 at
+    5-8 states, 16 above)
     the batch-inner loop, below it the one-path loop (one trajectory of chain(4): 0.35 µs per step,
     user CPU time, against the batch-inner loop's 1.17; see :data:`.batch_loop.PATHS_FROM`) — unless
     only the other of the two is in this process already (compiled or loaded by an earlier run):
@@ -219,7 +220,7 @@ def loop_of(flt, B: int | None = None):
     fns = {a: fns.get(w) for a, w in args.items()}
     if batch_loop.serves(kind, n, mdim):  # the batch-inner loop (the model's functions over blocks too)
         wide = batch_loop.dims_of(n, mdim, r)
-        batch = B is None or B >= batch_loop.paths_from(dims is not None)
+        batch = B is None or B >= batch_loop.paths_from(n, dims is not None)
         if B is not None and not loaded(kind, fns, key, False, wide if batch else dims):
             batch = batch != loaded(kind, fns, key, False, dims if batch else wide)  # only the other one is loaded
         if batch:
