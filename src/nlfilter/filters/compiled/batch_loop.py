@@ -51,9 +51,10 @@ BATCH_FROM, BATCH_UP_TO = 4, 16
 #: (median of the paired time ratios): B = 1: 0.35 / 1.17 (0.32), 2: 0.34 / 0.72 (0.47), 4: 0.33 /
 #: 0.43 (0.77), 8: 0.33 / 0.31 (1.06), 16: 0.34 / 0.25 (1.36), 32: 0.33 / 0.23 (1.41), 1000: 0.35 /
 #: 0.24 (1.46); outputs within 1e-15 of each other. First compiles (fresh process, numba's import
-#: included): 6.1 s and 18.6 s. The specialized loop for every B would keep n = 4 under 5 s of
-#: compile but at 0.33-0.35 µs on 1000 × 200 it runs at 0.9-1.2× dynamax's jit+vmap (0.32-0.39 µs,
-#: runs "batch-inner-ekf-2" and "session-8" of bench_dimensions.json), short of the 1.5× of issue 28.
+#: included): 6.1 s and 18.6 s. The specialized loop for every B would keep n = 4 near 5 s of
+#: compile, but at 0.33-0.35 µs on 1000 × 200 it runs at 0.9-1.3× dynamax's jit+vmap (0.32-0.44 µs,
+#: runs "batch-inner-ekf-2", "session-8" and "smallbatch-n4" of bench_dimensions.json; the last:
+#: batch-inner 0.216 µs, 2.0×, user CPU time), short of the 1.5× of issue 28.
 #: Against the general loop, the same measure, B = 1, 2, 4, 8, 16, 64, 1000: chain(5) 0.69, 0.97,
 #: 1.58, 2.35, 3.30, 3.66, 3.31 (one path: 1.24 µs / 1.85), chain(8) 0.50, 0.68, 1.21, 1.51, 1.53,
 #: 2.60, 2.60 (2.46 / 5.65), chain(16), blocks of :data:`NB_LARGE`: 0.35, 0.58, 0.83, 0.98, 1.12,
