@@ -19,7 +19,7 @@ from __future__ import annotations
 import functools
 import inspect
 
-from . import batch_loop, loops, path_linalg, rule_kernels, sqrt_kernels, step_kernels
+from . import batch_loop, ito_kernels, loops, path_linalg, rule_kernels, sqrt_kernels, step_kernels
 from .cache import load_source
 from .flatten import flatten_apart
 from .kalman_loop import KALMAN_KEY, SCALAR
@@ -35,7 +35,8 @@ FUNCTION_ARGS = {"steps_scalar_": ("f", "fx", "h", "hx", "G"), "steps_": ("predi
                  "predict_nodes_": ("f", "G"), "update_nodes_": ("h",),
                  "predict_taylor2_": ("f", "fx", "fxx"), "update_taylor2_": ("h", "hx", "hxx"),
                  "predict_sqrt_taylor1_": ("f", "fx", "G"), "update_sqrt_taylor1_": ("h", "hx"),
-                 "predict_sqrt_nodes_": ("f", "G"), "update_sqrt_nodes_": ("h",)}
+                 "predict_sqrt_nodes_": ("f", "G"), "update_sqrt_nodes_": ("h",),
+                 "predict_ito_": (), "update_ito_": ("f", "fx", "fxx", "h", "hx", "hxx", "G")}
 
 #: loops of models up to this state and measurement dimension are specialized: the dimensions
 #: compiled in as constants and the helpers expanded into the loop (:func:`_flat`; the compiler
@@ -50,10 +51,13 @@ SPECIALIZE_UP_TO = 4
 SQRT_KINDS = ("sqrt-taylor1", "sqrt-nodes")
 
 _KERNEL_MODULES = (path_linalg, step_kernels)
+#: the helper kernels of a kind's own module (the square-root kinds', the continuous Itô kind's)
+_KIND_MODULES = {"sqrt-taylor1": (sqrt_kernels,), "sqrt-nodes": (sqrt_kernels,), "ito": (ito_kernels,)}
 #: the kernels whose first parameter is a model function (:func:`_helpers`)
 _TAKES_FUNCTIONS = ("nodes_moments_",)
 _SOURCE = {f.__name__: inspect.getsource(f)  # read once, at import
-           for f in (*path_linalg.SOURCES, *step_kernels.SOURCES, *sqrt_kernels.SOURCES, *loops.SOURCES.values(),
+           for f in (*path_linalg.SOURCES, *step_kernels.SOURCES, *sqrt_kernels.SOURCES, *ito_kernels.SOURCES,
+                     *loops.SOURCES.values(),
                      *(k for pair in rule_kernels.KERNELS_BY_KIND.values() for k in pair))}
 
 
@@ -66,7 +70,7 @@ def _helpers(kind: str = "") -> list:
     """The kernels of :mod:`.path_linalg` and :mod:`.step_kernels` (and :mod:`.sqrt_kernels`' for the
     square-root kinds) as source, each jitted under its name (``chol_`` as ``chol``; the general loops')."""
     out = []
-    for mod in _KERNEL_MODULES + ((sqrt_kernels,) if kind in SQRT_KINDS else ()):
+    for mod in _KERNEL_MODULES + _KIND_MODULES.get(kind, ()):
         for f in mod.SOURCES:
             h = f.__name__
             # a kernel taking a model function as argument is always inlined: called, it would get
@@ -139,8 +143,8 @@ def _flat(kind: str, fns: dict, dims) -> list:
     other kernel expanded into their text (:func:`.flatten.flatten_apart`; numba then types three
     functions instead of inlining the kernels call site by call site: the same arithmetic, a
     fraction of the compile)."""
-    defs = {f.__name__[:-1]: _SOURCE[f.__name__] for mod in _KERNEL_MODULES for f in mod.SOURCES
-            if f.__name__ != "jacobi_"}
+    defs = {f.__name__[:-1]: _SOURCE[f.__name__] for mod in _KERNEL_MODULES + _KIND_MODULES.get(kind, ())
+            for f in mod.SOURCES if f.__name__ != "jacobi_"}
     parts = [_SOURCE["jacobi_"], _jit_line("jacobi", "jacobi_")]
     for arg, k in fns.items():
         if k is None:
@@ -209,14 +213,17 @@ def loop_of(flt, B: int | None = None):
     if kind == "taylor1" and n == mdim == r == 1:
         return kind, scalar_kernels(md), True, None, key
     dims = (n, mdim, r, None) if max(n, mdim) <= SPECIALIZE_UP_TO and kind not in SQRT_KINDS else None
-    second = kind == "taylor2" and flt.rule.second
+    # the continuous Itô kind: the Hessians on small models whatever the rule, so that its Taylor-1 and
+    # Taylor-2 filters share one loop (one compile; the rule's switches are data, ks)
+    second = (kind == "taylor2" and flt.rule.second) or (kind == "ito" and (flt.rule.second or dims is not None))
     fns = model_kernels(md, second=second)
     # the kernels' parameter names -> model_kernels' (first-order Taylor-2: the Hessian slots are
     # never called; None, a compiled no-op, fills them)
     args = {"taylor1": {"f": "f", "fx": "f_x", "h": "h", "hx": "h_x", "G": "G"}, "nodes": {"f": "f", "h": "h", "G": "G"},
             "taylor2": {"f": "f", "fx": "f_x", "fxx": "f_xx", "h": "h", "hx": "h_x", "hxx": "h_xx"},
             "sqrt-taylor1": {"f": "f", "fx": "f_x", "h": "h", "hx": "h_x", "G": "G"},
-            "sqrt-nodes": {"f": "f", "h": "h", "G": "G"}}[kind]
+            "sqrt-nodes": {"f": "f", "h": "h", "G": "G"},
+            "ito": {"f": "f", "fx": "f_x", "fxx": "f_xx", "h": "h", "hx": "h_x", "hxx": "h_xx", "G": "G"}}[kind]
     fns = {a: fns.get(w) for a, w in args.items()}
     if batch_loop.serves(kind, n, mdim):  # the batch-inner loop (the model's functions over blocks too)
         wide = batch_loop.dims_of(n, mdim, r)
@@ -248,7 +255,7 @@ def steps(kind: str, fns: dict, key, scalar: bool = False, dims=None):
 
 
 def loop_name(kind, fns, scalar, dims):
-    return ("steps", kind, fns.get("fxx") is None if kind == "taylor2" else scalar, dims)
+    return ("steps", kind, fns.get("fxx") is None if kind in ("taylor2", "ito") else scalar, dims)
 
 
 def text_of(kind: str, fns: dict, scalar: bool = False, dims=None) -> tuple:

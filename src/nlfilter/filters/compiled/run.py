@@ -48,6 +48,9 @@ def run_compiled(flt, yf, batch, m0, P0, on, loglik, progress=False):
     reason = unsupported(flt)
     if reason is not None:
         raise TypeError(f"backend: 'numba' cannot run {type(flt).__name__} here: {reason}; use backend='numpy'")
+    if loglik and getattr(flt, "time", None) == "continuous":  # a CompileError: backend="auto" runs NumPy
+        raise CompileError(f"backend: 'numba' cannot run {type(flt).__name__} with loglik=True (the continuous "
+                           "filters' likelihood runs on the NumPy loop); use backend='numpy'")
     from numba.core.errors import TypingError
     try:
         return _run(flt, yf, batch, m0, P0, on, loglik, progress)
@@ -68,7 +71,7 @@ def _run(flt, yf, batch, m0, P0, on, loglik, progress):
     cov0 = _plain(prior.factor if sqrt else prior.cov).reshape(B, n, n)
     ys = _plain(yf)
     offset = 0 if flt.start == "update" else 1
-    absent = np.isnan(ys).all(axis=(0, 2)) if B else np.zeros(T, bool)
+    absent = np.isnan(ys).all(axis=(0, 2)) if B and kind != "ito" else np.zeros(T, bool)  # Itô: every step steps
     means = np.empty((B, T, n))
     covs = np.empty((B, T, n, n))
     want = bool(loglik)
@@ -113,6 +116,12 @@ def _run(flt, yf, batch, m0, P0, on, loglik, progress):
         ks, N = (z, wm, wc), z.shape[0]
     elif kind == "taylor1":
         ks, N = (), 0
+    elif kind == "ito":  # R⁻¹, G Q Gᵀ where G is fixed, the integrator and the rule's switches (.ito_kernels)
+        rule = flt.rule
+        force = _FORCE[FORM_TABLE[rule.form].forcing] if rule.second else 0
+        gfix = bool(md._G_fixed)
+        ks, N = (_plain(flt._Rinv), GQG0 if gfix else np.zeros((n, n)), Q, float(flt.dt), int(flt.substeps),
+                 flt.scheme == "rk4", bool(rule.second), force, gfix), 0
     else:
         rule = flt.rule
         spec = FORM_TABLE[rule.form]
