@@ -105,14 +105,15 @@ def choose(flt, B: int, T: int, repeats: int = 1, record: bool = False) -> Choic
     compile_s = COMPILE_SECONDS["scalar" if scalar else "general" if dims is None else
                                 "batch" if batch_loop.is_batch(dims) else "specialized"]
     load_s = LOADED_SECONDS if "numba" in sys.modules else LOAD_SECONDS
-    if spent >= load_s:
-        from .support import available
-        if not available():
-            return Choice("numpy", "numba does not import here")
-        if spent >= compile_s:
-            return Choice("numba", f"the NumPy loop's time (~{spent:.2g} s, this run's and earlier runs') repays the "
-                                   f"compile (~{compile_s:g} s)")
-        if cache.ready(*build.text_of(kind, fns, scalar, dims)) is not None:
+    if spent >= load_s:  # numba imported only where the compiled loop is taken (its import: ~0.1 s)
+        repaid = spent >= compile_s
+        if repaid or cache.ready(*build.text_of(kind, fns, scalar, dims)) is not None:
+            from .support import available
+            if not available():
+                return Choice("numpy", "numba does not import here")
+            if repaid:
+                return Choice("numba", f"the NumPy loop's time (~{spent:.2g} s, this run's and earlier runs') repays "
+                                       f"the compile (~{compile_s:g} s)")
             return Choice("numba", "the compiled loop is in the disk cache")
     if record:
         store[tally] = spent
