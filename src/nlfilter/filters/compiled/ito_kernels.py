@@ -15,9 +15,12 @@ The whole step is the template's ``update`` (it sees the increment); its ``predi
 increment, measured or not. The time of step ``k`` is ``k dt`` (the compiled loop takes models
 whose f, h, G do not depend on the time; :func:`~.support.static_refusal`).
 
-``ks = (Rinv, GQG0, Q, dt, substeps, rk4, second, force, gfix)``: ``R⁻¹`` (the model's, as
+``ks = (Rinv, GQG0, Q, dt, substeps, rk4, second, force, gfix, Rdt, meas_kind)``: ``R⁻¹`` (the model's, as
 :func:`~nlfilter.filters.checks.continuous_precision`), ``G Q Gᵀ`` where G is fixed (``gfix``; else
-``G(x) Q G(x)ᵀ`` at each point), the rule's switches (``force``: 0 none, 1 truncated-Jazwinski, 2 Gaussian; :data:`~nlfilter.filters.rules.FORM_TABLE`).
+``G(x) Q G(x)ᵀ`` at each point), the rule's switches (``force``: 0 none, 1 truncated-Jazwinski, 2 Gaussian; :data:`~nlfilter.filters.rules.FORM_TABLE`),
+``R/dt`` and the form's fourth-moment term of the innovation covariance (``meas_kind``: 0 none, 2
+Gaussian; −¼ forms, whose S the NumPy loop screens batch-wide, are refused with ``loglik``) for
+``run(..., loglik=True)``.
 """
 
 from __future__ import annotations
@@ -27,10 +30,10 @@ import math
 import numpy as np
 
 from .path_linalg import lu, lu_solve, mm, psd_check, symmetrize
-from .step_kernels import add_gqg, hess_trace
+from .step_kernels import add_gqg, condition, hess_trace, meas_cov, quartic, work
 from .support import jit
 
-__all__ = ["ALLOC", "KERNELS", "SOURCES", "alloc_ito", "ito_terms_", "predict_ito_", "update_ito_"]
+__all__ = ["ALLOC", "KERNELS", "SOURCES", "alloc_ito", "ito_terms_", "likelihood_", "predict_ito_", "update_ito_"]
 
 
 def alloc_ito(n, mdim, r, N=0):
@@ -41,7 +44,8 @@ def alloc_ito(n, mdim, r, N=0):
             e((mdim, n, n)), e((n, r)), e((n, r)), e((n, n)), e((n, mdim)), e((n, mdim)), e((n, n, mdim)),
             e((n, n, mdim)), e(pmax), e((n, n)), e((n, mdim)), e((n, n, mdim)), e((mdim, mdim)), e(mdim), e(mdim),
             np.zeros(mdim, np.int64), e((mdim, mdim)), np.zeros(mdim, np.int64), e(mdim), e((n, n)), e((n, n)),
-            e(n), e((n, n)))
+            e(n), e((n, n)), e(mdim), e((mdim, n)), e((n, mdim)), e((n, mdim)), e((mdim, mdim)), e((pmax, n, n)), e(n),
+            e((n, n)), e(mdim), work(n, mdim))
 
 
 def predict_ito_(m, P, t, p, Q, GQG0, G_const, tol, ks, ws, n, mdim):
@@ -105,13 +109,48 @@ def ito_terms_(P, Hm, ob, Ri, hv, Ah, tr, second, force, measure, PHt, K, M, MR,
                 MR[i, j, c] = s
 
 
+def likelihood_(m, P, y, Rdt, dt, second, meas_kind, Ah, tr, yl, Hl, Ht, C, S, AP, mc, Pc, yd, M, w, l1, i1, c1, n,
+                mdim):
+    """The step's likelihood outputs (``l1``, ``i1``, ``c1``) from ``(m, P)`` at its start: the
+    rule's measurement moments ``ŷ = h [+ ½(P h_xx)]``, ``S = H P Hᵀ + R/dt`` [+ the form's
+    fourth-moment term] (:func:`~nlfilter.filters.skeleton.condition` with ``R/dt``), the density
+    of the observed components of ``dy/dt`` (the update kernel's, on copies of ``m`` and ``P``),
+    reported for ``dy``: innovation ``dt e``, covariance ``dt² S``, ``− m_obs log dt``
+    (:func:`~nlfilter.filters.linalg.innovation_info` with ``scale=dt``). ``yl``, ``Hl``, ``Ah``: h,
+    h_x and h_xx at ``m`` (the model's functions are called by the kernel, never passed on: numba
+    could not keep a loop that passes them on disk)."""
+    if second:
+        hess_trace(P, Ah, n, mdim, tr)
+        for a in range(mdim):
+            yl[a] = yl[a] + 0.5 * tr[a]
+    meas_cov(P, Hl, Rdt, Ht, C, S, n, mdim)  # C = P Hᵀ, S = H C + R/dt
+    if second:
+        quartic(meas_kind, P, Ah, tr, n, mdim, AP, S)
+    for i in range(n):
+        mc[i] = m[i]
+        for j in range(n):
+            Pc[i, j] = P[i, j]
+    mo = 0
+    for a in range(mdim):
+        yd[a] = y[a] / dt
+        if not math.isnan(y[a]):
+            mo += 1
+    condition(mc, Pc, yd, yl, S, C, Hl, Rdt, False, M, False, False, n, mdim, w, True, l1, i1, c1)
+    l1[0] = l1[0] - mo * math.log(dt)
+    dt2 = dt * dt
+    for a in range(mdim):
+        i1[a] = dt * i1[a]
+        for b in range(mdim):
+            c1[a, b] = dt2 * c1[a, b]
+
+
 def update_ito_(f, fx, fxx, h, hx, hxx, G, m, P, y, t, p, R, tol, want, l1, i1, c1, ks, ws, n, mdim):
     """One Itô step of the continuous Gaussian filter from ``(m, P)`` at step ``t`` (its index) on the
     increment ``y = dy`` (see the module docstring); False where the path fails (a singular observed
     block of R, or the step's covariance fails the divergence test)."""
-    Rinv, GQG0, Q, dt, substeps, rk4, second, force, gfix = ks
+    Rinv, GQG0, Q, dt, substeps, rk4, second, force, gfix, Rdt, meas_kind = ks
     (x0m, x0P, km, kP, fv, F, Af, hv, Hm, Ah, Gm, GQ, N, PHt, K, M, MR, tr, FP, K0, MR0, Ri, ob, dy0, idx, Ro, piv,
-     u, T1, W, ev, L) = ws
+     u, T1, W, ev, L, yl, Hl, Ht, C, S, AP, mc, Pc, yd, w) = ws
     r = Q.shape[0]
     mo = 0
     for a in range(mdim):  # the observed components, the increment with 0 where missing
@@ -148,6 +187,11 @@ def update_ito_(f, fx, fxx, h, hx, hxx, G, m, P, y, t, p, R, tol, want, l1, i1, 
     if second:
         hxx(m, ts, p, Ah)
     ito_terms(P, Hm, ob, Ri, hv, Ah, tr, second, force, False, PHt, K0, M, MR0, T1, n, mdim)
+    if want:  # the likelihood of dy/dt ~ N(ŷ, S), S = Cov[h] + R/dt at the step's start (ContinuousGaussianFilter._step_info)
+        h(m, ts, p, yl)
+        hx(m, ts, p, Hl)
+        likelihood(m, P, y, Rdt, dt, second, meas_kind, Ah, tr, yl, Hl, Ht, C, S, AP, mc, Pc, yd, M, w, l1, i1, c1, n,
+                   mdim)
     hs = dt / substeps
     for i in range(n):
         x0m[i] = m[i]
@@ -246,9 +290,10 @@ def update_ito_(f, fx, fxx, h, hx, hxx, G, m, P, y, t, p, R, tol, want, l1, i1, 
 
 
 #: the Python sources of this module's helper kernels (compiled below; inlined by :mod:`.build`)
-SOURCES = (ito_terms_,)
+SOURCES = (ito_terms_, likelihood_)
 #: the kind's kernels and work arrays (merged into :mod:`.rule_kernels`' tables)
 KERNELS = {"ito": (predict_ito_, update_ito_)}
 ALLOC = {"ito": alloc_ito}
 
 ito_terms = jit(ito_terms_, _nrt=False)
+likelihood = jit(likelihood_, _nrt=False)

@@ -48,9 +48,12 @@ def run_compiled(flt, yf, batch, m0, P0, on, loglik, progress=False):
     reason = unsupported(flt)
     if reason is not None:
         raise TypeError(f"backend: 'numba' cannot run {type(flt).__name__} here: {reason}; use backend='numpy'")
-    if loglik and getattr(flt, "time", None) == "continuous":  # a CompileError: backend="auto" runs NumPy
-        raise CompileError(f"backend: 'numba' cannot run {type(flt).__name__} with loglik=True (the continuous "
-                           "filters' likelihood runs on the NumPy loop); use backend='numpy'")
+    rule = getattr(flt, "rule", None)
+    if loglik and getattr(flt, "time", None) == "continuous" and rule.second and FORM_TABLE[rule.form].innovation == "-quarter":
+        # a CompileError: backend="auto" runs NumPy
+        raise CompileError(f"backend: 'numba' cannot run {type(flt).__name__} with loglik=True and the form "
+                           f"{rule.form!r} (the NumPy loop screens its innovation covariance over the batch); use "
+                           "backend='numpy'")
     from numba.core.errors import TypingError
     try:
         return _run(flt, yf, batch, m0, P0, on, loglik, progress)
@@ -120,8 +123,9 @@ def _run(flt, yf, batch, m0, P0, on, loglik, progress):
         rule = flt.rule
         force = _FORCE[FORM_TABLE[rule.form].forcing] if rule.second else 0
         gfix = bool(md._G_fixed)
+        meas = _KIND[FORM_TABLE[rule.form].innovation] if rule.second else 0
         ks, N = (_plain(flt._Rinv), GQG0 if gfix else np.zeros((n, n)), Q, float(flt.dt), int(flt.substeps),
-                 flt.scheme == "rk4", bool(rule.second), force, gfix), 0
+                 flt.scheme == "rk4", bool(rule.second), force, gfix, _plain(R / flt.dt), meas), 0
     else:
         rule = flt.rule
         spec = FORM_TABLE[rule.form]
