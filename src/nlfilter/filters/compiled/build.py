@@ -108,6 +108,9 @@ def _bind(name, fns, dims):
 #: (its liveness and SSA passes: blocks × variables): the loop, its predict and its update compiled
 #: apart take 0.55-0.7× the CPU time of one flat function of all three (benchmarks/bench_compile.py)
 _APART = ("predict", "update")
+#: and, by kind, kernels that are functions of their own there too (the Itô step's likelihood: flattened
+#: into its update it doubled the loop's compile, 5.9 -> 10.4-11.9 s CPU at n = 1, loaded)
+_APART_KIND = {"ito": ("likelihood",)}
 _UNUSED3 = "def unused3_(x, t, p, out):\n    pass\n"
 _HEADER = """# nlfilter: a compiled loop, generated (nlfilter.filters.compiled.build); not to be edited: the
 # cache compares this file with the source it must hold and writes it again where they differ.
@@ -156,7 +159,7 @@ def _flat(kind: str, fns: dict, dims) -> list:
     for role, f in zip(("predict", "update"), rule_kernels.KERNELS_BY_KIND[kind]):
         defs[role] = _bind(f.__name__, fns, dims)
     loop = _bind(loops.steps_.__name__, {"predict": None, "update": None}, dims)
-    text, made = flatten_apart(loop, defs, _APART)
+    text, made = flatten_apart(loop, defs, _APART + _APART_KIND.get(kind, ()))
     for name, src in made.items():
         parts += [src, _jit_line(name, name + "_", forceinline=True)]
     return parts + [text, _jit_line("steps", loops.steps_.__name__, cache=True)]

@@ -30,7 +30,7 @@ import math
 import numpy as np
 
 from .path_linalg import lu, lu_solve, mm, psd_check, symmetrize
-from .step_kernels import add_gqg, condition, hess_trace, meas_cov, quartic, work
+from .step_kernels import LOG_2PI, add_gqg, hess_trace, meas_cov, quartic
 from .support import jit
 
 __all__ = ["ALLOC", "KERNELS", "SOURCES", "alloc_ito", "ito_terms_", "likelihood_", "predict_ito_", "update_ito_"]
@@ -44,8 +44,8 @@ def alloc_ito(n, mdim, r, N=0):
             e((mdim, n, n)), e((n, r)), e((n, r)), e((n, n)), e((n, mdim)), e((n, mdim)), e((n, n, mdim)),
             e((n, n, mdim)), e(pmax), e((n, n)), e((n, mdim)), e((n, n, mdim)), e((mdim, mdim)), e(mdim), e(mdim),
             np.zeros(mdim, np.int64), e((mdim, mdim)), np.zeros(mdim, np.int64), e(mdim), e((n, n)), e((n, n)),
-            e(n), e((n, n)), e(mdim), e((mdim, n)), e((n, mdim)), e((n, mdim)), e((mdim, mdim)), e((pmax, n, n)), e(n),
-            e((n, n)), e(mdim), work(n, mdim))
+            e(n), e((n, n)), e(mdim), e((mdim, n)), e((n, mdim)), e((n, mdim)), e((mdim, mdim)), e((pmax, n, n)),
+            e(mdim))
 
 
 def predict_ito_(m, P, t, p, Q, GQG0, G_const, tol, ks, ws, n, mdim):
@@ -109,16 +109,16 @@ def ito_terms_(P, Hm, ob, Ri, hv, Ah, tr, second, force, measure, PHt, K, M, MR,
                 MR[i, j, c] = s
 
 
-def likelihood_(m, P, y, Rdt, dt, second, meas_kind, Ah, tr, yl, Hl, Ht, C, S, AP, mc, Pc, yd, M, w, l1, i1, c1, n,
+def likelihood_(m, P, y, Rdt, dt, second, meas_kind, Ah, tr, yl, Hl, Ht, C, S, AP, yd, idx, So, piv, u, l1, i1, c1, n,
                 mdim):
     """The step's likelihood outputs (``l1``, ``i1``, ``c1``) from ``(m, P)`` at its start: the
     rule's measurement moments ``ŷ = h [+ ½(P h_xx)]``, ``S = H P Hᵀ + R/dt`` [+ the form's
     fourth-moment term] (:func:`~nlfilter.filters.skeleton.condition` with ``R/dt``), the density
-    of the observed components of ``dy/dt`` (the update kernel's, on copies of ``m`` and ``P``),
-    reported for ``dy``: innovation ``dt e``, covariance ``dt² S``, ``− m_obs log dt``
-    (:func:`~nlfilter.filters.linalg.innovation_info` with ``scale=dt``). ``yl``, ``Hl``, ``Ah``: h,
-    h_x and h_xx at ``m`` (the model's functions are called by the kernel, never passed on: numba
-    could not keep a loop that passes them on disk)."""
+    ``log N(dy/dt; ŷ, S)`` of the observed components, reported for ``dy``: innovation ``dt e``,
+    covariance ``dt² S``, ``− m_obs log dt`` (:func:`~nlfilter.filters.linalg.innovation_info` with
+    ``scale=dt``; NaN where the observed block of S is not positive definite). ``yl``, ``Hl``,
+    ``Ah``: h, h_x and h_xx at ``m`` (the model's functions are called by the kernel, never passed
+    on: numba could not keep a loop that passes them on disk)."""
     if second:
         hess_trace(P, Ah, n, mdim, tr)
         for a in range(mdim):
@@ -126,22 +126,36 @@ def likelihood_(m, P, y, Rdt, dt, second, meas_kind, Ah, tr, yl, Hl, Ht, C, S, A
     meas_cov(P, Hl, Rdt, Ht, C, S, n, mdim)  # C = P Hᵀ, S = H C + R/dt
     if second:
         quartic(meas_kind, P, Ah, tr, n, mdim, AP, S)
-    for i in range(n):
-        mc[i] = m[i]
-        for j in range(n):
-            Pc[i, j] = P[i, j]
     mo = 0
     for a in range(mdim):
         yd[a] = y[a] / dt
         if not math.isnan(y[a]):
+            idx[mo] = a
             mo += 1
-    condition(mc, Pc, yd, yl, S, C, Hl, Rdt, False, M, False, False, n, mdim, w, True, l1, i1, c1)
-    l1[0] = l1[0] - mo * math.log(dt)
     dt2 = dt * dt
     for a in range(mdim):
-        i1[a] = dt * i1[a]
+        i1[a] = dt * (yd[a] - yl[a])  # NaN where missing
         for b in range(mdim):
-            c1[a, b] = dt2 * c1[a, b]
+            c1[a, b] = dt2 * S[a, b] if mo > 0 else np.nan
+    if mo == 0:  # nothing measured: the step adds nothing
+        l1[0] = 0.0
+        return True
+    for a in range(mo):
+        u[a] = yd[idx[a]] - yl[idx[a]]
+        for b in range(mo):
+            So[a, b] = S[idx[a], idx[b]]
+    for a in range(mo):  # e kept in yd (u becomes S_oo⁻¹ e)
+        yd[a] = u[a]
+    ok, sign, logdet = lu(So, piv, mo)
+    if not ok or not sign > 0.0:
+        l1[0] = np.nan
+        return True
+    lu_solve(So, piv, mo, u)  # S_oo⁻¹ e
+    q = 0.0
+    for a in range(mo):
+        q += yd[a] * u[a]
+    l1[0] = -0.5 * (q + logdet + mo * LOG_2PI) - mo * math.log(dt)
+    return True  # (a value: the specialized loops make this kernel a function of its own, .build)
 
 
 def update_ito_(f, fx, fxx, h, hx, hxx, G, m, P, y, t, p, R, tol, want, l1, i1, c1, ks, ws, n, mdim):
@@ -150,7 +164,7 @@ def update_ito_(f, fx, fxx, h, hx, hxx, G, m, P, y, t, p, R, tol, want, l1, i1, 
     block of R, or the step's covariance fails the divergence test)."""
     Rinv, GQG0, Q, dt, substeps, rk4, second, force, gfix, Rdt, meas_kind = ks
     (x0m, x0P, km, kP, fv, F, Af, hv, Hm, Ah, Gm, GQ, N, PHt, K, M, MR, tr, FP, K0, MR0, Ri, ob, dy0, idx, Ro, piv,
-     u, T1, W, ev, L, yl, Hl, Ht, C, S, AP, mc, Pc, yd, w) = ws
+     u, T1, W, ev, L, yl, Hl, Ht, C, S, AP, yd) = ws
     r = Q.shape[0]
     mo = 0
     for a in range(mdim):  # the observed components, the increment with 0 where missing
@@ -190,7 +204,7 @@ def update_ito_(f, fx, fxx, h, hx, hxx, G, m, P, y, t, p, R, tol, want, l1, i1, 
     if want:  # the likelihood of dy/dt ~ N(ŷ, S), S = Cov[h] + R/dt at the step's start (ContinuousGaussianFilter._step_info)
         h(m, ts, p, yl)
         hx(m, ts, p, Hl)
-        likelihood(m, P, y, Rdt, dt, second, meas_kind, Ah, tr, yl, Hl, Ht, C, S, AP, mc, Pc, yd, M, w, l1, i1, c1, n,
+        likelihood(m, P, y, Rdt, dt, second, meas_kind, Ah, tr, yl, Hl, Ht, C, S, AP, yd, idx, Ro, piv, u, l1, i1, c1, n,
                    mdim)
     hs = dt / substeps
     for i in range(n):
