@@ -110,7 +110,7 @@ def _bind(name, fns, dims):
 _APART = ("predict", "update")
 #: and, by kind, kernels that are functions of their own there too (the Itô step's likelihood: flattened
 #: into its update it doubled the loop's compile, 5.9 -> 10.4-11.9 s CPU at n = 1, loaded)
-_APART_KIND = {"ito": ("likelihood",)}
+_APART_KIND = {"ito": ("likelihood", "ito_terms")}
 _UNUSED3 = "def unused3_(x, t, p, out):\n    pass\n"
 _HEADER = """# nlfilter: a compiled loop, generated (nlfilter.filters.compiled.build); not to be edited: the
 # cache compares this file with the source it must hold and writes it again where they differ.

@@ -81,7 +81,7 @@ def ito_terms_(P, Hm, ob, Ri, hv, Ah, tr, second, force, measure, PHt, K, M, MR,
             v = hv[a] + 0.5 * tr[a] if second else hv[a]
             hv[a] = v * ob[a]
     if force == 0:
-        return
+        return True
     for a in range(mdim):  # M (n, n, mdim)
         if force == 1:
             for i in range(n):
@@ -107,6 +107,7 @@ def ito_terms_(P, Hm, ob, Ri, hv, Ah, tr, second, force, measure, PHt, K, M, MR,
                 for a in range(mdim):
                     s += M[i, j, a] * ob[a] * Ri[a, c]
                 MR[i, j, c] = s
+    return True  # (a value: the specialized loops make this kernel a function of its own, .build)
 
 
 def likelihood_(m, P, y, Rdt, dt, second, meas_kind, Ah, tr, yl, Hl, Ht, C, S, AP, yd, idx, So, piv, u, l1, i1, c1, n,
