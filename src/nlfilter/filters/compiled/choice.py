@@ -61,8 +61,8 @@ PATH_STEP_US = {"kalman": 0.2, "taylor1": 0.25, "nodes": 0.45, "taylor2": 0.6, "
 #: 4-16 states: 11-12 s idle at n = 4; loaded, 16-27 s at n = 4-16, benchmarks/bench_dimensions.py
 #: run "batch-inner-ekf-2", and 33-44 s at n = 4-8 in an earlier run; loaded, run "smallbatch":
 #: 18.8 s on 200 paths at n = 4, where one path takes the specialized loop, 5.8 s — see
-#: :func:`~.build.loop_of`); the continuous Itô loop (specialized, or general past n = 4): 5.0 s
-#: at n = 1, 5.6 s at n = 2 (general: 7.6 s), loaded
+#: :func:`~.build.loop_of`); the continuous Itô loop (specialized, or general past n = 4): 6.1 s
+#: at n = 1, ~8 s at n = 2 (general: ~10 s), loaded
 COMPILE_SECONDS = {"scalar": 2.0, "specialized": 10.0, "general": 10.0, "batch": 30.0}
 #: a cached loop's first run in a new process (numba's import, reading its code), seconds: measured
 #: 0.39-0.42 s CPU and wall (numba's import 0.12 s of it) for a specialized EKF (n = 2) and the
