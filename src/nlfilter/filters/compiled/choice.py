@@ -64,12 +64,9 @@ PATH_STEP_US = {"kalman": 0.2, "taylor1": 0.25, "nodes": 0.45, "taylor2": 0.6, "
 #: :func:`~.build.loop_of`); the continuous Itô loop (specialized, or general past n = 4): 6.1 s
 #: at n = 1, ~8 s at n = 2 (general: ~10 s), loaded
 COMPILE_SECONDS = {"scalar": 2.0, "specialized": 10.0, "general": 10.0, "batch": 30.0}
-#: a cached loop's first run in a new process (numba's import, reading its code), seconds: measured
-#: 0.39-0.42 s CPU and wall (numba's import 0.12 s of it) for a specialized EKF (n = 2) and the
-#: continuous Itô loop (n = 1) on a loaded 2-core machine, 4 new processes each (it was 1.0 before)
-LOAD_SECONDS = 0.5
-#: the same once numba is imported in the process (reading the loop's code: 0.16 s measured, the Itô
-#: loop after an EKF's)
+#: a cached loop's first run in a new process (numba's import, reading its code), seconds
+LOAD_SECONDS = 1.0
+#: the same once numba is imported in the process (reading the loop's code)
 LOADED_SECONDS = 0.1
 
 
