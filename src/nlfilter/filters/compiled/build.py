@@ -19,7 +19,15 @@ from __future__ import annotations
 import functools
 import inspect
 
-from . import batch_loop, ito_kernels, loops, path_linalg, rule_kernels, sqrt_kernels, step_kernels
+from . import (
+    batch_loop,
+    ito_kernels,
+    loops,
+    path_linalg,
+    rule_kernels,
+    sqrt_kernels,
+    step_kernels,
+)
 from .cache import load_source
 from .flatten import flatten_apart
 from .kalman_loop import KALMAN_KEY, SCALAR
