@@ -165,10 +165,15 @@ class Batched:
             except ZeroDivisionError:
                 vals = kn.fn(*x.reshape(-1), np.float64(t))
             return np.array(vals, dtype=float).reshape(*batch, *self.shape)
-        extra = [self.values.at(p, t, batch) for p in kn.params] if kn.params else ()
-        vals = kn.fn(*(x[..., i] for i in range(kn.n)), np.float64(t), *extra)
+        if kn.params:
+            extra = [self.values.at(p, t, batch) for p in kn.params]
+            vals = kn.fn(*(x[..., i] for i in range(kn.n)), np.float64(t), *extra)
+        elif kn.n == 1:  # (the common calls, spelt out: a generator and star-arguments cost here)
+            vals = kn.fn(x[..., 0], np.float64(t))
+        else:
+            vals = kn.fn(*[x[..., i] for i in range(kn.n)], np.float64(t))
         if len(vals) == 1 and getattr(vals[0], "shape", None) == batch:  # one entry: a reshape, no copy
-            return np.asarray(vals[0], dtype=float).reshape(*batch, *self.shape)
+            return np.asarray(vals[0], dtype=float).reshape(batch + self.shape)
         fixed = kn.fixed
         if fixed and len(vals) * (x.size // x.shape[-1]) <= self.TEMPLATE_MAX:  # the numbers are written once
             tmpl = self._tmpl

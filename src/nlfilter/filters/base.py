@@ -226,6 +226,11 @@ class Filter:
     def _step_unchecked(self, belief, dy, t):
         return self.step(belief, dy, t), None
 
+    def _run_steps(self):
+        """``(predict, update)`` of the run loop, chosen once per run: :meth:`_predict_unchecked`,
+        :meth:`_update_unchecked` (a configuration may skip the layers of the options it has off)."""
+        return self._predict_unchecked, self._update_unchecked
+
     # ``run(..., loglik=True)`` calls these instead: ``(belief, bad paths, info)`` with ``info`` the
     # step's ``{"loglik": (B,), "innovation": (B, m), "innovation_cov": (B, m, m)}``
     # (:func:`~nlfilter.filters.linalg.innovation_info`); a filter that defines a likelihood
@@ -399,22 +404,24 @@ class Filter:
                     belief = rec.record(k, belief, bad, start, info=info)
             else:
                 offset = 0 if self.start == "update" else 1
-                absent = np.isnan(yf).all(axis=(0, 2))  # (T,): steps with no measurement on any path
+                absent = np.isnan(yf).all(axis=(0, 2)).tolist()  # (T,): steps with no measurement on any path
+                predict, update = self._run_steps()  # (looked up once: the loop's per-step calls)
+                update_info, screen, record, check = self._update_info, self.screen_predict, rec.record, rec.check
                 for k in steps:
                     bad = None
                     if k > 0 or offset:
-                        belief, bad = self._predict_unchecked(belief, k + offset - 1)
-                        if self.screen_predict:
-                            belief, bad = rec.record(k, belief, bad, start, write=False), None
+                        belief, bad = predict(belief, k + offset - 1)
+                        if screen:
+                            belief, bad = check(k, belief, bad, start), None
                     if not absent[k]:
                         if loglik:
-                            belief, bad_u, info = self._update_info(belief, yf[:, k], k + offset)
+                            belief, bad_u, info = update_info(belief, yf[:, k], k + offset)
                         else:
-                            belief, bad_u = self._update_unchecked(belief, yf[:, k], k + offset)
+                            belief, bad_u = update(belief, yf[:, k], k + offset)
                         bad = bad_u if bad is None else (bad if bad_u is None else bad | bad_u)
                     elif loglik:  # nothing measured: the step adds nothing to the likelihood
                         info = no_information(B, m)
-                    belief = rec.record(k, belief, bad, start, info=info)
+                    belief = record(k, belief, bad, start, info=info)
         if loglik and T == 0:  # no step: an empty likelihood (Estimates.loglik sums to 0)
             rec.extras = {k: np.empty((B, 0, *v.shape[1:]), v.dtype)
                           for k, v in {**no_information(B, m), "loglik_failed": np.zeros(B, bool)}.items()}

@@ -229,7 +229,11 @@ def _all_ok(mean: np.ndarray, cov: np.ndarray) -> bool:
     if cov.size == 1:  # one path: its numbers
         c = cov.item()
         return c >= 0.0 and math.isfinite(c + mean.item())
-    return bool(_min(cov, axis=None) >= 0.0) and math.isfinite(_sum(cov, axis=None) + _sum(mean, axis=None))
+    if _min(cov, axis=None) >= 0.0:  # no NaN, no −inf in cov; then Σ cov_i mean_i, one call for both (a NaN or
+        if cov.size == mean.size:  # ±inf in either makes it NaN or ±inf: 0·inf is NaN, inf − inf too)
+            return math.isfinite(np.dot(cov.reshape(-1), mean.reshape(-1)))
+        return math.isfinite(_sum(cov, axis=None) + _sum(mean, axis=None))
+    return False
 
 
 _min, _max, _sum = np.minimum.reduce, np.maximum.reduce, np.add.reduce

@@ -46,6 +46,7 @@ class Recorder:
         self.step = np.full(B, -1)
         self.any_diverged = False
         self._chunk, self._buffers, self._k0 = 1, {}, 0  # the time-major buffer of a batch (_put)
+        self._summary, self._extras = flt.summary, flt.extras  # (looked up once)
 
     def _store(self, k, mean, cov, belief, d=None, info=None):
         if self.means is None:
@@ -59,7 +60,7 @@ class Recorder:
         else:
             self._put(k, "means", self.means, np.where(d[:, None], np.nan, mean))
             self._put(k, "covs", self.covs, np.nan if cov is None else np.where(d[:, None, None], np.nan, cov))
-        ex = self.flt.extras(belief)
+        ex = self._extras(belief)
         if info is not None:
             ex = {**(ex or {}), **info}
         if ex:
@@ -92,13 +93,22 @@ class Recorder:
         self._buffers = {}
         self._k0 = k + 1
 
+    def check(self, k, belief, bad, start):
+        """:meth:`record` without writing (the check after a prediction): the belief, with the
+        diverged paths restarted from ``start``."""
+        if bad is None and not self.any_diverged:
+            mean, cov = self._summary(belief)
+            if _all_ok(mean, cov) if cov is not None else math.isfinite(np.add.reduce(mean, axis=None)):
+                return belief
+        return self.record(k, belief, bad, start, write=False)
+
     def record(self, k, belief, bad, start, *, write: bool = True, info=None):
         """Check step ``k``'s belief (raise or mark), write its summary (and the step's likelihood
         ``info``, a dict of per-path arrays) unless ``write`` is False, and return it with the
         diverged paths restarted from ``start``. A path whose log-likelihood term ``info["loglik"]``
         is not finite diverges too (:func:`loglik_divergence`; marked: ``extras["loglik_failed"]``
         is True at that step)."""
-        mean, cov = self.flt.summary(belief)
+        mean, cov = self._summary(belief)
         ll_bad = None
         if info is not None:
             if not math.isfinite(np.add.reduce(info["loglik"], axis=None)):

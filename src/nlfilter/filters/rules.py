@@ -123,7 +123,7 @@ class Taylor1:
         m, P = state
         J = jac(m, t)
         Q = None if noise_of is None else noise_of.GQGT(m, t)  # G(m) Q G(m)ᵀ
-        mean = wrap_components(g(m, t), angles)
+        mean = wrap_components(g(m, t), angles) if angles else g(m, t)
         if cross:
             C = mm(P, J.swapaxes(-1, -2))  # Cov[x, g] = P Jᵀ
             return GaussMoments(mean, C, mm(J, C) if cov else None, J, None, Q)
