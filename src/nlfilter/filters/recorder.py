@@ -54,7 +54,11 @@ class Recorder:
             self.means = np.empty((self.B, self.T, n))
             self.covs = np.empty((self.B, self.T, n, n))
             self._chunk = min(CHUNK_STEPS, CHUNK_BYTES // (8 * self.B * (n + n * n))) if self.B > 1 else 1
-        if d is None:
+        bufs = self._buffers
+        if d is None and bufs and cov is not None:  # a batch's step inside a chunk: straight into its buffers
+            bufs["means"][0][k - self._k0] = mean
+            bufs["covs"][0][k - self._k0] = cov
+        elif d is None:
             self._put(k, "means", self.means, mean)
             self._put(k, "covs", self.covs, np.nan if cov is None else cov)
         else:
