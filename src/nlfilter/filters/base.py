@@ -71,7 +71,7 @@ from .beliefs import GaussianState, where_paths
 from .checks import check_structure, continuous_precision, gaussian_prior, noise_horizon  # noqa: F401  (re-exported)
 from .estimates import Estimates
 from .linalg import no_information, symmetrize
-from .recorder import Recorder, loglik_divergence  # noqa: F401  (loglik_divergence re-exported)
+from .recorder import Recorder, Rows, loglik_divergence  # noqa: F401  (loglik_divergence re-exported)
 from .timing import for_timing, set_start, set_t0  # noqa: F401  (re-exported)
 
 
@@ -392,15 +392,16 @@ class Filter:
         if progress:
             from tqdm.auto import tqdm
             steps = tqdm(steps, desc=progress if isinstance(progress, str) else self.name, leave=False)
+        ys = Rows(yf)  # ys[k]: the step's measurements yf[:, k] (contiguous)
         with np.errstate(over="ignore", invalid="ignore", divide="ignore"):  # failures are caught by record
             info = None
             if self.time == "continuous":
                 dt = self.dt
                 for k in steps:
                     if loglik:
-                        belief, bad, info = self._step_info(belief, yf[:, k], t0 + k * dt)
+                        belief, bad, info = self._step_info(belief, ys[k], t0 + k * dt)
                     else:
-                        belief, bad = self._step_unchecked(belief, yf[:, k], t0 + k * dt)
+                        belief, bad = self._step_unchecked(belief, ys[k], t0 + k * dt)
                     belief = rec.record(k, belief, bad, start, info=info)
             else:
                 offset = 0 if self.start == "update" else 1
@@ -415,9 +416,9 @@ class Filter:
                             belief, bad = check(k, belief, bad, start), None
                     if not absent[k]:
                         if loglik:
-                            belief, bad_u, info = update_info(belief, yf[:, k], k + offset)
+                            belief, bad_u, info = update_info(belief, ys[k], k + offset)
                         else:
-                            belief, bad_u = update(belief, yf[:, k], k + offset)
+                            belief, bad_u = update(belief, ys[k], k + offset)
                         bad = bad_u if bad is None else (bad if bad_u is None else bad | bad_u)
                     elif loglik:  # nothing measured: the step adds nothing to the likelihood
                         info = no_information(B, m)

@@ -31,6 +31,28 @@ def loglik_divergence(name: str, k: int, idx) -> DivergenceError:
 CHUNK_STEPS, CHUNK_BYTES = 64, 1 << 21
 
 
+class Rows:
+    """The measurements of step ``k`` of a batch ``yf (B, T, m)``, ``rows[k]``: ``yf[:, k]`` with its
+    values, each a contiguous ``(B, m)`` (for a batch, from a time-major copy of the next block of
+    steps, made when a step outside the last block is asked for: a path-major column read step by
+    step strides over the whole data, each path on a page of its own). Each block is a new array,
+    so a row a belief keeps (correlated noise carries ``y_k``) stays as it was."""
+
+    def __init__(self, yf):
+        B, T, m = yf.shape
+        self.yf, self.T, self.k0, self.block = yf, T, 0, None
+        self.size = min(CHUNK_STEPS, max(1, CHUNK_BYTES // (8 * B * m))) if B > 1 and T > 1 and m else 0
+
+    def __getitem__(self, k):
+        if not self.size:
+            return self.yf[:, k]
+        i = k - self.k0
+        if self.block is None or not 0 <= i < len(self.block):
+            self.k0, i = k, 0
+            self.block = np.ascontiguousarray(self.yf[:, k:k + self.size].swapaxes(0, 1))
+        return self.block[i]
+
+
 class Recorder:
     """Bookkeeping of :meth:`~nlfilter.filters.base.Filter.run`: output arrays (path-major ``(B, T, ...)`` while filling,
     the layout of the result: no transposing copy at the end), the divergence check after each
