@@ -57,7 +57,6 @@ from __future__ import annotations
 import math
 from types import MappingProxyType
 
-
 import numpy as np
 
 from .. import _validate as V
@@ -71,7 +70,7 @@ from .beliefs import GaussianState, where_paths
 from .checks import check_structure, continuous_precision, gaussian_prior, noise_horizon  # noqa: F401  (re-exported)
 from .estimates import Estimates
 from .linalg import no_information, symmetrize
-from .recorder import Recorder, Rows, loglik_divergence  # noqa: F401  (loglik_divergence re-exported)
+from .recorder import Recorder, Rows, _blas_limit, loglik_divergence  # noqa: F401  (loglik_divergence re-exported)
 from .timing import for_timing, set_start, set_t0  # noqa: F401  (re-exported)
 
 
@@ -457,15 +456,6 @@ class Filter:
         extras = {k: out(nan(v)) for k, v in (more[0] if more and more[0] else {}).items()}
         return Estimates(out(nan(means)), out(nan(covs)), d.reshape(batch), est.diverged_step.reshape(batch),
                          MappingProxyType(extras))
-
-
-def _blas_limit(threads):
-    """A context limiting the BLAS library to ``threads`` threads (threadpoolctl); a no-op for None."""
-    if threads is None:
-        import contextlib
-        return contextlib.nullcontext()
-    from threadpoolctl import threadpool_limits
-    return threadpool_limits(limits=threads, user_api="blas")
 
 
 class DiscreteFilter(Filter):

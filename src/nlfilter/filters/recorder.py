@@ -1,6 +1,7 @@
 """The bookkeeping of :meth:`~nlfilter.filters.base.Filter.run`: the output arrays, the divergence
-check after every step (raise or mark: divergence as data), the restart of marked paths, and a
-log-likelihood term that is not finite treated as a divergence with its reason."""
+check after every step (raise or mark: divergence as data), the restart of marked paths, a
+log-likelihood term that is not finite treated as a divergence with its reason; and the input side,
+each step's measurements as a contiguous row (:class:`Rows`)."""
 
 from __future__ import annotations
 
@@ -187,3 +188,12 @@ class Recorder:
             self.means, self.covs = np.empty((self.B, 0, n)), np.empty((self.B, 0, n, n))
         extras = MappingProxyType({k: out(v) for k, v in self.extras.items()})
         return Estimates(out(self.means), out(self.covs), self.diverged.reshape(batch), self.step.reshape(batch), extras)
+
+
+def _blas_limit(threads):
+    """A context limiting the BLAS library to ``threads`` threads (threadpoolctl) for a run; a no-op for None."""
+    if threads is None:
+        import contextlib
+        return contextlib.nullcontext()
+    from threadpoolctl import threadpool_limits
+    return threadpool_limits(limits=threads, user_api="blas")
