@@ -6,6 +6,7 @@ each step's measurements as a contiguous row (:class:`Rows`)."""
 from __future__ import annotations
 
 import math
+import sys
 from types import MappingProxyType
 
 import numpy as np
@@ -36,8 +37,9 @@ class Rows:
     """The measurements of step ``k`` of a batch ``yf (B, T, m)``, ``rows[k]``: ``yf[:, k]`` with its
     values, each a contiguous ``(B, m)`` (for a batch, from a time-major copy of the next block of
     steps, made when a step outside the last block is asked for: a path-major column read step by
-    step strides over the whole data, each path on a page of its own). Each block is a new array,
-    so a row a belief keeps (correlated noise carries ``y_k``) stays as it was."""
+    step strides over the whole data, each path on a page of its own). A block's array is written
+    again for the next block only when no row of it is held any more (its reference count): a row
+    a belief keeps (correlated noise carries ``y_k``) stays as it was."""
 
     def __init__(self, yf):
         B, T, m = yf.shape
@@ -50,7 +52,11 @@ class Rows:
         i = k - self.k0
         if self.block is None or not 0 <= i < len(self.block):
             self.k0, i = k, 0
-            self.block = np.ascontiguousarray(self.yf[:, k:k + self.size].swapaxes(0, 1))
+            part = self.yf[:, k:k + self.size].swapaxes(0, 1)
+            if self.block is not None and len(part) == len(self.block) and sys.getrefcount(self.block) == 2:
+                self.block[...] = part  # (2: this attribute and the call's argument; no view of it is alive)
+            else:
+                self.block = np.ascontiguousarray(part)
         return self.block[i]
 
 
@@ -68,7 +74,7 @@ class Recorder:
         self.diverged = np.zeros(B, dtype=bool)
         self.step = np.full(B, -1)
         self.any_diverged = False
-        self._chunk, self._buffers, self._k0 = 1, {}, 0  # the time-major buffer of a batch (_put)
+        self._chunk, self._buffers, self._k0, self._spare = 1, {}, 0, {}  # the time-major buffers of a batch (_put)
         self._summary, self._extras = flt.summary, flt.extras  # (looked up once)
 
     def _store(self, k, mean, cov, belief, d=None, info=None):
@@ -109,8 +115,11 @@ class Recorder:
             out[:, k] = v
             return
         buf = self._buffers.get(name)
-        if buf is None:
-            buf = self._buffers[name] = (np.empty((self._chunk, *out.shape[:1], *out.shape[2:]), out.dtype), out, k)
+        if buf is None:  # the chunk's buffer: one array per output for the whole run
+            arr = self._spare.get(name)
+            if arr is None:
+                arr = self._spare[name] = np.empty((self._chunk, *out.shape[:1], *out.shape[2:]), out.dtype)
+            buf = self._buffers[name] = (arr, out, k)
         buf[0][k - self._k0] = v
 
     def _flush(self, k):
