@@ -47,6 +47,15 @@ def mm(A: np.ndarray, B: np.ndarray) -> np.ndarray:
     return A @ B
 
 
+def matmul(A: np.ndarray, B: np.ndarray) -> np.ndarray:
+    """``A @ B`` for batches of small matrices, the same numbers: two batches of 1 x 1 matrices as
+    a broadcast multiply plus 0.0 (what the matmul loop computes, ``0 + a b``: a zero product is
+    +0, NaN and inf as they come; several times cheaper than a batched matmul of 1 x 1 matrices)."""
+    if A.shape[-2:] == B.shape[-2:] == (1, 1) and A.dtype == B.dtype == _F8:
+        return A * B + 0.0
+    return A @ B
+
+
 def _cholesky(A: np.ndarray) -> np.ndarray:
     """``np.linalg.cholesky(A)`` of a float64 batch where every factorization succeeds; NaN in the
     factors of the paths where one fails (the gufunc's fill) instead of the LinAlgError. Called
