@@ -13,7 +13,7 @@ import weakref
 
 import numpy as np
 
-from .._npcall import einsum as _einsum, quiet as _quiet
+from .._npcall import dot as _dot, einsum as _einsum, quiet as _quiet
 from ..noise import Gaussian, Independent
 from .beliefs import GaussianState
 
@@ -240,7 +240,7 @@ def _all_ok(mean: np.ndarray, cov: np.ndarray) -> bool:
         return c >= 0.0 and math.isfinite(c + mean.item())
     if _min(cov, axis=None) >= 0.0:  # no NaN, no −inf in cov; then Σ cov_i mean_i, one call for both (a NaN or
         if cov.size == mean.size:  # ±inf in either makes it NaN or ±inf: 0·inf is NaN, inf − inf too)
-            return math.isfinite(np.dot(cov.reshape(-1), mean.reshape(-1)))
+            return math.isfinite(_dot(cov.reshape(-1), mean.reshape(-1)))
         return math.isfinite(_sum(cov, axis=None) + _sum(mean, axis=None))
     return False
 
