@@ -21,7 +21,7 @@ try:  # np.errstate's context variable, set and reset without its Python wrapper
 except ImportError:  # pragma: no cover - a NumPy without them: np.errstate
     _extobj_contextvar = None
 
-__all__ = ["einsum", "dot", "quiet"]
+__all__ = ["dot", "einsum", "quiet"]
 
 _QUIET = (None, None)  # (the error state it was made from, that state with over/invalid/divide ignored)
 
