@@ -10,13 +10,18 @@ try:  # np.einsum without ``optimize`` calls this, after its Python wrapper: the
 except ImportError:  # pragma: no cover - a NumPy without it
     einsum = np.einsum
 
+try:  # np.dot calls this, after its Python dispatcher: the same numbers
+    from numpy._core._multiarray_umath import dot
+except ImportError:  # pragma: no cover - a NumPy without it
+    dot = np.dot
+
 try:  # np.errstate's context variable, set and reset without its Python wrapper (µs a call)
     from numpy._core._multiarray_umath import _make_extobj
     from numpy._core._ufunc_config import _extobj_contextvar
 except ImportError:  # pragma: no cover - a NumPy without them: np.errstate
     _extobj_contextvar = None
 
-__all__ = ["einsum", "quiet"]
+__all__ = ["dot", "einsum", "quiet"]
 
 _QUIET = (None, None)  # (the error state it was made from, that state with over/invalid/divide ignored)
 

@@ -34,6 +34,7 @@ class Kernel:
         """The kernel of an all-zero array (G's derivatives when G is free of the states), no SymPy."""
         self = cls.__new__(cls)
         self.shape, self.params, self.varies, self.const, self.n = tuple(shape), (), False, True, n
+        self.timed = False
         self.value = np.zeros(self.shape)
         self.fixed = self.moving = ()
         return self
@@ -44,6 +45,7 @@ class Kernel:
         free = set().union(*(e.free_symbols for e in flat)) if flat else set()
         self.params = tuple(p for p in params if p in free)
         self.varies = bool(free & (set(states) | ({time} if time is not None else set())))
+        self.timed = time is not None and time in free  # the function reads its time argument
         self.const = not self.varies and not self.params
         self.n = len(states)
         # the entries that are numbers (Batched._eval writes them once) and the others
@@ -130,6 +132,10 @@ class Batched:
         self._fixed = None
         self._tmpl = None  # the output's constant entries for the last batch shape (_eval)
         self._scalar = None  # whether one state may be evaluated on NumPy scalars (_scalar_safe)
+        # the kernel of a state of one component, without parameters (the common call, made without _eval),
+        # and whether it reads its time argument (else the time goes as given: no NumPy float to make)
+        self._column = kernel.fn if not kernel.const and kernel.n == 1 and not kernel.params else None
+        self._timed = getattr(kernel, "timed", True)
         if kernel.const:
             self._fixed = Broadcast(kernel.value)
         elif not kernel.varies and values.scalar(kernel.params):
@@ -139,6 +145,13 @@ class Batched:
         x = np.asarray(x, dtype=float)
         if self._fixed is not None:
             return self._fixed(x.shape[:-1])
+        fn = self._column
+        if fn is not None and x.size > 1:  # a batch of one-component states: the kernel on the column
+            batch = x.shape[:-1]
+            vals = fn(x[..., 0], np.float64(t) if self._timed else t)
+            if len(vals) == 1 and getattr(vals[0], "shape", None) == batch:  # one entry: a reshape, no copy
+                return np.asarray(vals[0], dtype=float).reshape(batch + self.shape)
+            return self._assemble(vals, x, batch)
         return self._eval(x, t)
 
     def _scalar_safe(self) -> bool:
@@ -165,10 +178,18 @@ class Batched:
             except ZeroDivisionError:
                 vals = kn.fn(*x.reshape(-1), np.float64(t))
             return np.array(vals, dtype=float).reshape(*batch, *self.shape)
-        extra = [self.values.at(p, t, batch) for p in kn.params] if kn.params else ()
-        vals = kn.fn(*(x[..., i] for i in range(kn.n)), np.float64(t), *extra)
+        if kn.params:
+            extra = [self.values.at(p, t, batch) for p in kn.params]
+            vals = kn.fn(*(x[..., i] for i in range(kn.n)), np.float64(t), *extra)
+        else:  # (a list, not a generator: star-arguments of a generator cost here)
+            vals = kn.fn(*[x[..., i] for i in range(kn.n)], np.float64(t) if self._timed else t)
         if len(vals) == 1 and getattr(vals[0], "shape", None) == batch:  # one entry: a reshape, no copy
-            return np.asarray(vals[0], dtype=float).reshape(*batch, *self.shape)
+            return np.asarray(vals[0], dtype=float).reshape(batch + self.shape)
+        return self._assemble(vals, x, batch)
+
+    def _assemble(self, vals, x, batch):
+        """The output ``(*batch, *shape)`` from the kernel's entries ``vals`` (arrays or numbers)."""
+        kn = self.kernel
         fixed = kn.fixed
         if fixed and len(vals) * (x.size // x.shape[-1]) <= self.TEMPLATE_MAX:  # the numbers are written once
             tmpl = self._tmpl

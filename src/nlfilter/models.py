@@ -415,7 +415,7 @@ class Model:
     def GQGT(self, x, t=0.0) -> np.ndarray:
         """G Q Gᵀ at a batch of states, shape (..., n, n)."""
         if self._GQG0 is not None:
-            return self._GQG0(np.shape(x)[:-1])
+            return self._GQG0((x.shape if type(x) is np.ndarray else np.shape(x))[:-1])
         Gx = self.G(x, t)
         return np.einsum("...ia,ab,...jb->...ij", Gx, self.Q, Gx)
 

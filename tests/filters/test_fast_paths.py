@@ -1,6 +1,8 @@
 """The NumPy loop's fast paths (issue 28, "fast by default") give the numbers of the general
 paths bit for bit: one state's model functions on NumPy scalars, the scalar Kalman update on
-Python floats, the innovation screen's Cholesky pre-test, the recorder's time-major buffer."""
+Python floats, the innovation screen's Cholesky pre-test, the recorder's time-major buffer, the
+measurements' time-major rows, the run's steps chosen once per run, the 1 x 1 matmul, the n = 1
+divergence screen."""
 
 from __future__ import annotations
 
@@ -9,9 +11,17 @@ import pytest
 import sympy as sp
 
 from nlfilter import DiscreteModel
-from nlfilter.filters import EKF, SecondOrderFilter, recorder
+from nlfilter.filters import EKF, UKF, SecondOrderFilter, recorder
+from nlfilter.filters.base import Filter
 from nlfilter.filters.beliefs import GaussianState
-from nlfilter.filters.linalg import gaussian_update, symmetrize
+from nlfilter.filters.gaussian import GaussianFilter
+from nlfilter.filters.linalg import (
+    _all_ok,
+    bad_paths,
+    gaussian_update,
+    matmul,
+    symmetrize,
+)
 from nlfilter.filters.skeleton import _pd_mask
 
 x1, x2 = sp.symbols("x1 x2")
@@ -79,3 +89,82 @@ def test_time_major_buffer_writes_every_step(make, monkeypatch):
     ref = flt.run(ys, [0.0], [[1.0]], loglik=True, backend="numpy", on_divergence="mark")
     for a, b in zip((est.means, est.covs, *est.extras.values()), (ref.means, ref.covs, *ref.extras.values())):
         assert np.array_equal(a, b, equal_nan=a.dtype.kind == "f")
+
+
+def test_rows_are_the_columns_and_a_held_row_stays():
+    """``Rows``: every step's row is ``yf[:, k]`` (NaN included), contiguous; a row held across
+    blocks keeps its numbers (a new block array), and without one the block's array is reused."""
+    yf = np.random.default_rng(4).standard_normal((7, 150, 2))
+    yf[2, 30:40, 1] = np.nan
+    rows = recorder.Rows(yf)
+    held = rows[recorder.CHUNK_STEPS - 1]
+    arrays = set()
+    for k in range(150):
+        r = rows[k]
+        assert r.flags.c_contiguous and np.array_equal(r, yf[:, k], equal_nan=True)
+        arrays.add(id(rows.block))
+        del r
+    assert np.array_equal(held, yf[:, recorder.CHUNK_STEPS - 1])
+    assert len(arrays) == 2  # the first block's (held), then one reused: 150 steps, blocks of 64
+
+
+def test_matmul_of_one_by_one_is_matmul_bit_for_bit():
+    """``linalg.matmul`` of 1 x 1 batches (broadcast, transposed, one path) = ``@``, special values included."""
+    v = np.array([0.0, -0.0, np.inf, -np.inf, np.nan, 5e-324, -5e-324, 1e-300, -1e-300, 1e300, -1e300, 1.5, -2.5])
+    A, B = np.repeat(v, v.size).reshape(-1, 1, 1), np.tile(v, v.size).reshape(-1, 1, 1)
+    with np.errstate(all="ignore"):
+        for a, b in ((A, B), (A.swapaxes(-1, -2), B[::-1]), (A, B[3]), (A[:1], B[:1]), (A[0], B[0])):
+            assert np.array_equal(matmul(a, b).view(np.uint64), (a @ b).view(np.uint64))
+
+
+def test_one_state_screen_flags_every_non_finite():
+    """The n = 1 screen (a minimum, then one dot of cov and mean) passes a finite PSD batch and no
+    batch with a NaN or inf in the mean or the covariance (0 · inf included); where the dot
+    overflows the exact test decides."""
+    mean, cov = np.ones((50, 1)), np.full((50, 1, 1), 0.5)
+    assert _all_ok(mean, cov)
+    for field, value in (("mean", np.nan), ("mean", np.inf), ("mean", -np.inf), ("cov", np.nan), ("cov", np.inf),
+                         ("cov", -1.0)):
+        m, c = mean.copy(), cov.copy()
+        (m if field == "mean" else c)[7] = value
+        if field == "mean":
+            c[7] = 0.0  # 0 · inf and 0 · NaN: NaN
+        with np.errstate(invalid="ignore"):
+            assert not _all_ok(m, c) and bad_paths(m, c)[7]
+    with np.errstate(over="ignore"):
+        assert not _all_ok(np.full((50, 1), 1e300), np.full((50, 1, 1), 1e300))  # the dot overflows:
+    assert not bad_paths(np.full((50, 1), 1e300), np.full((50, 1, 1), 1e300)).any()  # the exact test passes
+
+
+class _CountingEKF(EKF):
+    calls = 0
+
+    def predict(self, state, k):
+        type(self).calls += 1
+        return super().predict(state, k)
+
+
+@pytest.mark.parametrize("make", [EKF, UKF, lambda md: SecondOrderFilter(md, form="truncated"),
+                                  lambda md: EKF(md).fading_memory(1.2), lambda md: EKF(md, start="predict")])
+def test_steps_chosen_per_run_equal_the_layered_steps(make, monkeypatch):
+    """``GaussianFilter._run_steps`` (the layers of options that are off skipped once per run) gives
+    the numbers of ``_predict_unchecked``/``_update_unchecked`` — missing data, the likelihood and
+    marked divergences included — and a subclass redefining ``predict`` is run through it."""
+    md = DiscreteModel([x1], [0.9 * x1 + 0.1 * sp.sin(x1)], [x1 + 0.2 * x1 ** 2], Q=0.1, R=0.2)
+    ys = np.random.default_rng(5).standard_normal((6, 40, 1))
+    ys[1, 5:9] = np.nan
+    ys[:, 12] = np.nan
+    ys[3, 20:] *= 1e155  # this path fails (marked)
+    flt = make(md)
+    kw = {"loglik": True, "backend": "numpy", "on_divergence": "mark"}
+    est = flt.run(ys, [0.0], [[1.0]], **kw)
+    monkeypatch.setattr(GaussianFilter, "_run_steps", Filter._run_steps)
+    ref = flt.run(ys, [0.0], [[1.0]], **kw)
+    assert est.diverged.any()
+    for a, b in zip((est.means, est.covs, est.diverged_step, *est.extras.values()),
+                    (ref.means, ref.covs, ref.diverged_step, *ref.extras.values())):
+        assert np.array_equal(a, b, equal_nan=a.dtype.kind == "f")
+    monkeypatch.undo()
+    _CountingEKF.calls = 0
+    _CountingEKF(md).run(ys[:, :10], [0.0], [[1.0]], backend="numpy", on_divergence="mark")
+    assert _CountingEKF.calls == 9

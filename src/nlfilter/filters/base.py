@@ -57,7 +57,6 @@ from __future__ import annotations
 import math
 from types import MappingProxyType
 
-
 import numpy as np
 
 from .. import _validate as V
@@ -71,7 +70,7 @@ from .beliefs import GaussianState, where_paths
 from .checks import check_structure, continuous_precision, gaussian_prior, noise_horizon  # noqa: F401  (re-exported)
 from .estimates import Estimates
 from .linalg import no_information, symmetrize
-from .recorder import Recorder, loglik_divergence  # noqa: F401  (loglik_divergence re-exported)
+from .recorder import Recorder, Rows, _blas_limit, loglik_divergence  # noqa: F401  (loglik_divergence re-exported)
 from .timing import for_timing, set_start, set_t0  # noqa: F401  (re-exported)
 
 
@@ -225,6 +224,11 @@ class Filter:
 
     def _step_unchecked(self, belief, dy, t):
         return self.step(belief, dy, t), None
+
+    def _run_steps(self):
+        """``(predict, update)`` of the run loop, chosen once per run: :meth:`_predict_unchecked`,
+        :meth:`_update_unchecked` (a configuration may skip the layers of the options it has off)."""
+        return self._predict_unchecked, self._update_unchecked
 
     # ``run(..., loglik=True)`` calls these instead: ``(belief, bad paths, info)`` with ``info`` the
     # step's ``{"loglik": (B,), "innovation": (B, m), "innovation_cov": (B, m, m)}``
@@ -387,34 +391,37 @@ class Filter:
         if progress:
             from tqdm.auto import tqdm
             steps = tqdm(steps, desc=progress if isinstance(progress, str) else self.name, leave=False)
+        ys = Rows(yf)  # ys[k]: the step's measurements yf[:, k] (contiguous)
         with np.errstate(over="ignore", invalid="ignore", divide="ignore"):  # failures are caught by record
             info = None
             if self.time == "continuous":
                 dt = self.dt
                 for k in steps:
                     if loglik:
-                        belief, bad, info = self._step_info(belief, yf[:, k], t0 + k * dt)
+                        belief, bad, info = self._step_info(belief, ys[k], t0 + k * dt)
                     else:
-                        belief, bad = self._step_unchecked(belief, yf[:, k], t0 + k * dt)
+                        belief, bad = self._step_unchecked(belief, ys[k], t0 + k * dt)
                     belief = rec.record(k, belief, bad, start, info=info)
             else:
                 offset = 0 if self.start == "update" else 1
-                absent = np.isnan(yf).all(axis=(0, 2))  # (T,): steps with no measurement on any path
+                absent = np.isnan(yf).all(axis=(0, 2)).tolist()  # (T,): steps with no measurement on any path
+                predict, update = self._run_steps()  # (looked up once: the loop's per-step calls)
+                update_info, screen, record, check = self._update_info, self.screen_predict, rec.record, rec.check
                 for k in steps:
                     bad = None
                     if k > 0 or offset:
-                        belief, bad = self._predict_unchecked(belief, k + offset - 1)
-                        if self.screen_predict:
-                            belief, bad = rec.record(k, belief, bad, start, write=False), None
+                        belief, bad = predict(belief, k + offset - 1)
+                        if screen:
+                            belief, bad = check(k, belief, bad, start), None
                     if not absent[k]:
                         if loglik:
-                            belief, bad_u, info = self._update_info(belief, yf[:, k], k + offset)
+                            belief, bad_u, info = update_info(belief, ys[k], k + offset)
                         else:
-                            belief, bad_u = self._update_unchecked(belief, yf[:, k], k + offset)
+                            belief, bad_u = update(belief, ys[k], k + offset)
                         bad = bad_u if bad is None else (bad if bad_u is None else bad | bad_u)
                     elif loglik:  # nothing measured: the step adds nothing to the likelihood
                         info = no_information(B, m)
-                    belief = rec.record(k, belief, bad, start, info=info)
+                    belief = record(k, belief, bad, start, info=info)
         if loglik and T == 0:  # no step: an empty likelihood (Estimates.loglik sums to 0)
             rec.extras = {k: np.empty((B, 0, *v.shape[1:]), v.dtype)
                           for k, v in {**no_information(B, m), "loglik_failed": np.zeros(B, bool)}.items()}
@@ -449,15 +456,6 @@ class Filter:
         extras = {k: out(nan(v)) for k, v in (more[0] if more and more[0] else {}).items()}
         return Estimates(out(nan(means)), out(nan(covs)), d.reshape(batch), est.diverged_step.reshape(batch),
                          MappingProxyType(extras))
-
-
-def _blas_limit(threads):
-    """A context limiting the BLAS library to ``threads`` threads (threadpoolctl); a no-op for None."""
-    if threads is None:
-        import contextlib
-        return contextlib.nullcontext()
-    from threadpoolctl import threadpool_limits
-    return threadpool_limits(limits=threads, user_api="blas")
 
 
 class DiscreteFilter(Filter):

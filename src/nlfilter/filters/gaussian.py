@@ -181,6 +181,37 @@ class GaussianFilter(DiscreteFilter, FadingMemory):
         new, bad, _ = self._conditioned(state, y, k)
         return new, bad
 
+    def _run_steps(self):
+        """The run loop's steps (:meth:`~nlfilter.filters.base.Filter._run_steps`): without fading
+        memory and correlated noise, :meth:`_predict` and :meth:`_condition` (the skeleton's
+        ``predict`` and ``condition`` unless a configuration replaces them) with the failed paths
+        of the update poisoned — what ``_predict_unchecked``/``_update_unchecked`` do, their layers
+        for those options skipped once per run. A subclass redefining one of those layers runs
+        through it (the base's steps)."""
+        cls, base = type(self), GaussianFilter
+        if self.fading != 1.0 or self._cross.S is not None or any(getattr(cls, a) is not getattr(base, a)
+                                                                   for a in _LAYERS):
+            return super()._run_steps()
+        rule, md, raises, plain_time = self.rule, self.model, self.raises, cls._time is base._time
+        if cls._predict is base._predict and plain_time:  # the step's time is k
+            def predict_step(state, k):
+                return predict(rule, md, state, k), None
+        else:
+            own_predict = self._predict
+
+            def predict_step(state, k):
+                return own_predict(state, k), None
+        own_condition, time = (None if cls._condition is base._condition else self._condition), self._time
+
+        def update_step(state, y, k):  # y: a float row of the run's data
+            t = k if plain_time else time(k)
+            new, bad, _ = (condition(rule, md, state, y, t) if own_condition is None
+                           else own_condition(as_gaussian(state), y, t))
+            if bad is None:
+                return new, None
+            return poison(new, bad), (bad if raises else None)
+        return predict_step, update_step
+
     def _update_info(self, state, y, k):
         """``run(..., loglik=True)``: the update with the step's log N(y; ŷ, S) and innovation
         (:func:`~nlfilter.filters.linalg.innovation_info`; S with the rule's fourth-moment term)."""
@@ -191,6 +222,10 @@ class GaussianFilter(DiscreteFilter, FadingMemory):
         """The RTS backward pass through the rule (:func:`~nlfilter.filters.smoothing.rts`)."""
         ms, Ps, lag = rts(est.means, est.covs, *backward_steps(self, ys), angles=angles_of(self.model).states)
         return ms, Ps, {"lag_one_cov": lag}
+
+
+#: the layers of a step that :meth:`GaussianFilter._run_steps` skips (a subclass redefining one keeps them)
+_LAYERS = ("_predict_unchecked", "_update_unchecked", "predict", "update", "_conditioned", "_inflate")
 
 
 class ContinuousDiscreteGaussianFilter(GaussianFilter):

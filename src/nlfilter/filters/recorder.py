@@ -1,10 +1,12 @@
 """The bookkeeping of :meth:`~nlfilter.filters.base.Filter.run`: the output arrays, the divergence
-check after every step (raise or mark: divergence as data), the restart of marked paths, and a
-log-likelihood term that is not finite treated as a divergence with its reason."""
+check after every step (raise or mark: divergence as data), the restart of marked paths, a
+log-likelihood term that is not finite treated as a divergence with its reason; and the input side,
+each step's measurements as a contiguous row (:class:`Rows`)."""
 
 from __future__ import annotations
 
 import math
+import sys
 from types import MappingProxyType
 
 import numpy as np
@@ -31,6 +33,33 @@ def loglik_divergence(name: str, k: int, idx) -> DivergenceError:
 CHUNK_STEPS, CHUNK_BYTES = 64, 1 << 21
 
 
+class Rows:
+    """The measurements of step ``k`` of a batch ``yf (B, T, m)``, ``rows[k]``: ``yf[:, k]`` with its
+    values, each a contiguous ``(B, m)`` (for a batch, from a time-major copy of the next block of
+    steps, made when a step outside the last block is asked for: a path-major column read step by
+    step strides over the whole data, each path on a page of its own). A block's array is written
+    again for the next block only when no row of it is held any more (its reference count): a row
+    a belief keeps (correlated noise carries ``y_k``) stays as it was."""
+
+    def __init__(self, yf):
+        B, T, m = yf.shape
+        self.yf, self.T, self.k0, self.block = yf, T, 0, None
+        self.size = min(CHUNK_STEPS, max(1, CHUNK_BYTES // (8 * B * m))) if B > 1 and T > 1 and m else 0
+
+    def __getitem__(self, k):
+        if not self.size:
+            return self.yf[:, k]
+        i = k - self.k0
+        if self.block is None or not 0 <= i < len(self.block):
+            self.k0, i = k, 0
+            part = self.yf[:, k:k + self.size].swapaxes(0, 1)
+            if self.block is not None and len(part) == len(self.block) and sys.getrefcount(self.block) == 2:
+                self.block[...] = part  # (2: this attribute and the call's argument; no view of it is alive)
+            else:
+                self.block = np.ascontiguousarray(part)
+        return self.block[i]
+
+
 class Recorder:
     """Bookkeeping of :meth:`~nlfilter.filters.base.Filter.run`: output arrays (path-major ``(B, T, ...)`` while filling,
     the layout of the result: no transposing copy at the end), the divergence check after each
@@ -45,7 +74,8 @@ class Recorder:
         self.diverged = np.zeros(B, dtype=bool)
         self.step = np.full(B, -1)
         self.any_diverged = False
-        self._chunk, self._buffers, self._k0 = 1, {}, 0  # the time-major buffer of a batch (_put)
+        self._chunk, self._buffers, self._k0, self._spare = 1, {}, 0, {}  # the time-major buffers of a batch (_put)
+        self._summary, self._extras = flt.summary, flt.extras  # (looked up once)
 
     def _store(self, k, mean, cov, belief, d=None, info=None):
         if self.means is None:
@@ -53,13 +83,17 @@ class Recorder:
             self.means = np.empty((self.B, self.T, n))
             self.covs = np.empty((self.B, self.T, n, n))
             self._chunk = min(CHUNK_STEPS, CHUNK_BYTES // (8 * self.B * (n + n * n))) if self.B > 1 else 1
-        if d is None:
+        bufs = self._buffers
+        if d is None and bufs and cov is not None:  # a batch's step inside a chunk: straight into its buffers
+            bufs["means"][0][k - self._k0] = mean
+            bufs["covs"][0][k - self._k0] = cov
+        elif d is None:
             self._put(k, "means", self.means, mean)
             self._put(k, "covs", self.covs, np.nan if cov is None else cov)
         else:
             self._put(k, "means", self.means, np.where(d[:, None], np.nan, mean))
             self._put(k, "covs", self.covs, np.nan if cov is None else np.where(d[:, None, None], np.nan, cov))
-        ex = self.flt.extras(belief)
+        ex = self._extras(belief)
         if info is not None:
             ex = {**(ex or {}), **info}
         if ex:
@@ -81,8 +115,11 @@ class Recorder:
             out[:, k] = v
             return
         buf = self._buffers.get(name)
-        if buf is None:
-            buf = self._buffers[name] = (np.empty((self._chunk, *out.shape[:1], *out.shape[2:]), out.dtype), out, k)
+        if buf is None:  # the chunk's buffer: one array per output for the whole run
+            arr = self._spare.get(name)
+            if arr is None:
+                arr = self._spare[name] = np.empty((self._chunk, *out.shape[:1], *out.shape[2:]), out.dtype)
+            buf = self._buffers[name] = (arr, out, k)
         buf[0][k - self._k0] = v
 
     def _flush(self, k):
@@ -92,13 +129,22 @@ class Recorder:
         self._buffers = {}
         self._k0 = k + 1
 
+    def check(self, k, belief, bad, start):
+        """:meth:`record` without writing (the check after a prediction): the belief, with the
+        diverged paths restarted from ``start``."""
+        if bad is None and not self.any_diverged:
+            mean, cov = self._summary(belief)
+            if _all_ok(mean, cov) if cov is not None else math.isfinite(np.add.reduce(mean, axis=None)):
+                return belief
+        return self.record(k, belief, bad, start, write=False)
+
     def record(self, k, belief, bad, start, *, write: bool = True, info=None):
         """Check step ``k``'s belief (raise or mark), write its summary (and the step's likelihood
         ``info``, a dict of per-path arrays) unless ``write`` is False, and return it with the
         diverged paths restarted from ``start``. A path whose log-likelihood term ``info["loglik"]``
         is not finite diverges too (:func:`loglik_divergence`; marked: ``extras["loglik_failed"]``
         is True at that step)."""
-        mean, cov = self.flt.summary(belief)
+        mean, cov = self._summary(belief)
         ll_bad = None
         if info is not None:
             if not math.isfinite(np.add.reduce(info["loglik"], axis=None)):
@@ -151,3 +197,12 @@ class Recorder:
             self.means, self.covs = np.empty((self.B, 0, n)), np.empty((self.B, 0, n, n))
         extras = MappingProxyType({k: out(v) for k, v in self.extras.items()})
         return Estimates(out(self.means), out(self.covs), self.diverged.reshape(batch), self.step.reshape(batch), extras)
+
+
+def _blas_limit(threads):
+    """A context limiting the BLAS library to ``threads`` threads (threadpoolctl) for a run; a no-op for None."""
+    if threads is None:
+        import contextlib
+        return contextlib.nullcontext()
+    from threadpoolctl import threadpool_limits
+    return threadpool_limits(limits=threads, user_api="blas")

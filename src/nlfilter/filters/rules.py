@@ -70,7 +70,7 @@ from .._npcall import einsum as _einsum
 from ..angles import node_moments, wrap_components
 from ..moments.quadrature import MAX_ENTRIES, cubature5_rule, gauss_hermite_rule
 from .contractions import gaussian_quartic, hessian_trace, noise_covariance, quarter_outer  # (re-exported)
-from .linalg import axis_gather, mm, psd_root, sqrt_psd
+from .linalg import axis_gather, matmul, mm, psd_root, sqrt_psd
 
 __all__ = ["GaussMoments", "Taylor1", "Taylor2", "FORMS", "Form", "FORM_TABLE", "Unscented", "Cubature", "GaussHermite", "NodeRule",
            "sigma_points", "hessian_trace", "quarter_outer", "gaussian_quartic", "noise_covariance"]
@@ -123,7 +123,7 @@ class Taylor1:
         m, P = state
         J = jac(m, t)
         Q = None if noise_of is None else noise_of.GQGT(m, t)  # G(m) Q G(m)ᵀ
-        mean = wrap_components(g(m, t), angles)
+        mean = wrap_components(g(m, t), angles) if angles else g(m, t)
         if cross:
             C = mm(P, J.swapaxes(-1, -2))  # Cov[x, g] = P Jᵀ
             return GaussMoments(mean, C, mm(J, C) if cov else None, J, None, Q)
@@ -250,13 +250,13 @@ class Taylor2:
         Jt = J.swapaxes(-1, -2)
         C = S = None
         if role == "dynamics" and not cov:  # the drift of dP/dt: Cov[x, f] = (F P)ᵀ
-            C = (J @ P).swapaxes(-1, -2) if cross else None
+            C = matmul(J, P).swapaxes(-1, -2) if cross else None
         elif role == "dynamics":
-            S = J @ P @ Jt  # 004 eq. 19: F X Fᵀ
-            C = P @ Jt if cross else None
+            S = matmul(matmul(J, P), Jt)  # 004 eq. 19: F X Fᵀ
+            C = matmul(P, Jt) if cross else None
         elif cross or cov:
-            C = P @ Jt  # Cov[x, g] = P Jᵀ (third moments neglected)
-            S = J @ C if cov else None
+            C = matmul(P, Jt)  # Cov[x, g] = P Jᵀ (third moments neglected)
+            S = matmul(J, C) if cov else None
         if role is None and quartic is not None:
             S, quartic = S + quartic, None
         Q = None if noise_of is None else self.noise(noise_of, m, P, t)

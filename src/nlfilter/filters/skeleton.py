@@ -153,9 +153,6 @@ def as_gaussian(belief) -> GaussianState:
     return belief if type(belief) is GaussianState else GaussianState(belief[0], belief[1])
 
 
-_NO_KW = {}  # the keywords of a rule's moments for a model without angles (never written)
-
-
 def predict(rule, model, belief, t, *, decorrelation=None, cross: bool = False):
     """``m⁻ = E[f]``, ``P⁻ = Cov[f] + E[G Q Gᵀ]`` (+ the rule's fourth-moment term, added last;
     symmetrized where the rule's ``symmetrize`` says), poisoned where the rule's nodes failed.
@@ -170,8 +167,11 @@ def predict(rule, model, belief, t, *, decorrelation=None, cross: bool = False):
         D, e, sub = decorrelation
         f, f_x, f_xx = _decorrelated(md, D, e)
     idx = angles_of(md).states
-    mo = rule.moments(belief if type(belief) is GaussianState else as_gaussian(belief), f, t, jac=f_x, hess=f_xx,
-                      cross=cross, noise_of=md, role="dynamics", **({"angles": idx} if idx else _NO_KW))
+    state = belief if type(belief) is GaussianState else as_gaussian(belief)
+    if idx:  # (a rule is asked about angles only when there are some)
+        mo = rule.moments(state, f, t, jac=f_x, hess=f_xx, cross=cross, noise_of=md, role="dynamics", angles=idx)
+    else:
+        mo = rule.moments(state, f, t, jac=f_x, hess=f_xx, cross=cross, noise_of=md, role="dynamics")
     P = mo.cov + mo.noise  # P⁻ = Cov[f] + E[G Q Gᵀ]
     if sub is not None:  # Cov[w̃] = Q − S R⁻¹ Sᵀ
         P = P - sub
@@ -220,10 +220,11 @@ def condition(rule, model, belief, y, t, R=None):
     if R is None:  # a state-dependent R(x) at the predicted mean (the EKF convention)
         R = md.R if getattr(md, "R_constant", True) else md.R_of(state.mean, t)
     ang = angles_of(md)
-    mo = rule.moments(state, md.h, t, jac=md.h_x, hess=md.h_xx, role="measurement",
-                      **({"angles": ang.measurements} if ang.measurements else _NO_KW))
-    if ang:  # angles: ŷ on the branch of y (the innovation y − ŷ wrapped, nlfilter.angles)
+    if ang.measurements:  # angles: ŷ on the branch of y (the innovation y − ŷ wrapped, nlfilter.angles)
+        mo = rule.moments(state, md.h, t, jac=md.h_x, hess=md.h_xx, role="measurement", angles=ang.measurements)
         mo = mo._replace(mean=near(mo.mean, y, ang.measurements))
+    else:
+        mo = rule.moments(state, md.h, t, jac=md.h_x, hess=md.h_xx, role="measurement")
     S = mo.cov + R if mo.quartic is None else mo.cov + R + mo.quartic
     bad = mo.bad
     if rule.screen:
