@@ -6,7 +6,6 @@ each step's measurements as a contiguous row (:class:`Rows`)."""
 from __future__ import annotations
 
 import math
-import sys
 from types import MappingProxyType
 
 import numpy as np
@@ -35,11 +34,11 @@ CHUNK_STEPS, CHUNK_BYTES = 64, 1 << 21
 
 class Rows:
     """The measurements of step ``k`` of a batch ``yf (B, T, m)``, ``rows[k]``: ``yf[:, k]`` with its
-    values, each a contiguous ``(B, m)`` (for a batch, from a time-major copy of the next block of
-    steps, made when a step outside the last block is asked for: a path-major column read step by
-    step strides over the whole data, each path on a page of its own). A block's array is written
-    again for the next block only when no row of it is held any more (its reference count): a row
-    a belief keeps (correlated noise carries ``y_k``) stays as it was."""
+    values, each a contiguous ``(B, m)`` (for a batch, a row of a time-major copy of the next block
+    of steps, made when a step outside the last block is asked for: a path-major column read step
+    by step strides over the whole data, each path on a page of its own). Each block is a new
+    array, never written again: a row a belief keeps (correlated noise carries ``y_k``) stays as it
+    was."""
 
     def __init__(self, yf):
         B, T, m = yf.shape
@@ -52,11 +51,7 @@ class Rows:
         i = k - self.k0
         if self.block is None or not 0 <= i < len(self.block):
             self.k0, i = k, 0
-            part = self.yf[:, k:k + self.size].swapaxes(0, 1)
-            if self.block is not None and len(part) == len(self.block) and sys.getrefcount(self.block) == 2:
-                self.block[...] = part  # (2: this attribute and the call's argument; no view of it is alive)
-            else:
-                self.block = np.ascontiguousarray(part)
+            self.block = np.ascontiguousarray(self.yf[:, k:k + self.size].swapaxes(0, 1))
         return self.block[i]
 
 
