@@ -49,17 +49,6 @@ def bchol_(A, L, n, nb, d, acc, ok):
                 L[i, j, b] = acc[b] * d[b]
 
 
-def bmt_(A, B, C, ni, nj, nk, nb):
-    """``C = A Bᵀ`` on every lane (``C_ij = Σ_q A_iq B_jq``, summed in ``q``'s order)."""
-    for i in range(ni):
-        for j in range(nj):
-            for b in range(nb):
-                s = 0.0
-                for q in range(nk):
-                    s += A[i, q, b] * B[j, q, b]
-                C[i, j, b] = s
-
-
 def bmirror_(P, n, nb):
     """The lower triangle of every lane of ``P`` from its upper one. (A product storing both
     ``P[i, j]`` and ``P[j, i]`` in one loop body is not vectorized: the two stores may alias.)"""
@@ -152,14 +141,33 @@ def bpredict_(t, p, Q, GQG0, G_const, n, r, nb, bw):
                     for a in range(r):
                         s += GQ[a, b] * Gm[j, a, b]
                     N[i, j, b] = s
-    bmt(Pb, F, Wn, n, n, n, nb)  # Wn = P Fᵀ
+    for i in range(n):  # Wn = P Fᵀ (Wn_ij = Σ_q P_iq F_jq over row j's q = FZ[j, :kf])
+        for j in range(n):
+            for b in range(nb):
+                s = 0.0
+                for z in range(kf):
+                    q = FZ[j, z]
+                    s += Pb[i, q, b] * F[j, q, b]
+                Wn[i, j, b] = s
     for i in range(n):  # P = N + F Wn, symmetric: the upper triangle, then mirrored (bmirror)
         for j in range(i, n):
             for b in range(nb):
                 s = N[i, j, b]
-                for q in range(n):
+                for z in range(kf):
+                    q = FZ[i, z]
                     s += F[i, q, b] * Wn[q, j, b]
                 Pb[i, j, b] = s
+    if kf < n:  # a term F_iq Wn_qj skipped is 0 where Wn_qj is finite: P⁻ made NaN where it is not
+        for b in range(nb):
+            acc[b] = 0.0
+        for q in range(n):
+            for b in range(nb):
+                s = acc[b]
+                for j in range(n):
+                    s += Wn[q, j, b] * 0.0
+                acc[b] = s
+        for b in range(nb):
+            Pb[0, 0, b] += acc[b]
     bmirror(Pb, n, nb)
     for i in range(n):
         for b in range(nb):
@@ -173,13 +181,21 @@ def bupdate_(ys, k, t, lo, nb, n, mdim, p, R, tol, want, ks, w1, bw, m, P, yk, l
      dead, GQ) = bw
     hb(Mb, t, p, Yh, nb)
     hxb(Mb, t, p, H, nb)
-    bmt(Pb, H, C, n, mdim, n, nb)  # C = P Hᵀ
+    for i in range(n):  # C = P Hᵀ (C_ia = Σ_q P_iq H_aq over row a's q = HZ[a, :kh])
+        for a in range(mdim):
+            for b in range(nb):
+                s = 0.0
+                for z in range(kh):
+                    q = HZ[a, z]
+                    s += Pb[i, q, b] * H[a, q, b]
+                C[i, a, b] = s
     for a in range(mdim):  # S = R + H C
         for c in range(mdim):
             v = R[a, c]
             for b in range(nb):
                 s = v
-                for q in range(n):
+                for z in range(kh):
+                    q = HZ[a, z]
                     s += H[a, q, b] * C[q, c, b]
                 S[a, c, b] = s
     for a in range(mdim):  # (a loop of its own: one store per loop body keeps the loops vectorized)
@@ -239,11 +255,12 @@ def bupdate_(ys, k, t, lo, nb, n, mdim, p, R, tol, want, ks, w1, bw, m, P, yk, l
             for a in range(mdim):
                 s += K[i, a, b] * E[a, b]
             Mb[i, b] += s
-        for j in range(n):
+        for j in range(n):  # (over column j's a = HT[j, :kt])
             v = 1.0 if i == j else 0.0
             for b in range(nb):
                 s = v
-                for a in range(mdim):
+                for z in range(kt):
+                    a = HT[j, z]
                     s -= K[i, a, b] * H[a, j, b]
                 A[i, j, b] = s
     for i in range(n):  # T1 = A P
@@ -356,4 +373,4 @@ def steps_batch_(ys, m0, P0, p, Q, R, GQG0, G_const, offset, absent, tol, means,
 
 
 #: the loop and its kernels, in the order the generated module defines them
-SOURCES = (bchol_, bmt_, bmirror_, bscreen_, bgather_, kill_, settle_, bpredict_, blik_, bupdate_, steps_batch_)
+SOURCES = (bchol_, bmirror_, bscreen_, bgather_, kill_, settle_, bpredict_, blik_, bupdate_, steps_batch_)

@@ -25,6 +25,7 @@ with :func:`dims_of`, :func:`.build.text_of` makes its text here, ``run`` alloca
 from __future__ import annotations
 
 import inspect
+import re
 
 import numpy as np
 
@@ -33,7 +34,7 @@ from . import batch_kernels
 from .kernels import KERNELS, Kernel, model_kernels
 
 __all__ = ["BATCH_FROM", "BATCH_UP_TO", "NB", "NB_LARGE", "block_size", "serves", "dims_of", "is_batch",
-           "block_kernels", "source", "alloc"]
+           "block_kernels", "patterns", "source", "alloc"]
 
 #: the Taylor-1 loops of models with ``BATCH_FROM ≤ n ≤ BATCH_UP_TO`` states take the batch-inner
 #: loop (the chain of benchmarks/bench_dimensions.py, 1000 × 200, one core, run "batch-inner-ekf-2"
@@ -87,8 +88,11 @@ def block_kernels(model) -> dict:
         for arg, w in BLOCK_ARGS.items():
             exprs, shape = specs[w]
             name = "b_" + w.replace("_", "")
+            jac = w in ("f_x", "h_x")  # the Jacobians' zeros: never written (alloc's zeros), never read
+            nz = tuple(tuple(bool(exprs[i * shape[1] + j] != 0) for j in range(shape[1]))
+                       for i in range(shape[0])) if jac else None
             out[arg] = Kernel(name, array_source(name, exprs, shape, model.states, model.time, model._psyms,
-                                                 block=True), fns[w].inline)
+                                                 block=True, zeros=not jac), fns[w].inline, nz)
         store["blocks"] = out
     return store["blocks"]
 
@@ -105,14 +109,17 @@ def alloc(n, mdim, r):
 
     def e(*shape):
         return np.empty((*shape, nb + PAD))
-    return (e(n), e(n, n), e(n), e(n, n), e(n, r), e(n, n), e(n, n), e(n, n),  # Mb Pb Mp F Gm N Wn T1
-            e(mdim), e(mdim, n), e(n, mdim), e(mdim, mdim), e(mdim, mdim), e(mdim),  # Yh H C S Ls E
+
+    def z(*shape):  # F and H: their structural zeros are never written (block_kernels)
+        return np.zeros((*shape, nb + PAD))
+    return (e(n), e(n, n), e(n), z(n, n), e(n, r), e(n, n), e(n, n), e(n, n),  # Mb Pb Mp F Gm N Wn T1
+            e(mdim), z(mdim, n), e(n, mdim), e(mdim, mdim), e(mdim, mdim), e(mdim),  # Yh H C S Ls E
             e(n, mdim), e(n, mdim), e(max(n, mdim)), e(n, n), e(), e(mdim),  # K KR u A okv Li
             e(mdim, mdim), e(), e(), e(), e(), e(), np.zeros(nb + PAD, np.int64), e(r))  # LiS dv acc qv ldv irr dead GQ
 
 
 #: the kernels inlined where they are called (the Cholesky factor: called with ``n`` and ``m``)
-_INLINED = ("bchol_", "bmt_", "bmirror_", "bscreen_", "bgather_", "kill_")
+_INLINED = ("bchol_", "bmirror_", "bscreen_", "bgather_", "kill_")
 
 
 def _params(head: str) -> list:
@@ -126,20 +133,59 @@ def _split(src: str) -> tuple:
     return src[:at], src[at:]
 
 
-def source(base: str, dims) -> str:
+def patterns(fns: dict) -> dict:
+    """The structural non-zeros of the block Jacobians in ``fns`` (:func:`block_kernels`' ``fxb``,
+    ``hxb``; their ``nonzero``) as the tables of the products that skip the zero terms:
+    ``{name: (table, k)}``, ``FZ`` the columns of F's rows, ``HZ`` those of H's rows, ``HT`` the rows
+    of H's columns, each row the indices of its non-zeros in order, then (``k`` the longest row)
+    padded with indices of zeros; ``table`` None where a row has no zero (``k`` its length: the
+    loop over every index, as without tables)."""
+    F, H = fns["fxb"].nonzero, fns["hxb"].nonzero
+    out = {}
+    for name, rows in (("FZ", F), ("HZ", H), ("HT", tuple(zip(*H)) if H else ())):
+        k = max((sum(row) for row in rows), default=0)
+        width = len(rows[0]) if rows else 0
+        if k == width:
+            out[name] = (None, k)
+            continue
+        table = []
+        for row in rows:
+            on = [q for q, v in enumerate(row) if v]
+            off = [q for q, v in enumerate(row) if not v]
+            table.append(on + off[:k - len(on)])  # the padding: terms 0·x (the arrays hold 0 there)
+        out[name] = (table, k)
+    return out
+
+
+#: the tables' index variables and their length constants in the kernels (:func:`patterns`)
+_TABLE_K = {"FZ": "kf", "HZ": "kh", "HT": "kt"}
+
+
+def source(base: str, dims, fns: dict) -> str:
     """The module text of the batch-inner loop: ``base`` (the one-path module of
     :func:`.build.source` for the Taylor-1 kind, the model's block functions among its functions),
     the one-path update not inlined as ``update1``, the kernels of :mod:`.batch_kernels` with the
     dimensions ``dims`` (:func:`dims_of`) compiled in as constants of their bodies (the compiler then
     unrolls the sums; :data:`_INLINED`, called with several dimensions, take theirs inlined), and the
-    loop as ``steps`` (its machine code kept on disk)."""
+    loop as ``steps`` (its machine code kept on disk). The products with F and H sum over the
+    tables of :func:`patterns` of the model ``fns`` (module constants): the terms of a structural
+    zero skipped; where a Jacobian has no zero, over every index (the table's reads replaced by the
+    index)."""
     _, n, mdim, r = dims
+    tables = patterns(fns)
+    consts = {_TABLE_K[name]: k for name, (_, k) in tables.items()}
     parts = [base, f"# the batch-inner loop (nlfilter.filters.compiled.batch_loop)\nNB = {block_size(n)}\nupdate1 = _inner(update_taylor1_)\n"]
+    parts += [f"{name} = np.array({table!r}, dtype=np.int64).reshape({len(table)}, {k})\n"
+              for name, (table, k) in tables.items() if table is not None]
     for f in batch_kernels.SOURCES:
         name = f.__name__
         head, body = _split(_SOURCE[name])
         fixed = [] if name in _INLINED else [f"{v} = {d}" for v, d in (("n", n), ("mdim", mdim), ("r", r))
                                             if v in _params(head)]  # the dimensions as constants
+        for tname, (table, _) in tables.items():
+            if table is None:
+                body = re.sub(rf"= {tname}\[\w+, z\]", "= z", body)
+        fixed += [f"{v} = {d}" for v, d in consts.items() if re.search(rf"\b{v}\b", body)]
         if name == "steps_batch_":  # (read from the arrays in the source)
             body = body.replace("    B, T, mdim = ys.shape\n", "    B, T = ys.shape[0], ys.shape[1]\n", 1)
             body = body.replace("    n = m0.shape[1]\n", "", 1).replace("    r = Q.shape[0]\n", "", 1)
