@@ -9,6 +9,15 @@ two (it cannot tell that they do not overlap the arrays read) — a symmetric pr
 upper triangle, :func:`bmirror_` the lower one after (2.4× faster at n = 16). Sums run in the one-path kernels' order (:func:`~.step_kernels.predict_cov_`,
 :func:`~.step_kernels.meas_cov_`, :func:`~.step_kernels.condition_`'s Joseph form).
 
+The products with F and H (``P Fᵀ``, ``F (P Fᵀ)``, ``P Hᵀ``, ``H C``, ``K H``) sum over the
+Jacobians' structural non-zeros only: ``q = FZ[j, z]`` for ``z < kf``, tables of the model
+(:func:`.batch_loop.patterns`, constants of the generated module, as ``kf``, ``kh``, ``kt``) —
+where a Jacobian has no zero, :func:`.batch_loop.source` writes ``q = z`` (every index). A term
+skipped is ``0 · x``: the sum is the same to the last bit where ``x`` is finite (but for the sign
+of an exact zero). ``P`` is finite there (screened), and a non-finite ``C`` or ``K`` makes the
+mean non-finite with or without the zero terms; a non-finite ``P Fᵀ`` is made to fail the screen
+as its zero terms would (``F (P Fᵀ)`` is then NaN), so a path diverges at the same step.
+
 Sources, never called as Python: :func:`.batch_loop.source` compiles them in the module of the
 one-path kernels (``psd_check``, ``mark``, ``update1``: :func:`~.rule_kernels.update_taylor1_`) and
 the model's block functions (``fb, fxb, hb, hxb, Gb``).
@@ -141,7 +150,7 @@ def bpredict_(t, p, Q, GQG0, G_const, n, r, nb, bw):
                     for a in range(r):
                         s += GQ[a, b] * Gm[j, a, b]
                     N[i, j, b] = s
-    for i in range(n):  # Wn = P Fᵀ (Wn_ij = Σ_q P_iq F_jq over row j's q = FZ[j, :kf])
+    for i in range(n):  # Wn = P Fᵀ (Wn_ij = Σ_q P_iq F_jq over the q of table FZ's row j)
         for j in range(n):
             for b in range(nb):
                 s = 0.0
@@ -181,7 +190,7 @@ def bupdate_(ys, k, t, lo, nb, n, mdim, p, R, tol, want, ks, w1, bw, m, P, yk, l
      dead, GQ) = bw
     hb(Mb, t, p, Yh, nb)
     hxb(Mb, t, p, H, nb)
-    for i in range(n):  # C = P Hᵀ (C_ia = Σ_q P_iq H_aq over row a's q = HZ[a, :kh])
+    for i in range(n):  # C = P Hᵀ (C_ia = Σ_q P_iq H_aq over the q of table HZ's row a)
         for a in range(mdim):
             for b in range(nb):
                 s = 0.0
@@ -255,7 +264,7 @@ def bupdate_(ys, k, t, lo, nb, n, mdim, p, R, tol, want, ks, w1, bw, m, P, yk, l
             for a in range(mdim):
                 s += K[i, a, b] * E[a, b]
             Mb[i, b] += s
-        for j in range(n):  # (over column j's a = HT[j, :kt])
+        for j in range(n):  # (over the a of table HT's row j: H's column j)
             v = 1.0 if i == j else 0.0
             for b in range(nb):
                 s = v
