@@ -76,7 +76,9 @@ def is_batch(dims) -> bool:
 
 def block_kernels(model) -> dict:
     """The model's f, f_x, h, h_x, G over a block of paths (:data:`BLOCK_ARGS` → :class:`~.kernels.Kernel`),
-    generated once per model (in its kernel store, beside the one-path functions)."""
+    generated once per model (in its kernel store, beside the one-path functions). The Jacobians'
+    entries that are identically 0 are not written (:func:`alloc` zeroes F and H once) and are
+    listed in their kernel's ``nonzero`` (:func:`patterns`)."""
     fns = model_kernels(model)  # the Jacobians, computed once, in the store
     store = KERNELS[model._kernels["f"]]
     if "blocks" not in store:
