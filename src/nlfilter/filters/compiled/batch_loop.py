@@ -7,7 +7,9 @@ one-path loop's small matrices leave the processor idle. Per block and step, the
 kernels (:mod:`.rule_kernels`), entry for entry in their order — ``m⁻ = f(m)``, ``P⁻ = F (P Fᵀ) +
 G Q Gᵀ``; ``C = P Hᵀ``, ``S = H C + R``, ``K = C S⁻¹``, the Joseph form ``(I − K H) P (I − K H)ᵀ
 + (K R) Kᵀ``, symmetrized — but for ``S⁻¹``: a Cholesky factor of S instead of LU factors with
-partial pivoting (the same numbers to rounding).
+partial pivoting (the same numbers to rounding), and for the products' terms with a structural
+zero of F or H (an entry of the SymPy Jacobian identically 0), skipped: the model's pattern is
+compiled in as tables (:func:`patterns`), part of the generated text and so of the cache's key.
 
 Everything rarer is the one-path kernels' on that path, so that every convention stays theirs: a
 path whose measurement is partly missing at the step, or whose S has no Cholesky factor, is
