@@ -39,12 +39,13 @@ __all__ = ["BATCH_FROM", "BATCH_UP_TO", "NB", "NB_LARGE", "block_size", "serves"
            "block_kernels", "patterns", "source", "alloc"]
 
 #: the Taylor-1 loops of models with ``BATCH_FROM ≤ n ≤ BATCH_UP_TO`` states take the batch-inner
-#: loop (the chain of benchmarks/bench_dimensions.py, 1000 × 200, one core, run "batch-inner-ekf-2"
-#: of benchmarks/results/bench_dimensions.json: 0.22, 0.92, 4.8 µs per path-step at n = 4, 8, 16,
-#: dynamax's jit+vmap EKF 0.32, 0.92, 3.6: 1.5×, 1.0×, 0.75× its speed, wall time on a loaded
-#: machine — 1.3-1.8×, 1.0-1.15×, 0.7-0.8× over four such runs; 1.5×, 1.0-1.1×, 0.75-0.86× in user
-#: CPU time, paired). At n = 16 it is 1.9× the one-path loop's speed (user CPU time: 4.3 µs
-#: against 8.3), at 2.6× its compile time (~26 s of CPU against ~10 s): taken up to 16
+#: loop (the chain of benchmarks/bench_dimensions.py, 1000 × 200, one core, loaded machine, run
+#: "sparse" of benchmarks/results/bench_dimensions.json: 0.22, 1.3, 3.4 µs per path-step at n = 4,
+#: 8, 16, dynamax's jit+vmap EKF 0.44, 1.7, 5.7: 2.0×, 1.3×, 1.6× its speed; before the products
+#: skipped the Jacobians' structural zeros, run "sparse-before", same conditions: 1.8×, 1.2×, 1.25×;
+#: run "batch-inner-ekf-2", before too: 1.5×, 1.0×, 0.75×). Before the zeros were skipped, at n = 16
+#: it was 1.9× the one-path loop's speed (user CPU time: 4.3 µs against 8.3), at 2.6× its compile
+#: time (~26 s of CPU against ~10 s; skipping them left it as it was): taken up to 16
 BATCH_FROM, BATCH_UP_TO = 4, 16
 #: paths per block up to 8 states (the block's work arrays, two dozen of ``n × n × NB`` at most,
 #: stay in the processor's level-2 cache; 16 paths: 1.3× slower at n = 8, 64: the same within noise)
