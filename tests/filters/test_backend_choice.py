@@ -185,3 +185,56 @@ def test_a_model_numba_cannot_compile_runs_on_numpy_by_default(monkeypatch):
     ref = flt.run(ys, 0.1, 1.0, loglik=True, backend="numpy")
     np.testing.assert_array_equal(default.means, ref.means)
     np.testing.assert_array_equal(default.extras["loglik"], ref.extras["loglik"])
+
+
+def _four_state():
+    """chain(4) of benchmarks/_models.py: four sin-coupled states, two measurements."""
+    x = sp.symbols("x1:5")
+    f = [0.9 * x[i] + 0.1 * sp.sin(x[(i + 1) % 4]) for i in range(4)]
+    h = [x[j] + 0.1 * x[j + 2] ** 2 for j in range(2)]
+    return DiscreteModel(list(x), f, h, Q=0.01 * np.eye(4), R=0.1 * np.eye(2))
+
+
+def test_the_loop_by_the_runs_paths(tmp_path, monkeypatch):
+    """The EKF on 4-16 states has two loops (:func:`~nlfilter.filters.compiled.build.loop_of`): the
+    one-path loop below ``paths_from`` paths (specialized at n = 4, the general loop above), the
+    batch-inner loop from there; the automatic choice weighs the compile of the loop that will run
+    (no loop is compiled here: the choice only reads the rule and the store)."""
+    from nlfilter.filters.compiled import batch_loop, build
+    monkeypatch.setenv("NLFILTER_CACHE", str(tmp_path / "empty"))
+    assert batch_loop.paths_from(4, True) == batch_loop.PATHS_FROM["specialized"] == 8
+    assert batch_loop.paths_from(5, False) == batch_loop.paths_from(8, False) == batch_loop.PATHS_FROM["general"] == 4
+    assert batch_loop.paths_from(9, False) == batch_loop.PATHS_FROM["general-large"] == 16
+    flt = EKF(_four_state())
+    spec = (4, 2, 4, None)
+    assert [build.loop_of(flt, B)[3] for B in (0, 1, 7)] == [spec] * 3
+    assert [build.loop_of(flt, B)[3] for B in (8, 1000, None)] == [batch_loop.dims_of(4, 2, 4)] * 3
+    five = EKF(_five_state())
+    assert [build.loop_of(five, B)[3] for B in (1, 3)] == [None, None]
+    assert batch_loop.is_batch(build.loop_of(five, 4)[3])
+    assert build.loop_of(UKF(_four_state()), 1000)[3] == spec  # the batch-inner loop is the EKF's
+    if compiled.available():  # each loop's compile: a run between the two takes the one-path loop only
+        T = 300_000  # NumPy ~16 s on one path (≥ 10 s), ~20 s on 8 (< 30 s)
+        assert choice.COMPILE_SECONDS["specialized"] <= choice.numpy_seconds("taylor1", 4, 1, T)
+        assert choice.numpy_seconds("taylor1", 4, 8, T) < choice.COMPILE_SECONDS["batch"]
+        assert flt.backend_for(1, T)[1].endswith("repays the compile (~10 s)")
+        assert flt.backend_for(8, T) == ("numpy", "the compile (~30 s) costs more than the NumPy loop (~20 s so far)")
+
+
+def test_a_loaded_loop_serves_the_other_size(monkeypatch):
+    """Where only one of the two loops is in the process, a run of the other size takes it (a
+    process compiles one loop per model); where both are, each size its own. The store is faked:
+    nothing is compiled."""
+    from nlfilter.filters.compiled import batch_loop, build
+    flt = EKF(_four_state())
+    kind, fns, _, spec, key = build.loop_of(flt, 1)
+    wide = batch_loop.dims_of(4, 2, 4)
+    store = build.KERNELS.setdefault(key, {})
+    monkeypatch.setitem(store, build.loop_name(kind, fns, False, spec), ("loop", None))
+    assert build.loop_of(flt, 1000)[3] == spec
+    assert flt.backend_for(1000, 200) == ("numba", "the compiled loop is loaded in this process")
+    monkeypatch.delitem(store, build.loop_name(kind, fns, False, spec))
+    monkeypatch.setitem(store, build.loop_name(kind, fns, False, wide), ("loop", None))
+    assert build.loop_of(flt, 1)[3] == wide
+    monkeypatch.setitem(store, build.loop_name(kind, fns, False, spec), ("loop", None))
+    assert (build.loop_of(flt, 1)[3], build.loop_of(flt, 8)[3]) == (spec, wide)

@@ -296,6 +296,8 @@ class ContinuousGaussianFilter(ContinuousFilter):
     raises = False  # True: step raises DivergenceError on a failed path (the second-order filters)
     likelihood = "prediction-error"
     smoother = "rts"
+    compiled = True  # the Itô step runs on the compiled loop too (backend="numba"; nlfilter.filters.compiled)
+    compiled_kind = "ito"  # its kernel there (compiled/ito_kernels.py)
 
     def __init__(self, model, dt, rule, *, scheme: str = "rk4", substeps: int = 1, innovation: str = "ito"):
         super().__init__(model, dt, scheme=scheme, substeps=substeps)

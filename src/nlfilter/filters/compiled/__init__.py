@@ -1,5 +1,5 @@
-"""The compiled run loop (``run(..., backend="numba")``): the discrete Gaussian filters in one
-numba-compiled loop over paths and steps.
+"""The compiled run loop (``run(..., backend="numba")``): the discrete Gaussian filters, and the
+continuous-time (Itô) EKF and second-order filters, in one numba-compiled loop over paths and steps.
 
 The NumPy loop of :meth:`~nlfilter.filters.base.Filter.run` is the reference; this is the same
 filter, step for step, with the model's f, h, G and their derivatives generated from its SymPy
@@ -21,6 +21,11 @@ square-root Taylor-1            the loop's ``P`` holds the factor S: ``S⁻ = tr
 square-root nodes (``sr-ukf``,  ``tria`` of the weighted deviations, Cholesky downdates for negative
 ``sr-ckf``, ``sr-ghkf``,        weights (a failed one: the path diverges, as on NumPy); the run
 ``sr-slf``)                     reports ``S Sᵀ`` (:mod:`.sqrt_kernels`; always the general loop)
+continuous Itô (the             the whole step in the template's update (:mod:`.ito_kernels`): the
+continuous ``ekf`` and          gain ``K = P Hᵀ R⁻¹`` and forcing at the step's start, the ``dt``
+second-order filters)           terms by RK4/Euler in ``substeps``, then ``+ K dy``; the likelihood
+                                of ``dy/dt`` (not for ``truncated-jazwinski``: NumPy screens its S
+                                over the batch)
 ==============================  ================================================================
 
 A model with one state, one measurement and one noise runs the EKF's scalar batch loop
@@ -42,7 +47,9 @@ the eigenvectors, which a symmetric rule does not see; only repeated nonzero eig
 rotation free (then any root is as right, and the moments agree to the rule's exactness).
 
 What it takes: a filter whose class declares ``compiled = True`` (the discrete Gaussian filters
-above, their square-root forms but the iterated and second-order ones), with no step overridden below it (:func:`steps_refusal`); a :class:`~nlfilter.models.DiscreteModel` stated in SymPy, additive noise, constant
+above, their square-root forms but the iterated and second-order ones; the continuous
+``ContinuousGaussianFilter`` with ``innovation="ito"`` on an SDEModel in SymPy whose f, h, G do not
+depend on the time, a G free of the state for a second-order rule), with no step overridden below it (:func:`steps_refusal`); a :class:`~nlfilter.models.DiscreteModel` stated in SymPy, additive noise, constant
 Q and R, no correlated noise, parameters with one value each (arrays over time, inputs: the NumPy
 loop); Taylor-2 also a G free of the states; the Kalman filter any linear DiscreteModel (SymPy or
 matrices, time-varying too) without correlated noise or parameters per path. :func:`unsupported` names what a filter or model
@@ -60,6 +67,7 @@ The package, one concept a module:
 :mod:`.step_kernels`    one-path step pieces: covariances, node moments, Taylor-2 terms, the update
 :mod:`.rule_kernels`    one predict and one update kernel per rule kind, and their work arrays
 :mod:`.sqrt_kernels`    the square-root filters' kernels: Householder ``tria``, downdates, the array update
+:mod:`.ito_kernels`     the continuous Itô filters' step: RK4/Euler substeps, the Itô gain, the likelihood
 :mod:`.kalman_loop`     the Kalman filter's kernels: the matrices as data (the template's, and the scalar
                         batch loop's f, h, G reading them from ``p``)
 :mod:`.loops`           one loop template for every rule kind; the scalar EKF's batch loop

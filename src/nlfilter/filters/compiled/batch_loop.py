@@ -35,8 +35,8 @@ from ...codegen import array_source
 from . import batch_kernels
 from .kernels import KERNELS, Kernel, model_kernels
 
-__all__ = ["BATCH_FROM", "BATCH_UP_TO", "NB", "NB_LARGE", "block_size", "serves", "dims_of", "is_batch",
-           "block_kernels", "patterns", "source", "alloc"]
+__all__ = ["BATCH_FROM", "BATCH_UP_TO", "PATHS_FROM", "NB", "NB_LARGE", "block_size", "serves", "paths_from",
+           "dims_of", "is_batch", "block_kernels", "patterns", "source", "alloc"]
 
 #: the Taylor-1 loops of models with ``BATCH_FROM ≤ n ≤ BATCH_UP_TO`` states take the batch-inner
 #: loop (the chain of benchmarks/bench_dimensions.py, 1000 × 200, one core, loaded machine, run
@@ -47,6 +47,24 @@ __all__ = ["BATCH_FROM", "BATCH_UP_TO", "NB", "NB_LARGE", "block_size", "serves"
 #: it was 1.9× the one-path loop's speed (user CPU time: 4.3 µs against 8.3), at 2.6× its compile
 #: time (~26 s of CPU against ~10 s; skipping them left it as it was): taken up to 16
 BATCH_FROM, BATCH_UP_TO = 4, 16
+#: the fewest paths a run takes the batch-inner loop with; fewer take the one-path loop — specialized
+#: at n = 4 (:data:`~.build.SPECIALIZE_UP_TO`), the general loop above. A block of fewer paths than
+#: :data:`NB` pays the step's work for a whole vector of paths. chain(4) EKF of
+#: benchmarks/_models.py, 100 000 path-steps per run, both loops in one process, alternating (7
+#: rounds, user CPU time, one core of a loaded machine), µs per path-step specialized / batch-inner
+#: (median of the paired time ratios): B = 1: 0.35 / 1.17 (0.32), 2: 0.34 / 0.72 (0.47), 4: 0.33 /
+#: 0.43 (0.77), 8: 0.33 / 0.31 (1.06), 16: 0.34 / 0.25 (1.36), 32: 0.33 / 0.23 (1.41), 1000: 0.35 /
+#: 0.24 (1.46); outputs within 1e-15 of each other. First compiles (fresh process, numba's import
+#: included): 6.1 s and 18.6 s. The specialized loop for every B would keep n = 4 near 5 s of
+#: compile, but at 0.33-0.35 µs on 1000 × 200 it runs at 0.9-1.3× dynamax's jit+vmap (0.32-0.44 µs,
+#: runs "batch-inner-ekf-2", "session-8" and "smallbatch-n4" of bench_dimensions.json; the last:
+#: batch-inner 0.216 µs, 2.0×, user CPU time), short of the 1.5× of issue 28.
+#: Against the general loop, the same measure, B = 1, 2, 4, 8, 16, 64, 1000: chain(5) 0.69, 0.97,
+#: 1.58, 2.35, 3.30, 3.66, 3.31 (one path: 1.24 µs / 1.85), chain(8) 0.50, 0.68, 1.21, 1.51, 1.53,
+#: 2.60, 2.60 (2.46 / 5.65), chain(16), blocks of :data:`NB_LARGE`: 0.35, 0.58, 0.83, 0.98, 1.12,
+#: 1.86 (9.8 / 36.4; 5 rounds): from 4 paths up to 8 states, from 16 above. First compiles of the
+#: general and the batch-inner loop: 7.7 and 22.0 s at n = 5, 7.4 and 23.8 s at n = 8
+PATHS_FROM = {"specialized": 8, "general": 4, "general-large": 16}
 #: paths per block up to 8 states (the block's work arrays, two dozen of ``n × n × NB`` at most,
 #: stay in the processor's level-2 cache; 16 paths: 1.3× slower at n = 8, 64: the same within noise)
 NB = 32
@@ -63,8 +81,16 @@ _SOURCE = {f.__name__: inspect.getsource(f) for f in batch_kernels.SOURCES}  # r
 
 
 def serves(kind: str, n: int, mdim: int) -> bool:
-    """Whether the loop of rule ``kind`` on ``n`` states (``mdim`` measurements) is the batch-inner one."""
+    """Whether rule ``kind`` on ``n`` states (``mdim`` measurements) has the batch-inner loop (taken
+    by runs of :func:`paths_from` paths or more; :func:`.build.loop_of`)."""
     return kind == "taylor1" and BATCH_FROM <= n <= BATCH_UP_TO
+
+
+def paths_from(n: int, specialized: bool) -> int:
+    """The fewest paths a run on ``n`` states takes the batch-inner loop with (:data:`PATHS_FROM`),
+    where the one-path loop it would take otherwise is ``specialized`` (the dimensions compiled in)
+    or the general loop."""
+    return PATHS_FROM["specialized" if specialized else "general" if n <= 8 else "general-large"]
 
 
 def dims_of(n, mdim, r) -> tuple:

@@ -19,7 +19,15 @@ from __future__ import annotations
 import functools
 import inspect
 
-from . import batch_loop, loops, path_linalg, rule_kernels, sqrt_kernels, step_kernels
+from . import (
+    batch_loop,
+    ito_kernels,
+    loops,
+    path_linalg,
+    rule_kernels,
+    sqrt_kernels,
+    step_kernels,
+)
 from .cache import load_source
 from .flatten import flatten_apart
 from .kalman_loop import KALMAN_KEY, SCALAR
@@ -35,7 +43,8 @@ FUNCTION_ARGS = {"steps_scalar_": ("f", "fx", "h", "hx", "G"), "steps_": ("predi
                  "predict_nodes_": ("f", "G"), "update_nodes_": ("h",),
                  "predict_taylor2_": ("f", "fx", "fxx"), "update_taylor2_": ("h", "hx", "hxx"),
                  "predict_sqrt_taylor1_": ("f", "fx", "G"), "update_sqrt_taylor1_": ("h", "hx"),
-                 "predict_sqrt_nodes_": ("f", "G"), "update_sqrt_nodes_": ("h",)}
+                 "predict_sqrt_nodes_": ("f", "G"), "update_sqrt_nodes_": ("h",),
+                 "predict_ito_": (), "update_ito_": ("f", "fx", "fxx", "h", "hx", "hxx", "G")}
 
 #: loops of models up to this state and measurement dimension are specialized: the dimensions
 #: compiled in as constants and the helpers expanded into the loop (:func:`_flat`; the compiler
@@ -50,10 +59,13 @@ SPECIALIZE_UP_TO = 4
 SQRT_KINDS = ("sqrt-taylor1", "sqrt-nodes")
 
 _KERNEL_MODULES = (path_linalg, step_kernels)
+#: the helper kernels of a kind's own module (the square-root kinds', the continuous Itô kind's)
+_KIND_MODULES = {"sqrt-taylor1": (sqrt_kernels,), "sqrt-nodes": (sqrt_kernels,), "ito": (ito_kernels,)}
 #: the kernels whose first parameter is a model function (:func:`_helpers`)
 _TAKES_FUNCTIONS = ("nodes_moments_",)
 _SOURCE = {f.__name__: inspect.getsource(f)  # read once, at import
-           for f in (*path_linalg.SOURCES, *step_kernels.SOURCES, *sqrt_kernels.SOURCES, *loops.SOURCES.values(),
+           for f in (*path_linalg.SOURCES, *step_kernels.SOURCES, *sqrt_kernels.SOURCES, *ito_kernels.SOURCES,
+                     *loops.SOURCES.values(),
                      *(k for pair in rule_kernels.KERNELS_BY_KIND.values() for k in pair))}
 
 
@@ -66,7 +78,7 @@ def _helpers(kind: str = "") -> list:
     """The kernels of :mod:`.path_linalg` and :mod:`.step_kernels` (and :mod:`.sqrt_kernels`' for the
     square-root kinds) as source, each jitted under its name (``chol_`` as ``chol``; the general loops')."""
     out = []
-    for mod in _KERNEL_MODULES + ((sqrt_kernels,) if kind in SQRT_KINDS else ()):
+    for mod in _KERNEL_MODULES + _KIND_MODULES.get(kind, ()):
         for f in mod.SOURCES:
             h = f.__name__
             # a kernel taking a model function as argument is always inlined: called, it would get
@@ -104,6 +116,9 @@ def _bind(name, fns, dims):
 #: (its liveness and SSA passes: blocks × variables): the loop, its predict and its update compiled
 #: apart take 0.55-0.7× the CPU time of one flat function of all three (benchmarks/bench_compile.py)
 _APART = ("predict", "update")
+#: and, by kind, kernels that are functions of their own there too (the Itô step's likelihood: flattened
+#: into its update it doubled the loop's compile, 5.9 -> 10.4-11.9 s CPU at n = 1, loaded)
+_APART_KIND = {"ito": ("likelihood", "ito_terms")}
 _UNUSED3 = "def unused3_(x, t, p, out):\n    pass\n"
 _HEADER = """# nlfilter: a compiled loop, generated (nlfilter.filters.compiled.build); not to be edited: the
 # cache compares this file with the source it must hold and writes it again where they differ.
@@ -139,8 +154,8 @@ def _flat(kind: str, fns: dict, dims) -> list:
     other kernel expanded into their text (:func:`.flatten.flatten_apart`; numba then types three
     functions instead of inlining the kernels call site by call site: the same arithmetic, a
     fraction of the compile)."""
-    defs = {f.__name__[:-1]: _SOURCE[f.__name__] for mod in _KERNEL_MODULES for f in mod.SOURCES
-            if f.__name__ != "jacobi_"}
+    defs = {f.__name__[:-1]: _SOURCE[f.__name__] for mod in _KERNEL_MODULES + _KIND_MODULES.get(kind, ())
+            for f in mod.SOURCES if f.__name__ != "jacobi_"}
     parts = [_SOURCE["jacobi_"], _jit_line("jacobi", "jacobi_")]
     for arg, k in fns.items():
         if k is None:
@@ -152,7 +167,7 @@ def _flat(kind: str, fns: dict, dims) -> list:
     for role, f in zip(("predict", "update"), rule_kernels.KERNELS_BY_KIND[kind]):
         defs[role] = _bind(f.__name__, fns, dims)
     loop = _bind(loops.steps_.__name__, {"predict": None, "update": None}, dims)
-    text, made = flatten_apart(loop, defs, _APART)
+    text, made = flatten_apart(loop, defs, _APART + _APART_KIND.get(kind, ()))
     for name, src in made.items():
         parts += [src, _jit_line(name, name + "_", forceinline=True)]
     return parts + [text, _jit_line("steps", loops.steps_.__name__, cache=True)]
@@ -184,12 +199,22 @@ def source(kind: str, fns: dict, scalar: bool = False, dims=None) -> str:
     return "\n\n".join(p.rstrip("\n") + "\n" for p in parts)
 
 
-def loop_of(flt):
-    """``(kind, fns, scalar, dims, key)``: the loop that runs ``flt`` (:func:`steps`' arguments): its
-    rule kind, the model's functions (:mod:`.kernels`, generated once per model), whether it is the
-    scalar batch loop (the EKF on one state, measurement and noise; the KF on one state and
-    measurement), the dimensions compiled in (models up to :data:`SPECIALIZE_UP_TO`) or None, the
-    store its loops are kept in (:data:`~.kernels.KERNELS`: the model's, the KF's one)."""
+def loop_of(flt, B: int | None = None):
+    """``(kind, fns, scalar, dims, key)``: the loop that runs ``flt`` on ``B`` paths (:func:`steps`'
+    arguments): its rule kind, the model's functions (:mod:`.kernels`, generated once per model),
+    whether it is the scalar batch loop (the EKF on one state, measurement and noise; the KF on one
+    state and measurement), the dimensions compiled in (models up to :data:`SPECIALIZE_UP_TO`) or
+    None, the store its loops are kept in (:data:`~.kernels.KERNELS`: the model's, the KF's one).
+
+    The run's size matters to the EKF on 4-16 states (:func:`.batch_loop.serves`): from
+    :func:`.batch_loop.paths_from` paths (8 where the one-path loop is specialized, n = 4; 4 at
+    5-8 states, 16 above)
+    the batch-inner loop, below it the one-path loop (one trajectory of chain(4): 0.35 µs per step,
+    user CPU time, against the batch-inner loop's 1.17; see :data:`.batch_loop.PATHS_FROM`) — unless
+    only the other of the two is in this process already (compiled or loaded by an earlier run):
+    that one, so that a process compiles one loop per model (the loaded one costs at most 1.5× the
+    time per path-step of the other at n = 4 from 8 paths, 3.3× on one path; a compile costs
+    5-30 s). ``B`` None: a batch of any size (the batch-inner loop where the rule has one)."""
     md = flt.model
     n, mdim, r = md.n, md.m, md.r
     kind = rule_kind(flt)
@@ -199,17 +224,25 @@ def loop_of(flt):
     if kind == "taylor1" and n == mdim == r == 1:
         return kind, scalar_kernels(md), True, None, key
     dims = (n, mdim, r, None) if max(n, mdim) <= SPECIALIZE_UP_TO and kind not in SQRT_KINDS else None
-    second = kind == "taylor2" and flt.rule.second
+    # the continuous Itô kind: the Hessians on small models whatever the rule, so that its Taylor-1 and
+    # Taylor-2 filters share one loop (one compile; the rule's switches are data, ks)
+    second = (kind == "taylor2" and flt.rule.second) or (kind == "ito" and (flt.rule.second or dims is not None))
     fns = model_kernels(md, second=second)
     # the kernels' parameter names -> model_kernels' (first-order Taylor-2: the Hessian slots are
     # never called; None, a compiled no-op, fills them)
     args = {"taylor1": {"f": "f", "fx": "f_x", "h": "h", "hx": "h_x", "G": "G"}, "nodes": {"f": "f", "h": "h", "G": "G"},
             "taylor2": {"f": "f", "fx": "f_x", "fxx": "f_xx", "h": "h", "hx": "h_x", "hxx": "h_xx"},
             "sqrt-taylor1": {"f": "f", "fx": "f_x", "h": "h", "hx": "h_x", "G": "G"},
-            "sqrt-nodes": {"f": "f", "h": "h", "G": "G"}}[kind]
+            "sqrt-nodes": {"f": "f", "h": "h", "G": "G"},
+            "ito": {"f": "f", "fx": "f_x", "fxx": "f_xx", "h": "h", "hx": "h_x", "hxx": "h_xx", "G": "G"}}[kind]
     fns = {a: fns.get(w) for a, w in args.items()}
     if batch_loop.serves(kind, n, mdim):  # the batch-inner loop (the model's functions over blocks too)
-        return kind, {**fns, **batch_loop.block_kernels(md)}, False, batch_loop.dims_of(n, mdim, r), key
+        wide = batch_loop.dims_of(n, mdim, r)
+        batch = B is None or B >= batch_loop.paths_from(n, dims is not None)
+        if B is not None and not loaded(kind, fns, key, False, wide if batch else dims):
+            batch = batch != loaded(kind, fns, key, False, dims if batch else wide)  # only the other one is loaded
+        if batch:
+            return kind, {**fns, **batch_loop.block_kernels(md)}, False, wide, key
     return kind, fns, False, dims, key
 
 
@@ -233,7 +266,7 @@ def steps(kind: str, fns: dict, key, scalar: bool = False, dims=None):
 
 
 def loop_name(kind, fns, scalar, dims):
-    return ("steps", kind, fns.get("fxx") is None if kind == "taylor2" else scalar, dims)
+    return ("steps", kind, fns.get("fxx") is None if kind in ("taylor2", "ito") else scalar, dims)
 
 
 def text_of(kind: str, fns: dict, scalar: bool = False, dims=None) -> tuple:

@@ -6,6 +6,10 @@ loop once the process has shown it repeats the work:
 
 1. A filter or model the compiled loop does not take (:func:`~.support.static_refusal`: the
    filter's declaration, its rule, the model's structure) runs on the NumPy loop.
+   Every later step asks about the loop that would run these ``B`` paths
+   (:func:`~.build.loop_of`: the EKF on 4-16 states has two, the one-path loop below
+   :func:`~.batch_loop.paths_from` paths and the batch-inner one from there — or the one of them
+   already in this process), with its own compile time.
 2. A loop already in this process (compiled or loaded by an earlier run) runs compiled.
 3. ``W``: the NumPy loop's estimated time for this run (:func:`numpy_seconds`:
    ``repeats × T × (a + B·b·n^1.5)`` µs with the per-step and per-path-step costs of the rule kind,
@@ -37,18 +41,28 @@ __all__ = ["Choice", "choose", "numpy_seconds", "COMPILE_SECONDS", "LOAD_SECONDS
            "PATH_STEP_US"]
 
 #: the NumPy loop's cost per step, µs (one trajectory: its Python overhead), by rule kind
-STEP_US = {"kalman": 40.0, "taylor1": 50.0, "nodes": 110.0, "taylor2": 160.0, "sqrt-taylor1": 120.0, "sqrt-nodes": 240.0}
+STEP_US = {"kalman": 40.0, "taylor1": 50.0, "nodes": 110.0, "taylor2": 160.0, "sqrt-taylor1": 120.0, "sqrt-nodes": 240.0,
+           "ito": 110.0}
 #: and per path-step at ``n = 1``, µs, scaled by ``n^1.5`` (1000 paths: 0.12 µs for the EKF at
 #: n = 1, 3.6 at n = 4, 22.7 at n = 16; the UKF and second-order filters 2-3× the EKF; the square-root
 #: filters 2.2-2.4× their standard form per step, 1.5-1.9× per path-step, measured at n = 2)
-PATH_STEP_US = {"kalman": 0.2, "taylor1": 0.25, "nodes": 0.45, "taylor2": 0.6, "sqrt-taylor1": 0.5, "sqrt-nodes": 0.7}
+#: The continuous Itô filters (``"ito"``: the continuous EKF and second-order filters, RK4, one
+#: substep; the cubic sensor, n = 1, one core, loaded machine): 71-140 µs per step on one trajectory
+#: (EKF 71, truncated 108, Gaussian second-order 140), 0.46-1.0 µs per path-step at 64 paths and
+#: 0.11-0.15 at 1000; at n = 2, 1.1 (EKF) to 5.1 (Gaussian) µs per path-step at 1000 paths (the n^1.5
+#: scale is low there: the NumPy loop's n = 1 products are broadcasts, its n = 2 ones matmuls)
+PATH_STEP_US = {"kalman": 0.2, "taylor1": 0.25, "nodes": 0.45, "taylor2": 0.6, "sqrt-taylor1": 0.5, "sqrt-nodes": 0.7,
+                "ito": 0.4}
 #: a loop's first compile, CPU seconds: the scalar EKF's batch loop, the loops specialized to the
 #: dimensions (n, m ≤ :data:`~.build.SPECIALIZE_UP_TO`; the loop, its predict and its update
 #: flattened apart: 3.4-5.2 s measured by benchmarks/bench_compile.py on an idle core, run
 #: "compile-split", against 4.7-9.1 s for one flat loop, which took 10-21 s on a loaded machine),
 #: the general loop (EKF n = 16: 5.8 s idle), the EKF's batch-inner loop (:mod:`.batch_loop`,
 #: 4-16 states: 11-12 s idle at n = 4; loaded, 16-27 s at n = 4-16, benchmarks/bench_dimensions.py
-#: run "batch-inner-ekf-2", and 33-44 s at n = 4-8 in an earlier run)
+#: run "batch-inner-ekf-2", and 33-44 s at n = 4-8 in an earlier run; loaded, run "smallbatch":
+#: 18.8 s on 200 paths at n = 4, where one path takes the specialized loop, 5.8 s — see
+#: :func:`~.build.loop_of`); the continuous Itô loop (specialized, or general past n = 4): 6.1 s
+#: at n = 1, ~8 s at n = 2 (general: ~10 s), loaded
 COMPILE_SECONDS = {"scalar": 2.0, "specialized": 10.0, "general": 10.0, "batch": 30.0}
 #: a cached loop's first run in a new process (numba's import, reading its code), seconds
 LOAD_SECONDS = 1.0
@@ -78,7 +92,7 @@ def choose(flt, B: int, T: int, repeats: int = 1, record: bool = False) -> Choic
         return Choice("numpy", f"no compiled loop: {reason}")
     from . import batch_loop, build, cache
 
-    kind, fns, scalar, dims, key = build.loop_of(flt)
+    kind, fns, scalar, dims, key = build.loop_of(flt, B)
     if build.loaded(kind, fns, key, scalar, dims):
         return Choice("numba", "the compiled loop is loaded in this process")
     store = build.KERNELS.setdefault(key, {})
@@ -88,14 +102,15 @@ def choose(flt, B: int, T: int, repeats: int = 1, record: bool = False) -> Choic
     compile_s = COMPILE_SECONDS["scalar" if scalar else "general" if dims is None else
                                 "batch" if batch_loop.is_batch(dims) else "specialized"]
     load_s = LOADED_SECONDS if "numba" in sys.modules else LOAD_SECONDS
-    if spent >= load_s:
-        from .support import available
-        if not available():
-            return Choice("numpy", "numba does not import here")
-        if spent >= compile_s:
-            return Choice("numba", f"the NumPy loop's time (~{spent:.2g} s, this run's and earlier runs') repays the "
-                                   f"compile (~{compile_s:g} s)")
-        if cache.ready(*build.text_of(kind, fns, scalar, dims)) is not None:
+    if spent >= load_s:  # numba imported only where the compiled loop is taken (its import: ~0.1 s)
+        repaid = spent >= compile_s
+        if repaid or cache.ready(*build.text_of(kind, fns, scalar, dims)) is not None:
+            from .support import available
+            if not available():
+                return Choice("numpy", "numba does not import here")
+            if repaid:
+                return Choice("numba", f"the NumPy loop's time (~{spent:.2g} s, this run's and earlier runs') repays "
+                                       f"the compile (~{compile_s:g} s)")
             return Choice("numba", "the compiled loop is in the disk cache")
     if record:
         store[tally] = spent

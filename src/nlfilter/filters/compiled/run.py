@@ -48,6 +48,12 @@ def run_compiled(flt, yf, batch, m0, P0, on, loglik, progress=False):
     reason = unsupported(flt)
     if reason is not None:
         raise TypeError(f"backend: 'numba' cannot run {type(flt).__name__} here: {reason}; use backend='numpy'")
+    rule = getattr(flt, "rule", None)
+    if loglik and getattr(flt, "time", None) == "continuous" and rule.second and FORM_TABLE[rule.form].innovation == "-quarter":
+        # a CompileError: backend="auto" runs NumPy
+        raise CompileError(f"backend: 'numba' cannot run {type(flt).__name__} with loglik=True and the form "
+                           f"{rule.form!r} (the NumPy loop screens its innovation covariance over the batch); use "
+                           "backend='numpy'")
     from numba.core.errors import TypingError
     try:
         return _run(flt, yf, batch, m0, P0, on, loglik, progress)
@@ -62,13 +68,13 @@ def _run(flt, yf, batch, m0, P0, on, loglik, progress):
     B, T, mdim = yf.shape
     n = md.n
     prior = flt.init(m0, P0, batch)
-    kind, fns, scalar, dims, key = build.loop_of(flt)
+    kind, fns, scalar, dims, key = build.loop_of(flt, B)
     sqrt = kind in build.SQRT_KINDS  # the loop's P holds the factor S (P = S Sᵀ)
     mean0 = _plain(prior.mean).reshape(B, n)
     cov0 = _plain(prior.factor if sqrt else prior.cov).reshape(B, n, n)
     ys = _plain(yf)
     offset = 0 if flt.start == "update" else 1
-    absent = np.isnan(ys).all(axis=(0, 2)) if B else np.zeros(T, bool)
+    absent = np.isnan(ys).all(axis=(0, 2)) if B and kind != "ito" else np.zeros(T, bool)  # Itô: every step steps
     means = np.empty((B, T, n))
     covs = np.empty((B, T, n, n))
     want = bool(loglik)
@@ -113,6 +119,13 @@ def _run(flt, yf, batch, m0, P0, on, loglik, progress):
         ks, N = (z, wm, wc), z.shape[0]
     elif kind == "taylor1":
         ks, N = (), 0
+    elif kind == "ito":  # R⁻¹, G Q Gᵀ where G is fixed, the integrator and the rule's switches (.ito_kernels)
+        rule = flt.rule
+        force = _FORCE[FORM_TABLE[rule.form].forcing] if rule.second else 0
+        gfix = bool(md._G_fixed)
+        meas = _KIND[FORM_TABLE[rule.form].innovation] if rule.second else 0
+        ks, N = (_plain(flt._Rinv), GQG0 if gfix else np.zeros((n, n)), Q, float(flt.dt), int(flt.substeps),
+                 flt.scheme == "rk4", bool(rule.second), force, gfix, _plain(R / flt.dt), meas), 0
     else:
         rule = flt.rule
         spec = FORM_TABLE[rule.form]

@@ -23,8 +23,9 @@ def numba():
 
 #: the rule kinds (``rule.kind``) the compiled loop has a step kernel for; ``"kalman"``: the linear
 #: Kalman filter (its class's ``compiled_kind``; the model's matrices as data, :mod:`.kalman_loop`);
-#: ``"sqrt-taylor1"``, ``"sqrt-nodes"``: the square-root filters' (:mod:`.sqrt_kernels`)
-KINDS = ("taylor1", "nodes", "taylor2", "kalman", "sqrt-taylor1", "sqrt-nodes")
+#: ``"sqrt-taylor1"``, ``"sqrt-nodes"``: the square-root filters' (:mod:`.sqrt_kernels`); ``"ito"``: the
+#: continuous-time (Itô) filters over a Taylor rule (:mod:`.ito_kernels`)
+KINDS = ("taylor1", "nodes", "taylor2", "kalman", "sqrt-taylor1", "sqrt-nodes", "ito")
 
 #: what a subclass of a class declaring ``compiled = True`` may redefine and still run compiled:
 #: its constructor and representation. Any other method of the family it redefines (``predict``,
@@ -92,7 +93,8 @@ def steps_refusal(flt) -> str | None:
             return f"{cls.__name__} has no compiled loop: {why}"
         by = "" if at is None else f" ({mro[at].__name__} sets compiled = False)"
         return (f"{cls.__name__} has no compiled loop{by}; it runs the discrete Gaussian filters (kf, ekf, ukf, ckf, "
-                "ghkf, slf, the discrete second-order forms; sr-kf, sr-ekf, sr-ukf, sr-ckf, sr-ghkf, sr-slf)")
+                "ghkf, slf, the discrete second-order forms; sr-kf, sr-ekf, sr-ukf, sr-ckf, sr-ghkf, sr-slf; the "
+                "continuous Itô EKF and second-order filters)")
     family = set().union(*(_methods(c) for c in mro[at:])) - set(ALLOWED_OVERRIDES)
     for c in mro[:at]:
         for meth in sorted(_methods(c) & family):
@@ -138,7 +140,11 @@ def static_refusal(flt) -> str | None:
         return "the model declares angular components (angles=): wrapped residuals and circular means run on NumPy"
     if kind == "kalman":
         return _kalman_refusal(md)
-    if getattr(md, "kind", None) != "discrete" or md.expressions is None:
+    if kind == "ito":
+        why = _ito_refusal(flt)
+        if why is not None:
+            return why
+    elif getattr(md, "kind", None) != "discrete" or md.expressions is None:
         return "the model must be a DiscreteModel stated in SymPy (not from_functions)"
     if not (md.additive and md.additive_measurement):
         return "the model's noise enters f or h non-additively (noise=, meas_noise=)"
@@ -154,6 +160,23 @@ def static_refusal(flt) -> str | None:
         return "the model has parameters, inputs or a Q that vary over time (arrays, Q given per step) or are not given"
     if kind == "taylor2" and not md._G_fixed:
         return "the second-order filters' compiled loop needs a G that depends on neither the state nor the time"
+    return None
+
+
+def _ito_refusal(flt) -> str | None:
+    """Why the continuous Itô loop (:mod:`.ito_kernels`) cannot take ``flt``, or None: the Itô
+    innovation, an SDEModel in SymPy whose f, h, G do not depend on the time (the loop times step
+    ``k`` as ``k dt``, without the run's t0) and, for a second-order rule, a G free of the state."""
+    md = flt.model
+    name = type(flt).__name__
+    if getattr(flt, "innovation", "ito") != "ito":
+        return f"{name} with innovation={flt.innovation!r} has no compiled form (the Itô step, innovation='ito', has)"
+    if getattr(md, "kind", None) != "sde" or md.expressions is None:
+        return "the model must be an SDEModel stated in SymPy"
+    if not md.time_invariant:
+        return "the model's f, h, G or noise depend on the time; the compiled continuous loop takes time-invariant models"
+    if flt.rule.second and not md.G_constant:
+        return "the continuous second-order filters' compiled loop needs a G that does not depend on the state"
     return None
 
 
