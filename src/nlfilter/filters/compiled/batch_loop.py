@@ -218,7 +218,7 @@ def source(base: str, dims, fns: dict) -> str:
                 body = re.sub(rf"for z in range\((\w+)\):\n +(\w+) = {tname}\[\w+, z\]\n", r"for \2 in range(\1):\n",
                               body)
                 if tname == "FZ":  # no term skipped: no screen of P Fᵀ
-                    body = re.sub(r"\n    if kf < n:.*?\n(?=    \S)", "\n", body, flags=re.S)
+                    body = re.sub(r"\n    if kf < n:.*?\n(?=    \S)", "\n", body, flags=re.DOTALL)
         fixed += [f"{v} = {d}" for v, d in consts.items() if re.search(rf"\b{v}\b", body)]
         if name == "steps_batch_":  # (read from the arrays in the source)
             body = body.replace("    B, T, mdim = ys.shape\n", "    B, T = ys.shape[0], ys.shape[1]\n", 1)
