@@ -146,13 +146,14 @@ def nothing_to_share(exprs) -> bool:
 # ---------------------------------------------------------------------------------------------
 # scalar source for the compiled loop
 # ---------------------------------------------------------------------------------------------
-def array_source(name, exprs, shape, states, time, psyms, block: bool = False) -> str:
+def array_source(name, exprs, shape, states, time, psyms, block: bool = False, zeros: bool = True) -> str:
     """``def name(x, t, p, out)``: writes ``out[idx] = expr`` for every entry of ``exprs`` (flat,
     row-major over ``shape``), with common subexpressions computed once; the states are read from
     ``x``, the parameters ``psyms`` from ``p`` in their order, ``time`` (or ``None``) is ``t``.
     ``block``: the same function over a block of paths, ``def name(x, t, p, out, nb)`` with the
     paths last (``x (n, ≥nb)``, ``out (*shape, ≥nb)``), the code of one path in a loop over the
-    first ``nb`` (the batch-inner loop's, ``nlfilter.filters.compiled.batch_loop``).
+    first ``nb`` (the batch-inner loop's, ``nlfilter.filters.compiled.batch_loop``). ``zeros=False``:
+    the entries that are identically 0 are not written (the caller's ``out`` holds zeros there).
 
     >>> import sympy as sp
     >>> x, a = sp.symbols("x a")
@@ -194,7 +195,7 @@ def array_source(name, exprs, shape, states, time, psyms, block: bool = False) -
         lines += [f"{ind}{s} = {pr.doprint(v)}" for s, v in reps]
     else:
         red = []
-    zeros = [i for i, e in enumerate(flat) if e == 0]
+    zeros = [i for i, e in enumerate(flat) if e == 0] if zeros else []
     if len(zeros) > 8:  # a sparse Hessian: one loop of zeros, then the nonzero entries (compact code)
         ix = [f"i{d}" for d in range(len(shape))]
         for d, (v, size) in enumerate(zip(ix, shape)):

@@ -73,3 +73,26 @@ def test_batch_loop_as_numpy(case, start):
     with pytest.raises(DivergenceError) as e2:
         flt.run(ys, m0, P0, backend="numba")
     assert str(e1.value) == str(e2.value)
+
+
+def test_structural_zeros_skipped():
+    """The products with F and H sum over the Jacobians' structural non-zeros only (tables in the
+    generated text, so the disk cache keys on them), in their order, padded with zeros to the longest
+    row; a Jacobian without a zero sums over every index, as without tables. (No compile: the text.)"""
+    flt = EKF(four())
+    kind, fns, scalar, dims, _ = build.loop_of(flt)
+    tables = batch_loop.patterns(fns)
+    # F: rows {0, 1}, {0, 1, 2}, {0, 2}, {3}; H: rows {0, 1}, {1, 2}; H's columns: {0}, {0, 1}, {1}, {}
+    assert tables["FZ"] == ([[0, 1, 2], [0, 1, 2], [0, 2, 1], [3, 0, 1]], 3)
+    assert tables["HZ"] == ([[0, 1], [1, 2]], 2)
+    assert tables["HT"] == (None, 2)  # a column with both rows: every index
+    text = build.text_of(kind, fns, scalar, dims)[0]
+    assert "FZ = np.array([[0, 1, 2], [0, 1, 2], [0, 2, 1], [3, 0, 1]]" in text and "HT =" not in text
+    assert "q = FZ[j, z]" in text and "a = HT[j, z]" not in text and "for a in range(kt):" in text
+    assert "out[0, 2, b_] = 0.0" not in fns["fxb"].source  # the zeros are never written (alloc's zeros)
+    x = sp.symbols("y1:5")  # every entry non-zero: no table at all
+    dense = DiscreteModel(list(x), [sum(x) + xi**2 for xi in x], [sum(x) ** 2], Q=np.eye(4), R=1.0)
+    k2, f2, s2, d2, _ = build.loop_of(EKF(dense))
+    assert all(t is None for t, _ in batch_loop.patterns(f2).values())
+    text = build.text_of(k2, f2, s2, d2)[0]
+    assert not any(f"= {t}[" in text or f"{t} = np" in text for t in ("FZ", "HZ", "HT")) and "kf < n" not in text

@@ -9,6 +9,15 @@ two (it cannot tell that they do not overlap the arrays read) — a symmetric pr
 upper triangle, :func:`bmirror_` the lower one after (2.4× faster at n = 16). Sums run in the one-path kernels' order (:func:`~.step_kernels.predict_cov_`,
 :func:`~.step_kernels.meas_cov_`, :func:`~.step_kernels.condition_`'s Joseph form).
 
+The products with F and H (``P Fᵀ``, ``F (P Fᵀ)``, ``P Hᵀ``, ``H C``, ``K H``) sum over the
+Jacobians' structural non-zeros only: ``q = FZ[j, z]`` for ``z < kf``, tables of the model
+(:func:`.batch_loop.patterns`, constants of the generated module, as ``kf``, ``kh``, ``kt``) —
+where a Jacobian has no zero, :func:`.batch_loop.source` writes ``q = z`` (every index). A term
+skipped is ``0 · x``: the sum is the same to the last bit where ``x`` is finite (but for the sign
+of an exact zero). ``P`` is finite there (screened), and a non-finite ``C`` or ``K`` makes the
+mean non-finite with or without the zero terms; a non-finite ``P Fᵀ`` is made to fail the screen
+as its zero terms would (``F (P Fᵀ)`` is then NaN), so a path diverges at the same step.
+
 Sources, never called as Python: :func:`.batch_loop.source` compiles them in the module of the
 one-path kernels (``psd_check``, ``mark``, ``update1``: :func:`~.rule_kernels.update_taylor1_`) and
 the model's block functions (``fb, fxb, hb, hxb, Gb``).
@@ -47,17 +56,6 @@ def bchol_(A, L, n, nb, d, acc, ok):
                     acc[b] -= L[i, q, b] * L[j, q, b]
             for b in range(nb):
                 L[i, j, b] = acc[b] * d[b]
-
-
-def bmt_(A, B, C, ni, nj, nk, nb):
-    """``C = A Bᵀ`` on every lane (``C_ij = Σ_q A_iq B_jq``, summed in ``q``'s order)."""
-    for i in range(ni):
-        for j in range(nj):
-            for b in range(nb):
-                s = 0.0
-                for q in range(nk):
-                    s += A[i, q, b] * B[j, q, b]
-                C[i, j, b] = s
 
 
 def bmirror_(P, n, nb):
@@ -152,14 +150,33 @@ def bpredict_(t, p, Q, GQG0, G_const, n, r, nb, bw):
                     for a in range(r):
                         s += GQ[a, b] * Gm[j, a, b]
                     N[i, j, b] = s
-    bmt(Pb, F, Wn, n, n, n, nb)  # Wn = P Fᵀ
+    for i in range(n):  # Wn = P Fᵀ (Wn_ij = Σ_q P_iq F_jq over the q of table FZ's row j)
+        for j in range(n):
+            for b in range(nb):
+                s = 0.0
+                for z in range(kf):
+                    q = FZ[j, z]
+                    s += Pb[i, q, b] * F[j, q, b]
+                Wn[i, j, b] = s
     for i in range(n):  # P = N + F Wn, symmetric: the upper triangle, then mirrored (bmirror)
         for j in range(i, n):
             for b in range(nb):
                 s = N[i, j, b]
-                for q in range(n):
+                for z in range(kf):
+                    q = FZ[i, z]
                     s += F[i, q, b] * Wn[q, j, b]
                 Pb[i, j, b] = s
+    if kf < n:  # a term F_iq Wn_qj skipped is 0 where Wn_qj is finite: P⁻ made NaN where it is not
+        for b in range(nb):
+            acc[b] = 0.0
+        for q in range(n):
+            for b in range(nb):
+                s = acc[b]
+                for j in range(n):
+                    s += Wn[q, j, b] * 0.0
+                acc[b] = s
+        for b in range(nb):
+            Pb[0, 0, b] += acc[b]
     bmirror(Pb, n, nb)
     for i in range(n):
         for b in range(nb):
@@ -173,13 +190,21 @@ def bupdate_(ys, k, t, lo, nb, n, mdim, p, R, tol, want, ks, w1, bw, m, P, yk, l
      dead, GQ) = bw
     hb(Mb, t, p, Yh, nb)
     hxb(Mb, t, p, H, nb)
-    bmt(Pb, H, C, n, mdim, n, nb)  # C = P Hᵀ
+    for i in range(n):  # C = P Hᵀ (C_ia = Σ_q P_iq H_aq over the q of table HZ's row a)
+        for a in range(mdim):
+            for b in range(nb):
+                s = 0.0
+                for z in range(kh):
+                    q = HZ[a, z]
+                    s += Pb[i, q, b] * H[a, q, b]
+                C[i, a, b] = s
     for a in range(mdim):  # S = R + H C
         for c in range(mdim):
             v = R[a, c]
             for b in range(nb):
                 s = v
-                for q in range(n):
+                for z in range(kh):
+                    q = HZ[a, z]
                     s += H[a, q, b] * C[q, c, b]
                 S[a, c, b] = s
     for a in range(mdim):  # (a loop of its own: one store per loop body keeps the loops vectorized)
@@ -239,11 +264,12 @@ def bupdate_(ys, k, t, lo, nb, n, mdim, p, R, tol, want, ks, w1, bw, m, P, yk, l
             for a in range(mdim):
                 s += K[i, a, b] * E[a, b]
             Mb[i, b] += s
-        for j in range(n):
+        for j in range(n):  # (over the a of table HT's row j: H's column j)
             v = 1.0 if i == j else 0.0
             for b in range(nb):
                 s = v
-                for a in range(mdim):
+                for z in range(kt):
+                    a = HT[j, z]
                     s -= K[i, a, b] * H[a, j, b]
                 A[i, j, b] = s
     for i in range(n):  # T1 = A P
@@ -356,4 +382,4 @@ def steps_batch_(ys, m0, P0, p, Q, R, GQG0, G_const, offset, absent, tol, means,
 
 
 #: the loop and its kernels, in the order the generated module defines them
-SOURCES = (bchol_, bmt_, bmirror_, bscreen_, bgather_, kill_, settle_, bpredict_, blik_, bupdate_, steps_batch_)
+SOURCES = (bchol_, bmirror_, bscreen_, bgather_, kill_, settle_, bpredict_, blik_, bupdate_, steps_batch_)

@@ -7,7 +7,9 @@ one-path loop's small matrices leave the processor idle. Per block and step, the
 kernels (:mod:`.rule_kernels`), entry for entry in their order — ``m⁻ = f(m)``, ``P⁻ = F (P Fᵀ) +
 G Q Gᵀ``; ``C = P Hᵀ``, ``S = H C + R``, ``K = C S⁻¹``, the Joseph form ``(I − K H) P (I − K H)ᵀ
 + (K R) Kᵀ``, symmetrized — but for ``S⁻¹``: a Cholesky factor of S instead of LU factors with
-partial pivoting (the same numbers to rounding).
+partial pivoting (the same numbers to rounding), and for the products' terms with a structural
+zero of F or H (an entry of the SymPy Jacobian identically 0), skipped: the model's pattern is
+compiled in as tables (:func:`patterns`), part of the generated text and so of the cache's key.
 
 Everything rarer is the one-path kernels' on that path, so that every convention stays theirs: a
 path whose measurement is partly missing at the step, or whose S has no Cholesky factor, is
@@ -25,6 +27,7 @@ with :func:`dims_of`, :func:`.build.text_of` makes its text here, ``run`` alloca
 from __future__ import annotations
 
 import inspect
+import re
 
 import numpy as np
 
@@ -33,15 +36,16 @@ from . import batch_kernels
 from .kernels import KERNELS, Kernel, model_kernels
 
 __all__ = ["BATCH_FROM", "BATCH_UP_TO", "PATHS_FROM", "NB", "NB_LARGE", "block_size", "serves", "paths_from",
-           "dims_of", "is_batch", "block_kernels", "source", "alloc"]
+           "dims_of", "is_batch", "block_kernels", "patterns", "source", "alloc"]
 
 #: the Taylor-1 loops of models with ``BATCH_FROM ≤ n ≤ BATCH_UP_TO`` states take the batch-inner
-#: loop (the chain of benchmarks/bench_dimensions.py, 1000 × 200, one core, run "batch-inner-ekf-2"
-#: of benchmarks/results/bench_dimensions.json: 0.22, 0.92, 4.8 µs per path-step at n = 4, 8, 16,
-#: dynamax's jit+vmap EKF 0.32, 0.92, 3.6: 1.5×, 1.0×, 0.75× its speed, wall time on a loaded
-#: machine — 1.3-1.8×, 1.0-1.15×, 0.7-0.8× over four such runs; 1.5×, 1.0-1.1×, 0.75-0.86× in user
-#: CPU time, paired). At n = 16 it is 1.9× the one-path loop's speed (user CPU time: 4.3 µs
-#: against 8.3), at 2.6× its compile time (~26 s of CPU against ~10 s): taken up to 16
+#: loop (the chain of benchmarks/bench_dimensions.py, 1000 × 200, one core, loaded machine, run
+#: "sparse" of benchmarks/results/bench_dimensions.json: 0.22, 1.3, 3.4 µs per path-step at n = 4,
+#: 8, 16, dynamax's jit+vmap EKF 0.44, 1.7, 5.7: 2.0×, 1.3×, 1.6× its speed; before the products
+#: skipped the Jacobians' structural zeros, run "sparse-before", same conditions: 1.8×, 1.2×, 1.25×;
+#: run "batch-inner-ekf-2", before too: 1.5×, 1.0×, 0.75×). Before the zeros were skipped, at n = 16
+#: it was 1.9× the one-path loop's speed (user CPU time: 4.3 µs against 8.3), at 2.6× its compile
+#: time (~26 s of CPU against ~10 s; skipping them left it as it was): taken up to 16
 BATCH_FROM, BATCH_UP_TO = 4, 16
 #: the fewest paths a run takes the batch-inner loop with; fewer take the one-path loop — specialized
 #: at n = 4 (:data:`~.build.SPECIALIZE_UP_TO`), the general loop above. A block of fewer paths than
@@ -101,7 +105,9 @@ def is_batch(dims) -> bool:
 
 def block_kernels(model) -> dict:
     """The model's f, f_x, h, h_x, G over a block of paths (:data:`BLOCK_ARGS` → :class:`~.kernels.Kernel`),
-    generated once per model (in its kernel store, beside the one-path functions)."""
+    generated once per model (in its kernel store, beside the one-path functions). The Jacobians'
+    entries that are identically 0 are not written (:func:`alloc` zeroes F and H once) and are
+    listed in their kernel's ``nonzero`` (:func:`patterns`)."""
     fns = model_kernels(model)  # the Jacobians, computed once, in the store
     store = KERNELS[model._kernels["f"]]
     if "blocks" not in store:
@@ -113,8 +119,11 @@ def block_kernels(model) -> dict:
         for arg, w in BLOCK_ARGS.items():
             exprs, shape = specs[w]
             name = "b_" + w.replace("_", "")
+            jac = w in ("f_x", "h_x")  # the Jacobians' zeros: never written (alloc's zeros), never read
+            nz = tuple(tuple(bool(exprs[i * shape[1] + j] != 0) for j in range(shape[1]))
+                       for i in range(shape[0])) if jac else None
             out[arg] = Kernel(name, array_source(name, exprs, shape, model.states, model.time, model._psyms,
-                                                 block=True), fns[w].inline)
+                                                 block=True, zeros=not jac), fns[w].inline, nz)
         store["blocks"] = out
     return store["blocks"]
 
@@ -131,14 +140,17 @@ def alloc(n, mdim, r):
 
     def e(*shape):
         return np.empty((*shape, nb + PAD))
-    return (e(n), e(n, n), e(n), e(n, n), e(n, r), e(n, n), e(n, n), e(n, n),  # Mb Pb Mp F Gm N Wn T1
-            e(mdim), e(mdim, n), e(n, mdim), e(mdim, mdim), e(mdim, mdim), e(mdim),  # Yh H C S Ls E
+
+    def z(*shape):  # F and H: their structural zeros are never written (block_kernels)
+        return np.zeros((*shape, nb + PAD))
+    return (e(n), e(n, n), e(n), z(n, n), e(n, r), e(n, n), e(n, n), e(n, n),  # Mb Pb Mp F Gm N Wn T1
+            e(mdim), z(mdim, n), e(n, mdim), e(mdim, mdim), e(mdim, mdim), e(mdim),  # Yh H C S Ls E
             e(n, mdim), e(n, mdim), e(max(n, mdim)), e(n, n), e(), e(mdim),  # K KR u A okv Li
             e(mdim, mdim), e(), e(), e(), e(), e(), np.zeros(nb + PAD, np.int64), e(r))  # LiS dv acc qv ldv irr dead GQ
 
 
 #: the kernels inlined where they are called (the Cholesky factor: called with ``n`` and ``m``)
-_INLINED = ("bchol_", "bmt_", "bmirror_", "bscreen_", "bgather_", "kill_")
+_INLINED = ("bchol_", "bmirror_", "bscreen_", "bgather_", "kill_")
 
 
 def _params(head: str) -> list:
@@ -152,20 +164,62 @@ def _split(src: str) -> tuple:
     return src[:at], src[at:]
 
 
-def source(base: str, dims) -> str:
+def patterns(fns: dict) -> dict:
+    """The structural non-zeros of the block Jacobians in ``fns`` (:func:`block_kernels`' ``fxb``,
+    ``hxb``; their ``nonzero``) as the tables of the products that skip the zero terms:
+    ``{name: (table, k)}``, ``FZ`` the columns of F's rows, ``HZ`` those of H's rows, ``HT`` the rows
+    of H's columns, each row the indices of its non-zeros in order, then (``k`` the longest row)
+    padded with indices of zeros; ``table`` None where a row has no zero (``k`` its length: the
+    loop over every index, as without tables)."""
+    F, H = fns["fxb"].nonzero, fns["hxb"].nonzero
+    out = {}
+    for name, rows in (("FZ", F), ("HZ", H), ("HT", tuple(zip(*H)) if H else ())):
+        k = max((sum(row) for row in rows), default=0)
+        width = len(rows[0]) if rows else 0
+        if k == width:
+            out[name] = (None, k)
+            continue
+        table = []
+        for row in rows:
+            on = [q for q, v in enumerate(row) if v]
+            off = [q for q, v in enumerate(row) if not v]
+            table.append(on + off[:k - len(on)])  # the padding: terms 0·x (the arrays hold 0 there)
+        out[name] = (table, k)
+    return out
+
+
+#: the tables' index variables and their length constants in the kernels (:func:`patterns`)
+_TABLE_K = {"FZ": "kf", "HZ": "kh", "HT": "kt"}
+
+
+def source(base: str, dims, fns: dict) -> str:
     """The module text of the batch-inner loop: ``base`` (the one-path module of
     :func:`.build.source` for the Taylor-1 kind, the model's block functions among its functions),
     the one-path update not inlined as ``update1``, the kernels of :mod:`.batch_kernels` with the
     dimensions ``dims`` (:func:`dims_of`) compiled in as constants of their bodies (the compiler then
     unrolls the sums; :data:`_INLINED`, called with several dimensions, take theirs inlined), and the
-    loop as ``steps`` (its machine code kept on disk)."""
+    loop as ``steps`` (its machine code kept on disk). The products with F and H sum over the
+    tables of :func:`patterns` of the model ``fns`` (module constants): the terms of a structural
+    zero skipped; where a Jacobian has no zero, over every index (the table's reads replaced by the
+    index)."""
     _, n, mdim, r = dims
+    tables = patterns(fns)
+    consts = {_TABLE_K[name]: k for name, (_, k) in tables.items()}
     parts = [base, f"# the batch-inner loop (nlfilter.filters.compiled.batch_loop)\nNB = {block_size(n)}\nupdate1 = _inner(update_taylor1_)\n"]
+    parts += [f"{name} = np.array({table!r}, dtype=np.int64).reshape({len(table)}, {k})\n"
+              for name, (table, k) in tables.items() if table is not None]
     for f in batch_kernels.SOURCES:
         name = f.__name__
         head, body = _split(_SOURCE[name])
         fixed = [] if name in _INLINED else [f"{v} = {d}" for v, d in (("n", n), ("mdim", mdim), ("r", r))
                                             if v in _params(head)]  # the dimensions as constants
+        for tname, (table, _) in tables.items():
+            if table is None:  # every index: the loop over it (``for z …: q = z`` → ``for q …``)
+                body = re.sub(rf"for z in range\((\w+)\):\n +(\w+) = {tname}\[\w+, z\]\n", r"for \2 in range(\1):\n",
+                              body)
+                if tname == "FZ":  # no term skipped: no screen of P Fᵀ
+                    body = re.sub(r"\n    if kf < n:.*?\n(?=    \S)", "\n", body, flags=re.DOTALL)
+        fixed += [f"{v} = {d}" for v, d in consts.items() if re.search(rf"\b{v}\b", body)]
         if name == "steps_batch_":  # (read from the arrays in the source)
             body = body.replace("    B, T, mdim = ys.shape\n", "    B, T = ys.shape[0], ys.shape[1]\n", 1)
             body = body.replace("    n = m0.shape[1]\n", "", 1).replace("    r = Q.shape[0]\n", "", 1)

@@ -281,7 +281,7 @@ def text_of(kind: str, fns: dict, scalar: bool = False, dims=None) -> tuple:
 def _text(kind: str, fns: tuple, scalar: bool, dims) -> tuple:
     fns = dict(fns)
     if batch_loop.is_batch(dims):
-        return batch_loop.source(source(kind, fns), dims), f"{kind}-batch"
+        return batch_loop.source(source(kind, fns), dims, fns), f"{kind}-batch"
     return source(kind, fns, scalar, dims), f"{kind}{'-scalar' if scalar else ''}"
 
 

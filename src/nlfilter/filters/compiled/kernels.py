@@ -24,6 +24,9 @@ class Kernel(NamedTuple):
     name: str
     source: str
     inline: bool
+    #: a Jacobian over a block of paths (:func:`~.batch_loop.block_kernels`): which entries are not
+    #: identically 0 (rows of bools; the others are never written), else None
+    nonzero: tuple | None = None
 
 
 def scalar_kernels(model) -> dict:
