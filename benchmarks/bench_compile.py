@@ -6,7 +6,8 @@ by case, for an older commit (``--before``, default the commit before the flatte
 that "shorter compile, same speed, same numbers" is read off one run.
 
 Cases: the EKF on one state (the scalar batch loop), the EKF and UKF at n = 2 and n = 4 (the
-specialized loops: the dimensions compiled in) and the EKF at n = 16 (the general loop). Each
+specialized loops: the dimensions compiled in), the EKF at n = 16 (the batch-inner loop) and the
+UKF at n = 8 (the node rules' specialized loop) and n = 16 (the general loop). Each
 child inherits ``_pin``'s pinning (one core, one thread). Target: ≤ 5 s CPU at n ≤ 4, ≤ 15 s at
 n = 16.
 """
@@ -25,7 +26,8 @@ import textwrap
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 CASES = {"ekf-scalar": ("EKF", 1, 1000, 200), "ekf-n2": ("EKF", 2, 200, 200), "ukf-n2": ("UKF", 2, 200, 200),
-         "ekf-n4": ("EKF", 4, 200, 200), "ukf-n4": ("UKF", 4, 200, 200), "ekf-n16": ("EKF", 16, 40, 100)}
+         "ekf-n4": ("EKF", 4, 200, 200), "ukf-n4": ("UKF", 4, 200, 200), "ekf-n16": ("EKF", 16, 40, 100),
+         "ukf-n8": ("UKF", 8, 200, 200), "ukf-n16": ("UKF", 16, 40, 100)}
 BEFORE = "ded9272"  # main before the flattened loops (numba's inline="always" per call site)
 
 CHILD = textwrap.dedent("""

@@ -110,6 +110,11 @@ def _bind(name, fns, dims):
 #: (its liveness and SSA passes: blocks × variables): the loop, its predict and its update compiled
 #: apart take 0.55-0.7× the CPU time of one flat function of all three (benchmarks/bench_compile.py)
 _APART = ("predict", "update")
+#: and the kernels called as functions of their own, not inlined: the node rules' rare cases (the
+#: divergence test where P's own Cholesky factor cannot decide, :func:`~.path_linalg.psd_root_`; a
+#: square root where none is kept, a path's first step), whose code in the loop's text lengthened
+#: the compile by 10-25 % at n = 4 (1-2 s) for nothing the loop runs often
+_CALLED = ("psd_exact", "sqrt_check")
 _UNUSED3 = "def unused3_(x, t, p, out):\n    pass\n"
 _HEADER = """# nlfilter: a compiled loop, generated (nlfilter.filters.compiled.build); not to be edited: the
 # cache compares this file with the source it must hold and writes it again where they differ.
@@ -158,9 +163,10 @@ def _flat(kind: str, fns: dict, dims) -> list:
     for role, f in zip(("predict", "update"), rule_kernels.KERNELS_BY_KIND[kind]):
         defs[role] = _bind(f.__name__, fns, dims)
     loop = _bind(loops.steps_.__name__, {"predict": None, "update": None}, dims)
-    text, made = flatten_apart(loop, defs, _APART)
+    text, made = flatten_apart(loop, defs, _APART + _CALLED)
     for name, src in made.items():
-        parts += [src, _jit_line(name, name + "_", forceinline=True)]
+        inline = {} if name.startswith(_CALLED) else {"forceinline": True}
+        parts += [src, _jit_line(name, name + "_", **inline)]
     return parts + [text, _jit_line("steps", loops.steps_.__name__, cache=True)]
 
 

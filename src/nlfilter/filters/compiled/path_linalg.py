@@ -13,8 +13,8 @@ import math
 
 from .support import jit
 
-__all__ = ["SOURCES", "chol", "psd_ok", "jacobi", "psd_check", "psd_root", "sqrt_check", "sqrt_psd", "lu", "lu_solve", "mm", "symmetrize",
-           "transpose"]
+__all__ = ["SOURCES", "chol", "psd_ok", "jacobi", "psd_check", "psd_root", "psd_exact", "sqrt_check", "sqrt_psd", "lu",
+           "lu_solve", "mm", "symmetrize", "transpose"]
 
 
 def chol_(A, L, n):
@@ -139,7 +139,10 @@ def psd_root_(m, P, n, tol, W, L, ev, R, Pc):
     the exact test: the factor says the lower triangle's matrix has no eigenvalue below
     ``−n³·eps·max|P|``, and the symmetrized ``P`` differs from it by at most ``n·d/2``, ``d`` the
     largest ``|P_ij − P_ji|``, ≤ ``tol/2`` when ``d ≤ tol/n``, inside the exact threshold
-    ``−tol·max(1, max|P|)``); m and P finite (their sum: an overflow defers to :func:`psd_check_`)."""
+    ``−tol·max(1, max|P|)``); m and P finite (their sum: an overflow defers to :func:`psd_check_`).
+    For ``n ≤ 2``, :func:`psd_check_` itself (its closed forms; no factor kept)."""
+    if n <= 2:
+        return psd_check(m, P, n, tol, W, L, ev)
     s, d = 0.0, 0.0
     for i in range(n):
         s += m[i]
@@ -155,6 +158,12 @@ def psd_root_(m, P, n, tol, W, L, ev, R, Pc):
             return True
     else:
         Pc[0, 0] = math.nan
+    return psd_exact(m, P, n, tol, W, L, ev)
+
+
+def psd_exact_(m, P, n, tol, W, L, ev):
+    """:func:`psd_check_` where :func:`psd_root_` cannot decide (rare): a function of its own in the
+    specialized loops, not expanded into their text (``build._CALLED``: a shorter compile)."""
     return psd_check(m, P, n, tol, W, L, ev)
 
 
@@ -265,7 +274,8 @@ def transpose_(A, At, ni, nj):
 
 
 #: the Python sources of this module's kernels (compiled below; inlined by :mod:`.build`)
-SOURCES = (chol_, psd_ok_, jacobi_, psd_check_, psd_root_, sqrt_check_, sqrt_psd_, lu_, lu_solve_, mm_, symmetrize_, transpose_)
+SOURCES = (chol_, psd_ok_, jacobi_, psd_check_, psd_root_, psd_exact_, sqrt_check_, sqrt_psd_, lu_, lu_solve_, mm_,
+           symmetrize_, transpose_)
 
 # raw functions (_nrt=False): no reference counting; with it, every array argument of a call costs
 # an atomic incref/decref pair (~60 ns a call, measured), and a raw function can call raw ones only
@@ -274,6 +284,7 @@ psd_ok = jit(psd_ok_, _nrt=False)
 jacobi = jit(jacobi_, _nrt=False)
 psd_check = jit(psd_check_, _nrt=False)
 psd_root = jit(psd_root_, _nrt=False)
+psd_exact = jit(psd_exact_, _nrt=False)
 sqrt_check = jit(sqrt_check_, _nrt=False)
 sqrt_psd = jit(sqrt_psd_, _nrt=False)
 lu = jit(lu_, _nrt=False)

@@ -215,11 +215,13 @@ def nodes_points_(m, P, z, X, L, W, ev, V, n, N, tol, Pc):
     """``X_i = m + L z_i`` (``L Lᵀ = P``: Cholesky, the eigen root where P is only semi-definite);
     False where P has no root. ``L`` is already the Cholesky factor where ``Pc`` holds ``P``'s lower
     triangle (:func:`~.path_linalg.psd_root_`, the previous kernel's test of the same P)."""
-    same = True
-    for i in range(n):
-        for j in range(i + 1):
-            if Pc[i, j] != P[i, j]:  # (also False for NaN)
-                same = False
+    same = False
+    if n > 2:  # (for n ≤ 2 none is kept)
+        same = True
+        for i in range(n):
+            for j in range(i + 1):
+                if Pc[i, j] != P[i, j]:  # (also False for NaN)
+                    same = False
     if not same and not sqrt_check(P, L, n, tol, W, ev, V):
         return False
     transpose(L, W, n, n)  # the columns of L as rows (W as scratch)
