@@ -7,10 +7,11 @@ that "shorter compile, same speed, same numbers" is read off one run.
 
 Cases: the EKF on one state (the scalar batch loop), the EKF and UKF at n = 2 and n = 4 (the
 specialized loops: the dimensions compiled in; the EKF at n = 4 on 200 paths: the batch-inner
-loop, on one path, ``ekf-n4-path``: the specialized loop) and the EKF at n = 8 and 16 (the
-batch-inner loop). The compile is that of a run on the case's paths (5 steps): the loop its timed
-runs take. Each child inherits ``_pin``'s pinning (one core, one thread). Target: ≤ 5 s CPU at
-n ≤ 4, ≤ 15 s at n = 16.
+loop, on one path, ``ekf-n4-path``: the specialized loop), the EKF at n = 8 and 16 (the
+batch-inner loop) and the UKF at n = 8 (the node rules' specialized loop) and n = 16 (the general
+loop). The compile is that of a run on the case's paths (5 steps): the loop its timed runs take.
+Each child inherits ``_pin``'s pinning (one core, one thread). Target: ≤ 5 s CPU at n ≤ 4, ≤ 15 s
+at n = 16.
 """
 
 from __future__ import annotations
@@ -28,8 +29,8 @@ import textwrap
 HERE = os.path.dirname(os.path.abspath(__file__))
 CASES = {"ekf-scalar": ("EKF", 1, 1000, 200), "ekf-n2": ("EKF", 2, 200, 200), "ukf-n2": ("UKF", 2, 200, 200),
          "ekf-n4": ("EKF", 4, 200, 200), "ekf-n4-path": ("EKF", 4, 1, 20000), "ukf-n4": ("UKF", 4, 200, 200),
-         "ekf-n8": ("EKF", 8, 100, 200),
-         "ekf-n16": ("EKF", 16, 40, 100)}
+         "ekf-n8": ("EKF", 8, 100, 200), "ekf-n16": ("EKF", 16, 40, 100),
+         "ukf-n8": ("UKF", 8, 200, 200), "ukf-n16": ("UKF", 16, 40, 100)}
 BEFORE = "ded9272"  # main before the flattened loops (numba's inline="always" per call site)
 
 CHILD = textwrap.dedent("""

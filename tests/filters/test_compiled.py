@@ -23,7 +23,7 @@ from nlfilter.filters import REGISTRY, compiled
 from nlfilter.filters.beliefs import GaussianState
 from nlfilter.filters.compiled import build as compiled_build
 from nlfilter.filters.compiled.kernels import KERNELS
-from nlfilter.filters.compiled.path_linalg import psd_check, sqrt_check
+from nlfilter.filters.compiled.path_linalg import psd_check, psd_root, sqrt_check
 from nlfilter.filters.cubature import CKF, GHKF, StatisticallyLinearizedFilter
 from nlfilter.filters.ekf import EKF, ContinuousDiscreteEKF, IteratedEKF
 from nlfilter.filters.linalg import PSD_TOL, _bad_paths_exact
@@ -297,6 +297,39 @@ def test_compiled_screen_is_the_eigenvalue_test(n, seed, kind, log_scale):
         V = np.empty((n, n))
         assert sqrt_check(P, L, n, PSD_TOL, W, ev, V)
         np.testing.assert_allclose(L @ L.T, 0.5 * (P + P.T), rtol=0, atol=1e-8 * max(1.0, np.abs(P).max()))
+    # the node rules' test (psd_root_): the same decision, and the factor it keeps (from n = 3) is
+    # the one the next step's sigma points would take of the same P, to the last bit
+    R, Pc = np.empty((n, n)), np.full((n, n), np.nan)
+    assert psd_root(m, P, n, PSD_TOL, W, np.empty((n, n)), ev, R, Pc) == ok
+    if n > 2 and ok and kind not in ("nan", "asymmetric"):
+        if not np.isnan(Pc[0, 0]):
+            np.testing.assert_array_equal(Pc[np.tril_indices(n)], P[np.tril_indices(n)])
+            L2 = np.empty((n, n))
+            assert sqrt_check(P, L2, n, PSD_TOL, W, ev, np.empty((n, n)))
+            np.testing.assert_array_equal(R, L2)
+        else:
+            assert kind in ("psd-singular", "zero", "within", "near")  # P itself has no Cholesky factor
+
+
+def test_node_rules_on_three_states_as_numpy():
+    """From three states the node rules keep P's Cholesky factor from the divergence test for the
+    next kernel's sigma points (:func:`~nlfilter.filters.compiled.path_linalg.psd_root_`): as the
+    NumPy loop, with missing data and two paths that diverge (a measurement of 1e200, of −1e300),
+    each followed by a path whose first square root is its own; the UKF and the CKF share the loop."""
+    x3 = sp.Symbol("x3")
+    md = DiscreteModel([x1, x2, x3], [0.9 * x1 + 0.1 * sp.sin(x2), 0.8 * x2 + 0.1 * x3 * x1, a * x3**2],
+                       [x1 + 0.1 * x2**2, x2 - 0.2 * x1], Q=0.01 * np.eye(3), R=[[0.1, 0.02], [0.02, 0.2]],
+                       params={a: 0.5})
+    ys = simulate(md.with_params(a=0.0), 30, paths=8, rng=4, m0=[0.1, 0.0, 0.0], P0=0.1 * np.eye(3)).ys.copy()
+    ys[1, 4, 0] = np.nan
+    ys[:, 15] = np.nan
+    ys[2, 10, 0], ys[6, 5, 1] = 1e200, -1e300
+    m0 = np.zeros((8, 3)) + 0.01 * np.arange(8)[:, None]
+    for flt in (UKF(md), CKF(md, start="predict")):
+        ref = flt.run(ys, m0, 0.1 * np.eye(3), loglik=True, on_divergence="mark")
+        new = flt.run(ys, m0, 0.1 * np.eye(3), loglik=True, on_divergence="mark", backend="numba")
+        assert ref.diverged.sum() == 2
+        same(ref, new)
 
 
 @pytest.mark.parametrize("make", [EKF, UKF, lambda md: SecondOrderFilter(md, form="gaussian")],

@@ -34,7 +34,8 @@ from .kalman_loop import KALMAN_KEY, SCALAR
 from .kernels import KERNELS, model_kernels, scalar_kernels
 from .support import rule_kind
 
-__all__ = ["FUNCTION_ARGS", "SPECIALIZE_UP_TO", "loop_of", "source", "steps", "text_of", "loaded", "loop_name"]
+__all__ = ["FUNCTION_ARGS", "SPECIALIZE_UP_TO", "SPECIALIZE_NODES_UP_TO", "loop_of", "source", "steps", "text_of",
+           "loaded", "loop_name"]
 
 #: the functions a source takes first (bound as globals by :func:`steps`): the model's functions
 #: of each kernel, the kernels of the template
@@ -54,6 +55,11 @@ FUNCTION_ARGS = {"steps_scalar_": ("f", "fx", "h", "hx", "G"), "steps_": ("predi
 #: larger models take the general loop. The arithmetic is the same (no fast-math), so both give
 #: the same numbers to the last bit.
 SPECIALIZE_UP_TO = 4
+#: the node rules' (UKF, CKF, GHKF, SLF) loops are specialized up to this dimension (where
+#: :data:`SPECIALIZE_UP_TO` is not 0, which turns every specialization off): their sigma-point sums
+#: gain most from the dimensions compiled in (the UKF at n = 8: 20 % faster than the general
+#: loop), at a compile no longer than the general loop's (benchmarks/bench_compile.py)
+SPECIALIZE_NODES_UP_TO = 8
 #: the square-root filters' kinds (:mod:`.sqrt_kernels`): always the general loop (their QR steps
 #: gain little from dimensions compiled in, and the flattened loop would double the compile)
 SQRT_KINDS = ("sqrt-taylor1", "sqrt-nodes")
@@ -119,6 +125,11 @@ _APART = ("predict", "update")
 #: and, by kind, kernels that are functions of their own there too (the Itô step's likelihood: flattened
 #: into its update it doubled the loop's compile, 5.9 -> 10.4-11.9 s CPU at n = 1, loaded)
 _APART_KIND = {"ito": ("likelihood", "ito_terms")}
+#: and the kernels called as functions of their own, not inlined: the node rules' rare cases (the
+#: divergence test where P's own Cholesky factor cannot decide, :func:`~.path_linalg.psd_root_`; a
+#: square root where none is kept, a path's first step), whose code in the loop's text lengthened
+#: the compile by 10-25 % at n = 4 (1-2 s) for nothing the loop runs often
+_CALLED = ("psd_exact", "sqrt_check")
 _UNUSED3 = "def unused3_(x, t, p, out):\n    pass\n"
 _HEADER = """# nlfilter: a compiled loop, generated (nlfilter.filters.compiled.build); not to be edited: the
 # cache compares this file with the source it must hold and writes it again where they differ.
@@ -167,9 +178,10 @@ def _flat(kind: str, fns: dict, dims) -> list:
     for role, f in zip(("predict", "update"), rule_kernels.KERNELS_BY_KIND[kind]):
         defs[role] = _bind(f.__name__, fns, dims)
     loop = _bind(loops.steps_.__name__, {"predict": None, "update": None}, dims)
-    text, made = flatten_apart(loop, defs, _APART + _APART_KIND.get(kind, ()))
+    text, made = flatten_apart(loop, defs, _APART + _APART_KIND.get(kind, ()) + _CALLED)
     for name, src in made.items():
-        parts += [src, _jit_line(name, name + "_", forceinline=True)]
+        inline = {} if name.startswith(_CALLED) else {"forceinline": True}
+        parts += [src, _jit_line(name, name + "_", **inline)]
     return parts + [text, _jit_line("steps", loops.steps_.__name__, cache=True)]
 
 
@@ -223,7 +235,10 @@ def loop_of(flt, B: int | None = None):
     key = md._kernels["f"]
     if kind == "taylor1" and n == mdim == r == 1:
         return kind, scalar_kernels(md), True, None, key
-    dims = (n, mdim, r, None) if max(n, mdim) <= SPECIALIZE_UP_TO and kind not in SQRT_KINDS else None
+    limit = SPECIALIZE_UP_TO
+    if kind == "nodes" and limit:
+        limit = max(limit, SPECIALIZE_NODES_UP_TO)
+    dims = (n, mdim, r, None) if max(n, mdim) <= limit and kind not in SQRT_KINDS else None
     # the continuous Itô kind: the Hessians on small models whatever the rule, so that its Taylor-1 and
     # Taylor-2 filters share one loop (one compile; the rule's switches are data, ks)
     second = (kind == "taylor2" and flt.rule.second) or (kind == "ito" and (flt.rule.second or dims is not None))

@@ -13,8 +13,8 @@ import math
 
 from .support import jit
 
-__all__ = ["SOURCES", "chol", "psd_ok", "jacobi", "psd_check", "sqrt_check", "sqrt_psd", "lu", "lu_solve", "mm", "symmetrize",
-           "transpose"]
+__all__ = ["SOURCES", "chol", "psd_ok", "jacobi", "psd_check", "psd_root", "psd_exact", "sqrt_check", "sqrt_psd", "lu",
+           "lu_solve", "mm", "symmetrize", "transpose"]
 
 
 def chol_(A, L, n):
@@ -131,6 +131,42 @@ def psd_check_(m, P, n, tol, W, L, ev):
     return not (ev[0] < tol * code)  # code = −scale
 
 
+def psd_root_(m, P, n, tol, W, L, ev, R, Pc):
+    """:func:`psd_check_`, keeping the Cholesky factor of ``P`` for the next kernel's square root
+    (:func:`~.step_kernels.nodes_points_`): ``R`` the factor of ``P``'s lower triangle (what
+    :func:`chol_` reads) and ``Pc`` that lower triangle, where the factorization succeeds (``Pc[0, 0]``
+    NaN where it does not). Its success decides as :func:`psd_ok_`'s screen does (never weaker than
+    the exact test: the factor says the lower triangle's matrix has no eigenvalue below
+    ``−n³·eps·max|P|``, and the symmetrized ``P`` differs from it by at most ``n·d/2``, ``d`` the
+    largest ``|P_ij − P_ji|``, ≤ ``tol/2`` when ``d ≤ tol/n``, inside the exact threshold
+    ``−tol·max(1, max|P|)``); m and P finite (their sum: an overflow defers to :func:`psd_check_`).
+    For ``n ≤ 2``, :func:`psd_check_` itself (its closed forms; no factor kept)."""
+    if n <= 2:
+        return psd_check(m, P, n, tol, W, L, ev)
+    s, d = 0.0, 0.0
+    for i in range(n):
+        s += m[i]
+        for j in range(n):
+            s += P[i, j]
+        for j in range(i):
+            d = max(d, abs(P[i, j] - P[j, i]))
+    if chol(P, R, n):
+        for i in range(n):
+            for j in range(i + 1):
+                Pc[i, j] = P[i, j]
+        if math.isfinite(s) and n * d <= tol and n <= 64:  # 64: linalg.SCREEN_MAX_N
+            return True
+    else:
+        Pc[0, 0] = math.nan
+    return psd_exact(m, P, n, tol, W, L, ev)
+
+
+def psd_exact_(m, P, n, tol, W, L, ev):
+    """:func:`psd_check_` where :func:`psd_root_` cannot decide (rare): a function of its own in the
+    specialized loops, not expanded into their text (``build._CALLED``: a shorter compile)."""
+    return psd_check(m, P, n, tol, W, L, ev)
+
+
 def sqrt_check_(P, L, n, tol, W, ev, V):
     """:func:`sqrt_psd_`, with the eigen root ``U √max(w, 0)`` where P is not positive definite."""
     code = sqrt_psd(P, L, n, tol, W)
@@ -238,7 +274,8 @@ def transpose_(A, At, ni, nj):
 
 
 #: the Python sources of this module's kernels (compiled below; inlined by :mod:`.build`)
-SOURCES = (chol_, psd_ok_, jacobi_, psd_check_, sqrt_check_, sqrt_psd_, lu_, lu_solve_, mm_, symmetrize_, transpose_)
+SOURCES = (chol_, psd_ok_, jacobi_, psd_check_, psd_root_, psd_exact_, sqrt_check_, sqrt_psd_, lu_, lu_solve_, mm_,
+           symmetrize_, transpose_)
 
 # raw functions (_nrt=False): no reference counting; with it, every array argument of a call costs
 # an atomic incref/decref pair (~60 ns a call, measured), and a raw function can call raw ones only
@@ -246,6 +283,8 @@ chol = jit(chol_, _nrt=False)
 psd_ok = jit(psd_ok_, _nrt=False)
 jacobi = jit(jacobi_, _nrt=False)
 psd_check = jit(psd_check_, _nrt=False)
+psd_root = jit(psd_root_, _nrt=False)
+psd_exact = jit(psd_exact_, _nrt=False)
 sqrt_check = jit(sqrt_check_, _nrt=False)
 sqrt_psd = jit(sqrt_psd_, _nrt=False)
 lu = jit(lu_, _nrt=False)

@@ -27,7 +27,7 @@ from __future__ import annotations
 import numpy as np
 
 from . import ito_kernels, sqrt_kernels
-from .path_linalg import mm, psd_check
+from .path_linalg import mm, psd_check, psd_root
 from .kalman_loop import alloc_kalman, predict_kalman_, update_kalman_
 from .step_kernels import (add_gqg, add_half_trace, condition, meas_cov, nodes_moments, nodes_points, predict_cov,
                            quartic, work)
@@ -86,17 +86,18 @@ def alloc_nodes(n, mdim, r, N=0):
     S, C, yhat = np.empty((mdim, mdim)), np.empty((n, mdim)), np.empty(mdim)
     # H0: the update's H, read by condition_ into its observed rows though unused without Joseph
     # (1 × 1, it was read out of bounds)
+    Pc = np.full((n, n), np.nan)  # the P whose Cholesky factor L holds (psd_root_), none yet
     return (L, W, L2, ev, V, X, GX, D, mean, Cov, Cross, Gm, GQ, Nz, S, C, yhat, np.zeros((mdim, n)),
-            np.empty((1, 1, 1)), work(n, mdim))
+            np.empty((1, 1, 1)), work(n, mdim), Pc)
 
 
 def predict_nodes_(f, G, m, P, t, p, Q, GQG0, G_const, tol, ks, ws, n, mdim):
     """``m⁻ = Σ wm_i f(X_i)``, ``P⁻ = Σ wc_i D_i D_iᵀ + Σ wm_i G(X_i) Q G(X_i)ᵀ``."""
     z, wm, wc = ks
-    L, W, L2, ev, V, X, GX, D, mean, Cov, Cross, Gm, GQ, Nz, S, C, yhat, H0, M0, w = ws
+    L, W, L2, ev, V, X, GX, D, mean, Cov, Cross, Gm, GQ, Nz, S, C, yhat, H0, M0, w, Pc = ws
     r = Q.shape[0]
     N = z.shape[0]
-    if not nodes_points(m, P, z, X, L, W, ev, V, n, N, tol):
+    if not nodes_points(m, P, z, X, L, W, ev, V, n, N, tol, Pc):
         return False
     nodes_moments(f, X, GX, wm, wc, m, t, p, N, n, n, mean, D, Cov, Cross, False)
     if G_const:
@@ -114,15 +115,15 @@ def predict_nodes_(f, G, m, P, t, p, Q, GQG0, G_const, tol, ks, ws, n, mdim):
         m[i] = mean[i]
         for j in range(n):
             P[i, j] = Cov[i, j] + Nz[i, j]
-    return psd_check(m, P, n, tol, W, L2, ev)
+    return psd_root(m, P, n, tol, W, L2, ev, L, Pc)
 
 
 def update_nodes_(h, m, P, y, t, p, R, tol, want, l1, i1, c1, ks, ws, n, mdim):
     """``ŷ = Σ wm_i h(X_i)``, ``S = Σ wc_i D_i D_iᵀ + R``, ``C = Σ wc_i (X_i − m) D_iᵀ``; the update."""
     z, wm, wc = ks
-    L, W, L2, ev, V, X, GX, D, mean, Cov, Cross, Gm, GQ, Nz, S, C, yhat, H0, M0, w = ws
+    L, W, L2, ev, V, X, GX, D, mean, Cov, Cross, Gm, GQ, Nz, S, C, yhat, H0, M0, w, Pc = ws
     N = z.shape[0]
-    if not nodes_points(m, P, z, X, L, W, ev, V, n, N, tol):
+    if not nodes_points(m, P, z, X, L, W, ev, V, n, N, tol, Pc):
         return False
     nodes_moments(h, X, GX, wm, wc, m, t, p, N, mdim, n, mean, D, Cov, Cross, True)
     for a in range(mdim):
@@ -132,7 +133,7 @@ def update_nodes_(h, m, P, y, t, p, R, tol, want, l1, i1, c1, ks, ws, n, mdim):
         for j in range(n):
             C[j, a] = Cross[j, a]
     ok = condition(m, P, y, yhat, S, C, H0, R, False, M0, False, False, n, mdim, w, want, l1, i1, c1)
-    return ok and psd_check(m, P, n, tol, W, L2, ev)
+    return ok and psd_root(m, P, n, tol, W, L2, ev, L, Pc)
 
 
 def alloc_taylor2(n, mdim, r, N=0):

@@ -211,10 +211,18 @@ def nodes_moments_(g, X, GX, wm, wc, m, t, p, N, pdim, n, mean, D, Cov, Cross, c
                         Cross[j, a] += v * D[i, a]
 
 
-def nodes_points_(m, P, z, X, L, W, ev, V, n, N, tol):
+def nodes_points_(m, P, z, X, L, W, ev, V, n, N, tol, Pc):
     """``X_i = m + L z_i`` (``L Lᵀ = P``: Cholesky, the eigen root where P is only semi-definite);
-    False where P has no root."""
-    if not sqrt_check(P, L, n, tol, W, ev, V):
+    False where P has no root. ``L`` is already the Cholesky factor where ``Pc`` holds ``P``'s lower
+    triangle (:func:`~.path_linalg.psd_root_`, the previous kernel's test of the same P)."""
+    same = False
+    if n > 2:  # (for n ≤ 2 none is kept)
+        same = True
+        for i in range(n):
+            for j in range(i + 1):
+                if Pc[i, j] != P[i, j]:  # (also False for NaN)
+                    same = False
+    if not same and not sqrt_check(P, L, n, tol, W, ev, V):
         return False
     transpose(L, W, n, n)  # the columns of L as rows (W as scratch)
     for i in range(N):  # X_i = m + L z_i (the sigma and cubature z_i have one nonzero)
