@@ -291,7 +291,7 @@ class Filter:
             (TypeError)
         backend : ``"auto"`` (default: the compiled loop where it is loaded, on disk or repaid by
             the run, :meth:`backend_for`; else this loop), ``"numpy"`` or ``"numba"`` (KF, EKF, UKF,
-            CKF, GHKF, SLF, second-order, sr-*, continuous Itô EKF and second-order compiled,
+            CKF, GHKF, SLF, second-order, ``sr-*``, continuous Itô EKF and second-order compiled,
             ``nlfilter.filters.compiled``: the same estimates to 1e-12, on disk, ``NLFILTER_CACHE``; refuses the rest)
 
         Returns
