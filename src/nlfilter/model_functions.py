@@ -148,10 +148,7 @@ class Batched:
         fn = self._column
         if fn is not None and x.size > 1:  # a batch of one-component states: the kernel on the column
             batch = x.shape[:-1]
-            vals = fn(x[..., 0], np.float64(t) if self._timed else t)
-            if len(vals) == 1 and getattr(vals[0], "shape", None) == batch:  # one entry: a reshape, no copy
-                return np.asarray(vals[0], dtype=float).reshape(batch + self.shape)
-            return self._assemble(vals, x, batch)
+            return self._assemble(fn(x[..., 0], np.float64(t) if self._timed else t), x, batch)
         return self._eval(x, t)
 
     def _scalar_safe(self) -> bool:
@@ -183,12 +180,12 @@ class Batched:
             vals = kn.fn(*(x[..., i] for i in range(kn.n)), np.float64(t), *extra)
         else:  # (a list, not a generator: star-arguments of a generator cost here)
             vals = kn.fn(*[x[..., i] for i in range(kn.n)], np.float64(t) if self._timed else t)
-        if len(vals) == 1 and getattr(vals[0], "shape", None) == batch:  # one entry: a reshape, no copy
-            return np.asarray(vals[0], dtype=float).reshape(batch + self.shape)
         return self._assemble(vals, x, batch)
 
     def _assemble(self, vals, x, batch):
         """The output ``(*batch, *shape)`` from the kernel's entries ``vals`` (arrays or numbers)."""
+        if len(vals) == 1 and getattr(vals[0], "shape", None) == batch:  # one entry: a reshape, no copy
+            return np.asarray(vals[0], dtype=float).reshape(batch + self.shape)
         kn = self.kernel
         fixed = kn.fixed
         if fixed and len(vals) * (x.size // x.shape[-1]) <= self.TEMPLATE_MAX:  # the numbers are written once

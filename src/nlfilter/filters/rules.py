@@ -70,7 +70,7 @@ from .._npcall import einsum as _einsum
 from ..angles import node_moments, wrap_components
 from ..moments.quadrature import MAX_ENTRIES, cubature5_rule, gauss_hermite_rule
 from .contractions import gaussian_quartic, hessian_trace, noise_covariance, quarter_outer  # (re-exported)
-from .linalg import axis_gather, matmul, mm, psd_root, sqrt_psd
+from .linalg import axis_gather, matmul, mm, psd_root
 
 __all__ = ["GaussMoments", "Taylor1", "Taylor2", "FORMS", "Form", "FORM_TABLE", "Unscented", "Cubature", "GaussHermite", "NodeRule",
            "sigma_points", "hessian_trace", "quarter_outer", "gaussian_quartic", "noise_covariance"]
@@ -287,7 +287,13 @@ class NodeRule:
         """``(X (..., N, n), wm (N,), wc (N,), bad (...))``: the points ``m + L z_i`` and weights;
         ``bad``: paths whose P has no square root (their points are drawn from the identity and
         must be discarded: the filter poisons them so that ``run`` raises or marks them)."""
-        L, bad = sqrt_psd(P)
+        X, wm, wc, bad = self._nodes(m, P)
+        return X, wm, wc, (np.zeros(P.shape[:-2], bool) if bad is None else bad)
+
+    def _nodes(self, m, P):
+        """:meth:`nodes` with ``bad`` None where every path has its root (the common case, without an
+        all-False array to build and test)."""
+        L, bad = psd_root(P)
         return (*self.points(m, L), bad)
 
     def points(self, m, L):
@@ -309,8 +315,7 @@ class NodeRule:
         """As :meth:`Taylor1.moments` (``jac``, ``hess``, ``role`` are not used); the ``angles``
         components of g averaged by the circular weighted mean, their deviations wrapped."""
         m, P = state
-        L, bad = psd_root(P) if type(self).nodes is NodeRule.nodes else (None, None)  # bad None: a root everywhere
-        X, w, wc, bad = (*self.points(m, L), bad) if L is not None else self.nodes(m, P)  # (or a rule's own nodes)
+        X, w, wc, bad = self._nodes(m, P) if type(self).nodes is NodeRule.nodes else self.nodes(m, P)  # (a rule's own)
         GX = g(X, t)
         mean, D = node_moments(GX, w, angles)  # Σ w_i g(X_i), g_i − ĝ (angles: circular, wrapped)
         if m.shape[-1] < 4:  # small states: the einsums cost little (and keep their rounding)
