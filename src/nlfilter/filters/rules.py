@@ -284,21 +284,18 @@ class NodeRule:
         raise NotImplementedError
 
     def nodes(self, m, P):
-        """``(X (..., N, n), wm (N,), wc (N,), bad (...))``: the points ``m + L z_i`` and weights;
-        ``bad``: paths whose P has no square root (their points are drawn from the identity and
-        must be discarded: the filter poisons them so that ``run`` raises or marks them)."""
+        """``(X (..., N, n), wm (N,), wc (N,), bad (...))``: the points ``m + L z_i`` and weights; ``bad``:
+        paths whose P has no square root (points from the identity, to discard: the filter poisons them)."""
         X, wm, wc, bad = self._nodes(m, P)
         return X, wm, wc, (np.zeros(P.shape[:-2], bool) if bad is None else bad)
 
-    def _nodes(self, m, P):
-        """:meth:`nodes` with ``bad`` None where every path has its root (the common case, without an
-        all-False array to build and test)."""
+    def _nodes(self, m, P):  # nodes with bad None where every path has its root (no all-False array)
         L, bad = psd_root(P)
         return (*self.points(m, L), bad)
 
     def points(self, m, L):
-        """``(X (..., N, n), wm, wc)``: the points ``m + L z_i`` of any square root ``L`` of P (the
-        square-root filters pass their propagated factor, :mod:`~nlfilter.filters.square_root`)."""
+        """``(X (..., N, n), wm, wc)``: the points ``m + L z_i`` of any root ``L`` of P (the square-root filters
+        pass their propagated factor, :mod:`~nlfilter.filters.square_root`)."""
         z, wm, wc = self.unit_nodes(m.shape[-1])
         Lt = L.swapaxes(-1, -2)  # rows: the columns of L
         axes = axis_gather(z)
@@ -312,8 +309,7 @@ class NodeRule:
 
     def moments(self, state, g, t, *, jac=None, hess=None, cross: bool = True, cov: bool = True,
                 noise_of=None, role=None, angles=()) -> GaussMoments:
-        """As :meth:`Taylor1.moments` (``jac``, ``hess``, ``role`` are not used); the ``angles``
-        components of g averaged by the circular weighted mean, their deviations wrapped."""
+        """As :meth:`Taylor1.moments` (``jac``, ``hess``, ``role`` unused); ``angles``: circular means."""
         m, P = state
         X, w, wc, bad = self._nodes(m, P) if type(self).nodes is NodeRule.nodes else self.nodes(m, P)  # (a rule's own)
         GX = g(X, t)
