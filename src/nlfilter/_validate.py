@@ -35,6 +35,8 @@ def as_float_array(name: str, value, *, ndim_min: int | None = None, ndim: int |
 
 
 def finite(name: str, arr: np.ndarray, *, allow_nan: bool = False) -> np.ndarray:
+    if not (np.isinf(arr) if allow_nan else ~np.isfinite(arr)).any():  # (the common case: one pass)
+        return arr
     bad = ~np.isfinite(arr)
     if allow_nan:
         bad &= ~np.isnan(arr)

@@ -158,8 +158,10 @@ class Batched:
         ``%``, ``//`` are IEEE's or NumPy's Python rule on both, and the ufunc calls, ``sin``,
         ``exp``, ..., the same loops)."""
         kn = self.kernel
-        ok = not kn.params and not any(i.opname.startswith("BINARY") and "**" in i.argrepr
-                                       for i in dis.get_instructions(kn.fn))
+        ok = kn.__dict__.get("_scalar_ok")  # (decided once per kernel: a with_params copy binds it anew)
+        if ok is None:
+            ok = kn._scalar_ok = not kn.params and not any(i.opname.startswith("BINARY") and "**" in i.argrepr
+                                                           for i in dis.get_instructions(kn.fn))
         self._scalar = ok
         return ok
 

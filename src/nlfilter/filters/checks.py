@@ -22,6 +22,8 @@ DIFFUSE_FILTERS = ("kf", "ekf", "iekf")
 
 def is_diffuse(P0) -> bool:
     """Whether ``P0`` states a diffuse prior (an infinite entry)."""
+    if type(P0) is float or type(P0) is int:  # (a scalar variance, the common case: no array)
+        return P0 == math.inf
     try:
         P = np.asarray(P0)
         P = np.asarray(P.real if P.dtype.kind == "c" else P, dtype=float)  # complex: refused later, naming P0

@@ -98,4 +98,6 @@ __all__ = ["available", "unsupported", "steps_refusal", "ALLOWED_OVERRIDES", "mo
 def __getattr__(name):
     if name not in _WHERE:
         raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
-    return getattr(importlib.import_module(f".{_WHERE[name]}", __name__), name)
+    value = getattr(importlib.import_module(f".{_WHERE[name]}", __name__), name)
+    globals()[name] = value  # (looked up once: the automatic backend asks at every run)
+    return value

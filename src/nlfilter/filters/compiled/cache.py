@@ -44,6 +44,7 @@ __all__ = ["cache_root", "load_source", "seal", "versions", "ready"]
 
 _MODULES: dict = {}  # key -> module (this process)
 _OFF: dict = {}  # root -> why the disk cache is off there
+_SEALED: set = set()  # the entries this process found or made sealed (seal asks the disk once)
 
 
 def cache_root() -> Path:
@@ -177,6 +178,7 @@ def load_source(text: str, tag: str):
                     return module, None
                 shutil.rmtree(entry / "__pycache__", ignore_errors=True)  # numba's files go, and their seal
                 (entry / "sealed.json").unlink(missing_ok=True)
+                _SEALED.discard(entry)
             if not same:  # new, damaged or foreign: written again (numba's index would be stale)
                 _write_atomic(src, data)
             if not (entry / "sealed.json").exists():  # numba may write here: say who, until sealed
@@ -215,13 +217,18 @@ def ready(text: str, tag: str) -> str | None:
 
 
 def seal(entry) -> None:
-    """Record the SHA-256 of numba's files in ``entry`` (after a run compiled or loaded them), once."""
-    if entry is None or (entry / "sealed.json").exists():
+    """Record the SHA-256 of numba's files in ``entry`` (after a run compiled or loaded them), once
+    (a process asks the disk once per entry: :data:`_SEALED`)."""
+    if entry is None or entry in _SEALED:
+        return
+    if (entry / "sealed.json").exists():
+        _SEALED.add(entry)
         return
     found = _digests(entry)
     if found:
         try:
             _write_atomic(entry / "sealed.json", json.dumps(found, indent=0, sort_keys=True).encode())
             (entry / "owner.json").unlink(missing_ok=True)
+            _SEALED.add(entry)
         except OSError:  # pragma: no cover - a folder that became unwritable: the entry stays unsealed
             pass

@@ -160,7 +160,9 @@ def finish(flt, on, step, batch, means, covs, want, ll, inn, icov):
     not finite before any other failure diverges there (raised, or marked with
     ``extras["loglik_failed"]``; its outputs from that step on NaN)."""
     failed = None
-    if want:
+    if want and np.isfinite(ll).all():  # (the common case: no term lost)
+        failed = np.zeros(ll.shape, bool)
+    elif want:
         T = ll.shape[1]
         llbad = ~np.isfinite(ll)
         first = np.where(llbad.any(axis=1), np.argmax(llbad, axis=1), T) if T else np.zeros(len(ll), int)  # no step: none failed

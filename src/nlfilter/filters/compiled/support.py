@@ -8,6 +8,7 @@ reuses); :func:`unsupported` adds numba, the rule and the model.
 from __future__ import annotations
 
 import functools
+import weakref
 
 
 @functools.lru_cache(maxsize=1)
@@ -85,25 +86,43 @@ def steps_refusal(flt) -> str | None:
     family but those of :data:`ALLOWED_OVERRIDES`: a subclass that changes a step never runs as its parent.
     """
     cls = type(flt)
+    decided = _DECIDED.get(cls)
+    if decided is None:
+        decided = _DECIDED[cls] = _class_refusal(cls)
+    why, family, base = decided
+    if why is not None:
+        return why
+    for meth in sorted(family & set(vars(flt))):
+        return f"the filter's own attribute {meth} replaces the step of {base}"
+    return None
+
+
+#: :func:`_class_refusal` of every filter class seen: decided once per class (a fit builds a filter
+#: per evaluation); held weakly (a class made in a loop goes when unused); a method set on a class
+#: after its first run is not seen (a subclass defined later is a new class, decided anew)
+_DECIDED: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
+
+
+def _class_refusal(cls) -> tuple:
+    """``(why the class's steps are not a compiled family's or None, the family's method names, the
+    declaring class's name)``: :func:`steps_refusal`'s rule on the class."""
     mro = cls.__mro__
     at = next((i for i, c in enumerate(mro) if "compiled" in vars(c)), None)
     if at is None or not vars(mro[at])["compiled"]:
         why = getattr(cls, "compiled_refusal", None)  # the family's own reason (e.g. the square-root filters)
         if why:
-            return f"{cls.__name__} has no compiled loop: {why}"
+            return f"{cls.__name__} has no compiled loop: {why}", frozenset(), None
         by = "" if at is None else f" ({mro[at].__name__} sets compiled = False)"
         return (f"{cls.__name__} has no compiled loop{by}; it runs the discrete Gaussian filters (kf, ekf, ukf, ckf, "
                 "ghkf, slf, the discrete second-order forms; sr-kf, sr-ekf, sr-ukf, sr-ckf, sr-ghkf, sr-slf; the "
-                "continuous Itô EKF and second-order filters)")
-    family = set().union(*(_methods(c) for c in mro[at:])) - set(ALLOWED_OVERRIDES)
+                "continuous Itô EKF and second-order filters)"), frozenset(), None
+    family = frozenset(set().union(*(_methods(c) for c in mro[at:])) - set(ALLOWED_OVERRIDES))
     for c in mro[:at]:
         for meth in sorted(_methods(c) & family):
             return (f"{c.__name__} overrides {meth} of {mro[at].__name__}, whose steps the compiled loop runs "
                     f"(a subclass that changes a step runs on the NumPy loop; set compiled = True in "
-                    f"{c.__name__} only if its steps are still {mro[at].__name__}'s)")
-    for meth in sorted(family & set(vars(flt))):
-        return f"the filter's own attribute {meth} replaces the step of {mro[at].__name__}"
-    return None
+                    f"{c.__name__} only if its steps are still {mro[at].__name__}'s)"), family, mro[at].__name__
+    return None, family, mro[at].__name__
 
 
 def rule_kind(flt):
