@@ -133,6 +133,8 @@ class ContinuousDiscreteEKF(ContinuousDiscreteGaussianFilter):
     name = "cd-ekf"
     source = "Jazwinski 1970, Stochastic Processes and Filtering Theory, ch. 8 (continuous-discrete EKF)"
     needs = ("f_x", "h_x")
+    compiled = True  # runs on the compiled loop too (backend="numba"; nlfilter.filters.compiled)
+    compiled_kind = "cd-taylor1"  # its prediction there (compiled/cd_kernels.py), the EKF's update
 
     def __init__(self, model, dt: float, *, scheme: str = "rk4", substeps: int = 1, start: str | None = None,
                  t0: float | None = None):

@@ -45,7 +45,8 @@ FUNCTION_ARGS = {"steps_scalar_": ("f", "fx", "h", "hx", "G"), "steps_": ("predi
                  "predict_taylor2_": ("f", "fx", "fxx"), "update_taylor2_": ("h", "hx", "hxx"),
                  "predict_sqrt_taylor1_": ("f", "fx", "G"), "update_sqrt_taylor1_": ("h", "hx"),
                  "predict_sqrt_nodes_": ("f", "G"), "update_sqrt_nodes_": ("h",),
-                 "predict_ito_": (), "update_ito_": ("f", "fx", "fxx", "h", "hx", "hxx", "G")}
+                 "predict_ito_": (), "update_ito_": ("f", "fx", "fxx", "h", "hx", "hxx", "G"),
+                 "predict_cd_taylor1_": ("f", "fx", "G")}
 
 #: loops of models up to this state and measurement dimension are specialized: the dimensions
 #: compiled in as constants and the helpers expanded into the loop (:func:`_flat`; the compiler
@@ -249,7 +250,8 @@ def loop_of(flt, B: int | None = None):
             "taylor2": {"f": "f", "fx": "f_x", "fxx": "f_xx", "h": "h", "hx": "h_x", "hxx": "h_xx"},
             "sqrt-taylor1": {"f": "f", "fx": "f_x", "h": "h", "hx": "h_x", "G": "G"},
             "sqrt-nodes": {"f": "f", "h": "h", "G": "G"},
-            "ito": {"f": "f", "fx": "f_x", "fxx": "f_xx", "h": "h", "hx": "h_x", "hxx": "h_xx", "G": "G"}}[kind]
+            "ito": {"f": "f", "fx": "f_x", "fxx": "f_xx", "h": "h", "hx": "h_x", "hxx": "h_xx", "G": "G"},
+            "cd-taylor1": {"f": "f", "fx": "f_x", "h": "h", "hx": "h_x", "G": "G"}}[kind]
     fns = {a: fns.get(w) for a, w in args.items()}
     if batch_loop.serves(kind, n, mdim):  # the batch-inner loop (the model's functions over blocks too)
         wide = batch_loop.dims_of(n, mdim, r)

@@ -13,7 +13,8 @@ loop once the process has shown it repeats the work:
 2. A loop already in this process (compiled or loaded by an earlier run) runs compiled.
 3. ``W``: the NumPy loop's estimated time for this run (:func:`numpy_seconds`:
    ``repeats × T × (a + B·b·n^1.5)`` µs with the per-step and per-path-step costs of the rule kind,
-   :data:`STEP_US`, :data:`PATH_STEP_US`) plus that of the earlier runs of the same loop in this
+   :data:`STEP_US`, :data:`PATH_STEP_US`; times the filter's ``substeps`` for the kinds of
+   :data:`PER_SUBSTEP`) plus that of the earlier runs of the same loop in this
    process that took the NumPy loop. Below the cost of loading a cached loop (:data:`LOAD_SECONDS`:
    numba's import; :data:`LOADED_SECONDS` once numba is imported) the NumPy loop; at or above the
    loop's compile time (:data:`COMPILE_SECONDS`) the compiled loop, compiled now and kept on disk;
@@ -38,11 +39,11 @@ from typing import NamedTuple
 from .support import static_refusal
 
 __all__ = ["Choice", "choose", "numpy_seconds", "COMPILE_SECONDS", "LOAD_SECONDS", "LOADED_SECONDS", "STEP_US",
-           "PATH_STEP_US"]
+           "PATH_STEP_US", "PER_SUBSTEP"]
 
 #: the NumPy loop's cost per step, µs (one trajectory: its Python overhead), by rule kind
 STEP_US = {"kalman": 40.0, "taylor1": 50.0, "nodes": 110.0, "taylor2": 160.0, "sqrt-taylor1": 120.0, "sqrt-nodes": 240.0,
-           "ito": 110.0}
+           "ito": 110.0, "cd-taylor1": 50.0}
 #: and per path-step at ``n = 1``, µs, scaled by ``n^1.5`` (1000 paths: 0.12 µs for the EKF at
 #: n = 1, 3.6 at n = 4, 22.7 at n = 16; the UKF and second-order filters 2-3× the EKF; the square-root
 #: filters 2.2-2.4× their standard form per step, 1.5-1.9× per path-step, measured at n = 2)
@@ -51,8 +52,14 @@ STEP_US = {"kalman": 40.0, "taylor1": 50.0, "nodes": 110.0, "taylor2": 160.0, "s
 #: (EKF 71, truncated 108, Gaussian second-order 140), 0.46-1.0 µs per path-step at 64 paths and
 #: 0.11-0.15 at 1000; at n = 2, 1.1 (EKF) to 5.1 (Gaussian) µs per path-step at 1000 paths (the n^1.5
 #: scale is low there: the NumPy loop's n = 1 products are broadcasts, its n = 2 ones matmuls)
+#: The continuous-discrete EKF (``"cd-taylor1"``), per substep of the integrator (:data:`PER_SUBSTEP`;
+#: RK4; one core, loaded machine, n = 1 and 2): 54 µs per step on one trajectory with one substep,
+#: 169 with four (n = 1; 93 and 228 at n = 2); per path-step at 1000 paths 0.16 and 0.42 µs (n = 1),
+#: 0.77 and 1.9 (n = 2). The compiled loop: 0.06-0.07 µs per path-step at n = 1, one substep
 PATH_STEP_US = {"kalman": 0.2, "taylor1": 0.25, "nodes": 0.45, "taylor2": 0.6, "sqrt-taylor1": 0.5, "sqrt-nodes": 0.7,
-                "ito": 0.4}
+                "ito": 0.4, "cd-taylor1": 0.15}
+#: the kinds whose costs above are per substep of the filter's integrator (``substeps``)
+PER_SUBSTEP = ("cd-taylor1",)
 #: a loop's first compile, CPU seconds: the scalar EKF's batch loop, the loops specialized to the
 #: dimensions (n, m ≤ :data:`~.build.SPECIALIZE_UP_TO`; the loop, its predict and its update
 #: flattened apart: 3.4-5.2 s measured by benchmarks/bench_compile.py on an idle core, run
@@ -97,7 +104,7 @@ def choose(flt, B: int, T: int, repeats: int = 1, record: bool = False) -> Choic
         return Choice("numba", "the compiled loop is loaded in this process")
     store = build.KERNELS.setdefault(key, {})
     tally = ("numpy seconds", build.loop_name(kind, fns, scalar, dims))
-    work = numpy_seconds(kind, flt.model.n, B, T, repeats)
+    work = numpy_seconds(kind, flt.model.n, B, T, repeats) * (flt.substeps if kind in PER_SUBSTEP else 1)
     spent = store.get(tally, 0.0) + work  # with this run's: what this loop would have saved in the process
     compile_s = COMPILE_SECONDS["scalar" if scalar else "general" if dims is None else
                                 "batch" if batch_loop.is_batch(dims) else "specialized"]

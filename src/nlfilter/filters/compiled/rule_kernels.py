@@ -4,7 +4,8 @@ Taylor-1 (the EKF), node rules (unscented, cubature, Gauss–Hermite, SLF: the r
 :data:`~nlfilter.filters.rules.FORM_TABLE`) and the linear Kalman filter's (``"kalman"``:
 :mod:`.kalman_loop`, the model's matrices as data in ``ks``) and the square-root filters' (``"sqrt-taylor1"``,
 ``"sqrt-nodes"``: :mod:`.sqrt_kernels`, the factor in place of ``P``) and the continuous Itô filters'
-(``"ito"``: :mod:`.ito_kernels`, the whole step in the update). The time loop around them is one template
+(``"ito"``: :mod:`.ito_kernels`, the whole step in the update) and the continuous-discrete EKF's
+(``"cd-taylor1"``: :mod:`.cd_kernels`, the moment equations integrated, then the EKF's update). The time loop around them is one template
 (:func:`.loops.steps_`); a kernel is all that differs between the rule kinds.
 
 Every kernel works on one path in place (``m``, ``P``) and returns False where the path fails
@@ -26,7 +27,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from . import ito_kernels, sqrt_kernels
+from . import cd_kernels, ito_kernels, sqrt_kernels
 from .path_linalg import mm, psd_check, psd_root
 from .kalman_loop import alloc_kalman, predict_kalman_, update_kalman_
 from .step_kernels import (add_gqg, add_half_trace, condition, meas_cov, nodes_moments, nodes_points, predict_cov,
@@ -202,7 +203,8 @@ def update_taylor2_(h, hx, hxx, m, P, y, t, p, R, tol, want, l1, i1, c1, ks, ws,
 #: the kernels' sources by rule kind: ``(predict, update)`` (compiled by :func:`.build.steps`)
 KERNELS_BY_KIND = {"taylor1": (predict_taylor1_, update_taylor1_), "nodes": (predict_nodes_, update_nodes_),
                    "taylor2": (predict_taylor2_, update_taylor2_), "kalman": (predict_kalman_, update_kalman_),
-                   **sqrt_kernels.KERNELS, **ito_kernels.KERNELS}
+                   **sqrt_kernels.KERNELS, **ito_kernels.KERNELS,
+                   "cd-taylor1": (*cd_kernels.KERNELS["cd-taylor1"], update_taylor1_)}
 #: the kernels' work arrays by rule kind: ``alloc(n, mdim, r, N) -> tuple``
 ALLOC = {"taylor1": alloc_taylor1, "nodes": alloc_nodes, "taylor2": alloc_taylor2, "kalman": alloc_kalman,
-         **sqrt_kernels.ALLOC, **ito_kernels.ALLOC}
+         **sqrt_kernels.ALLOC, **ito_kernels.ALLOC, "cd-taylor1": alloc_taylor1}

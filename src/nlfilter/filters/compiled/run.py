@@ -17,6 +17,7 @@ from ..recorder import loglik_divergence
 from ..rules import FORM_TABLE
 from . import batch_loop, build
 from .cache import seal
+from .cd_kernels import constants as cd_constants
 from .kalman_loop import matrices, scalar_parameters
 from .loops import alloc_path
 from .rule_kernels import ALLOC
@@ -119,6 +120,8 @@ def _run(flt, yf, batch, m0, P0, on, loglik, progress):
         ks, N = (z, wm, wc), z.shape[0]
     elif kind == "taylor1":
         ks, N = (), 0
+    elif kind == "cd-taylor1":  # the interval, the integrator and its work arrays (.cd_kernels)
+        ks, N = cd_constants(flt.dt, flt.substeps, flt.scheme, n), 0
     elif kind == "ito":  # R⁻¹, G Q Gᵀ where G is fixed, the integrator and the rule's switches (.ito_kernels)
         rule = flt.rule
         force = _FORCE[FORM_TABLE[rule.form].forcing] if rule.second else 0

@@ -25,8 +25,9 @@ def numba():
 #: the rule kinds (``rule.kind``) the compiled loop has a step kernel for; ``"kalman"``: the linear
 #: Kalman filter (its class's ``compiled_kind``; the model's matrices as data, :mod:`.kalman_loop`);
 #: ``"sqrt-taylor1"``, ``"sqrt-nodes"``: the square-root filters' (:mod:`.sqrt_kernels`); ``"ito"``: the
-#: continuous-time (Itô) filters over a Taylor rule (:mod:`.ito_kernels`)
-KINDS = ("taylor1", "nodes", "taylor2", "kalman", "sqrt-taylor1", "sqrt-nodes", "ito")
+#: continuous-time (Itô) filters over a Taylor rule (:mod:`.ito_kernels`); ``"cd-taylor1"``: the
+#: continuous-discrete EKF (:mod:`.cd_kernels`)
+KINDS = ("taylor1", "nodes", "taylor2", "kalman", "sqrt-taylor1", "sqrt-nodes", "ito", "cd-taylor1")
 
 #: what a subclass of a class declaring ``compiled = True`` may redefine and still run compiled:
 #: its constructor and representation. Any other method of the family it redefines (``predict``,
@@ -159,8 +160,8 @@ def static_refusal(flt) -> str | None:
         return "the model declares angular components (angles=): wrapped residuals and circular means run on NumPy"
     if kind == "kalman":
         return _kalman_refusal(md)
-    if kind == "ito":
-        why = _ito_refusal(flt)
+    if kind in ("ito", "cd-taylor1"):
+        why = _ito_refusal(flt) if kind == "ito" else _cd_refusal(flt)
         if why is not None:
             return why
     elif getattr(md, "kind", None) != "discrete" or md.expressions is None:
@@ -196,6 +197,20 @@ def _ito_refusal(flt) -> str | None:
         return "the model's f, h, G or noise depend on the time; the compiled continuous loop takes time-invariant models"
     if flt.rule.second and not md.G_constant:
         return "the continuous second-order filters' compiled loop needs a G that does not depend on the state"
+    return None
+
+
+def _cd_refusal(flt) -> str | None:
+    """Why the continuous-discrete loop (:mod:`.cd_kernels`) cannot take ``flt``, or None: an
+    SDEModel in SymPy whose f, h, G do not depend on the time (the loop does not read the stages'
+    times), measured on a regular grid of a given ``dt`` (not :meth:`at_times`)."""
+    md = flt.model
+    if getattr(md, "kind", None) != "sde" or md.expressions is None:
+        return "the model must be an SDEModel stated in SymPy"
+    if not md.time_invariant:
+        return "the model's f, h, G or noise depend on the time; the compiled continuous-discrete loop takes time-invariant models"
+    if getattr(flt, "times", None) is not None or getattr(flt, "dt", None) is None:
+        return "the compiled continuous-discrete loop takes a regular grid of a given dt (not at_times, not dt=None)"
     return None
 
 
