@@ -1,12 +1,15 @@
-"""The continuous-discrete EKF on the compiled loop (issue 28, item 6: the continuous filters' RK4
-substeps compiled): ``ContinuousDiscreteEKF`` gives the NumPy loop's estimates to 1e-12 relative —
+"""The continuous-discrete EKF and second-order filters on the compiled loop (issue 28, item 6: the
+continuous filters' RK4 substeps compiled): ``ContinuousDiscreteEKF`` and
+``ContinuousDiscreteSecondOrderFilter`` (every form but the first-order one, whose Taylor-1
+arithmetic is the EKF's) give the NumPy loop's estimates to 1e-12 relative —
 both starts, RK4 and Euler, several substeps, partly missing measurements and a step missing on
 every path, divergence marks, the log-likelihood, the smoother, a Simulation's timing — and what
 the loop does not take is refused naming ``backend``.
 
-Three compiles: a pendulum with a state-dependent G and two measurements (n = 2, specialized),
-a 5-state coupled model past the specialized sizes (the general loop), and the scalar model of the
-refusal tests (specialized, n = 1), each of them a model the papers do not have.
+Four compiles: a pendulum with a state-dependent G and two measurements (n = 2, specialized), the
+same pendulum with a constant G for the second-order forms, a 5-state coupled model past the
+specialized sizes (the general loop), and the scalar model of the refusal tests (specialized,
+n = 1), each of them a model the papers do not have.
 """
 
 from __future__ import annotations
@@ -19,6 +22,8 @@ from nlfilter import SDEModel
 from nlfilter.errors import DivergenceError
 from nlfilter.filters import compiled
 from nlfilter.filters.ekf import ContinuousDiscreteEKF
+from nlfilter.filters.rules import FORMS
+from nlfilter.filters.second_order import ContinuousDiscreteSecondOrderFilter
 from nlfilter.simulate import simulate_continuous_discrete
 from tests.filters.test_compiled import same
 
@@ -60,6 +65,31 @@ def test_same_estimates_and_likelihood_as_numpy(pendulum, name):
     assert not ref.diverged.any()
     same(ref, new)
     assert compiled.build.loop_of(flt)[0] == "cd-taylor1"
+
+
+@pytest.fixture(scope="module")
+def pendulum_fixed_g():
+    """The pendulum with additive noise on ω (the second-order filters take a constant G)."""
+    md = SDEModel([th, om], [om, -4.0 * sp.sin(th) - 0.3 * om], [sp.sin(th), om**2 / 4], Q=[[0.0, 0.0], [0.0, 0.5]],
+                  R=0.02 * np.eye(2))
+    m0, P0 = np.array([0.8, 0.0]), 0.1 * np.eye(2)
+    return md, m0, P0, _data(md, m0, P0)
+
+
+@pytest.mark.parametrize("form", [f for f in FORMS if f != "first-order"])
+def test_second_order_forms_as_numpy(pendulum_fixed_g, form):
+    """One loop for every second-order form (the form's switches are data); the truncated-Jazwinski
+    form loses the covariance on two paths here, the Gaussian one on one: the same paths at the
+    same steps."""
+    md, m0, P0, ys = pendulum_fixed_g
+    flt = ContinuousDiscreteSecondOrderFilter(md, DT, form=form, substeps=2)
+    ref = flt.run(ys, m0, P0, loglik=True, on_divergence="mark")
+    new = flt.run(ys, m0, P0, loglik=True, on_divergence="mark", backend="numba")
+    same(ref, new)
+    assert not ref.diverged.all() and (ref.diverged.any() or form != "truncated-jazwinski")
+    assert compiled.build.loop_of(flt)[0] == "cd-taylor2"
+    euler = ContinuousDiscreteSecondOrderFilter(md, DT, form=form, scheme="euler", substeps=3, start="update")
+    same(euler.run(ys, m0, P0, on_divergence="mark"), euler.run(ys, m0, P0, on_divergence="mark", backend="numba"))
 
 
 def test_smoother_and_simulation_timing(pendulum):
@@ -114,6 +144,9 @@ def test_what_it_does_not_take_is_refused_naming_backend(cubic):
     timed = SDEModel([x], [-x + sp.sin(t)], [x**3], Q=1.0, R=1.0, time=t)
     with pytest.raises(TypeError, match="backend: 'numba'.*time"):
         ContinuousDiscreteEKF(timed, 0.1).run(ys, 0.5, 0.1, backend="numba")
+    moving = SDEModel([x], [-x], [x**3], G=[[1.0 + 0.1 * x]], Q=1.0, R=1.0)
+    with pytest.raises(TypeError, match="backend: 'numba'.*G that depends on neither the state nor the time"):
+        ContinuousDiscreteSecondOrderFilter(moving, 0.1).run(ys, 0.5, 0.1, backend="numba")
 
     class MyPrediction(ContinuousDiscreteEKF):
         def _predict(self, state, k, cross=False):

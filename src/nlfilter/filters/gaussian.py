@@ -258,7 +258,7 @@ class ContinuousDiscreteGaussianFilter(GaussianFilter):
     """
 
     name = "cd-gaussian"
-    compiled = False  # continuous dynamics: the compiled loop has the EKF's only (ContinuousDiscreteEKF)
+    compiled = False  # continuous dynamics: the compiled loop has the Taylor rules' only (EKF, second order)
     accepts = ("sde",)
     start = "predict"  # the default: the prior at t0, y_0 at t0 + dt (as simulate_continuous_discrete)
 

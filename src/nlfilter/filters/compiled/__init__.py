@@ -1,6 +1,6 @@
 """The compiled run loop (``run(..., backend="numba")``): the discrete Gaussian filters, and the
-continuous-time (Itô) EKF and second-order filters and the continuous-discrete EKF, in one
-numba-compiled loop over paths and steps.
+continuous-time (Itô) and continuous-discrete EKF and second-order filters, in one numba-compiled
+loop over paths and steps.
 
 The NumPy loop of :meth:`~nlfilter.filters.base.Filter.run` is the reference; this is the same
 filter, step for step, with the model's f, h, G and their derivatives generated from its SymPy
@@ -27,8 +27,9 @@ continuous ``ekf`` and          gain ``K = P Hᵀ R⁻¹`` and forcing at the st
 second-order filters)           terms by RK4/Euler in ``substeps``, then ``+ K dy``; the likelihood
                                 of ``dy/dt`` (not for ``truncated-jazwinski``: NumPy screens its S
                                 over the batch)
-continuous-discrete Taylor-1    ``dm/dt = f(m)``, ``dP/dt = P Fᵀ + F P + G Q Gᵀ`` by RK4/Euler in
-(``cd-ekf``)                    ``substeps`` over each interval (:mod:`.cd_kernels`); the EKF's update
+continuous-discrete Taylor-1    ``dm/dt = f(m) [+ ½(P f_xx)]``, ``dP/dt = P Fᵀ + F P + G Q Gᵀ`` by
+and Taylor-2 (``cd-ekf``,       RK4/Euler in ``substeps`` over each interval (:mod:`.cd_kernels`);
+``cd-second-order``)            the discrete EKF's or second-order form's update
 ==============================  ================================================================
 
 A model with one state, one measurement and one noise runs the EKF's scalar batch loop
@@ -53,8 +54,8 @@ rotation free (then any root is as right, and the moments agree to the rule's ex
 What it takes: a filter whose class declares ``compiled = True`` (the discrete Gaussian filters
 above, their square-root forms but the iterated and second-order ones; the continuous
 ``ContinuousGaussianFilter`` with ``innovation="ito"`` on an SDEModel in SymPy whose f, h, G do not
-depend on the time, a G free of the state for a second-order rule; ``ContinuousDiscreteEKF`` on
-such a model, on a regular grid of a given ``dt``), with no step overridden below it (:func:`steps_refusal`); a :class:`~nlfilter.models.DiscreteModel` stated in SymPy, additive noise, constant
+depend on the time, a G free of the state for a second-order rule; ``ContinuousDiscreteEKF`` and
+``ContinuousDiscreteSecondOrderFilter`` on such a model, on a regular grid of a given ``dt``), with no step overridden below it (:func:`steps_refusal`); a :class:`~nlfilter.models.DiscreteModel` stated in SymPy, additive noise, constant
 Q and R, no correlated noise, parameters with one value each (arrays over time, inputs: the NumPy
 loop); Taylor-2 also a G free of the states; the Kalman filter any linear DiscreteModel (SymPy or
 matrices, time-varying too) without correlated noise or parameters per path. :func:`unsupported` names what a filter or model
@@ -73,7 +74,7 @@ The package, one concept a module:
 :mod:`.rule_kernels`    one predict and one update kernel per rule kind, and their work arrays
 :mod:`.sqrt_kernels`    the square-root filters' kernels: Householder ``tria``, downdates, the array update
 :mod:`.ito_kernels`     the continuous Itô filters' step: RK4/Euler substeps, the Itô gain, the likelihood
-:mod:`.cd_kernels`      the continuous-discrete EKF's prediction: the moment equations by RK4/Euler
+:mod:`.cd_kernels`      the continuous-discrete prediction of the Taylor rules: the moment equations by RK4/Euler
 :mod:`.kalman_loop`     the Kalman filter's kernels: the matrices as data (the template's, and the scalar
                         batch loop's f, h, G reading them from ``p``)
 :mod:`.loops`           one loop template for every rule kind; the scalar EKF's batch loop

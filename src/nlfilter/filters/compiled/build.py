@@ -46,7 +46,7 @@ FUNCTION_ARGS = {"steps_scalar_": ("f", "fx", "h", "hx", "G"), "steps_": ("predi
                  "predict_sqrt_taylor1_": ("f", "fx", "G"), "update_sqrt_taylor1_": ("h", "hx"),
                  "predict_sqrt_nodes_": ("f", "G"), "update_sqrt_nodes_": ("h",),
                  "predict_ito_": (), "update_ito_": ("f", "fx", "fxx", "h", "hx", "hxx", "G"),
-                 "predict_cd_taylor1_": ("f", "fx", "G")}
+                 "predict_cd_": ("f", "fx", "fxx", "G")}
 
 #: loops of models up to this state and measurement dimension are specialized: the dimensions
 #: compiled in as constants and the helpers expanded into the loop (:func:`_flat`; the compiler
@@ -242,7 +242,7 @@ def loop_of(flt, B: int | None = None):
     dims = (n, mdim, r, None) if max(n, mdim) <= limit and kind not in SQRT_KINDS else None
     # the continuous Itô kind: the Hessians on small models whatever the rule, so that its Taylor-1 and
     # Taylor-2 filters share one loop (one compile; the rule's switches are data, ks)
-    second = (kind == "taylor2" and flt.rule.second) or (kind == "ito" and (flt.rule.second or dims is not None))
+    second = (kind in ("taylor2", "cd-taylor2") and flt.rule.second) or (kind == "ito" and (flt.rule.second or dims is not None))
     fns = model_kernels(md, second=second)
     # the kernels' parameter names -> model_kernels' (first-order Taylor-2: the Hessian slots are
     # never called; None, a compiled no-op, fills them)
@@ -251,7 +251,8 @@ def loop_of(flt, B: int | None = None):
             "sqrt-taylor1": {"f": "f", "fx": "f_x", "h": "h", "hx": "h_x", "G": "G"},
             "sqrt-nodes": {"f": "f", "h": "h", "G": "G"},
             "ito": {"f": "f", "fx": "f_x", "fxx": "f_xx", "h": "h", "hx": "h_x", "hxx": "h_xx", "G": "G"},
-            "cd-taylor1": {"f": "f", "fx": "f_x", "h": "h", "hx": "h_x", "G": "G"}}[kind]
+            "cd-taylor1": {"f": "f", "fx": "f_x", "fxx": "f_xx", "h": "h", "hx": "h_x", "G": "G"},
+            "cd-taylor2": {"f": "f", "fx": "f_x", "fxx": "f_xx", "h": "h", "hx": "h_x", "hxx": "h_xx", "G": "G"}}[kind]
     fns = {a: fns.get(w) for a, w in args.items()}
     if batch_loop.serves(kind, n, mdim):  # the batch-inner loop (the model's functions over blocks too)
         wide = batch_loop.dims_of(n, mdim, r)
@@ -283,7 +284,7 @@ def steps(kind: str, fns: dict, key, scalar: bool = False, dims=None):
 
 
 def loop_name(kind, fns, scalar, dims):
-    return ("steps", kind, fns.get("fxx") is None if kind in ("taylor2", "ito") else scalar, dims)
+    return ("steps", kind, fns.get("fxx") is None if kind in ("taylor2", "ito", "cd-taylor2") else scalar, dims)
 
 
 def text_of(kind: str, fns: dict, scalar: bool = False, dims=None) -> tuple:

@@ -1,21 +1,26 @@
-"""The continuous-discrete filters' prediction on the compiled loop: the kind ``"cd-taylor1"`` of
-:class:`~nlfilter.filters.ekf.ContinuousDiscreteEKF` (Jazwinski 1970, ch. 8), one path at a time.
+"""The continuous-discrete filters' prediction on the compiled loop, one path at a time: the kinds
+``"cd-taylor1"`` of :class:`~nlfilter.filters.ekf.ContinuousDiscreteEKF` (Jazwinski 1970, ch. 8) and
+``"cd-taylor2"`` of :class:`~nlfilter.filters.second_order.ContinuousDiscreteSecondOrderFilter` (seed
+004 eqs. 35-36 without their measurement terms).
 
-Between measurements, the moment equations of the Taylor-1 closure
-(:func:`~nlfilter.filters.skeleton.moment_rhs` with :class:`~nlfilter.filters.rules.Taylor1`)::
+Between measurements, the moment equations of the Taylor closures
+(:func:`~nlfilter.filters.skeleton.moment_rhs` with :class:`~nlfilter.filters.rules.Taylor1` or
+:class:`~nlfilter.filters.rules.Taylor2`: third moments neglected, f_xx in the mean only)::
 
-    dm/dt = f(m),   dP/dt = P Fᵀ + F P + G Q Gᵀ      (F = f_x(m), G = G(m))
+    dm/dt = f(m) [+ ½ (P f_xx)],   dP/dt = P Fᵀ + F P + G Q Gᵀ      (F = f_x(m), G = G(m))
 
 integrated over the measurement interval ``dt`` by RK4 or Euler in ``substeps`` steps, P
 symmetrized after each (:func:`~nlfilter.filters.skeleton.propagate`, :func:`~nlfilter.ode.ode_step`,
 in their order of operations: the stage points ``x + (h/2) k``, the combination
 ``x + h/6 (k₁ + 2k₂ + 2k₃ + k₄)``), then the divergence test; at the measurements the discrete
-EKF's update (:func:`~.rule_kernels.update_taylor1_`). The compiled loop takes models whose f, h, G
-do not depend on the time, on a regular grid (:func:`~.support.static_refusal`): the stages' times
-are then never read.
+EKF's or the second-order filter's update (:func:`~.rule_kernels.update_taylor1_`,
+:func:`~.rule_kernels.update_taylor2_`). The compiled loop takes models whose f, h, G do not depend on
+the time, on a regular grid (:func:`~.support.static_refusal`; the second-order filters a G free of
+the state, as in discrete time): the stages' times are then never read.
 
-``ks = (dt, substeps, rk4, xm, xP, km, kP)``: the interval, the integrator, and its work arrays (the
-stage point, the stages' slopes), beside the Taylor-1 kernels' own (``ws``: :func:`~.rule_kernels.alloc_taylor1`).
+``ks``: the Taylor-2 update's five entries (``second`` — the ½ terms —, the form's kinds, ``joseph``;
+the Taylor-1 update reads none), then the integrator (:func:`constants`); ``ws``: the update's work
+arrays (:data:`~.rule_kernels.ALLOC` of its kind).
 """
 
 from __future__ import annotations
@@ -23,22 +28,26 @@ from __future__ import annotations
 import numpy as np
 
 from .path_linalg import psd_check, symmetrize
-from .step_kernels import add_gqg
+from .step_kernels import add_gqg, add_half_trace
 
-__all__ = ["KERNELS", "constants", "predict_cd_taylor1_"]
-
-
-def constants(dt: float, substeps: int, scheme: str, n: int) -> tuple:
-    """``ks`` of :func:`predict_cd_taylor1_`: ``(dt, substeps, rk4, xm, xP, km, kP)``."""
-    return (float(dt), int(substeps), scheme == "rk4", np.empty(n), np.empty((n, n)), np.empty((4, n)),
-            np.empty((4, n, n)))
+__all__ = ["KERNELS", "constants", "predict_cd_"]
 
 
-def predict_cd_taylor1_(f, fx, G, m, P, t, p, Q, GQG0, G_const, tol, ks, ws, n, mdim):
+def constants(dt: float, substeps: int, scheme: str, n: int, r: int) -> tuple:
+    """The integrator's entry of ``ks`` (its last, ``ks[5]``): ``(dt, substeps, rk4, xm, xP, km, kP,
+    fv, F, Af, tr, Gm, GQ, N, FP, W, L, ev)`` — the interval, the scheme, and the work arrays of
+    :func:`predict_cd_` (the stage point, the stages' slopes, the model's values there)."""
+    e = np.empty
+    return (float(dt), int(substeps), scheme == "rk4", e(n), e((n, n)), e((4, n)), e((4, n, n)), e(n), e((n, n)),
+            e((n, n, n)), e(n), e((n, r)), e((n, r)), e((n, n)), e((n, n)), e((n, n)), e((n, n)), e(n))
+
+
+def predict_cd_(f, fx, fxx, G, m, P, t, p, Q, GQG0, G_const, tol, ks, ws, n, mdim):
     """``(m, P)`` from one measurement time to the next (step ``t``'s interval): the moment equations
-    integrated (see the module docstring); False where the path fails the divergence test."""
-    dt, substeps, rk4, xm, xP, km, kP = ks
-    mp, F, C, Hm, S, Gm, GQ, N, yhat, FP, W, L, ev, w, M0, Ht = ws
+    integrated (see the module docstring), with ``½ (P f_xx)`` in ``dm/dt`` where the rule is of
+    second order (``ks[0]``); False where the path fails the divergence test."""
+    second = ks[0]
+    dt, substeps, rk4, xm, xP, km, kP, fv, F, Af, tr, Gm, GQ, N, FP, W, L, ev = ks[5]
     r = Q.shape[0]
     if G_const:
         for i in range(n):
@@ -62,10 +71,13 @@ def predict_cd_taylor1_(f, fx, G, m, P, t, p, Q, GQG0, G_const, tol, ks, ws, n, 
                     xm[i] = m[i] + hh * km[st - 1, i]
                     for j in range(n):
                         xP[i, j] = P[i, j] + hh * kP[st - 1, i, j]
-            f(xm, ss, p, mp)  # dm/dt = f
+            f(xm, ss, p, fv)  # dm/dt = f [+ ½ (P f_xx)]
             fx(xm, ss, p, F)
+            if second:
+                fxx(xm, ss, p, Af)
+                add_half_trace(xP, Af, n, n, tr, fv)
             for i in range(n):
-                km[st, i] = mp[i]
+                km[st, i] = fv[i]
             if not G_const:  # G(x) Q G(x)ᵀ at the stage point
                 G(xm, ss, p, Gm)
                 for i in range(n):
@@ -96,5 +108,6 @@ def predict_cd_taylor1_(f, fx, G, m, P, t, p, Q, GQG0, G_const, tol, ks, ws, n, 
     return psd_check(m, P, n, tol, W, L, ev)
 
 
-#: the kind's kernels: its prediction, and the discrete EKF's update (:mod:`.rule_kernels` adds it)
-KERNELS = {"cd-taylor1": (predict_cd_taylor1_,)}
+#: the kinds' predictions (:mod:`.rule_kernels` pairs them with the discrete updates: the EKF's, the
+#: second-order filters')
+KERNELS = {"cd-taylor1": (predict_cd_,), "cd-taylor2": (predict_cd_,)}

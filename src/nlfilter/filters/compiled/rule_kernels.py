@@ -5,7 +5,8 @@ Taylor-1 (the EKF), node rules (unscented, cubature, Gauss–Hermite, SLF: the r
 :mod:`.kalman_loop`, the model's matrices as data in ``ks``) and the square-root filters' (``"sqrt-taylor1"``,
 ``"sqrt-nodes"``: :mod:`.sqrt_kernels`, the factor in place of ``P``) and the continuous Itô filters'
 (``"ito"``: :mod:`.ito_kernels`, the whole step in the update) and the continuous-discrete EKF's
-(``"cd-taylor1"``: :mod:`.cd_kernels`, the moment equations integrated, then the EKF's update). The time loop around them is one template
+(``"cd-taylor1"``, ``"cd-taylor2"``: :mod:`.cd_kernels`, the moment equations integrated, then the
+EKF's or the second-order filters' update). The time loop around them is one template
 (:func:`.loops.steps_`); a kernel is all that differs between the rule kinds.
 
 Every kernel works on one path in place (``m``, ``P``) and returns False where the path fails
@@ -171,7 +172,7 @@ def predict_taylor2_(f, fx, fxx, m, P, t, p, Q, GQG0, G_const, tol, ks, ws, n, m
 def update_taylor2_(h, hx, hxx, m, P, y, t, p, R, tol, want, l1, i1, c1, ks, ws, n, mdim):
     """``ŷ = h + ½(P h_xx)``, ``S = H P Hᵀ + R`` + the form's term, the forcing ``M`` (004 eqs.
     20-23); S must be positive definite."""
-    second, dyn_kind, meas_kind, force_kind, joseph = ks
+    second, meas_kind, force_kind, joseph = ks[0], ks[2], ks[3], ks[4]  # (the continuous-discrete kind's: more)
     mp, F, Hm, C, S, FP, Af, Ah, tr, AP, Cf, M, yhat, W, L, ev, w, Ht = ws
     h(m, t, p, yhat)
     hx(m, t, p, Hm)
@@ -204,7 +205,9 @@ def update_taylor2_(h, hx, hxx, m, P, y, t, p, R, tol, want, l1, i1, c1, ks, ws,
 KERNELS_BY_KIND = {"taylor1": (predict_taylor1_, update_taylor1_), "nodes": (predict_nodes_, update_nodes_),
                    "taylor2": (predict_taylor2_, update_taylor2_), "kalman": (predict_kalman_, update_kalman_),
                    **sqrt_kernels.KERNELS, **ito_kernels.KERNELS,
-                   "cd-taylor1": (*cd_kernels.KERNELS["cd-taylor1"], update_taylor1_)}
+                   "cd-taylor1": (*cd_kernels.KERNELS["cd-taylor1"], update_taylor1_),
+                   "cd-taylor2": (*cd_kernels.KERNELS["cd-taylor2"], update_taylor2_)}
 #: the kernels' work arrays by rule kind: ``alloc(n, mdim, r, N) -> tuple``
 ALLOC = {"taylor1": alloc_taylor1, "nodes": alloc_nodes, "taylor2": alloc_taylor2, "kalman": alloc_kalman,
-         **sqrt_kernels.ALLOC, **ito_kernels.ALLOC, "cd-taylor1": alloc_taylor1}
+         **sqrt_kernels.ALLOC, **ito_kernels.ALLOC, "cd-taylor1": alloc_taylor1,
+         "cd-taylor2": alloc_taylor2}

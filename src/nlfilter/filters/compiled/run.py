@@ -120,8 +120,6 @@ def _run(flt, yf, batch, m0, P0, on, loglik, progress):
         ks, N = (z, wm, wc), z.shape[0]
     elif kind == "taylor1":
         ks, N = (), 0
-    elif kind == "cd-taylor1":  # the interval, the integrator and its work arrays (.cd_kernels)
-        ks, N = cd_constants(flt.dt, flt.substeps, flt.scheme, n), 0
     elif kind == "ito":  # R⁻¹, G Q Gᵀ where G is fixed, the integrator and the rule's switches (.ito_kernels)
         rule = flt.rule
         force = _FORCE[FORM_TABLE[rule.form].forcing] if rule.second else 0
@@ -129,11 +127,14 @@ def _run(flt, yf, batch, m0, P0, on, loglik, progress):
         meas = _KIND[FORM_TABLE[rule.form].innovation] if rule.second else 0
         ks, N = (_plain(flt._Rinv), GQG0 if gfix else np.zeros((n, n)), Q, float(flt.dt), int(flt.substeps),
                  flt.scheme == "rk4", bool(rule.second), force, gfix, _plain(R / flt.dt), meas), 0
-    else:
-        rule = flt.rule
-        spec = FORM_TABLE[rule.form]
-        kinds = ((_KIND[spec[0]], _KIND[spec[1]], _FORCE[spec[2]]) if rule.second else (0, 0, 0))
-        ks, N = (rule.second, *kinds, spec[1] == "none"), 0
+    else:  # the Taylor-2 update's switches (the Taylor-1 rule: none, the first-order form's); the
+        rule = flt.rule  # continuous-discrete kinds: then the integrator and its work arrays (.cd_kernels)
+        spec = FORM_TABLE[getattr(rule, "form", "first-order")]
+        second = bool(getattr(rule, "second", False))
+        kinds = ((_KIND[spec[0]], _KIND[spec[1]], _FORCE[spec[2]]) if second else (0, 0, 0))
+        ks, N = (second, *kinds, spec[1] == "none"), 0
+        if kind != "taylor2":
+            ks = (*ks, cd_constants(flt.dt, flt.substeps, flt.scheme, n, md.r))
     ws = ALLOC[kind](n, mdim, md.r, N)
     if batch_loop.is_batch(dims):  # the batch-inner loop: the one-path kernels' work arrays and its own
         ws = (ws, batch_loop.alloc(n, mdim, md.r))

@@ -25,9 +25,9 @@ def numba():
 #: the rule kinds (``rule.kind``) the compiled loop has a step kernel for; ``"kalman"``: the linear
 #: Kalman filter (its class's ``compiled_kind``; the model's matrices as data, :mod:`.kalman_loop`);
 #: ``"sqrt-taylor1"``, ``"sqrt-nodes"``: the square-root filters' (:mod:`.sqrt_kernels`); ``"ito"``: the
-#: continuous-time (Itô) filters over a Taylor rule (:mod:`.ito_kernels`); ``"cd-taylor1"``: the
-#: continuous-discrete EKF (:mod:`.cd_kernels`)
-KINDS = ("taylor1", "nodes", "taylor2", "kalman", "sqrt-taylor1", "sqrt-nodes", "ito", "cd-taylor1")
+#: continuous-time (Itô) filters over a Taylor rule (:mod:`.ito_kernels`); ``"cd-taylor1"``,
+#: ``"cd-taylor2"``: the continuous-discrete EKF and second-order filters (:mod:`.cd_kernels`)
+KINDS = ("taylor1", "nodes", "taylor2", "kalman", "sqrt-taylor1", "sqrt-nodes", "ito", "cd-taylor1", "cd-taylor2")
 
 #: what a subclass of a class declaring ``compiled = True`` may redefine and still run compiled:
 #: its constructor and representation. Any other method of the family it redefines (``predict``,
@@ -160,7 +160,7 @@ def static_refusal(flt) -> str | None:
         return "the model declares angular components (angles=): wrapped residuals and circular means run on NumPy"
     if kind == "kalman":
         return _kalman_refusal(md)
-    if kind in ("ito", "cd-taylor1"):
+    if kind in ("ito", "cd-taylor1", "cd-taylor2"):
         why = _ito_refusal(flt) if kind == "ito" else _cd_refusal(flt)
         if why is not None:
             return why
@@ -178,7 +178,7 @@ def static_refusal(flt) -> str | None:
     vals = md._values
     if vals.arrays or vals.unset or md._fold:
         return "the model has parameters, inputs or a Q that vary over time (arrays, Q given per step) or are not given"
-    if kind == "taylor2" and not md._G_fixed:
+    if kind in ("taylor2", "cd-taylor2") and not md._G_fixed:
         return "the second-order filters' compiled loop needs a G that depends on neither the state nor the time"
     return None
 
