@@ -1,13 +1,13 @@
-"""The continuous-discrete EKF and second-order filters on the compiled loop (issue 28, item 6: the
-continuous filters' RK4 substeps compiled): ``ContinuousDiscreteEKF`` and
-``ContinuousDiscreteSecondOrderFilter`` (every form but the first-order one, whose Taylor-1
-arithmetic is the EKF's) give the NumPy loop's estimates to 1e-12 relative —
+"""The continuous-discrete filters on the compiled loop (issue 28, item 6: the continuous filters'
+RK4 substeps compiled): ``ContinuousDiscreteEKF``, ``ContinuousDiscreteSecondOrderFilter`` (every
+form but the first-order one, whose Taylor-1 arithmetic is the EKF's) and the node rules' (UKF,
+CKF, GHKF: one loop, the rule's table as data) give the NumPy loop's estimates to 1e-12 relative —
 both starts, RK4 and Euler, several substeps, partly missing measurements and a step missing on
 every path, divergence marks, the log-likelihood, the smoother, a Simulation's timing — and what
 the loop does not take is refused naming ``backend``.
 
-Four compiles: a pendulum with a state-dependent G and two measurements (n = 2, specialized), the
-same pendulum with a constant G for the second-order forms, a 5-state coupled model past the
+Five compiles: a pendulum with a state-dependent G and two measurements (n = 2, specialized; the
+Taylor-1 and the node loops), the same pendulum with a constant G for the second-order forms, a 5-state coupled model past the
 specialized sizes (the general loop), and the scalar model of the refusal tests (specialized,
 n = 1), each of them a model the papers do not have.
 """
@@ -21,9 +21,11 @@ import sympy as sp
 from nlfilter import SDEModel
 from nlfilter.errors import DivergenceError
 from nlfilter.filters import compiled
-from nlfilter.filters.ekf import ContinuousDiscreteEKF
+from nlfilter.filters.cubature import ContinuousDiscreteCKF, ContinuousDiscreteGHKF
+from nlfilter.filters.ekf import ContinuousDiscreteEKF, ContinuousDiscreteIEKF
 from nlfilter.filters.rules import FORMS
 from nlfilter.filters.second_order import ContinuousDiscreteSecondOrderFilter
+from nlfilter.filters.ukf import ContinuousDiscreteUKF
 from nlfilter.simulate import simulate_continuous_discrete
 from tests.filters.test_compiled import same
 
@@ -65,6 +67,25 @@ def test_same_estimates_and_likelihood_as_numpy(pendulum, name):
     assert not ref.diverged.any()
     same(ref, new)
     assert compiled.build.loop_of(flt)[0] == "cd-taylor1"
+
+
+NODES = {"ukf": lambda md, **kw: ContinuousDiscreteUKF(md, DT, **kw),
+         "ukf-scaled-euler": lambda md, **kw: ContinuousDiscreteUKF(md, DT, alpha=0.7, kappa=1.0, scheme="euler",
+                                                                     substeps=3, **kw),
+         "ckf": lambda md, **kw: ContinuousDiscreteCKF(md, DT, substeps=2, **kw),
+         "ghkf": lambda md, **kw: ContinuousDiscreteGHKF(md, DT, order=3, **kw)}
+
+
+@pytest.mark.parametrize("name", list(NODES))
+def test_node_rules_as_numpy(pendulum, name):
+    """The sigma points of every stage point of the integrator, E[G Q Gᵀ] over them (G(x) here)."""
+    md, m0, P0, ys = pendulum
+    flt = NODES[name](md, start="update" if name == "ckf" else None)
+    ref = flt.run(ys, m0, P0, loglik=True, on_divergence="mark")
+    new = flt.run(ys, m0, P0, loglik=True, on_divergence="mark", backend="numba")
+    assert not ref.diverged.any()
+    same(ref, new)
+    assert compiled.build.loop_of(flt)[0] == "cd-nodes"
 
 
 @pytest.fixture(scope="module")
@@ -154,6 +175,8 @@ def test_what_it_does_not_take_is_refused_naming_backend(cubic):
     with pytest.raises(TypeError, match="backend: 'numba'.*overrides _predict"):
         MyPrediction(cubic, 0.1).run(ys, 0.5, 0.1, backend="numba")
     assert MyPrediction(cubic, 0.1).backend_for(10**4, 10**4)[0] == "numpy"
+    with pytest.raises(TypeError, match="backend: 'numba'.*iterated"):
+        ContinuousDiscreteIEKF(cubic, 0.1).run(ys, 0.5, 0.1, backend="numba")
 
 
 def test_auto_counts_the_substeps(cubic):

@@ -133,8 +133,6 @@ class ContinuousDiscreteEKF(ContinuousDiscreteGaussianFilter):
     name = "cd-ekf"
     source = "Jazwinski 1970, Stochastic Processes and Filtering Theory, ch. 8 (continuous-discrete EKF)"
     needs = ("f_x", "h_x")
-    compiled = True  # runs on the compiled loop too (backend="numba"; nlfilter.filters.compiled)
-    compiled_kind = "cd-taylor1"  # its prediction there (compiled/cd_kernels.py), the EKF's update
 
     def __init__(self, model, dt: float, *, scheme: str = "rk4", substeps: int = 1, start: str | None = None,
                  t0: float | None = None):
@@ -156,6 +154,8 @@ class ContinuousDiscreteIEKF(ContinuousDiscreteGaussianFilter):
     name = "cd-iekf"
     source = "Bell & Cathey 1993, IEEE TAC 38(2) (iterated update); Jazwinski 1970, ch. 8 (prediction)"
     needs = ("f_x", "h_x")
+    compiled = False  # the iterated update has no compiled kernel
+    compiled_refusal = "its iterated (Gauss–Newton) update has no compiled kernel; it runs on the NumPy loop"
 
     def __init__(self, model, dt: float, *, iterations: int = 10, tol: float = 1e-10, scheme: str = "rk4",
                  substeps: int = 1, start: str | None = None, t0: float | None = None):

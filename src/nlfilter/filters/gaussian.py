@@ -258,7 +258,7 @@ class ContinuousDiscreteGaussianFilter(GaussianFilter):
     """
 
     name = "cd-gaussian"
-    compiled = False  # continuous dynamics: the compiled loop has the Taylor rules' only (EKF, second order)
+    compiled = True  # the compiled loop runs it too (backend="numba"; nlfilter.filters.compiled.cd_kernels)
     accepts = ("sde",)
     start = "predict"  # the default: the prior at t0, y_0 at t0 + dt (as simulate_continuous_discrete)
 
@@ -275,6 +275,14 @@ class ContinuousDiscreteGaussianFilter(GaussianFilter):
         self.substeps = V.positive("substeps", substeps, integer=True)
         set_t0(self, t0)
         self._set_rule(rule, by=by)
+
+    @property
+    def compiled_kind(self):
+        """The compiled loop's kind of this filter's rule: ``"cd-taylor1"``, ``"cd-taylor2"``,
+        ``"cd-nodes"`` (``nlfilter/filters/compiled/cd_kernels.py``: the prediction; the update the
+        discrete rule's), or None."""
+        kind = getattr(self.rule, "kind", None)
+        return f"cd-{kind}" if kind in ("taylor1", "taylor2", "nodes") else None
 
     def _time(self, k):
         return belief_time(self, k)

@@ -156,8 +156,6 @@ class ContinuousDiscreteSecondOrderFilter(ContinuousDiscreteGaussianFilter):
     family = "second-order"
     needs = ("f_x", "f_xx", "h_x", "h_xx")
     raises = True
-    compiled = True  # runs on the compiled loop too (backend="numba"; nlfilter.filters.compiled)
-    compiled_kind = "cd-taylor2"  # its prediction there (compiled/cd_kernels.py), the discrete form's update
 
     def __init__(self, model, dt: float, *, form: str = "truncated", scheme: str = "rk4",
                  substeps: int = 1, start: str | None = None, t0: float | None = None):

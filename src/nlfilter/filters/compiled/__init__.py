@@ -1,6 +1,6 @@
 """The compiled run loop (``run(..., backend="numba")``): the discrete Gaussian filters, and the
-continuous-time (Itô) and continuous-discrete EKF and second-order filters, in one numba-compiled
-loop over paths and steps.
+continuous-time (Itô) EKF and second-order filters, and the continuous-discrete Gaussian filters
+but the iterated one, in one numba-compiled loop over paths and steps.
 
 The NumPy loop of :meth:`~nlfilter.filters.base.Filter.run` is the reference; this is the same
 filter, step for step, with the model's f, h, G and their derivatives generated from its SymPy
@@ -27,9 +27,10 @@ continuous ``ekf`` and          gain ``K = P Hᵀ R⁻¹`` and forcing at the st
 second-order filters)           terms by RK4/Euler in ``substeps``, then ``+ K dy``; the likelihood
                                 of ``dy/dt`` (not for ``truncated-jazwinski``: NumPy screens its S
                                 over the batch)
-continuous-discrete Taylor-1    ``dm/dt = f(m) [+ ½(P f_xx)]``, ``dP/dt = P Fᵀ + F P + G Q Gᵀ`` by
-and Taylor-2 (``cd-ekf``,       RK4/Euler in ``substeps`` over each interval (:mod:`.cd_kernels`);
-``cd-second-order``)            the discrete EKF's or second-order form's update
+continuous-discrete (``cd-``    ``dm/dt = E[f]``, ``dP/dt = Cov[x, f] + Cov[f, x] + E[G Q Gᵀ]`` by
+``ekf``, ``ukf``, ``ckf``,      the rule (Taylor-1, Taylor-2: ``f [+ ½(P f_xx)]``, ``P Fᵀ``; nodes at
+``ghkf``, ``slf``,              every stage point) in RK4/Euler ``substeps`` over each interval
+``second-order``)               (:mod:`.cd_kernels`); the discrete rule's update
 ==============================  ================================================================
 
 A model with one state, one measurement and one noise runs the EKF's scalar batch loop
@@ -55,7 +56,8 @@ What it takes: a filter whose class declares ``compiled = True`` (the discrete G
 above, their square-root forms but the iterated and second-order ones; the continuous
 ``ContinuousGaussianFilter`` with ``innovation="ito"`` on an SDEModel in SymPy whose f, h, G do not
 depend on the time, a G free of the state for a second-order rule; ``ContinuousDiscreteEKF`` and
-``ContinuousDiscreteSecondOrderFilter`` on such a model, on a regular grid of a given ``dt``), with no step overridden below it (:func:`steps_refusal`); a :class:`~nlfilter.models.DiscreteModel` stated in SymPy, additive noise, constant
+``ContinuousDiscreteSecondOrderFilter`` and the continuous-discrete UKF, CKF, GHKF and SLF on
+such a model, on a regular grid of a given ``dt``), with no step overridden below it (:func:`steps_refusal`); a :class:`~nlfilter.models.DiscreteModel` stated in SymPy, additive noise, constant
 Q and R, no correlated noise, parameters with one value each (arrays over time, inputs: the NumPy
 loop); Taylor-2 also a G free of the states; the Kalman filter any linear DiscreteModel (SymPy or
 matrices, time-varying too) without correlated noise or parameters per path. :func:`unsupported` names what a filter or model
@@ -74,7 +76,7 @@ The package, one concept a module:
 :mod:`.rule_kernels`    one predict and one update kernel per rule kind, and their work arrays
 :mod:`.sqrt_kernels`    the square-root filters' kernels: Householder ``tria``, downdates, the array update
 :mod:`.ito_kernels`     the continuous Itô filters' step: RK4/Euler substeps, the Itô gain, the likelihood
-:mod:`.cd_kernels`      the continuous-discrete prediction of the Taylor rules: the moment equations by RK4/Euler
+:mod:`.cd_kernels`      the continuous-discrete prediction: the moment equations by RK4/Euler
 :mod:`.kalman_loop`     the Kalman filter's kernels: the matrices as data (the template's, and the scalar
                         batch loop's f, h, G reading them from ``p``)
 :mod:`.loops`           one loop template for every rule kind; the scalar EKF's batch loop

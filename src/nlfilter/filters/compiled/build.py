@@ -21,6 +21,7 @@ import inspect
 
 from . import (
     batch_loop,
+    cd_kernels,
     ito_kernels,
     loops,
     path_linalg,
@@ -46,7 +47,7 @@ FUNCTION_ARGS = {"steps_scalar_": ("f", "fx", "h", "hx", "G"), "steps_": ("predi
                  "predict_sqrt_taylor1_": ("f", "fx", "G"), "update_sqrt_taylor1_": ("h", "hx"),
                  "predict_sqrt_nodes_": ("f", "G"), "update_sqrt_nodes_": ("h",),
                  "predict_ito_": (), "update_ito_": ("f", "fx", "fxx", "h", "hx", "hxx", "G"),
-                 "predict_cd_": ("f", "fx", "fxx", "G")}
+                 "predict_cd_": ("f", "fx", "fxx", "G"), "predict_cd_nodes_": ("f", "G")}
 
 #: loops of models up to this state and measurement dimension are specialized: the dimensions
 #: compiled in as constants and the helpers expanded into the loop (:func:`_flat`; the compiler
@@ -67,11 +68,13 @@ SQRT_KINDS = ("sqrt-taylor1", "sqrt-nodes")
 
 _KERNEL_MODULES = (path_linalg, step_kernels)
 #: the helper kernels of a kind's own module (the square-root kinds', the continuous Itô kind's)
-_KIND_MODULES = {"sqrt-taylor1": (sqrt_kernels,), "sqrt-nodes": (sqrt_kernels,), "ito": (ito_kernels,)}
+_KIND_MODULES = {"sqrt-taylor1": (sqrt_kernels,), "sqrt-nodes": (sqrt_kernels,), "ito": (ito_kernels,),
+                 **{k: (cd_kernels,) for k in cd_kernels.KERNELS}}
 #: the kernels whose first parameter is a model function (:func:`_helpers`)
 _TAKES_FUNCTIONS = ("nodes_moments_",)
 _SOURCE = {f.__name__: inspect.getsource(f)  # read once, at import
            for f in (*path_linalg.SOURCES, *step_kernels.SOURCES, *sqrt_kernels.SOURCES, *ito_kernels.SOURCES,
+                     *cd_kernels.SOURCES,
                      *loops.SOURCES.values(),
                      *(k for pair in rule_kernels.KERNELS_BY_KIND.values() for k in pair))}
 
@@ -252,7 +255,8 @@ def loop_of(flt, B: int | None = None):
             "sqrt-nodes": {"f": "f", "h": "h", "G": "G"},
             "ito": {"f": "f", "fx": "f_x", "fxx": "f_xx", "h": "h", "hx": "h_x", "hxx": "h_xx", "G": "G"},
             "cd-taylor1": {"f": "f", "fx": "f_x", "fxx": "f_xx", "h": "h", "hx": "h_x", "G": "G"},
-            "cd-taylor2": {"f": "f", "fx": "f_x", "fxx": "f_xx", "h": "h", "hx": "h_x", "hxx": "h_xx", "G": "G"}}[kind]
+            "cd-taylor2": {"f": "f", "fx": "f_x", "fxx": "f_xx", "h": "h", "hx": "h_x", "hxx": "h_xx", "G": "G"},
+            "cd-nodes": {"f": "f", "h": "h", "G": "G"}}[kind]
     fns = {a: fns.get(w) for a, w in args.items()}
     if batch_loop.serves(kind, n, mdim):  # the batch-inner loop (the model's functions over blocks too)
         wide = batch_loop.dims_of(n, mdim, r)

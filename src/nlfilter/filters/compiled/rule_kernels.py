@@ -5,8 +5,8 @@ Taylor-1 (the EKF), node rules (unscented, cubature, Gauss–Hermite, SLF: the r
 :mod:`.kalman_loop`, the model's matrices as data in ``ks``) and the square-root filters' (``"sqrt-taylor1"``,
 ``"sqrt-nodes"``: :mod:`.sqrt_kernels`, the factor in place of ``P``) and the continuous Itô filters'
 (``"ito"``: :mod:`.ito_kernels`, the whole step in the update) and the continuous-discrete EKF's
-(``"cd-taylor1"``, ``"cd-taylor2"``: :mod:`.cd_kernels`, the moment equations integrated, then the
-EKF's or the second-order filters' update). The time loop around them is one template
+(``"cd-taylor1"``, ``"cd-taylor2"``, ``"cd-nodes"``: :mod:`.cd_kernels`, the moment equations
+integrated, then the discrete rule's update). The time loop around them is one template
 (:func:`.loops.steps_`); a kernel is all that differs between the rule kinds.
 
 Every kernel works on one path in place (``m``, ``P``) and returns False where the path fails
@@ -95,7 +95,7 @@ def alloc_nodes(n, mdim, r, N=0):
 
 def predict_nodes_(f, G, m, P, t, p, Q, GQG0, G_const, tol, ks, ws, n, mdim):
     """``m⁻ = Σ wm_i f(X_i)``, ``P⁻ = Σ wc_i D_i D_iᵀ + Σ wm_i G(X_i) Q G(X_i)ᵀ``."""
-    z, wm, wc = ks
+    z, wm, wc = ks[0], ks[1], ks[2]  # (the continuous-discrete kind's: more)
     L, W, L2, ev, V, X, GX, D, mean, Cov, Cross, Gm, GQ, Nz, S, C, yhat, H0, M0, w, Pc = ws
     r = Q.shape[0]
     N = z.shape[0]
@@ -122,7 +122,7 @@ def predict_nodes_(f, G, m, P, t, p, Q, GQG0, G_const, tol, ks, ws, n, mdim):
 
 def update_nodes_(h, m, P, y, t, p, R, tol, want, l1, i1, c1, ks, ws, n, mdim):
     """``ŷ = Σ wm_i h(X_i)``, ``S = Σ wc_i D_i D_iᵀ + R``, ``C = Σ wc_i (X_i − m) D_iᵀ``; the update."""
-    z, wm, wc = ks
+    z, wm, wc = ks[0], ks[1], ks[2]  # (the continuous-discrete kind's: more)
     L, W, L2, ev, V, X, GX, D, mean, Cov, Cross, Gm, GQ, Nz, S, C, yhat, H0, M0, w, Pc = ws
     N = z.shape[0]
     if not nodes_points(m, P, z, X, L, W, ev, V, n, N, tol, Pc):
@@ -206,8 +206,9 @@ KERNELS_BY_KIND = {"taylor1": (predict_taylor1_, update_taylor1_), "nodes": (pre
                    "taylor2": (predict_taylor2_, update_taylor2_), "kalman": (predict_kalman_, update_kalman_),
                    **sqrt_kernels.KERNELS, **ito_kernels.KERNELS,
                    "cd-taylor1": (*cd_kernels.KERNELS["cd-taylor1"], update_taylor1_),
-                   "cd-taylor2": (*cd_kernels.KERNELS["cd-taylor2"], update_taylor2_)}
+                   "cd-taylor2": (*cd_kernels.KERNELS["cd-taylor2"], update_taylor2_),
+                   "cd-nodes": (*cd_kernels.KERNELS["cd-nodes"], update_nodes_)}
 #: the kernels' work arrays by rule kind: ``alloc(n, mdim, r, N) -> tuple``
 ALLOC = {"taylor1": alloc_taylor1, "nodes": alloc_nodes, "taylor2": alloc_taylor2, "kalman": alloc_kalman,
          **sqrt_kernels.ALLOC, **ito_kernels.ALLOC, "cd-taylor1": alloc_taylor1,
-         "cd-taylor2": alloc_taylor2}
+         "cd-taylor2": alloc_taylor2, "cd-nodes": alloc_nodes}

@@ -115,9 +115,11 @@ def _run(flt, yf, batch, m0, P0, on, loglik, progress):
     if sqrt:  # the roots of Q and R the NumPy filter takes; the nodes' table
         roots = (_plain(flt._root("Q", md.Q)), _plain(flt._root("R", md.R)))
         ks, N = ((*_nodes(flt, n), *roots), len(_nodes(flt, n)[0])) if kind == "sqrt-nodes" else (roots, 0)
-    elif kind == "nodes":
+    elif kind in ("nodes", "cd-nodes"):  # the rule's table (and the continuous-discrete integrator)
         z, wm, wc = _nodes(flt, n)
         ks, N = (z, wm, wc), z.shape[0]
+        if kind == "cd-nodes":
+            ks = (*ks, cd_constants(flt.dt, flt.substeps, flt.scheme, n, md.r))
     elif kind == "taylor1":
         ks, N = (), 0
     elif kind == "ito":  # R⁻¹, G Q Gᵀ where G is fixed, the integrator and the rule's switches (.ito_kernels)

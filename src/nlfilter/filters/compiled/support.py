@@ -26,8 +26,9 @@ def numba():
 #: Kalman filter (its class's ``compiled_kind``; the model's matrices as data, :mod:`.kalman_loop`);
 #: ``"sqrt-taylor1"``, ``"sqrt-nodes"``: the square-root filters' (:mod:`.sqrt_kernels`); ``"ito"``: the
 #: continuous-time (Itô) filters over a Taylor rule (:mod:`.ito_kernels`); ``"cd-taylor1"``,
-#: ``"cd-taylor2"``: the continuous-discrete EKF and second-order filters (:mod:`.cd_kernels`)
-KINDS = ("taylor1", "nodes", "taylor2", "kalman", "sqrt-taylor1", "sqrt-nodes", "ito", "cd-taylor1", "cd-taylor2")
+#: ``"cd-taylor2"``, ``"cd-nodes"``: the continuous-discrete filters over those rules (:mod:`.cd_kernels`)
+KINDS = ("taylor1", "nodes", "taylor2", "kalman", "sqrt-taylor1", "sqrt-nodes", "ito", "cd-taylor1", "cd-taylor2",
+         "cd-nodes")
 
 #: what a subclass of a class declaring ``compiled = True`` may redefine and still run compiled:
 #: its constructor and representation. Any other method of the family it redefines (``predict``,
@@ -160,7 +161,7 @@ def static_refusal(flt) -> str | None:
         return "the model declares angular components (angles=): wrapped residuals and circular means run on NumPy"
     if kind == "kalman":
         return _kalman_refusal(md)
-    if kind in ("ito", "cd-taylor1", "cd-taylor2"):
+    if kind in ("ito", "cd-taylor1", "cd-taylor2", "cd-nodes"):
         why = _ito_refusal(flt) if kind == "ito" else _cd_refusal(flt)
         if why is not None:
             return why
