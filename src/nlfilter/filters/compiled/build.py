@@ -42,7 +42,7 @@ __all__ = ["FUNCTION_ARGS", "SPECIALIZE_UP_TO", "SPECIALIZE_NODES_UP_TO", "loop_
 FUNCTION_ARGS = {"steps_scalar_": ("f", "fx", "h", "hx", "G"), "steps_": ("predict", "update"),
                  "predict_taylor1_": ("f", "fx", "G"), "update_taylor1_": ("h", "hx"),
                  "predict_nodes_": ("f", "G"), "update_nodes_": ("h",),
-                 "predict_taylor2_": ("f", "fx", "fxx"), "update_taylor2_": ("h", "hx", "hxx"),
+                 "predict_taylor2_": ("f", "fx", "fxx", "fxt"), "update_taylor2_": ("h", "hx", "hxx", "hxt"),
                  "predict_sqrt_taylor1_": ("f", "fx", "G"), "update_sqrt_taylor1_": ("h", "hx"),
                  "predict_sqrt_nodes_": ("f", "G"), "update_sqrt_nodes_": ("h",),
                  "predict_ito_": (), "update_ito_": ("f", "fx", "fxx", "h", "hx", "hxx", "G")}
@@ -131,6 +131,9 @@ _APART_KIND = {"ito": ("likelihood", "ito_terms")}
 #: the compile by 10-25 % at n = 4 (1-2 s) for nothing the loop runs often
 _CALLED = ("psd_exact", "sqrt_check")
 _UNUSED3 = "def unused3_(x, t, p, out):\n    pass\n"
+_UNUSED_TRACE = "def unused_trace_(x, t, p, P, out):\n    pass\n"
+#: the contractions' slots (:func:`~.kernels.model_kernels`' ``f_xxtr``, ``h_xxtr``): their unused function
+_TRACE_SLOTS = ("fxt", "hxt")
 _HEADER = """# nlfilter: a compiled loop, generated (nlfilter.filters.compiled.build); not to be edited: the
 # cache compares this file with the source it must hold and writes it again where they differ.
 import math
@@ -154,7 +157,12 @@ def unused3_(x, t, p, out):  # the Hessian slots of a first-order Taylor-2 form:
     pass
 
 
+def unused_trace_(x, t, p, P, out):  # and its contraction slots
+    pass
+
+
 unused3 = _inner(unused3_)
+unused_trace = _inner(unused_trace_)
 """
 
 
@@ -170,7 +178,7 @@ def _flat(kind: str, fns: dict, dims) -> list:
     parts = [_SOURCE["jacobi_"], _jit_line("jacobi", "jacobi_")]
     for arg, k in fns.items():
         if k is None:
-            defs[arg] = _UNUSED3
+            defs[arg] = _UNUSED_TRACE if arg in _TRACE_SLOTS else _UNUSED3
         elif k.inline:
             defs[arg] = k.source
         else:
@@ -197,7 +205,7 @@ def source(kind: str, fns: dict, scalar: bool = False, dims=None) -> str:
     parts += _helpers(kind)
     for arg, k in fns.items():
         if k is None:
-            parts.append(f"{arg} = unused3\n")
+            parts.append(f"{arg} = {'unused_trace' if arg in _TRACE_SLOTS else 'unused3'}\n")
         else:
             parts += [k.source, _jit_line(arg, k.name, **({"inline": "always"} if k.inline else {}))]
     if scalar:
@@ -246,7 +254,8 @@ def loop_of(flt, B: int | None = None):
     # the kernels' parameter names -> model_kernels' (first-order Taylor-2: the Hessian slots are
     # never called; None, a compiled no-op, fills them)
     args = {"taylor1": {"f": "f", "fx": "f_x", "h": "h", "hx": "h_x", "G": "G"}, "nodes": {"f": "f", "h": "h", "G": "G"},
-            "taylor2": {"f": "f", "fx": "f_x", "fxx": "f_xx", "h": "h", "hx": "h_x", "hxx": "h_xx"},
+            "taylor2": {"f": "f", "fx": "f_x", "fxx": "f_xx", "fxt": "f_xxtr", "h": "h", "hx": "h_x", "hxx": "h_xx",
+                        "hxt": "h_xxtr"},
             "sqrt-taylor1": {"f": "f", "fx": "f_x", "h": "h", "hx": "h_x", "G": "G"},
             "sqrt-nodes": {"f": "f", "h": "h", "G": "G"},
             "ito": {"f": "f", "fx": "f_x", "fxx": "f_xx", "h": "h", "hx": "h_x", "hxx": "h_xx", "G": "G"}}[kind]
