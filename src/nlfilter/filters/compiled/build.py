@@ -34,8 +34,8 @@ from .kalman_loop import KALMAN_KEY, SCALAR
 from .kernels import KERNELS, model_kernels, scalar_kernels
 from .support import rule_kind
 
-__all__ = ["FUNCTION_ARGS", "SPECIALIZE_UP_TO", "SPECIALIZE_NODES_UP_TO", "loop_of", "source", "steps", "text_of",
-           "loaded", "loop_name"]
+__all__ = ["FUNCTION_ARGS", "SPECIALIZE_UP_TO", "SPECIALIZE_NODES_UP_TO", "SPECIALIZE_TAYLOR2_UP_TO", "loop_of",
+           "source", "steps", "text_of", "loaded", "loop_name"]
 
 #: the functions a source takes first (bound as globals by :func:`steps`): the model's functions
 #: of each kernel, the kernels of the template
@@ -60,6 +60,11 @@ SPECIALIZE_UP_TO = 4
 #: gain most from the dimensions compiled in (the UKF at n = 8: 20 % faster than the general
 #: loop), at a compile no longer than the general loop's (benchmarks/bench_compile.py)
 SPECIALIZE_NODES_UP_TO = 8
+#: and the Taylor-2 loops (the second-order filters) up to this dimension, on the same condition: at
+#: n = 8 (benchmarks/bench_dimensions.py's chain, 300 × 200, one core, loaded machine, user CPU time)
+#: 1.51 µs per path-step against the general loop's 2.43, the same bits, a first compile of 10.4 s
+#: against 8.2
+SPECIALIZE_TAYLOR2_UP_TO = 8
 #: the square-root filters' kinds (:mod:`.sqrt_kernels`): always the general loop (their QR steps
 #: gain little from dimensions compiled in, and the flattened loop would double the compile)
 SQRT_KINDS = ("sqrt-taylor1", "sqrt-nodes")
@@ -244,8 +249,8 @@ def loop_of(flt, B: int | None = None):
     if kind == "taylor1" and n == mdim == r == 1:
         return kind, scalar_kernels(md), True, None, key
     limit = SPECIALIZE_UP_TO
-    if kind == "nodes" and limit:
-        limit = max(limit, SPECIALIZE_NODES_UP_TO)
+    if kind in ("nodes", "taylor2") and limit:
+        limit = max(limit, SPECIALIZE_NODES_UP_TO if kind == "nodes" else SPECIALIZE_TAYLOR2_UP_TO)
     dims = (n, mdim, r, None) if max(n, mdim) <= limit and kind not in SQRT_KINDS else None
     # the continuous Itô kind: the Hessians on small models whatever the rule, so that its Taylor-1 and
     # Taylor-2 filters share one loop (one compile; the rule's switches are data, ks)
