@@ -16,6 +16,10 @@ Sides, in one run, one core and one thread each (:mod:`_pin`, imported first):
 * dynamax ``extended_kalman_filter`` / ``unscented_kalman_filter`` (and the CKF as its unscented
   filter with alpha = 1, beta = 0, kappa = 0) in float64 under ``jit`` + ``vmap``: compile apart
   and included;
+* the second-order filter's peer (dynamax has none): a second-order EKF in dynamax's style
+  (float64, ``jit`` + ``vmap``, ``lax.scan``, ``jax.jacfwd`` / ``jax.hessian`` of f and h;
+  :func:`_peers.second_order_filter`), the equations of nlfilter's ``SecondOrderFilter`` in its
+  default form: compile apart and included;
 * filterpy ``ExtendedKalmanFilter`` and ``UnscentedKalmanFilter`` (a Python loop per path and
   step) on ``--filterpy-paths`` paths, per path-step.
 
@@ -40,11 +44,13 @@ import pathlib  # noqa: E402
 
 import numpy as np  # noqa: E402
 from _models import Q, R, chain, chain_jax, chain_np  # noqa: E402
-from _peers import dynamax_filters, filterpy_pair, nlfilter_sides, per_step, relmaxdiff, rows_against  # noqa: E402
+from _peers import (dynamax_filters, filterpy_pair, jax_second_order, nlfilter_sides, per_step,  # noqa: E402
+                    relmaxdiff, rows_against)
 
 from nlfilter.filters import CKF, EKF, GHKF, UKF, SecondOrderFilter  # noqa: E402
 from nlfilter.simulate import simulate  # noqa: E402
 
+SO_PEER = "jax jit+vmap float64, dynamax's form (benchmarks/_peers.py)"  # rows add the kind: second-order
 OUT = pathlib.Path(__file__).parent / "results" / "bench_dimensions.json"
 FILTERS = {"ekf": EKF, "ukf": UKF, "ckf": CKF, "second-order": SecondOrderFilter,
            "ghkf-2": lambda md: GHKF(md, order=2)}
@@ -84,6 +90,16 @@ def measure(n, a):
                 est[k][col].means, dm_means[k])
     except ImportError as exc:
         row["notes"].append(f"dynamax/jax not installed: {exc}")
+    if "second-order" in ours:
+        try:
+            so, so_means = jax_second_order(lambda jnp: chain_jax(n, jnp), ys, a.repeat)
+            row["jax_second_order"] = {k: per_step(v, ps) for k, v in so.items()}
+            row["rows"] += rows_against(ours, SO_PEER, so, ps)
+            col = next(iter(est["second-order"]))
+            row["max_rel_difference_of_means"][f"second-order: nlfilter {col} vs jax second-order"] = relmaxdiff(
+                est["second-order"][col].means, so_means["second-order"])
+        except ImportError as exc:
+            row["notes"].append(f"jax not installed: {exc}")
     try:
         npth = min(a.filterpy_paths, a.paths)
         per, means = filterpy_pair(chain_np(n), ys[:npth], m0, P0, Q * np.eye(n), R * np.eye(ys.shape[-1]),

@@ -12,10 +12,11 @@ text that reads back to the same double (up to 17 significant digits; SymPy's ow
 >>> float_text(0.1 + 2**-50), ArrayPrinter().doprint(c * x**3), ScalarPrinter().doprint(sp.sin(c * x))
 ('0.1000000000000009', '0.1000000000000009*(x*x*x)', 'math.sin(0.1000000000000009*x)')
 
-Two source generators give the compiled loop its kernels: :func:`array_source`
+Three source generators give the compiled loop its kernels: :func:`array_source`
 (``def name(x, t, p, out)`` writing every entry of an array, common subexpressions once, the zeros
-of a sparse array in one loop) and :func:`scalar_source` (``def name(x_0, t, p) -> float``, a
-model with one state). The derivatives every generator is fed (:func:`jacobian`,
+of a sparse array in one loop), :func:`trace_source` (``def name(x, t, p, P, out)``: the contraction
+``Σ_jl P_jl A_ijl`` of a Hessian over its entries not identically 0) and :func:`scalar_source`
+(``def name(x_0, t, p) -> float``, a model with one state). The derivatives every generator is fed (:func:`jacobian`,
 :func:`first_derivatives`) are those of ``sp.diff``, entry by entry, computed over the terms of a
 sum that contain the variable only.
 
@@ -35,8 +36,8 @@ from sympy.printing.precedence import precedence
 from sympy.printing.pycode import PythonCodePrinter
 
 __all__ = ["float_text", "FullPrecisionPrinter", "ArrayPrinter", "ScalarPrinter", "lambdify_numpy",
-           "lambdify_arrays", "array_source", "scalar_source", "jacobian", "first_derivatives", "gradients",
-           "is_affine", "nothing_to_share", "SCIPY_FUNCTIONS"]
+           "lambdify_arrays", "array_source", "trace_source", "scalar_source", "jacobian", "first_derivatives",
+           "gradients", "is_affine", "nothing_to_share", "SCIPY_FUNCTIONS"]
 
 SCIPY_FUNCTIONS = {"_erf": scipy.special.erf, "_erfc": scipy.special.erfc}
 """The names :class:`ArrayPrinter` writes for ``erf``/``erfc`` (SciPy's ufuncs: NumPy has none,
@@ -208,6 +209,58 @@ def array_source(name, exprs, shape, states, time, psyms, block: bool = False, z
         lines.append(f"{ind}out[{', '.join(map(str, np.unravel_index(i, shape)))}{lane}] = {pr.doprint(e)}")
     if len(lines) == body:
         lines.append(f"{ind}pass")
+    return "\n".join(lines)
+
+
+def trace_source(name, exprs, shape, states, time, psyms) -> str:
+    """``def name(x, t, p, P, out)``: ``out[i] = Σ_jl P[j, l] A[i, j, l]`` for the Hessians ``A``
+    of ``exprs`` (flat, row-major over ``shape = (pdim, n, n)``), summed from 0.0 over the entries
+    not identically 0 in row-major order, each entry's value that of :func:`array_source` (the same
+    substitutions and common subexpressions). The dense sum of every entry in that order gives the
+    same numbers for finite ``P``: a skipped term is ``±0.0``, which leaves a sum started at +0.0
+    unchanged to the last bit.
+
+    >>> import sympy as sp
+    >>> x, y = sp.symbols("x y")
+    >>> print(trace_source("tr", [0, sp.cos(y), sp.cos(y), 0, 0, 0, 0, 2], (2, 2, 2), [x, y], None, []))
+    def tr(x, t, p, P, out):
+        x_1 = x[1]
+        c_0 = math.cos(x_1)
+        s = 0.0
+        s += P[0, 1]*(c_0)
+        s += P[1, 0]*(c_0)
+        out[0] = s
+        s = 0.0
+        s += P[1, 1]*(2)
+        out[1] = s
+    """
+    xs = {s: sp.Symbol(f"x_{i}") for i, s in enumerate(states)}
+    ps = {s: sp.Symbol(f"p_{j}") for j, s in enumerate(psyms)}
+    sub = {**xs, **ps}
+    if time is not None:
+        sub[time] = sp.Symbol("t_")
+    flat = [sp.sympify(e).xreplace(sub) for e in exprs]
+    pr = ScalarPrinter()
+    used = set().union(*(e.free_symbols for e in flat)) if flat else set()
+    lines = [f"def {name}(x, t, p, P, out):"]
+    lines += [f"    x_{i} = x[{i}]" for i, s in enumerate(states) if xs[s] in used]
+    lines += [f"    p_{j} = p[{j}]" for j, s in enumerate(psyms) if ps[s] in used]
+    if time is not None and sp.Symbol("t_") in used:
+        lines.append("    t_ = t")
+    nonzero = [(i, e) for i, e in enumerate(flat) if e != 0]
+    red = []
+    if nonzero:  # (the common subexpressions of array_source: the same list, the same cse)
+        reps, red = sp.cse([e for _, e in nonzero], symbols=sp.numbered_symbols("c_"))
+        lines += [f"    {s} = {pr.doprint(v)}" for s, v in reps]
+    terms = {}
+    for (i, _), e in zip(nonzero, red):
+        a, j, q = np.unravel_index(i, shape)
+        terms.setdefault(int(a), []).append(f"    s += P[{j}, {q}]*({pr.doprint(e)})")
+    for a in range(shape[0]):
+        if a in terms:
+            lines += ["    s = 0.0", *terms[a], f"    out[{a}] = s"]
+        else:
+            lines.append(f"    out[{a}] = 0.0")
     return "\n".join(lines)
 
 

@@ -36,7 +36,7 @@ continuous-discrete (``cd-``    ``dm/dt = E[f]``, ``dP/dt = Cov[x, f] + Cov[f, x
 A model with one state, one measurement and one noise runs the EKF's scalar batch loop
 (:func:`~.loops.steps_scalar_`: every path at each step, the arithmetic of NumPy's scalar branch, bit for
 bit); models up to :data:`~.build.SPECIALIZE_UP_TO` states and measurements (the node rules: up to
-:data:`~.build.SPECIALIZE_NODES_UP_TO`) get loops with their dimensions compiled in and the helpers
+:data:`~.build.SPECIALIZE_NODES_UP_TO`, the Taylor-2 rule: :data:`~.build.SPECIALIZE_TAYLOR2_UP_TO`) get loops with their dimensions compiled in and the helpers
 inlined (the same bits, faster, longer to compile); the EKF
 on 4 to 16 states runs blocks of paths with the paths innermost (:mod:`.batch_loop`: vectorized over
 paths, the same numbers to rounding).

@@ -35,19 +35,19 @@ from .kalman_loop import KALMAN_KEY, SCALAR
 from .kernels import KERNELS, model_kernels, scalar_kernels
 from .support import rule_kind
 
-__all__ = ["FUNCTION_ARGS", "SPECIALIZE_UP_TO", "SPECIALIZE_NODES_UP_TO", "loop_of", "source", "steps", "text_of",
-           "loaded", "loop_name"]
+__all__ = ["FUNCTION_ARGS", "SPECIALIZE_UP_TO", "SPECIALIZE_NODES_UP_TO", "SPECIALIZE_TAYLOR2_UP_TO", "loop_of",
+           "source", "steps", "text_of", "loaded", "loop_name"]
 
 #: the functions a source takes first (bound as globals by :func:`steps`): the model's functions
 #: of each kernel, the kernels of the template
 FUNCTION_ARGS = {"steps_scalar_": ("f", "fx", "h", "hx", "G"), "steps_": ("predict", "update"),
                  "predict_taylor1_": ("f", "fx", "G"), "update_taylor1_": ("h", "hx"),
                  "predict_nodes_": ("f", "G"), "update_nodes_": ("h",),
-                 "predict_taylor2_": ("f", "fx", "fxx"), "update_taylor2_": ("h", "hx", "hxx"),
+                 "predict_taylor2_": ("f", "fx", "fxx", "fxt"), "update_taylor2_": ("h", "hx", "hxx", "hxt"),
                  "predict_sqrt_taylor1_": ("f", "fx", "G"), "update_sqrt_taylor1_": ("h", "hx"),
                  "predict_sqrt_nodes_": ("f", "G"), "update_sqrt_nodes_": ("h",),
                  "predict_ito_": (), "update_ito_": ("f", "fx", "fxx", "h", "hx", "hxx", "G"),
-                 "predict_cd_": ("f", "fx", "fxx", "G"), "predict_cd_nodes_": ("f", "G")}
+                 "predict_cd_": ("f", "fx", "fxt", "G"), "predict_cd_nodes_": ("f", "G")}
 
 #: loops of models up to this state and measurement dimension are specialized: the dimensions
 #: compiled in as constants and the helpers expanded into the loop (:func:`_flat`; the compiler
@@ -62,6 +62,11 @@ SPECIALIZE_UP_TO = 4
 #: gain most from the dimensions compiled in (the UKF at n = 8: 20 % faster than the general
 #: loop), at a compile no longer than the general loop's (benchmarks/bench_compile.py)
 SPECIALIZE_NODES_UP_TO = 8
+#: and the Taylor-2 loops (the second-order filters) up to this dimension, on the same condition: at
+#: n = 8 (benchmarks/bench_dimensions.py's chain, 300 × 200, one core, loaded machine, user CPU time)
+#: 1.51 µs per path-step against the general loop's 2.43, the same bits, a first compile of 10.4 s
+#: against 8.2
+SPECIALIZE_TAYLOR2_UP_TO = 8
 #: the square-root filters' kinds (:mod:`.sqrt_kernels`): always the general loop (their QR steps
 #: gain little from dimensions compiled in, and the flattened loop would double the compile)
 SQRT_KINDS = ("sqrt-taylor1", "sqrt-nodes")
@@ -135,6 +140,9 @@ _APART_KIND = {"ito": ("likelihood", "ito_terms")}
 #: the compile by 10-25 % at n = 4 (1-2 s) for nothing the loop runs often
 _CALLED = ("psd_exact", "sqrt_check")
 _UNUSED3 = "def unused3_(x, t, p, out):\n    pass\n"
+_UNUSED_TRACE = "def unused_trace_(x, t, p, P, out):\n    pass\n"
+#: the contractions' slots (:func:`~.kernels.model_kernels`' ``f_xxtr``, ``h_xxtr``): their unused function
+_TRACE_SLOTS = ("fxt", "hxt")
 _HEADER = """# nlfilter: a compiled loop, generated (nlfilter.filters.compiled.build); not to be edited: the
 # cache compares this file with the source it must hold and writes it again where they differ.
 import math
@@ -158,7 +166,12 @@ def unused3_(x, t, p, out):  # the Hessian slots of a first-order Taylor-2 form:
     pass
 
 
+def unused_trace_(x, t, p, P, out):  # and its contraction slots
+    pass
+
+
 unused3 = _inner(unused3_)
+unused_trace = _inner(unused_trace_)
 """
 
 
@@ -174,7 +187,7 @@ def _flat(kind: str, fns: dict, dims) -> list:
     parts = [_SOURCE["jacobi_"], _jit_line("jacobi", "jacobi_")]
     for arg, k in fns.items():
         if k is None:
-            defs[arg] = _UNUSED3
+            defs[arg] = _UNUSED_TRACE if arg in _TRACE_SLOTS else _UNUSED3
         elif k.inline:
             defs[arg] = k.source
         else:
@@ -201,7 +214,7 @@ def source(kind: str, fns: dict, scalar: bool = False, dims=None) -> str:
     parts += _helpers(kind)
     for arg, k in fns.items():
         if k is None:
-            parts.append(f"{arg} = unused3\n")
+            parts.append(f"{arg} = {'unused_trace' if arg in _TRACE_SLOTS else 'unused3'}\n")
         else:
             parts += [k.source, _jit_line(arg, k.name, **({"inline": "always"} if k.inline else {}))]
     if scalar:
@@ -240,8 +253,8 @@ def loop_of(flt, B: int | None = None):
     if kind == "taylor1" and n == mdim == r == 1:
         return kind, scalar_kernels(md), True, None, key
     limit = SPECIALIZE_UP_TO
-    if kind == "nodes" and limit:
-        limit = max(limit, SPECIALIZE_NODES_UP_TO)
+    if kind in ("nodes", "taylor2") and limit:
+        limit = max(limit, SPECIALIZE_NODES_UP_TO if kind == "nodes" else SPECIALIZE_TAYLOR2_UP_TO)
     dims = (n, mdim, r, None) if max(n, mdim) <= limit and kind not in SQRT_KINDS else None
     # the continuous Itô kind: the Hessians on small models whatever the rule, so that its Taylor-1 and
     # Taylor-2 filters share one loop (one compile; the rule's switches are data, ks)
@@ -250,12 +263,14 @@ def loop_of(flt, B: int | None = None):
     # the kernels' parameter names -> model_kernels' (first-order Taylor-2: the Hessian slots are
     # never called; None, a compiled no-op, fills them)
     args = {"taylor1": {"f": "f", "fx": "f_x", "h": "h", "hx": "h_x", "G": "G"}, "nodes": {"f": "f", "h": "h", "G": "G"},
-            "taylor2": {"f": "f", "fx": "f_x", "fxx": "f_xx", "h": "h", "hx": "h_x", "hxx": "h_xx"},
+            "taylor2": {"f": "f", "fx": "f_x", "fxx": "f_xx", "fxt": "f_xxtr", "h": "h", "hx": "h_x", "hxx": "h_xx",
+                        "hxt": "h_xxtr"},
             "sqrt-taylor1": {"f": "f", "fx": "f_x", "h": "h", "hx": "h_x", "G": "G"},
             "sqrt-nodes": {"f": "f", "h": "h", "G": "G"},
             "ito": {"f": "f", "fx": "f_x", "fxx": "f_xx", "h": "h", "hx": "h_x", "hxx": "h_xx", "G": "G"},
-            "cd-taylor1": {"f": "f", "fx": "f_x", "fxx": "f_xx", "h": "h", "hx": "h_x", "G": "G"},
-            "cd-taylor2": {"f": "f", "fx": "f_x", "fxx": "f_xx", "h": "h", "hx": "h_x", "hxx": "h_xx", "G": "G"},
+            "cd-taylor1": {"f": "f", "fx": "f_x", "fxt": "f_xxtr", "h": "h", "hx": "h_x", "G": "G"},
+            "cd-taylor2": {"f": "f", "fx": "f_x", "fxt": "f_xxtr", "h": "h", "hx": "h_x", "hxx": "h_xx",
+                           "hxt": "h_xxtr", "G": "G"},
             "cd-nodes": {"f": "f", "h": "h", "G": "G"}}[kind]
     fns = {a: fns.get(w) for a, w in args.items()}
     if batch_loop.serves(kind, n, mdim):  # the batch-inner loop (the model's functions over blocks too)
@@ -288,7 +303,8 @@ def steps(kind: str, fns: dict, key, scalar: bool = False, dims=None):
 
 
 def loop_name(kind, fns, scalar, dims):
-    return ("steps", kind, fns.get("fxx") is None if kind in ("taylor2", "ito", "cd-taylor2") else scalar, dims)
+    second = fns.get("fxx") is not None or fns.get("fxt") is not None  # (a first-order Taylor-2 form: neither)
+    return ("steps", kind, not second if kind in ("taylor2", "ito", "cd-taylor2") else scalar, dims)
 
 
 def text_of(kind: str, fns: dict, scalar: bool = False, dims=None) -> tuple:

@@ -28,19 +28,19 @@ from __future__ import annotations
 import numpy as np
 
 from .path_linalg import psd_check, psd_root, symmetrize
-from .step_kernels import add_gqg, add_half_trace, nodes_moments, nodes_points
+from .step_kernels import add_gqg, nodes_moments, nodes_points
 from .support import jit
 
 __all__ = ["KERNELS", "SOURCES", "constants", "predict_cd_", "predict_cd_nodes_", "stage_", "combine_"]
 
 
 def constants(dt: float, substeps: int, scheme: str, n: int, r: int) -> tuple:
-    """The integrator's entry of ``ks`` (its last): ``(dt, substeps, rk4, xm, xP, km, kP, fv, F, Af,
-    tr, Gm, GQ, N, FP, W, L, ev)`` — the interval, the scheme, and the work arrays of the predictions
-    (the stage point, the stages' slopes, the model's values there)."""
+    """The integrator's entry of ``ks`` (its last): ``(dt, substeps, rk4, xm, xP, km, kP, fv, F, tr,
+    Gm, GQ, N, FP, W, L, ev)`` — the interval, the scheme, and the work arrays of the predictions (the
+    stage point, the stages' slopes, the model's values there)."""
     e = np.empty
     return (float(dt), int(substeps), scheme == "rk4", e(n), e((n, n)), e((4, n)), e((4, n, n)), e(n), e((n, n)),
-            e((n, n, n)), e(n), e((n, r)), e((n, r)), e((n, n)), e((n, n)), e((n, n)), e((n, n)), e(n))
+            e(n), e((n, r)), e((n, r)), e((n, n)), e((n, n)), e((n, n)), e((n, n)), e(n))
 
 
 def stage_(m, P, xm, xP, km, kP, st, hs, n):
@@ -78,12 +78,13 @@ def combine_(m, P, km, kP, hs, rk4, n):
     symmetrize(P, n)
 
 
-def predict_cd_(f, fx, fxx, G, m, P, t, p, Q, GQG0, G_const, tol, ks, ws, n, mdim):
+def predict_cd_(f, fx, fxt, G, m, P, t, p, Q, GQG0, G_const, tol, ks, ws, n, mdim):
     """``(m, P)`` from one measurement time to the next (step ``t``'s interval) by the Taylor rules:
     the moment equations integrated (see the module docstring), with ``½ (P f_xx)`` in ``dm/dt``
-    where the rule is of second order (``ks[0]``); False where the path fails the divergence test."""
+    where the rule is of second order (``ks[0]``; ``fxt``: the model's contraction over the Hessian's
+    non-zeros, :func:`~.kernels.model_kernels`); False where the path fails the divergence test."""
     second = ks[0]
-    dt, substeps, rk4, xm, xP, km, kP, fv, F, Af, tr, Gm, GQ, N, FP, W, L, ev = ks[5]
+    dt, substeps, rk4, xm, xP, km, kP, fv, F, tr, Gm, GQ, N, FP, W, L, ev = ks[5]
     r = Q.shape[0]
     if G_const:
         for i in range(n):
@@ -97,8 +98,9 @@ def predict_cd_(f, fx, fxx, G, m, P, t, p, Q, GQG0, G_const, tol, ks, ws, n, mdi
             f(xm, ss, p, fv)  # dm/dt = f [+ ½ (P f_xx)]
             fx(xm, ss, p, F)
             if second:
-                fxx(xm, ss, p, Af)
-                add_half_trace(xP, Af, n, n, tr, fv)
+                fxt(xm, ss, p, xP, tr)  # (P f_xx)
+                for i in range(n):
+                    fv[i] += 0.5 * tr[i]
             for i in range(n):
                 km[st, i] = fv[i]
             if not G_const:  # G(x) Q G(x)ᵀ at the stage point

@@ -11,7 +11,13 @@ from __future__ import annotations
 import weakref
 from typing import NamedTuple
 
-from ...codegen import array_source, first_derivatives, jacobian, scalar_source
+from ...codegen import (
+    array_source,
+    first_derivatives,
+    jacobian,
+    scalar_source,
+    trace_source,
+)
 
 __all__ = ["KERNELS", "Kernel", "model_kernels", "scalar_kernels"]
 
@@ -48,14 +54,16 @@ KERNELS: "weakref.WeakKeyDictionary" = weakref.WeakKeyDictionary()
 
 
 def model_kernels(model, *, second: bool = False) -> dict:
-    """``{"f", "f_x", "h", "h_x", "G"[, "f_xx", "h_xx"]}``: the model's functions for numba as
-    :class:`Kernel` sources of ``fn(x (n,), t, p, out)`` writing ``out`` (shape as the model's
+    """``{"f", "f_x", "h", "h_x", "G"[, "f_xx", "h_xx", "f_xxtr", "h_xxtr"]}``: the model's functions for
+    numba as :class:`Kernel` sources of ``fn(x (n,), t, p, out)`` writing ``out`` (shape as the model's
     function, one path), the parameters read from ``p`` in the order of the model's parameter symbols. Generated once per
     model (shared by its :meth:`~nlfilter.models.Model.with_params` copies); ``second`` adds the
-    Hessians (the Taylor-2 rule)."""
+    Hessians (the Taylor-2 rule) and their contractions with a covariance, ``fn(x, t, p, P, out)``
+    writing ``out_i = Σ_jl P_jl ∂²g_i/∂x_j∂x_l`` over the Hessian's entries not identically 0
+    (:func:`~nlfilter.codegen.trace_source`; the dense sum's numbers, without the Hessian's array)."""
     key = model._kernels["f"]  # shared by every with_params copy
     store = KERNELS.setdefault(key, {})
-    want = ("f", "f_x", "h", "h_x", "G") + (("f_xx", "h_xx") if second else ())
+    want = ("f", "f_x", "h", "h_x", "G") + (("f_xx", "h_xx", "f_xxtr", "h_xxtr") if second else ())
     missing = [w for w in want if w not in store]
     if missing:
         ex = model.expressions
@@ -68,11 +76,15 @@ def model_kernels(model, *, second: bool = False) -> dict:
         specs = {"f": (list(fM), (n,)), "f_x": (list(fx), (n, n)), "h": (list(hM), (m,)),
                  "h_x": (list(hx), (m, n)), "G": (list(GM), (n, r))}
         if second:
-            specs["f_xx"] = (first_derivatives(list(fx), states), (n, n, n))
-            specs["h_xx"] = (first_derivatives(list(hx), states), (m, n, n))
+            specs["f_xx"] = specs["f_xxtr"] = (first_derivatives(list(fx), states), (n, n, n))
+            specs["h_xx"] = specs["h_xxtr"] = (first_derivatives(list(hx), states), (m, n, n))
         for w in missing:
             exprs, shape = specs[w]
             name = "g_" + w.replace("_", "")
+            if w.endswith("tr"):  # the contraction: one line per entry not identically 0
+                store[w] = Kernel(name, trace_source(name, exprs, shape, states, time, psyms),
+                                  sum(e != 0 for e in exprs) <= 64)
+                continue
             store[w] = Kernel(name, array_source(name, exprs, shape, states, time, psyms), len(exprs) <= 64)
     return {w: store[w] for w in want}
 

@@ -31,7 +31,7 @@ import numpy as np
 from . import cd_kernels, ito_kernels, sqrt_kernels
 from .path_linalg import mm, psd_check, psd_root
 from .kalman_loop import alloc_kalman, predict_kalman_, update_kalman_
-from .step_kernels import (add_gqg, add_half_trace, condition, meas_cov, nodes_moments, nodes_points, predict_cov,
+from .step_kernels import (add_gqg, condition, meas_cov, nodes_moments, nodes_points, predict_cov,
                            quartic, work)
 
 __all__ = ["KERNELS_BY_KIND", "ALLOC", "alloc_taylor1", "alloc_nodes", "alloc_taylor2"]
@@ -148,16 +148,20 @@ def alloc_taylor2(n, mdim, r, N=0):
     return (mp, F, Hm, C, S, FP, Af, Ah, tr, AP, Cf, M, yhat, W, L, ev, work(n, mdim), np.empty((n, mdim)))
 
 
-def predict_taylor2_(f, fx, fxx, m, P, t, p, Q, GQG0, G_const, tol, ks, ws, n, mdim):
+def predict_taylor2_(f, fx, fxx, fxt, m, P, t, p, Q, GQG0, G_const, tol, ks, ws, n, mdim):
     """``m⁻ = f + ½(P f_xx)``, ``P⁻ = F P Fᵀ + G Q Gᵀ`` + the form's fourth-moment term (004 eqs.
-    18-19), symmetrized."""
+    18-19), symmetrized. ``(P f_xx)`` by the model's contraction ``fxt`` (the Hessian's non-zeros;
+    the dense sum's numbers), the Hessian ``fxx`` itself only for the Gaussian term."""
     second, dyn_kind = ks[0], ks[1]  # the prediction reads the form's prediction kind only
     mp, F, FP, Af, tr, AP, Cf, W, L, ev = ws[0], ws[1], ws[5], ws[6], ws[8], ws[9], ws[10], ws[13], ws[14], ws[15]
     f(m, t, p, mp)
     fx(m, t, p, F)
     if second:
-        fxx(m, t, p, Af)
-        add_half_trace(P, Af, n, n, tr, mp)
+        if dyn_kind == 2:
+            fxx(m, t, p, Af)
+        fxt(m, t, p, P, tr)  # (P f_xx)
+        for i in range(n):
+            mp[i] += 0.5 * tr[i]
     predict_cov(F, P, GQG0, Cf, FP, W, n)  # F P Fᵀ + G Q Gᵀ (004 eq. 19)
     if second:
         quartic(dyn_kind, P, Af, tr, n, n, AP, Cf)
@@ -169,16 +173,19 @@ def predict_taylor2_(f, fx, fxx, m, P, t, p, Q, GQG0, G_const, tol, ks, ws, n, m
     return psd_check(m, P, n, tol, W, L, ev)
 
 
-def update_taylor2_(h, hx, hxx, m, P, y, t, p, R, tol, want, l1, i1, c1, ks, ws, n, mdim):
+def update_taylor2_(h, hx, hxx, hxt, m, P, y, t, p, R, tol, want, l1, i1, c1, ks, ws, n, mdim):
     """``ŷ = h + ½(P h_xx)``, ``S = H P Hᵀ + R`` + the form's term, the forcing ``M`` (004 eqs.
-    20-23); S must be positive definite."""
+    20-23); S must be positive definite. ``(P h_xx)`` by ``hxt``, the Hessian only where a term needs it."""
     second, meas_kind, force_kind, joseph = ks[0], ks[2], ks[3], ks[4]  # (the continuous-discrete kind's: more)
     mp, F, Hm, C, S, FP, Af, Ah, tr, AP, Cf, M, yhat, W, L, ev, w, Ht = ws
     h(m, t, p, yhat)
     hx(m, t, p, Hm)
     if second:
-        hxx(m, t, p, Ah)
-        add_half_trace(P, Ah, n, mdim, tr, yhat)
+        if meas_kind == 2 or force_kind == 2:
+            hxx(m, t, p, Ah)
+        hxt(m, t, p, P, tr)  # (P h_xx)
+        for i in range(mdim):
+            yhat[i] += 0.5 * tr[i]
     meas_cov(P, Hm, R, Ht, C, S, n, mdim)  # C = P Hᵀ, S = H C + R
     force = False
     if second:

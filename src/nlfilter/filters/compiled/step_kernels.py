@@ -17,7 +17,7 @@ from .path_linalg import chol, lu, lu_solve, mm, sqrt_check, symmetrize, transpo
 from .support import jit
 
 __all__ = ["SOURCES", "LOG_2PI", "work", "predict_cov", "meas_cov", "add_gqg", "condition", "write", "mark",
-           "nodes_moments", "nodes_points", "hess_trace", "add_half_trace", "quartic"]
+           "nodes_moments", "nodes_points", "hess_trace", "quartic"]
 
 
 def predict_cov_(F, P, N, out, T1, T2, n):
@@ -246,13 +246,6 @@ def hess_trace_(P, A, n, pdim, out):
         out[i] = s
 
 
-def add_half_trace_(P, A, n, pdim, tr, mean):
-    """``mean += ½ (P A)`` (the second-order mean of 004 eqs. 18, 20; ``tr`` keeps ``(P A)``)."""
-    hess_trace(P, A, n, pdim, tr)
-    for i in range(pdim):
-        mean[i] += 0.5 * tr[i]
-
-
 def quartic_(kind, P, A, tr, n, pdim, AP, out):
     """The fourth-moment term added to ``out (pdim, pdim)``: 1 = −¼ tr tᵀ, 2 = ½ tr(A_i P A_j P)."""
     if kind == 1:
@@ -321,7 +314,7 @@ def work(n, mdim):
 
 #: the Python sources of this module's kernels (compiled below; inlined by :mod:`.build`)
 SOURCES = (predict_cov_, meas_cov_, add_gqg_, condition_, write_, mark_, nodes_moments_, nodes_points_, hess_trace_,
-           add_half_trace_, quartic_)
+           quartic_)
 
 # raw functions (no reference counting, as path_linalg's); not inlined here (numba's
 # inline="always" gains 30 % at n ≤ 2, nothing from n = 4, and triples the compile time: 10-20 s
@@ -335,5 +328,4 @@ mark = jit(mark_, _nrt=False)
 nodes_moments = jit(nodes_moments_, _nrt=False)
 nodes_points = jit(nodes_points_, _nrt=False)
 hess_trace = jit(hess_trace_, _nrt=False)
-add_half_trace = jit(add_half_trace_, _nrt=False)
 quartic = jit(quartic_, _nrt=False)
