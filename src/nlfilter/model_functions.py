@@ -149,6 +149,15 @@ class Batched:
         if fn is not None and x.size > 1:  # a batch of one-component states: the kernel on the column
             batch = x.shape[:-1]
             return self._assemble(fn(x[..., 0], np.float64(t) if self._timed else t), x, batch)
+        if x.size == self.kernel.n and (self._scalar if self._scalar is not None else self._scalar_safe()):
+            # one state (a single trajectory): its entries as Python floats, ~5x cheaper than arrays of
+            # one entry for the same numbers (_scalar_safe); where Python raises (x/0, 0/0) and NumPy
+            # gives inf or NaN, as NumPy scalars
+            try:
+                vals = self.kernel.fn(*x.ravel().tolist(), float(t))
+            except ZeroDivisionError:
+                vals = self.kernel.fn(*x.ravel(), np.float64(t))
+            return np.array(vals, dtype=float).reshape(x.shape[:-1] + self.shape)
         return self._eval(x, t)
 
     def _scalar_safe(self) -> bool:
@@ -168,15 +177,6 @@ class Batched:
     def _eval(self, x, t):
         batch = x.shape[:-1]
         kn = self.kernel
-        if x.size == kn.n and (self._scalar if self._scalar is not None else self._scalar_safe()):
-            # one state (a single trajectory): its entries as Python floats, ~5x cheaper than arrays of
-            # one entry for the same numbers (_scalar_safe); where Python raises (x/0, 0/0) and NumPy
-            # gives inf or NaN, as NumPy scalars
-            try:
-                vals = kn.fn(*x.reshape(-1).tolist(), float(t))
-            except ZeroDivisionError:
-                vals = kn.fn(*x.reshape(-1), np.float64(t))
-            return np.array(vals, dtype=float).reshape(*batch, *self.shape)
         if kn.params:
             extra = [self.values.at(p, t, batch) for p in kn.params]
             vals = kn.fn(*(x[..., i] for i in range(kn.n)), np.float64(t), *extra)
