@@ -156,7 +156,7 @@ def _screen_ok(mean: np.ndarray, cov: np.ndarray, tol: float = PSD_TOL) -> bool:
     if n > SCREEN_MAX_N:
         return False
     A = cov + cov.swapaxes(-1, -2)
-    if math.isfinite(_sum(_cholesky(A), axis=None) + _total(mean)):  # A itself positive definite: the stronger
+    if math.isfinite(_total(_cholesky(A)) + _total(mean)):  # A itself positive definite: the stronger
         return True  # statement (the common case: no shift to build; a singular cov needs the shift below)
     d = A.reshape(*A.shape[:-2], n * n)[..., ::n + 1]  # A's diagonal (2 cov_ii), a view: shifted in place
     if d.size == n:  # one path: its shift a number (max(2, nan) is 2 where np.maximum is NaN: A has the NaN)
@@ -165,7 +165,7 @@ def _screen_ok(mean: np.ndarray, cov: np.ndarray, tol: float = PSD_TOL) -> bool:
         d += (0.5 * tol) * np.maximum(2.0, _max(d, axis=-1))[..., None]
     # a NaN or inf in cov (A's lower triangle: A is symmetric) or mean leaves a non-finite sum: no
     # separate test of cov (a factor whose sum overflows defers to the exact test, as ever)
-    return math.isfinite(_sum(_cholesky(A), axis=None) + _total(mean))
+    return math.isfinite(_total(_cholesky(A)) + _total(mean))
 
 
 def sqrt_psd(P: np.ndarray, tol: float = PSD_TOL):
@@ -248,10 +248,21 @@ def _all_ok(mean: np.ndarray, cov: np.ndarray) -> bool:
 _min, _max, _sum = np.minimum.reduce, np.maximum.reduce, np.add.reduce
 
 
+#: the largest array :func:`_total` sums as Python floats (a list and ``sum``: a third of a reduction's call)
+TOTAL_SMALL = 32
+
+
 def _total(a: np.ndarray):
     """The sum of the entries of ``a`` for a finiteness test (a NaN or inf anywhere makes it NaN or
-    inf): one reduction, or the entry itself when there is one (a scalar on one trajectory)."""
-    return a.item() if a.size == 1 else _sum(a, axis=None)
+    inf, and only then: once non-finite, a sum stays so): one reduction, the entry itself when there
+    is one (a scalar on one trajectory), a Python ``sum`` of at most :data:`TOTAL_SMALL` entries (a
+    single trajectory's matrices). The order of the additions differs from the reduction's, so a sum
+    of huge finite entries may overflow in one and not the other: every caller then takes its
+    general path, which decides the same way."""
+    size = a.size
+    if size == 1:
+        return a.item()
+    return sum(a.ravel().tolist()) if size <= TOTAL_SMALL else _sum(a, axis=None)
 
 
 def gaussian_update(state: GaussianState, y: np.ndarray, y_pred: np.ndarray, S: np.ndarray,
