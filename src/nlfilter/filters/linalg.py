@@ -33,8 +33,11 @@ def symmetrize(P: np.ndarray) -> np.ndarray:
 
 
 @functools.cache
-def _eye(n: int) -> np.ndarray:
-    e = np.eye(n)
+def _eye(n: int, ndim: int = 2) -> np.ndarray:
+    """The read-only identity of size ``n`` with ``ndim`` axes (leading ones: an operand of the
+    batch's rank, which NumPy's elementwise loops take without broadcasting a rank up, half the
+    cost of a subtraction on one path)."""
+    e = np.eye(n).reshape((1,) * (ndim - 2) + (n, n))
     e.flags.writeable = False
     return e
 
@@ -317,7 +320,8 @@ def gaussian_update(state: GaussianState, y: np.ndarray, y_pred: np.ndarray, S: 
     mean = m + (K[..., 0] * e if e.shape[-1] == 1 else _einsum("...ij,...j->...i", K, e))
     Kt = K.swapaxes(-1, -2)
     if H is not None:  # Joseph form; K's missing columns are zero, so R's missing rows never enter
-        IKH = _eye(m.shape[-1]) - mm(K, H)
+        KH = mm(K, H)
+        IKH = _eye(KH.shape[-1], KH.ndim) - KH
         cov = mm(mm(IKH, P), IKH.swapaxes(-1, -2)) + mm(mm(K, R), Kt)
     else:
         cov = P - mm(mm(K, S), Kt)
