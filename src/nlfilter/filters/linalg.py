@@ -251,21 +251,19 @@ def _all_ok(mean: np.ndarray, cov: np.ndarray) -> bool:
 _min, _max, _sum = np.minimum.reduce, np.maximum.reduce, np.add.reduce
 
 
-#: the largest array :func:`_total` sums as Python floats (a list and ``sum``: a third of a reduction's call)
-TOTAL_SMALL = 32
+_TOTAL_SMALL = 32  # the largest array _total sums as Python floats (a list and sum: a third of a reduction's call)
 
 
 def _total(a: np.ndarray):
     """The sum of the entries of ``a`` for a finiteness test (a NaN or inf anywhere makes it NaN or
-    inf, and only then: once non-finite, a sum stays so): one reduction, the entry itself when there
-    is one (a scalar on one trajectory), a Python ``sum`` of at most :data:`TOTAL_SMALL` entries (a
-    single trajectory's matrices). The order of the additions differs from the reduction's, so a sum
-    of huge finite entries may overflow in one and not the other: every caller then takes its
-    general path, which decides the same way."""
+    inf): one reduction, the entry itself when there is one (a scalar on one trajectory), or a
+    Python ``sum`` of at most 32 entries (a single trajectory's matrices; a third of a reduction's
+    call). Huge finite entries may overflow to inf in one order of the additions and not in another:
+    every caller then takes its general path, which decides as it ever did."""
     size = a.size
     if size == 1:
         return a.item()
-    return sum(a.ravel().tolist()) if size <= TOTAL_SMALL else _sum(a, axis=None)
+    return sum(a.ravel().tolist()) if size <= _TOTAL_SMALL else _sum(a, axis=None)
 
 
 def gaussian_update(state: GaussianState, y: np.ndarray, y_pred: np.ndarray, S: np.ndarray,
