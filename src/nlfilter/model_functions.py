@@ -151,7 +151,7 @@ class Batched:
         if fn is not None and x.size > 1:  # a batch of one-component states: the kernel on the column
             batch = x.shape[:-1]
             return self._assemble(fn(x[..., 0], np.float64(t) if self._timed else t), x, batch)
-        if x.size == self._n:
+        if x.size == self._n == x.shape[-1]:  # one state
             one = self._one
             if one is None:
                 one = self._one = self.kernel.fn if self._scalar_safe() else False
