@@ -23,20 +23,27 @@ except ImportError:  # pragma: no cover - a NumPy without them: np.errstate
 
 __all__ = ["dot", "einsum", "quiet"]
 
-_QUIET = (None, None)  # (the error state it was made from, that state with over/invalid/divide ignored)
+_QUIET = (None, None)  # (the error state it was made from, that state with over/invalid/divide ignored,
+#                        or None when it ignores them already)
+_OFF = ("over", "invalid", "divide")
 
 
 def quiet(fn, *args, **kwargs):
     """``fn(*args, **kwargs)`` with NumPy's overflow/invalid/divide warnings off, as under
     ``np.errstate(over="ignore", invalid="ignore", divide="ignore")`` (the same state: made from
-    the current one, kept while that one is current)."""
+    the current one, kept while that one is current; ``fn`` called as it comes when the current
+    state ignores the three already: the run loops')."""
     if _extobj_contextvar is None:  # pragma: no cover
         with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
             return fn(*args, **kwargs)
     global _QUIET
     cur, q = _extobj_contextvar.get(), _QUIET  # one pair, read and replaced whole (threads)
     if q[0] is not cur:
-        q = _QUIET = (cur, _make_extobj(over="ignore", invalid="ignore", divide="ignore"))
+        err = np.geterr()
+        off = all(err[k] == "ignore" for k in _OFF)
+        q = _QUIET = (cur, None if off else _make_extobj(over="ignore", invalid="ignore", divide="ignore"))
+    if q[1] is None:
+        return fn(*args, **kwargs)
     token = _extobj_contextvar.set(q[1])
     try:
         return fn(*args, **kwargs)

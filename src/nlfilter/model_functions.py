@@ -132,6 +132,8 @@ class Batched:
         self._fixed = None
         self._tmpl = None  # the output's constant entries for the last batch shape (_eval)
         self._scalar = None  # whether one state may be evaluated on NumPy scalars (_scalar_safe)
+        self._one = None  # the kernel for one state on Python floats, False where not _scalar_safe (None: unknown)
+        self._n, self._shape1 = kernel.n, (1, *kernel.shape)  # (the output of one state (1, n): (1, *shape))
         # the kernel of a state of one component, without parameters (the common call, made without _eval),
         # and whether it reads its time argument (else the time goes as given: no NumPy float to make)
         self._column = kernel.fn if not kernel.const and kernel.n == 1 and not kernel.params else None
@@ -149,6 +151,19 @@ class Batched:
         if fn is not None and x.size > 1:  # a batch of one-component states: the kernel on the column
             batch = x.shape[:-1]
             return self._assemble(fn(x[..., 0], np.float64(t) if self._timed else t), x, batch)
+        if x.size == self._n == x.shape[-1]:  # one state
+            one = self._one
+            if one is None:
+                one = self._one = self.kernel.fn if self._scalar_safe() else False
+            if one is not False:
+                # one state (a single trajectory): its entries as Python floats, ~5x cheaper than arrays of
+                # one entry for the same numbers (_scalar_safe); where Python raises (x/0, 0/0) and NumPy
+                # gives inf or NaN, as NumPy scalars
+                try:
+                    vals = one(*x.ravel().tolist(), float(t))
+                except ZeroDivisionError:
+                    vals = one(*x.ravel(), np.float64(t))
+                return np.array(vals, dtype=float).reshape(self._shape1 if x.ndim == 2 else x.shape[:-1] + self.shape)
         return self._eval(x, t)
 
     def _scalar_safe(self) -> bool:
@@ -168,15 +183,6 @@ class Batched:
     def _eval(self, x, t):
         batch = x.shape[:-1]
         kn = self.kernel
-        if x.size == kn.n and (self._scalar if self._scalar is not None else self._scalar_safe()):
-            # one state (a single trajectory): its entries as Python floats, ~5x cheaper than arrays of
-            # one entry for the same numbers (_scalar_safe); where Python raises (x/0, 0/0) and NumPy
-            # gives inf or NaN, as NumPy scalars
-            try:
-                vals = kn.fn(*x.reshape(-1).tolist(), float(t))
-            except ZeroDivisionError:
-                vals = kn.fn(*x.reshape(-1), np.float64(t))
-            return np.array(vals, dtype=float).reshape(*batch, *self.shape)
         if kn.params:
             extra = [self.values.at(p, t, batch) for p in kn.params]
             vals = kn.fn(*(x[..., i] for i in range(kn.n)), np.float64(t), *extra)

@@ -11,12 +11,14 @@ import pytest
 import sympy as sp
 
 from nlfilter import DiscreteModel
+from nlfilter._npcall import quiet
 from nlfilter.filters import EKF, UKF, SecondOrderFilter, recorder
 from nlfilter.filters.base import Filter
 from nlfilter.filters.beliefs import GaussianState
 from nlfilter.filters.gaussian import GaussianFilter
 from nlfilter.filters.linalg import (
     _all_ok,
+    _total,
     bad_paths,
     gaussian_update,
     matmul,
@@ -164,3 +166,28 @@ def test_steps_chosen_per_run_equal_the_layered_steps(make, monkeypatch):
     _CountingEKF.calls = 0
     _CountingEKF(md).run(ys[:, :10], [0.0], [[1.0]], backend="numpy", on_divergence="mark")
     assert _CountingEKF.calls == 9
+
+
+def test_total_is_finite_exactly_when_every_entry_is():
+    """The finiteness sum (Python floats up to 32 entries, one reduction above): non-finite with
+    any NaN or ±inf in the array, finite otherwise (entries far from overflow)."""
+    rng = np.random.default_rng(3)
+    for size in (1, 2, 16, 32, 33, 200):
+        a = rng.normal(size=size)
+        assert np.isfinite(_total(a)) and np.isclose(_total(a), a.sum())
+        for value in (np.nan, np.inf, -np.inf):
+            b = a.copy()
+            b[size // 2] = value
+            assert not np.isfinite(_total(b.reshape(1, -1)))
+
+
+def test_quiet_ignores_warnings_and_restores_the_state():
+    """``quiet`` runs its function with overflow/invalid/divide ignored, under a warning state and
+    under one that is quiet already, and leaves the caller's state as it was."""
+    big = np.array([1e308])
+    with np.errstate(all="raise"):
+        assert np.isinf(quiet(np.multiply, big, 10.0))
+        assert np.geterr()["over"] == "raise"
+    with np.errstate(over="ignore", invalid="ignore", divide="ignore", under="raise"):
+        assert np.isinf(quiet(np.multiply, big, 10.0))
+        assert np.geterr()["under"] == "raise"

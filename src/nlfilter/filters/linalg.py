@@ -33,8 +33,11 @@ def symmetrize(P: np.ndarray) -> np.ndarray:
 
 
 @functools.cache
-def _eye(n: int) -> np.ndarray:
-    e = np.eye(n)
+def _eye(n: int, ndim: int = 2) -> np.ndarray:
+    """The read-only identity of size ``n`` with ``ndim`` axes (leading ones: an operand of the
+    batch's rank, which NumPy's elementwise loops take without broadcasting a rank up, half the
+    cost of a subtraction on one path)."""
+    e = np.eye(n).reshape((1,) * (ndim - 2) + (n, n))
     e.flags.writeable = False
     return e
 
@@ -156,7 +159,7 @@ def _screen_ok(mean: np.ndarray, cov: np.ndarray, tol: float = PSD_TOL) -> bool:
     if n > SCREEN_MAX_N:
         return False
     A = cov + cov.swapaxes(-1, -2)
-    if math.isfinite(_sum(_cholesky(A), axis=None) + _total(mean)):  # A itself positive definite: the stronger
+    if math.isfinite(_total(_cholesky(A)) + _total(mean)):  # A itself positive definite: the stronger
         return True  # statement (the common case: no shift to build; a singular cov needs the shift below)
     d = A.reshape(*A.shape[:-2], n * n)[..., ::n + 1]  # A's diagonal (2 cov_ii), a view: shifted in place
     if d.size == n:  # one path: its shift a number (max(2, nan) is 2 where np.maximum is NaN: A has the NaN)
@@ -165,7 +168,7 @@ def _screen_ok(mean: np.ndarray, cov: np.ndarray, tol: float = PSD_TOL) -> bool:
         d += (0.5 * tol) * np.maximum(2.0, _max(d, axis=-1))[..., None]
     # a NaN or inf in cov (A's lower triangle: A is symmetric) or mean leaves a non-finite sum: no
     # separate test of cov (a factor whose sum overflows defers to the exact test, as ever)
-    return math.isfinite(_sum(_cholesky(A), axis=None) + _total(mean))
+    return math.isfinite(_total(_cholesky(A)) + _total(mean))
 
 
 def sqrt_psd(P: np.ndarray, tol: float = PSD_TOL):
@@ -248,10 +251,19 @@ def _all_ok(mean: np.ndarray, cov: np.ndarray) -> bool:
 _min, _max, _sum = np.minimum.reduce, np.maximum.reduce, np.add.reduce
 
 
+_TOTAL_SMALL = 32  # the largest array _total sums as Python floats (a list and sum: a third of a reduction's call)
+
+
 def _total(a: np.ndarray):
     """The sum of the entries of ``a`` for a finiteness test (a NaN or inf anywhere makes it NaN or
-    inf): one reduction, or the entry itself when there is one (a scalar on one trajectory)."""
-    return a.item() if a.size == 1 else _sum(a, axis=None)
+    inf): one reduction, the entry itself when there is one (a scalar on one trajectory), or a
+    Python ``sum`` of at most 32 entries (a single trajectory's matrices; a third of a reduction's
+    call). Huge finite entries may overflow to inf in one order of the additions and not in another:
+    every caller then takes its general path, which decides as it ever did."""
+    size = a.size
+    if size == 1:
+        return a.item()
+    return sum(a.ravel().tolist()) if size <= _TOTAL_SMALL else _sum(a, axis=None)
 
 
 def gaussian_update(state: GaussianState, y: np.ndarray, y_pred: np.ndarray, S: np.ndarray,
@@ -306,7 +318,8 @@ def gaussian_update(state: GaussianState, y: np.ndarray, y_pred: np.ndarray, S: 
     mean = m + (K[..., 0] * e if e.shape[-1] == 1 else _einsum("...ij,...j->...i", K, e))
     Kt = K.swapaxes(-1, -2)
     if H is not None:  # Joseph form; K's missing columns are zero, so R's missing rows never enter
-        IKH = _eye(m.shape[-1]) - mm(K, H)
+        KH = mm(K, H)
+        IKH = _eye(KH.shape[-1], KH.ndim) - KH
         cov = mm(mm(IKH, P), IKH.swapaxes(-1, -2)) + mm(mm(K, R), Kt)
     else:
         cov = P - mm(mm(K, S), Kt)
