@@ -25,12 +25,12 @@ from nlfilter.filters.compiled import build as compiled_build
 from nlfilter.filters.compiled.kernels import KERNELS
 from nlfilter.filters.compiled.path_linalg import psd_check, psd_root, sqrt_check
 from nlfilter.filters.cubature import CKF, GHKF, StatisticallyLinearizedFilter
-from nlfilter.filters.ekf import EKF, IteratedEKF
+from nlfilter.filters.ekf import EKF, ContinuousDiscreteIEKF, IteratedEKF
 from nlfilter.filters.linalg import PSD_TOL, _bad_paths_exact
 from nlfilter.filters.rule_filter import RuleFilter
 from nlfilter.filters.rules import FORMS
 from nlfilter.filters.second_order import SecondOrderFilter
-from nlfilter.filters.ukf import UKF, ContinuousDiscreteUKF
+from nlfilter.filters.ukf import UKF
 from nlfilter.simulate import simulate
 from tests.filters.test_screen import _matrix  # the screen's test matrices, every kind
 
@@ -261,7 +261,7 @@ def test_what_it_does_not_take_is_named(data):
     x = sp.Symbol("x")
     sde = SDEModel([x], [-x], [x], Q=1.0, R=1.0)
     with pytest.raises(TypeError, match="backend: 'numba'"):
-        ContinuousDiscreteUKF(sde, 0.1).run(np.zeros((1, 3, 1)), [0.0], [[1.0]], backend="numba")  # (the EKF's has one)
+        ContinuousDiscreteIEKF(sde, 0.1).run(np.zeros((1, 3, 1)), [0.0], [[1.0]], backend="numba")  # (the EKF's has one)
     varying = md.with_params(a=np.full(60, 0.7))
     with pytest.raises(TypeError, match="backend: 'numba'.*vary over time"):
         EKF(varying).run(ys, [0.0, 0.0], np.eye(2), backend="numba")
