@@ -73,7 +73,7 @@ SQRT_KINDS = ("sqrt-taylor1", "sqrt-nodes")
 
 _KERNEL_MODULES = (path_linalg, step_kernels)
 #: the helper kernels of a kind's own module (the square-root kinds', the continuous Itô kind's)
-_KIND_MODULES = {"sqrt-taylor1": (sqrt_kernels,), "sqrt-nodes": (sqrt_kernels,), "ito": (ito_kernels,),
+_KIND_MODULES = {"sqrt-taylor1": (sqrt_kernels,), "sqrt-nodes": (sqrt_kernels,), "ito": (cd_kernels, ito_kernels),
                  **{k: (cd_kernels,) for k in cd_kernels.KERNELS}}
 #: the kernels whose first parameter is a model function (:func:`_helpers`)
 _TAKES_FUNCTIONS = ("nodes_moments_",)

@@ -29,6 +29,7 @@ import math
 
 import numpy as np
 
+from .cd_kernels import combine, stage
 from .path_linalg import lu, lu_solve, mm, psd_check, symmetrize
 from .step_kernels import LOG_2PI, add_gqg, hess_trace, meas_cov, quartic
 from .support import jit
@@ -208,29 +209,10 @@ def update_ito_(f, fx, fxx, h, hx, hxx, G, m, P, y, t, p, R, tol, want, l1, i1, 
         likelihood(m, P, y, Rdt, dt, second, meas_kind, Ah, tr, yl, Hl, Ht, C, S, AP, yd, idx, Ro, piv, u, l1, i1, c1, n,
                    mdim)
     hs = dt / substeps
-    for i in range(n):
-        x0m[i] = m[i]
-        for j in range(n):
-            x0P[i, j] = P[i, j]
-    stages = 4 if rk4 else 1
     for js in range(substeps):
         s0 = ts + js * hs
-        for st in range(stages):  # the stage point (x0m, x0P) and its time
-            if st == 0:
-                ss = s0
-            elif st < 3:
-                ss = s0 + 0.5 * hs
-                hh = 0.5 * hs
-                for i in range(n):
-                    x0m[i] = m[i] + hh * km[st - 1, i]
-                    for j in range(n):
-                        x0P[i, j] = P[i, j] + hh * kP[st - 1, i, j]
-            else:
-                ss = s0 + hs
-                for i in range(n):
-                    x0m[i] = m[i] + hs * km[2, i]
-                    for j in range(n):
-                        x0P[i, j] = P[i, j] + hs * kP[2, i, j]
+        for st in range(4 if rk4 else 1):  # the stage point (x0m, x0P) and its time (.cd_kernels.stage_)
+            ss = s0 + stage(m, P, x0m, x0P, km, kP, st, hs, n)
             # the dt terms at the stage point (ito_rhs)
             fx(x0m, ss, p, F)
             f(x0m, ss, p, fv)
@@ -272,22 +254,7 @@ def update_ito_(f, fx, fxx, h, hx, hxx, G, m, P, y, t, p, R, tol, want, l1, i1, 
                             v += MR[i, j, a] * hv[a]
                         w = w - v
                     kP[st, i, j] = w
-        if rk4:
-            h6 = hs / 6
-            for i in range(n):
-                m[i] = m[i] + h6 * (km[0, i] + 2 * km[1, i] + 2 * km[2, i] + km[3, i])
-                for j in range(n):
-                    P[i, j] = P[i, j] + h6 * (kP[0, i, j] + 2 * kP[1, i, j] + 2 * kP[2, i, j] + kP[3, i, j])
-        else:
-            for i in range(n):
-                m[i] = m[i] + hs * km[0, i]
-                for j in range(n):
-                    P[i, j] = P[i, j] + hs * kP[0, i, j]
-        symmetrize(P, n)
-        for i in range(n):
-            x0m[i] = m[i]
-            for j in range(n):
-                x0P[i, j] = P[i, j]
+        combine(m, P, km, kP, hs, rk4, n)  # the substep, P symmetrized (.cd_kernels.combine_)
     for i in range(n):  # + K₀ dy (the Itô increment)
         v = 0.0
         for a in range(mdim):
