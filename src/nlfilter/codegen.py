@@ -147,6 +147,18 @@ def nothing_to_share(exprs) -> bool:
 # ---------------------------------------------------------------------------------------------
 # scalar source for the compiled loop
 # ---------------------------------------------------------------------------------------------
+def _renamed(exprs, states, time, psyms) -> tuple:
+    """``(xs, ps, flat, used)``: the states and parameters renamed ``x_i``, ``p_j`` (the time ``t_``)
+    in ``exprs``, as the generated functions read them, and the names the expressions use."""
+    xs = {s: sp.Symbol(f"x_{i}") for i, s in enumerate(states)}
+    ps = {s: sp.Symbol(f"p_{j}") for j, s in enumerate(psyms)}
+    sub = {**xs, **ps}
+    if time is not None:
+        sub[time] = sp.Symbol("t_")
+    flat = [sp.sympify(e).xreplace(sub) for e in exprs]
+    return xs, ps, flat, set().union(*(e.free_symbols for e in flat)) if flat else set()
+
+
 def array_source(name, exprs, shape, states, time, psyms, block: bool = False, zeros: bool = True) -> str:
     """``def name(x, t, p, out)``: writes ``out[idx] = expr`` for every entry of ``exprs`` (flat,
     row-major over ``shape``), with common subexpressions computed once; the states are read from
@@ -172,14 +184,8 @@ def array_source(name, exprs, shape, states, time, psyms, block: bool = False, z
             out[1, b_] = 0.0
             out[0, b_] = p_0*math.sin(x_0)
     """
-    xs = {s: sp.Symbol(f"x_{i}") for i, s in enumerate(states)}
-    ps = {s: sp.Symbol(f"p_{j}") for j, s in enumerate(psyms)}
-    sub = {**xs, **ps}
-    if time is not None:
-        sub[time] = sp.Symbol("t_")
-    flat = [sp.sympify(e).xreplace(sub) for e in exprs]
+    xs, ps, flat, used = _renamed(exprs, states, time, psyms)
     pr = ScalarPrinter()
-    used = set().union(*(e.free_symbols for e in flat)) if flat else set()
     ind, lane = ("        ", ", b_") if block else ("    ", "")
     xlines = [f"{ind}x_{i} = x[{i}{lane}]" for i, s in enumerate(states) if xs[s] in used]
     plines = [f"    p_{j} = p[{j}]" for j, s in enumerate(psyms) if ps[s] in used]
@@ -234,14 +240,8 @@ def trace_source(name, exprs, shape, states, time, psyms) -> str:
         s += P[1, 1]*(2)
         out[1] = s
     """
-    xs = {s: sp.Symbol(f"x_{i}") for i, s in enumerate(states)}
-    ps = {s: sp.Symbol(f"p_{j}") for j, s in enumerate(psyms)}
-    sub = {**xs, **ps}
-    if time is not None:
-        sub[time] = sp.Symbol("t_")
-    flat = [sp.sympify(e).xreplace(sub) for e in exprs]
+    xs, ps, flat, used = _renamed(exprs, states, time, psyms)
     pr = ScalarPrinter()
-    used = set().union(*(e.free_symbols for e in flat)) if flat else set()
     lines = [f"def {name}(x, t, p, P, out):"]
     lines += [f"    x_{i} = x[{i}]" for i, s in enumerate(states) if xs[s] in used]
     lines += [f"    p_{j} = p[{j}]" for j, s in enumerate(psyms) if ps[s] in used]
