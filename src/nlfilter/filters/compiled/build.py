@@ -76,7 +76,7 @@ _KERNEL_MODULES = (path_linalg, step_kernels)
 _KIND_MODULES = {"sqrt-taylor1": (sqrt_kernels,), "sqrt-nodes": (sqrt_kernels,), "ito": (cd_kernels, ito_kernels),
                  **{k: (cd_kernels,) for k in cd_kernels.KERNELS}}
 #: the kernels whose first parameter is a model function (:func:`_helpers`)
-_TAKES_FUNCTIONS = ("nodes_moments_",)
+_TAKES_FUNCTIONS = ("nodes_moments_", "nodes_gqg_")
 _SOURCE = {f.__name__: inspect.getsource(f)  # read once, at import
            for f in (*path_linalg.SOURCES, *step_kernels.SOURCES, *sqrt_kernels.SOURCES, *ito_kernels.SOURCES,
                      *cd_kernels.SOURCES,

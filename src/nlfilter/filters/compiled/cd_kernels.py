@@ -28,7 +28,7 @@ from __future__ import annotations
 import numpy as np
 
 from .path_linalg import psd_check, psd_root, symmetrize
-from .step_kernels import add_gqg, nodes_moments, nodes_points
+from .step_kernels import add_gqg, nodes_gqg, nodes_moments, nodes_points
 from .support import jit
 
 __all__ = ["KERNELS", "SOURCES", "constants", "predict_cd_", "predict_cd_nodes_", "stage_", "combine_"]
@@ -148,12 +148,7 @@ def predict_cd_nodes_(f, G, m, P, t, p, Q, GQG0, G_const, tol, ks, ws, n, mdim):
             Pc[0, 0] = np.nan  # L: the factor of this stage's xP, not of the P psd_root_ tested
             nodes_moments(f, X, GX, wm, wc, xm, ss, p, N, n, n, mean, D, Cov, Cross, True)
             if not G_const:  # Σ wm_i G(X_i) Q G(X_i)ᵀ
-                for i in range(n):
-                    for j in range(n):
-                        Nz[i, j] = 0.0
-                for i2 in range(N):
-                    G(X[i2], ss, p, Gm)
-                    add_gqg(Gm, Q, GQ, Nz, wm[i2], n, r)
+                nodes_gqg(G, X, Q, Gm, GQ, Nz, wm, ss, p, N, n, r)
             for i in range(n):
                 km[st, i] = mean[i]
                 for j in range(n):

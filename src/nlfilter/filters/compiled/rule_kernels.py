@@ -31,7 +31,7 @@ import numpy as np
 from . import cd_kernels, ito_kernels, sqrt_kernels
 from .path_linalg import mm, psd_check, psd_root
 from .kalman_loop import alloc_kalman, predict_kalman_, update_kalman_
-from .step_kernels import (add_gqg, condition, meas_cov, nodes_moments, nodes_points, predict_cov,
+from .step_kernels import (add_gqg, condition, meas_cov, nodes_gqg, nodes_moments, nodes_points, predict_cov,
                            quartic, work)
 
 __all__ = ["KERNELS_BY_KIND", "ALLOC", "alloc_taylor1", "alloc_nodes", "alloc_taylor2"]
@@ -107,12 +107,7 @@ def predict_nodes_(f, G, m, P, t, p, Q, GQG0, G_const, tol, ks, ws, n, mdim):
             for j in range(n):
                 Nz[i, j] = GQG0[i, j]
     else:  # Σ w_i G(X_i) Q G(X_i)ᵀ
-        for i in range(n):
-            for j in range(n):
-                Nz[i, j] = 0.0
-        for i2 in range(N):
-            G(X[i2], t, p, Gm)
-            add_gqg(Gm, Q, GQ, Nz, wm[i2], n, r)
+        nodes_gqg(G, X, Q, Gm, GQ, Nz, wm, t, p, N, n, r)
     for i in range(n):
         m[i] = mean[i]
         for j in range(n):

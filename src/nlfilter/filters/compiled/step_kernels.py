@@ -17,7 +17,7 @@ from .path_linalg import chol, lu, lu_solve, mm, sqrt_check, symmetrize, transpo
 from .support import jit
 
 __all__ = ["SOURCES", "LOG_2PI", "work", "predict_cov", "meas_cov", "add_gqg", "condition", "write", "mark",
-           "nodes_moments", "nodes_points", "hess_trace", "quartic"]
+           "nodes_moments", "nodes_gqg", "nodes_points", "hess_trace", "quartic"]
 
 
 def predict_cov_(F, P, N, out, T1, T2, n):
@@ -211,6 +211,16 @@ def nodes_moments_(g, X, GX, wm, wc, m, t, p, N, pdim, n, mean, D, Cov, Cross, c
                         Cross[j, a] += v * D[i, a]
 
 
+def nodes_gqg_(G, X, Q, Gm, GQ, out, wm, t, p, N, n, r):
+    """``out = Σ wm_i G(X_i) Q G(X_i)ᵀ``: E[G Q Gᵀ] over the nodes (``Gm``, ``GQ`` scratch)."""
+    for i in range(n):
+        for j in range(n):
+            out[i, j] = 0.0
+    for i2 in range(N):
+        G(X[i2], t, p, Gm)
+        add_gqg(Gm, Q, GQ, out, wm[i2], n, r)
+
+
 def nodes_points_(m, P, z, X, L, W, ev, V, n, N, tol, Pc):
     """``X_i = m + L z_i`` (``L Lᵀ = P``: Cholesky, the eigen root where P is only semi-definite);
     False where P has no root. ``L`` is already the Cholesky factor where ``Pc`` holds ``P``'s lower
@@ -313,7 +323,7 @@ def work(n, mdim):
 
 
 #: the Python sources of this module's kernels (compiled below; inlined by :mod:`.build`)
-SOURCES = (predict_cov_, meas_cov_, add_gqg_, condition_, write_, mark_, nodes_moments_, nodes_points_, hess_trace_,
+SOURCES = (predict_cov_, meas_cov_, add_gqg_, condition_, write_, mark_, nodes_moments_, nodes_gqg_, nodes_points_, hess_trace_,
            quartic_)
 
 # raw functions (no reference counting, as path_linalg's); not inlined here (numba's
@@ -326,6 +336,7 @@ condition = jit(condition_, _nrt=False)
 write = jit(write_, _nrt=False)
 mark = jit(mark_, _nrt=False)
 nodes_moments = jit(nodes_moments_, _nrt=False)
+nodes_gqg = jit(nodes_gqg_, _nrt=False)
 nodes_points = jit(nodes_points_, _nrt=False)
 hess_trace = jit(hess_trace_, _nrt=False)
 quartic = jit(quartic_, _nrt=False)
