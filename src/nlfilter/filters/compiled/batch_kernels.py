@@ -2,8 +2,11 @@
 ``nb ≤ NB``, each state a structure of arrays with the paths last (``m (n, NB)``, ``P (n, n, NB)``).
 
 Products loop over the entries, then the paths, then the summation index (``s`` in a register; the
-dimensions are constants of the generated module, so the compiler unrolls the sum and vectorizes
-over the paths); the Cholesky factors and triangular solves keep a sum per path in ``acc`` (their
+summation lengths are constants of the generated module, ``ns``, ``ms``, ``rs`` for ``n``, ``mdim``,
+``r``, so the compiler unrolls the sum and vectorizes over the paths). The loops around a loop over
+the paths run to the dimensions read from the arrays (``n``, ``mdim``, ``r``): compiled in, each
+would be unrolled into a copy of the vectorized path loop (its alias checks and remainder loop) per
+entry — code that took numba's LLVM a third of the compile, for no speed. The Cholesky factors and triangular solves keep a sum per path in ``acc`` (their
 trip counts vary). One array stored per loop body: the compiler does not vectorize a loop storing
 two (it cannot tell that they do not overlap the arrays read) — a symmetric product stores its
 upper triangle, :func:`bmirror_` the lower one after (2.4× faster at n = 16). Sums run in the one-path kernels' order (:func:`~.step_kernels.predict_cov_`,
@@ -141,13 +144,13 @@ def bpredict_(t, p, Q, GQG0, G_const, n, r, nb, bw):
             for a in range(r):
                 for b in range(nb):
                     s = 0.0
-                    for c in range(r):
+                    for c in range(rs):
                         s += Gm[i, c, b] * Q[c, a]
                     GQ[a, b] = s
             for j in range(n):
                 for b in range(nb):
                     s = 0.0
-                    for a in range(r):
+                    for a in range(rs):
                         s += GQ[a, b] * Gm[j, a, b]
                     N[i, j, b] = s
     for i in range(n):  # Wn = P Fᵀ (Wn_ij = Σ_q P_iq F_jq over the q of table FZ's row j)
@@ -172,7 +175,7 @@ def bpredict_(t, p, Q, GQG0, G_const, n, r, nb, bw):
         for q in range(n):
             for b in range(nb):
                 s = acc[b]
-                for j in range(n):
+                for j in range(ns):
                     s += Wn[q, j, b] * 0.0
                 acc[b] = s
         for b in range(nb):
@@ -221,7 +224,7 @@ def bupdate_(ys, k, t, lo, nb, n, mdim, p, R, tol, want, ks, w1, bw, m, P, yk, l
             Li[a, b] = 1.0 / Ls[a, a, b]
     for b in range(nb):  # the lanes the one-path kernel updates (partly missing y, no factor of S)
         bad = okv[b] == 0.0
-        for a in range(mdim):
+        for a in range(ms):
             bad = bad or math.isnan(ys[lo + b, k, a])
         if bad and not dead[b]:
             irr[b] = 1.0
@@ -261,7 +264,7 @@ def bupdate_(ys, k, t, lo, nb, n, mdim, p, R, tol, want, ks, w1, bw, m, P, yk, l
     for i in range(n):  # m += K e; A = I − K H
         for b in range(nb):
             s = 0.0
-            for a in range(mdim):
+            for a in range(ms):
                 s += K[i, a, b] * E[a, b]
             Mb[i, b] += s
         for j in range(n):  # (over the a of table HT's row j: H's column j)
@@ -276,23 +279,23 @@ def bupdate_(ys, k, t, lo, nb, n, mdim, p, R, tol, want, ks, w1, bw, m, P, yk, l
         for j in range(n):
             for b in range(nb):
                 s = 0.0
-                for q in range(n):
+                for q in range(ns):
                     s += A[i, q, b] * Pb[q, j, b]
                 T1[i, j, b] = s
     for i in range(n):  # KR = K R
         for a in range(mdim):
             for b in range(nb):
                 s = 0.0
-                for c in range(mdim):
+                for c in range(ms):
                     s += K[i, c, b] * R[c, a]
                 KR[i, a, b] = s
     for i in range(n):  # P = T1 Aᵀ + KR Kᵀ, symmetric: the upper triangle, then mirrored
         for j in range(i, n):
             for b in range(nb):
                 s = 0.0
-                for q in range(n):
+                for q in range(ns):
                     s += T1[i, q, b] * A[j, q, b]
-                for a in range(mdim):
+                for a in range(ms):
                     s += KR[i, a, b] * K[j, a, b]
                 Pb[i, j, b] = s
     bmirror(Pb, n, nb)
@@ -321,14 +324,14 @@ def blik_(E, Ls, Li, u, acc, qv, irr, nb, mdim):
     for b in range(nb):
         if irr[b] == 0.0:
             q = 0.0
-            for a in range(mdim):
+            for a in range(ms):
                 q += u[a, b] * u[a, b]
             x = acc[b]
             if 1e-150 < x < 1e150:
                 ld = 2.0 * math.log(x)
             else:  # the product out of range: the sum of the logarithms
                 ld = 0.0
-                for a in range(mdim):
+                for a in range(ms):
                     ld += 2.0 * math.log(Ls[a, a, b])
             qv[b] = -0.5 * (q + ld + mdim * LOG_2PI)
 
@@ -348,9 +351,9 @@ def steps_batch_(ys, m0, P0, p, Q, R, GQG0, G_const, offset, absent, tol, means,
         for b in range(nb):
             step[lo + b] = -1
             dead[b] = 0
-            for i in range(n):
+            for i in range(ns):
                 Mb[i, b] = m0[lo + b, i]
-                for j in range(n):
+                for j in range(ns):
                     Pb[i, j, b] = P0[lo + b, i, j]
         for k in range(T):
             for b in range(nb):
@@ -366,15 +369,15 @@ def steps_batch_(ys, m0, P0, p, Q, R, GQG0, G_const, offset, absent, tol, means,
                 if dead[b]:
                     continue
                 g = lo + b
-                for i in range(n):
+                for i in range(ns):
                     means[g, k, i] = Mb[i, b]
-                    for j in range(n):
+                    for j in range(ns):
                         covs[g, k, i, j] = Pb[i, j, b]
                 if want:
                     ll[g, k] = 0.0 if absent[k] else qv[b]
-                    for a in range(mdim):
+                    for a in range(ms):
                         inn[g, k, a] = np.nan if absent[k] else E[a, b]
-                        for c in range(mdim):
+                        for c in range(ms):
                             icov[g, k, a, c] = np.nan if absent[k] else LiS[a, c, b]
         for b in range(nb):
             if step[lo + b] >= 0:

@@ -153,11 +153,6 @@ def alloc(n, mdim, r):
 _INLINED = ("bchol_", "bmirror_", "bscreen_", "bgather_", "kill_")
 
 
-def _params(head: str) -> list:
-    """The parameter names of a ``def`` line."""
-    return [x.strip() for x in head.split("(", 1)[1].split("):\n", 1)[0].replace("\n", " ").split(",")]
-
-
 def _split(src: str) -> tuple:
     """``(the def line(s) and docstring, the rest)`` of a kernel's source."""
     at = src.index('"""', src.index('"""') + 3) + 4
@@ -196,34 +191,28 @@ def source(base: str, dims, fns: dict) -> str:
     """The module text of the batch-inner loop: ``base`` (the one-path module of
     :func:`.build.source` for the Taylor-1 kind, the model's block functions among its functions),
     the one-path update not inlined as ``update1``, the kernels of :mod:`.batch_kernels` with the
-    dimensions ``dims`` (:func:`dims_of`) compiled in as constants of their bodies (the compiler then
-    unrolls the sums; :data:`_INLINED`, called with several dimensions, take theirs inlined), and the
-    loop as ``steps`` (its machine code kept on disk). The products with F and H sum over the
+    dimensions ``dims`` (:func:`dims_of`) compiled in as the constants ``ns``, ``ms``, ``rs`` of the
+    bodies that use them (the lengths of the sums within a loop over the paths: the compiler unrolls
+    them; the loops around run to the dimensions of the arrays), and the loop as ``steps`` (its machine code kept on disk). The products with F and H sum over the
     tables of :func:`patterns` of the model ``fns`` (module constants): the terms of a structural
     zero skipped; where a Jacobian has no zero, over every index (the table's reads replaced by the
     index)."""
     _, n, mdim, r = dims
     tables = patterns(fns)
-    consts = {_TABLE_K[name]: k for name, (_, k) in tables.items()}
+    consts = {"ns": n, "ms": mdim, "rs": r, **{_TABLE_K[name]: k for name, (_, k) in tables.items()}}
     parts = [base, f"# the batch-inner loop (nlfilter.filters.compiled.batch_loop)\nNB = {block_size(n)}\nupdate1 = _inner(update_taylor1_)\n"]
     parts += [f"{name} = np.array({table!r}, dtype=np.int64).reshape({len(table)}, {k})\n"
               for name, (table, k) in tables.items() if table is not None]
     for f in batch_kernels.SOURCES:
         name = f.__name__
         head, body = _split(_SOURCE[name])
-        fixed = [] if name in _INLINED else [f"{v} = {d}" for v, d in (("n", n), ("mdim", mdim), ("r", r))
-                                            if v in _params(head)]  # the dimensions as constants
         for tname, (table, _) in tables.items():
             if table is None:  # every index: the loop over it (``for z …: q = z`` → ``for q …``)
                 body = re.sub(rf"for z in range\((\w+)\):\n +(\w+) = {tname}\[\w+, z\]\n", r"for \2 in range(\1):\n",
                               body)
                 if tname == "FZ":  # no term skipped: no screen of P Fᵀ
                     body = re.sub(r"\n    if kf < n:.*?\n(?=    \S)", "\n", body, flags=re.DOTALL)
-        fixed += [f"{v} = {d}" for v, d in consts.items() if re.search(rf"\b{v}\b", body)]
-        if name == "steps_batch_":  # (read from the arrays in the source)
-            body = body.replace("    B, T, mdim = ys.shape\n", "    B, T = ys.shape[0], ys.shape[1]\n", 1)
-            body = body.replace("    n = m0.shape[1]\n", "", 1).replace("    r = Q.shape[0]\n", "", 1)
-            fixed = [f"n, mdim, r = {n}, {mdim}, {r}"]
+        fixed = [f"{v} = {d}" for v, d in consts.items() if re.search(rf"\b{v}\b", body)]
         text = head + "".join(f"    {x}\n" for x in fixed) + body
         kw = ", inline='always'" if name in _INLINED else ", cache=True" if name == "steps_batch_" else ""
         parts += [text, f"{name[:-1]} = {'_jit' if name == 'steps_batch_' else '_inner'}({name}{kw})\n"]
