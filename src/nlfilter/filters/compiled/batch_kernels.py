@@ -23,7 +23,11 @@ as its zero terms would (``F (P Fᵀ)`` is then NaN), so a path diverges at the 
 
 Sources, never called as Python: :func:`.batch_loop.source` compiles them in the module of the
 one-path kernels (``psd_check``, ``mark``, ``update1``: :func:`~.rule_kernels.update_taylor1_`) and
-the model's block functions (``fb, fxb, hb, hxb, Gb``).
+the model's block functions (``fb, fxb, hb, hxb, Gb``). The loop calls the compiled kernels itself,
+one level deep (:func:`binnov_`, the one-path update of the lanes it cannot batch, :func:`bupdate_`,
+:func:`settle_`): numba links a callee's code into each caller and optimizes and compiles it again
+there, once per level of calls (the update calling the one-path kernel and the test itself took
+1.5 s more of the first compile at n = 4).
 """
 
 from __future__ import annotations
@@ -186,9 +190,9 @@ def bpredict_(t, p, Q, GQG0, G_const, n, r, nb, bw):
             Mb[i, b] = Mp[i, b]
 
 
-def bupdate_(ys, k, t, lo, nb, n, mdim, p, R, tol, want, ks, w1, bw, m, P, yk, l1, i1, c1, step):
-    """The update of the block at step ``k`` (``t``): the lanes measured in full with a Cholesky factor
-    of S batched; the others, live, by the one-path kernel from the same predicted state."""
+def binnov_(ys, k, t, lo, nb, n, mdim, p, R, bw):
+    """The innovation of the block at step ``k`` (``t``): ``ŷ``, ``H``, ``C = P Hᵀ``, ``S = H C + R``,
+    a Cholesky factor of S (``okv[b]`` 0.0 where lane ``b`` has none), ``e = y − ŷ``."""
     (Mb, Pb, Mp, F, Gm, N, Wn, T1, Yh, H, C, S, Ls, E, K, KR, u, A, okv, Li, LiS, dv, acc, qv, ldv, irr,
      dead, GQ) = bw
     hb(Mb, t, p, Yh, nb)
@@ -222,26 +226,14 @@ def bupdate_(ys, k, t, lo, nb, n, mdim, p, R, tol, want, ks, w1, bw, m, P, yk, l
             E[a, b] = ys[lo + b, k, a] - Yh[a, b]
         for b in range(nb):
             Li[a, b] = 1.0 / Ls[a, a, b]
-    for b in range(nb):  # the lanes the one-path kernel updates (partly missing y, no factor of S)
-        bad = okv[b] == 0.0
-        for a in range(ms):
-            bad = bad or math.isnan(ys[lo + b, k, a])
-        if bad and not dead[b]:
-            irr[b] = 1.0
-            bgather(Mb, Pb, b, m, P, n)
-            for a in range(mdim):
-                yk[a] = ys[lo + b, k, a]
-            ok = update1(m, P, yk, t, p, R, tol, want, l1, i1, c1, ks, w1, n, mdim)
-            for i in range(n):  # kept in Mp, Wn (free until the next predict); its outputs in E, LiS, qv
-                Mp[i, b] = m[i]
-                for j in range(n):
-                    Wn[i, j, b] = P[i, j]
-            qv[b] = l1[0]
-            for a in range(mdim):
-                E[a, b] = i1[a]
-                for c in range(mdim):
-                    LiS[a, c, b] = c1[a, c]
-            ldv[b] = 1.0 if ok else 0.0
+
+
+def bupdate_(nb, n, mdim, R, want, bw, step, lo, k):
+    """The update of the block from :func:`binnov_`'s innovation: the lanes measured in full with a
+    Cholesky factor of S batched; the others (``irr``), updated by the one-path kernel in the loop,
+    take its results (kept in ``Mp``, ``Wn``) and fail where it failed (``ldv`` 0)."""
+    (Mb, Pb, Mp, F, Gm, N, Wn, T1, Yh, H, C, S, Ls, E, K, KR, u, A, okv, Li, LiS, dv, acc, qv, ldv, irr,
+     dead, GQ) = bw
     for i in range(n):  # K_i = S⁻¹ C_i (forward and back substitution)
         for a in range(mdim):
             for b in range(nb):
@@ -307,7 +299,6 @@ def bupdate_(ys, k, t, lo, nb, n, mdim, p, R, tol, want, ks, w1, bw, m, P, yk, l
                     Pb[i, j, b] = Wn[i, j, b]
             if ldv[b] == 0.0:
                 kill(Mb, Pb, b, n, dead, step, lo, k)
-    settle(Mb, Pb, n, nb, tol, T1, A, dv, acc, okv, dead, irr, step, lo, k, m, P, w1[10], w1[11], w1[12])
 
 
 def blik_(E, Ls, Li, u, acc, qv, irr, nb, mdim):
@@ -344,7 +335,8 @@ def steps_batch_(ys, m0, P0, p, Q, R, GQG0, G_const, offset, absent, tol, means,
     n = m0.shape[1]
     r = Q.shape[0]
     w1, bw = ws
-    Mb, Pb, E, LiS, okv, dv, acc, qv, irr, dead = bw[0], bw[1], bw[13], bw[20], bw[18], bw[21], bw[22], bw[23], bw[25], bw[26]
+    (Mb, Pb, Mp, F, Gm, N, Wn, T1, Yh, H, C, S, Ls, E, K, KR, u, A, okv, Li, LiS, dv, acc, qv, ldv, irr,
+     dead, GQ) = bw
     nbmax = NB
     for lo in range(0, B, nbmax):
         nb = min(nbmax, B - lo)
@@ -363,8 +355,31 @@ def steps_batch_(ys, m0, P0, p, Q, R, GQG0, G_const, offset, absent, tol, means,
                 settle(Mb, Pb, n, nb, tol, bw[7], bw[17], dv, acc, okv, dead, irr, step, lo, k, m, P, w1[10], w1[11],
                        w1[12])
             if not absent[k]:
-                bupdate(ys, k, float(k + offset), lo, nb, n, mdim, p, R, tol, want, ks, w1, bw, m, P, yk, l1, i1, c1,
-                        step)
+                t = float(k + offset)
+                binnov(ys, k, t, lo, nb, n, mdim, p, R, bw)
+                for b in range(nb):  # the lanes the one-path kernel updates (partly missing y, no factor of S)
+                    bad = okv[b] == 0.0
+                    for a in range(ms):
+                        bad = bad or math.isnan(ys[lo + b, k, a])
+                    if bad and not dead[b]:
+                        irr[b] = 1.0
+                        bgather(Mb, Pb, b, m, P, n)
+                        for a in range(mdim):
+                            yk[a] = ys[lo + b, k, a]
+                        ok = update1(m, P, yk, t, p, R, tol, want, l1, i1, c1, ks, w1, n, mdim)
+                        for i in range(n):  # kept in Mp, Wn (free until the next predict); outputs in E, LiS, qv
+                            Mp[i, b] = m[i]
+                            for j in range(n):
+                                Wn[i, j, b] = P[i, j]
+                        qv[b] = l1[0]
+                        for a in range(mdim):
+                            E[a, b] = i1[a]
+                            for c in range(mdim):
+                                LiS[a, c, b] = c1[a, c]
+                        ldv[b] = 1.0 if ok else 0.0
+                bupdate(nb, n, mdim, R, want, bw, step, lo, k)
+                settle(Mb, Pb, n, nb, tol, bw[7], bw[17], dv, acc, okv, dead, irr, step, lo, k, m, P, w1[10], w1[11],
+                       w1[12])
             for b in range(nb):
                 if dead[b]:
                     continue
@@ -385,4 +400,4 @@ def steps_batch_(ys, m0, P0, p, Q, R, GQG0, G_const, offset, absent, tol, means,
 
 
 #: the loop and its kernels, in the order the generated module defines them
-SOURCES = (bchol_, bmirror_, bscreen_, bgather_, kill_, settle_, bpredict_, blik_, bupdate_, steps_batch_)
+SOURCES = (bchol_, bmirror_, bscreen_, bgather_, kill_, settle_, bpredict_, binnov_, blik_, bupdate_, steps_batch_)
