@@ -3,13 +3,14 @@
 
 Products loop over the entries, then the paths, then the summation index (``s`` in a register; the
 summation lengths are constants of the generated module, ``ns``, ``ms``, ``rs`` for ``n``, ``mdim``,
-``r``, so the compiler unrolls the sum and vectorizes over the paths). The loops around a loop over
-the paths run to the dimensions read from the arrays (``n``, ``mdim``, ``r``): compiled in, each
-would be unrolled into a copy of the vectorized path loop (its alias checks and remainder loop) per
-entry — code that took numba's LLVM a third of the compile, for no speed. The Cholesky factors and triangular solves keep a sum per path in ``acc`` (their
-trip counts vary). One array stored per loop body: the compiler does not vectorize a loop storing
-two (it cannot tell that they do not overlap the arrays read) — a symmetric product stores its
-upper triangle, :func:`bmirror_` the lower one after (2.4× faster at n = 16). Sums run in the one-path kernels' order (:func:`~.step_kernels.predict_cov_`,
+``r``, so the compiler unrolls the sum and vectorizes over the paths). The loops around a loop over the
+paths run to the dimensions read from the arrays (``n``, ``mdim``, ``r``): compiled in, each would be
+unrolled into a copy of the vectorized path loop (its alias checks and remainder loop) per entry — code
+that took a quarter of the first compile at n = 4 (more above), for no speed. The Cholesky factors and
+triangular solves keep a sum per path in ``acc`` (their trip counts vary). One array stored per loop
+body: the compiler does not vectorize a loop storing two (it cannot tell that they do not overlap the
+arrays read) — a symmetric product stores its upper triangle, :func:`bmirror_` the lower one after
+(2.4× faster at n = 16). Sums run in the one-path kernels' order (:func:`~.step_kernels.predict_cov_`,
 :func:`~.step_kernels.meas_cov_`, :func:`~.step_kernels.condition_`'s Joseph form).
 
 The products with F and H (``P Fᵀ``, ``F (P Fᵀ)``, ``P Hᵀ``, ``H C``, ``K H``) sum over the
@@ -23,12 +24,8 @@ as its zero terms would (``F (P Fᵀ)`` is then NaN), so a path diverges at the 
 
 Sources, never called as Python: :func:`.batch_loop.source` compiles them in the module of the
 one-path kernels (``psd_check``, ``mark``, ``update1``: :func:`~.rule_kernels.update_taylor1_`) and
-the model's block functions (``fb, fxb, hb, hxb, Gb``). The loop calls the compiled kernels itself,
-one level deep (:func:`binnov_`, the one-path update of the lanes it cannot batch, :func:`bupdate_`,
-:func:`settle_`): numba links a callee's code into each caller and optimizes and compiles it again
-there, once per level of calls (the update calling the one-path kernel and the test itself took
-1.5 s more of the first compile at n = 4).
-"""
+the model's block functions (``fb, fxb, hb, hxb, Gb``); the loop calls each kernel itself (one level
+of calls: :mod:`.batch_loop` on the compile)."""
 
 from __future__ import annotations
 
@@ -125,9 +122,9 @@ def settle_(Mb, Pb, n, nb, tol, W, L, d, acc, ok, dead, irr, step, lo, k, m, P, 
     bscreen(Mb, Pb, n, nb, tol, W, L, d, acc, ok)
     for b in range(nb):
         if ok[b] == 0.0 and dead[b] == 0 and irr[b] == 0.0:
-            bgather(Mb, Pb, b, m, P, n)
-            if not psd_check(m, P, n, tol, W1, L1, ev1):
-                kill(Mb, Pb, b, n, dead, step, lo, k)
+            bgather(Mb, Pb, b, m, P, ns)
+            if not psd_check(m, P, ns, tol, W1, L1, ev1):
+                kill(Mb, Pb, b, ns, dead, step, lo, k)
 
 
 def bpredict_(t, p, Q, GQG0, G_const, n, r, nb, bw):
@@ -173,7 +170,7 @@ def bpredict_(t, p, Q, GQG0, G_const, n, r, nb, bw):
                     q = FZ[i, z]
                     s += F[i, q, b] * Wn[q, j, b]
                 Pb[i, j, b] = s
-    if kf < n:  # a term F_iq Wn_qj skipped is 0 where Wn_qj is finite: P⁻ made NaN where it is not
+    if kf < ns:  # a term F_iq Wn_qj skipped is 0 where Wn_qj is finite: P⁻ made NaN where it is not
         for b in range(nb):
             acc[b] = 0.0
         for q in range(n):
@@ -293,12 +290,12 @@ def bupdate_(nb, n, mdim, R, want, bw, step, lo, k):
     bmirror(Pb, n, nb)
     for b in range(nb):  # the one-path lanes' results
         if irr[b] and not dead[b]:
-            for i in range(n):
+            for i in range(ns):
                 Mb[i, b] = Mp[i, b]
-                for j in range(n):
+                for j in range(ns):
                     Pb[i, j, b] = Wn[i, j, b]
             if ldv[b] == 0.0:
-                kill(Mb, Pb, b, n, dead, step, lo, k)
+                kill(Mb, Pb, b, ns, dead, step, lo, k)
 
 
 def blik_(E, Ls, Li, u, acc, qv, irr, nb, mdim):
@@ -324,7 +321,7 @@ def blik_(E, Ls, Li, u, acc, qv, irr, nb, mdim):
                 ld = 0.0
                 for a in range(ms):
                     ld += 2.0 * math.log(Ls[a, a, b])
-            qv[b] = -0.5 * (q + ld + mdim * LOG_2PI)
+            qv[b] = -0.5 * (q + ld + ms * LOG_2PI)
 
 
 def steps_batch_(ys, m0, P0, p, Q, R, GQG0, G_const, offset, absent, tol, means, covs, ll, inn, icov, want, step,
@@ -363,10 +360,10 @@ def steps_batch_(ys, m0, P0, p, Q, R, GQG0, G_const, offset, absent, tol, means,
                         bad = bad or math.isnan(ys[lo + b, k, a])
                     if bad and not dead[b]:
                         irr[b] = 1.0
-                        bgather(Mb, Pb, b, m, P, n)
+                        bgather(Mb, Pb, b, m, P, ns)
                         for a in range(mdim):
                             yk[a] = ys[lo + b, k, a]
-                        ok = update1(m, P, yk, t, p, R, tol, want, l1, i1, c1, ks, w1, n, mdim)
+                        ok = update1(m, P, yk, t, p, R, tol, want, l1, i1, c1, ks, w1, ns, ms)
                         for i in range(n):  # kept in Mp, Wn (free until the next predict); outputs in E, LiS, qv
                             Mp[i, b] = m[i]
                             for j in range(n):
