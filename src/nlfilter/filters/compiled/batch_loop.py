@@ -24,15 +24,18 @@ one module, cached on disk (:mod:`.cache`). The dispatch: :func:`.build.loop_of`
 with :func:`dims_of`, :func:`.build.text_of` makes its text here, ``run`` allocates :func:`alloc`.
 
 Its first compile (the chain of benchmarks/_models.py, 64 paths × 20 steps, a fresh process and
-cache, CPU time on one core of a loaded machine, two runs each): 13.7-14.0, 13.5-13.8, 14.6 s at
-n = 4, 8, 16 — against 18.0-18.1, 21.2-22.2, 27.2-27.3 s in the same runs before the loops around
-the path loops ran to the arrays' dimensions (:mod:`.batch_kernels`) and before the one-path update
-and the divergence test were called from the loop instead of nested in the update (1.5 s of the
-18 at n = 4: numba links a callee's code into every caller and optimizes and compiles it again
-there, once per level of calls). Flattening the whole loop into one function instead (:mod:`.flatten`) took longer
-(20.5 s at n = 4: numba's front end on one long function), as did numba's ``inline='always'`` of the
-kernels (30 s) and path loops of a constant length ``NB`` (no remainder loops; 3.5 s shorter at
-n = 4, but 1.15× the run time).
+cache, CPU time on one core of a loaded machine, two runs each, alternating): 12.6-13.2, 12.6-13.7,
+14.3-14.4 s at n = 4, 8, 16 — against 17.6-18.5, 20.7-22.5, 26.3-27.0 s in the same runs before the
+loops around the path loops ran to the arrays' dimensions (:mod:`.batch_kernels`; ~3.5 s at n = 4,
+more above) and before the one-path update and the divergence test were called from the loop instead
+of nested in the update (~1.5 s: numba links a callee's code into every caller and optimizes and
+compiles it again there, once per level of calls). The run time is the same (paired in one process,
+1000 × 200, 9 rounds: 1.01, 0.975, 0.96× the time of before at n = 4, 8, 16), and so are the
+outputs, to the bit. Tried and left: the whole loop flattened into one function (:mod:`.flatten`;
+20.5 s at n = 4: numba's front end on one long function), numba's ``inline='always'`` of the kernels
+(30 s), path loops of the constant length ``NB`` (no remainder loops: 3.5 s shorter at n = 4, but
+1.15× the run time), the lanes' one-path update on the block's ŷ and H instead of the model's scalar
+functions (~0.4 s, within the noise).
 """
 
 from __future__ import annotations
