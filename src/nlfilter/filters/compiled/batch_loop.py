@@ -47,6 +47,7 @@ import numpy as np
 
 from ...codegen import array_source
 from . import batch_kernels
+from .flatten import flatten
 from .kernels import KERNELS, Kernel, model_kernels
 
 __all__ = ["BATCH_FROM", "BATCH_UP_TO", "PATHS_FROM", "NB", "NB_LARGE", "block_size", "serves", "paths_from",
@@ -199,6 +200,27 @@ def patterns(fns: dict) -> dict:
     return out
 
 
+#: the functions of the one-path module expanded into ``update1`` (:func:`_update1`; ``psd_check``, rare
+#: and long, stays a call)
+_UPDATE1 = ("h", "hx", "meas_cov", "condition", "lu", "lu_solve", "mm", "transpose", "symmetrize", "chol")
+
+
+def _update1(base: str, fns: dict) -> str:
+    """The one-path update of the lanes the loop cannot batch, ``update1``: the Taylor-1 update of
+    ``base`` (the one-path module's ``update_taylor1_``, the model's h and h_x bound) with its kernels
+    expanded into its text (:mod:`.flatten`: the same operations in the same order; the model's h and
+    h_x where ``fns`` inlines them). Called, each of
+    them is a function numba compiles, optimizes and links apart, and again in every caller: 1.8 s of
+    the loop's 13 at n = 4."""
+    def defined(name):  # the source of the def the module jits as ``name``
+        src = re.search(rf"(?m)^{name} = _\w+\((\w+)", base).group(1)
+        return re.search(rf"(?ms)^def {src}\(.*?(?=^\S)", base).group(0)
+    root = defined("update").replace("def update_taylor1_(", "def update1_(", 1)
+    keep = {"h": fns["h"], "hx": fns["hx"]}
+    defs = {name: defined(name) for name in _UPDATE1 if name not in keep or keep[name].inline}
+    return flatten(root, defs) + "\n\nupdate1 = _inner(update1_)\n"
+
+
 #: the tables' index variables and their length constants in the kernels (:func:`patterns`)
 _TABLE_K = {"FZ": "kf", "HZ": "kh", "HT": "kt"}
 
@@ -216,7 +238,8 @@ def source(base: str, dims, fns: dict) -> str:
     _, n, mdim, r = dims
     tables = patterns(fns)
     consts = {"ns": n, "ms": mdim, "rs": r, **{_TABLE_K[name]: k for name, (_, k) in tables.items()}}
-    parts = [base, f"# the batch-inner loop (nlfilter.filters.compiled.batch_loop)\nNB = {block_size(n)}\nupdate1 = _inner(update_taylor1_)\n"]
+    parts = [base, f"# the batch-inner loop (nlfilter.filters.compiled.batch_loop)\nNB = {block_size(n)}\n",
+             _update1(base, fns)]
     parts += [f"{name} = np.array({table!r}, dtype=np.int64).reshape({len(table)}, {k})\n"
               for name, (table, k) in tables.items() if table is not None]
     for f in batch_kernels.SOURCES:
