@@ -24,18 +24,19 @@ one module, cached on disk (:mod:`.cache`). The dispatch: :func:`.build.loop_of`
 with :func:`dims_of`, :func:`.build.text_of` makes its text here, ``run`` allocates :func:`alloc`.
 
 Its first compile (the chain of benchmarks/_models.py, 64 paths × 20 steps, a fresh process and
-cache, CPU time on one core of a loaded machine, two runs each, alternating): 12.6-13.2, 12.6-13.7,
-14.3-14.4 s at n = 4, 8, 16 — against 17.6-18.5, 20.7-22.5, 26.3-27.0 s in the same runs before the
+cache, CPU time on one core of a loaded machine, two runs each, alternating): 10.0-10.3, 11.3-11.4,
+13.4-13.8 s at n = 4, 8, 16 — against 16.3-18.2, 20.8-21.1, 26.9-27.6 s in the same runs before the
 loops around the path loops ran to the arrays' dimensions (:mod:`.batch_kernels`; ~3.5 s at n = 4,
-more above) and before the one-path update and the divergence test were called from the loop instead
-of nested in the update (~1.5 s: numba links a callee's code into every caller and optimizes and
-compiles it again there, once per level of calls). The run time is the same (paired in one process,
-1000 × 200, 9 rounds: 1.01, 0.975, 0.96× the time of before at n = 4, 8, 16), and so are the
-outputs, to the bit. Tried and left: the whole loop flattened into one function (:mod:`.flatten`;
-20.5 s at n = 4: numba's front end on one long function), numba's ``inline='always'`` of the kernels
-(30 s), path loops of the constant length ``NB`` (no remainder loops: 3.5 s shorter at n = 4, but
-1.15× the run time), the lanes' one-path update on the block's ŷ and H instead of the model's scalar
-functions (~0.4 s, within the noise).
+more above), before the one-path update and the divergence test were called from the loop instead of
+nested in the update (~1.5 s: numba links a callee's code into every caller and optimizes and
+compiles it again there, once per level of calls) and before the one-path update was one flat
+function (``_update1``, ~1.5 s). The run time is the same (paired in one process, 1000 × 200:
+1.00-1.01, 0.97, 0.96-0.97× the time of before at n = 4, 8, 16; 0.74× at n = 4 where every path is
+partly measured at every step), and so are the outputs, to the bit. Tried and left: the whole loop
+flattened into one function (:mod:`.flatten`; 20.5 s at n = 4: numba's front end on one long
+function), numba's ``inline='always'`` of the kernels (30 s), path loops of the constant length
+``NB`` (no remainder loops: 3.5 s shorter at n = 4, but 1.15× the run time), the lanes' one-path
+update on the block's ŷ and H instead of the model's scalar functions (~0.4 s, within the noise).
 """
 
 from __future__ import annotations
@@ -60,7 +61,7 @@ __all__ = ["BATCH_FROM", "BATCH_UP_TO", "PATHS_FROM", "NB", "NB_LARGE", "block_s
 #: skipped the Jacobians' structural zeros, run "sparse-before", same conditions: 1.8×, 1.2×, 1.25×;
 #: run "batch-inner-ekf-2", before too: 1.5×, 1.0×, 0.75×). Before the zeros were skipped, at n = 16
 #: it was 1.9× the one-path loop's speed (user CPU time: 4.3 µs against 8.3), at 2.6× its compile
-#: time (~26 s of CPU against ~10 s; skipping them left it as it was; 14.6 s since, the module's
+#: time (~26 s of CPU against ~10 s; skipping them left it as it was; 13.4-13.8 s since, the module's
 #: docstring): taken up to 16
 BATCH_FROM, BATCH_UP_TO = 4, 16
 #: the fewest paths a run takes the batch-inner loop with; fewer take the one-path loop —
@@ -71,7 +72,7 @@ BATCH_FROM, BATCH_UP_TO = 4, 16
 #: (median of the paired time ratios): B = 1: 0.35 / 1.17 (0.32), 2: 0.34 / 0.72 (0.47), 4: 0.33 /
 #: 0.43 (0.77), 8: 0.33 / 0.31 (1.06), 16: 0.34 / 0.25 (1.36), 32: 0.33 / 0.23 (1.41), 1000: 0.35 /
 #: 0.24 (1.46); outputs within 1e-15 of each other. First compiles (fresh process, numba's import
-#: included): 6.1 s and 18.6 s (the batch-inner loop's since: ~14 s, the module's docstring). The
+#: included): 6.1 s and 18.6 s (the batch-inner loop's since: ~10 s, the module's docstring). The
 #: specialized loop for every B would keep n = 4 near 5 s of compile, but at 0.33-0.35 µs on 1000 ×
 #: 200 it runs at 0.9-1.3× dynamax's jit+vmap (0.32-0.44 µs, runs "batch-inner-ekf-2", "session-8"
 #: and "smallbatch-n4" of bench_dimensions.json; the last: batch-inner 0.216 µs, 2.0×, user CPU
@@ -80,7 +81,7 @@ BATCH_FROM, BATCH_UP_TO = 4, 16
 #: chain(8) 0.50, 0.68, 1.21, 1.51, 1.53, 2.60, 2.60 (2.46 / 5.65), chain(16), blocks of
 #: :data:`NB_LARGE`: 0.35, 0.58, 0.83, 0.98, 1.12, 1.86 (9.8 / 36.4; 5 rounds): from 4 paths up to 8
 #: states, from 16 above. First compiles of the general and the batch-inner loop: 7.7 and 22.0 s at
-#: n = 5, 7.4 and 23.8 s at n = 8 (the batch-inner loop's since: 13.5-13.8 s at n = 8)
+#: n = 5, 7.4 and 23.8 s at n = 8 (the batch-inner loop's since: 11.3-11.4 s at n = 8)
 PATHS_FROM = {"specialized": 8, "general": 4, "general-large": 16}
 #: paths per block up to 8 states (the block's work arrays, two dozen of ``n × n × NB`` at most,
 #: stay in the processor's level-2 cache; 16 paths: 1.3× slower at n = 8, 64: the same within noise)
@@ -200,7 +201,7 @@ def patterns(fns: dict) -> dict:
     return out
 
 
-#: the functions of the one-path module expanded into ``update1`` (:func:`_update1`; ``psd_check``, rare
+#: the functions of the one-path module expanded into ``update1`` (``_update1``; ``psd_check``, rare
 #: and long, stays a call)
 _UPDATE1 = ("h", "hx", "meas_cov", "condition", "lu", "lu_solve", "mm", "transpose", "symmetrize", "chol")
 
