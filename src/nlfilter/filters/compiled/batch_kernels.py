@@ -2,11 +2,15 @@
 ``nb ≤ NB``, each state a structure of arrays with the paths last (``m (n, NB)``, ``P (n, n, NB)``).
 
 Products loop over the entries, then the paths, then the summation index (``s`` in a register; the
-dimensions are constants of the generated module, so the compiler unrolls the sum and vectorizes
-over the paths); the Cholesky factors and triangular solves keep a sum per path in ``acc`` (their
-trip counts vary). One array stored per loop body: the compiler does not vectorize a loop storing
-two (it cannot tell that they do not overlap the arrays read) — a symmetric product stores its
-upper triangle, :func:`bmirror_` the lower one after (2.4× faster at n = 16). Sums run in the one-path kernels' order (:func:`~.step_kernels.predict_cov_`,
+summation lengths are constants of the generated module, ``ns``, ``ms``, ``rs`` for ``n``, ``mdim``,
+``r``, so the compiler unrolls the sum and vectorizes over the paths). The loops around a loop over the
+paths run to the dimensions read from the arrays (``n``, ``mdim``, ``r``): compiled in, each would be
+unrolled into a copy of the vectorized path loop (its alias checks and remainder loop) per entry — code
+that took a quarter of the first compile at n = 4 (more above), for no speed. The Cholesky factors and
+triangular solves keep a sum per path in ``acc`` (their trip counts vary). One array stored per loop
+body: the compiler does not vectorize a loop storing two (it cannot tell that they do not overlap the
+arrays read) — a symmetric product stores its upper triangle, :func:`bmirror_` the lower one after
+(2.4× faster at n = 16). Sums run in the one-path kernels' order (:func:`~.step_kernels.predict_cov_`,
 :func:`~.step_kernels.meas_cov_`, :func:`~.step_kernels.condition_`'s Joseph form).
 
 The products with F and H (``P Fᵀ``, ``F (P Fᵀ)``, ``P Hᵀ``, ``H C``, ``K H``) sum over the
@@ -20,8 +24,8 @@ as its zero terms would (``F (P Fᵀ)`` is then NaN), so a path diverges at the 
 
 Sources, never called as Python: :func:`.batch_loop.source` compiles them in the module of the
 one-path kernels (``psd_check``, ``mark``, ``update1``: :func:`~.rule_kernels.update_taylor1_`) and
-the model's block functions (``fb, fxb, hb, hxb, Gb``).
-"""
+the model's block functions (``fb, fxb, hb, hxb, Gb``); the loop calls each kernel itself (one level
+of calls: :mod:`.batch_loop` on the compile)."""
 
 from __future__ import annotations
 
@@ -118,9 +122,9 @@ def settle_(Mb, Pb, n, nb, tol, W, L, d, acc, ok, dead, irr, step, lo, k, m, P, 
     bscreen(Mb, Pb, n, nb, tol, W, L, d, acc, ok)
     for b in range(nb):
         if ok[b] == 0.0 and dead[b] == 0 and irr[b] == 0.0:
-            bgather(Mb, Pb, b, m, P, n)
-            if not psd_check(m, P, n, tol, W1, L1, ev1):
-                kill(Mb, Pb, b, n, dead, step, lo, k)
+            bgather(Mb, Pb, b, m, P, ns)
+            if not psd_check(m, P, ns, tol, W1, L1, ev1):
+                kill(Mb, Pb, b, ns, dead, step, lo, k)
 
 
 def bpredict_(t, p, Q, GQG0, G_const, n, r, nb, bw):
@@ -141,13 +145,13 @@ def bpredict_(t, p, Q, GQG0, G_const, n, r, nb, bw):
             for a in range(r):
                 for b in range(nb):
                     s = 0.0
-                    for c in range(r):
+                    for c in range(rs):
                         s += Gm[i, c, b] * Q[c, a]
                     GQ[a, b] = s
             for j in range(n):
                 for b in range(nb):
                     s = 0.0
-                    for a in range(r):
+                    for a in range(rs):
                         s += GQ[a, b] * Gm[j, a, b]
                     N[i, j, b] = s
     for i in range(n):  # Wn = P Fᵀ (Wn_ij = Σ_q P_iq F_jq over the q of table FZ's row j)
@@ -166,13 +170,13 @@ def bpredict_(t, p, Q, GQG0, G_const, n, r, nb, bw):
                     q = FZ[i, z]
                     s += F[i, q, b] * Wn[q, j, b]
                 Pb[i, j, b] = s
-    if kf < n:  # a term F_iq Wn_qj skipped is 0 where Wn_qj is finite: P⁻ made NaN where it is not
+    if kf < ns:  # a term F_iq Wn_qj skipped is 0 where Wn_qj is finite: P⁻ made NaN where it is not
         for b in range(nb):
             acc[b] = 0.0
         for q in range(n):
             for b in range(nb):
                 s = acc[b]
-                for j in range(n):
+                for j in range(ns):
                     s += Wn[q, j, b] * 0.0
                 acc[b] = s
         for b in range(nb):
@@ -183,9 +187,9 @@ def bpredict_(t, p, Q, GQG0, G_const, n, r, nb, bw):
             Mb[i, b] = Mp[i, b]
 
 
-def bupdate_(ys, k, t, lo, nb, n, mdim, p, R, tol, want, ks, w1, bw, m, P, yk, l1, i1, c1, step):
-    """The update of the block at step ``k`` (``t``): the lanes measured in full with a Cholesky factor
-    of S batched; the others, live, by the one-path kernel from the same predicted state."""
+def binnov_(ys, k, t, lo, nb, n, mdim, p, R, bw):
+    """The innovation of the block at step ``k`` (``t``): ``ŷ``, ``H``, ``C = P Hᵀ``, ``S = H C + R``,
+    a Cholesky factor of S (``okv[b]`` 0.0 where lane ``b`` has none), ``e = y − ŷ``."""
     (Mb, Pb, Mp, F, Gm, N, Wn, T1, Yh, H, C, S, Ls, E, K, KR, u, A, okv, Li, LiS, dv, acc, qv, ldv, irr,
      dead, GQ) = bw
     hb(Mb, t, p, Yh, nb)
@@ -219,26 +223,14 @@ def bupdate_(ys, k, t, lo, nb, n, mdim, p, R, tol, want, ks, w1, bw, m, P, yk, l
             E[a, b] = ys[lo + b, k, a] - Yh[a, b]
         for b in range(nb):
             Li[a, b] = 1.0 / Ls[a, a, b]
-    for b in range(nb):  # the lanes the one-path kernel updates (partly missing y, no factor of S)
-        bad = okv[b] == 0.0
-        for a in range(mdim):
-            bad = bad or math.isnan(ys[lo + b, k, a])
-        if bad and not dead[b]:
-            irr[b] = 1.0
-            bgather(Mb, Pb, b, m, P, n)
-            for a in range(mdim):
-                yk[a] = ys[lo + b, k, a]
-            ok = update1(m, P, yk, t, p, R, tol, want, l1, i1, c1, ks, w1, n, mdim)
-            for i in range(n):  # kept in Mp, Wn (free until the next predict); its outputs in E, LiS, qv
-                Mp[i, b] = m[i]
-                for j in range(n):
-                    Wn[i, j, b] = P[i, j]
-            qv[b] = l1[0]
-            for a in range(mdim):
-                E[a, b] = i1[a]
-                for c in range(mdim):
-                    LiS[a, c, b] = c1[a, c]
-            ldv[b] = 1.0 if ok else 0.0
+
+
+def bupdate_(nb, n, mdim, R, want, bw, step, lo, k):
+    """The update of the block from :func:`binnov_`'s innovation: the lanes measured in full with a
+    Cholesky factor of S batched; the others (``irr``), updated by the one-path kernel in the loop,
+    take its results (kept in ``Mp``, ``Wn``) and fail where it failed (``ldv`` 0)."""
+    (Mb, Pb, Mp, F, Gm, N, Wn, T1, Yh, H, C, S, Ls, E, K, KR, u, A, okv, Li, LiS, dv, acc, qv, ldv, irr,
+     dead, GQ) = bw
     for i in range(n):  # K_i = S⁻¹ C_i (forward and back substitution)
         for a in range(mdim):
             for b in range(nb):
@@ -261,7 +253,7 @@ def bupdate_(ys, k, t, lo, nb, n, mdim, p, R, tol, want, ks, w1, bw, m, P, yk, l
     for i in range(n):  # m += K e; A = I − K H
         for b in range(nb):
             s = 0.0
-            for a in range(mdim):
+            for a in range(ms):
                 s += K[i, a, b] * E[a, b]
             Mb[i, b] += s
         for j in range(n):  # (over the a of table HT's row j: H's column j)
@@ -276,35 +268,34 @@ def bupdate_(ys, k, t, lo, nb, n, mdim, p, R, tol, want, ks, w1, bw, m, P, yk, l
         for j in range(n):
             for b in range(nb):
                 s = 0.0
-                for q in range(n):
+                for q in range(ns):
                     s += A[i, q, b] * Pb[q, j, b]
                 T1[i, j, b] = s
     for i in range(n):  # KR = K R
         for a in range(mdim):
             for b in range(nb):
                 s = 0.0
-                for c in range(mdim):
+                for c in range(ms):
                     s += K[i, c, b] * R[c, a]
                 KR[i, a, b] = s
     for i in range(n):  # P = T1 Aᵀ + KR Kᵀ, symmetric: the upper triangle, then mirrored
         for j in range(i, n):
             for b in range(nb):
                 s = 0.0
-                for q in range(n):
+                for q in range(ns):
                     s += T1[i, q, b] * A[j, q, b]
-                for a in range(mdim):
+                for a in range(ms):
                     s += KR[i, a, b] * K[j, a, b]
                 Pb[i, j, b] = s
     bmirror(Pb, n, nb)
     for b in range(nb):  # the one-path lanes' results
         if irr[b] and not dead[b]:
-            for i in range(n):
+            for i in range(ns):
                 Mb[i, b] = Mp[i, b]
-                for j in range(n):
+                for j in range(ns):
                     Pb[i, j, b] = Wn[i, j, b]
             if ldv[b] == 0.0:
-                kill(Mb, Pb, b, n, dead, step, lo, k)
-    settle(Mb, Pb, n, nb, tol, T1, A, dv, acc, okv, dead, irr, step, lo, k, m, P, w1[10], w1[11], w1[12])
+                kill(Mb, Pb, b, ns, dead, step, lo, k)
 
 
 def blik_(E, Ls, Li, u, acc, qv, irr, nb, mdim):
@@ -321,16 +312,16 @@ def blik_(E, Ls, Li, u, acc, qv, irr, nb, mdim):
     for b in range(nb):
         if irr[b] == 0.0:
             q = 0.0
-            for a in range(mdim):
+            for a in range(ms):
                 q += u[a, b] * u[a, b]
             x = acc[b]
             if 1e-150 < x < 1e150:
                 ld = 2.0 * math.log(x)
             else:  # the product out of range: the sum of the logarithms
                 ld = 0.0
-                for a in range(mdim):
+                for a in range(ms):
                     ld += 2.0 * math.log(Ls[a, a, b])
-            qv[b] = -0.5 * (q + ld + mdim * LOG_2PI)
+            qv[b] = -0.5 * (q + ld + ms * LOG_2PI)
 
 
 def steps_batch_(ys, m0, P0, p, Q, R, GQG0, G_const, offset, absent, tol, means, covs, ll, inn, icov, want, step,
@@ -341,16 +332,17 @@ def steps_batch_(ys, m0, P0, p, Q, R, GQG0, G_const, offset, absent, tol, means,
     n = m0.shape[1]
     r = Q.shape[0]
     w1, bw = ws
-    Mb, Pb, E, LiS, okv, dv, acc, qv, irr, dead = bw[0], bw[1], bw[13], bw[20], bw[18], bw[21], bw[22], bw[23], bw[25], bw[26]
+    (Mb, Pb, Mp, F, Gm, N, Wn, T1, Yh, H, C, S, Ls, E, K, KR, u, A, okv, Li, LiS, dv, acc, qv, ldv, irr,
+     dead, GQ) = bw
     nbmax = NB
     for lo in range(0, B, nbmax):
         nb = min(nbmax, B - lo)
         for b in range(nb):
             step[lo + b] = -1
             dead[b] = 0
-            for i in range(n):
+            for i in range(ns):
                 Mb[i, b] = m0[lo + b, i]
-                for j in range(n):
+                for j in range(ns):
                     Pb[i, j, b] = P0[lo + b, i, j]
         for k in range(T):
             for b in range(nb):
@@ -360,21 +352,44 @@ def steps_batch_(ys, m0, P0, p, Q, R, GQG0, G_const, offset, absent, tol, means,
                 settle(Mb, Pb, n, nb, tol, bw[7], bw[17], dv, acc, okv, dead, irr, step, lo, k, m, P, w1[10], w1[11],
                        w1[12])
             if not absent[k]:
-                bupdate(ys, k, float(k + offset), lo, nb, n, mdim, p, R, tol, want, ks, w1, bw, m, P, yk, l1, i1, c1,
-                        step)
+                t = float(k + offset)
+                binnov(ys, k, t, lo, nb, n, mdim, p, R, bw)
+                for b in range(nb):  # the lanes the one-path kernel updates (partly missing y, no factor of S)
+                    bad = okv[b] == 0.0
+                    for a in range(ms):
+                        bad = bad or math.isnan(ys[lo + b, k, a])
+                    if bad and not dead[b]:
+                        irr[b] = 1.0
+                        bgather(Mb, Pb, b, m, P, ns)
+                        for a in range(mdim):
+                            yk[a] = ys[lo + b, k, a]
+                        ok = update1(m, P, yk, t, p, R, tol, want, l1, i1, c1, ks, w1, ns, ms)
+                        for i in range(n):  # kept in Mp, Wn (free until the next predict); outputs in E, LiS, qv
+                            Mp[i, b] = m[i]
+                            for j in range(n):
+                                Wn[i, j, b] = P[i, j]
+                        qv[b] = l1[0]
+                        for a in range(mdim):
+                            E[a, b] = i1[a]
+                            for c in range(mdim):
+                                LiS[a, c, b] = c1[a, c]
+                        ldv[b] = 1.0 if ok else 0.0
+                bupdate(nb, n, mdim, R, want, bw, step, lo, k)
+                settle(Mb, Pb, n, nb, tol, bw[7], bw[17], dv, acc, okv, dead, irr, step, lo, k, m, P, w1[10], w1[11],
+                       w1[12])
             for b in range(nb):
                 if dead[b]:
                     continue
                 g = lo + b
-                for i in range(n):
+                for i in range(ns):
                     means[g, k, i] = Mb[i, b]
-                    for j in range(n):
+                    for j in range(ns):
                         covs[g, k, i, j] = Pb[i, j, b]
                 if want:
                     ll[g, k] = 0.0 if absent[k] else qv[b]
-                    for a in range(mdim):
+                    for a in range(ms):
                         inn[g, k, a] = np.nan if absent[k] else E[a, b]
-                        for c in range(mdim):
+                        for c in range(ms):
                             icov[g, k, a, c] = np.nan if absent[k] else LiS[a, c, b]
         for b in range(nb):
             if step[lo + b] >= 0:
@@ -382,4 +397,4 @@ def steps_batch_(ys, m0, P0, p, Q, R, GQG0, G_const, offset, absent, tol, means,
 
 
 #: the loop and its kernels, in the order the generated module defines them
-SOURCES = (bchol_, bmirror_, bscreen_, bgather_, kill_, settle_, bpredict_, blik_, bupdate_, steps_batch_)
+SOURCES = (bchol_, bmirror_, bscreen_, bgather_, kill_, settle_, bpredict_, binnov_, blik_, bupdate_, steps_batch_)
