@@ -214,11 +214,11 @@ def test_the_loop_by_the_runs_paths(tmp_path, monkeypatch):
     assert batch_loop.is_batch(build.loop_of(five, 4)[3])
     assert build.loop_of(UKF(_four_state()), 1000)[3] == spec  # the batch-inner loop is the EKF's
     if compiled.available():  # each loop's compile: a run between the two takes the one-path loop only
-        T = 300_000  # NumPy ~16 s on one path (≥ 10 s), ~20 s on 8 (< 30 s)
+        T = 200_000  # NumPy ~10.4 s on one path (≥ 10 s), ~13 s on 8 (< 15 s)
         assert choice.COMPILE_SECONDS["specialized"] <= choice.numpy_seconds("taylor1", 4, 1, T)
         assert choice.numpy_seconds("taylor1", 4, 8, T) < choice.COMPILE_SECONDS["batch"]
         assert flt.backend_for(1, T)[1].endswith("repays the compile (~10 s)")
-        assert flt.backend_for(8, T) == ("numpy", "the compile (~30 s) costs more than the NumPy loop (~20 s so far)")
+        assert flt.backend_for(8, T) == ("numpy", "the compile (~15 s) costs more than the NumPy loop (~13 s so far)")
 
 
 def test_a_loaded_loop_serves_the_other_size(monkeypatch):

@@ -70,12 +70,11 @@ PER_SUBSTEP = ("cd-taylor1", "cd-taylor2", "cd-nodes")
 #: flattened apart: 3.4-5.2 s measured by benchmarks/bench_compile.py on an idle core, run
 #: "compile-split", against 4.7-9.1 s for one flat loop, which took 10-21 s on a loaded machine),
 #: the general loop (EKF n = 16: 5.8 s idle), the EKF's batch-inner loop (:mod:`.batch_loop`,
-#: 4-16 states: 11-12 s idle at n = 4; loaded, 16-27 s at n = 4-16, benchmarks/bench_dimensions.py
-#: run "batch-inner-ekf-2", and 33-44 s at n = 4-8 in an earlier run; loaded, run "smallbatch":
-#: 18.8 s on 200 paths at n = 4, where one path takes the specialized loop, 5.8 s — see
-#: :func:`~.build.loop_of`); the continuous Itô loop (specialized, or general past n = 4): 6.1 s
+#: 4-16 states: 10.0-10.3, 11.3-11.4, 13.4-13.8 s at n = 4, 8, 16 on a loaded machine, paired,
+#: since its sums' lengths alone are compiled in and its rare lanes' update is one flat function;
+#: 16-28 s before — see :func:`~.build.loop_of`); the continuous Itô loop (specialized, or general past n = 4): 6.1 s
 #: at n = 1, ~8 s at n = 2 (general: ~10 s), loaded
-COMPILE_SECONDS = {"scalar": 2.0, "specialized": 10.0, "general": 10.0, "batch": 30.0}
+COMPILE_SECONDS = {"scalar": 2.0, "specialized": 10.0, "general": 10.0, "batch": 15.0}
 #: a cached loop's first run in a new process (numba's import, reading its code), seconds
 LOAD_SECONDS = 1.0
 #: the same once numba is imported in the process (reading the loop's code)
