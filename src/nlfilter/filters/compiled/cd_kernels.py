@@ -18,9 +18,10 @@ EKF's or the second-order filter's update (:func:`~.rule_kernels.update_taylor1_
 the time, on a regular grid (:func:`~.support.static_refusal`; the second-order filters a G free of
 the state, as in discrete time): the stages' times are then never read.
 
-``ks``: the Taylor-2 update's five entries (``second`` — the ½ terms —, the form's kinds, ``joseph``;
-the Taylor-1 update reads none), then the integrator (:func:`constants`); ``ws``: the update's work
-arrays (:data:`~.rule_kernels.ALLOC` of its kind).
+``ks``: what the discrete update reads — the Taylor-2 update's five entries (``second``, the ½
+terms; the form's kinds; ``joseph``; the Taylor-1 update reads none), the node rules' table ``(z, wm,
+wc)`` — then the integrator (:func:`constants`); ``ws``: the update's work arrays
+(:data:`~.rule_kernels.ALLOC` of its kind), which the node rules' prediction shares.
 """
 
 from __future__ import annotations

@@ -135,7 +135,7 @@ def _run(flt, yf, batch, m0, P0, on, loglik, progress):
         second = bool(getattr(rule, "second", False))
         kinds = ((_KIND[spec[0]], _KIND[spec[1]], _FORCE[spec[2]]) if second else (0, 0, 0))
         ks, N = (second, *kinds, spec[1] == "none"), 0
-        if kind != "taylor2":
+        if kind in ("cd-taylor1", "cd-taylor2"):
             ks = (*ks, cd_constants(flt.dt, flt.substeps, flt.scheme, n, md.r))
     ws = ALLOC[kind](n, mdim, md.r, N)
     if batch_loop.is_batch(dims):  # the batch-inner loop: the one-path kernels' work arrays and its own

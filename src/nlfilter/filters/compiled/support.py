@@ -117,7 +117,8 @@ def _class_refusal(cls) -> tuple:
         by = "" if at is None else f" ({mro[at].__name__} sets compiled = False)"
         return (f"{cls.__name__} has no compiled loop{by}; it runs the discrete Gaussian filters (kf, ekf, ukf, ckf, "
                 "ghkf, slf, the discrete second-order forms; sr-kf, sr-ekf, sr-ukf, sr-ckf, sr-ghkf, sr-slf; the "
-                "continuous Itô EKF and second-order filters)"), frozenset(), None
+                "continuous Itô EKF and second-order filters; the continuous-discrete filters but the iterated "
+                "EKF)"), frozenset(), None
     family = frozenset(set().union(*(_methods(c) for c in mro[at:])) - set(ALLOWED_OVERRIDES))
     for c in mro[:at]:
         for meth in sorted(_methods(c) & family):
