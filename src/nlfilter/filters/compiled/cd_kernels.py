@@ -1,11 +1,12 @@
 """The continuous-discrete filters' prediction on the compiled loop, one path at a time: the kinds
-``"cd-taylor1"`` of :class:`~nlfilter.filters.ekf.ContinuousDiscreteEKF` (Jazwinski 1970, ch. 8) and
+``"cd-taylor1"`` of :class:`~nlfilter.filters.ekf.ContinuousDiscreteEKF` (Jazwinski 1970, ch. 8),
 ``"cd-taylor2"`` of :class:`~nlfilter.filters.second_order.ContinuousDiscreteSecondOrderFilter` (seed
-004 eqs. 35-36 without their measurement terms).
+004 eqs. 35-36 without their measurement terms) and ``"cd-nodes"`` of the continuous-discrete UKF,
+CKF, GHKF and SLF (Särkkä 2007; :func:`predict_cd_nodes_`).
 
-Between measurements, the moment equations of the Taylor closures
-(:func:`~nlfilter.filters.skeleton.moment_rhs` with :class:`~nlfilter.filters.rules.Taylor1` or
-:class:`~nlfilter.filters.rules.Taylor2`: third moments neglected, f_xx in the mean only)::
+Between measurements, the moment equations of the Gaussian closure
+(:func:`~nlfilter.filters.skeleton.moment_rhs`; for the Taylor rules, :class:`~nlfilter.filters.rules.Taylor1`
+and :class:`~nlfilter.filters.rules.Taylor2`, third moments neglected, f_xx in the mean only)::
 
     dm/dt = f(m) [+ ½ (P f_xx)],   dP/dt = P Fᵀ + F P + G Q Gᵀ      (F = f_x(m), G = G(m))
 
