@@ -31,7 +31,7 @@ import numpy as np
 
 from .path_linalg import psd_check, psd_root, symmetrize
 from .step_kernels import add_gqg, nodes_gqg, nodes_moments, nodes_points
-from .support import jit
+from .support import CD_KINDS, jit
 
 __all__ = ["KERNELS", "SOURCES", "constants", "predict_cd_", "predict_cd_nodes_", "stage_", "combine_"]
 
@@ -161,7 +161,7 @@ def predict_cd_nodes_(f, G, m, P, t, p, Q, GQG0, G_const, tol, ks, ws, n, mdim):
 
 #: the kinds' predictions (:mod:`.rule_kernels` pairs them with the discrete updates: the EKF's, the
 #: second-order filters')
-KERNELS = {"cd-taylor1": (predict_cd_,), "cd-taylor2": (predict_cd_,), "cd-nodes": (predict_cd_nodes_,)}
+KERNELS = {kind: (predict_cd_nodes_ if kind == "cd-nodes" else predict_cd_,) for kind in CD_KINDS}
 #: the helper kernels (compiled with the kinds' loops, :mod:`.build`)
 SOURCES = (stage_, combine_)
 

@@ -36,7 +36,7 @@ from __future__ import annotations
 import sys
 from typing import NamedTuple
 
-from .support import static_refusal
+from .support import CD_KINDS, static_refusal
 
 __all__ = ["Choice", "choose", "numpy_seconds", "COMPILE_SECONDS", "LOAD_SECONDS", "LOADED_SECONDS", "STEP_US",
            "PATH_STEP_US", "PER_SUBSTEP"]
@@ -44,7 +44,7 @@ __all__ = ["Choice", "choose", "numpy_seconds", "COMPILE_SECONDS", "LOAD_SECONDS
 #: the NumPy loop's cost per step, µs (one trajectory: its Python overhead), by rule kind
 STEP_US = {"kalman": 40.0, "taylor1": 50.0, "nodes": 110.0, "taylor2": 160.0, "sqrt-taylor1": 120.0, "sqrt-nodes": 240.0,
            "ito": 110.0, "cd-taylor1": 50.0, "cd-taylor2": 110.0,
-           "cd-nodes": 150.0}
+           "cd-nodes": 120.0}
 #: and per path-step at ``n = 1``, µs, scaled by ``n^1.5`` (1000 paths: 0.12 µs for the EKF at
 #: n = 1, 3.6 at n = 4, 22.7 at n = 16; the UKF and second-order filters 2-3× the EKF; the square-root
 #: filters 2.2-2.4× their standard form per step, 1.5-1.9× per path-step, measured at n = 2)
@@ -59,12 +59,15 @@ STEP_US = {"kalman": 40.0, "taylor1": 50.0, "nodes": 110.0, "taylor2": 160.0, "s
 #: 0.77 and 1.9 (n = 2). The compiled loop: 0.06-0.07 µs per path-step at n = 1, one substep.
 #: The continuous-discrete second-order filters (``"cd-taylor2"``; seed 004's falling body, n = 3,
 #: RK4): 230-270 µs per step on one trajectory with one substep, 1040-1130 with ten; per path-step
-#: at 1000 paths 0.82-0.93 µs per substep with ten (1.6-2.7 with one: the update's share)
+#: at 1000 paths 0.82-0.93 µs per substep with ten (1.6-2.7 with one: the update's share). The
+#: continuous-discrete node filters (``"cd-nodes"``; the UKF on a 2-state pendulum, RK4): 136 µs per
+#: step on one trajectory with one substep, 381 with four; 1.45-1.75 µs per path-substep at 1000 paths
 PATH_STEP_US = {"kalman": 0.2, "taylor1": 0.25, "nodes": 0.45, "taylor2": 0.6, "sqrt-taylor1": 0.5, "sqrt-nodes": 0.7,
                 "ito": 0.4, "cd-taylor1": 0.15, "cd-taylor2": 0.16,
-                "cd-nodes": 0.3}
-#: the kinds whose costs above are per substep of the filter's integrator (``substeps``)
-PER_SUBSTEP = ("cd-taylor1", "cd-taylor2", "cd-nodes")
+                "cd-nodes": 0.5}
+#: the kinds whose costs above are per substep of the filter's integrator (``substeps``): the
+#: continuous-discrete ones
+PER_SUBSTEP = CD_KINDS
 #: a loop's first compile, CPU seconds: the scalar EKF's batch loop, the loops specialized to the
 #: dimensions (n, m ≤ :data:`~.build.SPECIALIZE_UP_TO`; the loop, its predict and its update
 #: flattened apart: 3.4-5.2 s measured by benchmarks/bench_compile.py on an idle core, run

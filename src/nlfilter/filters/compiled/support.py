@@ -25,10 +25,10 @@ def numba():
 #: the rule kinds (``rule.kind``) the compiled loop has a step kernel for; ``"kalman"``: the linear
 #: Kalman filter (its class's ``compiled_kind``; the model's matrices as data, :mod:`.kalman_loop`);
 #: ``"sqrt-taylor1"``, ``"sqrt-nodes"``: the square-root filters' (:mod:`.sqrt_kernels`); ``"ito"``: the
-#: continuous-time (Itô) filters over a Taylor rule (:mod:`.ito_kernels`); ``"cd-taylor1"``,
-#: ``"cd-taylor2"``, ``"cd-nodes"``: the continuous-discrete filters over those rules (:mod:`.cd_kernels`)
-KINDS = ("taylor1", "nodes", "taylor2", "kalman", "sqrt-taylor1", "sqrt-nodes", "ito", "cd-taylor1", "cd-taylor2",
-         "cd-nodes")
+#: continuous-time (Itô) filters over a Taylor rule (:mod:`.ito_kernels`); :data:`CD_KINDS`: the
+#: continuous-discrete filters over the Taylor and node rules (:mod:`.cd_kernels`)
+CD_KINDS = ("cd-taylor1", "cd-taylor2", "cd-nodes")
+KINDS = ("taylor1", "nodes", "taylor2", "kalman", "sqrt-taylor1", "sqrt-nodes", "ito", *CD_KINDS)
 
 #: what a subclass of a class declaring ``compiled = True`` may redefine and still run compiled:
 #: its constructor and representation. Any other method of the family it redefines (``predict``,
@@ -162,7 +162,7 @@ def static_refusal(flt) -> str | None:
         return "the model declares angular components (angles=): wrapped residuals and circular means run on NumPy"
     if kind == "kalman":
         return _kalman_refusal(md)
-    if kind in ("ito", "cd-taylor1", "cd-taylor2", "cd-nodes"):
+    if kind == "ito" or kind in CD_KINDS:
         why = _ito_refusal(flt) if kind == "ito" else _cd_refusal(flt)
         if why is not None:
             return why
