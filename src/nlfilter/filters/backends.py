@@ -28,6 +28,7 @@ class Backend(NamedTuple):
 BACKENDS = {
     "numpy": Backend("nlfilter.filters.base:Filter._loop", None),
     "numba": Backend("nlfilter.filters.compiled:run_compiled", "nlfilter.filters.compiled:unsupported"),
+    "numba-shared": Backend("nlfilter.filters.compiled.run:run_shared", "nlfilter.filters.compiled:unsupported"),
 }
 
 #: ``backend="auto"``: ``"module:function"`` of ``(flt, B, T, repeats) -> (backend, why)``

@@ -103,15 +103,16 @@ def _helpers(kind: str = "") -> list:
     return out
 
 
-def _bind(name, fns, dims):
+def _bind(name, fns, dims, keep=False):
     """The source of ``name`` with its leading parameters that name entries of ``fns`` dropped (they
-    are bound as globals) and, with ``dims = (n, m, r, N)``, the dimensions read from the arrays
-    replaced by constants (``N`` None: read from the nodes). Returns ``(source, dropped names)``."""
+    are bound as globals; ``keep``: left as parameters, the model-free loop's, :mod:`.template`)
+    and, with ``dims = (n, m, r, N)``, the dimensions read from the arrays replaced by constants
+    (``N`` None: read from the nodes)."""
     head, rest = _SOURCE[name].split("(", 1)
     params, body = rest.split("):\n", 1)
     plist = [x.strip() for x in params.replace("\n", " ").split(",") if x.strip()]
     drop = []
-    while plist[len(drop)] in fns:
+    while not keep and plist[len(drop)] in fns:
         drop.append(plist[len(drop)])
     if dims is not None:
         n, m, r, N = dims
@@ -119,7 +120,7 @@ def _bind(name, fns, dims):
                          ("    n = m0.shape[1]\n", f"    n = {n}\n"), ("    r = Q.shape[0]\n", f"    r = {r}\n"),
                          ("    N = z.shape[0]\n", f"    N = {N}\n" if N is not None else "    N = z.shape[0]\n")):
             body = body.replace(old, new, 1)
-    missing = [a for a in FUNCTION_ARGS.get(name, ()) if a not in drop]
+    missing = [a for a in FUNCTION_ARGS.get(name, ()) if a not in (plist if keep else drop)]
     if missing:  # pragma: no cover - a guard on this package's own code
         raise RuntimeError(f"steps: {name} does not start with {missing}")
     return head + "(" + ", ".join(plist[len(drop):]) + "):\n" + body
@@ -175,7 +176,29 @@ unused_trace = _inner(unused_trace_)
 """
 
 
-def _flat(kind: str, fns: dict, dims) -> list:
+def loop_functions(kind: str, scalar: bool = False) -> tuple:
+    """The model's function slots a model-free loop of rule ``kind`` takes first, in order
+    (:mod:`.template`): those of its predict kernel, then its update kernel's new ones."""
+    if scalar:
+        return FUNCTION_ARGS[loops.steps_scalar_.__name__]
+    names = [k.__name__ for k in rule_kernels.KERNELS_BY_KIND[kind]]
+    return tuple(dict.fromkeys(FUNCTION_ARGS[names[0]] + FUNCTION_ARGS[names[1]]))
+
+
+def _threaded(loop: str, kind: str) -> str:
+    """The loop template's source taking the model's functions first and passing each kernel its
+    own (the model-free loop, :mod:`.template`)."""
+    pred, upd = (FUNCTION_ARGS[k.__name__] for k in rule_kernels.KERNELS_BY_KIND[kind])
+    for old, new in ((f"def {loops.steps_.__name__}(", f"def {loops.steps_.__name__}({', '.join(loop_functions(kind))}, "),
+                     ("predict(m, P, ", f"predict({', '.join(pred)}, m, P, "),
+                     ("update(m, P, ", f"update({', '.join(upd)}, m, P, ")):
+        if loop.count(old) != 1:  # pragma: no cover - a guard on this package's own code
+            raise RuntimeError(f"steps: the loop template must call {old!r} once")
+        loop = loop.replace(old, new)
+    return loop
+
+
+def _flat(kind: str, fns: dict, dims, template: bool = False) -> list:
     """The parts of a specialized loop's module after the header: ``jacobi`` (rare, long: a call),
     the model's functions too large to inline, the predict and update kernels (:data:`_APART`) each
     a flat function of its own with the dimensions compiled in, and the loop calling them, every
@@ -185,7 +208,7 @@ def _flat(kind: str, fns: dict, dims) -> list:
     defs = {f.__name__[:-1]: _SOURCE[f.__name__] for mod in _KERNEL_MODULES + _KIND_MODULES.get(kind, ())
             for f in mod.SOURCES if f.__name__ != "jacobi_"}
     parts = [_SOURCE["jacobi_"], _jit_line("jacobi", "jacobi_")]
-    for arg, k in fns.items():
+    for arg, k in {} if template else fns.items():  # (model-free: the loop's parameters)
         if k is None:
             defs[arg] = _UNUSED_TRACE if arg in _TRACE_SLOTS else _UNUSED3
         elif k.inline:
@@ -193,8 +216,10 @@ def _flat(kind: str, fns: dict, dims) -> list:
         else:
             parts += [k.source, _jit_line(arg, k.name)]
     for role, f in zip(("predict", "update"), rule_kernels.KERNELS_BY_KIND[kind]):
-        defs[role] = _bind(f.__name__, fns, dims)
+        defs[role] = _bind(f.__name__, fns, dims, template)
     loop = _bind(loops.steps_.__name__, {"predict": None, "update": None}, dims)
+    if template:
+        loop = _threaded(loop, kind)
     text, made = flatten_apart(loop, defs, _APART + _APART_KIND.get(kind, ()) + _CALLED)
     for name, src in made.items():
         inline = {} if name.startswith(_CALLED) else {"forceinline": True}
@@ -202,17 +227,19 @@ def _flat(kind: str, fns: dict, dims) -> list:
     return parts + [text, _jit_line("steps", loops.steps_.__name__, cache=True)]
 
 
-def source(kind: str, fns: dict, scalar: bool = False, dims=None) -> str:
+def source(kind: str, fns: dict, scalar: bool = False, dims=None, template: bool = False) -> str:
     """The module text of the loop of rule ``kind`` (see :func:`steps`): one file holding all it
     runs — the kernels of :mod:`.path_linalg` and :mod:`.step_kernels`, the model's functions
     ``fns`` (``{arg name: Kernel}``; ``None`` for an unused Hessian slot), the kind's predict and
     update kernels with the model's functions bound as globals, and the loop, ``steps``, whose
-    machine code numba keeps on disk (``cache=True``; :mod:`.cache`)."""
+    machine code numba keeps on disk (``cache=True``; :mod:`.cache`). ``template``: the model-free
+    loop (:mod:`.template`): no model in the text, its functions the loop's first parameters
+    (:func:`loop_functions`), passed down to the kernels."""
     parts = [_HEADER.format(log2pi=step_kernels.LOG_2PI)]
     if dims is not None and not scalar:
-        return "\n\n".join(p.rstrip("\n") + "\n" for p in parts + _flat(kind, fns, dims))
+        return "\n\n".join(p.rstrip("\n") + "\n" for p in parts + _flat(kind, fns, dims, template))
     parts += _helpers(kind)
-    for arg, k in fns.items():
+    for arg, k in {} if template else fns.items():
         if k is None:
             parts.append(f"{arg} = {'unused_trace' if arg in _TRACE_SLOTS else 'unused3'}\n")
         else:
@@ -222,13 +249,15 @@ def source(kind: str, fns: dict, scalar: bool = False, dims=None) -> str:
     else:
         loop = loops.steps_.__name__
         for role, f in zip(("predict", "update"), rule_kernels.KERNELS_BY_KIND[kind]):
-            parts += [_bind(f.__name__, fns, dims), _jit_line(role, f.__name__, inline="always")]
-        fns = {"predict": None, "update": None}
-    parts += [_bind(loop, fns, dims), _jit_line("steps", loop, cache=True)]
+            parts += [_bind(f.__name__, fns, dims, template), _jit_line(role, f.__name__, inline="always")]
+    text = _bind(loop, {"predict": None, "update": None} if not scalar else fns, dims, template and scalar)
+    if template and not scalar:
+        text = _threaded(text, kind)
+    parts += [text, _jit_line("steps", loop, cache=True)]
     return "\n\n".join(p.rstrip("\n") + "\n" for p in parts)
 
 
-def loop_of(flt, B: int | None = None):
+def loop_of(flt, B: int | None = None, one_path: bool = False):
     """``(kind, fns, scalar, dims, key)``: the loop that runs ``flt`` on ``B`` paths (:func:`steps`'
     arguments): its rule kind, the model's functions (:mod:`.kernels`, generated once per model),
     whether it is the scalar batch loop (the EKF on one state, measurement and noise; the KF on one
@@ -243,7 +272,8 @@ def loop_of(flt, B: int | None = None):
     only the other of the two is in this process already (compiled or loaded by an earlier run):
     that one, so that a process compiles one loop per model (the loaded one costs at most 1.5× the
     time per path-step of the other at n = 4 from 8 paths, 3.3× on one path; a compile costs
-    5-30 s). ``B`` None: a batch of any size (the batch-inner loop where the rule has one)."""
+    5-30 s). ``B`` None: a batch of any size (the batch-inner loop where the rule has one);
+    ``one_path``: never the batch-inner loop (the model-free loops, :mod:`.template`)."""
     md = flt.model
     n, mdim, r = md.n, md.m, md.r
     kind = rule_kind(flt)
@@ -273,7 +303,7 @@ def loop_of(flt, B: int | None = None):
                            "hxt": "h_xxtr", "G": "G"},
             "cd-nodes": {"f": "f", "h": "h", "G": "G"}}[kind]
     fns = {a: fns.get(w) for a, w in args.items()}
-    if batch_loop.serves(kind, n, mdim):  # the batch-inner loop (the model's functions over blocks too)
+    if batch_loop.serves(kind, n, mdim) and not one_path:  # the batch-inner loop (the model's functions over blocks too)
         wide = batch_loop.dims_of(n, mdim, r)
         batch = B is None or B >= batch_loop.paths_from(n, dims is not None)
         if B is not None and not loaded(kind, fns, key, False, wide if batch else dims):

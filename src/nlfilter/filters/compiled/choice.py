@@ -38,7 +38,8 @@ from typing import NamedTuple
 
 from .support import CD_KINDS, static_refusal
 
-__all__ = ["Choice", "choose", "numpy_seconds", "COMPILE_SECONDS", "LOAD_SECONDS", "LOADED_SECONDS", "STEP_US",
+__all__ = ["Choice", "choose", "numpy_seconds", "shared_tally", "COMPILE_SECONDS", "FIRST_COMPILE_SECONDS", "FUNCTION_SECONDS",
+           "FULL_GAIN", "LOAD_SECONDS", "LOADED_SECONDS", "STEP_US",
            "PATH_STEP_US", "PER_SUBSTEP"]
 
 #: the NumPy loop's cost per step, µs (one trajectory: its Python overhead), by rule kind
@@ -78,6 +79,15 @@ PER_SUBSTEP = CD_KINDS
 #: 16-28 s before — see :func:`~.build.loop_of`); the continuous Itô loop (specialized, or general past n = 4): 6.1 s
 #: at n = 1, ~8 s at n = 2 (general: ~10 s), loaded
 COMPILE_SECONDS = {"scalar": 2.0, "specialized": 10.0, "general": 10.0, "batch": 15.0}
+#: the model-free loops (:mod:`.template`): numba's first compile in a process (its compiler's
+#: set-up), and then each of the model's functions compiled alone, CPU seconds (a 4-state chain:
+#: five functions in 0.85 s, loaded machine)
+FIRST_COMPILE_SECONDS = 0.35
+FUNCTION_SECONDS = 0.1
+#: the model's own loop's speed over the model-free loop's, per path-step: one path (1.0-1.4×,
+#: the calls of the model's functions through their addresses) and the EKF's batch-inner loop
+#: (the model-free loop runs one path at a time), by :func:`~.batch_loop.is_batch`
+FULL_GAIN = {False: 1.25, True: 2.0}
 #: a cached loop's first run in a new process (numba's import, reading its code), seconds
 LOAD_SECONDS = 1.0
 #: the same once numba is imported in the process (reading the loop's code)
@@ -110,24 +120,70 @@ def choose(flt, B: int, T: int, repeats: int = 1, record: bool = False) -> Choic
     if build.loaded(kind, fns, key, scalar, dims):
         return Choice("numba", "the compiled loop is loaded in this process")
     store = build.KERNELS.setdefault(key, {})
+    batch = batch_loop.is_batch(dims)
+    compile_s = COMPILE_SECONDS["scalar" if scalar else "general" if dims is None else "batch" if batch else "specialized"]
+    shared = None if kind == "kalman" else _shared(flt, B)
+    if shared is not None and shared[1]():  # the model-free loop, ready to run
+        saved = store.get(shared_tally(kind), 0.0) * (1.0 - 1.0 / FULL_GAIN[batch])
+        if saved < compile_s:
+            return Choice("numba-shared", "the model-free loop and the model's functions are loaded in this process")
+        return Choice("numba", f"the time the model's own loop would have saved on the model-free loop's runs "
+                               f"(~{saved:.2g} s) repays its compile (~{compile_s:g} s)")
     tally = ("numpy seconds", build.loop_name(kind, fns, scalar, dims))
     work = numpy_seconds(kind, flt.model.n, B, T, repeats) * (flt.substeps if kind in PER_SUBSTEP else 1)
     spent = store.get(tally, 0.0) + work  # with this run's: what this loop would have saved in the process
-    compile_s = COMPILE_SECONDS["scalar" if scalar else "general" if dims is None else
-                                "batch" if batch_loop.is_batch(dims) else "specialized"]
     load_s = LOADED_SECONDS if "numba" in sys.modules else LOAD_SECONDS
     if spent >= load_s:  # numba imported only where the compiled loop is taken (its import: ~0.1 s)
-        repaid = spent >= compile_s
-        if repaid or cache.ready(*build.text_of(kind, fns, scalar, dims)) is not None:
+        got = _got(spent, compile_s, load_s, batch, cache.ready(*build.text_of(kind, fns, scalar, dims)) is not None,
+                   shared)
+        if got is not None:
             from .support import available
-            if not available():
-                return Choice("numpy", "numba does not import here")
-            if repaid:
-                return Choice("numba", f"the NumPy loop's time (~{spent:.2g} s, this run's and earlier runs') repays "
-                                       f"the compile (~{compile_s:g} s)")
-            return Choice("numba", "the compiled loop is in the disk cache")
+            return got if available() else Choice("numpy", "numba does not import here")
     if record:
         store[tally] = spent
     if spent < load_s:
         return Choice("numpy", f"a short run (NumPy loop ~{work:.2g} s; ~{spent:.2g} s in this process)")
     return Choice("numpy", f"the compile (~{compile_s:g} s) costs more than the NumPy loop (~{spent:.2g} s so far)")
+
+
+def _got(spent, compile_s, load_s, batch, own, shared):
+    """The compiled loop a run that has repaid the cost of loading numba takes (the NumPy loop's
+    time ``spent``), or None: the model's own loop on disk; the model-free loop on disk once its
+    model's functions are repaid; else, repaid by ``spent``, a compile: of the model-free loop where
+    the model's own loop would be a one-path loop (then every later model of its shape is a matter
+    of its functions), of the model's own loop where it is the batch-inner one (``batch``: 2× the
+    model-free loop's speed)."""
+    if own:
+        return Choice("numba", "the compiled loop is in the disk cache")
+    where = shared[2]() if shared is not None else (None, None)
+    functions_s = 0.0 if where[1] else FIRST_COMPILE_SECONDS + FUNCTION_SECONDS * shared[0] if shared else 0.0
+    if where[0] is not None and spent >= load_s + functions_s:
+        return Choice("numba-shared", f"the NumPy loop's time (~{spent:.2g} s) repays the model's functions "
+                                      f"(~{load_s + functions_s:.2g} s) on the model-free loop, ready on disk")
+    if spent < compile_s:
+        return None
+    if shared is not None and not batch:  # (its compile and the model's own loop's: alike, ±5 %)
+        return Choice("numba-shared", f"the NumPy loop's time (~{spent:.2g} s, this run's and earlier runs') repays the "
+                                      f"compile of the model-free loop (~{compile_s:g} s), kept for every model of "
+                                      "this rule and shape")
+    return Choice("numba", f"the NumPy loop's time (~{spent:.2g} s, this run's and earlier runs') repays "
+                           f"the compile (~{compile_s:g} s)")
+
+
+def shared_tally(kind: str) -> tuple:
+    """The key, in the model's kernel store, of the seconds its runs spent on the model-free loop of
+    rule ``kind`` (:func:`~.run.run_shared` adds them)."""
+    return ("shared seconds", kind)
+
+
+def _shared(flt, B):
+    """``(number of the model's functions, loaded(), ready())`` of the model-free loop that would
+    run ``flt``: whether it is in this process with the model's functions (:func:`.template.loaded`),
+    and where each is without compiling (:func:`.template.ready`: writes the loop's text, 0.1-0.6 s
+    once per process; asked of runs past the cost of loading numba only)."""
+    from . import build, template
+
+    kind, fns, scalar, dims, key = build.loop_of(flt, B, one_path=True)
+    slots = {s: fns[s] for s in build.loop_functions(kind, scalar)}
+    return (len(slots), lambda: template.loaded(kind, slots, key, scalar, dims),
+            lambda: template.ready(kind, slots, key, scalar, dims))

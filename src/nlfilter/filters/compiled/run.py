@@ -6,6 +6,8 @@ loop would.
 
 from __future__ import annotations
 
+import functools
+import time
 from types import MappingProxyType
 
 import numpy as np
@@ -15,15 +17,16 @@ from ..estimates import Estimates
 from ..linalg import PSD_TOL, mm, symmetrize
 from ..recorder import loglik_divergence
 from ..rules import FORM_TABLE
-from . import batch_loop, build
+from . import batch_loop, build, template
 from .cache import seal
 from .cd_kernels import constants as cd_constants
 from .kalman_loop import matrices, scalar_parameters
 from .loops import alloc_path
 from .rule_kernels import ALLOC
-from .support import unsupported
+from .choice import shared_tally
+from .support import rule_kind, unsupported
 
-__all__ = ["run_compiled", "finish"]
+__all__ = ["run_compiled", "run_shared", "finish"]
 
 _KIND = {"none": 0, "-quarter": 1, "gaussian": 2}
 _FORCE = {"none": 0, "truncated": 1, "gaussian": 2}
@@ -42,10 +45,11 @@ def _plain(a):
     return a if a.flags.c_contiguous and a.flags.writeable else np.array(a, dtype=float, order="C")
 
 
-def run_compiled(flt, yf, batch, m0, P0, on, loglik, progress=False):
+def run_compiled(flt, yf, batch, m0, P0, on, loglik, progress=False, shared=False):
     """:meth:`Filter.run` of ``flt`` on ``yf (B, T, m)`` by the compiled loop: the same
     :class:`~nlfilter.filters.estimates.Estimates` (path-major ``(B, T, ...)``, reshaped to ``batch``);
-    ``progress``: a bar over blocks of paths."""
+    ``progress``: a bar over blocks of paths; ``shared``: the model-free loop of the rule kind and
+    dimensions, the model's functions passed to it (:mod:`.template`; ``backend="numba-shared"``)."""
     reason = unsupported(flt)
     if reason is not None:
         raise TypeError(f"backend: 'numba' cannot run {type(flt).__name__} here: {reason}; use backend='numpy'")
@@ -57,19 +61,43 @@ def run_compiled(flt, yf, batch, m0, P0, on, loglik, progress=False):
                            "backend='numpy'")
     from numba.core.errors import TypingError
     try:
-        return _run(flt, yf, batch, m0, P0, on, loglik, progress)
+        return _run(flt, yf, batch, m0, P0, on, loglik, progress, shared)
     except TypingError as exc:  # a function of the model numba cannot compile
         raise CompileError(f"backend: numba cannot compile {type(flt).__name__} on this model "
                            f"({str(exc).splitlines()[0]}); use backend='numpy'") from exc
 
 
-def _run(flt, yf, batch, m0, P0, on, loglik, progress):
+def run_shared(flt, yf, batch, m0, P0, on, loglik, progress=False):
+    """:func:`run_compiled` on the model-free loop (``backend="numba-shared"``, :mod:`.template`);
+    its time is added to the model's tally (:func:`.choice.shared_tally`: the automatic backend
+    moves to the model's own loop once that would have repaid its compile)."""
+    start = time.perf_counter()
+    est = run_compiled(flt, yf, batch, m0, P0, on, loglik, progress, shared=True)
+    store = build.KERNELS.setdefault(flt.model._kernels["f"], {})
+    tally = shared_tally(rule_kind(flt))
+    store[tally] = store.get(tally, 0.0) + time.perf_counter() - start
+    return est
+
+
+def _loop(flt, B, shared):
+    """``(kind, loop, scalar, dims, entries)``: the compiled loop that runs ``flt`` on ``B`` paths
+    (``shared``: the model-free one, its first arguments, the model's functions, bound)."""
+    kind, fns, scalar, dims, key = build.loop_of(flt, B, one_path=shared)
+    if not shared or kind == "kalman":  # (the Kalman loop is model-free already: its matrices are data)
+        steps, entry = build.steps(kind, fns, key, scalar=scalar, dims=dims)
+        return kind, steps, scalar, dims, (entry,)
+    steps, entry = template.loop(kind, scalar, dims)
+    fargs, fentry = template.functions({s: fns[s] for s in build.loop_functions(kind, scalar)}, key, scalar)
+    return kind, functools.partial(steps, *fargs), scalar, dims, (entry, fentry)
+
+
+def _run(flt, yf, batch, m0, P0, on, loglik, progress, shared=False):
     """:func:`run_compiled` after its checks (a TypingError: the model's functions do not compile)."""
     md = flt.model
     B, T, mdim = yf.shape
     n = md.n
     prior = flt.init(m0, P0, batch)
-    kind, fns, scalar, dims, key = build.loop_of(flt, B)
+    kind, steps, scalar, dims, entries = _loop(flt, B, shared)
     sqrt = kind in build.SQRT_KINDS  # the loop's P holds the factor S (P = S Sᵀ)
     mean0 = _plain(prior.mean).reshape(B, n)
     cov0 = _plain(prior.factor if sqrt else prior.cov).reshape(B, n, n)
@@ -83,7 +111,6 @@ def _run(flt, yf, batch, m0, P0, on, loglik, progress):
     inn = np.empty((B, T, mdim) if want else (0, 0, 0))
     icov = np.empty((B, T, mdim, mdim) if want else (0, 0, 0, 0))
     step = np.full(B, -1, np.int64)
-    steps, entry = build.steps(kind, fns, key, scalar=scalar, dims=dims)
     R = _plain(md.R)
     if kind == "kalman":  # the model's matrices as data (F, b, H, d, G Q Gᵀ): no code per model
         ks = matrices(flt, T + offset)
@@ -93,7 +120,7 @@ def _run(flt, yf, batch, m0, P0, on, loglik, progress):
             nil = np.empty((0, 0))  # p, Q, GQG0: read by the rule kernels only
             steps(ys, mean0, cov0, np.empty(0), nil, R, nil, False, offset, absent, PSD_TOL, means, covs, ll, inn, icov,
                   want, step, ks, ALLOC[kind](n, mdim), *alloc_path(n, mdim))
-            seal(entry)
+            _seal(entries)
             return finish(flt, on, step, batch, means, covs, want, ll, inn, icov)
         p, Q, GQG0, G_const = scalar_parameters(ks)  # the scalar batch loop's f, h, G read the matrices in p
     else:
@@ -107,7 +134,7 @@ def _run(flt, yf, batch, m0, P0, on, loglik, progress):
         sll, sinn, sicov = (np.empty((T, B)), np.empty((T, B)), np.empty((T, B))) if want else (ll, ll, ll)
         steps(ys, mean0, cov0, p, Q, R, GQG0, G_const, offset, absent, PSD_TOL, outm, outP, sll, sinn, sicov, want,
               step, np.empty(B), np.empty(B))
-        seal(entry)
+        _seal(entries)
         means, covs = outm.T[:, :, None], outP.T[:, :, None, None]  # (B, T, 1) views
         if want:
             ll, inn, icov = sll.T, sinn.T[:, :, None], sicov.T[:, :, None, None]
@@ -154,10 +181,15 @@ def _run(flt, yf, batch, m0, P0, on, loglik, progress):
             block(lo, min(B, lo + size))
     else:
         block(0, B)
-    seal(entry)
+    _seal(entries)
     if sqrt:  # what the square-root filters report: S Sᵀ, symmetrized (their summary)
         covs = symmetrize(mm(covs, covs.swapaxes(-1, -2)))
     return finish(flt, on, step, batch, means, covs, want, ll, inn, icov)
+
+
+def _seal(entries):
+    for entry in entries:
+        seal(entry)
 
 
 def finish(flt, on, step, batch, means, covs, want, ll, inn, icov):

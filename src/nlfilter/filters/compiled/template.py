@@ -1,0 +1,129 @@
+"""The model-free loops: the loop of a rule kind compiled once for every model of its dimensions,
+the model's functions passed to it as compiled function pointers.
+
+A loop of :mod:`.build` holds the model's functions in its text (the loop, its kernels and f, h,
+G and their derivatives compiled as one: LLVM inlines the model into the loop), so a new model is
+a new compile of the whole loop — 3-15 s of CPU. Here the same text is made without them
+(:func:`.build.source` with ``template=True``): the model's functions are parameters of the loop
+(``steps(f, fx, G, h, hx, ys, ...)``), passed down to the predict and update kernels, and called
+through their addresses. That loop's text depends only on the rule kind, the dimensions compiled
+in and which of the model's function slots exist, so its disk-cache entry (:mod:`.cache`) serves
+every model of that shape: compiled once per installation, loaded in about 0.1-0.3 s after. The
+model's functions are compiled alone (:func:`functions`: numba ``cfunc``, a few hundredths of a
+second each, kept on disk too), each with the fixed signature of its slot (:data:`SIGNATURES`), so
+that numba types every model's function alike and never compiles the loop again.
+
+The arithmetic is the loop's: the same kernels, the same order; a call through a pointer instead
+of the inlined function changes no operation, so the numbers are the model-specific loop's, bit
+for bit (tested). The price is the calls (no inlining of f, h into the loop) and, on small models,
+the constant-folding of the model's structural zeros: 1.0-1.5× the model-specific loop's time per
+path-step (``benchmarks/bench_compile.py``).
+"""
+
+from __future__ import annotations
+
+import functools
+
+__all__ = ["SIGNATURES", "functions", "function_text", "loaded", "loop", "ready", "text"]
+
+_VEC = "void(float64[::1], float64, float64[::1], float64[::1])"
+_MAT = "void(float64[::1], float64, float64[::1], float64[:, ::1])"
+_TEN = "void(float64[::1], float64, float64[::1], float64[:, :, ::1])"
+_TRACE = "void(float64[::1], float64, float64[::1], float64[:, ::1], float64[::1])"
+_SCALAR = "float64(float64, float64, float64[::1])"
+
+#: the signature of each of the model's function slots (:data:`.build.FUNCTION_ARGS`): ``fn(x (n,),
+#: t, p, out)`` writing ``out`` (f, h: a vector; f_x, h_x, G: a matrix; f_xx, h_xx: a 3-tensor), the
+#: contractions ``fn(x, t, p, P, out)``; the scalar batch loop's ``fn(x, t, p) -> float``
+SIGNATURES = {"f": _VEC, "h": _VEC, "fx": _MAT, "hx": _MAT, "G": _MAT, "fxx": _TEN, "hxx": _TEN,
+              "fxt": _TRACE, "hxt": _TRACE}
+
+_HEADER = """# nlfilter: a model's functions for the model-free loops, generated
+# (nlfilter.filters.compiled.template); not to be edited.
+import math
+
+import numpy as np
+from numba import cfunc
+
+
+def _cfunc(sig, fn):
+    return cfunc(sig, error_model="numpy", cache=True)(fn)
+"""
+
+
+def function_text(fns: dict, scalar: bool = False) -> str:
+    """The module text of the model's functions ``fns`` (``{slot: Kernel}``, None for an unused
+    Hessian slot: a no-op of the slot's signature), each compiled as a ``cfunc`` named by its slot
+    with the slot's signature (``scalar``: the scalar batch loop's)."""
+    parts = [_HEADER]
+    for slot, k in fns.items():
+        sig = _SCALAR if scalar else SIGNATURES[slot]
+        if k is None:
+            params = "x, t, p, P, out" if slot in ("fxt", "hxt") else "x, t, p, out"
+            parts.append(f"def unused_{slot}({params}):\n    pass\n\n\n{slot} = _cfunc({sig!r}, unused_{slot})\n")
+        else:
+            parts.append(f"{k.source.rstrip()}\n\n\n{slot} = _cfunc({sig!r}, {k.name})\n")
+    return "\n\n".join(p.rstrip("\n") + "\n" for p in parts)
+
+
+def functions(fns: dict, key, scalar: bool = False) -> tuple:
+    """``(cfuncs in the order of fns, cache entry)``: the model's functions compiled (or loaded from
+    the disk cache) once per model in a process (``key``: its kernel store,
+    :data:`~.kernels.KERNELS`)."""
+    from .cache import load_source, seal
+    from .kernels import KERNELS
+
+    store = KERNELS.setdefault(key, {})
+    name = _name(fns, scalar)
+    if name not in store:
+        module, entry = load_source(function_text(fns, scalar), "functions")
+        seal(entry)  # (a cfunc compiles when it is made: its files are written)
+        store[name] = (tuple(getattr(module, slot) for slot in fns), entry)
+    return store[name]
+
+
+_LOOPS: dict = {}  # (kind, scalar, dims) -> (loop, cache entry), this process
+
+
+@functools.lru_cache(maxsize=64)
+def text(kind: str, scalar: bool = False, dims=None) -> tuple:
+    """``(module text, cache tag)`` of the model-free loop of rule ``kind`` (:func:`.build.source`
+    with ``template=True``): the same for every model of that kind, shape and dimensions compiled
+    in. Made once per process (a specialized loop's text takes 0.1-0.6 s to write)."""
+    from .build import source
+
+    return source(kind, {}, scalar, dims, template=True), f"{kind}{'-scalar' if scalar else ''}-template"
+
+
+def loop(kind: str, scalar: bool = False, dims=None) -> tuple:
+    """``(loop, cache entry)``: the model-free loop, compiled or loaded once per process."""
+    from .cache import load_source
+
+    name = (kind, scalar, dims)
+    if name not in _LOOPS:
+        module, entry = load_source(*text(kind, scalar, dims))
+        _LOOPS[name] = (module.steps, entry)
+    return _LOOPS[name]
+
+
+def loaded(kind: str, fns: dict, key, scalar: bool = False, dims=None) -> bool:
+    """Whether the model-free loop and the model's functions ``fns`` are in this process."""
+    from .kernels import KERNELS
+
+    return (kind, scalar, dims) in _LOOPS and _name(fns, scalar) in KERNELS.get(key, {})
+
+
+def ready(kind: str, fns: dict, key, scalar: bool = False, dims=None) -> tuple:
+    """``(loop, functions)``: where the model-free loop and the model's functions are without
+    compiling, each ``"process"``, ``"disk"`` or None (:func:`.cache.ready`). Imports nothing."""
+    from .cache import ready as on_disk
+    from .kernels import KERNELS
+
+    here = (kind, scalar, dims) in _LOOPS
+    done = _name(fns, scalar) in KERNELS.get(key, {})
+    return ("process" if here else on_disk(*text(kind, scalar, dims)),
+            "process" if done else on_disk(function_text(fns, scalar), "functions"))
+
+
+def _name(fns, scalar):
+    return ("cfuncs", tuple(fns), scalar, tuple(k is None for k in fns.values()))

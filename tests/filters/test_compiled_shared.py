@@ -1,0 +1,174 @@
+"""The model-free loops (``backend="numba-shared"``, :mod:`nlfilter.filters.compiled.template`): the
+loop of a rule kind compiled once for every model of its shape, the model's functions passed to it
+by address.
+
+Tolerances: against the model's own compiled loop, none — the same kernels in the same order, a
+call through a pointer instead of an inlined function: the same bits (``array_equal``, NaN where
+NaN). Against the NumPy loop, the compiled loop's 1e-12 relative (tests/filters/test_compiled.py
+states why). The loops compile once per rule kind and shape for the whole test session.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import sympy as sp
+
+from nlfilter import DiscreteModel
+from nlfilter.filters import compiled
+from nlfilter.filters.compiled import build, cache, choice, template
+from nlfilter.filters.ekf import EKF, IteratedEKF
+from nlfilter.filters.kalman import KalmanFilter
+from nlfilter.filters.second_order import SecondOrderFilter
+from nlfilter.filters.ukf import UKF
+from nlfilter.simulate import simulate
+
+pytestmark = [pytest.mark.skipif(not compiled.available(), reason="numba does not import"),
+              pytest.mark.filterwarnings("error:Cannot cache compiled function")]
+
+RTOL = 1e-12
+x1, x2, a = sp.symbols("x1 x2 a")
+
+
+def two_state(c=0.9):
+    """Two states, two measurements, a parameter and a G that depends on the state."""
+    f = [c * x1 + 0.1 * sp.sin(x2), a * x2 - 0.05 * x1 * x2]
+    h = [x1 + 0.1 * x2**2, sp.atan(x2)]
+    G = [[1.0, 0.0], [0.1 * x1, 1.0]]
+    return DiscreteModel([x1, x2], f, h, G, Q=[[0.02, 0.005], [0.005, 0.01]], R=[[0.1, 0.02], [0.02, 0.2]],
+                         params={a: 0.8})
+
+
+def five_state():
+    """A 5-state turn-rate tracking model (past the specialized sizes: the general loop)."""
+    px, py, vx, vy, w = sp.symbols("px py vx vy w")
+    dt = 0.1
+    f = [px + dt * vx, py + dt * vy, vx * sp.cos(w * dt) - vy * sp.sin(w * dt), vx * sp.sin(w * dt) + vy * sp.cos(w * dt), w]
+    return DiscreteModel([px, py, vx, vy, w], f=f, h=[sp.sqrt(px**2 + py**2 + 1), sp.atan2(py, px + 3)],
+                         Q=np.diag([1e-4, 1e-4, 1e-2, 1e-2, 1e-3]), R=np.diag([0.01, 0.001]))
+
+
+def data(md, B=6, T=40, seed=0):
+    """Simulated data with what the loops must handle alike: a step measured on no path, a partly
+    measured step, and a path whose data of 1e200 makes it diverge (marked)."""
+    ys = simulate(md, T, paths=B, rng=seed, m0=np.full(md.n, 0.3), P0=0.5 * np.eye(md.n)).ys.copy()
+    ys[:, 7] = np.nan
+    ys[1, 11, 0] = np.nan
+    ys[2, 20:] = 1e200
+    return ys
+
+
+def run(flt, ys, backend, start=None):
+    m0 = np.full(flt.model.n, 0.3)
+    return flt.run(ys, m0, 0.5 * np.eye(flt.model.n), loglik=True, on_divergence="mark", backend=backend)
+
+
+def same(e1, e2):
+    for name in ("means", "covs", "diverged", "diverged_step"):
+        assert np.array_equal(getattr(e1, name), getattr(e2, name), equal_nan=True), name
+    for name in ("loglik", "innovation", "innovation_cov"):
+        assert np.array_equal(e1.extras[name], e2.extras[name], equal_nan=True), name
+
+
+def close(e1, e2):
+    ok = ~e1.diverged
+    assert np.array_equal(e1.diverged, e2.diverged) and np.array_equal(e1.diverged_step, e2.diverged_step)
+    for a1, a2 in ((e1.means, e2.means), (e1.covs, e2.covs), (e1.extras["loglik"], e2.extras["loglik"])):
+        a1, a2 = a1[ok], a2[ok]
+        assert np.all(np.abs(a1 - a2) <= RTOL * np.maximum(1.0, np.abs(a1)))
+
+
+def test_the_model_free_loop_gives_the_models_own_loops_bits():
+    """EKF, 2 states: the model's own (specialized) loop and the model-free one, bit for bit —
+    missing steps, a partly missing step, a diverging path, the likelihood; then a second model of
+    the same shape (another coefficient) runs on the same loop object, compiling only its functions,
+    and agrees with the NumPy loop."""
+    md = two_state()
+    ys = data(md)
+    flt = EKF(md)
+    shared = run(flt, ys, "numba-shared")
+    same(run(flt, ys, "numba"), shared)
+    assert shared.diverged[2] and not shared.diverged[0]
+    kind, fns, scalar, dims, key = build.loop_of(flt, 6, one_path=True)
+    loops = dict(template._LOOPS)
+    other = EKF(two_state(0.7))
+    close(run(other, ys, "numpy"), run(other, ys, "numba-shared"))
+    assert template._LOOPS == loops  # the same loop, not another compile
+    slots = {s: fns[s] for s in build.loop_functions(kind, scalar)}
+    assert template.loaded(kind, slots, key, scalar, dims)
+    # the loop's text holds no model: two models of the shape share it, and its cache entry
+    text, tag = template.text(kind, scalar, dims)
+    assert "atan" not in text and "sin(" not in text and tag == "taylor1-template"
+
+
+def test_the_scalar_loop_and_the_time_convention():
+    """The scalar batch loop (the EKF on one state): bit for bit its own loop's, both starts."""
+    x = sp.Symbol("x")
+    md = DiscreteModel([x], f=[0.9 * x + 0.2 * sp.sin(x)], h=[x**3], Q=0.1, R=0.2)
+    ys = data(md)
+    for start in ("update", "predict"):
+        flt = EKF(md, start=start)
+        same(run(flt, ys, "numba"), run(flt, ys, "numba-shared"))
+
+
+def test_the_node_rule_on_a_five_state_model_and_the_smoother():
+    """The UKF on a 5-state tracking model (the general loop), and its smoother, as the NumPy loop."""
+    md = five_state()
+    ys = simulate(md, 30, paths=3, rng=1, m0=np.array([1.0, 0.5, 0.2, 0.1, 0.3]), P0=0.01 * np.eye(5)).ys
+    flt = UKF(md)
+    m0, P0 = np.array([1.0, 0.5, 0.2, 0.1, 0.3]), 0.01 * np.eye(5)
+    close(flt.run(ys, m0, P0, loglik=True, backend="numpy"), flt.run(ys, m0, P0, loglik=True, backend="numba-shared"))
+    s1, s2 = flt.smooth(ys, m0, P0, backend="numpy"), flt.smooth(ys, m0, P0, backend="numba-shared")
+    assert np.allclose(s1.means, s2.means, rtol=0, atol=RTOL * max(1.0, np.abs(s1.means).max()))
+
+
+def test_second_order_forms_share_one_loop():
+    """The Taylor-2 kind's loop takes the Hessians' slots as arguments: the first-order form (no
+    Hessians: no-op functions in their slots) and the Gaussian form run on one loop, as NumPy."""
+    x = sp.Symbol("x")
+    md = DiscreteModel([x], f=[0.95 * x + 0.1 * sp.cos(x)], h=[x + 0.2 * x**2], Q=0.05, R=0.1)
+    ys = data(md)
+    for form in ("first-order", "gaussian"):
+        flt = SecondOrderFilter(md, form=form)
+        close(run(flt, ys, "numpy"), run(flt, ys, "numba-shared"))
+    assert sum(k[0] == "taylor2" for k in template._LOOPS) == 1
+
+
+def test_what_the_model_free_loop_does_not_take_is_named():
+    """A filter the compiled loop does not take is refused by name; the Kalman filter's loop is
+    model-free already (its matrices are data) and runs as with ``backend="numba"``."""
+    md = two_state()
+    with pytest.raises(TypeError, match="backend.*numba-shared.*IteratedEKF"):
+        IteratedEKF(md).run(np.zeros((1, 5, 2)), np.zeros(2), np.eye(2), backend="numba-shared")
+    lin = DiscreteModel([x1, x2], [0.9 * x1 + 0.1 * x2, 0.8 * x2], [x1], Q=0.1 * np.eye(2), R=0.2)
+    ys = simulate(lin, 30, paths=2, rng=3, m0=np.zeros(2), P0=np.eye(2)).ys
+    kf = KalmanFilter(lin)
+    same(kf.run(ys, np.zeros(2), np.eye(2), loglik=True, backend="numba"),
+         kf.run(ys, np.zeros(2), np.eye(2), loglik=True, backend="numba-shared"))
+
+
+def test_the_automatic_tiers(tmp_path, monkeypatch):
+    """``backend="auto"`` (nothing compiled here: the rule reads the stores and the disk):
+    a model-free loop ready on disk serves a run that repays the model's functions only; loaded with
+    the model's functions, it serves every run; its runs' time, once the model's own loop would have
+    saved its compile on them, moves the model to its own loop."""
+    monkeypatch.setenv("NLFILTER_CACHE", str(tmp_path / "empty"))
+    monkeypatch.setattr(template, "_LOOPS", {})
+    monkeypatch.setattr(cache, "_MODULES", {})
+    flt = EKF(two_state(0.55))
+    kind, fns, scalar, dims, key = build.loop_of(flt, 1, one_path=True)
+    slots = {s: fns[s] for s in build.loop_functions(kind, scalar)}
+    assert template.ready(kind, slots, key, scalar, dims) == (None, None)
+    T = 40_000  # one path: NumPy ~2 s, past loading numba and the model's functions, short of a compile
+    assert choice.LOAD_SECONDS + choice.FIRST_COMPILE_SECONDS + choice.FUNCTION_SECONDS * len(slots) <= \
+        choice.numpy_seconds(kind, 2, 1, T) < choice.COMPILE_SECONDS["specialized"]
+    assert flt.backend_for(1, T)[0] == "numpy"
+    monkeypatch.setattr(template, "ready", lambda *a: ("disk", None))
+    backend, why = flt.backend_for(1, T)
+    assert backend == "numba-shared" and "ready on disk" in why, why
+    monkeypatch.setattr(template, "loaded", lambda *a: True)
+    assert flt.backend_for(1, 5)[0] == "numba-shared"
+    store = build.KERNELS.setdefault(key, {})
+    monkeypatch.setitem(store, choice.shared_tally(kind), choice.COMPILE_SECONDS["specialized"] / (1 - 1 / choice.FULL_GAIN[False]))
+    backend, why = flt.backend_for(1, 5)
+    assert backend == "numba" and "would have saved" in why, why
