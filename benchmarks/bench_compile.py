@@ -3,7 +3,9 @@ its first ``run(..., backend="numba")`` of a model (fresh process, empty ``NLFIL
 numba's import, the model's generated functions, the loop's compile), the loop's speed after it
 (µs per path-step, best of 5 runs), and a digest of its outputs — for this tree and, paired case
 by case, for an older commit (``--before``, default the commit before the flattened loops), so
-that "shorter compile, same speed, same numbers" is read off one run.
+that "shorter compile, same speed, same numbers" is read off one run. ``--shared`` adds the
+model-free loop (``backend="numba-shared"``): its first compile, and what a new model of the same
+shape pays in a new process once that loop is on disk (the model's functions only).
 
 Cases: the EKF on one state (the scalar batch loop), the EKF and UKF at n = 2 and n = 4 (the
 specialized loops: the dimensions compiled in; the EKF at n = 4 on 200 paths: the batch-inner
@@ -40,12 +42,13 @@ CHILD = textwrap.dedent("""
     from nlfilter.filters.ekf import EKF
     from nlfilter.filters.ukf import UKF
     name, n, B, T = sys.argv[1], int(sys.argv[2]), int(sys.argv[3]), int(sys.argv[4])
+    backend, c = sys.argv[5], float(sys.argv[6])
     xs = sp.symbols(f"x0:{n}")
-    f = [0.9 * xs[i] + 0.1 * sp.sin(xs[(i + 1) % n]) for i in range(n)]
+    f = [c * xs[i] + 0.1 * sp.sin(xs[(i + 1) % n]) for i in range(n)]
     h = [xs[0] ** 2 / 5 + xs[-1]] if n > 1 else [xs[0] ** 3]
     md = DiscreteModel(list(xs), f=f, h=h, Q=0.1 * np.eye(n), R=0.2)
     flt = {"EKF": EKF, "UKF": UKF}[name](md)
-    run = lambda ys: flt.run(ys, np.zeros(n), np.eye(n), backend="numba", loglik=True, on_divergence="mark")
+    run = lambda ys: flt.run(ys, np.zeros(n), np.eye(n), backend=backend, loglik=True, on_divergence="mark")
     ys = np.random.default_rng(1).normal(size=(B, T, 1))
     c0 = time.process_time()
     run(np.ascontiguousarray(ys[:, :5]))  # the case's paths: the loop its run takes (the EKF's depends on B)
@@ -63,14 +66,19 @@ CHILD = textwrap.dedent("""
 """)
 
 
-def one(case: str, src: str) -> dict:
-    """The child's numbers for ``case`` with nlfilter imported from ``src``."""
+def one(case: str, src: str, backend: str = "numba", models=(0.9,)) -> list:
+    """The child's numbers for ``case`` with nlfilter imported from ``src``, one fresh process per
+    model of ``models`` (the chain's coefficient: the same shape, another model) in turn, all with
+    one cache folder (empty at the first)."""
     name, n, B, T = CASES[case]
+    got = []
     with tempfile.TemporaryDirectory(prefix="nlfilter-bench-compile-") as cache:
         env = {**os.environ, "NLFILTER_CACHE": cache, "PYTHONPATH": src}
-        out = subprocess.run([sys.executable, "-c", CHILD, name, str(n), str(B), str(T)], env=env, capture_output=True,
-                             text=True, check=True, timeout=1800)
-    return json.loads(out.stdout.strip().splitlines()[-1])
+        for c in models:
+            out = subprocess.run([sys.executable, "-c", CHILD, name, str(n), str(B), str(T), backend, repr(c)], env=env,
+                                 capture_output=True, text=True, check=True, timeout=1800)
+            got.append(json.loads(out.stdout.strip().splitlines()[-1]))
+    return got
 
 
 def tree_of(commit: str, into: str) -> str:
@@ -85,15 +93,24 @@ def main(argv=None):
     ap.add_argument("--cases", nargs="*", default=list(CASES), choices=list(CASES))
     ap.add_argument("--before", default=BEFORE, help="the commit paired with this tree ('' for none)")
     ap.add_argument("--label", default="default")
+    ap.add_argument("--shared", action="store_true",
+                    help="also the model-free loop (backend='numba-shared'): its first compile (an empty cache), then "
+                         "a new model of the same shape in a new process (its loop on disk: the model's functions only)")
     args = ap.parse_args(argv)
     ours = os.path.join(os.path.dirname(HERE), "src")
     rows = []
     with tempfile.TemporaryDirectory(prefix="nlfilter-bench-before-") as tmp:
         before = tree_of(args.before, tmp) if args.before else None
         for case in args.cases:
-            row = {"case": case, "after": one(case, ours)}
+            row = {"case": case, "after": one(case, ours)[0]}
+            if args.shared:
+                cold, warm = one(case, ours, "numba-shared", (0.9, 0.8))
+                row["shared"] = {"first": cold, "new_model": warm}
+                print(f"{case:10s} numba-shared: first compile {cold['compile_cpu_s']:6.2f} s CPU, a new model of its "
+                      f"shape {warm['compile_cpu_s']:6.2f} s, {warm['us_per_path_step']:.3f} µs/path-step; same bits as "
+                      f"its own loop: {cold['outputs_sha256'] == row['after']['outputs_sha256']}", flush=True)
             if before:
-                row["before"] = b = one(case, before)
+                row["before"] = b = one(case, before)[0]
                 a = row["after"]
                 row.update(compile_ratio=b["compile_cpu_s"] / a["compile_cpu_s"],
                            speed_ratio=b["us_per_path_step"] / a["us_per_path_step"],

@@ -172,3 +172,29 @@ def test_the_automatic_tiers(tmp_path, monkeypatch):
     monkeypatch.setitem(store, choice.shared_tally(kind), choice.COMPILE_SECONDS["specialized"] / (1 - 1 / choice.FULL_GAIN[False]))
     backend, why = flt.backend_for(1, 5)
     assert backend == "numba" and "would have saved" in why, why
+
+
+def _others():
+    """The kinds with kernels of their own, on the models their own tests compile (the same
+    expressions: the same cache entries): ``(filter, ys, m0, P0)``."""
+    from nlfilter.filters.ekf import ContinuousDiscreteEKF, ContinuousEKF
+    from nlfilter.filters.square_root_filters import SquareRootUKF
+    from tests.filters import test_compiled_cd, test_compiled_ito, test_compiled_sqrt
+
+    cd = test_compiled_cd.pendulum.__wrapped__()
+    ito = test_compiled_ito.sensor.__wrapped__()
+    sq = test_compiled_sqrt.data.__wrapped__()
+    return {"cd-taylor1": (ContinuousDiscreteEKF(cd[0], test_compiled_cd.DT, substeps=2), cd[3], cd[1], cd[2]),
+            "ito": (ContinuousEKF(ito[0], test_compiled_ito.DT), ito[1], [0.1], [[1.0]]),
+            "sqrt-nodes": (SquareRootUKF(sq[0]), sq[1], test_compiled_sqrt.M0, test_compiled_sqrt.P0)}
+
+
+@pytest.mark.parametrize("kind", ["cd-taylor1", "ito", "sqrt-nodes"])
+def test_the_other_kinds_give_their_own_loops_bits(kind):
+    """The continuous-discrete, continuous Itô and square-root kinds (the Itô kind's predict takes
+    none of the model's functions: its update takes them all) on the model-free loop: the model's
+    own loop's bits."""
+    flt, ys, m0, P0 = _others()[kind]
+    assert build.loop_of(flt)[0] == kind
+    kw = {"loglik": True, "on_divergence": "mark"}
+    same(flt.run(ys, m0, P0, backend="numba", **kw), flt.run(ys, m0, P0, backend="numba-shared", **kw))

@@ -63,7 +63,10 @@ loop); Taylor-2 also a G free of the states; the Kalman filter any linear Discre
 matrices, time-varying too) without correlated noise or parameters per path. :func:`unsupported` names what a filter or model
 lacks; ``run`` then raises a TypeError naming ``backend``. Compilation (numba) happens at the first
 run of each model and rule kind (seconds), shared by every :meth:`~nlfilter.models.Model.with_params`
-copy; later runs reuse it.
+copy; later runs reuse it. ``backend="numba-shared"`` runs the same filters on the model-free loop
+of the rule kind and shape (:mod:`.template`: compiled once for every model of that shape and kept
+on disk, the model's functions compiled alone and passed to it: a new model then costs about a
+second; the model's own loop's numbers, bit for bit).
 
 The package, one concept a module:
 
@@ -83,8 +86,10 @@ The package, one concept a module:
 :mod:`.batch_kernels`   the EKF's batch-inner loop: blocks of paths, the paths innermost
 :mod:`.batch_loop`      that loop's dispatch, the model's functions over a block, its module text
 :mod:`.build`           the template with a kind's kernels and the model's functions, as one module's text
+:mod:`.template`        the same text without the model: one loop per rule kind and shape for every
+                        model, the model's functions as ``cfunc`` arguments
 :mod:`.cache`           that module written to the disk cache and imported, numba's code kept beside it
-:mod:`.run`             :func:`run_compiled` and :func:`~.run.finish`
+:mod:`.run`             :func:`run_compiled`, :func:`~.run.run_shared` and :func:`~.run.finish`
 :mod:`.choice`          ``backend="auto"``: compiled when loaded, cached or repaid (:func:`choose`)
 ======================  ============================================================================
 """

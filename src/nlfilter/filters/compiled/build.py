@@ -189,9 +189,11 @@ def _threaded(loop: str, kind: str) -> str:
     """The loop template's source taking the model's functions first and passing each kernel its
     own (the model-free loop, :mod:`.template`)."""
     pred, upd = (FUNCTION_ARGS[k.__name__] for k in rule_kernels.KERNELS_BY_KIND[kind])
-    for old, new in ((f"def {loops.steps_.__name__}(", f"def {loops.steps_.__name__}({', '.join(loop_functions(kind))}, "),
-                     ("predict(m, P, ", f"predict({', '.join(pred)}, m, P, "),
-                     ("update(m, P, ", f"update({', '.join(upd)}, m, P, ")):
+
+    def first(names):  # (the Itô kind's predict takes none)
+        return "".join(f"{a}, " for a in names)
+    for old, new in ((f"def {loops.steps_.__name__}(", f"def {loops.steps_.__name__}({first(loop_functions(kind))}"),
+                     ("predict(m, P, ", f"predict({first(pred)}m, P, "), ("update(m, P, ", f"update({first(upd)}m, P, ")):
         if loop.count(old) != 1:  # pragma: no cover - a guard on this package's own code
             raise RuntimeError(f"steps: the loop template must call {old!r} once")
         loop = loop.replace(old, new)

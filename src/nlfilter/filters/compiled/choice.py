@@ -2,7 +2,11 @@
 ready or repays its compile, the NumPy loop otherwise.
 
 The rule (:func:`choose`), in order — a tiered one, as a JIT's: the NumPy loop first, the compiled
-loop once the process has shown it repeats the work:
+loop once the process has shown it repeats the work. Two compiled loops can serve a model: its own
+(``"numba"``: the model's functions inlined) and the model-free loop of its rule kind and shape
+(``"numba-shared"``, :mod:`.template`: compiled once for every model of that shape, the model's
+functions, compiled alone in about a second, passed to it; the same bits, 1.0-1.4× the time per
+path-step of a one-path own loop, about 2× that of the EKF's batch-inner loop):
 
 1. A filter or model the compiled loop does not take (:func:`~.support.static_refusal`: the
    filter's declaration, its rule, the model's structure) runs on the NumPy loop.
@@ -10,15 +14,22 @@ loop once the process has shown it repeats the work:
    (:func:`~.build.loop_of`: the EKF on 4-16 states has two, the one-path loop below
    :func:`~.batch_loop.paths_from` paths and the batch-inner one from there — or the one of them
    already in this process), with its own compile time.
-2. A loop already in this process (compiled or loaded by an earlier run) runs compiled.
+2. The model's own loop already in this process (compiled or loaded by an earlier run) runs.
+   The model-free loop in this process with the model's functions runs, until the time its runs
+   took (:func:`shared_tally`) times the share the own loop would have saved (``1 − 1/gain``,
+   :data:`FULL_GAIN`) reaches the own loop's compile: then the own loop is compiled.
 3. ``W``: the NumPy loop's estimated time for this run (:func:`numpy_seconds`:
    ``repeats × T × (a + B·b·n^1.5)`` µs with the per-step and per-path-step costs of the rule kind,
    :data:`STEP_US`, :data:`PATH_STEP_US`; times the filter's ``substeps`` for the kinds of
    :data:`PER_SUBSTEP`) plus that of the earlier runs of the same loop in this
    process that took the NumPy loop. Below the cost of loading a cached loop (:data:`LOAD_SECONDS`:
-   numba's import; :data:`LOADED_SECONDS` once numba is imported) the NumPy loop; at or above the
-   loop's compile time (:data:`COMPILE_SECONDS`) the compiled loop, compiled now and kept on disk;
-   in between the compiled loop only where the disk cache holds it (:func:`~.cache.ready`).
+   numba's import; :data:`LOADED_SECONDS` once numba is imported) the NumPy loop. Above it: the
+   model's own loop where the disk cache holds it (:func:`~.cache.ready`); the model-free loop
+   where the disk holds that and ``W`` also repays compiling the model's functions
+   (:data:`FIRST_COMPILE_SECONDS`, :data:`FUNCTION_SECONDS`); at or above the loop's compile time
+   (:data:`COMPILE_SECONDS`) a compile, kept on disk: of the model-free loop (then every later
+   model of the shape costs its functions only) unless the own loop is the EKF's batch-inner one,
+   whose speed is worth its own compile.
 4. numba not importable: the NumPy loop.
 
 So a single short run never imports numba; a fit, whose evaluations count as ``repeats``, or a
@@ -26,9 +37,10 @@ process running the same model again and again, moves to the compiled loop as so
 it would save exceeds the time to get it.
 
 The costs are measured orders of magnitude (docs/guide/speed.rst and the benchmarks page: one core), not promises; the rule
-needs them to within a factor of a few. Both loops give the same estimates to rounding (1e-12
-relative, the compiled loop's tests; the scalar EKF's batch loop bit for bit), so the choice moves
-no result beyond that. ``backend="numpy"`` or ``"numba"`` forces either.
+needs them to within a factor of a few. The loops give the same estimates to rounding (1e-12
+relative, the compiled loop's tests; the scalar EKF's batch loop bit for bit; the two compiled
+loops of a model bit for bit), so the choice moves no result beyond that. ``backend="numpy"``,
+``"numba"`` or ``"numba-shared"`` forces one.
 """
 
 from __future__ import annotations
