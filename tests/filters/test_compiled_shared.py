@@ -79,11 +79,14 @@ def close(e1, e2):
 
 
 def test_the_model_free_loop_gives_the_models_own_loops_bits():
-    """EKF, 2 states: the model's own (specialized) loop and the model-free one, bit for bit —
-    missing steps, a partly missing step, a diverging path, the likelihood; then a second model of
-    the same shape (another coefficient) runs on the same loop object, compiling only its functions,
-    and agrees with the NumPy loop."""
-    md = two_state()
+    """EKF, 2 states (tests/filters/test_compiled.py's model, a time-varying input among its terms:
+    its own specialized loop is compiled there too): the model's own loop and the model-free one,
+    bit for bit — missing steps, a partly missing step, a diverging path, the likelihood; then a
+    second model of the same shape runs on the same loop object, compiling only its functions, and
+    agrees with the NumPy loop."""
+    from tests.filters.test_compiled import nonlinear
+
+    md = nonlinear()
     ys = data(md)
     flt = EKF(md)
     shared = run(flt, ys, "numba-shared")
@@ -140,11 +143,11 @@ def test_what_the_model_free_loop_does_not_take_is_named():
     md = two_state()
     with pytest.raises(TypeError, match="backend.*numba-shared.*IteratedEKF"):
         IteratedEKF(md).run(np.zeros((1, 5, 2)), np.zeros(2), np.eye(2), backend="numba-shared")
-    lin = DiscreteModel([x1, x2], [0.9 * x1 + 0.1 * x2, 0.8 * x2], [x1], Q=0.1 * np.eye(2), R=0.2)
-    ys = simulate(lin, 30, paths=2, rng=3, m0=np.zeros(2), P0=np.eye(2)).ys
+    lin = DiscreteModel([x1], [0.9 * x1], [x1], Q=0.1, R=0.2)
+    ys = simulate(lin, 30, paths=2, rng=3, m0=np.zeros(1), P0=np.eye(1)).ys
     kf = KalmanFilter(lin)
-    same(kf.run(ys, np.zeros(2), np.eye(2), loglik=True, backend="numba"),
-         kf.run(ys, np.zeros(2), np.eye(2), loglik=True, backend="numba-shared"))
+    same(kf.run(ys, np.zeros(1), np.eye(1), loglik=True, backend="numba"),
+         kf.run(ys, np.zeros(1), np.eye(1), loglik=True, backend="numba-shared"))
 
 
 def test_the_automatic_tiers(tmp_path, monkeypatch):

@@ -293,9 +293,8 @@ class Filter:
             the run, :meth:`backend_for`; else this loop), ``"numpy"`` or ``"numba"`` (KF, EKF, UKF,
             CKF, GHKF, SLF, second-order, ``sr-*``, continuous Itô EKF and second-order compiled,
             ``nlfilter.filters.compiled``: the same estimates to 1e-12, on disk, ``NLFILTER_CACHE``; refuses the rest)
-            or ``"numba-shared"`` (the same filters on the loop compiled once per rule and shape for
-            every model, the model's functions passed to it: a new model compiles in about a second
-            once its shape's loop is on disk; the model's own loop's numbers bit for bit)
+            or ``"numba-shared"`` (the loop compiled once per rule and shape for every model, the
+            model's functions passed to it: a new model in about a second; the same bits)
 
         Returns
         -------
