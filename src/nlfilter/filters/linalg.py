@@ -13,7 +13,7 @@ import weakref
 
 import numpy as np
 
-from .._npcall import dot as _dot, einsum as _einsum, quiet as _quiet
+from .._npcall import dot as _dot, einsum as _einsum, one_path, quiet as _quiet
 from ..noise import Gaussian, Independent
 from .beliefs import GaussianState
 
@@ -316,14 +316,23 @@ def gaussian_update(state: GaussianState, y: np.ndarray, y_pred: np.ndarray, S: 
             except np.linalg.LinAlgError:  # a (numerically) singular S on some path: poison those paths only
                 K, singular = _solve_paths(S, C)
     mean = m + (K[..., 0] * e if e.shape[-1] == 1 else _einsum("...ij,...j->...i", K, e))
+    if K.ndim == 3 and K.shape[0] == 1 and K.shape[1] > 1 < K.shape[2] and K.dtype is _F8:  # one path, n, m ≥ 2:
+        one = one_path(P, S, None) if H is None else one_path(P, H, R)  # (K: a solve's, contiguous)
+        if one is not None:  # its 2-D matrices, every product one of full matrices: np.dot's (mm2), lifted back
+            return poison(GaussianState(mean, _posterior(K[0], *one, H is not None, _dot)[None]), singular)
+    return poison(GaussianState(mean, _posterior(K, P, S if H is None else H, R, H is not None, mm)), singular)
+
+
+def _posterior(K, P, X, R, joseph, prod):
+    """:func:`gaussian_update`'s covariance by the product ``prod``, symmetrized: the Joseph form
+    ``(I − K X) P (I − K X)ᵀ + K R Kᵀ`` (``X = H``; K's missing columns are zero, so R's missing
+    rows never enter) or ``P − K X Kᵀ`` (``X = S``)."""
     Kt = K.swapaxes(-1, -2)
-    if H is not None:  # Joseph form; K's missing columns are zero, so R's missing rows never enter
-        KH = mm(K, H)
+    if joseph:
+        KH = prod(K, X)
         IKH = _eye(KH.shape[-1], KH.ndim) - KH
-        cov = mm(mm(IKH, P), IKH.swapaxes(-1, -2)) + mm(mm(K, R), Kt)
-    else:
-        cov = P - mm(mm(K, S), Kt)
-    return poison(GaussianState(mean, symmetrize(cov)), singular)
+        return symmetrize(prod(prod(IKH, P), IKH.swapaxes(-1, -2)) + prod(prod(K, R), Kt))
+    return symmetrize(P - prod(prod(K, X), Kt))
 
 
 _ONE, _ONE3 = (1, 1), (1, 1, 1)

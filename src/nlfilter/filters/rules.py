@@ -66,7 +66,7 @@ from typing import NamedTuple
 import numpy as np
 
 from .. import _validate as V
-from .._npcall import einsum as _einsum
+from .._npcall import dot as _dot, einsum as _einsum, one_path
 from ..angles import node_moments, wrap_components
 from ..moments.quadrature import MAX_ENTRIES, cubature5_rule, gauss_hermite_rule
 from .contractions import gaussian_quartic, hessian_trace, noise_covariance, quarter_outer  # (re-exported)
@@ -124,6 +124,13 @@ class Taylor1:
         J = jac(m, t)
         Q = None if noise_of is None else noise_of.GQGT(m, t)  # G(m) Q G(m)ᵀ
         mean = wrap_components(g(m, t), angles) if angles else g(m, t)
+        one = J.ndim == 3 and J.shape[1] > 1 < J.shape[2] and one_path(J, P)  # one path: np.dot's products of
+        if one:  # its 2-D matrices, the same numbers (nlfilter._npcall.one_path), lifted back
+            J1, P1 = one
+            if cross:
+                C = _dot(P1, J1.T)
+                return GaussMoments(mean, C[None], _dot(J1, C)[None] if cov else None, J, None, Q)
+            return GaussMoments(mean, None, _dot(_dot(J1, P1), J1.T)[None] if cov else None, J, None, Q)
         if cross:
             C = mm(P, J.swapaxes(-1, -2))  # Cov[x, g] = P Jᵀ
             return GaussMoments(mean, C, mm(J, C) if cov else None, J, None, Q)
