@@ -3,6 +3,8 @@ functions, the same numbers, microseconds less a call. Standard NumPy where a ve
 
 from __future__ import annotations
 
+import operator
+
 import numpy as np
 
 try:  # np.einsum without ``optimize`` calls this, after its Python wrapper: the same numbers
@@ -21,7 +23,7 @@ try:  # np.errstate's context variable, set and reset without its Python wrapper
 except ImportError:  # pragma: no cover - a NumPy without them: np.errstate
     _extobj_contextvar = None
 
-__all__ = ["dot", "einsum", "quiet", "one_path"]
+__all__ = ["dot", "einsum", "lift", "one_path", "quiet", "same"]
 
 _QUIET = (None, None)  # (the error state it was made from, that state with over/invalid/divide ignored,
 #                        or None when it ignores them already)
@@ -54,15 +56,18 @@ def quiet(fn, *args, **kwargs):
 _F8 = np.dtype(float)
 
 
-def one_path(*arrays):
-    """The 2-D matrices of one path's operands, each ``(1, r, c)`` or ``(r, c)`` (None: kept None),
-    which ``np.dot`` multiplies as ``@`` does; None where one is a batch or where ``np.dot`` would
-    copy or convert it (not C- or Fortran-contiguous, unaligned, not float64): then ``@``. For
-    matrices of at least 2 x 2, :func:`dot` of two such makes the BLAS call of matmul's loop
-    (``gemm``, or ``syrk`` for ``A Aᵀ``, with the same transposition flags, leading dimensions and
-    scalars: NumPy's ``cblas_matrixproduct``), the same numbers for about half matmul's call cost."""
+def one_path(first, *arrays):
+    """The 2-D matrices of one path's operands — ``first (1, r, c)`` with r, c ≥ 2, the others ``(1, r, c)``
+    or ``(r, c)`` (None: kept None) — which :func:`dot` multiplies as ``@`` does; None where ``first`` is
+    not such, one is a batch, or ``np.dot`` would copy or convert one (not C- or Fortran-contiguous,
+    unaligned, not float64): then ``@``. For matrices of at least 2 x 2, ``dot`` of two such makes the
+    BLAS call of matmul's loop (``gemm``, or ``syrk`` for ``A Aᵀ``, with the same transposition flags,
+    leading dimensions and scalars: NumPy's ``cblas_matrixproduct``), the same numbers for about half
+    matmul's call cost; :data:`lift` takes a product back to ``(1, r, c)``."""
+    if first.ndim != 3 or first.shape[0] != 1 or first.shape[1] < 2 or first.shape[2] < 2:
+        return None
     out = []
-    for A in arrays:
+    for A in (first, *arrays):
         if A is not None:
             if A.ndim == 3:
                 if A.shape[0] != 1:
@@ -75,3 +80,11 @@ def one_path(*arrays):
                 return None
         out.append(A)
     return out
+
+
+lift = operator.itemgetter(None)  # a path's 2-D matrix back to (1, r, c) (one_path)
+
+
+def same(a):
+    """``a`` (a batch's product as it is, where :data:`lift` lifts one path's)."""
+    return a

@@ -60,9 +60,9 @@ def matmul(A: np.ndarray, B: np.ndarray) -> np.ndarray:
 
 
 def _cholesky(A: np.ndarray) -> np.ndarray:
-    """``np.linalg.cholesky(A)`` of a float64 batch where every factorization succeeds; NaN in the
-    factors of the paths where one fails (the gufunc's fill) instead of the LinAlgError. Called
-    with NumPy's invalid/overflow warnings off (the run loop's, or the caller's errstate)."""
+    """``np.linalg.cholesky(A)`` of a float64 batch where every factorization succeeds; NaN in the factors of the
+    paths where one fails (the gufunc's fill) instead of the LinAlgError. Called with NumPy's invalid/overflow
+    warnings off (the run loop's, or the caller's errstate)."""
     if _gufuncs is None or A.dtype != _F8:
         try:
             return np.linalg.cholesky(A)
@@ -72,9 +72,8 @@ def _cholesky(A: np.ndarray) -> np.ndarray:
 
 
 def _solve(A: np.ndarray, B: np.ndarray) -> np.ndarray | None:
-    """``np.linalg.solve(A, B)`` (``B (..., m, k)``) of float64 batches, or None where it would
-    raise or a path's solution is not finite (the caller then takes ``np.linalg.solve``'s own path:
-    the same numbers, the same exceptions)."""
+    """``np.linalg.solve(A, B)`` (``B (..., m, k)``) of float64 batches, or None where it would raise or a path's
+    solution is not finite (the caller then takes ``np.linalg.solve``'s own path: the same numbers and exceptions)."""
     if _gufuncs is None or A.dtype != _F8 or B.dtype != _F8:
         return None
     X = _quiet(_gufuncs.solve, A, B, signature="dd->d")
@@ -275,8 +274,7 @@ def gaussian_update(state: GaussianState, y: np.ndarray, y_pred: np.ndarray, S: 
     ``C`` (..., n, m) = Cov[x, h]. With a linearization ``H`` (..., m, n) and ``R`` the covariance
     is updated in Joseph form, ``(I − K H) P (I − K H)ᵀ + K R Kᵀ`` (symmetric PSD by
     construction); otherwise ``P − K S Kᵀ``, symmetrized. NaN components of ``y`` are missing.
-    Paths whose ``S`` is singular come back as NaN (:func:`poison`: ``run`` raises or marks them).
-    """
+    Paths whose ``S`` is singular come back as NaN (:func:`poison`: ``run`` raises or marks them)."""
     m, P = state
     if m.shape == y.shape == _ONE and S.shape == C.shape == P.shape == _ONE3 and y_pred.size == 1 and (
             H is None or (H.shape == _ONE3 and R.size == 1 and R.ndim <= 3)):  # one scalar trajectory
@@ -316,17 +314,14 @@ def gaussian_update(state: GaussianState, y: np.ndarray, y_pred: np.ndarray, S: 
             except np.linalg.LinAlgError:  # a (numerically) singular S on some path: poison those paths only
                 K, singular = _solve_paths(S, C)
     mean = m + (K[..., 0] * e if e.shape[-1] == 1 else _einsum("...ij,...j->...i", K, e))
-    if K.ndim == 3 and K.shape[0] == 1 and K.shape[1] > 1 < K.shape[2] and K.dtype is _F8:  # one path, n, m ≥ 2:
-        one = one_path(P, S, None) if H is None else one_path(P, H, R)  # (K: a solve's, contiguous)
-        if one is not None:  # its 2-D matrices, every product one of full matrices: np.dot's (mm2), lifted back
-            return poison(GaussianState(mean, _posterior(K[0], *one, H is not None, _dot)[None]), singular)
+    if (one := one_path(K, P, S, None) if H is None else one_path(K, P, H, R)) is not None:  # one path, n, m ≥ 2:
+        return poison(GaussianState(mean, _posterior(*one, H is not None, _dot)[None]), singular)
     return poison(GaussianState(mean, _posterior(K, P, S if H is None else H, R, H is not None, mm)), singular)
 
 
 def _posterior(K, P, X, R, joseph, prod):
-    """:func:`gaussian_update`'s covariance by the product ``prod``, symmetrized: the Joseph form
-    ``(I − K X) P (I − K X)ᵀ + K R Kᵀ`` (``X = H``; K's missing columns are zero, so R's missing
-    rows never enter) or ``P − K X Kᵀ`` (``X = S``)."""
+    """``(I − K X) P (I − K X)ᵀ + K R Kᵀ`` (Joseph, ``X = H``: K's missing columns are zero, R's missing rows never
+    enter) or ``P − K X Kᵀ`` (``X = S``), symmetrized; ``prod``: :func:`mm`, or ``np.dot`` on one path's 2-D matrices."""
     Kt = K.swapaxes(-1, -2)
     if joseph:
         KH = prod(K, X)
