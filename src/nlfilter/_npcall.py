@@ -3,8 +3,6 @@ functions, the same numbers, microseconds less a call. Standard NumPy where a ve
 
 from __future__ import annotations
 
-import operator
-
 import numpy as np
 
 try:  # np.einsum without ``optimize`` calls this, after its Python wrapper: the same numbers
@@ -23,7 +21,7 @@ try:  # np.errstate's context variable, set and reset without its Python wrapper
 except ImportError:  # pragma: no cover - a NumPy without them: np.errstate
     _extobj_contextvar = None
 
-__all__ = ["dot", "einsum", "lift", "one_path", "quiet", "same"]
+__all__ = ["dot", "einsum", "one_path", "quiet"]
 
 _QUIET = (None, None)  # (the error state it was made from, that state with over/invalid/divide ignored,
 #                        or None when it ignores them already)
@@ -63,28 +61,23 @@ def one_path(first, *arrays):
     unaligned, not float64): then ``@``. For matrices of at least 2 x 2, ``dot`` of two such makes the
     BLAS call of matmul's loop (``gemm``, or ``syrk`` for ``A Aᵀ``, with the same transposition flags,
     leading dimensions and scalars: NumPy's ``cblas_matrixproduct``), the same numbers for about half
-    matmul's call cost; :data:`lift` takes a product back to ``(1, r, c)``."""
-    if first.ndim != 3 or first.shape[0] != 1 or first.shape[1] < 2 or first.shape[2] < 2:
+    matmul's call cost."""
+    s = first.shape
+    if len(s) != 3 or s[0] != 1 or s[1] < 2 or s[2] < 2:
         return None
     out = []
     for A in (first, *arrays):
         if A is not None:
+            if A.dtype is not _F8 or A.flags.num & _LAYOUT <= _ALIGNED:  # (relaxed strides: a length-1 axis is
+                return None  # no obstacle to contiguity)
             if A.ndim == 3:
                 if A.shape[0] != 1:
                     return None
                 A = A[0]
             elif A.ndim != 2:
                 return None
-            f = A.flags
-            if not (f.forc and f.aligned and A.dtype is _F8):
-                return None
         out.append(A)
     return out
 
 
-lift = operator.itemgetter(None)  # a path's 2-D matrix back to (1, r, c) (one_path)
-
-
-def same(a):
-    """``a`` (a batch's product as it is, where :data:`lift` lifts one path's)."""
-    return a
+_ALIGNED, _LAYOUT = 0x100, 0x103  # NumPy's flag bits: aligned, and C- or Fortran-contiguous

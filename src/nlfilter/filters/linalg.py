@@ -34,9 +34,8 @@ def symmetrize(P: np.ndarray) -> np.ndarray:
 
 @functools.cache
 def _eye(n: int, ndim: int = 2) -> np.ndarray:
-    """The read-only identity of size ``n`` with ``ndim`` axes (leading ones: an operand of the
-    batch's rank, which NumPy's elementwise loops take without broadcasting a rank up, half the
-    cost of a subtraction on one path)."""
+    """The read-only identity of size ``n`` with ``ndim`` axes (leading ones: an operand of the batch's rank, which
+    NumPy's elementwise loops take without broadcasting a rank up, half the cost of a subtraction on one path)."""
     e = np.eye(n).reshape((1,) * (ndim - 2) + (n, n))
     e.flags.writeable = False
     return e
@@ -103,10 +102,10 @@ def axis_gather(z):
 
 
 def bad_paths(mean: np.ndarray, cov: np.ndarray, tol: float = PSD_TOL) -> np.ndarray:
-    """Boolean ``(...)``: paths whose mean/cov is non-finite or whose cov is not PSD (an
-    eigenvalue of the symmetrized cov below ``−tol·scale``, ``scale = max(1, max |cov|)``; a
-    PSD but singular cov passes). The exact per-path test runs only when the one-call screen
-    ``_screen_ok`` cannot clear the whole batch (it never clears a batch this test flags)."""
+    """Boolean ``(...)``: paths whose mean/cov is non-finite or whose cov is not PSD (an eigenvalue of the
+    symmetrized cov below ``−tol·scale``, ``scale = max(1, max |cov|)``; a PSD but singular cov passes). The exact
+    per-path test runs only when the one-call screen ``_screen_ok`` cannot clear the whole batch (it never clears a
+    batch this test flags)."""
     if cov.shape[-1] > 2:
         with np.errstate(over="ignore", invalid="ignore", divide="ignore"):  # a sum of infinities is NaN: no warning
             if _screen_ok(mean, cov, tol):
@@ -116,9 +115,8 @@ def bad_paths(mean: np.ndarray, cov: np.ndarray, tol: float = PSD_TOL) -> np.nda
 
 def _bad_paths_exact(mean: np.ndarray, cov: np.ndarray, tol: float = PSD_TOL) -> np.ndarray:
     """:func:`bad_paths` path by path: the smallest eigenvalue of every covariance."""
-    n = cov.shape[-1]
     ok = np.all(np.isfinite(mean), axis=-1) & np.all(np.isfinite(cov), axis=(-1, -2))
-    safe = np.where(ok[..., None, None], cov, np.eye(n))
+    safe = np.where(ok[..., None, None], cov, np.eye(cov.shape[-1]))
     return ~ok | _below(safe, tol)
 
 
@@ -226,10 +224,12 @@ def poison(state: GaussianState, bad) -> GaussianState:
 
 
 def _all_ok(mean: np.ndarray, cov: np.ndarray) -> bool:
-    """Quick test that every path is finite with PSD covariance (exact for n ≤ 2; for n > 2
-    the Cholesky screen ``_screen_ok``, which may only answer False too often, and then
-    :func:`bad_paths` decides path by path)."""
+    """Quick test that every path is finite with PSD covariance (exact for n ≤ 2; for n > 2 the Cholesky screen
+    ``_screen_ok``, which may only answer False too often, and then :func:`bad_paths` decides path by path)."""
     n = cov.shape[-1]
+    if 2 < n <= SCREEN_MAX_N and cov.dtype is _F8 and _gufuncs is not None:  # _screen_ok's first try, inline: a
+        L = _gufuncs.cholesky_lo(cov + cov.swapaxes(-1, -2), signature="d->d")  # call less twice a step
+        return math.isfinite(_total(L) + _total(mean)) or _screen_ok(mean, cov)
     if n == 2:  # every path finite (one reduction): the exact test without its masking
         if math.isfinite(_total(cov) + _total(mean)):
             return not _below(cov, PSD_TOL).any()

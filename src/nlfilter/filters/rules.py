@@ -15,11 +15,11 @@ A rule is a small frozen object. Given a batch of Gaussian beliefs ``x ~ N(m, P)
 (the noise term uses the same nodes as the moments of ``g``; the skeleton applies every term that is
 not None). Two table entries of every rule tell the skeleton what to do with the sums:
 ``symmetrize`` (the predicted covariance) and ``screen`` (the innovation covariance checked for
-positive definiteness, failed paths reported). The skeleton says which function it asks about
-(``role="dynamics"`` for f, ``"measurement"`` for h): the forms of seed 004 differ there. The filters of
+positive definiteness, failed paths reported). The skeleton says which function it
+asks about (``role="dynamics"`` for f, ``"measurement"`` for h): the forms of seed 004 differ there. The filters of
 :mod:`nlfilter.filters.gaussian` configure one predict/condition skeleton over a rule
-(:mod:`nlfilter.filters.skeleton`), as in dynamax's generalized Gaussian filter (its ``EKFIntegrals``,
-``UKFIntegrals``, ``GHKFIntegrals``):
+(:mod:`nlfilter.filters.skeleton`), as in dynamax's
+generalized Gaussian filter (its ``EKFIntegrals``, ``UKFIntegrals``, ``GHKFIntegrals``):
 
 =====================  ===========================================================================
 rule                   approximation
@@ -66,7 +66,7 @@ from typing import NamedTuple
 import numpy as np
 
 from .. import _validate as V
-from .._npcall import dot as _dot, einsum as _einsum, lift, one_path, same
+from .._npcall import einsum as _einsum
 from ..angles import node_moments, wrap_components
 from ..moments.quadrature import MAX_ENTRIES, cubature5_rule, gauss_hermite_rule
 from .contractions import gaussian_quartic, hessian_trace, noise_covariance, quarter_outer  # (re-exported)
@@ -117,17 +117,17 @@ class Taylor1:
 
     def moments(self, state, g, t, *, jac, hess=None, cross: bool = True, cov: bool = True, noise_of=None,
                 role=None, angles=()) -> GaussMoments:
-        """``jac``: the Jacobian ``g_x(X, t) -> (..., p, n)``; ``cross``/``cov``: Cov[x, g] / Cov[g] wanted (else
-        None); ``noise_of``: a model whose ``E[G Q Gᵀ]`` to add; ``angles``: g's angular components (mean wrapped)."""
+        """``jac``: the Jacobian ``g_x(X, t) -> (..., p, n)``; ``cross``/``cov``: whether
+        Cov[x, g] / Cov[g] are wanted (else None); ``noise_of``: a model whose ``E[G Q Gᵀ]`` to add;
+        ``angles``: the angular components of g, their mean wrapped (:mod:`nlfilter.angles`)."""
         m, P = state
         J = jac(m, t)
         Q = None if noise_of is None else noise_of.GQGT(m, t)  # G(m) Q G(m)ᵀ
         mean = wrap_components(g(m, t), angles) if angles else g(m, t)
-        J1, P1, prod, back = (*one, _dot, lift) if (one := one_path(J, P)) else (J, P, mm, same)  # one path (n,
-        if cross:  # p ≥ 2): np.dot's products of its 2-D matrices, the same numbers (nlfilter._npcall.one_path)
-            C = prod(P1, J1.swapaxes(-1, -2))  # Cov[x, g] = P Jᵀ
-            return GaussMoments(mean, back(C), back(prod(J1, C)) if cov else None, J, None, Q)
-        S = back(prod(prod(J1, P1), J1.swapaxes(-1, -2))) if cov else None  # J P Jᵀ
+        if cross:
+            C = mm(P, J.swapaxes(-1, -2))  # Cov[x, g] = P Jᵀ
+            return GaussMoments(mean, C, mm(J, C) if cov else None, J, None, Q)
+        S = mm(mm(J, P), J.swapaxes(-1, -2)) if cov else None  # J P Jᵀ
         return GaussMoments(mean, None, S, J, None, Q)
 
 
