@@ -136,7 +136,8 @@ class Batched:
         self._scalar = None  # whether one state may be evaluated on NumPy scalars (_scalar_safe)
         self._one = None  # the kernel for one state on Python floats, False where not _scalar_safe (None: unknown)
         self._n, self._shape1 = kernel.n, (1, *kernel.shape)  # (the output of one state (1, n): (1, *shape))
-        self._row = (1, kernel.n)  # one state as a run's single trajectory passes it
+        self._row, self._flat = (1, kernel.n), len(kernel.shape) == 1  # one state as a run's single trajectory
+        # passes it; whether a vector-valued kernel (its output of one state a list in a list, no reshape)
         # the kernel of a state of one component, without parameters (the common call, made without _eval),
         # and whether it reads its time argument (else the time goes as given: no NumPy float to make)
         self._column = kernel.fn if not kernel.const and kernel.n == 1 and not kernel.params else None
@@ -153,7 +154,7 @@ class Batched:
                 vals = one(*x.tolist()[0], float(t))
             except ZeroDivisionError:
                 vals = one(*x.ravel(), np.float64(t))
-            return np.array(vals, dtype=float).reshape(self._shape1)
+            return np.array([vals], dtype=float) if self._flat else np.array(vals, dtype=float).reshape(self._shape1)
         x = np.asarray(x, dtype=float)
         if self._fixed is not None:
             return self._fixed(x.shape[:-1])
@@ -237,7 +238,7 @@ class Folded:
                 vals = one(*x.tolist()[0], float(t))
             except ZeroDivisionError:
                 vals = one(*x.ravel(), np.float64(t))
-            return np.array(vals, dtype=float).reshape(self._shape1)
+            return np.array([vals], dtype=float) if self._flat else np.array(vals, dtype=float).reshape(self._shape1)
         x = np.asarray(x, dtype=float)
         batch = x.shape[:-1]
         lead = batch[:self.per_path]

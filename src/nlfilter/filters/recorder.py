@@ -82,6 +82,9 @@ class Recorder:
         if d is None and bufs and cov is not None:  # a batch's step inside a chunk: straight into its buffers
             bufs["means"][0][k - self._k0] = mean
             bufs["covs"][0][k - self._k0] = cov
+        elif d is None and self._chunk <= 1 and cov is not None:  # (one path: _put's writes, in place)
+            self.means[:, k] = mean
+            self.covs[:, k] = cov
         elif d is None:
             self._put(k, "means", self.means, mean)
             self._put(k, "covs", self.covs, np.nan if cov is None else cov)
