@@ -67,7 +67,7 @@ def _cholesky(A: np.ndarray) -> np.ndarray:
             return np.linalg.cholesky(A)
         except np.linalg.LinAlgError:
             return np.full(A.shape, np.nan)
-    return _gufuncs.cholesky_lo(A, signature="d->d")
+    return _gufuncs.cholesky_lo(A)  # (float64: its 'd->d' loop, as signature="d->d" would name it; a kwarg less)
 
 
 def _solve(A: np.ndarray, B: np.ndarray) -> np.ndarray | None:
@@ -75,7 +75,7 @@ def _solve(A: np.ndarray, B: np.ndarray) -> np.ndarray | None:
     solution is not finite (the caller then takes ``np.linalg.solve``'s own path: the same numbers and exceptions)."""
     if _gufuncs is None or A.dtype != _F8 or B.dtype != _F8:
         return None
-    X = _quiet(_gufuncs.solve, A, B, signature="dd->d")
+    X = _quiet(_gufuncs.solve, A, B)  # (float64: the 'dd->d' loop, without naming it: a kwarg less)
     return X if math.isfinite(_total(X)) else None
 
 
@@ -228,7 +228,7 @@ def _all_ok(mean: np.ndarray, cov: np.ndarray) -> bool:
     ``_screen_ok``, which may only answer False too often, and then :func:`bad_paths` decides path by path)."""
     n = cov.shape[-1]
     if 2 < n <= SCREEN_MAX_N and cov.dtype is _F8 and _gufuncs is not None:  # _screen_ok's first try, inline: a
-        L = _gufuncs.cholesky_lo(cov + cov.swapaxes(-1, -2), signature="d->d")  # call less twice a step
+        L = _gufuncs.cholesky_lo(cov + cov.swapaxes(-1, -2))  # call less twice a step (the 'd->d' loop)
         return math.isfinite(_total(L) + _total(mean)) or _screen_ok(mean, cov)
     if n == 2:  # every path finite (one reduction): the exact test without its masking
         if math.isfinite(_total(cov) + _total(mean)):
