@@ -232,13 +232,6 @@ class Folded:
         self.inner, self.Qfn, self.per_path, self.shape = inner, Qfn, per_path, inner.shape
 
     def __call__(self, x, t=0.0):
-        one = self._one
-        if one and type(x) is np.ndarray and x.shape == self._row and x.dtype is _F8:  # one state (1, n), its
-            try:  # kernel known scalar-safe: the one-state path below, its checks made in two
-                vals = one(*x.tolist()[0], float(t))
-            except ZeroDivisionError:
-                vals = one(*x.ravel(), np.float64(t))
-            return np.array([vals], dtype=float) if self._flat else np.array(vals, dtype=float).reshape(self._shape1)
         x = np.asarray(x, dtype=float)
         batch = x.shape[:-1]
         lead = batch[:self.per_path]
