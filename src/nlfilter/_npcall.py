@@ -21,7 +21,7 @@ try:  # np.errstate's context variable, set and reset without its Python wrapper
 except ImportError:  # pragma: no cover - a NumPy without them: np.errstate
     _extobj_contextvar = None
 
-__all__ = ["dot", "einsum", "quiet"]
+__all__ = ["dot", "einsum", "one_path", "quiet"]
 
 _QUIET = (None, None)  # (the error state it was made from, that state with over/invalid/divide ignored,
 #                        or None when it ignores them already)
@@ -49,3 +49,35 @@ def quiet(fn, *args, **kwargs):
         return fn(*args, **kwargs)
     finally:
         _extobj_contextvar.reset(token)
+
+
+_F8 = np.dtype(float)
+
+
+def one_path(first, *arrays):
+    """The 2-D matrices of one path's operands — ``first (1, r, c)`` with r, c ≥ 2, the others ``(1, r, c)``
+    or ``(r, c)`` (None: kept None) — which :func:`dot` multiplies as ``@`` does; None where ``first`` is
+    not such, one is a batch, or ``np.dot`` would copy or convert one (not C- or Fortran-contiguous,
+    unaligned, not float64): then ``@``. For matrices of at least 2 x 2, ``dot`` of two such makes the
+    BLAS call of matmul's loop (``gemm``, or ``syrk`` for ``A Aᵀ``, with the same transposition flags,
+    leading dimensions and scalars: NumPy's ``cblas_matrixproduct``), the same numbers for about half
+    matmul's call cost."""
+    s = first.shape
+    if len(s) != 3 or s[0] != 1 or s[1] < 2 or s[2] < 2:
+        return None
+    out = []
+    for A in (first, *arrays):
+        if A is not None:
+            if A.dtype is not _F8 or A.flags.num & _LAYOUT <= _ALIGNED:  # (relaxed strides: a length-1 axis is
+                return None  # no obstacle to contiguity)
+            if A.ndim == 3:
+                if A.shape[0] != 1:
+                    return None
+                A = A[0]
+            elif A.ndim != 2:
+                return None
+        out.append(A)
+    return out
+
+
+_ALIGNED, _LAYOUT = 0x100, 0x103  # NumPy's flag bits: aligned, and C- or Fortran-contiguous

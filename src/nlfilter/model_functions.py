@@ -23,6 +23,8 @@ from .codegen import first_derivatives, is_affine, jacobian, lambdify_arrays
 from .model_expressions import code_form, code_matrix, piecewise_names
 from .model_values import NO_VALUES, Broadcast, Values
 
+_F8 = np.dtype(float)
+
 
 class Kernel:
     """A SymPy array expression compiled once (``lambdify`` with ``cse=True``) into a function of
@@ -134,6 +136,8 @@ class Batched:
         self._scalar = None  # whether one state may be evaluated on NumPy scalars (_scalar_safe)
         self._one = None  # the kernel for one state on Python floats, False where not _scalar_safe (None: unknown)
         self._n, self._shape1 = kernel.n, (1, *kernel.shape)  # (the output of one state (1, n): (1, *shape))
+        self._row, self._flat = (1, kernel.n), len(kernel.shape) == 1  # one state as a run's single trajectory
+        # passes it; whether a vector-valued kernel (its output of one state a list in a list, no reshape)
         # the kernel of a state of one component, without parameters (the common call, made without _eval),
         # and whether it reads its time argument (else the time goes as given: no NumPy float to make)
         self._column = kernel.fn if not kernel.const and kernel.n == 1 and not kernel.params else None
@@ -144,6 +148,13 @@ class Batched:
             self._fixed = Broadcast(self._eval(np.zeros(kernel.n), 0.0))
 
     def __call__(self, x, t=0.0):
+        one = self._one
+        if one and type(x) is np.ndarray and x.shape == self._row and x.dtype is _F8:  # one state (1, n), its
+            try:  # kernel known scalar-safe: the one-state path below, its checks made in two
+                vals = one(*x.tolist()[0], float(t))
+            except ZeroDivisionError:
+                vals = one(*x.ravel(), np.float64(t))
+            return np.array([vals], dtype=float) if self._flat else np.array(vals, dtype=float).reshape(self._shape1)
         x = np.asarray(x, dtype=float)
         if self._fixed is not None:
             return self._fixed(x.shape[:-1])

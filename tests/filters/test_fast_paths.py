@@ -1,8 +1,8 @@
 """The NumPy loop's fast paths (issue 28, "fast by default") give the numbers of the general
 paths bit for bit: one state's model functions on NumPy scalars, the scalar Kalman update on
-Python floats, the innovation screen's Cholesky pre-test, the recorder's time-major buffer, the
-measurements' time-major rows, the run's steps chosen once per run, the 1 x 1 matmul, the n = 1
-divergence screen."""
+Python floats, one path's covariance update by np.dot, the innovation screen's Cholesky pre-test,
+the recorder's time-major buffer, the measurements' time-major rows, the run's steps chosen once
+per run, the 1 x 1 matmul, the n = 1 divergence screen."""
 
 from __future__ import annotations
 
@@ -10,9 +10,9 @@ import numpy as np
 import pytest
 import sympy as sp
 
-from nlfilter import DiscreteModel
+from nlfilter import DiscreteModel, _npcall
 from nlfilter._npcall import quiet
-from nlfilter.filters import EKF, UKF, SecondOrderFilter, recorder
+from nlfilter.filters import EKF, UKF, SecondOrderFilter, linalg, recorder
 from nlfilter.filters.base import Filter
 from nlfilter.filters.beliefs import GaussianState
 from nlfilter.filters.gaussian import GaussianFilter
@@ -113,6 +113,31 @@ def test_matmul_of_one_by_one_is_matmul_bit_for_bit():
     with np.errstate(all="ignore"):
         for a, b in ((A, B), (A.swapaxes(-1, -2), B[::-1]), (A, B[3]), (A[:1], B[:1]), (A[0], B[0])):
             assert np.array_equal(matmul(a, b).view(np.uint64), (a @ b).view(np.uint64))
+
+
+@pytest.mark.parametrize("joseph", [True, False])
+def test_one_path_update_by_dot_equals_the_batch(joseph, monkeypatch):
+    """One path's covariance update on its 2-D matrices by ``np.dot`` (n, m ≥ 2; C- and Fortran-ordered
+    operands, a missing component) = the same path in a batch of two (matmul), bit for bit."""
+    prods = []
+    posterior = linalg._posterior
+    monkeypatch.setattr(linalg, "_posterior", lambda *a: prods.append(a[-1]) or posterior(*a))
+    rng = np.random.default_rng(5)
+    for n, m in ((2, 2), (3, 2), (4, 2), (5, 3), (6, 6)):
+        A, H = rng.standard_normal((1, n, n)), rng.standard_normal((1, m, n))
+        P, R = A @ A.swapaxes(-1, -2) + 0.1 * np.eye(n), 0.3 * np.eye(m) + 0.05
+        C = P @ H.swapaxes(-1, -2)
+        S = H @ C + R
+        for Pl, Hl in ((P, H), (np.asfortranarray(P[0])[None], np.asfortranarray(H[0])[None])):
+            for y in (rng.standard_normal((1, m)), np.where(np.arange(m) == 1, np.nan, 1.0)[None]):
+                m0, yp = rng.standard_normal((1, n)), rng.standard_normal((1, m))
+                one = gaussian_update(GaussianState(m0, Pl), y, yp, S, C, *((Hl, R) if joseph else ()))
+                two = gaussian_update(GaussianState(np.repeat(m0, 2, 0), np.repeat(Pl, 2, 0)), np.repeat(y, 2, 0),
+                                      np.repeat(yp, 2, 0), np.repeat(S, 2, 0), np.repeat(C, 2, 0),
+                                      *((np.repeat(Hl, 2, 0), R) if joseph else ()))
+                assert np.array_equal(one.mean, two.mean[:1])
+                assert np.array_equal(one.cov.view(np.uint64), two.cov[:1].view(np.uint64))
+                assert prods[-2:] == [_npcall.dot, linalg.mm]  # the one path by np.dot, the batch by matmul
 
 
 def test_one_state_screen_flags_every_non_finite():

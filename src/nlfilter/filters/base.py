@@ -393,7 +393,7 @@ class Filter:
         if progress:
             from tqdm.auto import tqdm
             steps = tqdm(steps, desc=progress if isinstance(progress, str) else self.name, leave=False)
-        ys = Rows(yf)  # ys[k]: the step's measurements yf[:, k] (contiguous)
+        ys = Rows.of(yf)  # ys[k]: the step's measurements yf[:, k] (contiguous)
         with np.errstate(over="ignore", invalid="ignore", divide="ignore"):  # failures are caught by record
             info = None
             if self.time == "continuous":

@@ -13,7 +13,7 @@ import weakref
 
 import numpy as np
 
-from .._npcall import dot as _dot, einsum as _einsum, quiet as _quiet
+from .._npcall import dot as _dot, einsum as _einsum, one_path, quiet as _quiet
 from ..noise import Gaussian, Independent
 from .beliefs import GaussianState
 
@@ -34,9 +34,8 @@ def symmetrize(P: np.ndarray) -> np.ndarray:
 
 @functools.cache
 def _eye(n: int, ndim: int = 2) -> np.ndarray:
-    """The read-only identity of size ``n`` with ``ndim`` axes (leading ones: an operand of the
-    batch's rank, which NumPy's elementwise loops take without broadcasting a rank up, half the
-    cost of a subtraction on one path)."""
+    """The read-only identity of size ``n`` with ``ndim`` axes (leading ones: an operand of the batch's rank, which
+    NumPy's elementwise loops take without broadcasting a rank up, half the cost of a subtraction on one path)."""
     e = np.eye(n).reshape((1,) * (ndim - 2) + (n, n))
     e.flags.writeable = False
     return e
@@ -60,24 +59,23 @@ def matmul(A: np.ndarray, B: np.ndarray) -> np.ndarray:
 
 
 def _cholesky(A: np.ndarray) -> np.ndarray:
-    """``np.linalg.cholesky(A)`` of a float64 batch where every factorization succeeds; NaN in the
-    factors of the paths where one fails (the gufunc's fill) instead of the LinAlgError. Called
-    with NumPy's invalid/overflow warnings off (the run loop's, or the caller's errstate)."""
+    """``np.linalg.cholesky(A)`` of a float64 batch where every factorization succeeds; NaN in the factors of the
+    paths where one fails (the gufunc's fill) instead of the LinAlgError. Called with NumPy's invalid/overflow
+    warnings off (the run loop's, or the caller's errstate)."""
     if _gufuncs is None or A.dtype != _F8:
         try:
             return np.linalg.cholesky(A)
         except np.linalg.LinAlgError:
             return np.full(A.shape, np.nan)
-    return _gufuncs.cholesky_lo(A, signature="d->d")
+    return _gufuncs.cholesky_lo(A)  # (float64: its 'd->d' loop, as signature="d->d" would name it; a kwarg less)
 
 
 def _solve(A: np.ndarray, B: np.ndarray) -> np.ndarray | None:
-    """``np.linalg.solve(A, B)`` (``B (..., m, k)``) of float64 batches, or None where it would
-    raise or a path's solution is not finite (the caller then takes ``np.linalg.solve``'s own path:
-    the same numbers, the same exceptions)."""
+    """``np.linalg.solve(A, B)`` (``B (..., m, k)``) of float64 batches, or None where it would raise or a path's
+    solution is not finite (the caller then takes ``np.linalg.solve``'s own path: the same numbers and exceptions)."""
     if _gufuncs is None or A.dtype != _F8 or B.dtype != _F8:
         return None
-    X = _quiet(_gufuncs.solve, A, B, signature="dd->d")
+    X = _quiet(_gufuncs.solve, A, B)  # (float64: the 'dd->d' loop, without naming it: a kwarg less)
     return X if math.isfinite(_total(X)) else None
 
 
@@ -104,10 +102,10 @@ def axis_gather(z):
 
 
 def bad_paths(mean: np.ndarray, cov: np.ndarray, tol: float = PSD_TOL) -> np.ndarray:
-    """Boolean ``(...)``: paths whose mean/cov is non-finite or whose cov is not PSD (an
-    eigenvalue of the symmetrized cov below ``−tol·scale``, ``scale = max(1, max |cov|)``; a
-    PSD but singular cov passes). The exact per-path test runs only when the one-call screen
-    ``_screen_ok`` cannot clear the whole batch (it never clears a batch this test flags)."""
+    """Boolean ``(...)``: paths whose mean/cov is non-finite or whose cov is not PSD (an eigenvalue of the
+    symmetrized cov below ``−tol·scale``, ``scale = max(1, max |cov|)``; a PSD but singular cov passes). The exact
+    per-path test runs only when the one-call screen ``_screen_ok`` cannot clear the whole batch (it never clears a
+    batch this test flags)."""
     if cov.shape[-1] > 2:
         with np.errstate(over="ignore", invalid="ignore", divide="ignore"):  # a sum of infinities is NaN: no warning
             if _screen_ok(mean, cov, tol):
@@ -117,9 +115,8 @@ def bad_paths(mean: np.ndarray, cov: np.ndarray, tol: float = PSD_TOL) -> np.nda
 
 def _bad_paths_exact(mean: np.ndarray, cov: np.ndarray, tol: float = PSD_TOL) -> np.ndarray:
     """:func:`bad_paths` path by path: the smallest eigenvalue of every covariance."""
-    n = cov.shape[-1]
     ok = np.all(np.isfinite(mean), axis=-1) & np.all(np.isfinite(cov), axis=(-1, -2))
-    safe = np.where(ok[..., None, None], cov, np.eye(n))
+    safe = np.where(ok[..., None, None], cov, np.eye(cov.shape[-1]))
     return ~ok | _below(safe, tol)
 
 
@@ -227,10 +224,12 @@ def poison(state: GaussianState, bad) -> GaussianState:
 
 
 def _all_ok(mean: np.ndarray, cov: np.ndarray) -> bool:
-    """Quick test that every path is finite with PSD covariance (exact for n ≤ 2; for n > 2
-    the Cholesky screen ``_screen_ok``, which may only answer False too often, and then
-    :func:`bad_paths` decides path by path)."""
+    """Quick test that every path is finite with PSD covariance (exact for n ≤ 2; for n > 2 the Cholesky screen
+    ``_screen_ok``, which may only answer False too often, and then :func:`bad_paths` decides path by path)."""
     n = cov.shape[-1]
+    if 2 < n <= SCREEN_MAX_N and cov.dtype is _F8 and _gufuncs is not None:  # _screen_ok's first try, inline: a
+        L = _gufuncs.cholesky_lo(cov + cov.swapaxes(-1, -2))  # call less twice a step (the 'd->d' loop)
+        return math.isfinite(_total(L) + _total(mean)) or _screen_ok(mean, cov)
     if n == 2:  # every path finite (one reduction): the exact test without its masking
         if math.isfinite(_total(cov) + _total(mean)):
             return not _below(cov, PSD_TOL).any()
@@ -275,8 +274,7 @@ def gaussian_update(state: GaussianState, y: np.ndarray, y_pred: np.ndarray, S: 
     ``C`` (..., n, m) = Cov[x, h]. With a linearization ``H`` (..., m, n) and ``R`` the covariance
     is updated in Joseph form, ``(I − K H) P (I − K H)ᵀ + K R Kᵀ`` (symmetric PSD by
     construction); otherwise ``P − K S Kᵀ``, symmetrized. NaN components of ``y`` are missing.
-    Paths whose ``S`` is singular come back as NaN (:func:`poison`: ``run`` raises or marks them).
-    """
+    Paths whose ``S`` is singular come back as NaN (:func:`poison`: ``run`` raises or marks them)."""
     m, P = state
     if m.shape == y.shape == _ONE and S.shape == C.shape == P.shape == _ONE3 and y_pred.size == 1 and (
             H is None or (H.shape == _ONE3 and R.size == 1 and R.ndim <= 3)):  # one scalar trajectory
@@ -316,14 +314,20 @@ def gaussian_update(state: GaussianState, y: np.ndarray, y_pred: np.ndarray, S: 
             except np.linalg.LinAlgError:  # a (numerically) singular S on some path: poison those paths only
                 K, singular = _solve_paths(S, C)
     mean = m + (K[..., 0] * e if e.shape[-1] == 1 else _einsum("...ij,...j->...i", K, e))
+    if (one := one_path(K, P, S, None) if H is None else one_path(K, P, H, R)) is not None:  # one path, n, m ≥ 2:
+        return poison(GaussianState(mean, _posterior(*one, H is not None, _dot)[None]), singular)
+    return poison(GaussianState(mean, _posterior(K, P, S if H is None else H, R, H is not None, mm)), singular)
+
+
+def _posterior(K, P, X, R, joseph, prod):
+    """``(I − K X) P (I − K X)ᵀ + K R Kᵀ`` (Joseph, ``X = H``: K's missing columns are zero, R's missing rows never
+    enter) or ``P − K X Kᵀ`` (``X = S``), symmetrized; ``prod``: :func:`mm`, or ``np.dot`` on one path's 2-D matrices."""
     Kt = K.swapaxes(-1, -2)
-    if H is not None:  # Joseph form; K's missing columns are zero, so R's missing rows never enter
-        KH = mm(K, H)
+    if joseph:
+        KH = prod(K, X)
         IKH = _eye(KH.shape[-1], KH.ndim) - KH
-        cov = mm(mm(IKH, P), IKH.swapaxes(-1, -2)) + mm(mm(K, R), Kt)
-    else:
-        cov = P - mm(mm(K, S), Kt)
-    return poison(GaussianState(mean, symmetrize(cov)), singular)
+        return symmetrize(prod(prod(IKH, P), IKH.swapaxes(-1, -2)) + prod(prod(K, R), Kt))
+    return symmetrize(P - prod(prod(K, X), Kt))
 
 
 _ONE, _ONE3 = (1, 1), (1, 1, 1)

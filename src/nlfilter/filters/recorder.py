@@ -45,6 +45,13 @@ class Rows:
         self.yf, self.T, self.k0, self.block = yf, T, 0, None
         self.size = min(CHUNK_STEPS, max(1, CHUNK_BYTES // (8 * B * m))) if B > 1 and T > 1 and m else 0
 
+    @staticmethod
+    def of(yf):
+        """The rows of ``yf``: :class:`Rows`, or where they need no copy (one path, one step, no
+        component) ``yf`` time-major, a view: ``[k]`` is ``yf[:, k]`` itself, without a Python call."""
+        rows = Rows(yf)
+        return rows if rows.size else yf.swapaxes(0, 1)
+
     def __getitem__(self, k):
         if not self.size:
             return self.yf[:, k]
@@ -82,6 +89,9 @@ class Recorder:
         if d is None and bufs and cov is not None:  # a batch's step inside a chunk: straight into its buffers
             bufs["means"][0][k - self._k0] = mean
             bufs["covs"][0][k - self._k0] = cov
+        elif d is None and self._chunk <= 1 and cov is not None:  # (one path: _put's writes, in place)
+            self.means[:, k] = mean
+            self.covs[:, k] = cov
         elif d is None:
             self._put(k, "means", self.means, mean)
             self._put(k, "covs", self.covs, np.nan if cov is None else cov)
