@@ -201,3 +201,17 @@ def test_the_other_kinds_give_their_own_loops_bits(kind):
     assert build.loop_of(flt)[0] == kind
     kw = {"loglik": True, "on_divergence": "mark"}
     same(flt.run(ys, m0, P0, backend="numba", **kw), flt.run(ys, m0, P0, backend="numba-shared", **kw))
+
+
+def test_a_run_that_compiles_adds_nothing_to_the_tally():
+    """The model-free loop's tally (what moves a model to its own loop) counts runs on the loop
+    already loaded, not the run that compiled or loaded it."""
+    x = sp.Symbol("x")
+    md = DiscreteModel([x], f=[0.8 * x + 0.1 * sp.sin(x)], h=[x**3], Q=0.1, R=0.2)  # (the scalar loop: warm)
+    flt = EKF(md)
+    store = build.KERNELS.setdefault(md._kernels["f"], {})
+    ys = data(md)
+    run(flt, ys, "numba-shared")
+    assert store.get(choice.shared_tally("taylor1"), 0.0) == 0.0
+    run(flt, ys, "numba-shared")
+    assert store[choice.shared_tally("taylor1")] > 0.0

@@ -193,9 +193,8 @@ def _shared(flt, B):
     run ``flt``: whether it is in this process with the model's functions (:func:`.template.loaded`),
     and where each is without compiling (:func:`.template.ready`: writes the loop's text, 0.1-0.6 s
     once per process; asked of runs past the cost of loading numba only)."""
-    from . import build, template
+    from . import template
 
-    kind, fns, scalar, dims, key = build.loop_of(flt, B, one_path=True)
-    slots = {s: fns[s] for s in build.loop_functions(kind, scalar)}
+    kind, slots, scalar, dims, key = template.of(flt, B)
     return (len(slots), lambda: template.loaded(kind, slots, key, scalar, dims),
             lambda: template.ready(kind, slots, key, scalar, dims))

@@ -24,7 +24,7 @@ from __future__ import annotations
 
 import functools
 
-__all__ = ["SIGNATURES", "functions", "function_text", "loaded", "loop", "ready", "text"]
+__all__ = ["SIGNATURES", "functions", "function_text", "loaded", "loop", "of", "ready", "text"]
 
 _VEC = "void(float64[::1], float64, float64[::1], float64[::1])"
 _MAT = "void(float64[::1], float64, float64[::1], float64[:, ::1])"
@@ -104,6 +104,16 @@ def loop(kind: str, scalar: bool = False, dims=None) -> tuple:
         module, entry = load_source(*text(kind, scalar, dims))
         _LOOPS[name] = (module.steps, entry)
     return _LOOPS[name]
+
+
+def of(flt, B: int | None = None) -> tuple:
+    """``(kind, fns, scalar, dims, key)``: the model-free loop that would run ``flt`` on ``B`` paths
+    (:func:`.build.loop_of`'s one-path loop) and the model's functions it takes (``{slot: Kernel}``,
+    :func:`.build.loop_functions`)."""
+    from .build import loop_functions, loop_of
+
+    kind, fns, scalar, dims, key = loop_of(flt, B, one_path=True)
+    return kind, {s: fns[s] for s in loop_functions(kind, scalar)}, scalar, dims, key
 
 
 def loaded(kind: str, fns: dict, key, scalar: bool = False, dims=None) -> bool:
