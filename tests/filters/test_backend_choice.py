@@ -50,9 +50,9 @@ def test_the_rule_by_size():
         assert backend == "numpy" and "short run" in why, why
         if compiled.available():
             backend, why = flt.backend_for(10_000, 10_000)
-            # the model-free loop where the model's own loop would be a one-path loop (the UKF, the
-            # scalar EKF), the model's own batch-inner loop for the 5-state EKF
-            assert backend == ("numba" if make is EKF and md.n == 5 else "numba-shared") and "repays" in why, why
+            # the model-free loop where the model's own loop would be a one-path loop (the UKF), the
+            # model's own batch-inner loop for the 5-state EKF and its own scalar loop for the scalar one
+            assert backend == ("numba" if make is EKF else "numba-shared") and "repays" in why, why
             # a fit's evaluations count: 30 runs of 1000 x 1000 repay what one does not
             n = md.n
             one = choice.numpy_seconds(compiled.build.loop_of(flt)[0], n, 1000, 1000)
@@ -155,7 +155,7 @@ def test_repeated_runs_move_to_the_compiled_loop(tmp_path, monkeypatch):
     for _ in range(5):
         assert flt.backend_for(1000, 1000)[0] == "numpy"  # questions only
     picks = [choice.choose(flt, 1000, 1000, record=True).backend for _ in range(need)]
-    assert picks == ["numpy"] * (need - 1) + ["numba-shared"]  # (the model-free loop: the scalar loop is one-path)
+    assert picks == ["numpy"] * (need - 1) + ["numba"]  # (the scalar loop: always the model's own)
     assert EKF(_scalar(0.6)).backend_for(1000, 1000)[0] == "numpy"
 
 
