@@ -34,6 +34,7 @@ from types import SimpleNamespace  # noqa: E402
 import numpy as np  # noqa: E402
 
 HERE = pathlib.Path(__file__).resolve().parent
+_FILLED: dict = {}  # job -> the filling process's report
 CACHE_NOTE = ("warm disk cache: the job's loop compiled and written to NLFILTER_CACHE by another process "
               "(backend='numba'); the default call timed in a fresh process (nothing compiled or loaded in it, "
               "numba not imported): its first call's extra is numba's import and the loop's load")
@@ -56,14 +57,17 @@ def _child(factory: str, args: list, ys, m0, P0, repeat: int, backend: str | Non
     return out
 
 
-def warm_default(factory: str, args: list, ys, m0, P0, repeat: int):
-    """The default call of ``factory(*args)`` (``"module:function"`` in ``benchmarks/``) on ``ys``
+def warm_default(factory: str, args: list, ys, m0, P0, repeat: int, backend: str | None = None):
+    """The default call (``backend`` None; or the run with that ``backend``) of ``factory(*args)`` (``"module:function"`` in ``benchmarks/``) on ``ys``
     with the job's loop on disk beforehand (see the module). Returns ``(timing, estimates,
     notes)`` as a column of :func:`_peers.nlfilter_sides`: the timing of :func:`_pin.first_and_best`
     plus ``backend`` and ``why`` (the rule's choice), ``fill`` (the filling process's compile, wall
     and CPU seconds) and the timed process's CPU seconds; the estimates carry ``means``."""
-    fill = _child(factory, args, ys, m0, P0, 1, "numba")
-    out = _child(factory, args, ys, m0, P0, repeat, None)
+    job = (factory, json.dumps(args), ys.shape)
+    if job not in _FILLED:  # (once per job: a second column finds it filled)
+        _FILLED[job] = _child(factory, args, ys, m0, P0, 1, "numba")
+    fill = _FILLED[job]
+    out = _child(factory, args, ys, m0, P0, repeat, backend)
     timing = {**out["timing"], "backend": out["backend"], "why": out["why"], "cache": "warm",
               "numba_imported_at_start": out["numba_imported_at_start"],
               "process_cpu_seconds": out["process_cpu_seconds"],

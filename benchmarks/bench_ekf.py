@@ -225,8 +225,9 @@ def main(argv=None):
     ap.add_argument("--steps", type=int, default=1000)
     ap.add_argument("--repeat", type=int, default=5, help="calls per side, the first (compile) apart")
     ap.add_argument("--filterpy-paths", type=int, default=10)
-    ap.add_argument("--columns", nargs="+", choices=["default", "numpy", "numba"],
-                    default=["default", "numpy", "numba"], help="nlfilter's calls: default (no backend=), numpy, numba")
+    ap.add_argument("--columns", nargs="+", choices=["default", "numpy", "numba", "numba-fresh"],
+                    default=["default", "numpy", "numba"], help="nlfilter's calls: default (no backend=), numpy, numba; with --cache warm also "
+                         "numba-fresh (backend='numba' in a fresh process)")
     ap.add_argument("--cache", choices=["cold", "warm"], default="cold",
                     help="the disk cache at the default call: cold (empty), or warm (the job's loop written by "
                          "another process; the default call timed in a fresh one)")
