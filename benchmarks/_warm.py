@@ -71,19 +71,21 @@ def warm_default(factory: str, args: list, ys, m0, P0, repeat: int, backend: str
     timing = {**out["timing"], "backend": out["backend"], "why": out["why"], "cache": "warm",
               "numba_imported_at_start": out["numba_imported_at_start"],
               "process_cpu_seconds": out["process_cpu_seconds"],
+              "minor_page_faults": out["minor_page_faults"],
               "fill": {"first": fill["timing"]["first"], "first_cpu": fill["timing"]["first_cpu"],
-                       "sealed": fill["sealed"]}}
+                       "unsealed_entries": fill["unsealed"]}}
     notes = [CACHE_NOTE]
-    if not fill["sealed"]:
-        notes.append(f"{factory}{tuple(args)}: the filling process left no sealed entry")
+    if fill["unsealed"]:
+        notes.append(f"{factory}{tuple(args)}: the filling process left {fill['unsealed']} entries unsealed")
     return timing, SimpleNamespace(means=out["means"]), notes
 
 
-def _sealed_entries() -> int:
+def _unsealed_entries() -> int:
+    """Entries of the disk cache holding numba's files without their seal."""
     from nlfilter.filters.compiled.cache import cache_root
 
     root = cache_root()
-    return sum(1 for p in root.glob("*/sealed.json")) if root.is_dir() else 0
+    return sum(1 for p in root.glob("*/__pycache__") if not (p.parent / "sealed.json").exists())
 
 
 def _main(job: dict) -> None:
@@ -108,7 +110,6 @@ def _main(job: dict) -> None:
         kw = {}
     else:
         kw = {"backend": job["backend"]}
-    sealed = _sealed_entries()
     if job["repeat"] <= 1:
         t, c = time.perf_counter(), time.process_time()
         est = flt.run(ys, m0, P0, **kw)
@@ -120,7 +121,8 @@ def _main(job: dict) -> None:
     np.save(pathlib.Path(job["dir"]) / "means.npy", est.means)
     out = {"timing": timing, "backend": chose[0][0] if chose else job["backend"],
            "why": chose[0][1] if chose else None, "numba_imported_at_start": numba_at_start,
-           "process_cpu_seconds": ru.ru_utime + ru.ru_stime, "sealed": _sealed_entries() > sealed}
+           "process_cpu_seconds": ru.ru_utime + ru.ru_stime, "unsealed": _unsealed_entries(),
+           "minor_page_faults": ru.ru_minflt}
     (pathlib.Path(job["dir"]) / "out.json").write_text(json.dumps(out))
 
 
