@@ -61,7 +61,8 @@ def warm_default(factory: str, args: list, ys, m0, P0, repeat: int, backend: str
     """The default call (``backend`` None; or the run with that ``backend``) of ``factory(*args)`` (``"module:function"`` in ``benchmarks/``) on ``ys``
     with the job's loop on disk beforehand (see the module). Returns ``(timing, estimates,
     notes)`` as a column of :func:`_peers.nlfilter_sides`: the timing of :func:`_pin.first_and_best`
-    plus ``backend`` and ``why`` (the rule's choice), ``fill`` (the filling process's compile, wall
+    plus ``backend`` and ``why`` (the rule's choice at the first call), ``calls`` (each call's wall
+    and CPU seconds and backend: the automatic rule may move to the cached loop at a later call), ``fill`` (the filling process's compile, wall
     and CPU seconds) and the timed process's CPU seconds; the estimates carry ``means``."""
     job = (factory, json.dumps(args), ys.shape)
     if job not in _FILLED:  # (once per job: a second column finds it filled)
@@ -71,7 +72,7 @@ def warm_default(factory: str, args: list, ys, m0, P0, repeat: int, backend: str
     timing = {**out["timing"], "backend": out["backend"], "why": out["why"], "cache": "warm",
               "numba_imported_at_start": out["numba_imported_at_start"],
               "process_cpu_seconds": out["process_cpu_seconds"],
-              "minor_page_faults": out["minor_page_faults"],
+              "minor_page_faults": out["minor_page_faults"], "calls": out["calls"],
               "fill": {"first": fill["timing"]["first"], "first_cpu": fill["timing"]["first_cpu"],
                        "unsealed_entries": fill["unsealed"]}}
     notes = [CACHE_NOTE]
@@ -110,16 +111,20 @@ def _main(job: dict) -> None:
         kw = {}
     else:
         kw = {"backend": job["backend"]}
-    if job["repeat"] <= 1:
+    calls = []  # each call's (wall, CPU) seconds: the first apart, then the best, as _pin.first_and_best
+    for _ in range(max(job["repeat"], 1)):
         t, c = time.perf_counter(), time.process_time()
         est = flt.run(ys, m0, P0, **kw)
-        first, first_cpu = time.perf_counter() - t, time.process_time() - c
-        timing = {"first": first, "first_cpu": first_cpu}
-    else:
-        timing, est = _pin.first_and_best(lambda: flt.run(ys, m0, P0, **kw), job["repeat"])
+        calls.append((time.perf_counter() - t, time.process_time() - c))
+    timing = {"first": calls[0][0], "first_cpu": calls[0][1]}
+    if len(calls) > 1:
+        best, best_cpu = min(w for w, _ in calls[1:]), min(c for _, c in calls[1:])
+        timing.update(best=best, best_cpu=best_cpu, compile=max(calls[0][0] - best, 0.0), included=calls[0][0])
     ru = resource.getrusage(resource.RUSAGE_SELF)
     np.save(pathlib.Path(job["dir"]) / "means.npy", est.means)
-    out = {"timing": timing, "backend": chose[0][0] if chose else job["backend"],
+    out = {"timing": timing, "calls": [{"wall": w, "cpu": c, "backend": chose[i][0] if i < len(chose) else job["backend"]}
+                                       for i, (w, c) in enumerate(calls)],
+           "backend": chose[0][0] if chose else job["backend"],
            "why": chose[0][1] if chose else None, "numba_imported_at_start": numba_at_start,
            "process_cpu_seconds": ru.ru_utime + ru.ru_stime, "unsealed": _unsealed_entries(),
            "minor_page_faults": ru.ru_minflt}

@@ -169,7 +169,8 @@ def _summary(row):
         out.append(f"  {r['ours']} vs {r['peer']} ({r['compile']}): {r['peer_over_ours']:.2f}x{cpu}")
     for kind, cols in row["nlfilter"].items():
         if "backend" in cols.get("default", {}):
-            out.append(f"  {kind} default call: {cols['default']['backend']} ({cols['default']['why']})")
+            calls = "/".join(c["backend"] for c in cols["default"].get("calls", []))
+            out.append(f"  {kind} default call: {cols['default']['backend']} ({cols['default']['why']}); calls: {calls}")
     return "\n".join(out)
 
 

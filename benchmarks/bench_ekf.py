@@ -245,7 +245,7 @@ def main(argv=None):
         print(f"{r['ours']} vs {r['peer']} ({r['compile']}): {r['peer_over_ours']:.2f}x{cpu}")
     d = res["nlfilter"].get("default", {})
     if "backend" in d:
-        print(f"default call: {d['backend']} ({d['why']})")
+        print(f"default call: {d['backend']} ({d['why']}); calls: {'/'.join(c['backend'] for c in d.get('calls', []))}")
     _pin.write(a.out, a.label, res, benchmark="ekf")
 
 
