@@ -13,6 +13,14 @@ thread; ``NLFILTER_BENCH_CACHE=keep``, so both use the caller's ``NLFILTER_CACHE
    "compile"), and records what the automatic rule chose and why (``backend_for`` as the run asked
    it) and the process's CPU seconds.
 
+The same with ``backend="numba"`` (the column ``numba-fresh``): what the default call would pay
+where it took the cached loop at once. A fresh process also pays the first touch of its output
+arrays' memory: where NumPy advises huge pages for large arrays and the kernel compacts memory to
+find them (``transparent_hugepage/defrag`` ``madvise``, as on the machine of the runs
+``warm-cache*``), that took 2-3.5 s of CPU for the EKF's 410 MB at n = 16, against 0.2 s with
+``NUMPY_MADVISE_HUGEPAGE=0`` (the runs ``warm-cache-nohugepage`` and ``warm-cache-calls``; the
+environment records it).
+
 Run as a script, this module is that child process (``python _warm.py '<job json>'``).
 """
 
@@ -36,8 +44,9 @@ import numpy as np  # noqa: E402
 HERE = pathlib.Path(__file__).resolve().parent
 _FILLED: dict = {}  # job -> the filling process's report
 CACHE_NOTE = ("warm disk cache: the job's loop compiled and written to NLFILTER_CACHE by another process "
-              "(backend='numba'); the default call timed in a fresh process (nothing compiled or loaded in it, "
-              "numba not imported): its first call's extra is numba's import and the loop's load")
+              "(backend='numba'); the call timed in a fresh process (nothing compiled or loaded in it, numba not "
+              "imported): its first call's extra is numba's import and the loop's load (and the first touch of "
+              "its memory)")
 
 
 def _child(factory: str, args: list, ys, m0, P0, repeat: int, backend: str | None) -> dict:
@@ -58,12 +67,14 @@ def _child(factory: str, args: list, ys, m0, P0, repeat: int, backend: str | Non
 
 
 def warm_default(factory: str, args: list, ys, m0, P0, repeat: int, backend: str | None = None):
-    """The default call (``backend`` None; or the run with that ``backend``) of ``factory(*args)`` (``"module:function"`` in ``benchmarks/``) on ``ys``
-    with the job's loop on disk beforehand (see the module). Returns ``(timing, estimates,
-    notes)`` as a column of :func:`_peers.nlfilter_sides`: the timing of :func:`_pin.first_and_best`
-    plus ``backend`` and ``why`` (the rule's choice at the first call), ``calls`` (each call's wall
-    and CPU seconds and backend: the automatic rule may move to the cached loop at a later call), ``fill`` (the filling process's compile, wall
-    and CPU seconds) and the timed process's CPU seconds; the estimates carry ``means``."""
+    """The default call (``backend`` None; else the run with that ``backend``) of ``factory(*args)``
+    (``"module:function"`` in ``benchmarks/``) on ``ys`` with the job's loop on disk beforehand (see
+    the module). Returns ``(timing, estimates, notes)`` as a column of
+    :func:`_peers.nlfilter_sides`: the timing of :func:`_pin.first_and_best` plus ``backend`` and
+    ``why`` (the rule's choice at the first call), ``calls`` (each call's wall and CPU seconds and
+    backend: the automatic rule may move to the cached loop at a later call), ``fill`` (the filling
+    process's compile, wall and CPU seconds) and the timed process's CPU seconds and page faults;
+    the estimates carry ``means``."""
     job = (factory, json.dumps(args), ys.shape)
     if job not in _FILLED:  # (once per job: a second column finds it filled)
         _FILLED[job] = _child(factory, args, ys, m0, P0, 1, "numba")
