@@ -31,9 +31,13 @@ def relmaxdiff(a, b) -> float:
     return maxdiff(a, b) / scale
 
 
-def nlfilter_sides(make, ys, m0, P0, repeat, columns=("default", "numpy", "numba"), **kw):
+def nlfilter_sides(make, ys, m0, P0, repeat, columns=("default", "numpy", "numba"), warm=None, **kw):
     """Time ``make().run(ys, m0, P0, **kw)`` for each column, in order: ``"default"`` (no backend
     argument: first, so that a compile it decides on is its own), ``"numpy"``, ``"numba"``.
+    ``warm``: None (the default call in this process, on the cache as it is: cold in a benchmark),
+    or ``(factory, args)`` for :func:`_warm.warm_default` (the default call in a fresh process, the
+    job's loop written to the disk cache beforehand by another one: its estimates carry ``means``);
+    then the column ``"numba-fresh"`` is ``backend="numba"`` in a fresh process on that cache.
 
     Returns ``(timings, estimates, notes)``: ``timings[col]`` as :func:`_pin.first_and_best` (its
     "compile" is the first call's extra over the best: a compile, a cache load, or noise for the
@@ -43,11 +47,21 @@ def nlfilter_sides(make, ys, m0, P0, repeat, columns=("default", "numpy", "numba
     """
     timings, est, notes = {}, {}, []
     default = default_backend()
-    if default != "numpy" and "default" in columns and "numba" in columns:
+    if default != "numpy" and "default" in columns and "numba" in columns and warm is None:
         notes.append(f"the default call ({default!r}) runs first: where it compiled, backend='numba' finds the "
                      "compiled loop in this process and its 'compile' is what is left (a cold compile is the "
                      "default call's)")
     for col in columns:
+        if col in ("default", "numba-fresh") and warm is not None:
+            from _warm import warm_default
+
+            timings[col], est[col], more = warm_default(*warm, ys, m0, P0, repeat,
+                                                        backend=None if col == "default" else "numba")
+            notes += [x for x in more if x not in notes]
+            continue
+        if col == "numba-fresh":
+            notes.append("numba-fresh: only with a warm cache (--cache warm)")
+            continue
         if col == "numpy" and "default" in timings and default == "numpy":
             timings["numpy"], est["numpy"] = timings["default"], est["default"]
             notes.append("the default call is backend='numpy' here: one measurement for both columns")
@@ -225,16 +239,20 @@ def column_name(col: str) -> str:
     """How a row names an nlfilter column."""
     if col == "default":
         return f"default call, no backend= (here {default_backend()!r})"
+    if col == "numba-fresh":
+        return "backend='numba' in a fresh process"
     return f"backend={col!r}"
 
 
-def rows_against(ours: dict, peer: str, theirs: dict, steps: int) -> list:
+def rows_against(ours: dict, peer: str, theirs: dict, steps: int, cache: str | None = None) -> list:
     """Rows naming both sides, for every filter kind in both and every nlfilter column.
 
     ``ours[kind][col]`` and ``theirs[kind]`` are :func:`_pin.first_and_best` timings of the same
-    job of ``steps`` (path-)steps (a peer timing without "first" has no compile-included row).
+    job of ``steps`` (path-)steps (a peer timing without "first" has no compile-included row; where
+    both have CPU times, each row also gives ``cpu_peer_over_ours`` compile apart and included).
     A column that is the default call's measurement itself (the default is that backend) gives
-    no second row. Each pair gives a row of µs per (path-)step with the compile apart (the best calls) and, where
+    no second row. ``cache`` (e.g. ``"warm"``) names the disk cache's state in the rows (key
+    ``cache`` and the name of nlfilter's side). Each pair gives a row of µs per (path-)step with the compile apart (the best calls) and, where
     both sides have a first call, a row of seconds to the first result (compile included).
     """
     from _pin import side_by_side
@@ -245,13 +263,22 @@ def rows_against(ours: dict, peer: str, theirs: dict, steps: int) -> list:
             if col != "default" and t_ours is ours[kind].get("default"):
                 continue  # the default call's own measurement (its row names what it resolved to)
             name = f"nlfilter {kind}, {column_name(col)}"
+            extra = {"kind": kind, "column": col}
+            if "best_cpu" in t_ours and "best_cpu" in t_peer:  # a shared core inflates wall time, not CPU time
+                extra["cpu_peer_over_ours"] = {"apart": t_peer["best_cpu"] / t_ours["best_cpu"]}
+                if all(t.get("included") == t.get("first") for t in (t_ours, t_peer)):  # (not a build added)
+                    extra["cpu_peer_over_ours"]["included"] = t_peer["first_cpu"] / t_ours["first_cpu"]
+            if cache is not None:
+                state = "fresh process" if col in ("default", "numba-fresh") else "in the benchmark's process"
+                name += f", {cache} disk cache ({state})"
+                extra["cache"] = cache
             rows.append(side_by_side(name, f"{peer} {kind}", t_ours["best"] / steps * 1e6,
                                      t_peer["best"] / steps * 1e6, "µs per (path-)step, compile apart",
-                                     kind=kind, column=col, compile="apart"))
+                                     **extra, compile="apart"))
             if "first" in t_peer:
                 rows.append(side_by_side(name, f"{peer} {kind}", t_ours["included"], t_peer["included"],
                                          "s to the first result of the whole job, compile included",
-                                         kind=kind, column=col, compile="included"))
+                                         **extra, compile="included"))
     return rows
 
 

@@ -163,6 +163,19 @@ def _cpu_model():
     return platform.processor() or platform.machine()
 
 
+def _thp() -> dict:
+    """The kernel's transparent huge page settings (NumPy advises huge pages for large arrays: where
+    the kernel compacts memory to find them, a fresh process's first touch of a large array is slow)."""
+    out = {}
+    for name in ("enabled", "defrag"):
+        try:
+            with open(f"/sys/kernel/mm/transparent_hugepage/{name}") as fh:
+                out[name] = fh.read().strip()
+        except OSError:
+            out[name] = None
+    return out
+
+
 def pinning() -> dict:
     """What was pinned: the core, the thread variables, XLA's flags and the thread pools loaded."""
     try:
@@ -173,7 +186,8 @@ def pinning() -> dict:
             "threads": {v: os.environ.get(v) for v in THREAD_VARIABLES}, "XLA_FLAGS": os.environ.get("XLA_FLAGS"),
             "thread_pools": [{k: i.get(k) for k in ("user_api", "internal_api", "num_threads", "version")}
                              for i in threadpool_info()],
-            "imported_before_pin": _LATE,
+            "imported_before_pin": _LATE, "NUMPY_MADVISE_HUGEPAGE": os.environ.get("NUMPY_MADVISE_HUGEPAGE"),
+            "transparent_hugepage": _thp(),
             "nlfilter_cache": "kept (the user's)" if os.environ.get("NLFILTER_BENCH_CACHE") == "keep"
             else "a fresh empty directory (cold)"}
 

@@ -23,6 +23,12 @@ Sides, in one run, one core and one thread each (:mod:`_pin`, imported first):
 * filterpy ``ExtendedKalmanFilter`` and ``UnscentedKalmanFilter`` (a Python loop per path and
   step) on ``--filterpy-paths`` paths, per path-step.
 
+``--cache warm`` (default ``cold``): the default column as a rerun meets it, the job's compiled
+loop already on disk — for each filter and n another process runs the job once with
+``backend="numba"`` into the run's ``NLFILTER_CACHE`` folder, then a fresh process (nothing compiled
+in it) times the default call, its load counted as its compile (:mod:`_warm`); the other nlfilter
+columns then find the cache warm too. Rows name the cache state (``cache``).
+
 Every best is of ``--repeat`` (3) calls, the first apart. Each row of the JSON names both sides
 (``ours``, ``peer``) and gives ``peer_over_ours`` (> 1: nlfilter faster), with the compile apart
 (µs per path-step) and included (seconds to the first result). The largest relative difference of
@@ -32,7 +38,7 @@ nlfilter's default). ``--label`` names the run in the JSON (other runs kept). No
 anywhere.
 
 Run: ``taskset -c 1 python benchmarks/bench_dimensions.py [--label pinned] [--dims 1 2 4 8 16]
-[--columns default numpy numba] [--quick]``
+[--columns default numpy numba] [--cache cold|warm] [--quick]``
 """
 
 from __future__ import annotations
@@ -56,6 +62,11 @@ FILTERS = {"ekf": EKF, "ukf": UKF, "ckf": CKF, "second-order": SecondOrderFilter
            "ghkf-2": lambda md: GHKF(md, order=2)}
 
 
+def make_filter(kind, n):
+    """The filter ``kind`` on :func:`_models.chain` ``(n)`` (the warm cache's processes make it so)."""
+    return FILTERS[kind](chain(n))
+
+
 def measure(n, a):
     """One dimension's row: nlfilter's columns, dynamax, filterpy, the rows side by side."""
     md = chain(n)
@@ -68,7 +79,8 @@ def measure(n, a):
     for kind in a.filters:
         if kind == "ghkf-2" and n > 8:
             continue  # 2^n nodes
-        t, e, notes = nlfilter_sides(lambda: FILTERS[kind](md), ys, m0, P0, a.repeat, a.columns)
+        warm = ("bench_dimensions:make_filter", [kind, n]) if a.cache == "warm" else None
+        t, e, notes = nlfilter_sides(lambda: FILTERS[kind](md), ys, m0, P0, a.repeat, a.columns, warm=warm)
         ours[kind], est[kind] = t, e
         row["nlfilter"][kind] = {col: per_step(v, ps) for col, v in t.items()}
         row["notes"] += [f"{kind}: {x}" for x in notes if x not in row["notes"]]
@@ -77,13 +89,14 @@ def measure(n, a):
             if base is not None and col != "numpy" and e[col] is not base:
                 row["max_rel_difference_of_means"][f"{kind}: {col} vs numpy"] = relmaxdiff(e[col].means, base.means)
     row["rows"] = []
+    cache = "warm" if a.cache == "warm" else None
     if a.no_peers:
         return row
     try:
         dm, dm_means = dynamax_filters(lambda jnp: chain_jax(n, jnp), ys, a.repeat,
                                        kinds=[k for k in ("ekf", "ukf", "ckf") if k in ours])
         row["dynamax"] = {k: per_step(v, ps) for k, v in dm.items()}
-        row["rows"] += rows_against(ours, "dynamax jit+vmap float64", dm, ps)
+        row["rows"] += rows_against(ours, "dynamax jit+vmap float64", dm, ps, cache)
         for k in dm:
             col = next(iter(est[k]))
             row["max_rel_difference_of_means"][f"{k}: nlfilter {col} vs dynamax"] = relmaxdiff(
@@ -94,7 +107,7 @@ def measure(n, a):
         try:
             so, so_means = jax_second_order(lambda jnp: chain_jax(n, jnp), ys, a.repeat)
             row["jax_second_order"] = {k: per_step(v, ps) for k, v in so.items()}
-            row["rows"] += rows_against(ours, SO_PEER, so, ps)
+            row["rows"] += rows_against(ours, SO_PEER, so, ps, cache)
             col = next(iter(est["second-order"]))
             row["max_rel_difference_of_means"][f"second-order: nlfilter {col} vs jax second-order"] = relmaxdiff(
                 est["second-order"][col].means, so_means["second-order"])
@@ -106,7 +119,7 @@ def measure(n, a):
                                    a.repeat)
         row["filterpy"] = {k: {"us_per_step": v * 1e6, "paths_timed": npth} for k, v in per.items()}
         row["rows"] += rows_against(ours, f"filterpy (a Python loop, {npth} paths timed)",
-                                    {k: {"best": v * ps} for k, v in per.items() if k in ours}, ps)
+                                    {k: {"best": v * ps} for k, v in per.items() if k in ours}, ps, cache)
         for k in per:  # filterpy predicts first
             pred = (EKF if k == "ekf" else UKF)(md, start="predict")
             row["max_rel_difference_of_means"][f"{k}: nlfilter vs filterpy"] = relmaxdiff(
@@ -124,9 +137,13 @@ def main(argv=None):
     ap.add_argument("--repeat", type=int, default=3, help="calls per column, the first (compile) apart")
     ap.add_argument("--filterpy-paths", type=int, default=5)
     ap.add_argument("--filters", nargs="+", choices=list(FILTERS), default=["ekf", "ukf", "ckf", "second-order"])
-    ap.add_argument("--columns", nargs="+", choices=["default", "numpy", "numba"],
+    ap.add_argument("--columns", nargs="+", choices=["default", "numpy", "numba", "numba-fresh"],
                     default=["default", "numpy", "numba"],
-                    help="nlfilter's calls: default (no backend=), numpy, numba")
+                    help="nlfilter's calls: default (no backend=), numpy, numba; with --cache warm also "
+                         "numba-fresh (backend='numba' in a fresh process)")
+    ap.add_argument("--cache", choices=["cold", "warm"], default="cold",
+                    help="the disk cache at the default call: cold (empty), or warm (the job's loop written by "
+                         "another process; the default call timed in a fresh one)")
     ap.add_argument("--no-peers", action="store_true", help="nlfilter only")
     ap.add_argument("--quick", action="store_true", help="smoke size: n = 1, 2; 20 paths x 10 steps; 2 calls")
     ap.add_argument("--label", default="pinned", help="the run's name in the JSON (other runs kept)")
@@ -141,13 +158,19 @@ def main(argv=None):
     _pin.write(a.out, a.label, {
         "problem": "x_i' = 0.9 x_i + 0.1 sin(x_{i+1}) + w, y_j = x_j + 0.1 x_{j+m}^2 + v, Q = 0.01 I, "
                    "R = 0.1 I, m0 = 0, P0 = I, m = ceil(n/2)",
-        "repeat": a.repeat, "quick": a.quick, "columns": a.columns, "rows": rows}, benchmark="dimensions")
+        "repeat": a.repeat, "quick": a.quick, "columns": a.columns, "cache": a.cache, "rows": rows}, benchmark="dimensions")
 
 
 def _summary(row):
     out = [f"n = {row['n']}:"]
     for r in row["rows"]:
-        out.append(f"  {r['ours']} vs {r['peer']} ({r['compile']}): {r['peer_over_ours']:.2f}x")
+        cpu = r.get("cpu_peer_over_ours", {}).get(r["compile"])
+        cpu = f" (CPU {cpu:.2f}x)" if cpu is not None else ""
+        out.append(f"  {r['ours']} vs {r['peer']} ({r['compile']}): {r['peer_over_ours']:.2f}x{cpu}")
+    for kind, cols in row["nlfilter"].items():
+        if "backend" in cols.get("default", {}):
+            calls = "/".join(c["backend"] for c in cols["default"].get("calls", []))
+            out.append(f"  {kind} default call: {cols['default']['backend']} ({cols['default']['why']}); calls: {calls}")
     return "\n".join(out)
 
 

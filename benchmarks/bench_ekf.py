@@ -17,13 +17,19 @@ Q = 0.01, R = 0.1), 1000 paths × 1000 steps, every side on one core with one th
   (contiguous state, time-major output: what a C programmer would write for a batch) and one path
   at a time.
 
+``--cache warm`` (default ``cold``): the default call as a rerun meets it — another process runs
+the job once with ``backend="numba"`` into the run's ``NLFILTER_CACHE`` folder, then a fresh
+process (nothing compiled in it) times the default call, its load counted as its compile
+(:mod:`_warm`); the other nlfilter columns then find the cache warm too. Rows name the cache state.
+
 Each best is of ``--repeat`` (5) calls, the first apart. Writes the run ``--label`` of
 ``benchmarks/results/bench_ekf.json``: per side µs per path-step, the rows naming both sides
 (``peer_over_ours`` > 1: nlfilter faster; compile apart and included), and the largest
 differences of the filtered means. Needs ``pip install ".[bench]"``; peers that are not installed
 are reported as missing.
 
-Run: ``taskset -c 1 python benchmarks/bench_ekf.py [--paths 1000 --steps 1000 --filterpy-paths 10] [--quick]``
+Run: ``taskset -c 1 python benchmarks/bench_ekf.py [--paths 1000 --steps 1000 --filterpy-paths 10]
+[--cache cold|warm] [--quick]``
 """
 
 from __future__ import annotations
@@ -47,6 +53,11 @@ from nlfilter.filters.ekf import EKF  # noqa: E402
 from nlfilter.simulate import simulate  # noqa: E402
 
 Q, R, M0, P0 = CUBIC_Q, CUBIC_R, CUBIC_M0, CUBIC_P0
+
+
+def make_filter():
+    """nlfilter's EKF on the cubic sensor (the warm cache's processes make it so)."""
+    return EKF(cubic())
 
 
 def hand_ekf(ys, m0, P0):
@@ -125,7 +136,9 @@ def measure(a):
     ps = a.paths * a.steps
     res = {"problem": "discrete cubic sensor, dt=0.01, Q=0.01, R=0.1", "paths": a.paths, "steps": a.steps,
            "repeat": a.repeat, "notes": []}
-    ours, est, notes = nlfilter_sides(lambda: EKF(md), ys, M0, P0, a.repeat, a.columns)
+    warm = ("bench_ekf:make_filter", []) if a.cache == "warm" else None
+    cache = "warm" if warm else None
+    ours, est, notes = nlfilter_sides(lambda: EKF(md), ys, M0, P0, a.repeat, a.columns, warm=warm)
     res["notes"] += notes
     res["nlfilter"] = {col: per_step(t, ps) for col, t in ours.items()}
     ref = est.get("numpy", est.get("default")).means[..., 0]
@@ -136,7 +149,7 @@ def measure(a):
 
     t, hand = best_of(lambda: hand_ekf(ys[..., 0], M0, P0), a.repeat)
     res["numpy_hand_vectorised"] = {"us_per_step": t / ps * 1e6}
-    rows += rows_against(ours, "a hand-vectorised NumPy", {"ekf": {"best": t}}, ps)
+    rows += rows_against(ours, "a hand-vectorised NumPy", {"ekf": {"best": t}}, ps, cache)
     diffs["nlfilter vs hand NumPy"] = maxdiff(ref, hand)
 
     try:
@@ -159,7 +172,8 @@ def measure(a):
                 fp_means[p, k] = f.x[0, 0]
         per = (time.perf_counter() - t0) / (npth * a.steps)
         res["filterpy"] = {"us_per_step": per * 1e6, "paths_timed": npth}
-        rows += rows_against(ours, f"filterpy (a Python loop, {npth} paths timed)", {"ekf": {"best": per * ps}}, ps)
+        rows += rows_against(ours, f"filterpy (a Python loop, {npth} paths timed)", {"ekf": {"best": per * ps}}, ps,
+                             cache)
         diffs["nlfilter vs filterpy"] = maxdiff(pred.means[..., 0], fp_means)
     except ImportError:
         res["notes"].append("filterpy not installed")
@@ -167,7 +181,7 @@ def measure(a):
     try:
         dm, dm_means = dynamax_filters(cubic_jax, ys, a.repeat, kinds=("ekf",))
         res["dynamax"] = {k: per_step(v, ps) for k, v in dm.items()}
-        rows += rows_against(ours, "dynamax jit+vmap float64", dm, ps)
+        rows += rows_against(ours, "dynamax jit+vmap float64", dm, ps, cache)
         diffs["nlfilter vs dynamax"] = maxdiff(ref, dm_means["ekf"][..., 0])
         res["notes"].append("dynamax's psd_solve adds a 1e-9 diagonal boost to S and updates P - K S K^T "
                             "(no Joseph form): its gains differ from the exact ones by ~1e-9 relative, which "
@@ -197,7 +211,7 @@ def measure(a):
             for name, t in c.items():  # "compile included": gcc's build, then the first call
                 t.update(compile=build, included=build + t["first"])
                 res.setdefault("c_loop", {})[name] = per_step(t, ps)
-                rows += rows_against(ours, f"a C loop (gcc -O3, {name})", {"ekf": t}, ps)
+                rows += rows_against(ours, f"a C loop (gcc -O3, {name})", {"ekf": t}, ps, cache)
             diffs["C vs hand NumPy"] = float(max(np.abs(mt.T - hand).max(), np.abs(mp - hand).max()))
     res["max_abs_difference_of_means"] = diffs
     res["rows"] = rows
@@ -211,8 +225,12 @@ def main(argv=None):
     ap.add_argument("--steps", type=int, default=1000)
     ap.add_argument("--repeat", type=int, default=5, help="calls per side, the first (compile) apart")
     ap.add_argument("--filterpy-paths", type=int, default=10)
-    ap.add_argument("--columns", nargs="+", choices=["default", "numpy", "numba"],
-                    default=["default", "numpy", "numba"], help="nlfilter's calls: default (no backend=), numpy, numba")
+    ap.add_argument("--columns", nargs="+", choices=["default", "numpy", "numba", "numba-fresh"],
+                    default=["default", "numpy", "numba"], help="nlfilter's calls: default (no backend=), numpy, numba; with --cache warm also "
+                         "numba-fresh (backend='numba' in a fresh process)")
+    ap.add_argument("--cache", choices=["cold", "warm"], default="cold",
+                    help="the disk cache at the default call: cold (empty), or warm (the job's loop written by "
+                         "another process; the default call timed in a fresh one)")
     ap.add_argument("--quick", action="store_true", help="smoke size: 20 paths x 50 steps, 2 calls")
     ap.add_argument("--label", default="pinned", help="the run's name in the JSON (other runs kept)")
     ap.add_argument("--out", default=str(pathlib.Path(__file__).parent / "results" / "bench_ekf.json"))
@@ -220,9 +238,14 @@ def main(argv=None):
     if a.quick:
         a.paths, a.steps, a.repeat, a.filterpy_paths = 20, 50, 2, 2
     res = measure(a)
-    res["quick"] = a.quick
+    res["quick"], res["cache"] = a.quick, a.cache
     for r in res["rows"]:
-        print(f"{r['ours']} vs {r['peer']} ({r['compile']}): {r['peer_over_ours']:.2f}x")
+        cpu = r.get("cpu_peer_over_ours", {}).get(r["compile"])
+        cpu = f" (CPU {cpu:.2f}x)" if cpu is not None else ""
+        print(f"{r['ours']} vs {r['peer']} ({r['compile']}): {r['peer_over_ours']:.2f}x{cpu}")
+    d = res["nlfilter"].get("default", {})
+    if "backend" in d:
+        print(f"default call: {d['backend']} ({d['why']}); calls: {'/'.join(c['backend'] for c in d.get('calls', []))}")
     _pin.write(a.out, a.label, res, benchmark="ekf")
 
 

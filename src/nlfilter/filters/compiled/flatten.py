@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import ast
 import copy
+import functools
 import itertools
 import textwrap
 
@@ -63,6 +64,13 @@ def _parse(src: str) -> ast.FunctionDef:
     return fn
 
 
+@functools.cache
+def _parsed(src: str) -> ast.FunctionDef:
+    """:func:`_parse` of a callee's source, once per process (its tree only read, or copied before it
+    is changed: an inliner and the inliners of its functions apart parse the same kernels)."""
+    return _parse(src)
+
+
 def _has(node, kind) -> bool:
     return any(isinstance(x, kind) for x in ast.walk(node))
 
@@ -91,8 +99,8 @@ def _name(id_, store=False):
 class _Inliner:
     def __init__(self, defs: dict, apart=(), made=None):
         self.sources = defs
-        self.defs = {name: _parse(src) for name, src in defs.items() if name not in apart}
-        self.apart = {name: _parse(src) for name, src in defs.items() if name in apart}
+        self.defs = {name: _parsed(src) for name, src in defs.items() if name not in apart}
+        self.apart = {name: _parsed(src) for name, src in defs.items() if name in apart}
         self.made = {} if made is None else made  # (callee, constant arguments) -> (name, source)
         self.count = itertools.count(1)
 
