@@ -102,8 +102,13 @@ FUNCTION_SECONDS = 0.1
 #: the calls of the model's functions through their addresses) and the EKF's batch-inner loop
 #: (the model-free loop runs one path at a time), by :func:`~.batch_loop.is_batch`
 FULL_GAIN = {False: 1.25, True: 2.0}
-#: a cached loop's first run in a new process (numba's import, reading its code), seconds
-LOAD_SECONDS = 1.0
+#: a cached loop's first run in a new process, CPU seconds: numba's import (0.1), nlfilter's
+#: compiled modules (0.07), the loop's text (0.04-0.09), numba's first use of its target (0.15),
+#: reading the loop's code (0.02-0.05): 0.40-0.43 s at n = 4 (benchmarks/bench_dimensions.py
+#: --cache warm, run "warm-cache-calls"; 1.0 s was assumed before). The NumPy loop's time must
+#: reach it before numba is imported: a single call cheaper than that stays on NumPy (faster for
+#: that call), and a process repeating it loads the loop at the call that would have repaid it
+LOAD_SECONDS = 0.4
 #: the same once numba is imported in the process (reading the loop's code)
 LOADED_SECONDS = 0.1
 
