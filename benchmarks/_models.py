@@ -47,10 +47,11 @@ def _indices(n):
     return m, [(i + 1) % n for i in range(n)], [(j + m) % n for j in range(m)]
 
 
-def chain(n: int) -> DiscreteModel:
+def chain(n: int, a: float = 0.9) -> DiscreteModel:
+    """The chain of ``n`` states (``a``: its decay; another value is another model of its shape)."""
     x = sp.symbols(f"x1:{n + 1}")
     m, nxt, sq = _indices(n)
-    f = [0.9 * x[i] + 0.1 * sp.sin(x[nxt[i]]) for i in range(n)]
+    f = [a * x[i] + 0.1 * sp.sin(x[nxt[i]]) for i in range(n)]
     h = [x[j] + 0.1 * x[sq[j]] ** 2 for j in range(m)]
     return DiscreteModel(list(x), f, h, Q=Q * np.eye(n), R=R * np.eye(m), name=f"chain n={n}")
 

@@ -35,9 +35,10 @@ def nlfilter_sides(make, ys, m0, P0, repeat, columns=("default", "numpy", "numba
     """Time ``make().run(ys, m0, P0, **kw)`` for each column, in order: ``"default"`` (no backend
     argument: first, so that a compile it decides on is its own), ``"numpy"``, ``"numba"``.
     ``warm``: None (the default call in this process, on the cache as it is: cold in a benchmark),
-    or ``(factory, args)`` for :func:`_warm.warm_default` (the default call in a fresh process, the
-    job's loop written to the disk cache beforehand by another one: its estimates carry ``means``);
-    then the column ``"numba-fresh"`` is ``backend="numba"`` in a fresh process on that cache.
+    or ``(factory, args[, fill])`` for :func:`_warm.warm_default` (the default call in a fresh
+    process, the disk cache filled beforehand by another one: its estimates carry ``means``); then
+    the columns ``"numba-fresh"``, ``"numba-shared-fresh"`` are that backend in a fresh process on
+    that cache.
 
     Returns ``(timings, estimates, notes)``: ``timings[col]`` as :func:`_pin.first_and_best` (its
     "compile" is the first call's extra over the best: a compile, a cache load, or noise for the
@@ -51,16 +52,17 @@ def nlfilter_sides(make, ys, m0, P0, repeat, columns=("default", "numpy", "numba
         notes.append(f"the default call ({default!r}) runs first: where it compiled, backend='numba' finds the "
                      "compiled loop in this process and its 'compile' is what is left (a cold compile is the "
                      "default call's)")
+    fresh = {"default": None, "numba-fresh": "numba", "numba-shared-fresh": "numba-shared"}
     for col in columns:
-        if col in ("default", "numba-fresh") and warm is not None:
+        if col in fresh and warm is not None:
             from _warm import warm_default
 
-            timings[col], est[col], more = warm_default(*warm, ys, m0, P0, repeat,
-                                                        backend=None if col == "default" else "numba")
+            timings[col], est[col], more = warm_default(*warm[:2], ys, m0, P0, repeat, backend=fresh[col],
+                                                        fill=warm[2] if len(warm) > 2 else None)
             notes += [x for x in more if x not in notes]
             continue
-        if col == "numba-fresh":
-            notes.append("numba-fresh: only with a warm cache (--cache warm)")
+        if col in fresh and col != "default":
+            notes.append(f"{col}: only with a warm cache (--cache warm or shape)")
             continue
         if col == "numpy" and "default" in timings and default == "numpy":
             timings["numpy"], est["numpy"] = timings["default"], est["default"]
@@ -239,8 +241,8 @@ def column_name(col: str) -> str:
     """How a row names an nlfilter column."""
     if col == "default":
         return f"default call, no backend= (here {default_backend()!r})"
-    if col == "numba-fresh":
-        return "backend='numba' in a fresh process"
+    if col in ("numba-fresh", "numba-shared-fresh"):
+        return f"backend={col[:-6]!r} in a fresh process"
     return f"backend={col!r}"
 
 
@@ -269,7 +271,8 @@ def rows_against(ours: dict, peer: str, theirs: dict, steps: int, cache: str | N
                 if all(t.get("included") == t.get("first") for t in (t_ours, t_peer)):  # (not a build added)
                     extra["cpu_peer_over_ours"]["included"] = t_peer["first_cpu"] / t_ours["first_cpu"]
             if cache is not None:
-                state = "fresh process" if col in ("default", "numba-fresh") else "in the benchmark's process"
+                state = "fresh process" if col in ("default", "numba-fresh", "numba-shared-fresh") else \
+                    "in the benchmark's process"
                 name += f", {cache} disk cache ({state})"
                 extra["cache"] = cache
             rows.append(side_by_side(name, f"{peer} {kind}", t_ours["best"] / steps * 1e6,

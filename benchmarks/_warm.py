@@ -48,6 +48,11 @@ CACHE_NOTE = ("warm disk cache: the job's loop compiled and written to NLFILTER_
               "imported): its first call's extra is numba's import and the loop's load (and the first touch of "
               "its memory)")
 
+SHAPE_NOTE = ("shape-warm disk cache: another model of the job's shape run by another process with "
+              "backend='numba-shared' (the model-free loop of the shape on disk, not the job's model); the call "
+              "timed in a fresh process: its first call's extra is numba's import, the loop's load and the "
+              "compile of the model's own functions")
+
 
 def _child(factory: str, args: list, ys, m0, P0, repeat: int, backend: str | None) -> dict:
     """Run the job in a new process; returns its report (with the means as an array)."""
@@ -66,7 +71,7 @@ def _child(factory: str, args: list, ys, m0, P0, repeat: int, backend: str | Non
     return out
 
 
-def warm_default(factory: str, args: list, ys, m0, P0, repeat: int, backend: str | None = None):
+def warm_default(factory: str, args: list, ys, m0, P0, repeat: int, backend: str | None = None, fill=None):
     """The default call (``backend`` None; else the run with that ``backend``) of ``factory(*args)``
     (``"module:function"`` in ``benchmarks/``) on ``ys`` with the job's loop on disk beforehand (see
     the module). Returns ``(timing, estimates, notes)`` as a column of
@@ -74,19 +79,23 @@ def warm_default(factory: str, args: list, ys, m0, P0, repeat: int, backend: str
     ``why`` (the rule's choice at the first call), ``calls`` (each call's wall and CPU seconds and
     backend: the automatic rule may move to the cached loop at a later call), ``fill`` (the filling
     process's compile, wall and CPU seconds) and the timed process's CPU seconds and page faults;
-    the estimates carry ``means``."""
-    job = (factory, json.dumps(args), ys.shape)
+    the estimates carry ``means``. ``fill``: ``(backend, args)`` of the filling process (default
+    ``("numba", args)``: the job itself; ``("numba-shared", other args)``: another model of the
+    job's shape on the model-free loop, ``--cache shape``)."""
+    fill_backend, fill_args = fill or ("numba", args)
+    job = (factory, json.dumps(fill_args), fill_backend, ys.shape)
     if job not in _FILLED:  # (once per job: a second column finds it filled)
-        _FILLED[job] = _child(factory, args, ys, m0, P0, 1, "numba")
+        _FILLED[job] = _child(factory, fill_args, ys, m0, P0, 1, fill_backend)
     fill = _FILLED[job]
     out = _child(factory, args, ys, m0, P0, repeat, backend)
-    timing = {**out["timing"], "backend": out["backend"], "why": out["why"], "cache": "warm",
+    timing = {**out["timing"], "backend": out["backend"], "why": out["why"],
+              "cache": "warm" if fill_backend == "numba" else "shape",
               "numba_imported_at_start": out["numba_imported_at_start"],
               "process_cpu_seconds": out["process_cpu_seconds"],
               "minor_page_faults": out["minor_page_faults"], "calls": out["calls"],
               "fill": {"first": fill["timing"]["first"], "first_cpu": fill["timing"]["first_cpu"],
                        "unsealed_entries": fill["unsealed"]}}
-    notes = [CACHE_NOTE]
+    notes = [CACHE_NOTE if fill_backend == "numba" else SHAPE_NOTE]
     if fill["unsealed"]:
         notes.append(f"{factory}{tuple(args)}: the filling process left {fill['unsealed']} entries unsealed")
     return timing, SimpleNamespace(means=out["means"]), notes

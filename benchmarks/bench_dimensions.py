@@ -27,7 +27,10 @@ Sides, in one run, one core and one thread each (:mod:`_pin`, imported first):
 loop already on disk — for each filter and n another process runs the job once with
 ``backend="numba"`` into the run's ``NLFILTER_CACHE`` folder, then a fresh process (nothing compiled
 in it) times the default call, its load counted as its compile (:mod:`_warm`); the other nlfilter
-columns then find the cache warm too. Rows name the cache state (``cache``).
+columns then find the cache warm too. ``--cache shape``: the same, but the filling process runs
+*another* model of the job's shape (the chain with decay 0.85) with ``backend="numba-shared"``: the
+model-free loop of the shape is on disk, not the job's model (a new model in an installation that
+has run its shape before). Rows name the cache state (``cache``).
 
 Every best is of ``--repeat`` (3) calls, the first apart. Each row of the JSON names both sides
 (``ours``, ``peer``) and gives ``peer_over_ours`` (> 1: nlfilter faster), with the compile apart
@@ -62,9 +65,10 @@ FILTERS = {"ekf": EKF, "ukf": UKF, "ckf": CKF, "second-order": SecondOrderFilter
            "ghkf-2": lambda md: GHKF(md, order=2)}
 
 
-def make_filter(kind, n):
-    """The filter ``kind`` on :func:`_models.chain` ``(n)`` (the warm cache's processes make it so)."""
-    return FILTERS[kind](chain(n))
+def make_filter(kind, n, a=0.9):
+    """The filter ``kind`` on :func:`_models.chain` ``(n, a)`` (the warm cache's processes make it so;
+    ``--cache shape`` fills the cache with another ``a``: another model of the same shape)."""
+    return FILTERS[kind](chain(n, a))
 
 
 def measure(n, a):
@@ -79,7 +83,8 @@ def measure(n, a):
     for kind in a.filters:
         if kind == "ghkf-2" and n > 8:
             continue  # 2^n nodes
-        warm = ("bench_dimensions:make_filter", [kind, n]) if a.cache == "warm" else None
+        warm = None if a.cache == "cold" else ("bench_dimensions:make_filter", [kind, n],
+                                                ("numba", [kind, n]) if a.cache == "warm" else ("numba-shared", [kind, n, 0.85]))
         t, e, notes = nlfilter_sides(lambda: FILTERS[kind](md), ys, m0, P0, a.repeat, a.columns, warm=warm)
         ours[kind], est[kind] = t, e
         row["nlfilter"][kind] = {col: per_step(v, ps) for col, v in t.items()}
@@ -89,7 +94,7 @@ def measure(n, a):
             if base is not None and col != "numpy" and e[col] is not base:
                 row["max_rel_difference_of_means"][f"{kind}: {col} vs numpy"] = relmaxdiff(e[col].means, base.means)
     row["rows"] = []
-    cache = "warm" if a.cache == "warm" else None
+    cache = None if a.cache == "cold" else a.cache
     if a.no_peers:
         return row
     try:
@@ -137,13 +142,15 @@ def main(argv=None):
     ap.add_argument("--repeat", type=int, default=3, help="calls per column, the first (compile) apart")
     ap.add_argument("--filterpy-paths", type=int, default=5)
     ap.add_argument("--filters", nargs="+", choices=list(FILTERS), default=["ekf", "ukf", "ckf", "second-order"])
-    ap.add_argument("--columns", nargs="+", choices=["default", "numpy", "numba", "numba-fresh"],
+    ap.add_argument("--columns", nargs="+",
+                    choices=["default", "numpy", "numba", "numba-shared", "numba-fresh", "numba-shared-fresh"],
                     default=["default", "numpy", "numba"],
-                    help="nlfilter's calls: default (no backend=), numpy, numba; with --cache warm also "
-                         "numba-fresh (backend='numba' in a fresh process)")
-    ap.add_argument("--cache", choices=["cold", "warm"], default="cold",
-                    help="the disk cache at the default call: cold (empty), or warm (the job's loop written by "
-                         "another process; the default call timed in a fresh one)")
+                    help="nlfilter's calls: default (no backend=), numpy, numba, numba-shared; with --cache warm "
+                         "or shape also numba-fresh, numba-shared-fresh (that backend in a fresh process)")
+    ap.add_argument("--cache", choices=["cold", "warm", "shape"], default="cold",
+                    help="the disk cache at the default call: cold (empty), warm (the job's loop written by "
+                         "another process; the default call timed in a fresh one) or shape (the model-free loop "
+                         "of the job's shape written by another process running another model of that shape)")
     ap.add_argument("--no-peers", action="store_true", help="nlfilter only")
     ap.add_argument("--quick", action="store_true", help="smoke size: n = 1, 2; 20 paths x 10 steps; 2 calls")
     ap.add_argument("--label", default="pinned", help="the run's name in the JSON (other runs kept)")
