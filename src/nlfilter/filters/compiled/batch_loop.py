@@ -210,23 +210,75 @@ def _update1(base: str, fns: dict) -> str:
     """The one-path update of the lanes the loop cannot batch, ``update1``: the Taylor-1 update of
     ``base`` (the one-path module's ``update_taylor1_``, the model's h and h_x bound) with its kernels
     expanded into its text (:mod:`.flatten`: the same operations in the same order; the model's h and
-    h_x where ``fns`` inlines them). Called, each of
+    h_x where ``fns`` inlines them; ``fns`` None: the model-free module's, h and h_x its first
+    parameters). Called, each of
     them is a function numba compiles, optimizes and links apart, and again in every caller: 1.8 s of
     the loop's 13 at n = 4."""
     def defined(name):  # the source of the def the module jits as ``name``
         src = re.search(rf"(?m)^{name} = _\w+\((\w+)", base).group(1)
         return re.search(rf"(?ms)^def {src}\(.*?(?=^\S)", base).group(0)
     root = defined("update").replace("def update_taylor1_(", "def update1_(", 1)
-    keep = {"h": fns["h"], "hx": fns["hx"]}
-    defs = {name: defined(name) for name in _UPDATE1 if name not in keep or keep[name].inline}
+    keep = {"h": fns["h"], "hx": fns["hx"]} if fns is not None else {}
+    defs = {name: defined(name) for name in _UPDATE1
+            if (name not in keep or keep[name].inline) and (fns is not None or name not in ("h", "hx"))}
     return flatten(root, defs) + "\n\nupdate1 = _inner(update1_)\n"
 
 
 #: the tables' index variables and their length constants in the kernels (:func:`patterns`)
 _TABLE_K = {"FZ": "kf", "HZ": "kh", "HT": "kt"}
+#: the model-free loop's (:func:`source` with ``fns`` None) first parameters: the model's block
+#: functions, its one-path h and h_x (``update1``'s), then the tables of :func:`tables`
+SLOTS = ("fb", "fxb", "hb", "hxb", "Gb", "h", "hx")
+TABLES = ("FZ", "HZ", "HT", "kf", "kh", "kt")
+#: and the first parameters each kernel takes there (passed down by the loop)
+_THREAD = {"bpredict": ("fb", "fxb", "Gb", "FZ", "kf"), "binnov": ("hb", "hxb", "HZ", "kh"), "bupdate": ("HT", "kt"),
+           "update1": ("h", "hx"), "steps_batch": SLOTS + TABLES}  # (update1_ takes h, hx first already)
+#: a product's sum over a table, term by term into a local (the length a constant: unrolled, the
+#: paths' loop vectorized) — with the length a parameter, into the output over the paths' loop
+_SUM = re.compile(r"(?m)^(?P<i> +)for b in range\(nb\):\n +s = (?P<init>.+)\n +for z in range\((?P<k>\w+)\):\n"
+                  r" +(?P<q>\w+) = (?P<tab>\w+)\[(?P<row>\w+), z\]\n +s (?P<op>[-+])= (?P<term>.+)\n"
+                  r" +(?P<out>\w+\[[\w, ]+\]) = s\n")
 
 
-def source(base: str, dims, fns: dict) -> str:
+def _outer(mt) -> str:
+    """:data:`_SUM`'s product with the table's loop outside the paths' loop: the same terms added in
+    the same order to the output instead of a local (the same bits); the paths' loop vectorized
+    whatever the table's length."""
+    i, out = mt["i"], mt["out"]
+    return (f"{i}for b in range(nb):\n{i}    {out} = {mt['init']}\n{i}for z in range({mt['k']}):\n"
+            f"{i}    {mt['q']} = {mt['tab']}[{mt['row']}, z]\n{i}    for b in range(nb):\n"
+            f"{i}        {out} {mt['op']}= {mt['term']}\n")
+
+
+def tables(fns: dict) -> tuple:
+    """The model-free loop's tables (:data:`TABLES`): :func:`patterns` of the model's block
+    Jacobians in ``fns`` as int64 arrays ``(rows, k)``, a Jacobian with no zero as the table of every
+    index, then the lengths."""
+    out, ks = [], []
+    for name, (table, k) in patterns(fns).items():
+        rows = {"FZ": fns["fxb"].nonzero, "HZ": fns["hxb"].nonzero,
+                "HT": tuple(zip(*fns["hxb"].nonzero))}[name]
+        if table is None:
+            table = [list(range(k))] * len(rows)
+        out.append(np.array(table, dtype=np.int64).reshape(len(rows), k))
+        ks.append(k)
+    return (*out, *ks)
+
+
+def _thread(text: str, name: str) -> str:
+    """``text`` (a kernel ``name`` of the model-free loop) taking :data:`_THREAD`'s parameters first
+    and passing them to the kernels it calls."""
+    if name in _THREAD:
+        text = text.replace(f"def {name}_(", f"def {name}_({', '.join(_THREAD[name])}, ", 1)
+    for callee, args in _THREAD.items():
+        if callee != name and f" {callee}(" in text:
+            if text.count(f" {callee}(") != 1:  # pragma: no cover - a guard on this package's own code
+                raise RuntimeError(f"steps: {name} must call {callee} once")
+            text = text.replace(f" {callee}(", f" {callee}({', '.join(args)}, ")
+    return text
+
+
+def source(base: str, dims, fns: dict | None) -> str:
     """The module text of the batch-inner loop: ``base`` (the one-path module of :func:`.build.source`
     for the Taylor-1 kind, the model's block functions among its functions), the one-path update not
     inlined as ``update1``, the kernels of :mod:`.batch_kernels` with the dimensions ``dims``
@@ -235,9 +287,16 @@ def source(base: str, dims, fns: dict) -> str:
     run to the dimensions of the arrays), and the loop as ``steps`` (its machine code kept on disk). The
     products with F and H sum over the tables of :func:`patterns` of the model ``fns`` (module
     constants): the terms of a structural zero skipped; where a Jacobian has no zero, over every index
-    (the table's reads replaced by the index)."""
+    (the table's reads replaced by the index).
+
+    ``fns`` None: the model-free loop (:mod:`.template`; ``base`` the model-free one-path module):
+    the same kernels, the model's block functions, h and h_x and the tables (:func:`tables`) the
+    loop's first parameters (:data:`SLOTS`, :data:`TABLES`), passed down to the kernels; the
+    products over a table of a length known at run time only with the table's loop outside the
+    paths' (:func:`_outer`). The text depends on ``dims`` alone."""
     _, n, mdim, r = dims
-    tables = patterns(fns)
+    free = fns is None
+    tables = {} if free else patterns(fns)
     consts = {"ns": n, "ms": mdim, "rs": r, **{_TABLE_K[name]: k for name, (_, k) in tables.items()}}
     parts = [base, f"# the batch-inner loop (nlfilter.filters.compiled.batch_loop)\nNB = {block_size(n)}\n",
              _update1(base, fns)]
@@ -252,6 +311,9 @@ def source(base: str, dims, fns: dict) -> str:
                               body)
                 if tname == "FZ":  # no term skipped: no screen of P Fᵀ
                     body = re.sub(r"\n    if kf < ns:.*?\n(?=    \S)", "\n", body, flags=re.DOTALL)
+        if free:
+            body, head = _SUM.sub(_outer, body), _thread(head, name[:-1])
+            body = _thread(body, name[:-1])
         fixed = [f"{v} = {d}" for v, d in consts.items() if re.search(rf"\b{v}\b", body)]
         text = head + "".join(f"    {x}\n" for x in fixed) + body
         kw = ", inline='always'" if name in _INLINED else ", cache=True" if name == "steps_batch_" else ""

@@ -195,7 +195,7 @@ def _shared(flt, B):
     once per process; asked of runs past the cost of loading numba only)."""
     from . import build, template
 
-    kind, fns, scalar, dims, key = build.loop_of(flt, B, one_path=True)
-    slots = {s: fns[s] for s in build.loop_functions(kind, scalar)}
+    kind, fns, scalar, dims, key = template.loop_of(flt, B)
+    slots = {s: fns[s] for s in build.loop_functions(kind, scalar, dims)}
     return (len(slots), lambda: template.loaded(kind, slots, key, scalar, dims),
             lambda: template.ready(kind, slots, key, scalar, dims))

@@ -24,19 +24,23 @@ from __future__ import annotations
 
 import functools
 
-__all__ = ["SIGNATURES", "functions", "function_text", "loaded", "loop", "ready", "text"]
+__all__ = ["SIGNATURES", "functions", "function_text", "loaded", "loop", "loop_of", "ready", "text"]
 
 _VEC = "void(float64[::1], float64, float64[::1], float64[::1])"
 _MAT = "void(float64[::1], float64, float64[::1], float64[:, ::1])"
 _TEN = "void(float64[::1], float64, float64[::1], float64[:, :, ::1])"
 _TRACE = "void(float64[::1], float64, float64[::1], float64[:, ::1], float64[::1])"
 _SCALAR = "float64(float64, float64, float64[::1])"
+_BVEC = "void(float64[:, ::1], float64, float64[::1], float64[:, ::1], int64)"
+_BMAT = "void(float64[:, ::1], float64, float64[::1], float64[:, :, ::1], int64)"
 
 #: the signature of each of the model's function slots (:data:`.build.FUNCTION_ARGS`): ``fn(x (n,),
 #: t, p, out)`` writing ``out`` (f, h: a vector; f_x, h_x, G: a matrix; f_xx, h_xx: a 3-tensor), the
-#: contractions ``fn(x, t, p, P, out)``; the scalar batch loop's ``fn(x, t, p) -> float``
+#: contractions ``fn(x, t, p, P, out)``; the scalar batch loop's ``fn(x, t, p) -> float``; the EKF's
+#: batch-inner loop's block functions (:data:`.batch_loop.SLOTS`) ``fn(x (n, NB), t, p, out, nb)``
+#: writing ``out[..., :nb]`` (f, h: a matrix; f_x, h_x, G: a 3-tensor)
 SIGNATURES = {"f": _VEC, "h": _VEC, "fx": _MAT, "hx": _MAT, "G": _MAT, "fxx": _TEN, "hxx": _TEN,
-              "fxt": _TRACE, "hxt": _TRACE}
+              "fxt": _TRACE, "hxt": _TRACE, "fb": _BVEC, "hb": _BVEC, "fxb": _BMAT, "hxb": _BMAT, "Gb": _BMAT}
 
 _HEADER = """# nlfilter: a model's functions for the model-free loops, generated
 # (nlfilter.filters.compiled.template); not to be edited.
@@ -89,9 +93,14 @@ _LOOPS: dict = {}  # (kind, scalar, dims) -> (loop, cache entry), this process
 def text(kind: str, scalar: bool = False, dims=None) -> tuple:
     """``(module text, cache tag)`` of the model-free loop of rule ``kind`` (:func:`.build.source`
     with ``template=True``): the same for every model of that kind, shape and dimensions compiled
-    in. Made once per process (a specialized loop's text takes 0.1-0.6 s to write)."""
+    in (the EKF's batch-inner loop: :func:`.batch_loop.source` around the one-path module). Made
+    once per process (a specialized loop's text takes 0.1-0.6 s to write)."""
+    from .batch_loop import is_batch
+    from .batch_loop import source as batch_source
     from .build import source
 
+    if is_batch(dims):
+        return batch_source(source(kind, {}, template=True), dims, None), f"{kind}-batch-template"
     return source(kind, {}, scalar, dims, template=True), f"{kind}{'-scalar' if scalar else ''}-template"
 
 
@@ -104,6 +113,14 @@ def loop(kind: str, scalar: bool = False, dims=None) -> tuple:
         module, entry = load_source(*text(kind, scalar, dims))
         _LOOPS[name] = (module.steps, entry)
     return _LOOPS[name]
+
+
+def loop_of(flt, B: int | None = None) -> tuple:
+    """:func:`.build.loop_of` for the model-free loops: the EKF's batch-inner loop where the model's
+    own loop would be the batch-inner one (by ``B``), the loaded loop asked of this module's."""
+    from .build import loop_of as own
+
+    return own(flt, B, have=lambda kind, fns, key, scalar, dims: (kind, scalar, dims) in _LOOPS)
 
 
 def loaded(kind: str, fns: dict, key, scalar: bool = False, dims=None) -> bool:
