@@ -118,7 +118,7 @@ def test_the_model_free_batch_loop(case):
     for name in ("loglik", "innovation", "innovation_cov"):
         assert np.array_equal(own.extras[name], shared.extras[name], equal_nan=True), name
     assert shared.diverged.sum() == 3 and shared.diverged[20]
-    kind, fns, scalar, dims, key = template.loop_of(flt, len(ys))
+    kind, fns, scalar, dims, _ = template.loop_of(flt, len(ys))
     assert batch_loop.is_batch(dims) and ("taylor1", False, dims) in template._LOOPS
     loops = dict(template._LOOPS)
     other = DiscreteModel([x1, x2, x3, x4], [0.7 * x1 + 0.2 * x4, 0.9 * x2, 0.5 * x3 + 0.1 * sp.sin(x1), 0.3 * x4],
