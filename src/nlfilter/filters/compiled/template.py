@@ -18,6 +18,17 @@ of the inlined function changes no operation, so the numbers are the model-speci
 for bit (tested). The price is the calls (no inlining of f, h into the loop) and, on small models,
 the constant-folding of the model's structural zeros: 1.0-1.5× the model-specific loop's time per
 path-step (``benchmarks/bench_compile.py``).
+
+The EKF's batch-inner loop (:mod:`.batch_loop`, 4-16 states, runs of many paths) has its
+model-free form too (:func:`.batch_loop.source` with no model): the model's functions over a block
+of paths (``fb, fxb, hb, hxb, Gb``, slots of their own here), its one-path h and h_x (the lanes
+updated one at a time) and the tables of its Jacobians' structural zeros (int64 arrays and their
+lengths, :func:`.batch_loop.tables`) are the loop's first arguments; its text depends on ``n, m,
+r`` alone. The same bits as the model's own batch-inner loop; 1.05-1.1× its time per path-step
+(chain(n), 1000 × 200, n = 4, 8, 16: the sums over a table of a length known at run time only
+add into memory, not a register); a first compile of 13.5, 14.9, 16.2 s CPU (the own loop's:
+13.1, 13.4, 15.8 s; loaded machine), then 1.2, 1.5, 1.7 s for a new model of the shape in a new
+process (``bench_compile.py --shared``, run "batchtpl-shared").
 """
 
 from __future__ import annotations
