@@ -6,7 +6,7 @@ loop once the process has shown it repeats the work. Two compiled loops can serv
 (``"numba"``: the model's functions inlined) and the model-free loop of its rule kind and shape
 (``"numba-shared"``, :mod:`.template`: compiled once for every model of that shape, the model's
 functions, compiled alone in about a second, passed to it; the same bits, 1.0-1.4× the time per
-path-step of a one-path own loop, 1.05-1.1× that of the EKF's batch-inner loop, whose model-free form
+path-step of a one-path own loop, 1.03-1.12× that of the EKF's batch-inner loop, whose model-free form
 takes the model's block functions and its Jacobians' zero tables as data):
 
 1. A filter or model the compiled loop does not take (:func:`~.support.static_refusal`: the
@@ -99,8 +99,8 @@ FUNCTION_SECONDS = 0.1
 #: the model's own loop's speed over the model-free loop's, per path-step: one path (1.0-1.4×,
 #: the calls of the model's functions through their addresses) and the EKF's batch-inner loop
 #: (its model-free form, :func:`.batch_loop.source`: chain(n) of benchmarks/_models.py, 1000 × 200,
-#: one process, 15 paired runs on one core of a loaded machine, CPU time, median ratio: 1.09, 1.06,
-#: 1.15 at n = 4, 8, 16; of the best runs 1.09, 1.05, 0.96), by :func:`~.batch_loop.is_batch`
+#: one process, 11-15 paired runs on one core of a loaded machine, CPU time, three sessions, ratio
+#: of the best runs: 1.09-1.12, 1.03-1.06, 1.04-1.05 at n = 4, 8, 16), by :func:`~.batch_loop.is_batch`
 FULL_GAIN = {False: 1.25, True: 1.1}
 #: a cached loop's first run in a new process (numba's import, reading its code), seconds
 LOAD_SECONDS = 1.0
