@@ -238,7 +238,7 @@ def test_a_loaded_loop_serves_the_other_size(monkeypatch):
     """Where only one of the two loops is in the process, a run of the other size takes it (a
     process compiles one loop per model); where both are, each size its own. The store is faked:
     nothing is compiled."""
-    from nlfilter.filters.compiled import batch_loop, build
+    from nlfilter.filters.compiled import batch_loop, build, template
     flt = EKF(_four_state())
     kind, fns, _, spec, key = build.loop_of(flt, 1)
     wide = batch_loop.dims_of(4, 2, 4)
@@ -251,7 +251,7 @@ def test_a_loaded_loop_serves_the_other_size(monkeypatch):
     assert build.loop_of(flt, 1)[3] == wide
     monkeypatch.setitem(store, build.loop_name(kind, fns, False, spec), ("loop", None))
     assert (build.loop_of(flt, 1)[3], build.loop_of(flt, 8)[3]) == (spec, wide)
-    from nlfilter.filters.compiled import template  # the model-free loops: the loaded one of template's
+    # the model-free loops: the loaded one of template's store
     monkeypatch.setattr(template, "_LOOPS", {(kind, False, spec): ("loop", None)})
     assert template.loop_of(flt, 1000)[3] == spec
     monkeypatch.setattr(template, "_LOOPS", {(kind, False, wide): ("loop", None)})
