@@ -99,8 +99,8 @@ FUNCTION_SECONDS = 0.1
 #: the model's own loop's speed over the model-free loop's, per path-step: one path (1.0-1.4×,
 #: the calls of the model's functions through their addresses) and the EKF's batch-inner loop
 #: (its model-free form, :func:`.batch_loop.source`: chain(n) of benchmarks/_models.py, 1000 × 200,
-#: one process, 11-15 paired runs on one core of a loaded machine, CPU time, three sessions, ratio
-#: of the best runs: 1.09-1.12, 1.03-1.06, 1.04-1.05 at n = 4, 8, 16), by :func:`~.batch_loop.is_batch`
+#: one process, 11-15 paired runs on one core of a loaded machine, CPU time, three or four sessions, ratio
+#: of the best runs: 1.05-1.12, 1.03-1.06, 1.04-1.05 at n = 4, 8, 16), by :func:`~.batch_loop.is_batch`
 FULL_GAIN = {False: 1.25, True: 1.1}
 #: a cached loop's first run in a new process (numba's import, reading its code), seconds
 LOAD_SECONDS = 1.0

@@ -24,21 +24,23 @@ model-free form too (:func:`.batch_loop.source` with no model): the model's func
 of paths (``fb, fxb, hb, hxb, Gb``, slots of their own here), its one-path h and h_x (the lanes
 updated one at a time) and the tables of its Jacobians' structural zeros (int64 arrays and their
 lengths, :func:`.batch_loop.tables`) are the loop's first arguments; its text depends on ``n, m,
-r`` alone. The same bits as the model's own batch-inner loop; 1.09-1.12, 1.03-1.06, 1.04-1.05×
-its time per path-step at n = 4, 8, 16 (chain(n), 1000 × 200, paired, CPU time: the sums over a
-table of a length known at run time only add into the output, the table's loop outside the paths'
-— in a register with the table's read inside the paths' loop, as the own loop does with its
-constant tables, 1.21-1.31×: that read, from an array that may alias the outputs, is not hoisted
-and the loop not vectorized; two terms a pass, no gain); a first compile of 13.5, 14.9, 16.2 s CPU (the own loop's:
-13.1, 13.4, 15.8 s; loaded machine), then 1.2, 1.5, 1.7 s for a new model of the shape in a new
-process (``bench_compile.py --shared``, run "batchtpl-shared").
+r`` alone. The same bits as the model's own batch-inner loop; 1.05-1.12, 1.03-1.06, 1.04-1.05×
+its time per path-step at n = 4, 8, 16 (chain(n), 1000 × 200, paired, CPU time). The cost is
+mostly the sums over a table of a length known at run time only, which add into the output, the
+table's loop outside the paths' (the block functions inlined instead of called, an experiment:
+1.02-1.03× at n = 4, unchanged at n = 8); the own loop's form, a sum in a register with the
+table's read inside the paths' loop, was 1.21-1.31× with the tables passed in (that read, from an
+array that may alias the outputs, is not hoisted: no vectorized loop), and two terms a pass gained
+nothing. Its first compile: 13.5, 14.9, 16.2 s CPU (the own loop's: 13.1, 13.4, 15.8 s; loaded
+machine), then 1.2, 1.5, 1.7 s for a new model of the shape in a new process
+(``bench_compile.py --shared``, run "batchtpl-shared").
 """
 
 from __future__ import annotations
 
 import functools
 
-__all__ = ["SIGNATURES", "functions", "function_text", "loaded", "loop", "loop_of", "ready", "text"]
+__all__ = ["SIGNATURES", "function_text", "functions", "loaded", "loop", "loop_of", "ready", "text"]
 
 _VEC = "void(float64[::1], float64, float64[::1], float64[::1])"
 _MAT = "void(float64[::1], float64, float64[::1], float64[:, ::1])"
