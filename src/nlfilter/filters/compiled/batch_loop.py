@@ -54,7 +54,7 @@ from .flatten import flatten
 from .kernels import KERNELS, Kernel, model_kernels
 
 __all__ = ["BATCH_FROM", "BATCH_UP_TO", "PATHS_FROM", "NB", "NB_LARGE", "block_size", "serves", "paths_from",
-           "dims_of", "is_batch", "block_kernels", "patterns", "source", "alloc"]
+           "dims_of", "is_batch", "block_kernels", "patterns", "source", "alloc", "SLOTS", "TABLES", "tables"]
 
 #: the Taylor-1 loops of models with ``BATCH_FROM ≤ n ≤ BATCH_UP_TO`` states take the batch-inner
 #: loop (the chain of benchmarks/bench_dimensions.py, 1000 × 200, one core, loaded machine, run
@@ -229,8 +229,9 @@ def _update1(base: str, fns: dict) -> str:
 #: the tables' index variables and their length constants in the kernels (:func:`patterns`)
 _TABLE_K = {"FZ": "kf", "HZ": "kh", "HT": "kt"}
 #: the model-free loop's (:func:`source` with ``fns`` None) first parameters: the model's block
-#: functions, its one-path h and h_x (``update1``'s), then the tables of :func:`tables`
+#: functions, its one-path h and h_x (``update1``'s), then the tables (:data:`TABLES`)
 SLOTS = ("fb", "fxb", "hb", "hxb", "Gb", "h", "hx")
+#: and after them, the tables of :func:`tables`: F's rows, H's rows, H's columns, then their lengths
 TABLES = ("FZ", "HZ", "HT", "kf", "kh", "kt")
 #: and the first parameters each kernel takes there (passed down by the loop)
 _THREAD = {"bpredict": ("fb", "fxb", "Gb", "FZ", "kf"), "binnov": ("hb", "hxb", "HZ", "kh"), "bupdate": ("HT", "kt"),
@@ -243,7 +244,7 @@ _SUM = re.compile(r"(?m)^(?P<i> +)for b in range\(nb\):\n +s = (?P<init>.+)\n +f
 
 
 def _outer(mt) -> str:
-    """:data:`_SUM`'s product with the table's loop outside the paths' loop: the same terms added in
+    """A product of ``_SUM`` with the table's loop outside the paths' loop: the same terms added in
     the same order to the output instead of a local (the same bits); the paths' loop vectorized
     whatever the table's length (the own loop's form with the lengths compiled in and the tables
     passed in: 1.2-1.3× the time, the table's read, from an array that may alias the outputs, left
@@ -270,7 +271,7 @@ def tables(fns: dict) -> tuple:
 
 
 def _thread(text: str, name: str) -> str:
-    """``text`` (a kernel ``name`` of the model-free loop) taking :data:`_THREAD`'s parameters first
+    """``text`` (a kernel ``name`` of the model-free loop) taking the parameters ``_THREAD`` names first
     and passing them to the kernels it calls."""
     if name in _THREAD:
         text = text.replace(f"def {name}_(", f"def {name}_({', '.join(_THREAD[name])}, ", 1)
@@ -297,7 +298,7 @@ def source(base: str, dims, fns: dict | None) -> str:
     the same kernels, the model's block functions, h and h_x and the tables (:func:`tables`) the
     loop's first parameters (:data:`SLOTS`, :data:`TABLES`), passed down to the kernels; the
     products over a table of a length known at run time only with the table's loop outside the
-    paths' (:func:`_outer`). The text depends on ``dims`` alone."""
+    paths'. The text depends on ``dims`` alone."""
     _, n, mdim, r = dims
     free = fns is None
     tables = {} if free else patterns(fns)
