@@ -31,9 +31,10 @@ table's loop outside the paths' (the block functions inlined instead of called, 
 1.02-1.03× at n = 4, unchanged at n = 8); the own loop's form, a sum in a register with the
 table's read inside the paths' loop, was 1.21-1.31× with the tables passed in (that read, from an
 array that may alias the outputs, is not hoisted: no vectorized loop), and two terms a pass gained
-nothing. Its first compile: 13.5, 14.9, 16.2 s CPU (the own loop's: 13.1, 13.4, 15.8 s; loaded
-machine), then 1.2, 1.5, 1.7 s for a new model of the shape in a new process
-(``bench_compile.py --shared``, run "batchtpl-shared").
+nothing. Its first compile: 12.9-13.5, 13.6-14.9, 13.8-16.2 s CPU (the own loop's: 11.8-13.1,
+12.4-13.4, 13.8-15.8 s; loaded machine, two runs), then 1.0-1.2, 1.2-1.5, 1.4-1.7 s for a new
+model of the shape in a new process (``bench_compile.py --shared``, runs "batchtpl-shared" and
+"batchtpl-shared-2").
 """
 
 from __future__ import annotations
