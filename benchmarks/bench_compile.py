@@ -5,7 +5,8 @@ numba's import, the model's generated functions, the loop's compile), the loop's
 by case, for an older commit (``--before``, default the commit before the flattened loops), so
 that "shorter compile, same speed, same numbers" is read off one run. ``--shared`` adds the
 model-free loop (``backend="numba-shared"``): its first compile, and what a new model of the same
-shape pays in a new process once that loop is on disk (the model's functions only).
+shape pays in a new process once that loop is on disk (the model's functions only; for the EKF's
+batch-inner cases, its model-free form: the block functions and the zero tables passed in).
 
 Cases: the EKF on one state (the scalar batch loop), the EKF and UKF at n = 2 and n = 4 (the
 specialized loops: the dimensions compiled in; the EKF at n = 4 on 200 paths: the batch-inner

@@ -50,9 +50,8 @@ def test_the_rule_by_size():
         assert backend == "numpy" and "short run" in why, why
         if compiled.available():
             backend, why = flt.backend_for(10_000, 10_000)
-            # the model-free loop where the model's own loop would be a one-path loop (the UKF), the
-            # model's own batch-inner loop for the 5-state EKF and its own scalar loop for the scalar one
-            assert backend == ("numba" if make is EKF else "numba-shared") and "repays" in why, why
+            # the model-free loop (the 5-state EKF's batch-inner one too), the scalar EKF's own loop
+            assert backend == ("numba" if md.n == 1 else "numba-shared") and "repays" in why, why
             # a fit's evaluations count: 30 runs of 1000 x 1000 repay what one does not
             n = md.n
             one = choice.numpy_seconds(compiled.build.loop_of(flt)[0], n, 1000, 1000)
@@ -222,6 +221,9 @@ def test_the_loop_by_the_runs_paths(tmp_path, monkeypatch):
     assert [build.loop_of(five, B)[3] for B in (1, 3)] == [None, None]
     assert batch_loop.is_batch(build.loop_of(five, 4)[3])
     assert build.loop_of(UKF(_four_state()), 1000)[3] == spec  # the batch-inner loop is the EKF's
+    # the model-free loops alike (template.loop_of: the loaded loops asked of its store)
+    assert [template.loop_of(flt, B)[3] for B in (1, 7, 8, 1000)] == [spec] * 2 + [batch_loop.dims_of(4, 2, 4)] * 2
+    assert template.loop_of(flt, 8)[1].keys() >= set(batch_loop.SLOTS)
     if compiled.available():  # each loop's compile: a run between the two takes the one-path loop only
         T = 200_000  # NumPy ~10.4 s on one path (≥ 10 s), ~13 s on 8 (< 15 s)
         assert choice.COMPILE_SECONDS["specialized"] <= choice.numpy_seconds("taylor1", 4, 1, T)
@@ -236,7 +238,7 @@ def test_a_loaded_loop_serves_the_other_size(monkeypatch):
     """Where only one of the two loops is in the process, a run of the other size takes it (a
     process compiles one loop per model); where both are, each size its own. The store is faked:
     nothing is compiled."""
-    from nlfilter.filters.compiled import batch_loop, build
+    from nlfilter.filters.compiled import batch_loop, build, template
     flt = EKF(_four_state())
     kind, fns, _, spec, key = build.loop_of(flt, 1)
     wide = batch_loop.dims_of(4, 2, 4)
@@ -249,3 +251,8 @@ def test_a_loaded_loop_serves_the_other_size(monkeypatch):
     assert build.loop_of(flt, 1)[3] == wide
     monkeypatch.setitem(store, build.loop_name(kind, fns, False, spec), ("loop", None))
     assert (build.loop_of(flt, 1)[3], build.loop_of(flt, 8)[3]) == (spec, wide)
+    # the model-free loops: the loaded one of template's store
+    monkeypatch.setattr(template, "_LOOPS", {(kind, False, spec): ("loop", None)})
+    assert template.loop_of(flt, 1000)[3] == spec
+    monkeypatch.setattr(template, "_LOOPS", {(kind, False, wide): ("loop", None)})
+    assert template.loop_of(flt, 1)[3] == wide

@@ -96,3 +96,37 @@ def test_structural_zeros_skipped():
     assert all(t is None for t, _ in batch_loop.patterns(f2).values())
     text = build.text_of(k2, f2, s2, d2)[0]
     assert not any(f"= {t}[" in text or f"{t} = np" in text for t in ("FZ", "HZ", "HT")) and "kf < n" not in text
+
+
+def test_the_model_free_batch_loop(case):
+    """``backend="numba-shared"`` on the batch-inner loop (:mod:`~nlfilter.filters.compiled.template`:
+    the block functions, h, h_x and the tables of the Jacobians' zeros passed to one loop of the
+    shape): the model's own batch-inner loop's bits — partly missing steps, a step missing on every
+    path, paths diverging by overflow and one on data of 1e200 (marked). A second model of the shape,
+    with other structural zeros, runs on the same loop object (its functions and tables only), as
+    NumPy. (One compile: the model-free loop; the own loop is the test above's.)"""
+    from nlfilter.filters.compiled import template
+
+    md, ys, m0, P0 = case
+    ys = ys.copy()
+    ys[20, 12:] = 1e200
+    flt = EKF(md)
+    shared = flt.run(ys, m0, P0, loglik=True, on_divergence="mark", backend="numba-shared")
+    own = flt.run(ys, m0, P0, loglik=True, on_divergence="mark", backend="numba")
+    for name in ("means", "covs", "diverged", "diverged_step"):
+        assert np.array_equal(getattr(own, name), getattr(shared, name), equal_nan=True), name
+    for name in ("loglik", "innovation", "innovation_cov"):
+        assert np.array_equal(own.extras[name], shared.extras[name], equal_nan=True), name
+    assert shared.diverged.sum() == 3 and shared.diverged[20]
+    kind, fns, scalar, dims, _ = template.loop_of(flt, len(ys))
+    assert batch_loop.is_batch(dims) and ("taylor1", False, dims) in template._LOOPS
+    loops = dict(template._LOOPS)
+    other = DiscreteModel([x1, x2, x3, x4], [0.7 * x1 + 0.2 * x4, 0.9 * x2, 0.5 * x3 + 0.1 * sp.sin(x1), 0.3 * x4],
+                          [x2 + x4**2, sp.atan(x3)], Q=0.02 * np.eye(4), R=[[0.1, 0.0], [0.0, 0.2]])
+    flt2 = EKF(other)
+    assert batch_loop.patterns(template.loop_of(flt2, len(ys))[1]) != batch_loop.patterns(fns)
+    same(flt2.run(ys, m0, P0, loglik=True, on_divergence="mark"),
+         flt2.run(ys, m0, P0, loglik=True, on_divergence="mark", backend="numba-shared"))
+    assert template._LOOPS == loops  # the same loop object: no compile
+    text = template.text(kind, scalar, dims)[0]  # the text: no model in it
+    assert "sin(" not in text and "FZ = np.array" not in text and "def b_" not in text

@@ -176,9 +176,12 @@ unused_trace = _inner(unused_trace_)
 """
 
 
-def loop_functions(kind: str, scalar: bool = False) -> tuple:
+def loop_functions(kind: str, scalar: bool = False, dims=None) -> tuple:
     """The model's function slots a model-free loop of rule ``kind`` takes first, in order
-    (:mod:`.template`): those of its predict kernel, then its update kernel's new ones."""
+    (:mod:`.template`): those of its predict kernel, then its update kernel's new ones (the EKF's
+    batch-inner loop, ``dims``: :data:`.batch_loop.SLOTS`)."""
+    if batch_loop.is_batch(dims):
+        return batch_loop.SLOTS
     if scalar:
         return FUNCTION_ARGS[loops.steps_scalar_.__name__]
     names = [k.__name__ for k in rule_kernels.KERNELS_BY_KIND[kind]]
@@ -259,7 +262,7 @@ def source(kind: str, fns: dict, scalar: bool = False, dims=None, template: bool
     return "\n\n".join(p.rstrip("\n") + "\n" for p in parts)
 
 
-def loop_of(flt, B: int | None = None, one_path: bool = False):
+def loop_of(flt, B: int | None = None, one_path: bool = False, have=None):
     """``(kind, fns, scalar, dims, key)``: the loop that runs ``flt`` on ``B`` paths (:func:`steps`'
     arguments): its rule kind, the model's functions (:mod:`.kernels`, generated once per model),
     whether it is the scalar batch loop (the EKF on one state, measurement and noise; the KF on one
@@ -275,7 +278,9 @@ def loop_of(flt, B: int | None = None, one_path: bool = False):
     that one, so that a process compiles one loop per model (the loaded one costs at most 1.5× the
     time per path-step of the other at n = 4 from 8 paths, 3.3× on one path; a compile costs
     5-30 s). ``B`` None: a batch of any size (the batch-inner loop where the rule has one);
-    ``one_path``: never the batch-inner loop (the model-free loops, :mod:`.template`)."""
+    ``one_path``: never the batch-inner loop; ``have(kind, fns, key, scalar, dims)``: whether that
+    loop is in this process (default :func:`loaded`; the model-free loops', :func:`.template.loop_of`)."""
+    have = loaded if have is None else have
     md = flt.model
     n, mdim, r = md.n, md.m, md.r
     kind = rule_kind(flt)
@@ -308,8 +313,8 @@ def loop_of(flt, B: int | None = None, one_path: bool = False):
     if batch_loop.serves(kind, n, mdim) and not one_path:  # the batch-inner loop (the model's functions over blocks too)
         wide = batch_loop.dims_of(n, mdim, r)
         batch = B is None or B >= batch_loop.paths_from(n, dims is not None)
-        if B is not None and not loaded(kind, fns, key, False, wide if batch else dims):
-            batch = batch != loaded(kind, fns, key, False, dims if batch else wide)  # only the other one is loaded
+        if B is not None and not have(kind, fns, key, False, wide if batch else dims):
+            batch = batch != have(kind, fns, key, False, dims if batch else wide)  # only the other one is loaded
         if batch:
             return kind, {**fns, **batch_loop.block_kernels(md)}, False, wide, key
     return kind, fns, False, dims, key

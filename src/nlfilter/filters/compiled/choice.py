@@ -6,7 +6,8 @@ loop once the process has shown it repeats the work. Two compiled loops can serv
 (``"numba"``: the model's functions inlined) and the model-free loop of its rule kind and shape
 (``"numba-shared"``, :mod:`.template`: compiled once for every model of that shape, the model's
 functions, compiled alone in about a second, passed to it; the same bits, 1.0-1.4× the time per
-path-step of a one-path own loop, about 2× that of the EKF's batch-inner loop):
+path-step of a one-path own loop, 1.03-1.12× that of the EKF's batch-inner loop, whose model-free form
+takes the model's block functions and its Jacobians' zero tables as data):
 
 1. A filter or model the compiled loop does not take (:func:`~.support.static_refusal`: the
    filter's declaration, its rule, the model's structure) runs on the NumPy loop.
@@ -28,10 +29,9 @@ path-step of a one-path own loop, about 2× that of the EKF's batch-inner loop):
    where the disk holds that and ``W`` also repays compiling the model's functions
    (:data:`FIRST_COMPILE_SECONDS`, :data:`FUNCTION_SECONDS`); at or above the loop's compile time
    (:data:`COMPILE_SECONDS`) a compile, kept on disk: of the model-free loop (then every later
-   model of the shape costs its functions only) unless the own loop is the EKF's batch-inner one,
-   whose speed is worth its own compile. The scalar batch loop (the EKF on one state) is always the
-   model's own: its compile (0.8 s) is about the model-free loop's functions' (0.5 s), and its
-   inlined functions run 1.4-1.6× faster than five calls by address per path-step.
+   model of the shape costs its functions only). The scalar batch loop (the EKF on one state) is
+   always the model's own: its compile (0.8 s) is about the model-free loop's functions' (0.5 s),
+   and its inlined functions run 1.4-1.6× faster than five calls by address per path-step.
 4. numba not importable: the NumPy loop.
 
 So a single short run never imports numba; a fit, whose evaluations count as ``repeats``, or a
@@ -100,8 +100,10 @@ FIRST_COMPILE_SECONDS = 0.35
 FUNCTION_SECONDS = 0.1
 #: the model's own loop's speed over the model-free loop's, per path-step: one path (1.0-1.4×,
 #: the calls of the model's functions through their addresses) and the EKF's batch-inner loop
-#: (the model-free loop runs one path at a time), by :func:`~.batch_loop.is_batch`
-FULL_GAIN = {False: 1.25, True: 2.0}
+#: (its model-free form, :func:`.batch_loop.source`: chain(n) of benchmarks/_models.py, 1000 × 200,
+#: one process, 11-15 paired runs on one core of a loaded machine, CPU time, three or four sessions, ratio
+#: of the best runs: 1.05-1.12, 1.03-1.06, 1.04-1.05 at n = 4, 8, 16), by :func:`~.batch_loop.is_batch`
+FULL_GAIN = {False: 1.25, True: 1.1}
 #: a cached loop's first run in a new process, CPU seconds: numba's import (0.1), nlfilter's
 #: compiled modules (0.07), the loop's text (0.04-0.09), numba's first use of its target (0.15),
 #: reading the loop's code (0.02-0.05): 0.40-0.43 s at n = 4 (benchmarks/bench_dimensions.py
@@ -153,7 +155,7 @@ def choose(flt, B: int, T: int, repeats: int = 1, record: bool = False) -> Choic
     spent = store.get(tally, 0.0) + work  # with this run's: what this loop would have saved in the process
     load_s = LOADED_SECONDS if "numba" in sys.modules else LOAD_SECONDS
     if spent >= load_s:  # numba imported only where the compiled loop is taken (its import: ~0.1 s)
-        got = _got(spent, compile_s, load_s, batch, cache.ready(*build.text_of(kind, fns, scalar, dims)) is not None,
+        got = _got(spent, compile_s, load_s, cache.ready(*build.text_of(kind, fns, scalar, dims)) is not None,
                    shared)
         if got is not None:
             from .support import available
@@ -165,13 +167,13 @@ def choose(flt, B: int, T: int, repeats: int = 1, record: bool = False) -> Choic
     return Choice("numpy", f"the compile (~{compile_s:g} s) costs more than the NumPy loop (~{spent:.2g} s so far)")
 
 
-def _got(spent, compile_s, load_s, batch, own, shared):
+def _got(spent, compile_s, load_s, own, shared):
     """The compiled loop a run that has repaid the cost of loading numba takes (the NumPy loop's
     time ``spent``), or None: the model's own loop on disk; the model-free loop on disk once its
-    model's functions are repaid; else, repaid by ``spent``, a compile: of the model-free loop where
-    the model's own loop would be a one-path loop (then every later model of its shape is a matter
-    of its functions), of the model's own loop where it is the batch-inner one (``batch``: 2× the
-    model-free loop's speed)."""
+    model's functions are repaid; else, repaid by ``spent``, a compile: of the model-free loop (then
+    every later model of its shape is a matter of its functions; its speed within
+    :data:`FULL_GAIN` of the model's own loop's), of the model's own loop where no model-free loop
+    serves (the Kalman filter's is model-free already)."""
     if own:
         return Choice("numba", "the compiled loop is in the disk cache")
     where = shared[2]() if shared is not None else (None, None)
@@ -181,7 +183,7 @@ def _got(spent, compile_s, load_s, batch, own, shared):
                                       f"(~{load_s + functions_s:.2g} s) on the model-free loop, ready on disk")
     if spent < compile_s:
         return None
-    if shared is not None and not batch:  # (its compile and the model's own loop's: alike, ±5 %)
+    if shared is not None:  # (its compile and the model's own loop's: alike, ±5 %; batch-inner: +3-10 %)
         return Choice("numba-shared", f"the NumPy loop's time (~{spent:.2g} s, this run's and earlier runs') repays the "
                                       f"compile of the model-free loop (~{compile_s:g} s), kept for every model of "
                                       "this rule and shape")

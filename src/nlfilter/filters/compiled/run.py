@@ -86,16 +86,17 @@ def run_shared(flt, yf, batch, m0, P0, on, loglik, progress=False):
     return est
 
 
-
 def _loop(flt, B, shared):
     """``(kind, loop, scalar, dims, entries)``: the compiled loop that runs ``flt`` on ``B`` paths
     (``shared``: the model-free one, its first arguments, the model's functions, bound)."""
-    kind, fns, scalar, dims, key = build.loop_of(flt, B, one_path=shared)
+    kind, fns, scalar, dims, key = template.loop_of(flt, B) if shared else build.loop_of(flt, B)
     if not shared or kind == "kalman":  # (the Kalman loop is model-free already: its matrices are data)
         steps, entry = build.steps(kind, fns, key, scalar=scalar, dims=dims)
         return kind, steps, scalar, dims, (entry,)
     steps, entry = template.loop(kind, scalar, dims)
-    fargs, fentry = template.functions({s: fns[s] for s in build.loop_functions(kind, scalar)}, key, scalar)
+    fargs, fentry = template.functions({s: fns[s] for s in build.loop_functions(kind, scalar, dims)}, key, scalar)
+    if batch_loop.is_batch(dims):  # the EKF's batch-inner loop: the tables of its Jacobians' zeros too
+        fargs = (*fargs, *batch_loop.tables(fns))
     return kind, functools.partial(steps, *fargs), scalar, dims, (entry, fentry)
 
 

@@ -18,25 +18,46 @@ of the inlined function changes no operation, so the numbers are the model-speci
 for bit (tested). The price is the calls (no inlining of f, h into the loop) and, on small models,
 the constant-folding of the model's structural zeros: 1.0-1.5× the model-specific loop's time per
 path-step (``benchmarks/bench_compile.py``).
+
+The EKF's batch-inner loop (:mod:`.batch_loop`, 4-16 states, runs of many paths) has its
+model-free form too (:func:`.batch_loop.source` with no model): the model's functions over a block
+of paths (``fb, fxb, hb, hxb, Gb``, slots of their own here), its one-path h and h_x (the lanes
+updated one at a time) and the tables of its Jacobians' structural zeros (int64 arrays and their
+lengths, :func:`.batch_loop.tables`) are the loop's first arguments; its text depends on ``n, m,
+r`` alone. The same bits as the model's own batch-inner loop; 1.05-1.12, 1.03-1.06, 1.04-1.05×
+its time per path-step at n = 4, 8, 16 (chain(n), 1000 × 200, paired, CPU time). The cost is
+mostly the sums over a table of a length known at run time only, which add into the output, the
+table's loop outside the paths' (the block functions inlined instead of called, an experiment:
+1.02-1.03× at n = 4, unchanged at n = 8); the own loop's form, a sum in a register with the
+table's read inside the paths' loop, was 1.21-1.31× with the tables passed in (that read, from an
+array that may alias the outputs, is not hoisted: no vectorized loop), and two terms a pass gained
+nothing. Its first compile: 12.9-13.5, 13.6-14.9, 13.8-16.2 s CPU (the own loop's: 11.8-13.1,
+12.4-13.4, 13.8-15.8 s; loaded machine, two runs), then 1.0-1.2, 1.2-1.5, 1.4-1.7 s for a new
+model of the shape in a new process (``bench_compile.py --shared``, runs "batchtpl-shared" and
+"batchtpl-shared-2").
 """
 
 from __future__ import annotations
 
 import functools
 
-__all__ = ["SIGNATURES", "functions", "function_text", "loaded", "loop", "of", "ready", "text"]
+__all__ = ["SIGNATURES", "function_text", "functions", "loaded", "loop", "loop_of", "of", "ready", "text"]
 
 _VEC = "void(float64[::1], float64, float64[::1], float64[::1])"
 _MAT = "void(float64[::1], float64, float64[::1], float64[:, ::1])"
 _TEN = "void(float64[::1], float64, float64[::1], float64[:, :, ::1])"
 _TRACE = "void(float64[::1], float64, float64[::1], float64[:, ::1], float64[::1])"
 _SCALAR = "float64(float64, float64, float64[::1])"
+_BVEC = "void(float64[:, ::1], float64, float64[::1], float64[:, ::1], int64)"
+_BMAT = "void(float64[:, ::1], float64, float64[::1], float64[:, :, ::1], int64)"
 
 #: the signature of each of the model's function slots (:data:`.build.FUNCTION_ARGS`): ``fn(x (n,),
 #: t, p, out)`` writing ``out`` (f, h: a vector; f_x, h_x, G: a matrix; f_xx, h_xx: a 3-tensor), the
-#: contractions ``fn(x, t, p, P, out)``; the scalar batch loop's ``fn(x, t, p) -> float``
+#: contractions ``fn(x, t, p, P, out)``; the scalar batch loop's ``fn(x, t, p) -> float``; the EKF's
+#: batch-inner loop's block functions (:data:`.batch_loop.SLOTS`) ``fn(x (n, NB), t, p, out, nb)``
+#: writing ``out[..., :nb]`` (f, h: a matrix; f_x, h_x, G: a 3-tensor)
 SIGNATURES = {"f": _VEC, "h": _VEC, "fx": _MAT, "hx": _MAT, "G": _MAT, "fxx": _TEN, "hxx": _TEN,
-              "fxt": _TRACE, "hxt": _TRACE}
+              "fxt": _TRACE, "hxt": _TRACE, "fb": _BVEC, "hb": _BVEC, "fxb": _BMAT, "hxb": _BMAT, "Gb": _BMAT}
 
 _HEADER = """# nlfilter: a model's functions for the model-free loops, generated
 # (nlfilter.filters.compiled.template); not to be edited.
@@ -89,9 +110,14 @@ _LOOPS: dict = {}  # (kind, scalar, dims) -> (loop, cache entry), this process
 def text(kind: str, scalar: bool = False, dims=None) -> tuple:
     """``(module text, cache tag)`` of the model-free loop of rule ``kind`` (:func:`.build.source`
     with ``template=True``): the same for every model of that kind, shape and dimensions compiled
-    in. Made once per process (a specialized loop's text takes 0.1-0.6 s to write)."""
+    in (the EKF's batch-inner loop: :func:`.batch_loop.source` around the one-path module). Made
+    once per process (a specialized loop's text takes 0.1-0.6 s to write)."""
+    from .batch_loop import is_batch
+    from .batch_loop import source as batch_source
     from .build import source
 
+    if is_batch(dims):
+        return batch_source(source(kind, {}, template=True), dims, None), f"{kind}-batch-template"
     return source(kind, {}, scalar, dims, template=True), f"{kind}{'-scalar' if scalar else ''}-template"
 
 
@@ -106,14 +132,22 @@ def loop(kind: str, scalar: bool = False, dims=None) -> tuple:
     return _LOOPS[name]
 
 
+def loop_of(flt, B: int | None = None) -> tuple:
+    """:func:`.build.loop_of` for the model-free loops: the EKF's batch-inner loop where the model's
+    own loop would be the batch-inner one (by ``B``), the loaded loop asked of this module's."""
+    from .build import loop_of as own
+
+    return own(flt, B, have=lambda kind, fns, key, scalar, dims: (kind, scalar, dims) in _LOOPS)
+
+
 def of(flt, B: int | None = None) -> tuple:
     """``(kind, fns, scalar, dims, key)``: the model-free loop that would run ``flt`` on ``B`` paths
-    (:func:`.build.loop_of`'s one-path loop) and the model's functions it takes (``{slot: Kernel}``,
+    (:func:`loop_of`) and the model's functions it takes (``{slot: Kernel}``,
     :func:`.build.loop_functions`)."""
-    from .build import loop_functions, loop_of
+    from .build import loop_functions
 
-    kind, fns, scalar, dims, key = loop_of(flt, B, one_path=True)
-    return kind, {s: fns[s] for s in loop_functions(kind, scalar)}, scalar, dims, key
+    kind, fns, scalar, dims, key = loop_of(flt, B)
+    return kind, {s: fns[s] for s in loop_functions(kind, scalar, dims)}, scalar, dims, key
 
 
 def loaded(kind: str, fns: dict, key, scalar: bool = False, dims=None) -> bool:
