@@ -163,15 +163,23 @@ def _flat(d: dict, prefix: str = "") -> dict:
     return out
 
 
+#: the longest cell of a generated table, characters (docutils refuses a line of over 10,000; a run's
+#: nested side-by-side rows reach that): a longer one is cut, naming what the JSON holds beyond it
+CELL_CHARS = 1500
+
+
 def _cell(v) -> str:
     """A table cell: a number or a word as text; a dict (flattened to ``key value`` pairs) or a list
-    as one literal, so that command-line flags and paths are shown as recorded."""
+    as one literal, so that command-line flags and paths are shown as recorded; cut at
+    :data:`CELL_CHARS` (the rest is in the JSON)."""
     if isinstance(v, dict):
         v = ", ".join(f"{k} {_num(x)}" for k, x in _flat(v).items())
     elif isinstance(v, list):
         v = ", ".join(_num(x) for x in v)
     else:
         return esc(_num(v))
+    if len(v) > CELL_CHARS:
+        v = f"{v[:CELL_CHARS]} … ({len(v) - CELL_CHARS} more characters in the JSON)"
     return f"``{v}``" if v and "``" not in v and not v.startswith(" ") and not v.endswith(" ") else esc(v)
 
 
