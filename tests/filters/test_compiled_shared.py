@@ -22,6 +22,7 @@ from nlfilter.filters.kalman import KalmanFilter
 from nlfilter.filters.second_order import SecondOrderFilter
 from nlfilter.filters.ukf import UKF
 from nlfilter.simulate import simulate
+from tests.filters.test_backend_choice import _five_state  # (a 5-state tracking model: no paper has it)
 
 pytestmark = [pytest.mark.skipif(not compiled.available(), reason="numba does not import"),
               pytest.mark.filterwarnings("error:Cannot cache compiled function")]
@@ -37,15 +38,6 @@ def two_state(c=0.9):
     G = [[1.0, 0.0], [0.1 * x1, 1.0]]
     return DiscreteModel([x1, x2], f, h, G, Q=[[0.02, 0.005], [0.005, 0.01]], R=[[0.1, 0.02], [0.02, 0.2]],
                          params={a: 0.8})
-
-
-def five_state():
-    """A 5-state turn-rate tracking model (past the specialized sizes: the general loop)."""
-    px, py, vx, vy, w = sp.symbols("px py vx vy w")
-    dt = 0.1
-    f = [px + dt * vx, py + dt * vy, vx * sp.cos(w * dt) - vy * sp.sin(w * dt), vx * sp.sin(w * dt) + vy * sp.cos(w * dt), w]
-    return DiscreteModel([px, py, vx, vy, w], f=f, h=[sp.sqrt(px**2 + py**2 + 1), sp.atan2(py, px + 3)],
-                         Q=np.diag([1e-4, 1e-4, 1e-2, 1e-2, 1e-3]), R=np.diag([0.01, 0.001]))
 
 
 def data(md, B=6, T=40, seed=0):
@@ -116,7 +108,7 @@ def test_the_scalar_loop_and_the_time_convention():
 
 def test_the_node_rule_on_a_five_state_model_and_the_smoother():
     """The UKF on a 5-state tracking model (the general loop), and its smoother, as the NumPy loop."""
-    md = five_state()
+    md = _five_state()
     ys = simulate(md, 30, paths=3, rng=1, m0=np.array([1.0, 0.5, 0.2, 0.1, 0.3]), P0=0.01 * np.eye(5)).ys
     flt = UKF(md)
     m0, P0 = np.array([1.0, 0.5, 0.2, 0.1, 0.3]), 0.01 * np.eye(5)
