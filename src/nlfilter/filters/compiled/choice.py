@@ -173,7 +173,7 @@ def _got(spent, compile_s, load_s, own, shared):
     model's functions are repaid; else, repaid by ``spent``, a compile: of the model-free loop (then
     every later model of its shape is a matter of its functions; its speed within
     :data:`FULL_GAIN` of the model's own loop's), of the model's own loop where no model-free loop
-    serves (the Kalman filter's is model-free already)."""
+    serves (the Kalman filter's is model-free already; the scalar EKF keeps its own)."""
     if own:
         return Choice("numba", "the compiled loop is in the disk cache")
     where = shared[2]() if shared is not None else (None, None)
