@@ -79,6 +79,36 @@ def test_a_second_process_loads_the_loop(root):
     assert (entry / "sealed.json").is_file() and entry.name.startswith("taylor1-scalar-")
 
 
+def test_a_new_model_in_a_second_process_loads_the_model_free_loop(root):
+    """``backend="numba-shared"``: the first process compiles the model-free loop of its shape (the
+    scalar EKF's: a short compile) and its model's functions; a second process with *another* model
+    of that shape loads the loop (a hit, no miss), compiles its own functions only, and gives the
+    NumPy loop's numbers; the cache then holds one loop entry and one functions entry per model."""
+    script = textwrap.dedent("""
+        import sys
+        import numpy as np, sympy as sp
+        from nlfilter import DiscreteModel
+        from nlfilter.filters.ekf import EKF
+        from nlfilter.filters.compiled import template
+        x = sp.Symbol("x")
+        md = DiscreteModel([x], f=[float(sys.argv[1]) * x + 0.1 * sp.sin(x)], h=[x**3], Q=0.1, R=0.2)
+        ys = np.random.default_rng(3).normal(size=(4, 12, 1))
+        flt = EKF(md)
+        est = flt.run(ys, 0.1, 1.0, backend="numba-shared", loglik=True)
+        ref = flt.run(ys, 0.1, 1.0, backend="numpy", loglik=True)
+        (loop, _), = template._LOOPS.values()
+        close = np.allclose(est.means, ref.means, rtol=1e-12, atol=0) and np.allclose(est.loglik, ref.loglik, rtol=1e-12)
+        print(sum(loop._cache_hits.values()), sum(loop._cache_misses.values()), close)
+    """)
+    env = {**os.environ, "NLFILTER_CACHE": str(root)}
+    out = [subprocess.run([sys.executable, "-c", script, a], env=env, capture_output=True, text=True, check=True,
+                          timeout=300).stdout.split() for a in ("0.9", "0.7")]
+    assert out == [["0", "1", "True"], ["1", "0", "True"]], out
+    names = sorted(p.name.split("-")[0] for p in root.iterdir())
+    assert names == ["functions", "functions", "taylor1"], names
+    assert all((p / "sealed.json").is_file() for p in root.iterdir())
+
+
 @pytest.mark.parametrize("damage", ["numba data truncated", "numba index truncated", "source truncated",
                                     "source foreign", "unsealed"])
 def test_a_damaged_entry_is_compiled_again(root, damage):
