@@ -84,12 +84,11 @@ def test_the_model_free_loop_gives_the_models_own_loops_bits():
     shared = run(flt, ys, "numba-shared")
     same(run(flt, ys, "numba"), shared)
     assert shared.diverged[2] and not shared.diverged[0]
-    kind, fns, scalar, dims, key = build.loop_of(flt, 6, one_path=True)
+    kind, slots, scalar, dims, key = template.of(flt, 6)
     loops = dict(template._LOOPS)
     other = EKF(two_state(0.7))
     close(run(other, ys, "numpy"), run(other, ys, "numba-shared"))
     assert template._LOOPS == loops  # the same loop, not another compile
-    slots = {s: fns[s] for s in build.loop_functions(kind, scalar)}
     assert template.loaded(kind, slots, key, scalar, dims)
     # the loop's text holds no model: two models of the shape share it, and its cache entry
     text, tag = template.text(kind, scalar, dims)
@@ -151,8 +150,7 @@ def test_the_automatic_tiers(tmp_path, monkeypatch):
     monkeypatch.setattr(template, "_LOOPS", {})
     monkeypatch.setattr(cache, "_MODULES", {})
     flt = EKF(two_state(0.55))
-    kind, fns, scalar, dims, key = build.loop_of(flt, 1, one_path=True)
-    slots = {s: fns[s] for s in build.loop_functions(kind, scalar)}
+    kind, slots, scalar, dims, key = template.of(flt, 1)
     assert template.ready(kind, slots, key, scalar, dims) == (None, None)
     T = 40_000  # one path: NumPy ~2 s, past loading numba and the model's functions, short of a compile
     assert choice.LOAD_SECONDS + choice.FIRST_COMPILE_SECONDS + choice.FUNCTION_SECONDS * len(slots) <= \

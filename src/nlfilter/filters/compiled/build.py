@@ -262,7 +262,7 @@ def source(kind: str, fns: dict, scalar: bool = False, dims=None, template: bool
     return "\n\n".join(p.rstrip("\n") + "\n" for p in parts)
 
 
-def loop_of(flt, B: int | None = None, one_path: bool = False, have=None):
+def loop_of(flt, B: int | None = None, have=None):
     """``(kind, fns, scalar, dims, key)``: the loop that runs ``flt`` on ``B`` paths (:func:`steps`'
     arguments): its rule kind, the model's functions (:mod:`.kernels`, generated once per model),
     whether it is the scalar batch loop (the EKF on one state, measurement and noise; the KF on one
@@ -278,7 +278,7 @@ def loop_of(flt, B: int | None = None, one_path: bool = False, have=None):
     that one, so that a process compiles one loop per model (the loaded one costs at most 1.5× the
     time per path-step of the other at n = 4 from 8 paths, 3.3× on one path; a compile costs
     5-30 s). ``B`` None: a batch of any size (the batch-inner loop where the rule has one);
-    ``one_path``: never the batch-inner loop; ``have(kind, fns, key, scalar, dims)``: whether that
+    ``have(kind, fns, key, scalar, dims)``: whether that
     loop is in this process (default :func:`loaded`; the model-free loops', :func:`.template.loop_of`)."""
     have = loaded if have is None else have
     md = flt.model
@@ -310,7 +310,7 @@ def loop_of(flt, B: int | None = None, one_path: bool = False, have=None):
                            "hxt": "h_xxtr", "G": "G"},
             "cd-nodes": {"f": "f", "h": "h", "G": "G"}}[kind]
     fns = {a: fns.get(w) for a, w in args.items()}
-    if batch_loop.serves(kind, n, mdim) and not one_path:  # the batch-inner loop (the model's functions over blocks too)
+    if batch_loop.serves(kind, n, mdim):  # the batch-inner loop (the model's functions over blocks too)
         wide = batch_loop.dims_of(n, mdim, r)
         batch = B is None or B >= batch_loop.paths_from(n, dims is not None)
         if B is not None and not have(kind, fns, key, False, wide if batch else dims):
