@@ -15,6 +15,8 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as hst
 
+from nlfilter.filters.backends import refusal
+
 _spec = importlib.util.spec_from_file_location("_contract", Path(__file__).parents[1] / "test_contract.py")
 contract = sys.modules["_contract"] = importlib.util.module_from_spec(_spec)
 _spec.loader.exec_module(contract)
@@ -44,6 +46,10 @@ def _bad_runs(case):
         ("chunk -1", "chunk", {"chunk": -1}),
         ("loglik 'yes'", "loglik", {"loglik": "yes"}),
         ("backend 'gpu'", "backend", {"backend": "gpu"}),
+        # the model-free compiled loop: a filter it takes checks the data first (no compile), the
+        # others are refused naming backend
+        ("ys complex, backend 'numba-shared'", "backend" if refusal("numba-shared", case.filter()) else "ys",
+         {"ys": _complex(d), "backend": "numba-shared"}),
         ("t0 nan", "t0", {"t0": float("nan")}),
         ("t0 inf", "t0", {"t0": float("inf")}),
         ("t0 'abc'", "t0", {"t0": "abc"}),
