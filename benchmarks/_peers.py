@@ -31,14 +31,16 @@ def relmaxdiff(a, b) -> float:
     return maxdiff(a, b) / scale
 
 
-def nlfilter_sides(make, ys, m0, P0, repeat, columns=("default", "numpy", "numba"), warm=None, **kw):
+def nlfilter_sides(make, ys, m0, P0, repeat, columns=("default", "numpy", "numba"), warm=None, default_repeat=None,
+                   **kw):
     """Time ``make().run(ys, m0, P0, **kw)`` for each column, in order: ``"default"`` (no backend
     argument: first, so that a compile it decides on is its own), ``"numpy"``, ``"numba"``.
     ``warm``: None (the default call in this process, on the cache as it is: cold in a benchmark),
     or ``(factory, args[, fill])`` for :func:`_warm.warm_default` (the default call in a fresh
     process, the disk cache filled beforehand by another one: its estimates carry ``means``); then
     the columns ``"numba-fresh"``, ``"numba-shared-fresh"`` are that backend in a fresh process on
-    that cache.
+    that cache. ``default_repeat``: the default column's calls (default ``repeat``): enough for the
+    automatic rule to reach its steady state in a process repeating the job.
 
     Returns ``(timings, estimates, notes)``: ``timings[col]`` as :func:`_pin.first_and_best` (its
     "compile" is the first call's extra over the best: a compile, a cache load, or noise for the
@@ -57,7 +59,8 @@ def nlfilter_sides(make, ys, m0, P0, repeat, columns=("default", "numpy", "numba
         if col in fresh and warm is not None:
             from _warm import warm_default
 
-            timings[col], est[col], more = warm_default(*warm[:2], ys, m0, P0, repeat, backend=fresh[col],
+            calls = default_repeat or repeat if col == "default" else repeat
+            timings[col], est[col], more = warm_default(*warm[:2], ys, m0, P0, calls, backend=fresh[col],
                                                         fill=warm[2] if len(warm) > 2 else None)
             notes += [x for x in more if x not in notes]
             continue
@@ -71,7 +74,8 @@ def nlfilter_sides(make, ys, m0, P0, repeat, columns=("default", "numpy", "numba
         flt = make()
         args = {} if col == "default" else {"backend": col}
         try:
-            timings[col], est[col] = first_and_best(lambda: flt.run(ys, m0, P0, **args, **kw), repeat)
+            calls = default_repeat or repeat if col == "default" else repeat
+            timings[col], est[col] = first_and_best(lambda: flt.run(ys, m0, P0, **args, **kw), calls)
         except TypeError as exc:
             if "backend" not in str(exc):
                 raise
@@ -266,6 +270,8 @@ def rows_against(ours: dict, peer: str, theirs: dict, steps: int, cache: str | N
                 continue  # the default call's own measurement (its row names what it resolved to)
             name = f"nlfilter {kind}, {column_name(col)}"
             extra = {"kind": kind, "column": col}
+            if t_ours.get("best_backend"):  # (the default call's: what its best later call ran on)
+                extra["best_call_backend"] = t_ours["best_backend"]
             if "best_cpu" in t_ours and "best_cpu" in t_peer:  # a shared core inflates wall time, not CPU time
                 extra["cpu_peer_over_ours"] = {"apart": t_peer["best_cpu"] / t_ours["best_cpu"]}
                 if all(t.get("included") == t.get("first") for t in (t_ours, t_peer)):  # (not a build added)

@@ -32,7 +32,10 @@ columns then find the cache warm too. ``--cache shape``: the same, but the filli
 model-free loop of the shape is on disk, not the job's model (a new model in an installation that
 has run its shape before). Rows name the cache state (``cache``).
 
-Every best is of ``--repeat`` (3) calls, the first apart. Each row of the JSON names both sides
+Every best is of ``--repeat`` (3) calls, the first apart; the default column's of
+``--default-repeat`` (default ``--repeat``): the automatic rule's steady state in a process that
+repeats the job (a NumPy call until the time spent repays the load or compile; the backend of its
+best call is recorded, ``best_call_backend``). Each row of the JSON names both sides
 (``ours``, ``peer``) and gives ``peer_over_ours`` (> 1: nlfilter faster), with the compile apart
 (µs per path-step) and included (seconds to the first result). The largest relative difference of
 filtered means is reported between the columns and against each peer (same start: filterpy
@@ -85,7 +88,8 @@ def measure(n, a):
             continue  # 2^n nodes
         warm = None if a.cache == "cold" else ("bench_dimensions:make_filter", [kind, n],
                                                 ("numba", [kind, n]) if a.cache == "warm" else ("numba-shared", [kind, n, 0.85]))
-        t, e, notes = nlfilter_sides(lambda: FILTERS[kind](md), ys, m0, P0, a.repeat, a.columns, warm=warm)
+        t, e, notes = nlfilter_sides(lambda: FILTERS[kind](md), ys, m0, P0, a.repeat, a.columns, warm=warm,
+                                     default_repeat=a.default_repeat)
         ours[kind], est[kind] = t, e
         row["nlfilter"][kind] = {col: per_step(v, ps) for col, v in t.items()}
         row["notes"] += [f"{kind}: {x}" for x in notes if x not in row["notes"]]
@@ -140,6 +144,8 @@ def main(argv=None):
     ap.add_argument("--paths", type=int, default=1000)
     ap.add_argument("--steps", type=int, default=200)
     ap.add_argument("--repeat", type=int, default=3, help="calls per column, the first (compile) apart")
+    ap.add_argument("--default-repeat", type=int, default=None,
+                    help="calls of the default column (default --repeat): the automatic rule's steady state")
     ap.add_argument("--filterpy-paths", type=int, default=5)
     ap.add_argument("--filters", nargs="+", choices=list(FILTERS), default=["ekf", "ukf", "ckf", "second-order"])
     ap.add_argument("--columns", nargs="+",
@@ -165,7 +171,7 @@ def main(argv=None):
     _pin.write(a.out, a.label, {
         "problem": "x_i' = 0.9 x_i + 0.1 sin(x_{i+1}) + w, y_j = x_j + 0.1 x_{j+m}^2 + v, Q = 0.01 I, "
                    "R = 0.1 I, m0 = 0, P0 = I, m = ceil(n/2)",
-        "repeat": a.repeat, "quick": a.quick, "columns": a.columns, "cache": a.cache, "rows": rows}, benchmark="dimensions")
+        "repeat": a.repeat, "default_repeat": a.default_repeat or a.repeat, "quick": a.quick, "columns": a.columns, "cache": a.cache, "rows": rows}, benchmark="dimensions")
 
 
 def _summary(row):

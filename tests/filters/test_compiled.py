@@ -23,7 +23,7 @@ from nlfilter.filters import REGISTRY, compiled
 from nlfilter.filters.beliefs import GaussianState
 from nlfilter.filters.compiled import build as compiled_build
 from nlfilter.filters.compiled.kernels import KERNELS
-from nlfilter.filters.compiled.path_linalg import psd_check, psd_root, sqrt_check
+from nlfilter.filters.compiled.path_linalg import chol, pd_ok, psd_check, psd_root, sqrt_check
 from nlfilter.filters.cubature import CKF, GHKF, StatisticallyLinearizedFilter
 from nlfilter.filters.ekf import EKF, ContinuousDiscreteIEKF, IteratedEKF
 from nlfilter.filters.linalg import PSD_TOL, _bad_paths_exact
@@ -309,6 +309,25 @@ def test_compiled_screen_is_the_eigenvalue_test(n, seed, kind, log_scale):
             np.testing.assert_array_equal(R, L2)
         else:
             assert kind in ("psd-singular", "zero", "within", "near")  # P itself has no Cholesky factor
+
+
+@settings(max_examples=200, deadline=None)
+@given(n=hst.integers(1, 8), seed=hst.integers(0, 2**32 - 1), log_scale=hst.floats(-6.0, 6.0),
+       log_gap=hst.floats(-7.0, 0.0))
+def test_screen_pivots_decide_as_the_cholesky_factor(n, seed, log_scale, log_gap):
+    """The divergence screen's decision without square roots (:func:`~nlfilter.filters.compiled.
+    path_linalg.pd_ok_`) is the Cholesky factorization's (:func:`~nlfilter.filters.compiled.
+    path_linalg.chol_`) on every symmetric matrix whose smallest eigenvalue is at least 1e-7 of the
+    largest away from 0 (either sign): where both could round differently (|λ_min| within ~n·eps of
+    ‖A‖), the screen only defers to the exact test, :func:`test_compiled_screen_is_the_eigenvalue_test`."""
+    rng = np.random.default_rng(seed)
+    U = np.linalg.qr(rng.standard_normal((n, n)))[0]
+    lam = rng.uniform(0.1, 1.0, n)
+    lam[0] = 10.0**log_gap * (1 if rng.random() < 0.5 else -1)
+    A = 10.0**log_scale * (U * lam) @ U.T
+    A = 0.5 * (A + A.T)
+    got = pd_ok(A.copy(), n)  # (its lower triangle overwritten)
+    assert got == chol(A, np.empty((n, n)), n) == (lam[0] > 0)
 
 
 def test_node_rules_on_three_states_as_numpy():

@@ -13,7 +13,7 @@ import math
 
 from .support import jit
 
-__all__ = ["SOURCES", "chol", "psd_ok", "jacobi", "psd_check", "psd_root", "psd_exact", "sqrt_check", "sqrt_psd", "lu",
+__all__ = ["SOURCES", "chol", "pd_ok", "psd_ok", "jacobi", "psd_check", "psd_root", "psd_exact", "sqrt_check", "sqrt_psd", "lu",
            "lu_solve", "mm", "symmetrize", "transpose"]
 
 
@@ -37,7 +37,24 @@ def chol_(A, L, n):
     return True
 
 
-def psd_ok_(m, P, n, tol, W, L):
+def pd_ok_(A, n):
+    """Whether the symmetric ``A[:n, :n]`` is positive definite as its Cholesky factorization
+    (:func:`chol_`) decides it — every pivot > 0 — by symmetric elimination on its lower triangle
+    (overwritten) without square roots: the same pivots to rounding, at about half the latency of
+    the factor's square roots and divisions (a decision only: no factor kept)."""
+    for j in range(n):
+        d = A[j, j]
+        if not d > 0.0:  # also False for NaN
+            return False
+        inv = 1.0 / d
+        for i in range(j + 1, n):
+            f = A[i, j] * inv
+            for k in range(j + 1, i + 1):
+                A[i, k] -= f * A[k, j]
+    return True
+
+
+def psd_ok_(m, P, n, tol, W):
     """Not :func:`~nlfilter.filters.linalg.bad_paths`: finite, and the smallest eigenvalue of the
     symmetrized ``P`` ≥ ``−tol·max(1, max|P|)``. 1.0 yes, 0.0 no, ``−scale`` undecided (W then
     holds the symmetrized P, for :func:`psd_check_`)."""
@@ -57,16 +74,18 @@ def psd_ok_(m, P, n, tol, W, L):
         a, b, c = P[0, 0], 0.5 * (P[0, 1] + P[1, 0]), P[1, 1]
         low = 0.5 * (a + c) - math.sqrt(0.25 * (a - c) ** 2 + b * b)
         return 0.0 if low < -tol * scale else 1.0
-    # the Cholesky screen of linalg._screen_ok (never weaker than the exact test), then exact
+    # the Cholesky screen of linalg._screen_ok (never weaker than the exact test: where it passes,
+    # the smallest eigenvalue of the symmetrized P is above −tol·max(1, max P_ii)/2 but for the
+    # factorization's rounding, ~n·eps·max|P|), decided by pd_ok_; then exact
     dmax = 2.0
     for i in range(n):
         if 2.0 * P[i, i] > dmax:
             dmax = 2.0 * P[i, i]
     for i in range(n):
-        for j in range(n):
+        for j in range(i):
             W[i, j] = P[i, j] + P[j, i]
-        W[i, i] += 0.5 * tol * dmax
-    if chol(W, L, n):
+        W[i, i] = P[i, i] + P[i, i] + 0.5 * tol * dmax
+    if pd_ok(W, n):
         return 1.0
     for i in range(n):
         for j in range(n):
@@ -124,7 +143,7 @@ def jacobi_(A, w, V, n):
 
 def psd_check_(m, P, n, tol, W, L, ev):
     """:func:`psd_ok_`, with the eigenvalues (:func:`jacobi_`) where its screen cannot decide."""
-    code = psd_ok(m, P, n, tol, W, L)
+    code = psd_ok(m, P, n, tol, W)
     if code >= 0.0:
         return code > 0.5
     jacobi(W, ev, L, n)
@@ -274,12 +293,13 @@ def transpose_(A, At, ni, nj):
 
 
 #: the Python sources of this module's kernels (compiled below; inlined by :mod:`.build`)
-SOURCES = (chol_, psd_ok_, jacobi_, psd_check_, psd_root_, psd_exact_, sqrt_check_, sqrt_psd_, lu_, lu_solve_, mm_,
+SOURCES = (chol_, pd_ok_, psd_ok_, jacobi_, psd_check_, psd_root_, psd_exact_, sqrt_check_, sqrt_psd_, lu_, lu_solve_, mm_,
            symmetrize_, transpose_)
 
 # raw functions (_nrt=False): no reference counting; with it, every array argument of a call costs
 # an atomic incref/decref pair (~60 ns a call, measured), and a raw function can call raw ones only
 chol = jit(chol_, _nrt=False)
+pd_ok = jit(pd_ok_, _nrt=False)
 psd_ok = jit(psd_ok_, _nrt=False)
 jacobi = jit(jacobi_, _nrt=False)
 psd_check = jit(psd_check_, _nrt=False)
