@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from _pin import default_backend, first_and_best
+from _pin import default_backend, default_calls, first_and_best
 
 
 def maxdiff(a, b) -> float:
@@ -39,8 +39,9 @@ def nlfilter_sides(make, ys, m0, P0, repeat, columns=("default", "numpy", "numba
     or ``(factory, args[, fill])`` for :func:`_warm.warm_default` (the default call in a fresh
     process, the disk cache filled beforehand by another one: its estimates carry ``means``); then
     the columns ``"numba-fresh"``, ``"numba-shared-fresh"`` are that backend in a fresh process on
-    that cache. ``default_repeat``: the default column's calls (default ``repeat``): enough for the
-    automatic rule to reach its steady state in a process repeating the job.
+    that cache. ``default_repeat``: the default column's calls at most (default ``repeat``), as
+    :func:`_pin.default_calls`: enough for the automatic rule to reach its steady state in a process
+    repeating the job.
 
     Returns ``(timings, estimates, notes)``: ``timings[col]`` as :func:`_pin.first_and_best` (its
     "compile" is the first call's extra over the best: a compile, a cache load, or noise for the
@@ -74,8 +75,10 @@ def nlfilter_sides(make, ys, m0, P0, repeat, columns=("default", "numpy", "numba
         flt = make()
         args = {} if col == "default" else {"backend": col}
         try:
-            calls = default_repeat or repeat if col == "default" else repeat
-            timings[col], est[col] = first_and_best(lambda: flt.run(ys, m0, P0, **args, **kw), calls)
+            if col == "default" and default_repeat:
+                timings[col], est[col] = default_calls(lambda: flt.run(ys, m0, P0, **kw), default_repeat)
+            else:
+                timings[col], est[col] = first_and_best(lambda: flt.run(ys, m0, P0, **args, **kw), repeat)
         except TypeError as exc:
             if "backend" not in str(exc):
                 raise

@@ -116,39 +116,25 @@ def _main(job: dict) -> None:
     flt = getattr(importlib.import_module(module), name)(*job["args"])
     data = np.load(pathlib.Path(job["dir"]) / "job.npz")
     ys, m0, P0 = data["ys"], data["m0"], data["P0"]
-    chose = []
-    if job["backend"] is None:  # what the run's automatic rule answers (it asks backend_for once)
-        from nlfilter.filters.base import Filter  # (on the class: an attribute of the filter's own is refused)
-
-        ask = Filter.backend_for
-
-        def spy(self, *a, **k):
-            r = ask(self, *a, **k)
-            chose.append([str(x) for x in r])
-            return r
-
-        Filter.backend_for = spy
-        kw = {}
+    if job["backend"] is None:  # the default call, repeated as a process repeating the job (_pin.default_calls)
+        timing, est = _pin.default_calls(lambda: flt.run(ys, m0, P0), job["repeat"])
+        calls = timing.pop("calls")
+        backend, why = calls[0]["backend"], calls[0]["why"]
     else:
-        kw = {"backend": job["backend"]}
-    calls = []  # each call's (wall, CPU) seconds: the first apart, then the best, as _pin.first_and_best
-    for _ in range(max(job["repeat"], 1)):
-        t, c = time.perf_counter(), time.process_time()
-        est = flt.run(ys, m0, P0, **kw)
-        calls.append((time.perf_counter() - t, time.process_time() - c))
-    timing = {"first": calls[0][0], "first_cpu": calls[0][1]}
-    if len(calls) > 1:
-        best, best_cpu = min(w for w, _ in calls[1:]), min(c for _, c in calls[1:])
-        timing.update(best=best, best_cpu=best_cpu, compile=max(calls[0][0] - best, 0.0), included=calls[0][0])
-        if chose:  # the backend of the best later call: the default call's steady state in a process repeating the job
-            at = 1 + min(range(len(calls) - 1), key=lambda i: calls[1 + i][0])
-            timing["best_backend"] = chose[at][0] if at < len(chose) else None
+        calls = []  # each call's (wall, CPU) seconds: the first apart, then the best, as _pin.first_and_best
+        for _ in range(max(job["repeat"], 1)):
+            t, c = time.perf_counter(), time.process_time()
+            est = flt.run(ys, m0, P0, backend=job["backend"])
+            calls.append({"wall": time.perf_counter() - t, "cpu": time.process_time() - c, "backend": job["backend"]})
+        timing = {"first": calls[0]["wall"], "first_cpu": calls[0]["cpu"]}
+        if len(calls) > 1:
+            best, best_cpu = min(x["wall"] for x in calls[1:]), min(x["cpu"] for x in calls[1:])
+            timing.update(best=best, best_cpu=best_cpu, compile=max(calls[0]["wall"] - best, 0.0),
+                          included=calls[0]["wall"])
+        backend, why = job["backend"], None
     ru = resource.getrusage(resource.RUSAGE_SELF)
     np.save(pathlib.Path(job["dir"]) / "means.npy", est.means)
-    out = {"timing": timing, "calls": [{"wall": w, "cpu": c, "backend": chose[i][0] if i < len(chose) else job["backend"]}
-                                       for i, (w, c) in enumerate(calls)],
-           "backend": chose[0][0] if chose else job["backend"],
-           "why": chose[0][1] if chose else None, "numba_imported_at_start": numba_at_start,
+    out = {"timing": timing, "calls": calls, "backend": backend, "why": why, "numba_imported_at_start": numba_at_start,
            "process_cpu_seconds": ru.ru_utime + ru.ru_stime, "unsealed": _unsealed_entries(),
            "minor_page_faults": ru.ru_minflt}
     (pathlib.Path(job["dir"]) / "out.json").write_text(json.dumps(out))

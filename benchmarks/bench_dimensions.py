@@ -32,10 +32,13 @@ columns then find the cache warm too. ``--cache shape``: the same, but the filli
 model-free loop of the shape is on disk, not the job's model (a new model in an installation that
 has run its shape before). Rows name the cache state (``cache``).
 
-Every best is of ``--repeat`` (3) calls, the first apart; the default column's of
-``--default-repeat`` (default ``--repeat``): the automatic rule's steady state in a process that
-repeats the job (a NumPy call until the time spent repays the load or compile; the backend of its
-best call is recorded, ``best_call_backend``). Each row of the JSON names both sides
+Every best is of ``--repeat`` (3) calls, the first apart. With ``--default-repeat N`` the default
+column is the call repeated as a process repeating the job makes it, up to N times
+(:func:`_pin.default_calls`): the NumPy loop until the time spent repays the cached loop's load or
+the compile, then the compiled loop; it stops two calls into that steady state. Its best is the
+steady state's (the backend of its best call: ``best_call_backend``), its ``to_steady`` the wall
+and CPU seconds of the calls before it (the NumPy calls and the compile or load: what the process
+paid to get there), each call's backend in ``calls``. Each row of the JSON names both sides
 (``ours``, ``peer``) and gives ``peer_over_ours`` (> 1: nlfilter faster), with the compile apart
 (µs per path-step) and included (seconds to the first result). The largest relative difference of
 filtered means is reported between the columns and against each peer (same start: filterpy
