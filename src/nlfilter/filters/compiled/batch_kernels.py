@@ -62,6 +62,24 @@ def bchol_(A, L, n, nb, d, acc, ok):
                 L[i, j, b] = acc[b] * d[b]
 
 
+def bpd_ok_(A, n, nb, d, f, ok):
+    """``ok[b]`` set to 0.0 where lane ``b`` of the symmetric ``A`` has no Cholesky factor: :func:`bchol_`'s
+    decision by symmetric elimination without square roots on A's lower triangle (overwritten), as
+    :func:`~.path_linalg.pd_ok_` (``d``, ``f``: work vectors)."""
+    for j in range(n):
+        for b in range(nb):
+            ok[b] = ok[b] if A[j, j, b] > 0.0 else 0.0
+        for b in range(nb):
+            s = A[j, j, b]
+            d[b] = 1.0 / s if s > 0.0 else 0.0
+        for i in range(j + 1, n):
+            for b in range(nb):
+                f[b] = A[i, j, b] * d[b]
+            for k in range(j + 1, i + 1):
+                for b in range(nb):
+                    A[i, k, b] -= f[b] * A[k, j, b]
+
+
 def bmirror_(P, n, nb):
     """The lower triangle of every lane of ``P`` from its upper one. (A product storing both
     ``P[i, j]`` and ``P[j, i]`` in one loop body is not vectorized: the two stores may alias.)"""
@@ -88,13 +106,13 @@ def bscreen_(M, P, n, nb, tol, W, L, d, acc, ok):
             for b in range(nb):
                 ok[b] = ok[b] if abs(P[i, j, b]) <= big else 0.0
     for i in range(n):
-        for j in range(n):
+        for j in range(i + 1):
             for b in range(nb):
                 W[i, j, b] = P[i, j, b] + P[j, i, b]
     for i in range(n):
         for b in range(nb):
             W[i, i, b] += 0.5 * tol * d[b]
-    bchol(W, L, n, nb, d, acc, ok)
+    bpd_ok(W, n, nb, d, acc, ok)
 
 
 def bgather_(M, P, b, m1, P1, n):
@@ -397,4 +415,4 @@ def steps_batch_(ys, m0, P0, p, Q, R, GQG0, G_const, offset, absent, tol, means,
 
 
 #: the loop and its kernels, in the order the generated module defines them
-SOURCES = (bchol_, bmirror_, bscreen_, bgather_, kill_, settle_, bpredict_, binnov_, blik_, bupdate_, steps_batch_)
+SOURCES = (bchol_, bpd_ok_, bmirror_, bscreen_, bgather_, kill_, settle_, bpredict_, binnov_, blik_, bupdate_, steps_batch_)

@@ -170,7 +170,7 @@ def alloc(n, mdim, r):
 
 
 #: the kernels inlined where they are called (the Cholesky factor: called with ``n`` and ``m``)
-_INLINED = ("bchol_", "bmirror_", "bscreen_", "bgather_", "kill_")
+_INLINED = ("bchol_", "bpd_ok_", "bmirror_", "bscreen_", "bgather_", "kill_")
 
 
 def _split(src: str) -> tuple:
