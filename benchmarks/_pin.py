@@ -106,8 +106,10 @@ def first_and_best(fn, repeat: int):
 def default_calls(call, repeat: int):
     """The default call (``call()``: ``run`` with no ``backend=``) repeated as a process repeating a
     job does, up to ``repeat`` times: the automatic rule moves a later call to the compiled loop once
-    the NumPy loop's time repays its load or compile. Stops early once two calls after the first ran
-    a compiled loop (the steady state). Returns ``(timing, output)``: the timing as
+    the NumPy loop's time repays its load or compile. Stops early once three calls after the first
+    ran a compiled loop (the steady state: the first calls of a fresh process also pay the first touch
+    of their output arrays' memory, 7 s of one call at n = 16 where the kernel compacts memory for
+    huge pages). Returns ``(timing, output)``: the timing as
     :func:`first_and_best` (its best over the later calls: the steady state), plus ``calls`` (each
     call's wall and CPU seconds and backend: ``Filter.backend_for`` spied on), ``best_backend`` (the
     best later call's) and ``to_steady`` (wall and CPU seconds of the calls before the first of the
@@ -124,13 +126,13 @@ def default_calls(call, repeat: int):
     calls, out = [], None
     Filter.backend_for = spy
     try:
-        for i in range(max(repeat, 2)):
+        for i in range(max(repeat, 2)):  # (at least a first call and a later one)
             del chose[:]
             t, c = time.perf_counter(), time.process_time()
             out = call()
             calls.append({"wall": time.perf_counter() - t, "cpu": time.process_time() - c,
                           "backend": chose[0][0] if chose else None, "why": chose[0][1] if chose else None})
-            if i >= 2 and all(x["backend"] not in (None, "numpy") for x in calls[-2:]):
+            if i >= 3 and all(x["backend"] not in (None, "numpy") for x in calls[-3:]):
                 break
     finally:
         Filter.backend_for = ask

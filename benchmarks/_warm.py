@@ -109,6 +109,22 @@ def _unsealed_entries() -> int:
     return sum(1 for p in root.glob("*/__pycache__") if not (p.parent / "sealed.json").exists())
 
 
+def _entry_state(flt, B: int) -> dict:
+    """The disk-cache entry of the model's own loop that the default call asked about (after the
+    calls: asked before, its text would be made outside the first call's time): whether it exists,
+    holds the loop's source, is sealed and trusted (numba's files those the seal records) and ready."""
+    from nlfilter.filters.compiled import build, cache
+
+    kind, fns, scalar, dims, key = build.loop_of(flt, B)
+    text, tag = build.text_of(kind, fns, scalar, dims)
+    entry = cache.cache_root() / f"{tag}-{cache._key(text)}"
+    src = entry / "module.py"
+    return {"tag": tag, "dims": repr(dims), "exists": entry.is_dir(),
+            "source_matches": src.is_file() and src.read_bytes() == text.encode(),
+            "sealed": (entry / "sealed.json").is_file(), "trusted": entry.is_dir() and cache._trusted(entry),
+            "ready": cache.ready(text, tag)}
+
+
 def _main(job: dict) -> None:
     numba_at_start = "numba" in sys.modules
     sys.path.insert(0, str(HERE))
@@ -132,6 +148,8 @@ def _main(job: dict) -> None:
             timing.update(best=best, best_cpu=best_cpu, compile=max(calls[0]["wall"] - best, 0.0),
                           included=calls[0]["wall"])
         backend, why = job["backend"], None
+    if job["backend"] is None:
+        timing["loop_entry"] = _entry_state(flt, ys.shape[0])
     ru = resource.getrusage(resource.RUSAGE_SELF)
     np.save(pathlib.Path(job["dir"]) / "means.npy", est.means)
     out = {"timing": timing, "calls": calls, "backend": backend, "why": why, "numba_imported_at_start": numba_at_start,
