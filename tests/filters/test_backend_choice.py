@@ -21,6 +21,7 @@ from nlfilter import DiscreteModel
 from nlfilter.filters import compiled
 from nlfilter.filters.compiled import cache, choice
 from nlfilter.filters.ekf import EKF, IteratedEKF
+from nlfilter.filters.second_order import SecondOrderFilter
 from nlfilter.filters.ukf import UKF
 
 needs_numba = pytest.mark.skipif(not compiled.available(), reason="numba does not import")
@@ -136,6 +137,41 @@ def test_the_loop_text_is_written_once_per_loop(monkeypatch):
     assert len(calls) == 1 and all(t is texts[0] for t in texts)
     kind, fns, scalar, dims, _ = build.loop_of(EKF(make()))
     assert build.text_of(kind, fns, scalar, dims) != texts[0] and len(calls) == 2
+
+
+def test_an_empty_cache_is_read_without_the_loops_text(tmp_path, monkeypatch):
+    """Where the disk cache holds no sealed entry of a loop's tag (a fresh installation), the
+    automatic choice knows neither the model's own loop nor the model-free one is there without
+    writing their text (:func:`~nlfilter.filters.compiled.cache.holds_tag`; writing a specialized
+    loop's text took 0.1-0.6 s of a run's first call); an entry of another tag does not count, and
+    where one of the tag is there, the text is written to look for the loop's own (here: it is not)."""
+    from nlfilter.filters.compiled import build, template
+    monkeypatch.setenv("NLFILTER_CACHE", str(tmp_path / "compiled"))
+    monkeypatch.setattr(cache, "_MODULES", {})
+    monkeypatch.setattr(template, "_LOOPS", {})
+    asked = []
+    monkeypatch.setattr(build, "flatten_apart", lambda *a: asked.append(a) or (_ for _ in ()).throw(AssertionError))
+    build._text.cache_clear()
+    template.text.cache_clear()
+    flt = SecondOrderFilter(_four_state())  # the specialized Taylor-2 loop: the longest text
+    kind, fns, scalar, dims, _ = build.loop_of(flt, 1000)
+    assert dims is not None and choice.numpy_seconds(kind, 4, 1000, 200) > choice.LOAD_SECONDS
+    for tag in (build.tag_of(kind, scalar, dims), build.tag_of(kind, scalar, dims, template=True)):
+        assert not cache.holds_tag(tag)
+    got = flt.backend_for(1000, 200)
+    assert got[0] == "numpy" and "compile" in got[1] and not asked
+    other = tmp_path / "compiled" / f"{build.tag_of(kind, True, None)}-{'0' * 32}"  # another tag's sealed entry
+    other.mkdir(parents=True)
+    (other / "sealed.json").write_text("{}")
+    assert not cache.holds_tag(build.tag_of(kind, scalar, dims)) and flt.backend_for(1000, 200) == got and not asked
+    mine = tmp_path / "compiled" / f"{build.tag_of(kind, scalar, dims)}-{'0' * 32}"  # one of the tag (not this loop)
+    mine.mkdir()
+    (mine / "sealed.json").write_text("{}")
+    assert cache.holds_tag(build.tag_of(kind, scalar, dims))
+    with pytest.raises(AssertionError):  # now the text is written to find the loop's entry
+        flt.backend_for(1000, 200)
+    assert asked
+    build._text.cache_clear()
 
 
 @needs_numba

@@ -36,7 +36,7 @@ from .kernels import KERNELS, model_kernels, scalar_kernels
 from .support import rule_kind
 
 __all__ = ["FUNCTION_ARGS", "SPECIALIZE_UP_TO", "SPECIALIZE_NODES_UP_TO", "SPECIALIZE_TAYLOR2_UP_TO", "loop_of",
-           "source", "steps", "text_of", "loaded", "loop_name"]
+           "source", "steps", "text_of", "tag_of", "on_disk", "loaded", "loop_name"]
 
 #: the functions a source takes first (bound as globals by :func:`steps`): the model's functions
 #: of each kernel, the kernels of the template
@@ -356,8 +356,23 @@ def text_of(kind: str, fns: dict, scalar: bool = False, dims=None) -> tuple:
 def _text(kind: str, fns: tuple, scalar: bool, dims) -> tuple:
     fns = dict(fns)
     if batch_loop.is_batch(dims):
-        return batch_loop.source(source(kind, fns), dims, fns), f"{kind}-batch"
-    return source(kind, fns, scalar, dims), f"{kind}{'-scalar' if scalar else ''}"
+        return batch_loop.source(source(kind, fns), dims, fns), tag_of(kind, scalar, dims)
+    return source(kind, fns, scalar, dims), tag_of(kind, scalar, dims)
+
+
+def tag_of(kind: str, scalar: bool = False, dims=None, template: bool = False) -> str:
+    """The cache tag of the loop :func:`text_of` makes (``template``: the model-free loop's,
+    :func:`.template.text`), without its text (:func:`.cache.holds_tag`)."""
+    tag = f"{kind}-batch" if batch_loop.is_batch(dims) else f"{kind}{'-scalar' if scalar else ''}"
+    return f"{tag}-template" if template else tag
+
+
+def on_disk(kind: str, fns: dict, scalar: bool = False, dims=None) -> bool:
+    """Whether the disk cache holds the model's own loop (:func:`.cache.ready`), its text made only
+    where the cache holds an entry of its tag at all."""
+    from .cache import holds_tag, ready
+
+    return holds_tag(tag_of(kind, scalar, dims)) and ready(*text_of(kind, fns, scalar, dims)) is not None
 
 
 def loaded(kind: str, fns: dict, key, scalar: bool = False, dims=None) -> bool:

@@ -25,7 +25,7 @@ takes the model's block functions and its Jacobians' zero tables as data):
    :data:`PER_SUBSTEP`) plus that of the earlier runs of the same loop in this
    process that took the NumPy loop. Below the cost of loading a cached loop (:data:`LOAD_SECONDS`:
    numba's import; :data:`LOADED_SECONDS` once numba is imported) the NumPy loop. Above it: the
-   model's own loop where the disk cache holds it (:func:`~.cache.ready`); the model-free loop
+   model's own loop where the disk cache holds it (:func:`~.build.on_disk`); the model-free loop
    where the disk holds that and ``W`` also repays compiling the model's functions
    (:data:`FIRST_COMPILE_SECONDS`, :data:`FUNCTION_SECONDS`); at or above the loop's compile time
    (:data:`COMPILE_SECONDS`) a compile, kept on disk: of the model-free loop (then every later
@@ -135,7 +135,7 @@ def choose(flt, B: int, T: int, repeats: int = 1, record: bool = False) -> Choic
     reason = static_refusal(flt)
     if reason is not None:
         return Choice("numpy", f"no compiled loop: {reason}")
-    from . import batch_loop, build, cache
+    from . import batch_loop, build
 
     kind, fns, scalar, dims, key = build.loop_of(flt, B)
     if build.loaded(kind, fns, key, scalar, dims):
@@ -155,8 +155,7 @@ def choose(flt, B: int, T: int, repeats: int = 1, record: bool = False) -> Choic
     spent = store.get(tally, 0.0) + work  # with this run's: what this loop would have saved in the process
     load_s = LOADED_SECONDS if "numba" in sys.modules else LOAD_SECONDS
     if spent >= load_s:  # numba imported only where the compiled loop is taken (its import: ~0.1 s)
-        got = _got(spent, compile_s, load_s, cache.ready(*build.text_of(kind, fns, scalar, dims)) is not None,
-                   shared)
+        got = _got(spent, compile_s, load_s, build.on_disk(kind, fns, scalar, dims), shared)
         if got is not None:
             from .support import available
             return got if available() else Choice("numpy", "numba does not import here")

@@ -116,9 +116,12 @@ def text(kind: str, scalar: bool = False, dims=None) -> tuple:
     from .batch_loop import source as batch_source
     from .build import source
 
+    from .build import tag_of
+
+    tag = tag_of(kind, scalar, dims, template=True)
     if is_batch(dims):
-        return batch_source(source(kind, {}, template=True), dims, None), f"{kind}-batch-template"
-    return source(kind, {}, scalar, dims, template=True), f"{kind}{'-scalar' if scalar else ''}-template"
+        return batch_source(source(kind, {}, template=True), dims, None), tag
+    return source(kind, {}, scalar, dims, template=True), tag
 
 
 def loop(kind: str, scalar: bool = False, dims=None) -> tuple:
@@ -159,14 +162,20 @@ def loaded(kind: str, fns: dict, key, scalar: bool = False, dims=None) -> bool:
 
 def ready(kind: str, fns: dict, key, scalar: bool = False, dims=None) -> tuple:
     """``(loop, functions)``: where the model-free loop and the model's functions are without
-    compiling, each ``"process"``, ``"disk"`` or None (:func:`.cache.ready`). Imports nothing."""
+    compiling, each ``"process"``, ``"disk"`` or None (:func:`.cache.ready`; the loop's text made only
+    where the cache holds an entry of its tag, :func:`.cache.holds_tag`). Imports nothing."""
+    from .build import tag_of
+    from .cache import holds_tag
     from .cache import ready as on_disk
     from .kernels import KERNELS
 
     here = (kind, scalar, dims) in _LOOPS
     done = _name(fns, scalar) in KERNELS.get(key, {})
-    return ("process" if here else on_disk(*text(kind, scalar, dims)),
-            "process" if done else on_disk(function_text(fns, scalar), "functions"))
+    if here:
+        where = "process"
+    else:
+        where = on_disk(*text(kind, scalar, dims)) if holds_tag(tag_of(kind, scalar, dims, template=True)) else None
+    return where, "process" if done else on_disk(function_text(fns, scalar), "functions")
 
 
 def _name(fns, scalar):
