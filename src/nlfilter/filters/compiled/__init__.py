@@ -84,6 +84,7 @@ The package, one concept a module:
                         batch loop's f, h, G reading them from ``p``)
 :mod:`.loops`           one loop template for every rule kind; the scalar EKF's batch loop
 :mod:`.batch_kernels`   the EKF's batch-inner loop: blocks of paths, the paths innermost
+:mod:`.batch_screen`    its divergence test: the block's screen, the one-path test on a lane it does not pass
 :mod:`.batch_loop`      that loop's dispatch, the model's functions over a block, its module text
 :mod:`.build`           the template with a kind's kernels and the model's functions, as one module's text
 :mod:`.template`        the same text without the model: one loop per rule kind and shape for every

@@ -200,7 +200,8 @@ def _shared(flt, B):
     """``(number of the model's functions, loaded(), ready())`` of the model-free loop that would
     run ``flt``: whether it is in this process with the model's functions (:func:`.template.loaded`),
     and where each is without compiling (:func:`.template.ready`: writes the loop's text, 0.1-0.6 s
-    once per process; asked of runs past the cost of loading numba only)."""
+    once per process, where the disk cache holds an entry of its tag at all; asked of runs past the
+    cost of loading numba only)."""
     from . import template
 
     kind, slots, scalar, dims, key = template.of(flt, B)

@@ -114,9 +114,7 @@ def text(kind: str, scalar: bool = False, dims=None) -> tuple:
     once per process (a specialized loop's text takes 0.1-0.6 s to write)."""
     from .batch_loop import is_batch
     from .batch_loop import source as batch_source
-    from .build import source
-
-    from .build import tag_of
+    from .build import source, tag_of
 
     tag = tag_of(kind, scalar, dims, template=True)
     if is_batch(dims):
