@@ -39,6 +39,33 @@ WATCHED = ("numpy", "scipy", "numba", "jax", "jaxlib", "nlfilter", "statsmodels"
 
 _T0 = time.time()
 _LOAD0 = os.getloadavg()
+
+
+def _src_digest():
+    """The SHA-256 of the ``.py`` files of the nlfilter package this process (and its children,
+    with the same environment) imports, found without importing it; None where it is not found."""
+    import hashlib
+    import importlib.util
+
+    spec = importlib.util.find_spec("nlfilter")
+    if spec is None or not spec.submodule_search_locations:
+        return None
+    root = list(spec.submodule_search_locations)[0]
+    digest = hashlib.sha256()
+    for folder, dirs, files in sorted(os.walk(root)):
+        dirs.sort()
+        for name in sorted(files):
+            if name.endswith(".py"):
+                path = os.path.join(folder, name)
+                digest.update(os.path.relpath(path, root).encode())
+                with open(path, "rb") as fh:
+                    digest.update(fh.read())
+    return digest.hexdigest()[:16]
+
+
+#: at import: a run whose imported sources change before it writes (an edit, a checkout, a merge in
+#: the tree it imports: its processes would run different code) is flagged by :func:`environment`
+_SRC0 = _src_digest()
 _LATE = sorted(m for m in WATCHED if m in sys.modules)  # loaded before the pinning: their pools may be wider
 PINNED = os.environ.get("NLFILTER_BENCH_PIN", "1") != "0"
 CORE = None
@@ -253,7 +280,8 @@ def environment() -> dict:
             "load": {"at_start": list(_LOAD0), "at_end": list(os.getloadavg()), "uptime_at_end": uptime,
                      "note": "1/5/15-minute load averages; the machine's cores are shared with other jobs"},
             "wall_seconds": time.time() - _T0, "versions": versions,
-            "nlfilter": {"file": os.path.dirname(nlfilter.__file__), **commit_of(nlfilter.__file__)},
+            "nlfilter": {"file": os.path.dirname(nlfilter.__file__), **commit_of(nlfilter.__file__),
+                         "sources_at_start": _SRC0, "sources_changed_during_run": _src_digest() != _SRC0},
             "benchmarks": commit_of(__file__), "argv": sys.argv}
 
 
@@ -268,6 +296,9 @@ def write(path, label: str, payload: dict, benchmark: str | None = None) -> dict
     if res and "runs" not in res:
         res = {"runs": {"before-issue-28": res}}
     run = {**payload, "environment": environment()}
+    if run["environment"]["nlfilter"]["sources_changed_during_run"]:
+        print(f"warning: nlfilter's sources ({run['environment']['nlfilter']['file']}) changed during the run: its "
+              "processes may have run different code (recorded as sources_changed_during_run)", file=sys.stderr)
     if benchmark:
         res["benchmark"] = benchmark
     res.setdefault("runs", {})[label] = run
