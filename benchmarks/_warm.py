@@ -149,7 +149,10 @@ def _main(job: dict) -> None:
                           included=calls[0]["wall"])
         backend, why = job["backend"], None
     if job["backend"] is None:
-        timing["loop_entry"] = _entry_state(flt, ys.shape[0])
+        try:
+            timing["loop_entry"] = _entry_state(flt, ys.shape[0])
+        except Exception as exc:  # noqa: BLE001 - a filter the compiled loop does not take: no entry to name
+            timing["loop_entry"] = {"error": f"{type(exc).__name__}: {exc}"}
     ru = resource.getrusage(resource.RUSAGE_SELF)
     np.save(pathlib.Path(job["dir"]) / "means.npy", est.means)
     out = {"timing": timing, "calls": calls, "backend": backend, "why": why, "numba_imported_at_start": numba_at_start,
