@@ -115,7 +115,7 @@ def _entry_state(flt, B: int) -> dict:
     holds the loop's source, is sealed and trusted (numba's files those the seal records) and ready."""
     from nlfilter.filters.compiled import build, cache
 
-    kind, fns, scalar, dims, key = build.loop_of(flt, B)
+    kind, fns, scalar, dims, _ = build.loop_of(flt, B)
     text, tag = build.text_of(kind, fns, scalar, dims)
     entry = cache.cache_root() / f"{tag}-{cache._key(text)}"
     src = entry / "module.py"
