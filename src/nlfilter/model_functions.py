@@ -26,6 +26,17 @@ from .model_values import NO_VALUES, Broadcast, Values
 _F8 = np.dtype(float)
 
 
+def _on_floats(fn, x, t, shape):
+    """``fn`` (a scalar-safe kernel, :meth:`Batched._scalar_safe`) of one state ``x`` on its entries as Python
+    floats, ~5x cheaper than arrays of one entry for the same numbers; where Python raises (x/0, 0/0) and NumPy
+    gives inf or NaN, on NumPy scalars. The output as an array of ``shape``."""
+    try:
+        vals = fn(*x.ravel().tolist(), float(t))
+    except ZeroDivisionError:
+        vals = fn(*x.ravel(), np.float64(t))
+    return np.array(vals, dtype=float).reshape(shape)
+
+
 class Kernel:
     """A SymPy array expression compiled once (``lambdify`` with ``cse=True``) into a function of
     the state components, the time and the parameters it uses; shared by every
@@ -136,8 +147,7 @@ class Batched:
         self._scalar = None  # whether one state may be evaluated on NumPy scalars (_scalar_safe)
         self._one = None  # the kernel for one state on Python floats, False where not _scalar_safe (None: unknown)
         self._n, self._shape1 = kernel.n, (1, *kernel.shape)  # (the output of one state (1, n): (1, *shape))
-        self._row, self._flat = (1, kernel.n), len(kernel.shape) == 1  # one state as a run's single trajectory
-        # passes it; whether a vector-valued kernel (its output of one state a list in a list, no reshape)
+        self._row = (1, kernel.n)  # one state as a run's single trajectory passes it
         # the kernel of a state of one component, without parameters (the common call, made without _eval),
         # and whether it reads its time argument (else the time goes as given: no NumPy float to make)
         self._column = kernel.fn if not kernel.const and kernel.n == 1 and not kernel.params else None
@@ -150,11 +160,7 @@ class Batched:
     def __call__(self, x, t=0.0):
         one = self._one
         if one and type(x) is np.ndarray and x.shape == self._row and x.dtype is _F8:  # one state (1, n), its
-            try:  # kernel known scalar-safe: the one-state path below, its checks made in two
-                vals = one(*x.tolist()[0], float(t))
-            except ZeroDivisionError:
-                vals = one(*x.ravel(), np.float64(t))
-            return np.array([vals], dtype=float) if self._flat else np.array(vals, dtype=float).reshape(self._shape1)
+            return _on_floats(one, x, t, self._shape1)  # kernel known scalar-safe: the path below, in two checks
         x = np.asarray(x, dtype=float)
         if self._fixed is not None:
             return self._fixed(x.shape[:-1])
@@ -166,15 +172,8 @@ class Batched:
             one = self._one
             if one is None:
                 one = self._one = self.kernel.fn if self._scalar_safe() else False
-            if one is not False:
-                # one state (a single trajectory): its entries as Python floats, ~5x cheaper than arrays of
-                # one entry for the same numbers (_scalar_safe); where Python raises (x/0, 0/0) and NumPy
-                # gives inf or NaN, as NumPy scalars
-                try:
-                    vals = one(*x.ravel().tolist(), float(t))
-                except ZeroDivisionError:
-                    vals = one(*x.ravel(), np.float64(t))
-                return np.array(vals, dtype=float).reshape(self._shape1 if x.ndim == 2 else x.shape[:-1] + self.shape)
+            if one is not False:  # one state (a single trajectory): on Python floats (_on_floats)
+                return _on_floats(one, x, t, self._shape1 if x.ndim == 2 else x.shape[:-1] + self.shape)
         return self._eval(x, t)
 
     def _scalar_safe(self) -> bool:
