@@ -6,7 +6,7 @@ test (:func:`~.path_linalg.psd_check_`) on a lane the screen does not pass, and 
 out of the block.
 
 Sources, never called as Python: compiled in the batch-inner loop's module (:mod:`.batch_loop`:
-``bchol``, ``psd_check``, ``ns`` are names of that module)."""
+``psd_check``, ``ns`` and these kernels without their trailing underscore are names of that module)."""
 
 from __future__ import annotations
 
@@ -14,7 +14,7 @@ __all__ = ["SOURCES"]
 
 
 def bpd_ok_(A, n, nb, d, f, ok):
-    """``ok[b]`` set to 0.0 where lane ``b`` of the symmetric ``A`` has no Cholesky factor: :func:`bchol_`'s
+    """``ok[b]`` set to 0.0 where lane ``b`` of the symmetric ``A`` has no Cholesky factor: :func:`~.batch_kernels.bchol_`'s
     decision by symmetric elimination without square roots on A's lower triangle (overwritten), as
     :func:`~.path_linalg.pd_ok_` (``d``, ``f``: work vectors)."""
     for j in range(n):

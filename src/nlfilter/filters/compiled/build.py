@@ -370,9 +370,9 @@ def tag_of(kind: str, scalar: bool = False, dims=None, template: bool = False) -
 def on_disk(kind: str, fns: dict, scalar: bool = False, dims=None) -> bool:
     """Whether the disk cache holds the model's own loop (:func:`.cache.ready`), its text made only
     where the cache holds an entry of its tag at all."""
-    from .cache import holds_tag, ready
+    from .cache import ready_by_tag
 
-    return holds_tag(tag_of(kind, scalar, dims)) and ready(*text_of(kind, fns, scalar, dims)) is not None
+    return ready_by_tag(tag_of(kind, scalar, dims), lambda: text_of(kind, fns, scalar, dims)) is not None
 
 
 def loaded(kind: str, fns: dict, key, scalar: bool = False, dims=None) -> bool:

@@ -41,7 +41,7 @@ import tempfile
 import warnings
 from pathlib import Path
 
-__all__ = ["cache_root", "load_source", "seal", "versions", "ready", "holds_tag"]
+__all__ = ["cache_root", "load_source", "seal", "versions", "ready", "holds_tag", "ready_by_tag"]
 
 _MODULES: dict = {}  # key -> module (this process)
 _OFF: dict = {}  # root -> why the disk cache is off there
@@ -226,6 +226,13 @@ def holds_tag(tag: str) -> bool:
         return any(p.parent.name[len(tag) + 1:].isalnum() for p in cache_root().glob(f"{glob.escape(tag)}-*/sealed.json"))
     except OSError:
         return False
+
+
+def ready_by_tag(tag: str, make) -> str | None:
+    """:func:`ready` of the source ``make()`` returns (``(text, tag)``), written only where the cache
+    holds an entry of ``tag`` at all (:func:`holds_tag`); None otherwise. (Not ``"process"`` for a
+    module compiled in memory: the callers ask their process first.)"""
+    return ready(*make()) if holds_tag(tag) else None
 
 
 def seal(entry) -> None:

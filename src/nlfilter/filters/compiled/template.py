@@ -161,18 +161,15 @@ def loaded(kind: str, fns: dict, key, scalar: bool = False, dims=None) -> bool:
 def ready(kind: str, fns: dict, key, scalar: bool = False, dims=None) -> tuple:
     """``(loop, functions)``: where the model-free loop and the model's functions are without
     compiling, each ``"process"``, ``"disk"`` or None (:func:`.cache.ready`; the loop's text made only
-    where the cache holds an entry of its tag, :func:`.cache.holds_tag`). Imports nothing."""
+    where the cache holds an entry of its tag, :func:`.cache.ready_by_tag`). Imports nothing."""
     from .build import tag_of
-    from .cache import holds_tag
     from .cache import ready as on_disk
+    from .cache import ready_by_tag
     from .kernels import KERNELS
 
     here = (kind, scalar, dims) in _LOOPS
     done = _name(fns, scalar) in KERNELS.get(key, {})
-    if here:
-        where = "process"
-    else:
-        where = on_disk(*text(kind, scalar, dims)) if holds_tag(tag_of(kind, scalar, dims, template=True)) else None
+    where = "process" if here else ready_by_tag(tag_of(kind, scalar, dims, template=True), lambda: text(kind, scalar, dims))
     return where, "process" if done else on_disk(function_text(fns, scalar), "functions")
 
 
